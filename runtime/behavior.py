@@ -1,0 +1,196 @@
+"""The base every XML-nameable node builds on: ports, blackboard access and the run context.
+
+Leaves subclass ``Behavior`` (a ``py_trees.behaviour.Behaviour``) and write the usual small
+lifecycle methods: ``initialise`` when a run of the node starts, ``update`` once per tick, and
+``terminate`` when it ends or is halted (``new_status == INVALID``: stop what you started).
+A node reports why it failed in ``feedback_message``; the runner prints it.
+"""
+from __future__ import annotations
+
+import enum
+import logging
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any, ClassVar
+
+import py_trees
+
+from .blackboard import Blackboard
+from .errors import PortError, SourceLocation
+from .ports import ConversionError, Direction, PortInfo, convert, parse_reference
+
+if TYPE_CHECKING:
+    from .bus import Bus
+    from .clock import Clock
+    from .events import EventLog
+
+Status = py_trees.common.Status
+
+
+class NodeKind(enum.Enum):
+    ACTION = "Action"
+    CONDITION = "Condition"
+    CONTROL = "Control"
+    DECORATOR = "Decorator"
+    SUBTREE = "SubTree"
+
+
+@dataclass
+class RunContext:
+    """What every node of one run shares: time, the bus, the world model, the event log.
+
+    ``scene`` is the planning scene (None for trees that never move a robot); ``world`` is the
+    simulated world when the run hosts one (behaviors must not reach into it: it exists for
+    world-level nodes such as ResetSim and for the runner). ``resources`` holds per-run objects
+    that plug-ins share, keyed by name (e.g. the cell's waypoints).
+    """
+
+    clock: Clock
+    bus: Bus
+    events: EventLog
+    scene: Any = None
+    world: Any = None
+    seed: int = 0
+    resources: dict[str, Any] = field(default_factory=dict)
+    logger: logging.Logger = field(default_factory=lambda: logging.getLogger("objective"))
+
+
+@dataclass
+class PortBinding:
+    """The value a port gets in one node instance: a converted literal, or a blackboard key."""
+
+    info: PortInfo
+    literal: Any = None
+    key: str | None = None
+
+
+class NodeMixin:
+    """Ports and blackboard access shared by leaves, controls, decorators and SubTrees."""
+
+    ports: ClassVar[tuple[PortInfo, ...]] = ()
+    description: ClassVar[str] = ""
+    kind: ClassVar[NodeKind] = NodeKind.ACTION
+
+    # Set by ``bind`` (the loader calls it right after construction).
+    bindings: dict[str, PortBinding]
+    blackboard: Blackboard
+    context: RunContext
+    location: SourceLocation | None
+    xml_id: str
+
+    @classmethod
+    def port_info(cls) -> dict[str, PortInfo]:
+        return {p.name: p for p in cls.ports}
+
+    def bind(
+        self,
+        context: RunContext,
+        blackboard: Blackboard,
+        values: dict[str, str] | None = None,
+        location: SourceLocation | None = None,
+        xml_id: str | None = None,
+    ) -> None:
+        """Attach this instance to a run and bind its ports from XML strings.
+
+        Unknown ports, missing required ports and unconvertible literals raise ``PortError``.
+        """
+        self.context = context
+        self.blackboard = blackboard
+        self.location = location
+        self.xml_id = xml_id or type(self).__name__
+        self.bindings = make_bindings(type(self), values or {}, location, self.xml_id)
+
+    # -- reading and writing ports ----------------------------------------------------------
+    def get_input(self, name: str) -> Any:
+        """The port's value now: a literal, or the referenced blackboard entry converted.
+
+        Raises PortError when a referenced entry is missing or does not convert.
+        """
+        binding = self.bindings[name]
+        if binding.key is None:
+            return binding.literal
+        if not self.blackboard.has(binding.key):
+            raise PortError(
+                f"port '{name}' reads blackboard entry '{binding.key}', which is not set",
+                self.location,
+                self.xml_id,
+            )
+        raw = self.blackboard.get(binding.key)
+        try:
+            return convert(raw, binding.info.type)
+        except ConversionError as err:
+            raise PortError(f"port '{name}' (from '{{{binding.key}}}') {err}", self.location, self.xml_id) from None
+
+    def set_output(self, name: str, value: Any) -> None:
+        """Write an output port; does nothing when the XML left the port unconnected."""
+        binding = self.bindings[name]
+        if binding.info.direction is Direction.INPUT:
+            raise PortError(f"port '{name}' is an input port", self.location, self.xml_id)
+        if binding.key is not None:
+            self.blackboard.set(binding.key, value)
+
+    def is_port_set(self, name: str) -> bool:
+        binding = self.bindings[name]
+        return binding.key is not None or binding.literal not in (None, "")
+
+
+def make_bindings(
+    cls: type[NodeMixin],
+    values: dict[str, str],
+    location: SourceLocation | None,
+    xml_id: str,
+) -> dict[str, PortBinding]:
+    """Check XML attribute values against ``cls.ports`` and convert the literals."""
+    infos = cls.port_info()
+    for name in values:
+        if name not in infos:
+            known = ", ".join(sorted(infos)) or "none"
+            raise PortError(f"unknown port '{name}' (ports: {known})", location, xml_id)
+    bindings: dict[str, PortBinding] = {}
+    for name, info in infos.items():
+        if name in values:
+            raw = values[name]
+        elif info.required:
+            raise PortError(f"missing required port '{name}'", location, xml_id)
+        else:
+            raw = info.default if info.direction is not Direction.OUTPUT else None
+        if raw is None:
+            bindings[name] = PortBinding(info)
+            continue
+        try:
+            key = parse_reference(raw, name) if isinstance(raw, str) else None
+        except ValueError as err:
+            raise PortError(f"port '{name}': {err}", location, xml_id) from None
+        if key is not None:
+            bindings[name] = PortBinding(info, key=key)
+            continue
+        if info.direction is Direction.OUTPUT:
+            raise PortError(
+                f"output port '{name}' must name a blackboard entry like '{{{name}}}', got {raw!r}",
+                location,
+                xml_id,
+            )
+        try:
+            bindings[name] = PortBinding(info, literal=convert(raw, info.type))
+        except ConversionError as err:
+            raise PortError(f"port '{name}' {err}", location, xml_id) from None
+    return bindings
+
+
+class Behavior(NodeMixin, py_trees.behaviour.Behaviour):
+    """A leaf the XML can name: an Action (does something) or a Condition (checks something)."""
+
+    kind: ClassVar[NodeKind] = NodeKind.ACTION
+
+    def __init__(self, name: str) -> None:
+        super().__init__(name=name)
+
+    def fail(self, reason: str) -> Status:
+        """Record why this node fails and return FAILURE (``return self.fail("...")``)."""
+        self.feedback_message = reason
+        return Status.FAILURE
+
+
+class Condition(Behavior):
+    """A leaf that answers in the tick it runs and never returns RUNNING."""
+
+    kind: ClassVar[NodeKind] = NodeKind.CONDITION

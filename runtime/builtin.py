@@ -1,0 +1,12 @@
+"""Registers the runtime's own nodes (controls, decorators, utilities) into a registry."""
+from __future__ import annotations
+
+from .registry import Registry
+
+
+def register(registry: Registry) -> None:
+    from . import controls, decorators, utility
+
+    registry.register_all(controls.NODES)
+    registry.register_all(decorators.NODES)
+    registry.register_all(utility.NODES)

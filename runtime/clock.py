@@ -1,0 +1,58 @@
+"""Time for behaviors: every behavior reads the runtime clock, never ``time.time()``.
+
+Two clocks share one tiny interface. ``SimClock`` is advanced explicitly by the runner, so a
+headless run goes as fast as the CPU allows and is deterministic. ``WallClock`` follows real time
+(for a policy on real ROS 2 or a real robot); the runner sleeps to keep the tick rate.
+"""
+from __future__ import annotations
+
+import time
+from typing import Protocol
+
+
+class Clock(Protocol):
+    """Seconds since the run started."""
+
+    def now(self) -> float: ...
+
+    def advance(self, dt: float) -> None:
+        """Move time forward by ``dt`` (a SimClock jumps, a WallClock sleeps until then)."""
+        ...
+
+
+class SimClock:
+    """Simulated time: only moves when the runner advances it."""
+
+    def __init__(self, start: float = 0.0) -> None:
+        self._now = float(start)
+
+    def now(self) -> float:
+        return self._now
+
+    def advance(self, dt: float) -> None:
+        if dt < 0:
+            raise ValueError(f"SimClock cannot go backwards (dt={dt})")
+        self._now += dt
+
+    def __repr__(self) -> str:
+        return f"SimClock(now={self._now:.6f})"
+
+
+class WallClock:
+    """Real time since construction; ``advance`` sleeps until the target instant."""
+
+    def __init__(self) -> None:
+        self._start = time.monotonic()
+        self._target = 0.0
+
+    def now(self) -> float:
+        return time.monotonic() - self._start
+
+    def advance(self, dt: float) -> None:
+        self._target = max(self._target + dt, self.now() - dt)  # never accumulate a backlog
+        delay = self._target - self.now()
+        if delay > 0:
+            time.sleep(delay)
+
+    def __repr__(self) -> str:
+        return f"WallClock(now={self.now():.6f})"

@@ -1,0 +1,197 @@
+"""Port declarations and the conversion of XML strings into typed values.
+
+Every node class declares its ports as a tuple of ``PortInfo`` (name, type, default,
+description, direction). In XML every value is a string; ``convert`` turns it into the declared
+type, and a ``{key}`` (or ``{=}``, meaning the key named like the port) makes it a blackboard
+reference resolved at tick time. Conversion of literals happens at load time, so a bad literal
+is a load-time error that names the file, line, node and port.
+"""
+from __future__ import annotations
+
+import enum
+import math
+import re
+from dataclasses import dataclass
+from typing import Any
+
+
+class Direction(enum.Enum):
+    INPUT = "input_port"
+    OUTPUT = "output_port"
+    INOUT = "inout_port"
+
+
+class _Required:
+    def __repr__(self) -> str:
+        return "REQUIRED"
+
+
+REQUIRED: Any = _Required()
+"""Default of a port that must be set in the XML."""
+
+
+# Port types, named as they appear in `objective behaviors` and in TreeNodesModel XML.
+class PortType(enum.Enum):
+    STRING = "string"
+    FLOAT = "double"
+    INT = "int"
+    UINT = "unsigned int"
+    BOOL = "bool"
+    FLOAT_LIST = "std::vector<double>"
+    INT_LIST = "std::vector<int>"
+    STRING_LIST = "std::vector<std::string>"
+    ANY = "AnyTypeAllowed"
+
+
+@dataclass(frozen=True)
+class PortInfo:
+    name: str
+    type: PortType = PortType.STRING
+    default: Any = REQUIRED
+    description: str = ""
+    direction: Direction = Direction.INPUT
+
+    @property
+    def required(self) -> bool:
+        return self.default is REQUIRED and self.direction is not Direction.OUTPUT
+
+    def describe_default(self) -> str:
+        return "" if self.default is REQUIRED else to_xml_string(self.default)
+
+
+def InputPort(name: str, type: PortType = PortType.STRING, default: Any = REQUIRED, description: str = "") -> PortInfo:
+    return PortInfo(name, type, default, description, Direction.INPUT)
+
+
+def OutputPort(name: str, type: PortType = PortType.ANY, description: str = "") -> PortInfo:
+    return PortInfo(name, type, REQUIRED, description, Direction.OUTPUT)
+
+
+def InOutPort(name: str, type: PortType = PortType.ANY, default: Any = REQUIRED, description: str = "") -> PortInfo:
+    return PortInfo(name, type, default, description, Direction.INOUT)
+
+
+_REFERENCE = re.compile(r"^\{\s*([@A-Za-z_=][\w.@/:-]*)?\s*\}$")
+
+
+def parse_reference(text: str, port_name: str) -> str | None:
+    """The blackboard key of ``{key}`` / ``{=}``, or None for a literal."""
+    m = _REFERENCE.match(text.strip()) if isinstance(text, str) else None
+    if not m:
+        return None
+    key = m.group(1)
+    if key is None:
+        raise ValueError("empty blackboard reference '{}'")
+    return port_name if key == "=" else key
+
+
+_EXPECTS = {
+    PortType.FLOAT: "a number",
+    PortType.INT: "an integer",
+    PortType.UINT: "a non-negative integer",
+    PortType.BOOL: "true or false",
+    PortType.FLOAT_LIST: "a ';'-separated list of numbers",
+    PortType.INT_LIST: "a ';'-separated list of integers",
+    PortType.STRING_LIST: "a ';'-separated list of strings",
+}
+
+
+class ConversionError(ValueError):
+    """A value does not fit its port type; the message says what was expected and what came."""
+
+
+def _float(text: str) -> float:
+    value = float(text)
+    return value
+
+
+def _int(text: str) -> int:
+    text = text.strip()
+    try:
+        return int(text, 0) if text.lower().startswith(("0x", "-0x")) else int(text)
+    except ValueError:
+        value = float(text)  # "3.0" is accepted as 3, "3.5" is not
+        if not value.is_integer():
+            raise
+        return int(value)
+
+
+def _bool(text: str) -> bool:
+    lowered = text.strip().lower()
+    if lowered in ("true", "1"):
+        return True
+    if lowered in ("false", "0"):
+        return False
+    raise ValueError(text)
+
+
+def _split(text: str) -> list[str]:
+    text = text.strip()
+    if not text:
+        return []
+    return [part.strip() for part in text.split(";")]
+
+
+def convert(value: Any, port_type: PortType) -> Any:
+    """Convert a string (or an already typed blackboard value) to ``port_type``.
+
+    Raises ConversionError("expects a number, got 'fast'") when it does not fit.
+    """
+    try:
+        if port_type in (PortType.ANY,):
+            return value
+        if port_type is PortType.STRING:
+            return value if isinstance(value, str) else to_xml_string(value)
+        if isinstance(value, str):
+            if port_type is PortType.FLOAT:
+                return _float(value)
+            if port_type is PortType.INT:
+                return _int(value)
+            if port_type is PortType.UINT:
+                result = _int(value)
+                if result < 0:
+                    raise ValueError(value)
+                return result
+            if port_type is PortType.BOOL:
+                return _bool(value)
+            if port_type is PortType.FLOAT_LIST:
+                return [_float(p) for p in _split(value)]
+            if port_type is PortType.INT_LIST:
+                return [_int(p) for p in _split(value)]
+            if port_type is PortType.STRING_LIST:
+                return _split(value)
+        # A typed value from the blackboard: accept what fits, coerce numbers sensibly.
+        if port_type is PortType.FLOAT and isinstance(value, (int, float)) and not isinstance(value, bool):
+            return float(value)
+        if port_type in (PortType.INT, PortType.UINT) and isinstance(value, int) and not isinstance(value, bool):
+            if port_type is PortType.UINT and value < 0:
+                raise ValueError(value)
+            return value
+        if port_type in (PortType.INT, PortType.UINT) and isinstance(value, float) and value.is_integer():
+            return convert(int(value), port_type)
+        if port_type is PortType.BOOL and isinstance(value, bool):
+            return value
+        if port_type is PortType.FLOAT_LIST and isinstance(value, (list, tuple)):
+            return [float(v) for v in value]
+        if port_type is PortType.INT_LIST and isinstance(value, (list, tuple)):
+            return [int(v) for v in value]
+        if port_type is PortType.STRING_LIST and isinstance(value, (list, tuple)):
+            return [str(v) for v in value]
+        if hasattr(value, "tolist") and port_type in (PortType.FLOAT_LIST, PortType.INT_LIST):
+            return convert(value.tolist(), port_type)
+    except (ValueError, TypeError, OverflowError):
+        pass
+    raise ConversionError(f"expects {_EXPECTS.get(port_type, port_type.value)}, got {value!r}")
+
+
+def to_xml_string(value: Any) -> str:
+    """The XML spelling of a typed value (inverse of ``convert`` for literals)."""
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, float):
+        if math.isfinite(value) and value.is_integer():
+            return repr(value)
+        return repr(value)
+    if isinstance(value, (list, tuple)):
+        return ";".join(to_xml_string(v) for v in value)
+    return str(value)

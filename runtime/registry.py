@@ -1,0 +1,64 @@
+"""Which XML IDs name which node classes.
+
+The runtime registers its own nodes (controls, decorators, utilities) through the same
+entry-point group a user's package uses: ``objective.behaviors``. Each entry point names a
+callable ``register(registry)``.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from importlib.metadata import entry_points
+from typing import Callable, Iterable
+
+from .behavior import NodeKind, NodeMixin
+
+BEHAVIOR_GROUP = "objective.behaviors"
+WORLD_GROUP = "objective.worlds"
+
+
+@dataclass(frozen=True)
+class NodeSpec:
+    id: str
+    cls: type[NodeMixin]
+
+    @property
+    def kind(self) -> NodeKind:
+        return self.cls.kind
+
+
+class Registry:
+    def __init__(self) -> None:
+        self._specs: dict[str, NodeSpec] = {}
+
+    def register(self, cls: type[NodeMixin], id: str | None = None) -> type[NodeMixin]:
+        node_id = id or cls.__name__
+        existing = self._specs.get(node_id)
+        if existing is not None and existing.cls is not cls:
+            raise ValueError(
+                f"node ID '{node_id}' is registered twice: {existing.cls.__module__}.{existing.cls.__qualname__} "
+                f"and {cls.__module__}.{cls.__qualname__}"
+            )
+        self._specs[node_id] = NodeSpec(node_id, cls)
+        return cls
+
+    def register_all(self, classes: Iterable[type[NodeMixin]]) -> None:
+        for cls in classes:
+            self.register(cls)
+
+    def get(self, node_id: str) -> NodeSpec | None:
+        return self._specs.get(node_id)
+
+    def __contains__(self, node_id: str) -> bool:
+        return node_id in self._specs
+
+    def specs(self) -> list[NodeSpec]:
+        return [self._specs[k] for k in sorted(self._specs)]
+
+    @classmethod
+    def from_entry_points(cls, group: str = BEHAVIOR_GROUP) -> Registry:
+        """A registry holding every node that installed packages declare."""
+        registry = cls()
+        for ep in sorted(entry_points(group=group), key=lambda e: e.name):
+            register: Callable[[Registry], None] = ep.load()
+            register(registry)
+        return registry
