@@ -69,6 +69,8 @@ class NodeMixin:
     ports: ClassVar[tuple[PortInfo, ...]] = ()
     description: ClassVar[str] = ""
     kind: ClassVar[NodeKind] = NodeKind.ACTION
+    needs_world: ClassVar[bool] = False
+    """True for nodes that talk to a robot or a simulated cell: the runner starts a world for them."""
 
     # Set by ``bind`` (the loader calls it right after construction).
     bindings: dict[str, PortBinding]
