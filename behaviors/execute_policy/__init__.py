@@ -1,0 +1,1 @@
+"""ExecutePolicy: stream a policy's action chunks as one continuous, checked motion."""

@@ -1,0 +1,105 @@
+"""Reading a GetActionChunk response into arrays, with the contract's rules. Pure.
+
+Without a gripper, each point's positions go to the joint group's joints in list order, so the
+chunk's ``joint_names`` must be exactly the group's joints in that order. With a gripper, values
+are matched by name: the names must be the group's joints plus exactly the configured gripper
+joint, in any order. Every value must be finite and every point must have one value per name.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, Sequence
+
+import numpy as np
+
+
+class ChunkError(ValueError):
+    """The chunk breaks the contract; the message says how."""
+
+
+@dataclass(frozen=True)
+class Chunk:
+    """A chunk's arm positions (N, J) in joint-group order and the gripper column (N,) if any."""
+
+    arm: np.ndarray
+    gripper: np.ndarray | None
+
+    @property
+    def steps(self) -> int:
+        return len(self.arm)
+
+
+def read_chunk(
+    trajectory: Any,
+    group_joints: Sequence[str],
+    gripper_joint: str | None,
+) -> Chunk:
+    """Validate a ``trajectory_msgs/JointTrajectory`` chunk and return it as arrays."""
+    names = list(trajectory.joint_names)
+    points = list(trajectory.points)
+    if not points:
+        raise ChunkError("chunk has no points")
+    group = list(group_joints)
+    if gripper_joint is None:
+        if names != group:
+            raise ChunkError(
+                f"joint names do not match the joint group: got [{', '.join(names)}], "
+                f"expected [{', '.join(group)}] in this order (without a gripper, positions go to the group's joints in list order)"
+            )
+        order = list(range(len(group)))
+        gripper_index = None
+    else:
+        missing = [j for j in group if j not in names]
+        if missing:
+            raise ChunkError(f"joint names do not match the joint group: missing [{', '.join(missing)}] in [{', '.join(names)}]")
+        extra = [n for n in names if n not in group]
+        if len(names) != len(set(names)):
+            raise ChunkError(f"chunk names a joint twice: [{', '.join(names)}]")
+        if extra != [gripper_joint]:
+            if len(extra) == 1:
+                raise ChunkError(
+                    f"chunk names two gripper joints: the configured gripper joint is '{gripper_joint}', "
+                    f"the chunk's extra joint is '{extra[0]}'"
+                )
+            raise ChunkError(
+                f"chunk must carry the group's joints plus exactly the gripper joint '{gripper_joint}', "
+                f"got extra joints [{', '.join(extra)}]"
+            )
+        order = [names.index(j) for j in group]
+        gripper_index = names.index(gripper_joint)
+    width = len(names)
+    rows = []
+    for step, point in enumerate(points):
+        values = list(point.positions)
+        if len(values) != width:
+            raise ChunkError(f"step {step} has {len(values)} positions for {width} joint names")
+        rows.append(values)
+    data = np.asarray(rows, dtype=float)
+    bad = ~np.isfinite(data)
+    if bad.any():
+        step, column = (int(i) for i in np.argwhere(bad)[0])
+        raise ChunkError(f"step {step} joint '{names[column]}' is not finite ({data[step, column]})")
+    arm = data[:, order]
+    gripper = data[:, gripper_index] if gripper_index is not None else None
+    return Chunk(arm, gripper)
+
+
+def read_policy_chunk(array: Any) -> np.ndarray | None:
+    """A ``std_msgs/Float64MultiArray`` as (steps, dims), or None when empty.
+
+    The layout must put the step dimension first with ``data_offset`` 0; anything else is
+    treated as empty, as the contract says.
+    """
+    data = np.asarray(array.data, dtype=float)
+    if data.size == 0 or array.layout.data_offset != 0:
+        return None
+    dims = list(array.layout.dim)
+    if len(dims) >= 2:
+        steps, width = int(dims[0].size), int(dims[1].size)
+    elif len(dims) == 1:
+        steps, width = int(dims[0].size), data.size // max(1, int(dims[0].size))
+    else:
+        return None
+    if steps * width != data.size or steps == 0:
+        return None
+    return data.reshape(steps, width)

@@ -1,0 +1,130 @@
+"""From a policy chunk to a smooth, densified motion that joins the committed one at the seam.
+
+Pure functions, no state. A chunk is a list of joint positions, one per policy step of ``dt``
+seconds, whose step 0 is the request instant. ``fit_chunk`` smooths it with a cubic smoothing
+spline (fixed smoothing, weighted by ``policy_tracking_weight``; no per-chunk cross-validation,
+which costs ~90 ms). ``ChunkMotion`` is that spline from the seam on, plus a blend offset that
+starts at the difference between the committed motion and the spline at the seam (position and
+velocity) and decays to zero with zero slope and curvature at both ends, so the motion is C1 at
+every seam. ``densify`` samples a motion at ``num_interpolation_points`` instants: those samples
+are what the safety checks see and what the controller receives.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.interpolate import BSpline, make_interp_spline, make_smoothing_spline
+
+
+@dataclass(frozen=True)
+class Samples:
+    """A densified motion: ``times`` (M,), and (M, J) positions, velocities, accelerations."""
+
+    times: np.ndarray
+    positions: np.ndarray
+    velocities: np.ndarray
+    accelerations: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.times)
+
+
+def fit_chunk(positions: np.ndarray, tracking_weight: float) -> BSpline:
+    """Smoothing spline through a (N, J) chunk, parameterised by step index.
+
+    The spline minimises ``w * sum((y_k - f(k))^2) + integral(f''(k)^2)`` with
+    ``w = tracking_weight``; counting time in steps makes the weight mean the same at any dt.
+    Chunks too short for a smoothing spline (fewer than 5 steps) are interpolated exactly.
+    """
+    positions = np.asarray(positions, dtype=float)
+    steps = np.arange(len(positions), dtype=float)
+    if len(positions) >= 5:
+        return make_smoothing_spline(steps, positions, lam=1.0 / tracking_weight, axis=0)
+    degree = min(3, len(positions) - 1)
+    if degree == 0:
+        positions = np.vstack([positions, positions])
+        steps = np.array([0.0, 1.0])
+        degree = 1
+    return make_interp_spline(steps, positions, k=degree, axis=0)
+
+
+# Quintic Hermite basis on [0, 1]: value 1 (resp. slope 1) at 0, and zero value, slope and
+# curvature at 1, with zero curvature at 0: the blend adds no acceleration step of its own.
+def _h_position(tau: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    t2, t3 = tau * tau, tau * tau * tau
+    value = 1 - 10 * t3 + 15 * t3 * tau - 6 * t3 * t2
+    slope = -30 * t2 + 60 * t3 - 30 * t3 * tau
+    curve = -60 * tau + 180 * t2 - 120 * t3
+    return value, slope, curve
+
+
+def _h_velocity(tau: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    t2, t3 = tau * tau, tau * tau * tau
+    value = tau - 6 * t3 + 8 * t3 * tau - 3 * t3 * t2
+    slope = 1 - 18 * t2 + 32 * t3 - 15 * t3 * tau
+    curve = -36 * tau + 96 * t2 - 60 * t3
+    return value, slope, curve
+
+
+@dataclass(frozen=True)
+class ChunkMotion:
+    """One chunk's motion on the clock: the smoothed chunk plus the seam blend.
+
+    ``chunk_start`` is the clock time of the chunk's step 0 (the request instant); the motion
+    is defined on ``[seam, end]``.
+    """
+
+    spline: BSpline
+    dt: float
+    chunk_start: float
+    seam: float
+    end: float
+    offset_position: np.ndarray
+    offset_velocity: np.ndarray
+    blend_duration: float
+
+    def evaluate(self, times: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Positions, velocities and accelerations (each (M, J)) at clock ``times``."""
+        times = np.atleast_1d(np.asarray(times, dtype=float))
+        k = (times - self.chunk_start) / self.dt
+        p = self.spline(k)
+        v = self.spline(k, nu=1) / self.dt
+        a = self.spline(k, nu=2) / (self.dt * self.dt)
+        T = self.blend_duration
+        tau = np.clip((times - self.seam) / T, 0.0, 1.0)[:, None]
+        inside = ((times >= self.seam) & (times <= self.seam + T))[:, None]
+        hp, hp1, hp2 = _h_position(tau)
+        hv, hv1, hv2 = _h_velocity(tau)
+        dp, dv = self.offset_position[None, :], self.offset_velocity[None, :]
+        p = p + dp * hp + dv * T * hv
+        v = v + np.where(inside, dp * hp1 / T + dv * hv1, 0.0)
+        a = a + np.where(inside, dp * hp2 / (T * T) + dv * hv2 / T, 0.0)
+        return p, v, a
+
+
+def join_at_seam(
+    spline: BSpline,
+    dt: float,
+    chunk_start: float,
+    seam: float,
+    end: float,
+    committed_position: np.ndarray,
+    committed_velocity: np.ndarray,
+    blend_duration: float,
+) -> ChunkMotion:
+    """The chunk's motion from ``seam`` to ``end``, continuous in position and velocity with
+    the committed motion's state (``committed_position``, ``committed_velocity``) at the seam."""
+    if not end > seam:
+        raise ValueError(f"empty window: seam t={seam:.3f} s, end t={end:.3f} s")
+    k = (seam - chunk_start) / dt
+    offset_p = np.asarray(committed_position, dtype=float) - spline(k)
+    offset_v = np.asarray(committed_velocity, dtype=float) - spline(k, nu=1) / dt
+    return ChunkMotion(spline, dt, chunk_start, seam, end, offset_p, offset_v, max(blend_duration, 1e-6))
+
+
+def densify(motion: ChunkMotion, num_points: int) -> Samples:
+    """``num_points`` evenly spaced samples from the seam to the end of the window (inclusive)."""
+    times = np.linspace(motion.seam, motion.end, max(2, num_points))
+    p, v, a = motion.evaluate(times)
+    return Samples(times, p, v, a)

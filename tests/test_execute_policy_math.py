@@ -1,0 +1,114 @@
+"""The pure pieces of ExecutePolicy: shaping, seam blending, limit checks, chunk reading."""
+import numpy as np
+import pytest
+from std_msgs.msg import Float64MultiArray, MultiArrayDimension
+from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
+
+from behaviors.execute_policy.chunk import ChunkError, read_chunk, read_policy_chunk
+from behaviors.execute_policy.limits import JointLimitTable, first_limit_violation
+from behaviors.execute_policy.shaping import densify, fit_chunk, join_at_seam
+from behaviors.execute_policy.timing import LatencyEstimate, frozen_prefix_steps, window_covers_latency
+
+GROUP = ["j1", "j2"]
+
+
+def _chunk(names, rows):
+    return JointTrajectory(joint_names=names, points=[JointTrajectoryPoint(positions=list(r)) for r in rows])
+
+
+def test_smoothing_spline_tracks_a_smooth_chunk_closely():
+    k = np.arange(50)
+    chunk = np.stack([0.5 * np.sin(k * 0.1), 0.2 * np.cos(k * 0.07)], axis=1)
+    spline = fit_chunk(chunk, tracking_weight=300.0)
+    assert np.max(np.abs(spline(k) - chunk)) < 2e-3
+
+
+def test_lower_tracking_weight_smooths_more():
+    rng = np.random.default_rng(0)
+    chunk = np.cumsum(rng.normal(0, 0.02, size=(50, 2)), axis=0)
+    k = np.arange(50)
+    rough = np.abs(np.diff(fit_chunk(chunk, 3000.0)(k), 2, axis=0)).mean()
+    smooth = np.abs(np.diff(fit_chunk(chunk, 3.0)(k), 2, axis=0)).mean()
+    assert smooth < rough / 2
+
+
+def test_seam_is_continuous_in_position_and_velocity():
+    dt = 0.1
+    first = fit_chunk(np.linspace([0.0, 0.0], [1.0, -1.0], 30), 300.0)
+    m1 = join_at_seam(first, dt, 0.0, 0.0, 2.0, np.zeros(2), np.zeros(2), 0.5)
+    second = fit_chunk(np.linspace([0.9, -0.7], [2.0, -2.0], 30), 300.0)
+    seam = 1.5
+    p_old, v_old, _ = m1.evaluate(np.array([seam]))
+    m2 = join_at_seam(second, dt, 1.2, seam, 3.0, p_old[0], v_old[0], 0.5)
+    p_new, v_new, _ = m2.evaluate(np.array([seam]))
+    assert np.allclose(p_new, p_old, atol=1e-12)
+    assert np.allclose(v_new, v_old, atol=1e-9)
+    # After the blend the motion is the chunk's own spline.
+    t = np.array([2.5])
+    assert np.allclose(m2.evaluate(t)[0], second((t - 1.2) / dt), atol=1e-12)
+
+
+def test_densify_spans_the_window_and_velocity_matches_finite_differences():
+    spline = fit_chunk(np.linspace([0.0, 0.0], [1.0, 0.5], 20), 300.0)
+    motion = join_at_seam(spline, 0.1, 0.0, 0.3, 1.5, spline(3.0), spline(3.0, nu=1) / 0.1, 0.4)
+    s = densify(motion, 200)
+    assert len(s) == 200 and s.times[0] == pytest.approx(0.3) and s.times[-1] == pytest.approx(1.5)
+    fd = np.gradient(s.positions, s.times, axis=0)
+    assert np.max(np.abs(fd[1:-1] - s.velocities[1:-1])) < 1e-3
+
+
+def test_limit_violation_names_the_first_sample_joint_value_and_limit():
+    limits = JointLimitTable(("j1", "j2"), np.array([-1.0, -1.0]), np.array([1.0, 1.0]), np.array([2.0, 2.0]), np.array([10.0, 10.0]))
+    spline = fit_chunk(np.linspace([0.0, 0.0], [0.0, 0.9], 10), 1e6)  # j2: 1 rad/s at dt=0.1
+    samples = densify(join_at_seam(spline, 0.1, 0.0, 0.0, 0.9, np.zeros(2), spline(0.0, nu=1) / 0.1, 0.1), 50)
+    assert first_limit_violation(samples, limits) is None
+    fast = JointLimitTable(limits.names, limits.lower, limits.upper, np.array([2.0, 0.5]), limits.max_acceleration)
+    v = first_limit_violation(samples, fast)
+    assert v is not None and v.quantity == "velocity" and v.joint == "j2" and v.limit == 0.5
+    assert "joint 'j2' velocity" in v.describe() and "exceeds the limit 0.5000 rad/s" in v.describe()
+
+
+def test_read_chunk_without_gripper_requires_group_order():
+    c = read_chunk(_chunk(GROUP, [[0.1, 0.2], [0.3, 0.4]]), GROUP, None)
+    assert c.arm.tolist() == [[0.1, 0.2], [0.3, 0.4]] and c.gripper is None
+    with pytest.raises(ChunkError, match="joint names do not match the joint group"):
+        read_chunk(_chunk(["j2", "j1"], [[0.1, 0.2]]), GROUP, None)
+
+
+def test_read_chunk_with_gripper_matches_by_name():
+    c = read_chunk(_chunk(["g", "j2", "j1"], [[0.5, 0.2, 0.1]]), GROUP, "g")
+    assert c.arm.tolist() == [[0.1, 0.2]] and c.gripper.tolist() == [0.5]
+    with pytest.raises(ChunkError, match="two gripper joints.*'g'.*'finger'"):
+        read_chunk(_chunk(["j1", "j2", "finger"], [[0.1, 0.2, 0.3]]), GROUP, "g")
+
+
+@pytest.mark.parametrize(
+    "rows, message",
+    [
+        ([[0.1, float("nan")]], "step 0 joint 'j2' is not finite"),
+        ([[0.1, 0.2], [0.1]], "step 1 has 1 positions for 2 joint names"),
+        ([], "chunk has no points"),
+    ],
+)
+def test_read_chunk_rejects_malformed_chunks(rows, message):
+    with pytest.raises(ChunkError, match=message):
+        read_chunk(_chunk(GROUP, rows), GROUP, None)
+
+
+def test_policy_chunk_layout_step_first_offset_zero():
+    arr = Float64MultiArray(data=[float(i) for i in range(6)])
+    arr.layout.dim = [MultiArrayDimension(label="step", size=3, stride=6), MultiArrayDimension(label="action", size=2, stride=2)]
+    assert read_policy_chunk(arr).tolist() == [[0, 1], [2, 3], [4, 5]]
+    arr.layout.data_offset = 1
+    assert read_policy_chunk(arr) is None
+    assert read_policy_chunk(Float64MultiArray()) is None
+
+
+def test_timing_rules():
+    est = LatencyEstimate()
+    est.update(0.3)
+    est.update(0.1)
+    assert est.seconds == 0.3
+    assert frozen_prefix_steps(0.3, 0.1, 0.02) == 4
+    assert frozen_prefix_steps(0.0, 0.1, 0.0) == 1
+    assert window_covers_latency(20, 0.1, 0.95) and not window_covers_latency(20, 0.1, 0.96)
