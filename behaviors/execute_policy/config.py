@@ -1,0 +1,103 @@
+"""ExecutePolicy's ports (the guide's table, with its defaults) and their validation."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from runtime.ports import InputPort, OutputPort, PortType
+
+DEFAULT_CONTROLLER_ACTION = "/joint_trajectory_admittance_controller/follow_joint_trajectory"
+
+PORTS = (
+    InputPort("policy_service_name", PortType.STRING, description="GetActionChunk service that serves the policy."),
+    InputPort("joint_group_name", PortType.STRING, description="SRDF joint group the policy commands; must resolve to one tip."),
+    InputPort("total_action_steps", PortType.UINT, description="Run length in policy steps; the motion lasts total_action_steps * dt seconds."),
+    InputPort("prompt", PortType.STRING, "", "Task instruction passed to the policy."),
+    InputPort("dt", PortType.FLOAT, 0.05, "Seconds per policy step: 1 / the rate the policy was trained at."),
+    InputPort("committed_action_steps", PortType.UINT, 32, "Steps executed from each chunk before the next takes over; (committed - 1) * dt should cover twice the latency."),
+    InputPort("num_interpolation_points", PortType.UINT, 100, "Densified points per chunk: the sampling density of the limit and collision checks."),
+    InputPort("link_padding", PortType.FLOAT, 0.01, "Meters of padding around the robot for the world collision check (self-collision is unpadded)."),
+    InputPort("policy_tracking_weight", PortType.FLOAT, 300.0, "How closely the smoothing spline follows the chunk: lower if the motion oscillates, higher if it lags."),
+    InputPort("policy_uses_real_time_chunking", PortType.BOOL, False, "Send the unexecuted tail of the previous policy_action_chunk for RTC guidance."),
+    InputPort("policy_call_timeout", PortType.FLOAT, 3.0, "Seconds allowed for one service round trip, warmup included."),
+    InputPort("goal_path_tolerance", PortType.FLOAT, 0.01, "Radians of deviation the controller accepts along the path and where chunks join."),
+    InputPort("absolute_force_torque_threshold", PortType.FLOAT_LIST, "45;45;45;10;10;10", "Per-axis abort limits Fx;Fy;Fz;Tx;Ty;Tz (N, Nm)."),
+    InputPort("controller_action_name", PortType.STRING, DEFAULT_CONTROLLER_ACTION, "The admittance controller's FollowJointTrajectoryWithAdmittance action."),
+    InputPort("gripper_command_action_name", PortType.STRING, "", "GripperCommand action; set together with gripper_joint_name."),
+    InputPort("gripper_joint_name", PortType.STRING, "", "Single-DOF gripper joint appended to the observation and streamed from the chunk."),
+    InputPort("guidance_horizon", PortType.UINT, 0, "RTC: steps past the frozen prefix kept close to the previous chunk; 0 = the server's setting."),
+    InputPort("image_topics", PortType.STRING_LIST, "", "Camera topics (sensor_msgs/Image), ';'-separated."),
+    InputPort("image_names", PortType.STRING_LIST, "", "Names the policy knows the cameras by, index-aligned with image_topics."),
+    InputPort("joint_states_topic", PortType.STRING, "/joint_states", "sensor_msgs/JointState topic (reliable QoS)."),
+    OutputPort("steps_executed", PortType.UINT, "Policy steps executed."),
+    OutputPort("chunks_received", PortType.UINT, "Chunks received with CHUNK_PRODUCED (the warmup's excluded)."),
+    OutputPort("rejection_reason", PortType.STRING, "Why a chunk was rejected (empty when none was)."),
+    OutputPort("status_message", PortType.STRING, "The run's final message."),
+)
+
+
+class ConfigError(ValueError):
+    pass
+
+
+@dataclass(frozen=True)
+class PolicyRunConfig:
+    policy_service_name: str
+    joint_group_name: str
+    total_action_steps: int
+    prompt: str
+    dt: float
+    committed_action_steps: int
+    num_interpolation_points: int
+    link_padding: float
+    policy_tracking_weight: float
+    policy_uses_real_time_chunking: bool
+    policy_call_timeout: float
+    goal_path_tolerance: float
+    absolute_force_torque_threshold: tuple[float, ...]
+    controller_action_name: str
+    gripper_command_action_name: str
+    gripper_joint_name: str
+    guidance_horizon: int
+    image_topics: tuple[str, ...]
+    image_names: tuple[str, ...]
+    joint_states_topic: str
+
+    @property
+    def has_gripper(self) -> bool:
+        return bool(self.gripper_joint_name)
+
+
+def validate(config: PolicyRunConfig) -> None:
+    """Raise ConfigError naming the port(s) when the combination cannot run."""
+    if bool(config.gripper_command_action_name) != bool(config.gripper_joint_name):
+        given, missing = (
+            ("gripper_joint_name", "gripper_command_action_name")
+            if config.gripper_joint_name
+            else ("gripper_command_action_name", "gripper_joint_name")
+        )
+        raise ConfigError(f"gripper_command_action_name and gripper_joint_name must be set together: {given} is set but {missing} is empty")
+    if len(config.image_topics) != len(config.image_names):
+        raise ConfigError(
+            f"image_topics has {len(config.image_topics)} entries and image_names has {len(config.image_names)}; they must be index-aligned"
+        )
+    if len(set(config.image_names)) != len(config.image_names):
+        raise ConfigError(f"image_names repeats a name: {';'.join(config.image_names)}")
+    positive = {
+        "dt": config.dt,
+        "total_action_steps": config.total_action_steps,
+        "committed_action_steps": config.committed_action_steps,
+        "policy_tracking_weight": config.policy_tracking_weight,
+        "policy_call_timeout": config.policy_call_timeout,
+    }
+    for name, value in positive.items():
+        if not value > 0:
+            raise ConfigError(f"{name} must be greater than 0, got {value}")
+    if config.num_interpolation_points < 2:
+        raise ConfigError(f"num_interpolation_points must be at least 2, got {config.num_interpolation_points}")
+    if config.link_padding < 0 or config.goal_path_tolerance < 0:
+        raise ConfigError("link_padding and goal_path_tolerance must not be negative")
+    if len(config.absolute_force_torque_threshold) != 6 or any(v <= 0 for v in config.absolute_force_torque_threshold):
+        raise ConfigError(
+            "absolute_force_torque_threshold needs 6 positive values Fx;Fy;Fz;Tx;Ty;Tz, "
+            f"got {';'.join(str(v) for v in config.absolute_force_torque_threshold)}"
+        )

@@ -1,0 +1,51 @@
+"""Building GetActionChunk requests from what the robot reports. Pure message assembly."""
+from __future__ import annotations
+
+from typing import Any, Sequence
+
+import numpy as np
+from sensor_msgs.msg import JointState
+from std_msgs.msg import Float64MultiArray, MultiArrayDimension
+
+
+class ObservationError(ValueError):
+    pass
+
+
+def robot_state(joint_state: Any, joints: Sequence[str], gripper_joint: str | None, topic: str) -> JointState:
+    """Positions of the group's joints, then the gripper joint, taken from a JointState by name."""
+    index = {name: i for i, name in enumerate(joint_state.name)}
+    wanted = list(joints) + ([gripper_joint] if gripper_joint else [])
+    missing = [name for name in wanted if name not in index]
+    if missing:
+        if gripper_joint in missing:
+            raise ObservationError(
+                f"the joint states on '{topic}' do not include the gripper joint '{gripper_joint}': "
+                "it must be published alongside the arm joints"
+            )
+        raise ObservationError(f"the joint states on '{topic}' do not include [{', '.join(missing)}]")
+    if len(joint_state.position) != len(joint_state.name):
+        raise ObservationError(
+            f"the joint states on '{topic}' have {len(joint_state.name)} names but {len(joint_state.position)} positions"
+        )
+    state = JointState()
+    state.header = joint_state.header
+    state.name = wanted
+    state.position = [float(joint_state.position[index[name]]) for name in wanted]
+    return state
+
+
+def policy_tail(policy_chunk: np.ndarray | None, offset: int) -> Float64MultiArray:
+    """The unexecuted tail of a policy chunk from step ``offset``, step dimension first."""
+    msg = Float64MultiArray()
+    if policy_chunk is None or offset >= len(policy_chunk):
+        return msg
+    tail = np.ascontiguousarray(policy_chunk[max(0, offset):], dtype=float)
+    steps, width = tail.shape
+    msg.layout.dim = [
+        MultiArrayDimension(label="step", size=steps, stride=steps * width),
+        MultiArrayDimension(label="action", size=width, stride=width),
+    ]
+    msg.layout.data_offset = 0
+    msg.data = tail.ravel().tolist()
+    return msg

@@ -1,0 +1,73 @@
+"""MoveGripperAction: one GripperCommand goal (0.0 is open, as on the Robotiq)."""
+from __future__ import annotations
+
+from control_msgs.action import GripperCommand
+
+from runtime.behavior import Behavior, Status
+from runtime.bus import STATUS_SUCCEEDED
+from runtime.ports import InputPort, PortType
+
+from .waiting import Deadline, when_ready
+
+
+class MoveGripperAction(Behavior):
+    """Send the gripper to ``position`` and wait. SUCCESS when it gets there, or when it stalls
+    on an object (a closed grasp); FAILURE when the action aborts or the timeout passes."""
+
+    needs_world = True
+    description = "Move the gripper to a position (0.0 = open) and wait until it gets there or stalls on an object."
+    ports = (
+        InputPort("gripper_command_action_name", PortType.STRING, "/robotiq_gripper_controller/gripper_cmd", "GripperCommand action."),
+        InputPort("position", PortType.FLOAT, description="Target of the gripper joint (0.0 = open, 0.8 = closed on the 2F-85)."),
+        InputPort("max_effort", PortType.FLOAT, 100.0, "Largest force (N) the fingers may apply."),
+        InputPort("timeout", PortType.FLOAT, 5.0, "Seconds to wait for the server and the motion."),
+    )
+
+    def initialise(self) -> None:
+        self.action = self.get_input("gripper_command_action_name")
+        self.client = self.context.bus.create_action_client(self.action, GripperCommand)
+        self.deadline = Deadline(self, self.get_input("timeout"))
+        self.goal_future = self.result_future = self.handle = None
+
+    def update(self) -> Status:
+        if self.goal_future is None:
+            ready = when_ready(self.client.server_is_ready, self.deadline, f"gripper action '{self.action}'")
+            if ready is not True:
+                return self.fail(ready) if isinstance(ready, str) else Status.RUNNING
+            goal = GripperCommand.Goal()
+            goal.command.position = self.get_input("position")
+            goal.command.max_effort = self.get_input("max_effort")
+            self.goal_future = self.client.send_goal_async(goal)
+        if self.result_future is None:
+            if not self.goal_future.done():
+                return self._waiting()
+            self.handle = self.goal_future.result()
+            if not self.handle.accepted:
+                return self.fail(f"gripper action '{self.action}' rejected the goal")
+            self.result_future = self.handle.get_result_async()
+        if not self.result_future.done():
+            return self._waiting()
+        outcome = self.result_future.result()
+        self.handle = None
+        result = outcome.result
+        if outcome.status != STATUS_SUCCEEDED:
+            return self.fail(f"gripper action '{self.action}' did not succeed (goal status {outcome.status}, position {result.position:.3f})")
+        if result.reached_goal or result.stalled:
+            self.feedback_message = f"gripper at {result.position:.3f}" + (" (stalled on an object)" if result.stalled and not result.reached_goal else "")
+            return Status.SUCCESS
+        return self.fail(f"gripper stopped at {result.position:.3f} without reaching {self.get_input('position'):.3f}")
+
+    def _waiting(self) -> Status:
+        if self.deadline.expired:
+            if self.handle is not None:
+                self.handle.cancel_goal_async()
+            return self.fail(f"gripper did not finish within {self.deadline.seconds:g} s")
+        return Status.RUNNING
+
+    def terminate(self, new_status: Status) -> None:
+        if new_status is Status.INVALID and getattr(self, "handle", None) is not None:
+            self.handle.cancel_goal_async()
+            self.handle = None
+
+
+NODES = (MoveGripperAction,)

@@ -1,0 +1,32 @@
+"""Small shared pieces for behaviors that call services and actions without blocking."""
+from __future__ import annotations
+
+from typing import Any, Callable
+
+from runtime.behavior import Behavior
+
+
+class Deadline:
+    """``expired`` once ``seconds`` of runtime-clock time have passed since construction."""
+
+    def __init__(self, node: Behavior, seconds: float) -> None:
+        self._clock = node.context.clock
+        self.seconds = seconds
+        self.until = self._clock.now() + seconds
+
+    @property
+    def expired(self) -> bool:
+        return self._clock.now() >= self.until - 1e-9
+
+
+def when_ready(is_ready: Callable[[], bool], deadline: Deadline, what: str) -> bool | str:
+    """True when ready, False while waiting, or the failure reason once the deadline passed."""
+    if is_ready():
+        return True
+    if deadline.expired:
+        return f"{what} is not available after {deadline.seconds:g} s"
+    return False
+
+
+def result_or_none(future: Any) -> Any:
+    return future.result() if future is not None and future.done() else None
