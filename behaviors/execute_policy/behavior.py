@@ -30,7 +30,7 @@ from . import config as cfg
 from .chunk import ChunkError, read_chunk, read_policy_chunk
 from .limits import first_limit_violation
 from .observation import ObservationError, policy_tail, robot_state
-from .safety import MotionSafety, SafetyError, make_safety
+from ..safety import MotionSafety, SafetyError, make_safety
 from .shaping import ChunkMotion, Samples, densify, fit_chunk, join_at_seam
 from .stream import StepGrid, Window, WindowError
 from .timing import LatencyEstimate, frozen_prefix_steps, prefetch_margin, window_covers_latency
@@ -133,7 +133,7 @@ class ExecutePolicy(Behavior):
         try:
             self.config = self._read_config()
             cfg.validate(self.config)
-            self.safety: MotionSafety = make_safety(self.context.scene, self.config)
+            self.safety: MotionSafety = make_safety(self.context.scene, self.config.joint_group_name, self.config.gripper_joint_name or None)
         except (cfg.ConfigError, SafetyError) as err:
             self.error = str(err)
             return

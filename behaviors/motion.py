@@ -1,0 +1,213 @@
+"""MoveToJointState and MoveToWaypoint: a time-optimal point-to-point motion within the limits.
+
+The motion is planned with ruckig (jerk-limited, time-optimal, from rest to rest), sampled,
+checked against the planning scene before anything moves, and sent to the admittance
+controller as one trajectory goal.
+"""
+from __future__ import annotations
+
+import numpy as np
+from builtin_interfaces.msg import Duration
+from moveit_pro_controllers_msgs.action import FollowJointTrajectoryWithAdmittance as FollowTrajectory
+from ruckig import InputParameter, Result, Ruckig, Trajectory
+from sensor_msgs.msg import JointState
+from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
+
+from runtime.behavior import Behavior, Status
+from runtime.bus import STATUS_SUCCEEDED
+from runtime.ports import InputPort, PortType
+
+from .execute_policy.limits import JointLimitTable
+from .execute_policy.shaping import Samples
+from .safety import SafetyError, make_safety
+from .waiting import Deadline, when_ready
+
+DEFAULT_CONTROLLER = "/joint_trajectory_admittance_controller/follow_joint_trajectory"
+SAMPLE_PERIOD = 0.02
+JERK_PER_ACCELERATION = 10.0  # 1/s: max jerk = 10 x max acceleration
+
+
+class PlanningError(ValueError):
+    pass
+
+
+def plan_point_to_point(
+    start: np.ndarray,
+    goal: np.ndarray,
+    limits: JointLimitTable,
+    velocity_scale: float,
+    acceleration_scale: float,
+    period: float = SAMPLE_PERIOD,
+) -> Samples:
+    """Rest-to-rest, time-optimal, jerk-limited motion from ``start`` to ``goal``, sampled."""
+    for name, value in (("velocity_scaling", velocity_scale), ("acceleration_scaling", acceleration_scale)):
+        if not 0 < value <= 1:
+            raise PlanningError(f"{name} must be in (0, 1], got {value}")
+    outside = [
+        f"{n}={g:.4f} (limits {lo:.4f}..{hi:.4f})"
+        for n, g, lo, hi in zip(limits.names, goal, limits.lower, limits.upper)
+        if not lo <= g <= hi
+    ]
+    if outside:
+        raise PlanningError("target outside the joint limits: " + ", ".join(outside))
+    dof = len(start)
+    otg, inp, trajectory = Ruckig(dof), InputParameter(dof), Trajectory(dof)
+    inp.current_position, inp.target_position = list(start), list(goal)
+    inp.max_velocity = list(limits.max_velocity * velocity_scale)
+    inp.max_acceleration = list(limits.max_acceleration * acceleration_scale)
+    inp.max_jerk = list(limits.max_acceleration * acceleration_scale * JERK_PER_ACCELERATION)
+    result = otg.calculate(inp, trajectory)
+    if result not in (Result.Working, Result.Finished):
+        raise PlanningError(f"ruckig could not plan the motion: {result}")
+    count = max(2, int(np.ceil(trajectory.duration / period)) + 1)
+    times = np.linspace(0.0, trajectory.duration, count)
+    states = [trajectory.at_time(t) for t in times]
+    p, v, a = (np.array([s[i] for s in states]) for i in range(3))
+    return Samples(times, p, v, a)
+
+
+def trajectory_goal(samples: Samples, joints: tuple[str, ...], path_tolerance: float) -> FollowTrajectory.Goal:
+    """A controller goal that starts now and plays ``samples``."""
+    goal = FollowTrajectory.Goal()
+    trajectory = JointTrajectory(joint_names=list(joints))
+    for t, p, v, a in zip(samples.times, samples.positions, samples.velocities, samples.accelerations):
+        sec = int(t)
+        trajectory.points.append(
+            JointTrajectoryPoint(
+                positions=p.tolist(),
+                velocities=v.tolist(),
+                accelerations=a.tolist(),
+                time_from_start=Duration(sec=sec, nanosec=int((t - sec) * 1e9)),
+            )
+        )
+    goal.joint_trajectory = trajectory
+    goal.path_tolerance = path_tolerance
+    goal.goal_time_tolerance = 1.0
+    return goal
+
+
+class _MoveToJoints(Behavior):
+    """Shared lifecycle: resolve the target, plan, check, send, wait for the controller."""
+
+    needs_world = True
+    common_ports = (
+        InputPort("joint_group_name", PortType.STRING, "manipulator", "SRDF joint group to move."),
+        InputPort("velocity_scaling_factor", PortType.FLOAT, 0.5, "Fraction of the joint velocity limits, in (0, 1]."),
+        InputPort("acceleration_scaling_factor", PortType.FLOAT, 0.5, "Fraction of the joint acceleration limits, in (0, 1]."),
+        InputPort("link_padding", PortType.FLOAT, 0.01, "Meters of clearance required from world objects."),
+        InputPort("path_tolerance", PortType.FLOAT, 0.1, "Radians of tracking error before the controller aborts."),
+        InputPort("controller_action_name", PortType.STRING, DEFAULT_CONTROLLER, "FollowJointTrajectoryWithAdmittance action."),
+        InputPort("joint_states_topic", PortType.STRING, "/joint_states", "Where the start state is read."),
+        InputPort("timeout", PortType.FLOAT, 5.0, "Seconds to wait for the controller and the joint states."),
+    )
+
+    def target(self, joints: tuple[str, ...]) -> np.ndarray:
+        raise NotImplementedError
+
+    def initialise(self) -> None:
+        self.error = None
+        self.goal_future = self.result_future = self.handle = None
+        try:
+            self.safety = make_safety(self.context.scene, self.get_input("joint_group_name"), None)
+        except SafetyError as err:
+            self.error = str(err)
+            return
+        bus = self.context.bus
+        self.action = self.get_input("controller_action_name")
+        self.client = bus.create_action_client(self.action, FollowTrajectory)
+        self.topic = self.get_input("joint_states_topic")
+        self.joint_states = bus.create_subscription(self.topic, JointState)
+        self.deadline = Deadline(self, self.get_input("timeout"))
+
+    def update(self) -> Status:
+        if self.error:
+            return self.fail(self.error)
+        if self.goal_future is None:
+            return self._plan_and_send()
+        if self.result_future is None:
+            if not self.goal_future.done():
+                return Status.RUNNING
+            self.handle = self.goal_future.result()
+            if not self.handle.accepted:
+                return self.fail(f"controller '{self.action}' rejected the motion")
+            self.result_future = self.handle.get_result_async()
+        if not self.result_future.done():
+            return Status.RUNNING
+        outcome = self.result_future.result()
+        self.handle = None
+        if outcome.status != STATUS_SUCCEEDED:
+            return self.fail(f"the controller aborted the motion: {outcome.result.error_string}")
+        return Status.SUCCESS
+
+    def _plan_and_send(self) -> Status:
+        ready = when_ready(self.client.server_is_ready, self.deadline, f"controller action '{self.action}'")
+        if ready is not True:
+            return self.fail(ready) if isinstance(ready, str) else Status.RUNNING
+        state = self.joint_states.latest
+        if state is None:
+            if self.deadline.expired:
+                return self.fail(f"no joint states on '{self.topic}' after {self.deadline.seconds:g} s")
+            return Status.RUNNING
+        joints = self.safety.group_joints
+        by_name = dict(zip(state.name, state.position))
+        missing = [j for j in joints if j not in by_name]
+        if missing:
+            return self.fail(f"joint states on '{self.topic}' lack {', '.join(missing)}")
+        start = np.array([by_name[j] for j in joints])
+        try:
+            goal = self.target(joints)
+            samples = plan_point_to_point(
+                start, goal, self.safety.limits, self.get_input("velocity_scaling_factor"), self.get_input("acceleration_scaling_factor")
+            )
+        except (PlanningError, SafetyError) as err:
+            return self.fail(str(err))
+        collision = self.safety.first_collision(self.safety.snapshot(), samples, self.get_input("link_padding"))
+        if collision is not None:
+            return self.fail(f"the motion would collide: {collision}")
+        self.goal_future = self.client.send_goal_async(trajectory_goal(samples, joints, self.get_input("path_tolerance")))
+        return Status.RUNNING
+
+    def terminate(self, new_status: Status) -> None:
+        if new_status is Status.INVALID and getattr(self, "handle", None) is not None:
+            self.handle.cancel_goal_async()
+            self.handle = None
+        sub = getattr(self, "joint_states", None)
+        destroy = getattr(self.context.bus, "destroy_subscription", None) if hasattr(self, "context") else None
+        if sub is not None and destroy is not None:
+            destroy(sub)
+            self.joint_states = None
+
+
+class MoveToJointState(_MoveToJoints):
+    """Move the joint group to explicit joint positions, time-optimally within the limits."""
+
+    description = "Move a joint group to the given joint positions (collision-checked, within the limits)."
+    ports = (InputPort("joint_positions", PortType.FLOAT_LIST, description="Target positions in the group's joint order (rad)."),) + _MoveToJoints.common_ports
+
+    def target(self, joints: tuple[str, ...]) -> np.ndarray:
+        values = np.asarray(self.get_input("joint_positions"), dtype=float)
+        if len(values) != len(joints):
+            raise PlanningError(f"joint_positions has {len(values)} values but group '{self.get_input('joint_group_name')}' has {len(joints)} joints ({', '.join(joints)})")
+        return values
+
+
+class MoveToWaypoint(_MoveToJoints):
+    """Move the joint group to a named waypoint of the cell (e.g. ``Home``)."""
+
+    description = "Move a joint group to a named waypoint (e.g. Home) from the cell's waypoints file."
+    ports = (InputPort("waypoint_name", PortType.STRING, description="Name of the waypoint, e.g. Home."),) + _MoveToJoints.common_ports
+
+    def target(self, joints: tuple[str, ...]) -> np.ndarray:
+        waypoints = self.context.resources.get("waypoints") or {}
+        name = self.get_input("waypoint_name")
+        if name not in waypoints:
+            known = ", ".join(sorted(waypoints)) or "none are defined"
+            raise PlanningError(f"unknown waypoint '{name}' (known: {known})")
+        positions = waypoints[name]
+        missing = [j for j in joints if j not in positions]
+        if missing:
+            raise PlanningError(f"waypoint '{name}' does not set {', '.join(missing)}")
+        return np.array([positions[j] for j in joints], dtype=float)
+
+
+NODES = (MoveToJointState, MoveToWaypoint)
