@@ -1,0 +1,202 @@
+"""The project's generated ROS 2 interfaces: constants, fields, and a CDR round trip."""
+from __future__ import annotations
+
+import functools
+import importlib.util
+import sys
+from pathlib import Path
+
+import pytest
+
+pytestmark = [pytest.mark.ros, pytest.mark.timeout(60)]
+
+from rclpy.serialization import deserialize_message, serialize_message  # noqa: E402
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def round_trip(msg):
+    return deserialize_message(serialize_message(msg), type(msg))
+
+
+def test_get_action_chunk_constants_and_fields_survive_the_wire():
+    from moveit_pro_ml_msgs.srv import GetActionChunk
+    from sensor_msgs.msg import Image, JointState
+    from std_msgs.msg import Float64MultiArray, MultiArrayDimension
+    from trajectory_msgs.msg import JointTrajectoryPoint
+
+    R = GetActionChunk.Response
+    assert (R.UNKNOWN, R.CHUNK_PRODUCED, R.NO_MORE_ACTIONS, R.ERROR) == (0, 1, 2, 3)
+    assert R().status == R.UNKNOWN  # the default must read as a failure
+
+    request = GetActionChunk.Request(
+        prompt="stack the cubes",
+        robot_state=JointState(name=["a", "b"], position=[0.1, -0.2]),
+        images=[Image(height=2, width=3, encoding="rgb8", step=9, data=bytes(range(18)))],
+        image_names=["scene"],
+        new_episode=True,
+        previous_action_chunk=Float64MultiArray(
+            layout=_layout([("steps", 2, 4), ("actions", 2, 2)], MultiArrayDimension), data=[1.0, 2.0, 3.0, 4.0]
+        ),
+        previous_anchor_state=JointState(name=["a", "b"], position=[0.0, 0.5]),
+        frozen_prefix_steps=3,
+        guidance_horizon=7,
+    )
+    back = round_trip(request)
+    assert back.prompt == "stack the cubes"
+    assert list(back.robot_state.position) == [0.1, -0.2]
+    assert bytes(back.images[0].data) == bytes(range(18)) and back.image_names == ["scene"]
+    assert back.new_episode is True
+    assert list(back.previous_action_chunk.data) == [1.0, 2.0, 3.0, 4.0]
+    assert back.previous_action_chunk.layout.dim[0].label == "steps"
+    assert back.previous_anchor_state.position[1] == 0.5
+    assert (back.frozen_prefix_steps, back.guidance_horizon) == (3, 7)
+
+    response = R(status=R.CHUNK_PRODUCED, message="ok", native_control_period=1 / 30)
+    response.chunk.joint_names = ["a", "b"]
+    response.chunk.points = [JointTrajectoryPoint(positions=[0.1, 0.2]), JointTrajectoryPoint(positions=[0.3, 0.4])]
+    response.policy_action_chunk.data = [0.5, -0.5]
+    back = round_trip(response)
+    assert back.status == R.CHUNK_PRODUCED and back.message == "ok"
+    assert [list(p.positions) for p in back.chunk.points] == [[0.1, 0.2], [0.3, 0.4]]
+    assert back.native_control_period == pytest.approx(1 / 30)
+    assert list(back.policy_action_chunk.data) == [0.5, -0.5]
+
+
+def _layout(dims, Dim):
+    from std_msgs.msg import MultiArrayLayout
+
+    return MultiArrayLayout(dim=[Dim(label=l, size=s, stride=st) for l, s, st in dims], data_offset=0)
+
+
+def test_get_action_chunk_field_types_are_the_contract():
+    from moveit_pro_ml_msgs.srv import GetActionChunk
+
+    assert GetActionChunk.Request.get_fields_and_field_types() == {
+        "prompt": "string",
+        "robot_state": "sensor_msgs/JointState",
+        "images": "sequence<sensor_msgs/Image>",
+        "image_names": "sequence<string>",
+        "new_episode": "boolean",
+        "previous_action_chunk": "std_msgs/Float64MultiArray",
+        "previous_anchor_state": "sensor_msgs/JointState",
+        "frozen_prefix_steps": "uint32",
+        "guidance_horizon": "uint32",
+    }
+    assert GetActionChunk.Response.get_fields_and_field_types() == {
+        "status": "uint8",
+        "message": "string",
+        "chunk": "trajectory_msgs/JointTrajectory",
+        "native_control_period": "double",
+        "policy_action_chunk": "std_msgs/Float64MultiArray",
+    }
+
+
+def test_admittance_action_constants_and_fields():
+    from moveit_pro_controllers_msgs.action import FollowJointTrajectoryWithAdmittance as A
+
+    R = A.Result
+    codes = [R.SUCCESSFUL, R.INVALID_GOAL, R.INVALID_JOINTS, R.OLD_HEADER_TIMESTAMP, R.PATH_TOLERANCE_VIOLATED,
+             R.GOAL_TOLERANCE_VIOLATED, R.FORCE_TORQUE_THRESHOLD_EXCEEDED, R.CANCELED, R.SUPERSEDED]
+    assert codes == [0, -1, -2, -3, -4, -5, -6, -7, -8]
+    assert R.get_fields_and_field_types() == {"error_code": "int32", "error_string": "string"}
+
+    goal = A.Goal(path_tolerance=0.05, goal_time_tolerance=0.5, absolute_force_torque_threshold=[30.0] * 3 + [3.0] * 3,
+                  admittance_stiffness=[500.0] * 6, admittance_damping=[50.0] * 6)
+    goal.joint_trajectory.header.stamp.sec = 12
+    goal.joint_trajectory.joint_names = ["shoulder_pan_joint"]
+    back = round_trip(goal)
+    assert back.joint_trajectory.header.stamp.sec == 12 and back.path_tolerance == 0.05
+    assert list(back.absolute_force_torque_threshold) == [30.0, 30.0, 30.0, 3.0, 3.0, 3.0]
+    assert len(back.admittance_stiffness) == 6 and len(back.admittance_damping) == 6
+
+    assert A.Feedback.get_fields_and_field_types() == {
+        "header": "std_msgs/Header",
+        "joint_names": "sequence<string>",
+        "desired": "trajectory_msgs/JointTrajectoryPoint",
+        "actual": "trajectory_msgs/JointTrajectoryPoint",
+        "error": "trajectory_msgs/JointTrajectoryPoint",
+        "wrench": "geometry_msgs/Wrench",
+    }
+
+
+def test_gripper_command_matches_upstream_control_msgs():
+    from control_msgs.action import GripperCommand
+    from control_msgs.msg import GripperCommand as Command
+
+    assert Command.get_fields_and_field_types() == {"position": "double", "max_effort": "double"}
+    assert GripperCommand.Goal.get_fields_and_field_types() == {"command": "control_msgs/GripperCommand"}
+    expected = {"position": "double", "effort": "double", "stalled": "boolean", "reached_goal": "boolean"}
+    assert GripperCommand.Result.get_fields_and_field_types() == expected
+    assert GripperCommand.Feedback.get_fields_and_field_types() == expected
+    back = round_trip(GripperCommand.Goal(command=Command(position=0.04, max_effort=20.0)))
+    assert (back.command.position, back.command.max_effort) == (0.04, 20.0)
+
+
+def test_controller_manager_interfaces_match_upstream_jazzy():
+    from controller_manager_msgs.msg import ChainConnection, ControllerState
+    from controller_manager_msgs.srv import ListControllers, SwitchController
+
+    Req = SwitchController.Request
+    assert (Req.BEST_EFFORT, Req.STRICT) == (1, 2)
+    assert Req.get_fields_and_field_types() == {
+        "activate_controllers": "sequence<string>",
+        "deactivate_controllers": "sequence<string>",
+        "strictness": "int32",
+        "activate_asap": "boolean",
+        "timeout": "builtin_interfaces/Duration",
+    }
+    assert SwitchController.Response.get_fields_and_field_types() == {"ok": "boolean", "message": "string"}
+    assert list(ControllerState.get_fields_and_field_types()) == [
+        "name", "state", "type", "claimed_interfaces", "required_command_interfaces", "required_state_interfaces",
+        "is_chainable", "is_chained", "exported_state_interfaces", "reference_interfaces", "chain_connections",
+    ]
+    assert ListControllers.Response.get_fields_and_field_types() == {
+        "controller": "sequence<controller_manager_msgs/ControllerState>"
+    }
+    state = ControllerState(name="joint_trajectory_admittance_controller", state="active",
+                            chain_connections=[ChainConnection(name="x", reference_interfaces=["a/position"])])
+    back = round_trip(ListControllers.Response(controller=[state]))
+    assert back.controller[0].state == "active"
+    assert back.controller[0].chain_connections[0].reference_interfaces == ["a/position"]
+
+
+# --------------------------------------------------------------------------------------------
+# tools/build_interfaces.py
+# --------------------------------------------------------------------------------------------
+@functools.cache
+def _load_build_tool():
+    spec = importlib.util.spec_from_file_location("build_interfaces", ROOT / "tools" / "build_interfaces.py")
+    module = importlib.util.module_from_spec(spec)
+    sys.modules["build_interfaces"] = module  # dataclasses look their module up there
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_wheel_include_paths_are_rewritten_and_the_rewrite_is_idempotent():
+    tool = _load_build_tool()
+    text = ('INTERFACE_INCLUDE_DIRECTORIES "/opt/python/cp311-cp311/include/python3.11;'
+            '/opt/python/cp311-cp311/lib/python3.11/site-packages/numpy/_core/include"')
+    once = tool.rewrite_wheel_paths(text, "/py/include", "/venv/numpy/include")
+    assert once == 'INTERFACE_INCLUDE_DIRECTORIES "/py/include;/venv/numpy/include"'
+    assert tool.rewrite_wheel_paths(once, "/py/include", "/venv/numpy/include") == once
+
+
+def test_the_venv_has_no_wheel_build_paths_left():
+    leftovers = [str(f) for f in (Path(sys.prefix) / "share").rglob("*.cmake") if "/opt/python/" in f.read_text()]
+    assert leftovers == []
+
+
+def test_packages_build_in_dependency_order(tmp_path):
+    tool = _load_build_tool()
+    pkgs = [tool.Package("b", tmp_path, {"a", "std_msgs"}), tool.Package("a", tmp_path, set()),
+            tool.Package("c", tmp_path, {"b"})]
+    assert [p.name for p in tool.dependency_order(pkgs)] == ["a", "b", "c"]
+    with pytest.raises(tool.BuildError, match="dependency cycle between interface packages: a -> b -> a"):
+        tool.dependency_order([tool.Package("a", tmp_path, {"b"}), tool.Package("b", tmp_path, {"a"})])
+
+
+def test_every_interface_package_is_described_by_its_manifest():
+    tool = _load_build_tool()
+    names = sorted(tool.read_package(d).name for d in tool.INTERFACES_DIR.iterdir() if (d / "package.xml").is_file())
+    assert names == ["control_msgs", "controller_manager_msgs", "moveit_pro_controllers_msgs", "moveit_pro_ml_msgs"]
