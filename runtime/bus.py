@@ -508,9 +508,18 @@ class InProcessBus:
         return pub
 
     def create_lazy_publisher(
-        self, name: str, msg_type: type, produce: Callable[[], Any], reliable: bool = True
+        self,
+        name: str,
+        msg_type: type,
+        produce: Callable[[], Any],
+        reliable: bool = True,
+        rate_hz: float | None = None,
     ) -> None:
-        """Serve ``name`` by calling ``produce()`` whenever a subscriber reads ``latest``."""
+        """Serve ``name`` by calling ``produce()`` whenever a subscriber reads ``latest``.
+
+        ``rate_hz`` is for ``RosBus`` (which publishes from a timer); here frames are produced
+        on read, so it is ignored.
+        """
         self._lazy[name] = _LazyTopic(name, msg_type, produce, reliable)
 
     def destroy_publisher(self, name: str) -> None:

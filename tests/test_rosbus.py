@@ -303,3 +303,21 @@ def test_close_is_idempotent_and_releases_waiting_goals(buses, names):
     server_bus.close()  # an unfinished goal must not keep the executor thread waiting
     server_bus.close()
     assert time.monotonic() - start < 2.0
+
+
+def test_a_goal_finished_inside_on_goal_reaches_the_client(buses, names):
+    server_bus, client_bus = buses("inactive_gripper"), buses("runtime")
+
+    def on_goal(handle) -> bool:  # an inactive controller accepts, then aborts at once
+        handle.abort(GripperCommand.Result(position=0.03))
+        return True
+
+    server_bus.create_action_server(names("gripper_cmd"), GripperCommand, on_goal)
+    client = client_bus.create_action_client(names("gripper_cmd"), GripperCommand)
+    wait_for(client.server_is_ready, what="the action server")
+    sent = client.send_goal_async(GripperCommand.Goal(command=Command(position=0.0, max_effort=10.0)))
+    wait_for(sent.done, client_bus, what="the goal response")
+    assert sent.result().accepted is True
+    result = sent.result().get_result_async()
+    wait_for(result.done, client_bus, what="the result")
+    assert result.result().status == STATUS_ABORTED and result.result().result.position == 0.03

@@ -271,7 +271,9 @@ class RosServerGoalHandle:
 
     rclpy creates its own goal handle only after ``on_goal`` accepted, and its execute callback
     must return the result; so this handle records the outcome, and the execute callback (an
-    executor thread waiting on ``_finished``) reports it to rclpy.
+    executor thread waiting on ``_finished``) reports it to rclpy. For the same reason
+    ``goal_id`` is empty inside ``on_goal`` (rclpy does not pass the goal's UUID there); it is
+    set as soon as the goal is accepted. Feedback published before then is sent right after.
     """
 
     def __init__(self, server: _RosActionServer, request: Any) -> None:
