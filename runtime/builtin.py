@@ -1,12 +1,13 @@
-"""Registers the runtime's own nodes (controls, decorators, utilities) into a registry."""
+"""Registers the runtime's own nodes (controls, decorators, utilities, scripts) into a registry."""
 from __future__ import annotations
 
 from .registry import Registry
 
 
 def register(registry: Registry) -> None:
-    from . import controls, decorators, utility
+    from . import controls, decorators, script_nodes, utility
 
     registry.register_all(controls.NODES)
     registry.register_all(decorators.NODES)
     registry.register_all(utility.NODES)
+    registry.register_all(script_nodes.NODES)

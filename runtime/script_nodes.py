@@ -1,0 +1,134 @@
+"""BT.CPP's script leaves: ``Script``, ``ScriptCondition`` and ``SetBlackboard``.
+
+The ``code`` of a script node is compiled when the node is bound (at load time), so a syntax
+error stops the load with the file, line, node and column; ticking only evaluates.
+A script that fails while running (a missing entry, a type mismatch) makes the node fail with
+the reason as its ``feedback_message``; the run goes on as the tree decides.
+"""
+from __future__ import annotations
+
+from typing import Any, ClassVar
+
+from . import script as scripting
+from .behavior import Behavior, Condition, RunContext, Status
+from .blackboard import Blackboard
+from .errors import LoadError, SourceLocation
+from .ports import InOutPort, InputPort, PortInfo, PortType
+
+
+def compile_at_load(
+    source: str,
+    location: SourceLocation | None,
+    node: str,
+    where: str = "port 'code'",
+) -> scripting.Script:
+    """Compile ``source`` or raise LoadError("file:line: Node: port 'code': <why> at column N ...").
+
+    Also for the loader's script attributes (``_skipIf``, ``_post``...): pass ``where`` to name
+    the attribute in the message.
+    """
+    try:
+        return scripting.compile_script(source)
+    except scripting.ScriptError as err:
+        raise LoadError(f"{where}: {err} in script {source!r}", location, node) from None
+
+
+class _CompiledCode:
+    """Compiles the literal ``code`` port in ``bind`` so errors surface at load time."""
+
+    script: scripting.Script
+
+    def bind(
+        self,
+        context: RunContext,
+        blackboard: Blackboard,
+        values: dict[str, str] | None = None,
+        location: SourceLocation | None = None,
+        xml_id: str | None = None,
+    ) -> None:
+        super().bind(context, blackboard, values, location, xml_id)  # type: ignore[misc]
+        binding = self.bindings["code"]  # type: ignore[attr-defined]
+        if binding.key is not None:
+            raise LoadError(
+                f"port 'code' must be the script itself, not a blackboard reference '{{{binding.key}}}'",
+                location,
+                self.xml_id,  # type: ignore[attr-defined]
+            )
+        self.script = compile_at_load(binding.literal, location, self.xml_id)  # type: ignore[attr-defined]
+
+
+_CODE = InputPort("code", PortType.STRING, description="The script: statements separated by ';'")
+
+
+class Script(_CompiledCode, Behavior):
+    """Runs a script (e.g. ``count := count + 1``) and succeeds; fails if the script does."""
+
+    ports: ClassVar[tuple[PortInfo, ...]] = (_CODE,)
+    description = "Run a script against the blackboard; SUCCESS, or FAILURE when it cannot be evaluated."
+
+    def update(self) -> Status:
+        try:
+            self.script.evaluate(self.blackboard)
+        except scripting.ScriptError as err:
+            return self.fail(f"script {self.script.source!r}: {err}")
+        return Status.SUCCESS
+
+
+class ScriptCondition(_CompiledCode, Condition):
+    """SUCCESS when the script's value is true, FAILURE when false (or when it cannot be evaluated)."""
+
+    ports: ClassVar[tuple[PortInfo, ...]] = (
+        InputPort("code", PortType.STRING, description="An expression that is true or false"),
+    )
+    description = "Evaluate a script as a condition: SUCCESS if true, FAILURE if false."
+
+    def update(self) -> Status:
+        try:
+            holds = scripting.evaluate_condition(self.script, self.blackboard)
+        except scripting.ScriptError as err:
+            return self.fail(f"script {self.script.source!r}: {err}")
+        if holds:
+            return Status.SUCCESS
+        return self.fail(f"{self.script.source!r} is false")
+
+
+class SetBlackboard(Behavior):
+    """Writes ``value`` into the entry named by ``output_key``, as BT.CPP's SetBlackboard.
+
+    ``output_key="target"`` names the entry (BT.CPP's spelling); ``output_key="{target}"`` is
+    accepted too and writes ``target`` (BT.CPP would read the key's name out of ``target``).
+    ``value="{src}"`` copies the entry ``src`` with its type; a literal is a string, converted to
+    the type the destination already holds (an integer entry takes ``"7"`` as 7).
+    """
+
+    ports: ClassVar[tuple[PortInfo, ...]] = (
+        InputPort("value", PortType.ANY, description="Value to write, or '{key}' to copy another entry"),
+        InOutPort(
+            "output_key", PortType.STRING, description="Name of the blackboard entry where the value is written"
+        ),
+    )
+    description = "Write a value (or a copy of another entry) into a blackboard entry."
+
+    def update(self) -> Status:
+        output = self.bindings["output_key"]
+        key = output.key if output.key is not None else str(output.literal).strip()
+        if not key:
+            return self.fail("port 'output_key' is empty")
+        source = self.bindings["value"]
+        value: Any
+        if source.key is not None:
+            if not self.blackboard.has(source.key) or self.blackboard.get(source.key) is None:
+                return self.fail(f"port 'value' reads blackboard entry '{source.key}', which is not set")
+            self.blackboard.set(key, self.blackboard.get(source.key))
+            return Status.SUCCESS
+        value = source.literal
+        current = self.blackboard.get(key) if self.blackboard.has(key) else None
+        try:
+            value = scripting.coerce_for_entry(key, current, value)
+        except scripting.ScriptError as err:
+            return self.fail(str(err))
+        self.blackboard.set(key, value)
+        return Status.SUCCESS
+
+
+NODES = (Script, ScriptCondition, SetBlackboard)
