@@ -1,0 +1,314 @@
+"""The tick loop: advance the clock, step the world, deliver bus traffic, tick the tree.
+
+One tick per ``1 / tick_hz`` seconds of clock time (100 Hz by default):
+
+    clock.advance(period); world.step_to(clock.now()); bus.spin_once(); tick the root once
+
+until the root returns SUCCESS or FAILURE (or ``max_seconds`` of clock time pass). On a
+``SimClock`` this runs as fast as the CPU allows and is deterministic; on a ``WallClock``
+(``--realtime``) ``advance`` sleeps to keep the rate. Whatever happens, the tree is halted
+(RUNNING nodes get ``terminate(INVALID)``, so a moving robot is stopped) and the world and the
+bus are closed.
+
+A world (the simulated cell) is started only when some node of the tree has
+``needs_world = True``; worlds are found by name in the ``objective.worlds`` entry-point group.
+"""
+from __future__ import annotations
+
+import json
+import math
+import time
+from dataclasses import dataclass, field
+from importlib.metadata import entry_points
+from pathlib import Path
+from typing import Any, Callable, Iterable
+
+import py_trees
+
+from .behavior import RunContext, Status
+from .bus import InProcessBus, parse_latency
+from .clock import SimClock, WallClock
+from .controls import COMPLETED, SKIPPED, consume_wake_up, is_skipped, reset_status
+from .errors import ObjectiveError
+from .events import EventLog
+from .loader import LoadedTree, load_tree
+from .registry import WORLD_GROUP, Registry
+
+DEFAULT_WORLD = "vla_sim"
+
+Progress = Callable[[float, int, str], None]
+"""Called after every tick with (clock seconds, ticks so far, name of the running node)."""
+
+
+@dataclass
+class RunOptions:
+    seed: int = 0
+    realtime: bool = False
+    tick_hz: float = 100.0
+    max_seconds: float | None = None
+    """Stop (FAILURE) after this much clock time; None runs until the tree finishes."""
+    world: str | None = None
+    """World to start when the tree needs one; None means the default, ``vla_sim``."""
+    sets: dict[str, str] = field(default_factory=dict)
+    """Root blackboard entries set before the first tick (``--set name=value``), as strings."""
+    policy_latency: str | None = None
+    """Latency model of policy service calls (``runtime.bus.parse_latency`` syntax), for the world."""
+    record_dir: Path | None = None
+    world_options: dict[str, Any] = field(default_factory=dict)
+
+    def check(self) -> None:
+        """Raise ObjectiveError for options that cannot work (before anything starts)."""
+        if not (self.tick_hz > 0 and math.isfinite(self.tick_hz)):
+            raise ObjectiveError(f"tick rate must be a positive number of Hz, got {self.tick_hz}")
+        if self.max_seconds is not None and not self.max_seconds > 0:
+            raise ObjectiveError(f"--max-seconds must be positive, got {self.max_seconds}")
+        if self.policy_latency is not None:
+            try:
+                parse_latency(self.policy_latency, self.seed)
+            except ValueError as err:
+                raise ObjectiveError(f"--policy-latency: {err}") from None
+        for name in self.sets:
+            if not name or name.strip() != name:
+                raise ObjectiveError(f"--set needs name=value with a non-empty name, got {name!r}")
+
+
+@dataclass
+class RunResult:
+    status: str
+    """"SUCCESS" or "FAILURE"."""
+    failing_node: str | None
+    reason: str
+    sim_seconds: float
+    wall_seconds: float
+    ticks: int
+    blackboard: dict[str, Any]
+    extra: dict[str, Any] = field(default_factory=dict)
+    failing_location: str | None = None
+
+    @property
+    def exit_code(self) -> int:
+        return 0 if self.status == "SUCCESS" else 1
+
+    def to_json(self) -> dict[str, Any]:
+        """The summary object ``objective run --json`` prints (extras merged at the top level)."""
+        summary: dict[str, Any] = {
+            "status": self.status,
+            "failing_node": self.failing_node,
+            "reason": self.reason,
+            "sim_seconds": round(self.sim_seconds, 6),
+            "wall_seconds": round(self.wall_seconds, 3),
+            "ticks": self.ticks,
+            "blackboard": self.blackboard,
+        }
+        for key, value in self.extra.items():
+            summary.setdefault(key, value)
+        return summary
+
+
+def make_context(options: RunOptions) -> RunContext:
+    """Clock, in-process bus and event log for one run."""
+    clock = WallClock() if options.realtime else SimClock()
+    bus = InProcessBus(clock)
+    return RunContext(clock=clock, bus=bus, events=EventLog(clock), seed=options.seed)
+
+
+def create_world(name: str, options: dict[str, Any]) -> Any:
+    """The world registered as ``name`` in the ``objective.worlds`` entry-point group."""
+    available = {ep.name: ep for ep in entry_points(group=WORLD_GROUP)}
+    if name not in available:
+        known = ", ".join(sorted(available)) or "none installed"
+        raise ObjectiveError(f"no world named '{name}' (worlds: {known})")
+    create = available[name].load()
+    return create(options)
+
+
+def json_entries(board_items: Iterable[tuple[str, Any]]) -> dict[str, Any]:
+    """The entries that JSON can carry (numpy values as lists/numbers); others are left out."""
+    out: dict[str, Any] = {}
+    for key, value in board_items:
+        if hasattr(value, "tolist"):
+            value = value.tolist()
+        try:
+            json.dumps(value, allow_nan=False)
+        except (TypeError, ValueError):
+            continue
+        out[key] = value
+    return out
+
+
+Visit = tuple[py_trees.behaviour.Behaviour, Status, str]
+
+
+def _unwrap(node: py_trees.behaviour.Behaviour) -> py_trees.behaviour.Behaviour:
+    """The node a transparent wrapper (a condition guard) stands for."""
+    while getattr(node, "transparent", False) and len(node.children) == 1:
+        node = node.children[0]
+    return node
+
+
+def _failing(root: py_trees.behaviour.Behaviour, visited: list[Visit]) -> tuple[py_trees.behaviour.Behaviour, str] | None:
+    """The node to blame for the root's FAILURE in this tick, with its reason.
+
+    Follow the failure down from the root: at each node, go to the child that reported FAILURE
+    most recently in this tick; stop at a node none of whose children failed (a leaf that
+    failed, or a Timeout/Inverter that turned its child's result into a failure). A failure a
+    ForceSuccess forgave is therefore never blamed.
+    """
+    last: dict[int, tuple[int, Status, str]] = {}
+    for order, (node, status, message) in enumerate(visited):
+        last[id(node)] = (order, status, message)
+
+    def failed_at(node: py_trees.behaviour.Behaviour) -> int | None:
+        record = last.get(id(node))
+        return record[0] if record is not None and record[1] is Status.FAILURE else None
+
+    if failed_at(root) is None:
+        return None
+    node = root
+    while True:
+        failing = [(failed_at(c), c) for c in node.children if failed_at(c) is not None]
+        if not failing:
+            break
+        node = max(failing, key=lambda item: item[0])[1]
+    message = last[id(node)][2]
+    inner = _unwrap(node)
+    return inner, message or inner.feedback_message
+
+
+def tick_once(root: py_trees.behaviour.Behaviour, context: RunContext) -> tuple[Status, list[Visit]]:
+    """One tick of the runner: ``runtime.controls.tick_tree`` (BT.CPP ``tickOnce``), keeping what was visited.
+
+    Returns the root's result (RUNNING, SUCCESS, FAILURE or SKIPPED) and, for the last pass,
+    every node visited with the status and message it had when it reported (post-order).
+    """
+    consume_wake_up(context)
+    while True:
+        visited = [(node, node.status, node.feedback_message) for node in root.tick()]
+        result = SKIPPED if is_skipped(root) else root.status
+        if result in COMPLETED:
+            reset_status(root)
+        if result is not Status.RUNNING or not consume_wake_up(context):
+            return result, visited
+
+
+def _halt(root: py_trees.behaviour.Behaviour) -> None:
+    if any(node.status is Status.RUNNING for node in root.iterate()):
+        root.stop(Status.INVALID)
+
+
+def run_tree(
+    loaded: LoadedTree,
+    context: RunContext,
+    options: RunOptions,
+    progress: Progress | None = None,
+    world: Any = None,
+) -> RunResult:
+    """Tick ``loaded`` (bound to ``context``) to completion and summarise the run.
+
+    Starts the world named by ``options.world`` when the tree needs one (unless ``world`` is
+    given). Raises ObjectiveError for bad input found while running (e.g. a port reading a
+    blackboard entry nobody wrote); the tree is halted and everything closed either way.
+    """
+    options.check()
+    root = loaded.root
+    nodes = list(root.iterate())
+    for key, value in options.sets.items():
+        loaded.blackboard.set(key, value)
+    if world is None and any(getattr(type(n), "needs_world", False) for n in nodes):
+        world_options = {
+            "seed": options.seed,
+            "realtime": options.realtime,
+            "policy_latency": options.policy_latency,
+            "record_dir": options.record_dir,
+            **options.world_options,
+        }
+        world = create_world(options.world or DEFAULT_WORLD, world_options)
+    period = 1.0 / options.tick_hz
+    clock, bus = context.clock, context.bus
+    ticks = 0
+    blame: tuple[py_trees.behaviour.Behaviour, str] | None = None
+    status = Status.INVALID
+    timed_out = False
+    wall_start = time.monotonic()
+    try:
+        if world is not None:
+            context.world = world
+            world.start(context)
+        for node in nodes:
+            node.setup()
+        context.events.emit("run_started", loaded.tree_id, seed=options.seed)
+        while True:
+            if options.max_seconds is not None and clock.now() + period > options.max_seconds + 1e-9:
+                timed_out = True
+                break
+            clock.advance(period)
+            if world is not None:
+                world.step_to(clock.now())
+            bus.spin_once()
+            status, visited = tick_once(root, context)
+            ticks += 1
+            if progress is not None:
+                tip = root.tip()
+                progress(clock.now(), ticks, tip.name if tip is not None else "")
+            if status is not Status.RUNNING:
+                if status is Status.FAILURE:
+                    blame = _failing(root, visited)
+                break
+        if timed_out:
+            tip = root.tip()
+            running = f" while '{tip.name}' was RUNNING" if tip is not None else ""
+            reason = f"stopped after --max-seconds {options.max_seconds:g} s of clock time{running}"
+            blame = (tip if tip is not None else root, reason)
+        context.events.emit("run_finished", loaded.tree_id, status=str(status.value))
+    finally:
+        try:
+            _halt(root)
+        finally:
+            summary_world = world.summary() if world is not None else None
+            if world is not None:
+                world.close()
+            bus.close()
+    wall_seconds = time.monotonic() - wall_start
+
+    extra: dict[str, Any] = {}
+    for node in nodes:
+        summarise = getattr(node, "run_summary", None)
+        if callable(summarise):
+            extra.update(summarise() or {})
+    if summary_world:
+        extra["world"] = summary_world
+
+    failing_node = reason = location = None
+    if blame is not None:
+        node, reason = blame
+        failing_node = node.name
+        info = loaded.info(node)
+        location = str(info.location) if info is not None else None
+    return RunResult(
+        # A root skipped by its _skipIf did nothing and failed nothing: that counts as SUCCESS.
+        status="FAILURE" if status is Status.FAILURE or timed_out else "SUCCESS",
+        failing_node=failing_node,
+        reason=reason or "",
+        sim_seconds=clock.now(),
+        wall_seconds=wall_seconds,
+        ticks=ticks,
+        blackboard=json_entries(loaded.blackboard.items()),
+        extra=extra,
+        failing_location=location,
+    )
+
+
+def run_file(
+    source: Path | str,
+    registry: Registry,
+    options: RunOptions,
+    tree_id: str | None = None,
+    search_paths: Iterable[Path] = (),
+    objectives_dir: Path | None = None,
+    progress: Progress | None = None,
+) -> RunResult:
+    """Load ``source`` and run it: what ``objective run`` does."""
+    options.check()
+    context = make_context(options)
+    loaded = load_tree(source, registry, context, tree_id, search_paths, objectives_dir)
+    return run_tree(loaded, context, options, progress)

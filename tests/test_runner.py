@@ -1,0 +1,189 @@
+"""The runner: ticks on the clock, statuses, the failing node, halting, worlds and summaries."""
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from runtime.behavior import Status
+from runtime.errors import ObjectiveError
+from runtime.loader import load_tree
+from runtime.runner import RunOptions, json_entries, make_context, run_file, run_tree
+from tests.data.nodes import Forever, make_registry
+
+
+@pytest.fixture(scope="module")
+def registry():
+    return make_registry()
+
+
+@pytest.fixture
+def run(registry, tmp_path):
+    lib = tmp_path / "lib"
+    lib.mkdir()
+
+    def _run(body: str, options: RunOptions | None = None, world: Any = None, **kwargs):
+        path = tmp_path / "tree.xml"
+        path.write_text(f'<root BTCPP_format="4" main_tree_to_execute="T">\n<BehaviorTree ID="T">\n{body}\n</BehaviorTree>\n</root>')
+        options = options or RunOptions()
+        context = make_context(options)
+        loaded = load_tree(path, registry, context, objectives_dir=lib)
+        return run_tree(loaded, context, options, world=world, **kwargs), loaded, context
+
+    return _run
+
+
+def test_wait_finishes_on_the_clock(run):
+    # The first tick is at t = 0.01 s (the clock advances before each tick); Wait starts there
+    # and succeeds on the tick where 0.5 s have passed: tick 51, t = 0.51 s.
+    result, _, _ = run('<Wait seconds="0.5"/>')
+    assert (result.status, result.ticks) == ("SUCCESS", 51)
+    assert result.sim_seconds == pytest.approx(0.51)
+    assert result.failing_node is None and result.reason == ""
+    assert result.exit_code == 0
+
+
+def test_tick_rate_sets_the_period(run):
+    result, _, _ = run('<Wait seconds="0.5"/>', RunOptions(tick_hz=10))
+    assert (result.ticks, round(result.sim_seconds, 6)) == (6, 0.6)
+
+
+def test_failure_names_the_failing_leaf_and_its_reason(run):
+    result, _, _ = run("""<Sequence>
+  <AlwaysSuccess/>
+  <FailWith name="grasp" reason="cube slipped"/>
+  <AlwaysSuccess/>
+</Sequence>""")
+    assert (result.status, result.failing_node, result.reason, result.ticks) == ("FAILURE", "grasp", "cube slipped", 1)
+    assert result.failing_location.endswith("tree.xml:5")
+    assert result.exit_code == 1
+
+
+def test_fallback_blames_the_last_child_it_tried(run):
+    result, _, _ = run("""<Fallback>
+  <FailWith name="first" reason="a"/>
+  <FailWith name="second" reason="b"/>
+</Fallback>""")
+    assert (result.failing_node, result.reason) == ("second", "b")
+
+
+def test_a_forgiven_failure_is_not_blamed(run):
+    result, _, _ = run("""<Sequence>
+  <ForceSuccess><FailWith name="forgiven" reason="no matter"/></ForceSuccess>
+  <Inverter name="flip"><AlwaysSuccess/></Inverter>
+</Sequence>""")
+    assert (result.status, result.failing_node) == ("FAILURE", "flip")
+
+
+def test_timeout_blames_the_timeout_node_and_halts_the_child(run):
+    result, loaded, _ = run('<Timeout msec="200" name="deadline"><Forever name="slow"/></Timeout>')
+    assert (result.status, result.failing_node) == ("FAILURE", "deadline")
+    forever = next(n.node for n in loaded.nodes if isinstance(n.node, Forever))
+    assert forever.terminated == [Status.INVALID]
+
+
+def test_failure_in_a_subtree_names_the_leaf(run, tmp_path):
+    result, _, _ = run('<Sequence><SubTree ID="Inner"/></Sequence>\n</BehaviorTree>\n<BehaviorTree ID="Inner">\n'
+                       '<FailWith name="deep" reason="down here"/>')
+    assert (result.failing_node, result.reason) == ("deep", "down here")
+
+
+def test_max_seconds_stops_and_halts_the_running_node(run):
+    result, loaded, _ = run('<Forever name="spin"/>', RunOptions(max_seconds=0.25))
+    assert result.status == "FAILURE"
+    assert result.ticks == 25 and result.sim_seconds == pytest.approx(0.25)
+    assert result.failing_node == "spin"
+    assert result.reason == "stopped after --max-seconds 0.25 s of clock time while 'spin' was RUNNING"
+    assert loaded.root.terminated == [Status.INVALID]
+
+
+def test_sets_fill_the_root_blackboard_and_the_summary_keeps_json_entries(run):
+    result, _, _ = run('<Typed x="{x}" out="{y}"/>', RunOptions(sets={"x": "2.5", "note": "hi"}))
+    assert result.status == "SUCCESS"
+    assert result.blackboard == {"note": "hi", "x": "2.5", "y": 7.5}
+    assert result.to_json()["blackboard"] == {"note": "hi", "x": "2.5", "y": 7.5}
+
+
+def test_json_entries_keeps_what_json_can_carry():
+    import numpy as np
+
+    entries = json_entries([("a", 1), ("b", np.array([1.0, 2.0])), ("c", object()), ("d", float("nan")), ("e", "s")])
+    assert entries == {"a": 1, "b": [1.0, 2.0], "e": "s"}
+
+
+def test_runtime_port_errors_propagate_after_halting(run):
+    with pytest.raises(ObjectiveError) as info:
+        run('<Typed x="{missing}"/>')
+    assert str(info.value).endswith("Typed: port 'x' reads blackboard entry 'missing', which is not set")
+
+
+class FakeWorld:
+    name = "fake"
+
+    def __init__(self) -> None:
+        self.calls: list[Any] = []
+
+    def start(self, context) -> None:
+        self.calls.append("start")
+
+    def step_to(self, t: float) -> None:
+        self.calls.append(round(t, 6))
+
+    def reset(self, seed: int) -> None:
+        pass
+
+    def summary(self) -> dict[str, Any]:
+        return {"cubes_stacked": 3}
+
+    def close(self) -> None:
+        self.calls.append("close")
+
+
+def test_world_is_stepped_before_each_tick_and_summaries_are_merged(run):
+    world = FakeWorld()
+    result, loaded, context = run('<Sequence><Robot/><Wait seconds="0.02"/></Sequence>', world=world)
+    assert result.status == "SUCCESS"
+    assert world.calls == ["start", 0.01, 0.02, 0.03, "close"]
+    assert context.world is world
+    assert result.extra == {"robot": {"ticks": 1}, "world": {"cubes_stacked": 3}}
+    summary = result.to_json()
+    assert summary["robot"] == {"ticks": 1} and summary["world"] == {"cubes_stacked": 3}
+
+
+def test_a_missing_world_is_a_clear_error(run):
+    with pytest.raises(ObjectiveError) as info:
+        run("<Robot/>", RunOptions(world="no-such-world"))
+    assert str(info.value).startswith("no world named 'no-such-world' (worlds: ")
+
+
+def test_trees_that_need_no_world_start_none(run):
+    result, _, context = run("<AlwaysSuccess/>", RunOptions(world="no-such-world"))
+    assert result.status == "SUCCESS" and context.world is None
+
+
+def test_world_is_closed_when_a_tick_raises(run):
+    world = FakeWorld()
+    with pytest.raises(ObjectiveError):
+        run('<Sequence><Robot/><Typed x="{missing}"/></Sequence>', world=world)
+    assert world.calls[-1] == "close"
+
+
+def test_bad_options_are_objective_errors():
+    with pytest.raises(ObjectiveError, match="--policy-latency: latency 'soon'"):
+        RunOptions(policy_latency="soon").check()
+    with pytest.raises(ObjectiveError, match="--max-seconds must be positive"):
+        RunOptions(max_seconds=0).check()
+
+
+def test_runs_are_deterministic(registry, tmp_path):
+    path = Path(__file__).parent / "data" / "subtrees.xml"
+    results = [run_file(path, registry, RunOptions(), objectives_dir=tmp_path) for _ in range(2)]
+    assert results[0].to_json() | {"wall_seconds": 0} == results[1].to_json() | {"wall_seconds": 0}
+    assert results[0].blackboard["greeting"] == "hello world"
+
+
+def test_progress_is_called_every_tick(run):
+    seen: list[tuple[float, int, str]] = []
+    result, _, _ = run('<Wait name="pause" seconds="0.03"/>', progress=lambda t, n, name: seen.append((round(t, 6), n, name)))
+    assert seen == [(0.01, 1, "pause"), (0.02, 2, "pause"), (0.03, 3, "pause"), (0.04, 4, "")]
