@@ -1,0 +1,641 @@
+"""Control nodes with BehaviorTree.CPP v4 semantics, built on py_trees composites.
+
+Every node here re-implements py_trees' ``tick()`` generator so that it does exactly what the
+matching BT.CPP 4.8 ``tick()`` does (the source files are named in each class docstring). The
+rules below are shared by controls, decorators (``runtime.decorators``) and the pre/post
+condition guard (``runtime.conditions``).
+
+How a BT.CPP status maps onto py_trees
+    IDLE is ``Status.INVALID``; RUNNING, SUCCESS and FAILURE are themselves. py_trees has no
+    SKIPPED, so a node that is skipped in a tick sets ``node.skipped = True`` for that tick and
+    leaves its status alone (BT.CPP also keeps the old status of a skipped node: normally IDLE).
+    ``tick_child`` turns that into the tick result ``SKIPPED`` (an alias of ``Status.INVALID``:
+    a child can never legitimately *return* INVALID, so as a result it can only mean skipped).
+    Any node that passes its child's result through (a SubTree, say) should copy ``skipped``.
+
+Halting versus resetting
+    BT.CPP distinguishes ``haltChild`` (call ``halt`` on a RUNNING child, then set it IDLE) from
+    ``resetStatus`` (set IDLE, no callback). ``halt_child`` calls ``child.stop(INVALID)`` only on
+    a RUNNING child — for a leaf that is ``terminate(INVALID)``, "stop what you started" — and
+    otherwise just sets the status back to INVALID. So a leaf's ``terminate(INVALID)`` runs only
+    when it is preempted, never after it already finished. Our composites' ``stop(INVALID)`` is
+    BT.CPP's ``halt()``: it halts running children and resets the others.
+
+Synchronous loops and the wake-up signal
+    In BT.CPP 4.8, SequenceWithMemory, Repeat and RetryUntilSuccessful return RUNNING after a
+    child that completed synchronously (it was IDLE before the tick) and emit a wake-up signal;
+    ``Tree::tickOnce`` then ticks the whole tree again at once, while ``tickExactlyOnce`` does
+    not. We reproduce both: those nodes call ``emit_wake_up`` and return RUNNING, and
+    ``tick_tree`` is ``tickOnce`` (tick, and tick again while RUNNING and woken). A runner that
+    calls ``tick_tree`` therefore finishes ``Repeat num_cycles="100"`` of a synchronous child
+    within one of its ticks, like BT.CPP's ``tickWhileRunning``.
+"""
+from __future__ import annotations
+
+from typing import Any, ClassVar, Generator, Iterator
+
+import py_trees
+
+from .behavior import NodeKind, NodeMixin, RunContext, Status
+from .errors import ObjectiveError
+from .ports import InputPort, PortType
+
+Behaviour = py_trees.behaviour.Behaviour
+TickGenerator = Generator[Behaviour, None, Status]
+
+SKIPPED = Status.INVALID
+"""As the *result* of a child's tick (never as a stored status): the child was skipped."""
+
+COMPLETED = (Status.SUCCESS, Status.FAILURE)
+WAKE_UP_KEY = "behaviortree.wake_up"
+
+
+# -- the node protocol shared by controls, decorators and condition guards --------------------
+def is_skipped(node: Behaviour) -> bool:
+    """True when ``node`` was skipped in the tick it just ran."""
+    return bool(getattr(node, "skipped", False))
+
+
+def tick_child(child: Behaviour) -> TickGenerator:
+    """Tick ``child`` (yielding what it visits, as py_trees expects) and return its result.
+
+    Use it as ``result = yield from tick_child(child)``; ``result`` is RUNNING, SUCCESS,
+    FAILURE or SKIPPED.
+    """
+    yield from child.tick()
+    if is_skipped(child):
+        return SKIPPED
+    if child.status is Status.INVALID:
+        raise ObjectiveError(
+            "returned INVALID from a tick: a node must return RUNNING, SUCCESS or FAILURE",
+            getattr(child, "location", None),
+            f"{getattr(child, 'xml_id', type(child).__name__)} '{child.name}'",
+        )
+    return child.status
+
+
+def halt_child(child: Behaviour) -> None:
+    """BT.CPP ``haltChild``: halt the child if it is RUNNING, then set it back to idle."""
+    if child.status is Status.RUNNING:
+        child.stop(Status.INVALID)
+    reset_status(child)
+
+
+def reset_status(node: Behaviour) -> None:
+    """BT.CPP ``resetStatus``: back to idle without any callback (the node already finished)."""
+    node.status = Status.INVALID
+
+
+def emit_wake_up(context: RunContext) -> None:
+    """Ask ``tick_tree`` to tick the tree again at once (BT.CPP ``emitWakeUpSignal``)."""
+    context.resources[WAKE_UP_KEY] = True
+
+
+def consume_wake_up(context: RunContext) -> bool:
+    return bool(context.resources.pop(WAKE_UP_KEY, False))
+
+
+def tick_root(root: Behaviour) -> Status:
+    """One tick of the tree (BT.CPP ``tickExactlyOnce``); returns the root's result.
+
+    The result is RUNNING, SUCCESS, FAILURE or SKIPPED (``Status.INVALID`` with
+    ``root.skipped``). Like BT.CPP's tree, a root that completed is set back to idle so its next
+    tick starts a fresh run.
+    """
+    for _ in root.tick():
+        pass
+    result = SKIPPED if is_skipped(root) else root.status
+    if result in COMPLETED:
+        reset_status(root)
+    return result
+
+
+def tick_tree(root: Behaviour, context: RunContext) -> Status:
+    """BT.CPP ``tickOnce``: tick, then tick again while RUNNING and a node asked to be woken.
+
+    Synchronous loops (Repeat, RetryUntilSuccessful, SequenceWithMemory) thus finish within
+    one call, exactly as they do in BT.CPP's ``tickOnce``/``tickWhileRunning``.
+    """
+    consume_wake_up(context)
+    result = tick_root(root)
+    while result is Status.RUNNING and consume_wake_up(context):
+        result = tick_root(root)
+    return result
+
+
+def _at_tree_root(node: Behaviour) -> bool:
+    """True when only transparent wrappers (condition guards) sit above ``node``."""
+    parent = node.parent
+    while parent is not None and getattr(parent, "transparent", False):
+        parent = parent.parent
+    return parent is None
+
+
+# -- base classes --------------------------------------------------------------------------------
+class _BtComposite(NodeMixin, py_trees.composites.Composite):
+    """What controls and decorators share: BT.CPP's tick/halt protocol on a py_trees composite.
+
+    Subclasses write ``run(self)``, a generator holding BT.CPP's ``tick()`` body (children are
+    ticked with ``yield from tick_child(child)``) that returns the node's result, and extend
+    ``halt()`` to reset their own state.
+    """
+
+    skipped: bool
+
+    def __init__(self, name: str) -> None:
+        super().__init__(name=name, children=None)
+        self.skipped = False
+
+    def add_child(self, child: Behaviour) -> Any:
+        return super().add_child(child)
+
+    def run(self) -> TickGenerator:  # pragma: no cover - every subclass overrides it
+        raise NotImplementedError
+        yield
+
+    def tick(self) -> Iterator[Behaviour]:
+        result = yield from self.run()
+        self.skipped = result is SKIPPED
+        if not self.skipped:  # BT.CPP keeps the previous status of a skipped node
+            self.status = result
+        yield self
+
+    def tick_child(self, child: Behaviour) -> TickGenerator:
+        self.current_child = child
+        return (yield from tick_child(child))
+
+    def was_active(self) -> bool:
+        """BT.CPP ``isStatusActive(status())`` at the start of a tick.
+
+        A node that finished keeps SUCCESS/FAILURE until its parent resets it; the tree resets
+        its root itself, which ``tick_root`` does and a plain py_trees tick does not, so a root
+        that finished counts as idle here.
+        """
+        if self.status is Status.INVALID:
+            return False
+        return self.status is Status.RUNNING or not _at_tree_root(self)
+
+    def halt(self) -> None:
+        """BT.CPP ``halt()``: halt running children, reset the others, become idle."""
+        for child in self.children:
+            halt_child(child)
+        self.current_child = None
+
+    def stop(self, new_status: Status = Status.INVALID) -> None:
+        if new_status is Status.INVALID:
+            self.halt()
+        self.terminate(new_status)
+        self.status = new_status
+        self.iterator = self.tick()
+
+    def reset_children(self) -> None:
+        """BT.CPP ``resetChildren``: the same as halting every child."""
+        for child in self.children:
+            halt_child(child)
+
+    def wake_up(self) -> None:
+        emit_wake_up(self.context)
+
+    def fail_now(self, what: str) -> ObjectiveError:
+        return ObjectiveError(what, self.location, f"{self.xml_id} '{self.name}'")
+
+
+class ControlNode(_BtComposite):
+    """A node with one or more children that decides which to tick."""
+
+    kind: ClassVar[NodeKind] = NodeKind.CONTROL
+
+    @classmethod
+    def check_children(cls, n: int) -> str | None:
+        return None if n >= 1 else f"a {cls.__name__} needs at least one child, got none"
+
+
+class DecoratorNode(_BtComposite):
+    """A node with exactly one child whose result it transforms.
+
+    Like BT.CPP's ``DecoratorNode::executeTick``, a child that finished (SUCCESS or FAILURE) is
+    set back to idle after every tick of the decorator.
+    """
+
+    kind: ClassVar[NodeKind] = NodeKind.DECORATOR
+
+    @classmethod
+    def check_children(cls, n: int) -> str | None:
+        return None if n == 1 else f"a decorator takes exactly one child, got {n}"
+
+    def add_child(self, child: Behaviour) -> Any:
+        if self.children:
+            raise ValueError(f"decorator '{self.name}' already has a child")
+        return super().add_child(child)
+
+    @property
+    def child(self) -> Behaviour:
+        return self.children[0]
+
+    def tick(self) -> Iterator[Behaviour]:
+        for visited in super().tick():
+            if visited is self and self.child.status in COMPLETED:
+                reset_status(self.child)
+            yield visited
+
+
+# -- sequences and fallbacks ---------------------------------------------------------------------
+class Sequence(ControlNode):
+    """BT.CPP ``SequenceNode`` (src/controls/sequence_node.cpp)."""
+
+    description: ClassVar[str] = (
+        "Ticks its children in order while they succeed; SUCCESS when all succeed, FAILURE at the "
+        "first failure (then it starts over). A RUNNING child is resumed next tick without "
+        "re-ticking the ones before it. Skipped children are passed over; all skipped: skipped."
+    )
+
+    def __init__(self, name: str) -> None:
+        super().__init__(name)
+        self.index = 0
+        self.skipped_count = 0
+
+    def run(self) -> TickGenerator:
+        count = len(self.children)
+        if not self.was_active():
+            self.skipped_count = 0
+        self.status = Status.RUNNING
+        while self.index < count:
+            result = yield from self.tick_child(self.children[self.index])
+            if result is Status.RUNNING:
+                return Status.RUNNING
+            if result is Status.FAILURE:
+                self.reset_children()
+                self.index = 0
+                return Status.FAILURE
+            self.index += 1
+            if result is SKIPPED:
+                self.skipped_count += 1
+        all_skipped = self.skipped_count == count
+        self.reset_children()
+        self.index = 0
+        self.skipped_count = 0
+        return SKIPPED if all_skipped else Status.SUCCESS
+
+    def halt(self) -> None:
+        self.index = 0
+        self.skipped_count = 0
+        super().halt()
+
+
+class SequenceWithMemory(ControlNode):
+    """BT.CPP ``SequenceWithMemory`` (src/controls/sequence_with_memory_node.cpp)."""
+
+    description: ClassVar[str] = (
+        "Like Sequence, but a failure does not send it back to the first child: the next tick "
+        "retries the child that failed. Halting it keeps its place too."
+    )
+
+    def __init__(self, name: str) -> None:
+        super().__init__(name)
+        self.index = 0
+        self.skipped_count = 0
+
+    def run(self) -> TickGenerator:
+        count = len(self.children)
+        if not self.was_active():
+            self.skipped_count = 0
+        self.status = Status.RUNNING
+        while self.index < count:
+            child = self.children[self.index]
+            was_idle = child.status is Status.INVALID
+            result = yield from self.tick_child(child)
+            if result is Status.RUNNING:
+                return Status.RUNNING
+            if result is Status.FAILURE:
+                for later in self.children[self.index:]:
+                    halt_child(later)
+                return Status.FAILURE
+            self.index += 1
+            if result is SKIPPED:
+                self.skipped_count += 1
+            elif was_idle and self.index < count:
+                self.wake_up()
+                return Status.RUNNING
+        all_skipped = self.skipped_count == count
+        self.reset_children()
+        self.index = 0
+        self.skipped_count = 0
+        return SKIPPED if all_skipped else Status.SUCCESS
+
+    # halt() keeps ``index`` on purpose: BT.CPP's SequenceWithMemory::halt does not reset it.
+
+
+class Fallback(ControlNode):
+    """BT.CPP ``FallbackNode`` (src/controls/fallback_node.cpp)."""
+
+    description: ClassVar[str] = (
+        "Ticks its children in order until one succeeds; SUCCESS at the first success, FAILURE "
+        "when all fail. A RUNNING child is resumed next tick. Skipped children are passed over."
+    )
+
+    def __init__(self, name: str) -> None:
+        super().__init__(name)
+        self.index = 0
+        self.skipped_count = 0
+
+    def run(self) -> TickGenerator:
+        count = len(self.children)
+        if not self.was_active():
+            self.skipped_count = 0
+        self.status = Status.RUNNING
+        while self.index < count:
+            result = yield from self.tick_child(self.children[self.index])
+            if result is Status.RUNNING:
+                return Status.RUNNING
+            if result is Status.SUCCESS:
+                self.reset_children()
+                self.index = 0
+                return Status.SUCCESS
+            self.index += 1
+            if result is SKIPPED:
+                self.skipped_count += 1
+        all_skipped = self.skipped_count == count
+        self.reset_children()
+        self.index = 0
+        self.skipped_count = 0
+        return SKIPPED if all_skipped else Status.FAILURE
+
+    def halt(self) -> None:
+        self.index = 0
+        self.skipped_count = 0
+        super().halt()
+
+
+class ReactiveSequence(ControlNode):
+    """BT.CPP ``ReactiveSequence`` (src/controls/reactive_sequence.cpp)."""
+
+    description: ClassVar[str] = (
+        "Ticks every child from the first on every tick: FAILURE as soon as one fails (halting "
+        "the running one), RUNNING at the first running child (halting any other), SUCCESS when "
+        "all succeed. Use it to guard a long action with conditions checked every tick."
+    )
+
+    def run(self) -> TickGenerator:
+        all_skipped = True
+        self.status = Status.RUNNING
+        for index, child in enumerate(self.children):
+            result = yield from self.tick_child(child)
+            all_skipped = all_skipped and result is SKIPPED
+            if result is Status.RUNNING:
+                for other in self.children:
+                    if other is not child:
+                        halt_child(other)
+                return Status.RUNNING
+            if result is Status.FAILURE:
+                self.reset_children()
+                return Status.FAILURE
+            if result is SKIPPED:
+                halt_child(child)
+        self.reset_children()
+        return SKIPPED if all_skipped else Status.SUCCESS
+
+
+class ReactiveFallback(ControlNode):
+    """BT.CPP ``ReactiveFallback`` (src/controls/reactive_fallback.cpp)."""
+
+    description: ClassVar[str] = (
+        "Ticks every child from the first on every tick: SUCCESS as soon as one succeeds "
+        "(halting the running one), RUNNING at the first running child (halting any other), "
+        "FAILURE when all fail. Use it to stop an action once a check passes."
+    )
+
+    def run(self) -> TickGenerator:
+        all_skipped = True
+        self.status = Status.RUNNING
+        for child in self.children:
+            result = yield from self.tick_child(child)
+            all_skipped = all_skipped and result is SKIPPED
+            if result is Status.RUNNING:
+                for other in self.children:
+                    if other is not child:
+                        halt_child(other)
+                return Status.RUNNING
+            if result is Status.SUCCESS:
+                self.reset_children()
+                return Status.SUCCESS
+            if result is SKIPPED:
+                halt_child(child)
+        self.reset_children()
+        return SKIPPED if all_skipped else Status.FAILURE
+
+
+# -- parallel ------------------------------------------------------------------------------------
+def resolve_threshold(value: int, children: int) -> int:
+    """BT.CPP's reading of a Parallel count: negative counts from the end (-1 = all)."""
+    return max(children + value + 1, 0) if value < 0 else value
+
+
+class Parallel(ControlNode):
+    """BT.CPP ``ParallelNode`` (src/controls/parallel_node.cpp)."""
+
+    description: ClassVar[str] = (
+        "Ticks all children every tick (finished ones are not ticked again): SUCCESS once "
+        "success_count children succeeded, FAILURE once failure_count failed or success became "
+        "impossible; then halts the rest. Negative counts mean 'all but N-1' (-1 = all)."
+    )
+    ports = (
+        InputPort("success_count", PortType.INT, -1, "Children that must succeed (-1: all of them)."),
+        InputPort("failure_count", PortType.INT, 1, "Children whose failure fails the Parallel (-1: all)."),
+    )
+
+    def __init__(self, name: str) -> None:
+        super().__init__(name)
+        self.completed: set[int] = set()
+        self.success_count = 0
+        self.failure_count = 0
+
+    def clear(self) -> None:
+        self.completed.clear()
+        self.success_count = 0
+        self.failure_count = 0
+
+    def run(self) -> TickGenerator:
+        count = len(self.children)
+        success_port = self.get_input("success_count")
+        required_success = resolve_threshold(success_port, count)
+        required_failure = resolve_threshold(self.get_input("failure_count"), count)
+        if count < required_success:
+            raise self.fail_now(
+                f"success_count={success_port} needs {required_success} children to succeed, but it has {count}"
+            )
+        if count < required_failure:
+            raise self.fail_now(
+                f"failure_count needs {required_failure} children to fail, but it has {count}"
+            )
+        self.status = Status.RUNNING
+        skipped = 0
+        for index, child in enumerate(self.children):
+            if index not in self.completed:
+                result = yield from self.tick_child(child)
+                if result is SKIPPED:
+                    skipped += 1
+                elif result is Status.SUCCESS:
+                    self.completed.add(index)
+                    self.success_count += 1
+                elif result is Status.FAILURE:
+                    self.completed.add(index)
+                    self.failure_count += 1
+            # BT.CPP checks the thresholds after each child, ticked or not.
+            if self.success_count >= required_success or (
+                success_port < 0 and self.success_count + skipped >= required_success
+            ):
+                self.clear()
+                self.reset_children()
+                return Status.SUCCESS
+            if count - self.failure_count < required_success or self.failure_count == required_failure:
+                self.clear()
+                self.reset_children()
+                return Status.FAILURE
+        return SKIPPED if skipped == count else Status.RUNNING
+
+    def halt(self) -> None:
+        self.clear()
+        super().halt()
+
+
+class ParallelAll(ControlNode):
+    """BT.CPP ``ParallelAllNode`` (src/controls/parallel_all_node.cpp)."""
+
+    description: ClassVar[str] = (
+        "Ticks all children until every one has finished; then FAILURE if at least max_failures "
+        "of them failed, else SUCCESS."
+    )
+    ports = (
+        InputPort("max_failures", PortType.INT, 1, "Failures that make it fail (-1: all children)."),
+    )
+
+    def __init__(self, name: str) -> None:
+        super().__init__(name)
+        self.completed: set[int] = set()
+        self.failure_count = 0
+
+    def run(self) -> TickGenerator:
+        count = len(self.children)
+        max_failures = self.get_input("max_failures")
+        threshold = resolve_threshold(max_failures, count)
+        if count < threshold:
+            raise self.fail_now(f"max_failures={max_failures} is more than its {count} children")
+        self.status = Status.RUNNING
+        skipped = 0
+        for index, child in enumerate(self.children):
+            if index in self.completed:
+                continue
+            result = yield from self.tick_child(child)
+            if result is SKIPPED:
+                skipped += 1
+            elif result in COMPLETED:
+                self.completed.add(index)
+                if result is Status.FAILURE:
+                    self.failure_count += 1
+        if skipped == count:
+            return SKIPPED
+        if skipped + len(self.completed) >= count:
+            self.reset_children()
+            self.completed.clear()
+            failed = self.failure_count >= threshold
+            self.failure_count = 0
+            return Status.FAILURE if failed else Status.SUCCESS
+        return Status.RUNNING
+
+    def halt(self) -> None:
+        self.completed.clear()
+        self.failure_count = 0
+        super().halt()
+
+
+# -- conditionals --------------------------------------------------------------------------------
+class _TwoOrThreeChildren(ControlNode):
+    @classmethod
+    def check_children(cls, n: int) -> str | None:
+        return None if n in (2, 3) else f"{cls.__name__} takes 2 or 3 children, got {n}"
+
+
+class IfThenElse(_TwoOrThreeChildren):
+    """BT.CPP ``IfThenElseNode`` (src/controls/if_then_else_node.cpp)."""
+
+    description: ClassVar[str] = (
+        "The first child is the condition: on SUCCESS it runs the second child, on FAILURE the "
+        "third (or fails when there are only two). The condition is not re-checked while the "
+        "chosen branch is RUNNING."
+    )
+
+    def __init__(self, name: str) -> None:
+        super().__init__(name)
+        self.branch = 0
+
+    def run(self) -> TickGenerator:
+        self.status = Status.RUNNING
+        if self.branch == 0:
+            condition = yield from self.tick_child(self.children[0])
+            if condition is Status.RUNNING:
+                return Status.RUNNING
+            if condition is Status.SUCCESS:
+                self.branch = 1
+            elif condition is Status.FAILURE:
+                if len(self.children) < 3:
+                    return Status.FAILURE
+                self.branch = 2
+            else:
+                # BT.CPP 4.8 throws "Something unexpected happened in IfThenElseNode" here.
+                raise self.fail_now("its condition (first child) was skipped; it must return SUCCESS or FAILURE")
+        result = yield from self.tick_child(self.children[self.branch])
+        if result is Status.RUNNING:
+            return Status.RUNNING
+        self.reset_children()
+        self.branch = 0
+        return result
+
+    def halt(self) -> None:
+        self.branch = 0
+        super().halt()
+
+
+class WhileDoElse(_TwoOrThreeChildren):
+    """BT.CPP ``WhileDoElseNode`` (src/controls/while_do_else_node.cpp)."""
+
+    description: ClassVar[str] = (
+        "Re-checks the condition (first child) every tick: while it succeeds, ticks the second "
+        "child; when it fails, halts the second and ticks the third (or fails with only two)."
+    )
+
+    def run(self) -> TickGenerator:
+        self.status = Status.RUNNING
+        condition = yield from self.tick_child(self.children[0])
+        if condition is Status.RUNNING:
+            return Status.RUNNING
+        three = len(self.children) == 3
+        if condition is Status.SUCCESS:
+            if three:
+                halt_child(self.children[2])
+            result = yield from self.tick_child(self.children[1])
+        elif condition is Status.FAILURE:
+            if not three:
+                result = Status.FAILURE
+            else:
+                halt_child(self.children[1])
+                result = yield from self.tick_child(self.children[2])
+        else:
+            # BT.CPP 4.8 ends in "you are not allowed to set manually the status to IDLE" here.
+            raise self.fail_now("its condition (first child) was skipped; it must return SUCCESS or FAILURE")
+        if result is Status.RUNNING:
+            return Status.RUNNING
+        self.reset_children()
+        return result
+
+
+NODES = (
+    Sequence,
+    SequenceWithMemory,
+    Fallback,
+    ReactiveSequence,
+    ReactiveFallback,
+    Parallel,
+    ParallelAll,
+    IfThenElse,
+    WhileDoElse,
+)
