@@ -1,0 +1,70 @@
+"""Simulated ros2_control-style controllers for the cell, served on the bus with ROS names.
+
+``make_controllers(bus, hardware, clock)`` builds the controller manager and its controllers; the
+world calls ``manager.update(t, dt)`` at 500 Hz before each physics step. The trajectory maths
+(``Trajectory``, ``stitch``, ``stop_trajectory``) is pure and usable on its own.
+"""
+from .admittance import JointTrajectoryAdmittanceController, ParsedGoal, parse_goal
+from .base import Controller, ControllersConfig
+from .compliance import AdmittanceParams, AdmittanceState, admittance_step, cartesian_to_joint
+from .gripper import GripperActionController
+from .manager import (
+    BEST_EFFORT,
+    GRIPPER_CONTROLLER,
+    LIST_SERVICE,
+    STRICT,
+    SWITCH_SERVICE,
+    TRAJECTORY_CONTROLLER,
+    VELOCITY_CONTROLLER,
+    ControllerManager,
+    SwitchOutcome,
+    make_controllers,
+)
+from .trajectory import (
+    SeamError,
+    Trajectory,
+    TrajectoryState,
+    path_violation,
+    stitch,
+    stop_trajectory,
+    wrench_violation,
+)
+from .velocity import VelocityForceController
+
+TRAJECTORY_ACTION = f"/{TRAJECTORY_CONTROLLER}/follow_joint_trajectory"
+GRIPPER_ACTION = f"/{GRIPPER_CONTROLLER}/gripper_cmd"
+VELOCITY_COMMAND_TOPIC = f"/{VELOCITY_CONTROLLER}/commands"
+
+__all__ = [
+    "AdmittanceParams",
+    "AdmittanceState",
+    "BEST_EFFORT",
+    "Controller",
+    "ControllerManager",
+    "ControllersConfig",
+    "GRIPPER_ACTION",
+    "GRIPPER_CONTROLLER",
+    "GripperActionController",
+    "JointTrajectoryAdmittanceController",
+    "LIST_SERVICE",
+    "ParsedGoal",
+    "STRICT",
+    "SWITCH_SERVICE",
+    "SeamError",
+    "SwitchOutcome",
+    "TRAJECTORY_ACTION",
+    "TRAJECTORY_CONTROLLER",
+    "Trajectory",
+    "TrajectoryState",
+    "VELOCITY_COMMAND_TOPIC",
+    "VELOCITY_CONTROLLER",
+    "VelocityForceController",
+    "admittance_step",
+    "cartesian_to_joint",
+    "make_controllers",
+    "parse_goal",
+    "path_violation",
+    "stitch",
+    "stop_trajectory",
+    "wrench_violation",
+]

@@ -1,0 +1,400 @@
+"""``joint_trajectory_admittance_controller``: follows joint trajectories, stitched at seams, compliant.
+
+Serves ``/joint_trajectory_admittance_controller/follow_joint_trajectory``
+(``moveit_pro_controllers_msgs/action/FollowJointTrajectoryWithAdmittance``), the action
+ExecutePolicy streams its chunks to.
+
+How a goal is handled (times on the runtime clock; ``now`` is when the goal arrives):
+
+- The seam is the goal's ``header.stamp`` (zero stamp = now); each point's ``time_from_start``
+  counts from it.
+- While a goal is executing, the new trajectory takes over at the seam without stopping: the seam
+  must not lie after the end of the current trajectory ("seam time exceeds the end of the current
+  trajectory") nor in the past (OLD_HEADER_TIMESTAMP); when the new trajectory has a point at the
+  seam, its position and velocity (when the goal gives velocities) must match the current
+  trajectory's there within the goal's ``path_tolerance``. The superseded goal ends CANCELED with error_code SUPERSEDED.
+- While idle the controller holds its last reference, and a goal starts at its seam (now, or
+  later) from there; a first point at the seam must match the held position within
+  ``path_tolerance``. A late goal whose seam lies after the end of the last trajectory and is
+  already past gets the same "seam time exceeds..." message as while executing.
+- Rejections are delivered as accept-and-abort with an error_code and error_string, because a
+  rejected ROS goal carries no reason.
+
+While executing, every control step checks, in this order:
+1. F/T: any |wrench axis| above the goal's absolute threshold aborts with
+   FORCE_TORQUE_THRESHOLD_EXCEEDED naming the axis, its value and the threshold.
+2. Path: any joint farther than ``path_tolerance`` from the reference aborts with
+   PATH_TOLERANCE_VIOLATED. The reference is the trajectory plus the admittance offset, i.e.
+   exactly what is commanded: yielding to a push is intended motion, not a tracking error.
+3. End: after the last point's time the arm must settle within the goal tolerance
+   (``ControllersConfig.goal_position_tolerance``, or ``path_tolerance`` when tighter) before
+   ``goal_time_tolerance`` elapses (0 = ``ControllersConfig.default_goal_time_tolerance``), else
+   GOAL_TOLERANCE_VIOLATED; then SUCCESSFUL, holding the last point.
+Every abort and a cancel bring the arm to rest smoothly (``stop_trajectory``: zero velocity within
+``ControllersConfig.stop_time``, position/velocity/acceleration continuous), never a jump.
+
+Admittance (see ``compliance``) runs on every control step while the controller is active, with
+the stiffness/damping of the latest accepted goal (empty = the configured defaults).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from builtin_interfaces.msg import Time
+from geometry_msgs.msg import Wrench
+from moveit_pro_controllers_msgs.action import FollowJointTrajectoryWithAdmittance
+from trajectory_msgs.msg import JointTrajectoryPoint
+
+from runtime.bus import Bus, ServerGoalHandle
+from runtime.clock import Clock
+
+from ..hardware import Hardware
+from .base import FT_STATE_INTERFACES, Controller, ControllersConfig, arm_command_interfaces, arm_state_interfaces
+from .compliance import AdmittanceParams, AdmittanceState, admittance_step, cartesian_to_joint
+from .trajectory import (
+    TIME_EPS,
+    SeamError,
+    Trajectory,
+    TrajectoryState,
+    path_violation,
+    stitch,
+    stop_trajectory,
+    wrench_violation,
+)
+
+Action = FollowJointTrajectoryWithAdmittance
+Result = FollowJointTrajectoryWithAdmittance.Result
+
+
+class GoalError(ValueError):
+    """A goal that cannot be executed, with the error_code to report."""
+
+    def __init__(self, code: int, message: str) -> None:
+        super().__init__(message)
+        self.code = code
+
+
+@dataclass(frozen=True)
+class ParsedGoal:
+    """A validated goal, in the hardware's joint order and on absolute clock time."""
+
+    seam_time: float
+    zero_stamp: bool
+    trajectory: Trajectory
+    velocities_given: bool
+    path_tolerance: float
+    goal_time_tolerance: float
+    force_torque_threshold: np.ndarray | None
+    admittance: AdmittanceParams
+
+
+def stamp_seconds(stamp) -> float:
+    return float(stamp.sec) + float(stamp.nanosec) * 1e-9
+
+
+def time_msg(seconds: float) -> Time:
+    sec = math.floor(seconds)
+    nanosec = min(int(round((seconds - sec) * 1e9)), 999_999_999)
+    return Time(sec=int(sec), nanosec=nanosec)
+
+
+def _finite_nonnegative(name: str, value: float) -> float:
+    value = float(value)
+    if not math.isfinite(value) or value < 0:
+        raise GoalError(Result.INVALID_GOAL, f"{name} must be finite and >= 0, got {value}")
+    return value
+
+
+def parse_goal(goal, arm_joints: tuple[str, ...], now: float, admittance: AdmittanceParams) -> ParsedGoal:
+    """Validate a FollowJointTrajectoryWithAdmittance goal; raise GoalError naming the problem."""
+    trajectory = goal.joint_trajectory
+    path_tolerance = _finite_nonnegative("path_tolerance", goal.path_tolerance)
+    goal_time_tolerance = _finite_nonnegative("goal_time_tolerance", goal.goal_time_tolerance)
+
+    names = list(trajectory.joint_names)
+    duplicates = sorted({n for n in names if names.count(n) > 1})
+    missing = [j for j in arm_joints if j not in names]
+    unknown = [n for n in names if n not in arm_joints]
+    if duplicates or missing or unknown:
+        parts = [f"{label} {values}" for label, values in (("missing", missing), ("unknown", unknown), ("duplicated", duplicates)) if values]
+        raise GoalError(
+            Result.INVALID_JOINTS,
+            f"joint names {names} must be exactly the arm joints {list(arm_joints)} (any order): " + ", ".join(parts),
+        )
+    order = [names.index(j) for j in arm_joints]
+
+    points = list(trajectory.points)
+    if not points:
+        raise GoalError(Result.INVALID_GOAL, "the trajectory has no points")
+    n_joints = len(arm_joints)
+    times = np.empty(len(points))
+    positions = np.empty((len(points), n_joints))
+    columns: dict[str, np.ndarray | None] = {"velocities": None, "accelerations": None}
+    for field_name in columns:
+        given = [len(getattr(p, field_name)) > 0 for p in points]
+        if any(given) and not all(given):
+            k = given.index(not given[0])
+            raise GoalError(Result.INVALID_GOAL, f"{field_name} must be given for every point or for none (point {k} differs from point 0)")
+        if given[0]:
+            columns[field_name] = np.empty((len(points), n_joints))
+    for k, point in enumerate(points):
+        tfs = float(point.time_from_start.sec) + float(point.time_from_start.nanosec) * 1e-9
+        times[k] = tfs
+        for field_name, target in (("positions", positions), *((f, a) for f, a in columns.items() if a is not None)):
+            values = np.asarray(getattr(point, field_name), dtype=float)
+            if values.size != n_joints:
+                raise GoalError(Result.INVALID_GOAL, f"point {k} has {values.size} {field_name}, expected {n_joints}")
+            if not np.all(np.isfinite(values)):
+                j = int(np.argmax(~np.isfinite(values)))
+                raise GoalError(Result.INVALID_GOAL, f"point {k} {field_name}[{j}] ({names[j]}) is not finite: {values[j]}")
+            target[k] = values[order]
+    if times[0] < 0:
+        raise GoalError(Result.INVALID_GOAL, f"point 0 has a negative time_from_start ({times[0]:.4f} s)")
+    for k in range(1, len(times)):
+        if times[k] <= times[k - 1]:
+            raise GoalError(
+                Result.INVALID_GOAL,
+                f"time_from_start must increase: point {k} at {times[k]:.4f} s follows point {k - 1} at {times[k - 1]:.4f} s",
+            )
+    if times[-1] <= 0:
+        raise GoalError(Result.INVALID_GOAL, "the last point's time_from_start must be > 0")
+
+    thresholds = None
+    if len(goal.absolute_force_torque_threshold) > 0:
+        thresholds = np.asarray(goal.absolute_force_torque_threshold, dtype=float)
+        if thresholds.size != 6:
+            raise GoalError(Result.INVALID_GOAL, f"absolute_force_torque_threshold needs 6 values (Fx Fy Fz Tx Ty Tz) or none, got {thresholds.size}")
+        for i, value in enumerate(thresholds):
+            if math.isnan(value) or value <= 0:
+                raise GoalError(Result.INVALID_GOAL, f"absolute_force_torque_threshold[{i}] must be > 0, got {value}")
+    try:
+        params = admittance.with_goal(goal.admittance_stiffness, goal.admittance_damping)
+    except ValueError as exc:
+        raise GoalError(Result.INVALID_GOAL, str(exc)) from None
+
+    stamp = stamp_seconds(trajectory.header.stamp)
+    zero_stamp = stamp == 0.0
+    seam = now if zero_stamp else stamp
+    return ParsedGoal(
+        seam_time=seam,
+        zero_stamp=zero_stamp,
+        trajectory=Trajectory.from_points(seam + times, positions, columns["velocities"], columns["accelerations"]),
+        velocities_given=columns["velocities"] is not None,
+        path_tolerance=path_tolerance,
+        goal_time_tolerance=goal_time_tolerance,
+        force_torque_threshold=thresholds,
+        admittance=params,
+    )
+
+
+@dataclass
+class _ActiveGoal:
+    handle: ServerGoalHandle
+    goal: ParsedGoal
+    cancel_requested: bool = False
+
+
+class JointTrajectoryAdmittanceController(Controller):
+    type_name = "moveit_pro_controllers/JointTrajectoryAdmittanceController"
+
+    def __init__(self, name: str, bus: Bus, hardware: Hardware, clock: Clock, config: ControllersConfig) -> None:
+        super().__init__(name, hardware, clock, config)
+        self.action_name = f"/{name}/follow_joint_trajectory"
+        self.joint_names = tuple(hardware.arm_joint_names)
+        self._reference = Trajectory.hold(clock.now(), hardware.arm_position())
+        self._goal: _ActiveGoal | None = None
+        self._params = config.admittance
+        self._compliance = AdmittanceState()
+        self._joint_offset = np.zeros(len(self.joint_names))
+        self._last_feedback = -math.inf
+        bus.create_action_server(self.action_name, Action, self._on_goal, self._on_cancel)
+
+    # -- ros2_control lifecycle ---
+    @property
+    def command_interfaces(self) -> tuple[str, ...]:
+        return arm_command_interfaces(self.hardware)
+
+    @property
+    def state_interfaces(self) -> tuple[str, ...]:
+        return arm_state_interfaces(self.hardware) + FT_STATE_INTERFACES
+
+    def busy_reason(self) -> str | None:
+        if self._goal is not None:
+            return f"it is executing goal {self._goal.handle.goal_id[:8]} (cancel it first)"
+        return None
+
+    def on_activate(self, t: float) -> None:
+        self._reference = Trajectory.hold(t, self.hardware.arm_position())
+        self._params = self.config.admittance
+        self._compliance = AdmittanceState()
+        self._joint_offset = np.zeros(len(self.joint_names))
+        self.hardware.command_arm(self._reference.positions[0], np.zeros(len(self.joint_names)))
+
+    # -- introspection (tests, events) ---
+    @property
+    def executing(self) -> bool:
+        return self._goal is not None
+
+    @property
+    def reference(self) -> Trajectory:
+        """The trajectory being followed (a hold after the last point), without the admittance offset."""
+        return self._reference
+
+    @property
+    def joint_offset(self) -> np.ndarray:
+        """The admittance offset added to the reference at the last control step (joint space)."""
+        return self._joint_offset.copy()
+
+    @property
+    def cartesian_offset(self) -> np.ndarray:
+        return self._compliance.offset.copy()
+
+    # -- action server callbacks (called by the bus, between control steps) ---
+    def _on_goal(self, handle: ServerGoalHandle) -> bool:
+        now = self.clock.now()
+        try:
+            if not self.active:
+                raise GoalError(Result.INVALID_GOAL, f"controller {self.name} is not active")
+            goal = parse_goal(handle.request, self.joint_names, now, self.config.admittance)
+            self._reference = self._take_over(goal, now)
+        except GoalError as exc:
+            handle.abort(Result(error_code=exc.code, error_string=exc.args[0]))
+            return True
+        previous, self._goal = self._goal, _ActiveGoal(handle, goal)
+        self._params = goal.admittance
+        if previous is not None and previous.handle.is_active:
+            previous.handle.canceled(
+                Result(error_code=Result.SUPERSEDED, error_string=f"superseded by a new goal taking over at t={goal.seam_time:.4f} s")
+            )
+        return True
+
+    def _take_over(self, goal: ParsedGoal, now: float) -> Trajectory:
+        """The reference after stitching ``goal`` in, or GoalError saying why it cannot be."""
+        current = self._reference
+        seam = goal.seam_time
+        executing = self._goal is not None
+        past_end = seam > current.end_time + TIME_EPS
+        if past_end and (executing or seam < now - TIME_EPS):
+            raise GoalError(
+                Result.INVALID_GOAL,
+                "seam time exceeds the end of the current trajectory "
+                f"(seam t={seam:.4f} s, trajectory ends at t={current.end_time:.4f} s)",
+            )
+        if seam < now - TIME_EPS:
+            raise GoalError(Result.OLD_HEADER_TIMESTAMP, f"seam time t={seam:.4f} s is already past (now t={now:.4f} s)")
+        try:
+            stitched = stitch(
+                current,
+                goal.trajectory,
+                seam,
+                goal.path_tolerance,
+                self.joint_names,
+                allow_after_end=not executing,
+                check_velocity=goal.velocities_given,
+            )
+        except SeamError as exc:
+            raise GoalError(Result.INVALID_GOAL, str(exc)) from None
+        return stitched.trimmed_before(now)
+
+    def _on_cancel(self, handle: ServerGoalHandle) -> bool:
+        if self._goal is None or self._goal.handle is not handle:
+            return False
+        self._goal.cancel_requested = True
+        return True
+
+    # -- control loop ---
+    def on_deactivate(self, t: float) -> None:
+        if self._goal is not None:  # the manager refuses this; kept so a handle never dangles
+            self._finish(t, "abort", Result(error_code=Result.INVALID_GOAL, error_string=f"controller {self.name} was deactivated"))
+
+    def update(self, t: float, dt: float) -> None:
+        if self._goal is not None and (self._goal.cancel_requested or self._goal.handle.is_cancel_requested):
+            self._finish(t, "canceled", Result(error_code=Result.CANCELED, error_string="canceled by the client"))
+
+        wrench = np.asarray(self.hardware.wrench(), dtype=float)
+        self._compliance = admittance_step(self._compliance, wrench, self._params, dt)
+        jacobian = self.hardware.wrist_jacobian()
+        self._joint_offset = cartesian_to_joint(jacobian, self._compliance.offset)
+        offset_rate = cartesian_to_joint(jacobian, self._compliance.rate)
+
+        desired = self._reference.sample(t)
+        command = desired.position + self._joint_offset
+        if self._goal is not None:
+            self._supervise(t, wrench, command)
+            desired = self._reference.sample(t)  # unchanged at t when a stop just began
+            command = desired.position + self._joint_offset
+        self.hardware.command_arm(command, desired.velocity + offset_rate)
+
+    def _supervise(self, t: float, wrench: np.ndarray, command: np.ndarray) -> None:
+        goal = self._goal
+        assert goal is not None
+        parsed = goal.goal
+        actual = np.asarray(self.hardware.arm_position(), dtype=float)
+        self._publish_feedback(t, goal, command, actual, wrench)
+
+        ft = wrench_violation(wrench, parsed.force_torque_threshold)
+        if ft is not None:
+            self._finish(t, "abort", Result(error_code=Result.FORCE_TORQUE_THRESHOLD_EXCEEDED, error_string=f"force-torque threshold exceeded at t={t:.3f} s: {ft}"))
+            return
+        path = path_violation(actual, command, parsed.path_tolerance, self.joint_names)
+        if path is not None:
+            self._finish(t, "abort", Result(error_code=Result.PATH_TOLERANCE_VIOLATED, error_string=f"path tolerance violated at t={t:.3f} s on {path}"))
+            return
+        end = self._reference.end_time
+        if t < end - TIME_EPS:
+            return
+        tolerance = self.config.goal_position_tolerance
+        if parsed.path_tolerance > 0:
+            tolerance = min(tolerance, parsed.path_tolerance)
+        settle = path_violation(actual, command, tolerance, self.joint_names)
+        if settle is None:
+            self._finish(t, "succeed", Result(error_code=Result.SUCCESSFUL, error_string=""))
+            return
+        allowed = parsed.goal_time_tolerance or self.config.default_goal_time_tolerance
+        if t > end + allowed + TIME_EPS:
+            self._finish(
+                t,
+                "abort",
+                Result(
+                    error_code=Result.GOAL_TOLERANCE_VIOLATED,
+                    error_string=f"goal not reached {allowed:.3f} s after the trajectory ended at t={end:.3f} s: {settle}",
+                ),
+            )
+
+    def _finish(self, t: float, how: str, result) -> None:
+        """End the current goal; anything but success also brings the arm smoothly to rest."""
+        goal = self._goal
+        assert goal is not None
+        self._goal = None
+        if how != "succeed":
+            self._reference = stop_trajectory(self._reference.sample(t), t, self.config.stop_time)
+        if not goal.handle.is_active:
+            return
+        if how == "succeed":
+            goal.handle.succeed(result)
+        elif how == "canceled":
+            goal.handle.canceled(result)
+        else:
+            goal.handle.abort(result)
+
+    def _publish_feedback(self, t: float, goal: _ActiveGoal, command: np.ndarray, actual: np.ndarray, wrench: np.ndarray) -> None:
+        if t - self._last_feedback < 1.0 / self.config.feedback_rate - TIME_EPS:
+            return
+        self._last_feedback = t
+        desired: TrajectoryState = self._reference.sample(t)
+        velocity = np.asarray(self.hardware.arm_velocity(), dtype=float)
+        feedback = Action.Feedback()
+        feedback.header.stamp = time_msg(t)
+        feedback.joint_names = list(self.joint_names)
+        feedback.desired = JointTrajectoryPoint(positions=command.tolist(), velocities=desired.velocity.tolist())
+        feedback.actual = JointTrajectoryPoint(positions=actual.tolist(), velocities=velocity.tolist())
+        feedback.error = JointTrajectoryPoint(
+            positions=(command - actual).tolist(), velocities=(desired.velocity - velocity).tolist()
+        )
+        wrench_msg = Wrench()
+        wrench_msg.force.x, wrench_msg.force.y, wrench_msg.force.z = (float(v) for v in wrench[:3])
+        wrench_msg.torque.x, wrench_msg.torque.y, wrench_msg.torque.z = (float(v) for v in wrench[3:])
+        feedback.wrench = wrench_msg
+        goal.handle.publish_feedback(feedback)

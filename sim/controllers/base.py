@@ -1,0 +1,109 @@
+"""What every simulated controller shares: a name, claimed interfaces and an active flag.
+
+As in ros2_control, a controller claims command interfaces while it is active, only active
+controllers act on goals and commands, and the controller manager calls ``update`` at the control
+rate for the active ones. Subclasses override the ``on_activate``/``on_deactivate``/``update``
+hooks and ``busy_reason`` (why it must not be deactivated right now).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+from runtime.clock import Clock
+
+from ..hardware import Hardware
+from .compliance import AdmittanceParams
+
+
+@dataclass
+class ControllersConfig:
+    """Tunables of the simulated controllers (defaults suit the UR5e + 2F-85 cell)."""
+
+    feedback_rate: float = 50.0
+    """Hz at which action feedback is published (the control loop itself runs at 500 Hz)."""
+    stop_time: float = 0.2
+    """Seconds to decelerate to rest on cancel, F/T abort or path-tolerance abort."""
+    goal_position_tolerance: float = 0.01
+    """Radians within which the arm must settle at a trajectory's last point (capped by the goal's
+    path_tolerance when that is tighter)."""
+    default_goal_time_tolerance: float = 1.0
+    """Seconds allowed to settle after the last point when a goal's goal_time_tolerance is 0."""
+    admittance: AdmittanceParams = field(default_factory=AdmittanceParams)
+    velocity_command_timeout: float = 0.1
+    """The velocity controller stops the arm when no command arrived for this long (seconds)."""
+    max_joint_velocity: float = math.pi
+    """rad/s; velocity commands are clipped to it (the UR5e's published limit)."""
+    gripper_position_tolerance: float = 0.01
+    """Radians of the driver joint within which a gripper goal counts as reached."""
+    gripper_stall_velocity: float = 0.02
+    """rad/s below which the fingers count as not moving."""
+    gripper_stall_time: float = 0.1
+    """Seconds the fingers must stay still, short of the target, to report a stall."""
+    gripper_start_grace: float = 0.2
+    """Seconds after a gripper goal starts before a stall can be reported (the fingers accelerate)."""
+    gripper_default_effort: float = 100.0
+    """Newtons used when a GripperCommand asks for max_effort 0."""
+    gripper_max_position: float = 0.8
+    """Driver joint position when fully closed (0 is open)."""
+
+
+class Controller:
+    """Base of the simulated controllers: lifecycle and bookkeeping, no behaviour of its own."""
+
+    type_name = "controller_interface/ControllerInterface"
+
+    def __init__(self, name: str, hardware: Hardware, clock: Clock, config: ControllersConfig) -> None:
+        self.name = name
+        self.hardware = hardware
+        self.clock = clock
+        self.config = config
+        self.active = False
+
+    # -- what the controller manager asks ---
+    @property
+    def command_interfaces(self) -> tuple[str, ...]:
+        """Command interfaces claimed while active (two controllers may not share one)."""
+        return ()
+
+    @property
+    def state_interfaces(self) -> tuple[str, ...]:
+        return ()
+
+    def busy_reason(self) -> str | None:
+        """Why this controller must not be deactivated now (None when it may)."""
+        return None
+
+    def activate(self, t: float) -> None:
+        self.active = True
+        self.on_activate(t)
+
+    def deactivate(self, t: float) -> None:
+        self.on_deactivate(t)
+        self.active = False
+
+    # -- hooks ---
+    def on_activate(self, t: float) -> None:
+        pass
+
+    def on_deactivate(self, t: float) -> None:
+        pass
+
+    def update(self, t: float, dt: float) -> None:
+        """One control step at time ``t`` (called only while active)."""
+
+    def __repr__(self) -> str:
+        return f"{type(self).__name__}({self.name!r}, {'active' if self.active else 'inactive'})"
+
+
+def arm_command_interfaces(hardware: Hardware) -> tuple[str, ...]:
+    return tuple(f"{joint}/{kind}" for joint in hardware.arm_joint_names for kind in ("position", "velocity"))
+
+
+def arm_state_interfaces(hardware: Hardware) -> tuple[str, ...]:
+    return tuple(f"{joint}/{kind}" for joint in hardware.arm_joint_names for kind in ("position", "velocity"))
+
+
+FT_STATE_INTERFACES = tuple(
+    f"wrist_ft_sensor/{axis}" for axis in ("force.x", "force.y", "force.z", "torque.x", "torque.y", "torque.z")
+)

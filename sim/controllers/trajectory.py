@@ -1,0 +1,289 @@
+"""Joint trajectories for the simulated controllers: sampling, stitching at a seam, smooth stops.
+
+Pure functions and an immutable ``Trajectory``; no messages, no clock, no hardware, so the maths
+is tested on its own and the controllers stay thin state machines.
+
+Every point of a ``Trajectory`` carries position, velocity and acceleration, and consecutive
+points are joined by quintic Hermite polynomials. Quintic (rather than cubic) because a piece of
+a quintic (or of a cubic) is reproduced exactly by the quintic through its end states: cutting a
+trajectory at any instant and continuing it from its sampled state keeps its shape, which is what
+stitching at a seam needs. Missing velocities or accelerations are filled in by finite
+differences (``numpy.gradient``, second order inside, one-sided at the ends); a positions-only
+trajectory comes to rest at its last point, which the controller then holds.
+
+Times are absolute, on the runtime clock (the goal's seam stamp plus ``time_from_start``).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+TIME_EPS = 1e-9
+"""Seconds within which two instants are the same (seam exactly at a point, at the end)."""
+
+
+class SeamError(ValueError):
+    """A new trajectory cannot take over from the current one at the requested seam."""
+
+
+@dataclass(frozen=True)
+class TrajectoryState:
+    """Position, velocity and acceleration of every joint at one instant."""
+
+    position: np.ndarray
+    velocity: np.ndarray
+    acceleration: np.ndarray
+
+
+def _quintic_coefficients(
+    h: float, p0: np.ndarray, v0: np.ndarray, a0: np.ndarray, p1: np.ndarray, v1: np.ndarray, a1: np.ndarray
+) -> np.ndarray:
+    """Coefficients c0..c5 (shape 6 x J) of p(tau) = sum c_k tau^k matching both end states."""
+    dp = p1 - p0
+    c3 = (20 * dp - (8 * v1 + 12 * v0) * h - (3 * a0 - a1) * h**2) / (2 * h**3)
+    c4 = (-30 * dp + (14 * v1 + 16 * v0) * h + (3 * a0 - 2 * a1) * h**2) / (2 * h**4)
+    c5 = (12 * dp - 6 * (v1 + v0) * h + (a1 - a0) * h**2) / (2 * h**5)
+    return np.stack([p0, v0, a0 / 2.0, c3, c4, c5])
+
+
+@dataclass(frozen=True)
+class Trajectory:
+    """Knots (absolute times, positions, velocities, accelerations) joined by quintic Hermite pieces.
+
+    Before the first knot and after the last, the trajectory holds that knot's position at rest:
+    a finished trajectory is a hold.
+    """
+
+    times: np.ndarray
+    positions: np.ndarray
+    velocities: np.ndarray
+    accelerations: np.ndarray
+    _coefficients: np.ndarray = field(init=False, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        times = np.asarray(self.times, dtype=float).reshape(-1)
+        n = times.size
+        if n == 0:
+            raise ValueError("a trajectory needs at least one point")
+        arrays = {}
+        for name in ("positions", "velocities", "accelerations"):
+            value = np.asarray(getattr(self, name), dtype=float)
+            if value.ndim != 2 or value.shape[0] != n:
+                raise ValueError(f"trajectory {name} must have shape ({n}, joints), got {value.shape}")
+            if not np.all(np.isfinite(value)):
+                raise ValueError(f"trajectory {name} contain non-finite values")
+            arrays[name] = value
+        if arrays["velocities"].shape != arrays["positions"].shape or arrays["accelerations"].shape != arrays["positions"].shape:
+            raise ValueError("trajectory positions, velocities and accelerations must have the same shape")
+        if not np.all(np.isfinite(times)):
+            raise ValueError("trajectory times contain non-finite values")
+        steps = np.diff(times)
+        if np.any(steps <= 0):
+            k = int(np.argmax(steps <= 0)) + 1
+            raise ValueError(f"trajectory times must increase strictly: point {k} at t={times[k]:.6f} s follows t={times[k - 1]:.6f} s")
+        object.__setattr__(self, "times", times)
+        for name, value in arrays.items():
+            object.__setattr__(self, name, value)
+        p, v, a = arrays["positions"], arrays["velocities"], arrays["accelerations"]
+        coefficients = np.empty((max(n - 1, 0), 6, p.shape[1]))
+        for k in range(n - 1):
+            coefficients[k] = _quintic_coefficients(steps[k], p[k], v[k], a[k], p[k + 1], v[k + 1], a[k + 1])
+        object.__setattr__(self, "_coefficients", coefficients)
+
+    # -- construction ---
+    @classmethod
+    def from_points(
+        cls,
+        times: np.ndarray,
+        positions: np.ndarray,
+        velocities: np.ndarray | None = None,
+        accelerations: np.ndarray | None = None,
+    ) -> Trajectory:
+        """Build from waypoints, filling missing velocities/accelerations by finite differences.
+
+        Without velocities the trajectory comes to rest at its last point (velocity and
+        acceleration zero there), since the controller holds that point afterwards.
+        """
+        times = np.asarray(times, dtype=float).reshape(-1)
+        positions = np.atleast_2d(np.asarray(positions, dtype=float))
+        at_rest_at_end = velocities is None
+        if velocities is None:
+            velocities = _differentiate(positions, times)
+            velocities[-1] = 0.0
+        velocities = np.atleast_2d(np.asarray(velocities, dtype=float))
+        if accelerations is None:
+            accelerations = _differentiate(velocities, times)
+            if at_rest_at_end:
+                accelerations[-1] = 0.0
+        return cls(times, positions, velocities, np.atleast_2d(np.asarray(accelerations, dtype=float)))
+
+    @classmethod
+    def hold(cls, t: float, position: np.ndarray) -> Trajectory:
+        """Stay at ``position`` (at rest) from ``t`` on."""
+        q = np.asarray(position, dtype=float).reshape(1, -1)
+        return cls(np.array([float(t)]), q, np.zeros_like(q), np.zeros_like(q))
+
+    # -- queries ---
+    @property
+    def num_joints(self) -> int:
+        return int(self.positions.shape[1])
+
+    @property
+    def start_time(self) -> float:
+        return float(self.times[0])
+
+    @property
+    def end_time(self) -> float:
+        return float(self.times[-1])
+
+    def sample(self, t: float) -> TrajectoryState:
+        """The state at absolute time ``t``; outside the knots, the nearest end point's position at rest."""
+        for k in (0, -1):
+            if t == self.times[k]:
+                return TrajectoryState(self.positions[k].copy(), self.velocities[k].copy(), self.accelerations[k].copy())
+        if t < self.times[0] or t > self.times[-1]:
+            q = self.positions[0 if t < self.times[0] else -1].copy()
+            return TrajectoryState(q, np.zeros_like(q), np.zeros_like(q))
+        k = int(np.searchsorted(self.times, t, side="right")) - 1
+        c = self._coefficients[k]
+        tau = t - self.times[k]
+        position = c[0] + tau * (c[1] + tau * (c[2] + tau * (c[3] + tau * (c[4] + tau * c[5]))))
+        velocity = c[1] + tau * (2 * c[2] + tau * (3 * c[3] + tau * (4 * c[4] + tau * 5 * c[5])))
+        acceleration = 2 * c[2] + tau * (6 * c[3] + tau * (12 * c[4] + tau * 20 * c[5]))
+        return TrajectoryState(position, velocity, acceleration)
+
+    def trimmed_before(self, t: float) -> Trajectory:
+        """Drop knots that can no longer be sampled from ``t`` on (keeps the piece containing ``t``)."""
+        keep_from = max(int(np.searchsorted(self.times, t, side="right")) - 1, 0)
+        if keep_from == 0:
+            return self
+        return Trajectory(
+            self.times[keep_from:], self.positions[keep_from:], self.velocities[keep_from:], self.accelerations[keep_from:]
+        )
+
+
+def _differentiate(values: np.ndarray, times: np.ndarray) -> np.ndarray:
+    if times.size < 2:
+        return np.zeros_like(values)
+    return np.gradient(values, times, axis=0, edge_order=1)
+
+
+def _joint_label(joint_names: tuple[str, ...] | None, j: int) -> str:
+    return joint_names[j] if joint_names is not None else f"joint {j}"
+
+
+def stitch(
+    current: Trajectory,
+    new: Trajectory,
+    seam_time: float,
+    path_tolerance: float = 0.0,
+    joint_names: tuple[str, ...] | None = None,
+    allow_after_end: bool = False,
+    check_velocity: bool = True,
+) -> Trajectory:
+    """Follow ``current`` until ``seam_time`` and ``new`` after it, continuous at the seam.
+
+    Checks, raising ``SeamError`` with a message a user can act on:
+    - the seam must not lie after the end of ``current`` (unless ``allow_after_end``: an idle
+      controller holding its last point may start a new motion later);
+    - when ``new`` has a point at the seam itself and ``path_tolerance`` > 0, that point's position
+      and velocity must agree with ``current``'s sample there within ``path_tolerance`` (radians,
+      and radians per second for the velocity, as the guide's goal_path_tolerance). With
+      ``check_velocity`` False only positions are compared (for a new trajectory whose velocities
+      were estimated by finite differences, not stated by its sender).
+
+    The knot at the seam is ``current``'s own state there (position, velocity, acceleration), so
+    the result is continuous up to acceleration and identical to ``current`` before the seam; a
+    point of ``new`` at the seam itself is represented by that state (they agree within the
+    tolerance just checked). When ``new`` starts after the seam, the piece between the seam and
+    its first point bridges from ``current``'s state, as ros2_control's JTC does from the state at
+    the goal's stamp.
+    """
+    if new.num_joints != current.num_joints:
+        raise SeamError(f"the new trajectory has {new.num_joints} joints, the current one {current.num_joints}")
+    if seam_time > current.end_time + TIME_EPS and not allow_after_end:
+        raise SeamError(
+            "seam time exceeds the end of the current trajectory "
+            f"(seam t={seam_time:.4f} s, trajectory ends at t={current.end_time:.4f} s)"
+        )
+    if new.start_time < seam_time - TIME_EPS:
+        raise SeamError(f"the new trajectory starts at t={new.start_time:.4f} s, before the seam t={seam_time:.4f} s")
+    at_seam = current.sample(seam_time)
+    new_starts_at_seam = new.start_time <= seam_time + TIME_EPS
+    if new_starts_at_seam and path_tolerance > 0:
+        comparisons = [("position", "rad", at_seam.position, new.positions[0])]
+        if check_velocity:
+            comparisons.append(("velocity", "rad/s", at_seam.velocity, new.velocities[0]))
+        for label, unit, ours, theirs in comparisons:
+            deviation = np.abs(theirs - ours)
+            j = int(np.argmax(deviation))
+            if deviation[j] > path_tolerance:
+                raise SeamError(
+                    f"{label} deviation at the seam on {_joint_label(joint_names, j)}: {deviation[j]:.4f} {unit} "
+                    f"exceeds the path tolerance {path_tolerance:.4f} (seam t={seam_time:.4f} s; "
+                    f"current {ours[j]:.4f}, new {theirs[j]:.4f})"
+                )
+    before = current.times < seam_time - TIME_EPS
+    after = new.times > seam_time + TIME_EPS
+    return Trajectory(
+        np.concatenate([current.times[before], [seam_time], new.times[after]]),
+        np.vstack([current.positions[before], at_seam.position, new.positions[after]]),
+        np.vstack([current.velocities[before], at_seam.velocity, new.velocities[after]]),
+        np.vstack([current.accelerations[before], at_seam.acceleration, new.accelerations[after]]),
+    )
+
+
+def stop_trajectory(state: TrajectoryState, t: float, stop_time: float) -> Trajectory:
+    """Decelerate from ``state`` at ``t`` to rest within ``stop_time`` seconds, then hold.
+
+    The stopping distance is that of a constant deceleration (v * T / 2); the quintic joining
+    the two states keeps position, velocity and acceleration continuous, so an abort never
+    commands a jump.
+    """
+    if stop_time <= 0:
+        raise ValueError(f"stop_time must be > 0, got {stop_time}")
+    q = np.asarray(state.position, dtype=float)
+    v = np.asarray(state.velocity, dtype=float)
+    if not np.any(v) and not np.any(state.acceleration):
+        return Trajectory.hold(t, q)
+    end = q + v * stop_time / 2.0
+    zeros = np.zeros_like(q)
+    return Trajectory(
+        np.array([t, t + stop_time]),
+        np.vstack([q, end]),
+        np.vstack([v, zeros]),
+        np.vstack([np.asarray(state.acceleration, dtype=float), zeros]),
+    )
+
+
+def path_violation(
+    actual: np.ndarray, reference: np.ndarray, tolerance: float, joint_names: tuple[str, ...] | None = None
+) -> str | None:
+    """The worst joint whose |actual - reference| exceeds ``tolerance`` (0 = no check), or None."""
+    if tolerance <= 0:
+        return None
+    error = np.abs(np.asarray(actual) - np.asarray(reference))
+    j = int(np.argmax(error))
+    if error[j] <= tolerance:
+        return None
+    return f"{_joint_label(joint_names, j)}: error {error[j]:.4f} rad exceeds the path tolerance {tolerance:.4f} rad"
+
+
+WRENCH_AXES = ("Fx", "Fy", "Fz", "Tx", "Ty", "Tz")
+WRENCH_UNITS = ("N", "N", "N", "N m", "N m", "N m")
+
+
+def wrench_violation(wrench: np.ndarray, thresholds: np.ndarray | None) -> str | None:
+    """The axis whose |wrench| exceeds its absolute threshold the most (relative), or None."""
+    if thresholds is None or len(thresholds) == 0:
+        return None
+    magnitude = np.abs(np.asarray(wrench, dtype=float))
+    ratio = magnitude / np.asarray(thresholds, dtype=float)
+    i = int(np.argmax(ratio))
+    if magnitude[i] <= thresholds[i]:
+        return None
+    return (
+        f"{WRENCH_AXES[i]} = {float(wrench[i]):.2f} {WRENCH_UNITS[i]}, "
+        f"beyond the absolute threshold {float(thresholds[i]):.2f} {WRENCH_UNITS[i]}"
+    )
