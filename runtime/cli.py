@@ -1,0 +1,303 @@
+"""``objective``: run, validate, show and describe BehaviorTree.CPP v4 Objectives.
+
+Exit codes: 0 SUCCESS, 1 FAILURE (the failing node and its reason on stderr), 2 bad input
+(the error, ``file:line: Node: what``, on stderr; never a traceback).
+
+The CLI is the composition root: behaviors come from the ``objective.behaviors`` entry points
+and worlds from ``objective.worlds``, so the runtime imports neither.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import sys
+from pathlib import Path
+from typing import Any, Sequence
+from xml.sax.saxutils import escape, quoteattr
+
+from .errors import ObjectiveError
+from .ports import Direction, PortType
+from .registry import Registry
+
+EXIT_SUCCESS, EXIT_FAILURE, EXIT_BAD_INPUT = 0, 1, 2
+
+# Nodes BehaviorTree.CPP (and so Groot2) already knows; `objective models` leaves them out.
+BTCPP_BUILTINS = frozenset({
+    "AlwaysFailure", "AlwaysSuccess", "Delay", "Fallback", "ForceFailure", "ForceSuccess",
+    "IfThenElse", "Inverter", "KeepRunningUntilFailure", "Parallel", "ParallelAll", "Precondition",
+    "ReactiveFallback", "ReactiveSequence", "Repeat", "RetryUntilSuccessful", "RunOnce", "Script",
+    "ScriptCondition", "Sequence", "SequenceWithMemory", "SetBlackboard", "Sleep", "SubTree",
+    "Switch2", "Switch3", "Switch4", "Switch5", "Switch6", "Timeout", "UnsetBlackboard",
+    "WhileDoElse", "WasEntryUpdated", "SkipUnlessUpdated", "WaitValueUpdate",
+})
+_MODEL_TYPES = {PortType.STRING: "std::string"}
+
+
+def _parse_set(text: str) -> tuple[str, str]:
+    name, sep, value = text.partition("=")
+    if not sep or not name.strip():
+        raise argparse.ArgumentTypeError(f"expected name=value, got {text!r}")
+    return name.strip(), value
+
+
+def _positive_float(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number of seconds, got {text!r}") from None
+    if not value > 0:
+        raise argparse.ArgumentTypeError(f"must be positive, got {text!r}")
+    return value
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="objective",
+        description="Run BehaviorTree.CPP v4 Objectives headless.",
+        epilog="Exit codes: 0 SUCCESS, 1 FAILURE, 2 bad input.",
+    )
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+
+    def add_paths(p: argparse.ArgumentParser) -> None:
+        p.add_argument("--path", action="append", type=Path, default=[], metavar="DIR",
+                       help="another directory of *.xml to find SubTrees in (after objectives/); repeatable")
+        p.add_argument("--objectives-dir", type=Path, default=None, metavar="DIR",
+                       help="the library searched first for SubTrees (default: the project's objectives/)")
+
+    run = sub.add_parser("run", help="run an Objective until it succeeds or fails")
+    run.add_argument("file", type=Path)
+    run.add_argument("--tree", metavar="ID", help="the BehaviorTree to run (default: main_tree_to_execute)")
+    run.add_argument("--set", action="append", type=_parse_set, default=[], metavar="NAME=VALUE",
+                     help="set a root blackboard entry (a string) before the first tick; repeatable")
+    run.add_argument("--seed", type=int, default=0, help="seed of the world's layout and random latencies")
+    run.add_argument("--realtime", action="store_true", help="pace the ticks to wall-clock time")
+    run.add_argument("--json", action="store_true", help="print a JSON summary as the last line of stdout")
+    run.add_argument("--world", metavar="NAME", help="world for trees that need one (default: vla_sim)")
+    run.add_argument("--max-seconds", type=_positive_float, metavar="S", help="fail after S seconds of clock time")
+    run.add_argument("--policy-latency", metavar="SPEC",
+                     help="policy call latency: 'measured' (default), seconds (e.g. 0.3) or lognormal:MEAN,SD")
+    run.add_argument("--tick-hz", type=_positive_float, default=100.0, help=argparse.SUPPRESS)
+    add_paths(run)
+
+    val = sub.add_parser("validate", help="load Objectives and report every error (nothing runs)")
+    val.add_argument("files", type=Path, nargs="+")
+    val.add_argument("--tree", metavar="ID", help="validate only this BehaviorTree (default: every tree in each file)")
+    add_paths(val)
+
+    beh = sub.add_parser("behaviors", help="list every registered node with its ports")
+    beh.add_argument("--json", action="store_true", help="print JSON instead of text")
+
+    show = sub.add_parser("show", help="print the tree an Objective builds")
+    show.add_argument("file", type=Path)
+    show.add_argument("--tree", metavar="ID")
+    add_paths(show)
+
+    models = sub.add_parser("models", help="print TreeNodesModel XML for Groot2")
+    models.add_argument("--all", action="store_true", help="include the nodes BehaviorTree.CPP has built in")
+    return parser
+
+
+# ------------------------------------------------------------------------------------------------
+# Commands
+# ------------------------------------------------------------------------------------------------
+def cmd_run(args: argparse.Namespace, registry: Registry) -> int:
+    from .display import ProgressLine
+    from .runner import RunOptions, run_file
+
+    options = RunOptions(
+        seed=args.seed,
+        realtime=args.realtime,
+        tick_hz=args.tick_hz,
+        max_seconds=args.max_seconds,
+        world=args.world,
+        sets=dict(args.set),
+        policy_latency=args.policy_latency,
+    )
+    progress = ProgressLine(sys.stderr) if sys.stderr.isatty() else None
+    if progress is not None:
+        for handler in logging.getLogger("objective").handlers:
+            handler.addFilter(lambda record: progress.clear() or True)  # log lines replace the progress line
+    try:
+        result = run_file(args.file, registry, options, args.tree, args.path, args.objectives_dir, progress)
+    finally:
+        if progress is not None:
+            progress.clear()
+    if result.status == "SUCCESS":
+        print(f"SUCCESS after {result.sim_seconds:.2f} s ({result.ticks} ticks)", file=sys.stderr)
+    else:
+        where = f" ({result.failing_location})" if result.failing_location else ""
+        node = f"'{result.failing_node}'{where}" if result.failing_node else "the root"
+        print(f"FAILURE after {result.sim_seconds:.2f} s: {node} failed: {result.reason or 'no reason given'}",
+              file=sys.stderr)
+    if args.json:
+        print(json.dumps(result.to_json(), default=str))
+    return result.exit_code
+
+
+def cmd_validate(args: argparse.Namespace, registry: Registry) -> int:
+    from .loader import validate
+
+    failed = 0
+    for file in args.files:
+        try:
+            trees = validate(file, registry, args.tree, args.path, args.objectives_dir)
+        except ObjectiveError as err:
+            failed += 1
+            print(f"error: {err}", file=sys.stderr)
+            continue
+        summary = ", ".join(f"{t.tree_id} ({len(t.nodes)} nodes)" for t in trees)
+        print(f"ok: {file}: {summary}")
+    return EXIT_BAD_INPUT if failed else EXIT_SUCCESS
+
+
+def behaviors_data(registry: Registry) -> list[dict[str, Any]]:
+    """Every registered node with its ports: what `objective behaviors --json` prints."""
+    out = []
+    for spec in registry.specs():
+        out.append({
+            "id": spec.id,
+            "kind": spec.kind.value,
+            "description": spec.cls.description,
+            "ports": [
+                {
+                    "name": p.name,
+                    "direction": p.direction.value.removesuffix("_port"),
+                    "type": p.type.value,
+                    "default": None if p.required or p.direction is Direction.OUTPUT else p.describe_default(),
+                    "required": p.required,
+                    "description": p.description,
+                }
+                for p in spec.cls.ports
+            ],
+        })
+    return out
+
+
+def cmd_behaviors(args: argparse.Namespace, registry: Registry) -> int:
+    data = behaviors_data(registry)
+    if args.json:
+        print(json.dumps(data, indent=2))
+        return EXIT_SUCCESS
+    for node in data:
+        print(f"{node['id']}  [{node['kind']}]")
+        if node["description"]:
+            print(f"    {node['description']}")
+        for port in node["ports"]:
+            if port["required"]:
+                default = "required"
+            elif port["default"] is None:
+                default = "optional"
+            else:
+                default = f"default {port['default']!r}"
+            text = f"      {port['direction']:<6} {port['name']} ({port['type']}, {default})"
+            print(text + (f": {port['description']}" if port["description"] else ""))
+    return EXIT_SUCCESS
+
+
+def cmd_show(args: argparse.Namespace, registry: Registry) -> int:
+    from .display import tree_text
+    from .loader import throwaway_context, load_tree
+
+    tree = load_tree(args.file, registry, throwaway_context(), args.tree, args.path, args.objectives_dir)
+    print(tree_text(tree))
+    return EXIT_SUCCESS
+
+
+def models_xml(registry: Registry, include_builtins: bool = False) -> str:
+    """TreeNodesModel XML for Groot2: one element per node, ports with type, default and description."""
+    lines = ['<?xml version="1.0" encoding="UTF-8"?>', '<root BTCPP_format="4">', "  <TreeNodesModel>"]
+    for spec in registry.specs():
+        if spec.id in BTCPP_BUILTINS and not include_builtins:
+            continue
+        tag = spec.kind.value
+        lines.append(f"    <{tag} ID={quoteattr(spec.id)}>")
+        for port in spec.cls.ports:
+            attrs = f"name={quoteattr(port.name)} type={quoteattr(_MODEL_TYPES.get(port.type, port.type.value))}"
+            if not port.required and port.direction is not Direction.OUTPUT:
+                attrs += f" default={quoteattr(port.describe_default())}"
+            lines.append(f"      <{port.direction.value} {attrs}>{escape(port.description)}</{port.direction.value}>")
+        if spec.cls.description:
+            lines.append("      <MetadataFields>")
+            lines.append(f"        <Metadata description={quoteattr(spec.cls.description)}/>")
+            lines.append("      </MetadataFields>")
+        lines.append(f"    </{tag}>")
+    lines += ["  </TreeNodesModel>", "</root>"]
+    return "\n".join(lines)
+
+
+def cmd_models(args: argparse.Namespace, registry: Registry) -> int:
+    print(models_xml(registry, args.all))
+    return EXIT_SUCCESS
+
+
+COMMANDS = {
+    "run": cmd_run,
+    "validate": cmd_validate,
+    "behaviors": cmd_behaviors,
+    "show": cmd_show,
+    "models": cmd_models,
+}
+
+
+def main(argv: Sequence[str] | None = None, registry: Registry | None = None) -> int:
+    """Entry point of the ``objective`` console script; returns the exit code.
+
+    ``registry`` defaults to every node the installed packages declare (tests pass their own).
+    """
+    args = build_parser().parse_args(argv)
+    _setup_logging()
+    try:
+        registry = registry if registry is not None else Registry.from_entry_points()
+        code = COMMANDS[args.command](args, registry)
+    except BrokenPipeError:
+        _quiet_stdout()
+        return EXIT_SUCCESS
+    except ObjectiveError as err:
+        print(f"error: {err}", file=sys.stderr)
+        if getattr(args, "json", False) and args.command == "run":
+            print(json.dumps({"status": "ERROR", "reason": str(err)}))
+        return EXIT_BAD_INPUT
+    except KeyboardInterrupt:
+        print("interrupted", file=sys.stderr)
+        return 130
+    try:
+        sys.stdout.flush()
+    except BrokenPipeError:
+        _quiet_stdout()
+    return code
+
+
+class _StderrHandler(logging.StreamHandler):  # type: ignore[type-arg]
+    """Writes to whatever ``sys.stderr`` is now (tests and wrappers replace it)."""
+
+    @property  # type: ignore[override]
+    def stream(self) -> Any:
+        return sys.stderr
+
+    @stream.setter
+    def stream(self, value: Any) -> None:
+        pass
+
+
+def _setup_logging() -> None:
+    """Runtime messages (LogMessage, warnings) go to stderr, once per process."""
+    logger = logging.getLogger("objective")
+    if not logger.handlers:
+        handler = _StderrHandler()
+        handler.setFormatter(logging.Formatter("[%(levelname)s] %(message)s"))
+        logger.addHandler(handler)
+        logger.setLevel(logging.INFO)
+        logger.propagate = False
+
+
+def _quiet_stdout() -> None:
+    """The reader of our stdout went away (``objective behaviors | head``): drop the rest quietly."""
+    import os
+
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    os.dup2(devnull, sys.stdout.fileno())
+
+
+if __name__ == "__main__":
+    sys.exit(main())
