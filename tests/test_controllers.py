@@ -662,3 +662,15 @@ def test_gripper_rejects_positions_outside_its_range(cell):
     handle = cell.gripper_client.send_goal_async(_gripper_goal(1.2)).result()
     assert not handle.accepted
     assert cell.manager["robotiq_gripper_controller"].last_rejection.endswith("position 1.2 is outside [0 (open), 0.8 (closed)]")
+
+
+def test_reset_ends_goals_and_holds_the_new_state(cell):
+    cell.activate_trajectory_controller()
+    watch = cell.send(ramp_goal(HOME, np.full(6, 0.3), 1.0))
+    cell.run(0.5)
+    cell.hw.q = np.zeros(6)  # the world teleports the arm
+    cell.manager.reset()
+    assert watch.status == STATUS_ABORTED
+    assert watch.result.error_string == "the simulation was reset at t=0.500 s"
+    cell.run(0.2)
+    np.testing.assert_allclose(cell.hw.q, np.zeros(6), atol=1e-9)

@@ -232,6 +232,12 @@ class JointTrajectoryAdmittanceController(Controller):
         self._joint_offset = np.zeros(len(self.joint_names))
         self.hardware.command_arm(self._reference.positions[0], np.zeros(len(self.joint_names)))
 
+    def on_reset(self, t: float) -> None:
+        goal, self._goal = self._goal, None
+        if goal is not None and goal.handle.is_active:
+            goal.handle.abort(Result(error_code=Result.INVALID_GOAL, error_string=f"the simulation was reset at t={t:.3f} s"))
+        self.on_activate(t)
+
     # -- introspection (tests, events) ---
     @property
     def executing(self) -> bool:

@@ -82,9 +82,17 @@ class Controller:
         self.on_deactivate(t)
         self.active = False
 
+    def reset(self, t: float) -> None:
+        """The world was reset (the robot teleported): end any goal, hold the state as it is now."""
+        if self.active:
+            self.on_reset(t)
+
     # -- hooks ---
     def on_activate(self, t: float) -> None:
         pass
+
+    def on_reset(self, t: float) -> None:
+        self.on_activate(t)
 
     def on_deactivate(self, t: float) -> None:
         pass

@@ -91,6 +91,9 @@ class GripperActionController(Controller):
         self._goal.cancel_requested = True
         return True
 
+    def on_reset(self, t: float) -> None:
+        self.on_deactivate(t)
+
     def on_deactivate(self, t: float) -> None:
         if self._goal is not None and self._goal.handle.is_active:
             self._goal.handle.abort(self._result())

@@ -71,6 +71,13 @@ class ControllerManager:
             if controller.active:
                 controller.update(t, dt)
 
+    def reset(self) -> None:
+        """After the world teleports the robot (ResetSim): active controllers end their goals
+        (aborted) and hold the new state instead of pulling the arm back to the old one."""
+        t = self.clock.now()
+        for controller in self.controllers.values():
+            controller.reset(t)
+
     # -- switching ---
     def switch(self, activate: list[str], deactivate: list[str], strictness: int = STRICT) -> SwitchOutcome:
         if strictness == 0:
