@@ -8,7 +8,6 @@ import py_trees
 
 from .behavior import NodeMixin
 from .loader import CONDITION_ATTRIBUTES, LoadedTree
-from .ports import to_xml_string
 from .subtree import SubTree
 
 
@@ -36,7 +35,7 @@ def describe_node(node: py_trees.behaviour.Behaviour, tree: LoadedTree) -> str:
         for name, binding in node.bindings.items():
             if name not in written:
                 continue  # defaults are listed by `objective behaviors`
-            value = f"{{{binding.key}}}" if binding.key is not None else _quote(to_xml_string(binding.literal))
+            value = f"{{{binding.key}}}" if binding.key is not None else _quote(written[name])
             parts.append(f"{name}={value}")
         parts.extend(f"{k}={_quote(written[k])}" for k in CONDITION_ATTRIBUTES if k in written)
     else:

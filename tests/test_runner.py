@@ -187,3 +187,13 @@ def test_progress_is_called_every_tick(run):
     seen: list[tuple[float, int, str]] = []
     result, _, _ = run('<Wait name="pause" seconds="0.03"/>', progress=lambda t, n, name: seen.append((round(t, 6), n, name)))
     assert seen == [(0.01, 1, "pause"), (0.02, 2, "pause"), (0.03, 3, "pause"), (0.04, 4, "")]
+
+
+@pytest.mark.parametrize("name, blackboard", [
+    ("countdown.xml", {"count": 0, "trace": "T-3 2 1 "}),
+    ("reactive_stop.xml", {"done": True, "halted": True}),
+])
+def test_shipped_pure_logic_examples_succeed(registry, tmp_path, name, blackboard):
+    path = Path(__file__).resolve().parent.parent / "objectives" / "examples" / name
+    result = run_file(path, registry, RunOptions(), objectives_dir=tmp_path)
+    assert (result.status, result.blackboard) == ("SUCCESS", blackboard)
