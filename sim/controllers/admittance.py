@@ -321,16 +321,22 @@ class JointTrajectoryAdmittanceController(Controller):
 
         wrench = np.asarray(self.hardware.wrench(), dtype=float)
         self._compliance = admittance_step(self._compliance, wrench, self._params, dt)
-        jacobian = self.hardware.wrist_jacobian()
-        self._joint_offset = cartesian_to_joint(jacobian, self._compliance.offset)
-        offset_rate = cartesian_to_joint(jacobian, self._compliance.rate)
+        if np.any(self._compliance.offset) or np.any(self._compliance.rate):
+            both = cartesian_to_joint(
+                self.hardware.wrist_jacobian(), np.column_stack([self._compliance.offset, self._compliance.rate])
+            )
+            self._joint_offset, offset_rate = both[:, 0], both[:, 1]
+        else:
+            self._joint_offset, offset_rate = np.zeros(len(self.joint_names)), np.zeros(len(self.joint_names))
 
         desired = self._reference.sample(t)
         command = desired.position + self._joint_offset
         if self._goal is not None:
+            reference = self._reference
             self._supervise(t, wrench, command)
-            desired = self._reference.sample(t)  # unchanged at t when a stop just began
-            command = desired.position + self._joint_offset
+            if self._reference is not reference:  # a stop began: same position at t, new velocity
+                desired = self._reference.sample(t)
+                command = desired.position + self._joint_offset
         self.hardware.command_arm(command, desired.velocity + offset_rate)
 
     def _supervise(self, t: float, wrench: np.ndarray, command: np.ndarray) -> None:

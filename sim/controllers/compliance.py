@@ -99,6 +99,8 @@ def admittance_step(state: AdmittanceState, wrench: np.ndarray, params: Admittan
 def cartesian_to_joint(jacobian: np.ndarray, cartesian: np.ndarray, damping: float = 1e-3) -> np.ndarray:
     """Joint displacement producing ``cartesian`` at the wrist: damped least squares J^T (J J^T + l^2 I)^-1.
 
+    ``cartesian`` is a 6-vector, or 6 x k to map k vectors at once.
+
     The damping keeps the mapping bounded near singularities, where an exact inverse would ask
     for huge joint motions to yield along a direction the arm can barely move in.
     """
