@@ -32,6 +32,7 @@ Synchronous loops and the wake-up signal
 """
 from __future__ import annotations
 
+import abc
 from typing import Any, ClassVar, Generator, Iterator
 
 import py_trees
@@ -149,9 +150,9 @@ class _BtComposite(NodeMixin, py_trees.composites.Composite):
     def add_child(self, child: Behaviour) -> Any:
         return super().add_child(child)
 
-    def run(self) -> TickGenerator:  # pragma: no cover - every subclass overrides it
-        raise NotImplementedError
-        yield
+    @abc.abstractmethod
+    def run(self) -> TickGenerator:
+        """BT.CPP's ``tick()`` of this node: tick children via ``yield from self.tick_child``."""
 
     def tick(self) -> Iterator[Behaviour]:
         result = yield from self.run()

@@ -63,11 +63,26 @@ class Wait(_TimedWait):
     )
     ports = (InputPort("seconds", PortType.FLOAT, description="How long to wait, in seconds."),)
 
-    def wait_ms(self) -> float:
-        seconds = self.get_input("seconds")
+    def bind(
+        self,
+        context: RunContext,
+        blackboard: Blackboard,
+        values: dict[str, str] | None = None,
+        location: SourceLocation | None = None,
+        xml_id: str | None = None,
+    ) -> None:
+        super().bind(context, blackboard, values, location, xml_id)
+        seconds = self.bindings["seconds"]
+        if seconds.key is None:
+            self._check(seconds.literal)  # a negative literal is a load-time error
+
+    def _check(self, seconds: float) -> float:
         if seconds < 0:
             raise PortError(f"port 'seconds' must not be negative, got {seconds}", self.location, self.xml_id)
-        return seconds * 1000.0
+        return seconds
+
+    def wait_ms(self) -> float:
+        return self._check(self.get_input("seconds")) * 1000.0
 
 
 LOG_LEVELS = {

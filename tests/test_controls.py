@@ -267,6 +267,11 @@ def test_wait_runs_until_the_clock_passes(make, clock) -> None:
     assert run(node, 7, clock, dt=0.1) == [R, R, R, R, R, S, R]
 
 
+def test_wait_rejects_negative_seconds_at_load(make) -> None:
+    with pytest.raises(PortError, match="test.xml:7: Wait: port 'seconds' must not be negative, got -1.0"):
+        make(utility.Wait, seconds=-1)
+
+
 def test_sleep_zero_succeeds_at_once(make, clock) -> None:
     assert run(make(utility.Sleep, msec=0), 1) == [S]
     assert run(make(utility.Sleep, msec=20), 3, clock, dt=0.01) == [R, R, S]
