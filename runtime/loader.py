@@ -426,12 +426,13 @@ class _Builder:
         children = _elements(tree.element)
         if len(children) != 1:
             raise LoadError(f"a BehaviorTree has exactly one root node, got {len(children)}", tree.location, tree.id)
-        return self.build_node(children[0], tree.document, blackboard, stack)
+        return self.build_node(children[0], tree.document, tree.location.file, blackboard, stack)
 
     def build_node(
-        self, element: Any, doc: Document, blackboard: Blackboard, stack: list[tuple[str, str]]
+        self, element: Any, doc: Document, file: str, blackboard: Blackboard, stack: list[tuple[str, str]]
     ) -> py_trees.behaviour.Behaviour:
-        loc = SourceLocation(doc.display, element.sourceline or 0)
+        """Build ``element`` (written in ``file``, part of ``doc``) and its children."""
+        loc = SourceLocation(file, element.sourceline or 0)
         tag = element.tag
         if len(self.nodes) >= MAX_NODES:
             raise LoadError(f"the tree has more than {MAX_NODES} nodes after expanding SubTrees", loc, str(tag))
@@ -471,7 +472,7 @@ class _Builder:
         if problem:
             raise LoadError(problem, loc, node_id)
         for child_el in children:
-            node.add_child(self.build_node(child_el, doc, blackboard, stack))
+            node.add_child(self.build_node(child_el, doc, file, blackboard, stack))
         return self._with_conditions(node, conditions, loc, node_id)
 
     def build_subtree(

@@ -261,13 +261,18 @@ def run_tree(
             blame = (tip if tip is not None else root, reason)
         context.events.emit("run_finished", loaded.tree_id, status=str(status.value))
     finally:
+        summary_world = None
         try:
             _halt(root)
         finally:
-            summary_world = world.summary() if world is not None else None
-            if world is not None:
-                world.close()
-            bus.close()
+            try:
+                if world is not None:
+                    try:
+                        summary_world = world.summary()
+                    finally:
+                        world.close()
+            finally:
+                bus.close()
     wall_seconds = time.monotonic() - wall_start
 
     extra: dict[str, Any] = {}

@@ -508,3 +508,13 @@ def test_validate_checks_every_tree_of_a_library_file(registry, tmp_path, empty_
         validate(path, registry, objectives_dir=empty_lib)
     assert str(info.value) == f"{path}:3: Typed: missing required port 'x'"
     assert [t.tree_id for t in validate(path, registry, tree_id="Good", objectives_dir=empty_lib)] == ["Good"]
+
+
+def test_errors_in_an_included_file_name_that_file(registry, tmp_path, empty_lib):
+    part = tmp_path / "part.xml"
+    part.write_text('<root BTCPP_format="4">\n\n<BehaviorTree ID="Part"><Typed x="slow"/></BehaviorTree></root>')
+    main = write(tmp_path, """<root BTCPP_format="4" main_tree_to_execute="M">
+  <include path="part.xml"/>
+  <BehaviorTree ID="M"><SubTree ID="Part"/></BehaviorTree>
+</root>""")
+    assert error_of(registry, main, empty_lib) == f"{part}:3: Typed: port 'x' expects a number, got 'slow'"
