@@ -31,9 +31,10 @@ from __future__ import annotations
 import difflib
 import logging
 import os
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Iterable, Iterator
+from typing import Any, Iterable
 
 import py_trees
 from lxml import etree
@@ -168,7 +169,28 @@ def parse_xml(data: bytes, display: str) -> Any:
     if docinfo.doctype or docinfo.internalDTD is not None or b"<!ENTITY" in data:
         raise _refuse_doctype(data, display)
     _check_bounds(root, display)
+    _use_start_lines(root, data)
     return root
+
+
+_MARKUP = re.compile(rb"<!--.*?-->|<!\[CDATA\[.*?\]\]>|<\?.*?\?>|<([A-Za-z_][\w.:-]*)", re.DOTALL)
+
+
+def _use_start_lines(root: Any, data: bytes) -> None:
+    """Make ``sourceline`` the line where each start tag begins (libxml2 gives the line it ends on).
+
+    Start tags appear in the text in document order, so they pair up with ``root.iter()``;
+    comments, CDATA and processing instructions are stepped over. If anything does not pair up
+    (an unusual encoding), libxml2's lines are kept.
+    """
+    starts = (m for m in _MARKUP.finditer(data) if m.group(1) is not None)
+    fixes = []
+    for element, match in zip(root.iter(), starts):
+        if match.group(1).decode("utf-8", "replace") != element.tag:
+            return
+        fixes.append((element, data.count(b"\n", 0, match.start()) + 1))
+    for element, line in fixes:
+        element.sourceline = line
 
 
 def _check_bounds(root: Any, display: str) -> None:
@@ -683,9 +705,3 @@ def validate(
         loaded.append(_build(builder, doc, tree))
     return loaded
 
-
-def walk(root: py_trees.behaviour.Behaviour, depth: int = 0) -> Iterator[tuple[py_trees.behaviour.Behaviour, int]]:
-    """Every node below ``root`` (pre-order) with its depth."""
-    yield root, depth
-    for child in root.children:
-        yield from walk(child, depth + 1)

@@ -518,3 +518,17 @@ def test_errors_in_an_included_file_name_that_file(registry, tmp_path, empty_lib
   <BehaviorTree ID="M"><SubTree ID="Part"/></BehaviorTree>
 </root>""")
     assert error_of(registry, main, empty_lib) == f"{part}:3: Typed: port 'x' expects a number, got 'slow'"
+
+
+def test_line_numbers_are_where_the_start_tag_begins(registry, tmp_path, empty_lib):
+    path = write(tmp_path, """<root BTCPP_format="4">
+  <!-- <Sequence> in a comment does not count -->
+  <BehaviorTree ID="T">
+    <Sequence>
+      <AlwaysSuccess/><Typed
+          x="1"
+          n="many"/>
+    </Sequence>
+  </BehaviorTree>
+</root>""")
+    assert error_of(registry, path, empty_lib) == f"{path}:5: Typed: port 'n' expects an integer, got 'many'"
