@@ -393,11 +393,12 @@ class LoadedTree:
     def behaviours(self) -> list[py_trees.behaviour.Behaviour]:
         return [n.node for n in self.nodes]
 
+    def __post_init__(self) -> None:
+        self._index = {id(loaded.node): loaded for loaded in self.nodes}
+
     def info(self, node: py_trees.behaviour.Behaviour) -> LoadedNode | None:
-        for loaded in self.nodes:
-            if loaded.node is node:
-                return loaded
-        return None
+        """Where ``node`` came from (None for wrappers the loader did not write, e.g. condition guards)."""
+        return self._index.get(id(node))
 
 
 def _suggest(word: str, candidates: Iterable[str]) -> str:
