@@ -1,0 +1,33 @@
+"""Planning scene for the safety checks: robot model, world, rules, collision queries, IK.
+
+Robot-agnostic: the robot comes from an MJCF (``RobotModel.from_mjcf``) or URDF + SRDF
+(``RobotModel.from_urdf``); nothing here knows about the simulated cell.
+"""
+from .collision import (
+    Attachment,
+    Box,
+    Capsule,
+    Clearance,
+    CollisionChecker,
+    CollisionResult,
+    Cylinder,
+    Mesh,
+    Shape,
+    Sphere,
+    WorldObject,
+    pose_matrix,
+)
+from .kinematics import IkResult, frame_pose, frame_poses, solve_ik
+from .limits import JointLimit, JointLimits, LimitViolation, load_joint_limits
+from .model import ConfigurationMap, GroupError, JointCoupling, JointGroup, RobotModel, load_couplings
+from .scene import ANY, PlanningScene, SceneSnapshot
+from .srdf import Srdf, SrdfError, SrdfGroup, parse_srdf
+
+__all__ = [
+    "ANY", "Attachment", "Box", "Capsule", "Clearance", "CollisionChecker", "CollisionResult",
+    "ConfigurationMap", "Cylinder", "GroupError", "IkResult", "JointCoupling", "JointGroup",
+    "JointLimit", "JointLimits", "LimitViolation", "Mesh", "PlanningScene", "RobotModel",
+    "SceneSnapshot", "Shape", "Sphere", "Srdf", "SrdfError", "SrdfGroup", "WorldObject",
+    "frame_pose", "frame_poses", "load_couplings", "load_joint_limits", "parse_srdf",
+    "pose_matrix", "solve_ik",
+]

@@ -1,0 +1,115 @@
+"""Forward kinematics and a damped-least-squares IK for a group's tip: pure functions.
+
+Both take a ``RobotModel`` and create their own pinocchio ``Data``, so they can be called from
+any thread and never disturb a planning scene's caches. Poses are 4x4 homogeneous matrices.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Sequence
+
+import numpy as np
+import pinocchio as pin
+
+from .model import RobotModel
+
+
+def frame_pose(robot: RobotModel, q_full: np.ndarray, frame: str) -> np.ndarray:
+    """World pose (4x4) of a link, joint or site frame at full configuration ``q_full``."""
+    return frame_poses(robot, q_full, [frame])[frame]
+
+
+def frame_poses(robot: RobotModel, q_full: np.ndarray, frames: Sequence[str]) -> dict[str, np.ndarray]:
+    """World poses of several frames from one FK pass."""
+    q = np.asarray(q_full, dtype=float)
+    if q.shape != (robot.model.nq,):
+        raise ValueError(f"full configuration needs {robot.model.nq} values, got shape {q.shape}")
+    data = robot.model.createData()
+    pin.forwardKinematics(robot.model, data, q)
+    out = {}
+    for name in frames:
+        fid = robot.frame_id(name)
+        out[name] = pin.updateFramePlacement(robot.model, data, fid).homogeneous.copy()
+    return out
+
+
+@dataclass(frozen=True)
+class IkResult:
+    success: bool
+    positions: np.ndarray
+    """Group joint values (the best found, even when not successful)."""
+    position_error: float
+    """Metres between the reached and the target position."""
+    orientation_error: float
+    """Radians between the reached and the target orientation."""
+    iterations: int
+
+
+def solve_ik(
+    robot: RobotModel,
+    group: str,
+    target: np.ndarray,
+    seeds: Sequence[Sequence[float]] | np.ndarray | None = None,
+    frame: str | None = None,
+    reference: np.ndarray | None = None,
+    position_tolerance: float = 1e-4,
+    orientation_tolerance: float = 1e-3,
+    position_only: bool = False,
+    max_iterations: int = 100,
+    damping: float = 1e-4,
+    random_restarts: int = 8,
+    rng_seed: int = 0,
+) -> IkResult:
+    """Joint values of ``group`` that put ``frame`` (default: the group's tip) at ``target``.
+
+    Damped least squares on the SE(3) log error in the frame, with joint limits enforced by
+    clipping after each step. Seeds are tried in order, then ``random_restarts`` seeds drawn
+    uniformly within the limits (capped to +-pi) from ``rng_seed``: the answer is deterministic.
+    Joints outside the group keep their value from ``reference`` (default: neutral).
+    """
+    goal = pin.SE3(np.asarray(target, dtype=float))
+    layout = robot.configuration_map(group, None, reference)
+    joints = layout.group.joints
+    fid = robot.frame_id(frame or layout.group.tip_link)
+    lower, upper = robot.position_limits(joints)
+    v_idx = [int(robot.model.idx_vs[robot.model.getJointId(j)]) for j in joints]
+    model, data = robot.model, robot.model.createData()
+
+    starts = [] if seeds is None else [np.asarray(s, dtype=float) for s in np.atleast_2d(seeds)]
+    for s in starts:
+        if s.shape != (len(joints),):
+            raise ValueError(f"IK seed has {s.shape[0]} values; group {group!r} has {len(joints)} joints")
+    rng = np.random.default_rng(rng_seed)
+    lo, hi = np.maximum(lower, -np.pi), np.minimum(upper, np.pi)
+    starts += [rng.uniform(lo, hi) for _ in range(random_restarts)]
+    if not starts:
+        starts = [np.clip(np.zeros(len(joints)), lower, upper)]
+
+    best: IkResult | None = None
+    rows = slice(0, 3) if position_only else slice(0, 6)
+    for start in starts:
+        x = np.clip(start, lower, upper)
+        for iteration in range(1, max_iterations + 1):
+            q = layout(x)
+            pin.forwardKinematics(model, data, q)
+            current = pin.updateFramePlacement(model, data, fid)
+            error_frame = current.actInv(goal)
+            err = pin.log6(error_frame).vector
+            pos_err = float(np.linalg.norm(goal.translation - current.translation))
+            rot_err = float(np.linalg.norm(err[3:]))
+            done = pos_err <= position_tolerance and (position_only or rot_err <= orientation_tolerance)
+            if best is None or _score(pos_err, rot_err, position_only) < _score(best.position_error, best.orientation_error, position_only):
+                best = IkResult(done, x.copy(), pos_err, rot_err, iteration)
+            if done:
+                return best
+            J = pin.computeFrameJacobian(model, data, q, fid, pin.ReferenceFrame.LOCAL)[:, v_idx]
+            J = pin.Jlog6(error_frame.inverse()) @ J
+            J, e = J[rows], err[rows]
+            dx = J.T @ np.linalg.solve(J @ J.T + damping * np.eye(J.shape[0]), e)
+            x = np.clip(x + dx, lower, upper)
+    assert best is not None
+    return best
+
+
+def _score(pos_err: float, rot_err: float, position_only: bool) -> float:
+    return pos_err + (0.0 if position_only else 0.1 * rot_err)

@@ -1,0 +1,335 @@
+"""The planning scene: robot model, world objects, collision rules and attached objects.
+
+Everything a safety check needs to answer "does this configuration (or path) collide?".
+World geometry is live: the simulator (or perception) adds and moves objects at any time.
+Collision rules and attachments can be frozen with ``snapshot()``; ExecutePolicy takes one at
+start and passes it to every check of the run, so a rule changed mid-run does not change what
+the run allows, while a new object in the path is still seen.
+
+Configurations passed to the checks are rows in a *layout*: the joints of a group, then the
+gripper value (optional). The default layout is the scene's ``group`` + ``gripper_joint``;
+``scene.layout(group, gripper_joint)`` gives another. ``full_configuration`` turns a row into
+pinocchio's full configuration (coupled gripper joints filled in).
+
+Thread safety: one lock guards mutations and queries, so a simulator thread may move objects
+while the tree thread checks paths.
+"""
+from __future__ import annotations
+
+import functools
+import threading
+from dataclasses import dataclass
+from typing import Iterable, Mapping, Sequence
+
+import numpy as np
+import pinocchio as pin
+
+from .collision import (
+    Attachment,
+    Clearance,
+    CollisionChecker,
+    CollisionResult,
+    Shape,
+    WorldObject,
+    as_se3,
+    make_geometry,
+)
+from .kinematics import frame_pose
+from .limits import JointLimits
+from .model import WORLD_LINK, ConfigurationMap, GroupError, RobotModel
+
+ANY = "*"
+
+
+@dataclass(frozen=True)
+class SceneSnapshot:
+    """Immutable collision rules and attachments at one instant (hashable)."""
+
+    rules: tuple[tuple[str, str, bool], ...]
+    """``(object or "*", link or "*", allowed)`` entries, sorted."""
+    attachments: tuple[Attachment, ...]
+
+    def is_allowed(self, obj: str, link: str) -> bool:
+        return _lookup(self._table, obj, link)
+
+    @functools.cached_property
+    def _table(self) -> dict[tuple[str, str], bool]:
+        return {(o, l): a for o, l, a in self.rules}
+
+
+def _lookup(rules: Mapping[tuple[str, str], bool], obj: str, link: str) -> bool:
+    for key in ((obj, link), (obj, ANY), (ANY, link), (ANY, ANY)):
+        if key in rules:
+            return rules[key]
+    return False
+
+
+def _pose_tuple(pose: np.ndarray | pin.SE3) -> tuple[float, ...]:
+    return tuple(float(v) for v in as_se3(pose).homogeneous.reshape(-1))
+
+
+class PlanningScene:
+    """Robot + world objects + collision rules + attachments, with collision queries."""
+
+    def __init__(
+        self,
+        robot: RobotModel,
+        group: str,
+        gripper_joint: str | None = None,
+        limits: JointLimits | None = None,
+        reference: np.ndarray | None = None,
+    ):
+        self._lock = threading.RLock()
+        self.robot = robot
+        self.limits = limits
+        self._reference = np.array(robot.neutral() if reference is None else reference, dtype=float)
+        self._layouts: dict[tuple[str, str | None], ConfigurationMap] = {}
+        self._default = (group, gripper_joint)
+        self.layout(group, gripper_joint)  # fail early on a bad group or gripper joint
+        self._objects: dict[str, WorldObject] = {}
+        self._rules: dict[tuple[str, str], bool] = {}
+        self._attachments: dict[str, Attachment] = {}
+        self._structure = 0  # bumped when the set of world objects changes
+        self._poses = 0  # bumped when a world object moves
+        self._checkers: dict[tuple, tuple[CollisionChecker, int]] = {}
+
+    # -- layouts and configurations -------------------------------------------------------
+    @property
+    def group(self) -> str:
+        return self._default[0]
+
+    @property
+    def gripper_joint(self) -> str | None:
+        return self._default[1]
+
+    def layout(self, group: str | None = None, gripper_joint: str | None = None) -> ConfigurationMap:
+        """The row layout ``[joints of group..., gripper_joint]`` (default: the scene's)."""
+        key = self._default if group is None else (group, gripper_joint)
+        with self._lock:
+            if key not in self._layouts:
+                self._layouts[key] = self.robot.configuration_map(key[0], key[1], self._reference)
+            return self._layouts[key]
+
+    def set_reference(self, q_full: np.ndarray) -> None:
+        """Values for joints no layout covers (and the gripper when a row omits it)."""
+        q = np.array(q_full, dtype=float)
+        if q.shape != (self.robot.model.nq,):
+            raise ValueError(f"reference configuration needs {self.robot.model.nq} values, got {q.shape}")
+        with self._lock:
+            self._reference = q
+            self._layouts.clear()
+
+    def full_configuration(self, group_positions: Sequence[float], gripper_position: float | None = None,
+                           layout: ConfigurationMap | None = None) -> np.ndarray:
+        """Pinocchio's full ``q`` from group joint values (+ gripper value)."""
+        rows = self._rows(np.asarray(group_positions, dtype=float)[None, :] if gripper_position is None
+                          else np.append(np.asarray(group_positions, dtype=float), gripper_position)[None, :], layout)
+        return rows[0]
+
+    def _rows(self, Q: np.ndarray, layout: ConfigurationMap | None) -> np.ndarray:
+        """Rows in a layout (with or without the gripper column) -> full configurations."""
+        lay = layout or self.layout()
+        Q = np.atleast_2d(np.asarray(Q, dtype=float))
+        if not np.all(np.isfinite(Q)):
+            bad = np.argwhere(~np.isfinite(Q))[0]
+            raise ValueError(f"configuration row {bad[0]} column {bad[1]} is not finite")
+        if lay.gripper_joint is not None and Q.shape[1] == lay.dof - 1:
+            return self.layout(lay.group.name, None)(Q)
+        return lay(Q)
+
+    # -- world objects --------------------------------------------------------------------
+    def add_object(self, name: str, shape: Shape, pose: np.ndarray) -> None:
+        """Add (or replace) a world object; ``pose`` is a 4x4 matrix in the world frame."""
+        if not name or name == ANY:
+            raise ValueError(f"invalid object name {name!r}")
+        make_geometry(shape)  # validate now, not at the next check
+        with self._lock:
+            if name in self._attachments:
+                raise ValueError(f"object {name!r} is attached to {self._attachments[name].link!r}; detach it first")
+            self._objects[name] = WorldObject(name, shape, _pose_tuple(pose))
+            self._structure += 1
+
+    def move_object(self, name: str, pose: np.ndarray) -> None:
+        with self._lock:
+            obj = self._object(name)
+            self._objects[name] = WorldObject(name, obj.shape, _pose_tuple(pose))
+            self._poses += 1
+
+    def remove_object(self, name: str) -> None:
+        with self._lock:
+            self._object(name)
+            del self._objects[name]
+            self._structure += 1
+
+    def object_pose(self, name: str) -> np.ndarray:
+        with self._lock:
+            return self._object(name).matrix
+
+    @property
+    def objects(self) -> dict[str, WorldObject]:
+        with self._lock:
+            return dict(self._objects)
+
+    def _object(self, name: str) -> WorldObject:
+        try:
+            return self._objects[name]
+        except KeyError:
+            known = ", ".join(self._objects) or "none"
+            raise KeyError(f"no world object {name!r} in the planning scene (objects: {known})") from None
+
+    # -- collision rules ------------------------------------------------------------------
+    def _expand_links(self, links: str | Iterable[str]) -> list[str]:
+        names = [links] if isinstance(links, str) else list(links)
+        out = []
+        for name in names:
+            if name == ANY or name in self.robot.link_names or name in self._attachments:
+                out.append(name)
+            elif name in self.robot.group_names:
+                out.extend(self.robot.group(name).links)
+            else:
+                raise KeyError(f"{name!r} is neither a link, a group nor an attached object of the robot")
+        return out
+
+    def allow(self, object_name: str, links: str | Iterable[str]) -> None:
+        """Let ``object_name`` (or ``"*"``: every object) touch these links / groups / ``"*"``."""
+        with self._lock:
+            for link in self._expand_links(links):
+                self._rules[(object_name, link)] = True
+
+    def disallow(self, object_name: str, links: str | Iterable[str]) -> None:
+        """Forbid contact again; an explicit entry wins over a ``"*"`` one."""
+        with self._lock:
+            for link in self._expand_links(links):
+                self._rules[(object_name, link)] = False
+
+    def is_allowed(self, object_name: str, link: str) -> bool:
+        with self._lock:
+            return _lookup(self._rules, object_name, link)
+
+    # -- attachments ----------------------------------------------------------------------
+    def attach(
+        self,
+        name: str,
+        link: str,
+        *,
+        q: np.ndarray | None = None,
+        shape: Shape | None = None,
+        pose_in_link: np.ndarray | None = None,
+        touch_links: Iterable[str] = (),
+    ) -> Attachment:
+        """Carry an object with ``link``.
+
+        A world object of that name moves from the world to the link, keeping its current
+        world pose (needs ``q``, a layout row, to know where the link is) unless
+        ``pose_in_link`` is given. A new object needs ``shape`` and ``pose_in_link``.
+        """
+        touch = set(self._expand_links(touch_links))
+        with self._lock:
+            if link not in self.robot.link_names:
+                raise KeyError(f"cannot attach {name!r}: {link!r} is not a link of the robot")
+            if name in self._attachments:
+                raise ValueError(f"object {name!r} is already attached to {self._attachments[name].link!r}")
+            world = self._objects.get(name)
+            if shape is None:
+                if world is None:
+                    raise ValueError(f"cannot attach {name!r}: not a world object, and no shape given")
+                shape = world.shape
+            if pose_in_link is None:
+                if world is None or q is None:
+                    raise ValueError(f"attach {name!r}: give pose_in_link, or q with {name!r} in the world")
+                link_pose = self.link_pose(q, link)
+                pose_in_link = np.linalg.inv(link_pose) @ world.matrix
+            attachment = Attachment(name, link, shape, _pose_tuple(pose_in_link), frozenset(touch))
+            self._objects.pop(name, None)
+            self._attachments[name] = attachment
+            self._structure += 1
+            return attachment
+
+    def detach(self, name: str, q: np.ndarray | None = None) -> None:
+        """Stop carrying ``name``; with ``q`` (a layout row) it stays in the world where it is."""
+        with self._lock:
+            att = self._attachments.pop(name, None)
+            if att is None:
+                raise KeyError(f"no attached object {name!r} (attached: {', '.join(self._attachments) or 'none'})")
+            if q is not None:
+                pose = self.link_pose(q, att.link) @ att.matrix
+                self._objects[name] = WorldObject(name, att.shape, _pose_tuple(pose))
+            self._structure += 1
+
+    @property
+    def attachments(self) -> tuple[Attachment, ...]:
+        with self._lock:
+            return tuple(self._attachments.values())
+
+    def snapshot(self) -> SceneSnapshot:
+        with self._lock:
+            rules = tuple(sorted((o, l, a) for (o, l), a in self._rules.items()))
+            return SceneSnapshot(rules, tuple(sorted(self._attachments.values(), key=lambda a: a.name)))
+
+    # -- queries --------------------------------------------------------------------------
+    def link_pose(self, q: np.ndarray, link: str, layout: ConfigurationMap | None = None) -> np.ndarray:
+        """4x4 world pose of a link or frame at layout row ``q``."""
+        return frame_pose(self.robot, self._rows(q, layout)[0], link)
+
+    def object_world_pose(self, name: str, q: np.ndarray, layout: ConfigurationMap | None = None) -> np.ndarray:
+        """Where an object is: its world pose, or its carrying link's pose times its offset."""
+        with self._lock:
+            if name in self._attachments:
+                att = self._attachments[name]
+                return self.link_pose(q, att.link, layout) @ att.matrix
+            return self._object(name).matrix
+
+    def check_state(self, q: np.ndarray, padding: float = 0.01, snapshot: SceneSnapshot | None = None,
+                    layout: ConfigurationMap | None = None) -> CollisionResult | None:
+        """First colliding pair at one layout row, or None when collision-free."""
+        q_full = self._rows(q, layout)[0]
+        with self._lock:
+            return self._checker(padding, snapshot).check(q_full)
+
+    def check_path(
+        self,
+        Q: np.ndarray,
+        times: np.ndarray | None = None,
+        padding: float = 0.01,
+        stop_at_first: bool = True,
+        snapshot: SceneSnapshot | None = None,
+        layout: ConfigurationMap | None = None,
+    ) -> CollisionResult | None | list[CollisionResult]:
+        """Check every row of ``Q`` (N, dof). ``stop_at_first``: the first hit or None;
+        otherwise a list with the first colliding pair of every colliding step."""
+        full = self._rows(Q, layout)
+        if times is not None and len(times) != len(full):
+            raise ValueError(f"times has {len(times)} entries for {len(full)} path points")
+        with self._lock:
+            hits = self._checker(padding, snapshot).check_many(full, times, stop_at_first)
+        if stop_at_first:
+            return hits[0] if hits else None
+        return hits
+
+    def min_distance(self, q: np.ndarray, kind: str | None = None, snapshot: SceneSnapshot | None = None,
+                     layout: ConfigurationMap | None = None) -> Clearance | None:
+        """Closest checked pair at ``q`` (unpadded signed distance), optionally only ``"self"``
+        or ``"world"`` pairs; None if no such pair is checked. About 50 us: not per path point."""
+        q_full = self._rows(q, layout)[0]
+        with self._lock:
+            return self._checker(0.0, snapshot).clearance(q_full, kind)
+
+    def _checker(self, padding: float, snapshot: SceneSnapshot | None) -> CollisionChecker:
+        snap = snapshot or self.snapshot()
+        key = (self._structure, snap, float(padding))
+        cached = self._checkers.get(key)
+        if cached is None:
+            carried = {a.name for a in snap.attachments}
+            world = [o for o in self._objects.values() if o.name not in carried]
+            checker = CollisionChecker(self.robot, world, snap.attachments, snap.is_allowed, padding)
+            if len(self._checkers) >= 8:
+                self._checkers.clear()
+            cached = (checker, self._poses)
+            self._checkers[key] = cached
+        checker, poses = cached
+        if poses != self._poses:
+            for obj in self._objects.values():
+                if obj.name in checker.world_names:
+                    checker.move(obj.name, obj.matrix)
+            self._checkers[key] = (checker, self._poses)
+        return checker

