@@ -359,7 +359,27 @@ def test_urdf_srdf_robot(tmp_path):
     assert hit is not None and (hit.first, hit.second) == ("arm", "wall")
 
 
-def test_srdf_generated_pairs_are_up_to_date(robot):
+def test_srdf_disabled_pairs(robot):
     disabled = robot.srdf.disabled_keys()
     assert frozenset(("gripper_left_pad", "gripper_right_pad")) in disabled
     assert frozenset(("shoulder_link", "wrist_1_link")) not in disabled
+
+
+def test_robot_from_a_cell_mjcf_with_other_bodies(robot, scene):
+    spec = build_robot_spec()
+    cube = spec.worldbody.add_body(name="cube", pos=[0.3, 0.4, 0.1])
+    cube.add_freejoint()
+    cube.add_geom(type=mujoco.mjtGeom.mjGEOM_BOX, size=[0.015] * 3)
+    with pytest.raises(ValueError, match=r"MJCF has 2 top-level bodies \(base, cube\); pass root_body="):
+        RobotModel.from_mjcf(spec)
+    cell_robot = RobotModel.from_mjcf(spec.to_xml(), root_body="base")
+    assert cell_robot.model.nq == robot.model.nq == 14
+    q = _random_q(robot, np.random.default_rng(5))
+    assert np.allclose(frame_pose(cell_robot, q, TCP_SITE), frame_pose(robot, q, TCP_SITE), atol=1e-12)
+
+
+def test_bad_rows_are_named(scene):
+    with pytest.raises(ValueError, match=r"expected 7 or 6 \(without the gripper\): shoulder_pan_joint, .*gripper_left_driver_joint"):
+        scene.check_state(np.zeros(5))
+    with pytest.raises(ValueError, match="row 0 column 2 is not finite"):
+        scene.check_state(np.array([0, 0, np.nan, 0, 0, 0]))

@@ -135,6 +135,10 @@ class PlanningScene:
             raise ValueError(f"configuration row {bad[0]} column {bad[1]} is not finite")
         if lay.gripper_joint is not None and Q.shape[1] == lay.dof - 1:
             return self.layout(lay.group.name, None)(Q)
+        if Q.shape[1] != lay.dof:
+            accepted = f"{lay.dof}" + (f" or {lay.dof - 1} (without the gripper)" if lay.gripper_joint else "")
+            raise ValueError(f"configurations have {Q.shape[1]} values per row; expected {accepted}: "
+                             f"{', '.join(lay.columns)}")
         return lay(Q)
 
     # -- world objects --------------------------------------------------------------------
