@@ -1,0 +1,15 @@
+"""The project's behaviors, one module per family; each module exports ``NODES``.
+
+``register`` is the ``objective.behaviors`` entry point (see pyproject.toml): the CLI calls it
+to learn every behavior's XML ID, which is its class name.
+"""
+from __future__ import annotations
+
+from runtime.registry import Registry
+
+
+def register(registry: Registry) -> None:
+    from . import controllers, gripper, motion, poses, scene, sim_control
+
+    for module in (controllers, gripper, motion, scene, poses, sim_control):
+        registry.register_all(module.NODES)

@@ -1,0 +1,362 @@
+"""GetObjectPose, GetLatestTransform, TransformPose, IsPoseNearIdentity, CheckObjectStacked and
+the `Check if One Cube Is on Another` SubTree, against the cell's planning scene."""
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+from geometry_msgs.msg import PoseStamped
+from sensor_msgs.msg import JointState
+
+from behaviors import poses
+from behaviors.poses import (
+    CheckObjectStacked,
+    GetLatestTransform,
+    GetObjectPose,
+    IsPoseNearIdentity,
+    TransformPose,
+    matrix_to_pose,
+    pose_to_matrix,
+    stack_check,
+)
+from runtime import builtin
+from runtime.behavior import RunContext, Status
+from runtime.blackboard import Blackboard
+from runtime.loader import load_tree
+from runtime.registry import Registry
+from runtime.runner import RunOptions, make_context as make_run_context, run_tree
+from runtime.scene.collision import pose_matrix
+from runtime.scene.scene import PlanningScene
+from sim.robot_model import ARM_JOINTS
+from tests.test_scene_behaviors import HOME, make_context, make_node, make_scene, publish_joint_states, robot, tick  # noqa: F401
+
+OBJECTIVES = Path(__file__).resolve().parent.parent / "objectives"
+CUBE = 0.03
+
+
+@pytest.fixture
+def scene(robot) -> PlanningScene:
+    return make_scene(robot)
+
+
+@pytest.fixture
+def context(scene) -> RunContext:
+    return make_context(scene)
+
+
+def rot_z(angle: float) -> np.ndarray:
+    c, s = math.cos(angle), math.sin(angle)
+    return np.array([[c, -s, 0], [s, c, 0], [0, 0, 1.0]])
+
+
+def rot_x(angle: float) -> np.ndarray:
+    c, s = math.cos(angle), math.sin(angle)
+    return np.array([[1.0, 0, 0], [0, c, -s], [0, s, c]])
+
+
+def pose(x: float, y: float, z: float, rotation: np.ndarray | None = None, frame: str = "world") -> PoseStamped:
+    return matrix_to_pose(frame, pose_matrix((x, y, z), rotation))
+
+
+def position(msg: PoseStamped) -> tuple[float, float, float]:
+    p = msg.pose.position
+    return (p.x, p.y, p.z)
+
+
+# -- pure math -------------------------------------------------------------------------------
+def test_pose_matrix_round_trip_and_quaternion_spelling():
+    m = pose_matrix((0.1, -0.2, 0.3), rot_z(2.5) @ rot_x(-1.0))
+    msg = matrix_to_pose("tcp", m, stamp=12.25)
+    assert msg.header.frame_id == "tcp"
+    assert (msg.header.stamp.sec, msg.header.stamp.nanosec) == (12, 250_000_000)
+    assert msg.pose.orientation.w >= 0
+    np.testing.assert_allclose(pose_to_matrix(msg.pose), m, atol=1e-12)
+
+
+def test_zero_quaternion_is_refused():
+    msg = pose(0, 0, 0)
+    msg.pose.orientation.w = 0.0
+    with pytest.raises(ValueError, match=r"is not a rotation \(zero length\)"):
+        pose_to_matrix(msg.pose)
+
+
+@pytest.mark.parametrize("top_rotation", [np.eye(3), rot_x(math.pi / 2), rot_x(math.pi) @ rot_z(0.4)])
+def test_stack_check_compares_centres_whatever_face_is_down(top_rotation):
+    bottom = np.array([0.0, 0.45, 0.015])
+    top = bottom + [0.012, 0.0, 0.03]  # 12 mm off the stacked point: inside 15 mm
+    answer = stack_check(top, bottom, gripper_position=top + [0, 0, 0.2], stack_height=0.03, position_tolerance=0.015, min_clearance=0.05)
+    assert answer.stacked
+    assert answer.offset_error == pytest.approx(0.012)
+    assert answer.clearance == pytest.approx(0.2)
+
+
+def test_stack_check_reasons():
+    bottom = np.array([0.0, 0.45, 0.015])
+    off = stack_check(bottom + [0.0, 0.016, 0.03], bottom, bottom + [0, 0, 0.3], 0.03, 0.015, 0.05)
+    assert not off.stacked
+    assert off.reason == "not stacked: 16.0 mm from the stacked position (dx +0.0, dy +16.0, dz +0.0 mm), tolerance 15.0 mm"
+    held = stack_check(bottom + [0.0, 0.0, 0.03], bottom, bottom + [0, 0, 0.03 + 0.049], 0.03, 0.015, 0.05)
+    assert not held.stacked
+    assert held.reason == "stacked but the gripper is 49.0 mm from the top object (needs 50.0 mm): not released"
+    side_by_side = stack_check(bottom + [0.03, 0.0, 0.0], bottom, bottom + [0, 0, 0.3], 0.03, 0.015, 0.05)
+    assert not side_by_side.stacked and side_by_side.offset_error == pytest.approx(math.hypot(0.03, 0.03))
+
+
+# -- GetObjectPose ---------------------------------------------------------------------------
+def test_get_object_pose_writes_a_world_pose(context, scene):
+    scene.move_object("cube_red", pose_matrix((-0.1, 0.45, 0.015), rot_z(0.3)))
+    board = Blackboard()
+    context.clock.advance(1.5)
+    node = make_node(GetObjectPose, context, board, object_name="cube_red", pose="{red}")
+    assert tick(node) is Status.SUCCESS
+    red = board.get("red")
+    assert isinstance(red, PoseStamped)
+    assert red.header.frame_id == "world" and red.header.stamp.sec == 1 and red.header.stamp.nanosec == 500_000_000
+    assert position(red) == pytest.approx((-0.1, 0.45, 0.015))
+    np.testing.assert_allclose(pose_to_matrix(red.pose)[:3, :3], rot_z(0.3), atol=1e-12)
+
+
+def test_get_object_pose_of_an_unknown_object_lists_the_objects(context):
+    node = make_node(GetObjectPose, context, object_name="cube_yellow", pose="{p}")
+    assert tick(node) is Status.FAILURE
+    assert node.feedback_message == "no object 'cube_yellow' in the planning scene (objects: cube_blue, cube_green, cube_red, table)"
+
+
+# -- GetLatestTransform ----------------------------------------------------------------------
+def test_latest_transform_of_the_tcp_uses_the_current_joint_states(context, scene):
+    board = Blackboard()
+    node = make_node(GetLatestTransform, context, board, target_frame="world", source_frame="tcp", transform="{tcp}")
+    publish_joint_states(context)
+    assert tick(node) is Status.SUCCESS
+    tcp = board.get("tcp")
+    assert tcp.header.frame_id == "world"
+    # Home puts the TCP at (0, 0.45, 0.30), pointing straight down (within the waypoint's rounding).
+    assert position(tcp) == pytest.approx((0.0, 0.45, 0.30), abs=2e-3)
+    np.testing.assert_allclose(pose_to_matrix(tcp.pose), scene.link_pose(np.array(HOME), "tcp"), atol=1e-12)
+    assert pose_to_matrix(tcp.pose)[:3, 2] == pytest.approx((0, 0, -1), abs=1e-2)
+
+    moved = (HOME[0] + 0.2,) + HOME[1:]
+    publish_joint_states(context, moved)
+    assert tick(node) is Status.SUCCESS
+    np.testing.assert_allclose(pose_to_matrix(board.get("tcp").pose), scene.link_pose(np.array(moved), "tcp"), atol=1e-12)
+
+
+def test_latest_transform_between_an_object_and_a_robot_frame(context, scene):
+    board = Blackboard()
+    node = make_node(GetLatestTransform, context, board, target_frame="tcp", source_frame="cube_green", transform="{t}")
+    publish_joint_states(context)
+    assert tick(node) is Status.SUCCESS
+    t = board.get("t")
+    assert t.header.frame_id == "tcp"
+    expected = np.linalg.inv(scene.link_pose(np.array(HOME), "tcp")) @ scene.object_pose("cube_green")
+    np.testing.assert_allclose(pose_to_matrix(t.pose), expected, atol=1e-12)
+    # The cube lies 28.5 cm below the TCP: along the TCP's z axis, which points down.
+    assert position(t)[2] == pytest.approx(0.30 - 0.015, abs=3e-3)
+
+
+def test_latest_transform_failures_name_the_frame(context):
+    unknown = make_node(GetLatestTransform, context, target_frame="world", source_frame="camera_link", transform="{t}")
+    no_state = make_node(GetLatestTransform, context, target_frame="world", source_frame="tcp", transform="{t}")
+    assert tick(unknown) is Status.FAILURE
+    assert unknown.feedback_message.startswith("unknown frame 'camera_link' (known: 'world', robot links (base, shoulder_link,")
+    assert unknown.feedback_message.endswith("or scene objects (cube_blue, cube_green, cube_red, table))")
+    assert tick(no_state) is Status.FAILURE
+    assert no_state.feedback_message == "no joint states on '/joint_states' yet"
+
+
+def test_world_and_objects_need_no_joint_states(context):
+    board = Blackboard()
+    node = make_node(GetLatestTransform, context, board, target_frame="cube_red", source_frame="cube_blue", transform="{t}")
+    assert tick(node) is Status.SUCCESS
+    assert position(board.get("t")) == pytest.approx((0.2, 0.0, 0.0))
+
+
+# -- TransformPose ---------------------------------------------------------------------------
+def test_transform_pose_applies_the_offset_in_the_pose_axes_then_changes_frame(context, scene):
+    board = Blackboard()
+    # A grasp pose for a cube turned 90 degrees about x: its own z axis points along world -y.
+    board.set("cube", pose(0.1, 0.45, 0.015, rot_x(math.pi / 2)))
+    node = make_node(
+        TransformPose, context, board,
+        input_pose="{cube}", target_frame_id="world", translation_xyz="0;0;0.1", quaternion_xyzw="1;0;0;0", output_pose="{out}",
+    )
+    assert tick(node) is Status.SUCCESS
+    out = board.get("out")
+    assert out.header.frame_id == "world"
+    assert position(out) == pytest.approx((0.1, 0.45 - 0.1, 0.015))
+    np.testing.assert_allclose(pose_to_matrix(out.pose)[:3, :3], rot_x(math.pi / 2) @ rot_x(math.pi), atol=1e-12)
+
+
+def test_transform_pose_into_a_robot_frame_round_trips_to_identity(context):
+    board = Blackboard()
+    lookup = make_node(GetLatestTransform, context, board, target_frame="world", source_frame="tcp", transform="{tcp_in_world}")
+    into_tcp = make_node(TransformPose, context, board, input_pose="{tcp_in_world}", target_frame_id="tcp", output_pose="{tcp_in_tcp}")
+    near = make_node(IsPoseNearIdentity, context, board, pose="{tcp_in_tcp}", position_tolerance="1e-9", rotation_tolerance="1e-9")
+    publish_joint_states(context)
+    assert [tick(n) for n in (lookup, into_tcp, near)] == [Status.SUCCESS] * 3
+
+
+def test_transform_pose_bad_input(context):
+    board = Blackboard()
+    board.set("text", "not a pose")
+    board.set("p", pose(0, 0, 0))
+    wrong_type = make_node(TransformPose, context, board, input_pose="{text}", output_pose="{o}")
+    assert tick(wrong_type) is Status.FAILURE
+    assert wrong_type.feedback_message == "port 'input_pose' expects a geometry_msgs/PoseStamped, got str"
+    short = make_node(TransformPose, context, board, input_pose="{p}", translation_xyz="0;1", output_pose="{o}")
+    assert tick(short) is Status.FAILURE
+    assert short.feedback_message == "translation_xyz needs 3 values (x;y;z), got 2"
+    zero = make_node(TransformPose, context, board, input_pose="{p}", quaternion_xyzw="0;0;0;0", output_pose="{o}")
+    assert tick(zero) is Status.FAILURE
+    assert zero.feedback_message == "quaternion_xyzw [0.0, 0.0, 0.0, 0.0] is not a rotation (zero length)"
+    board.set("q", pose(0, 0, 0, frame="gripper_finger"))
+    unknown = make_node(TransformPose, context, board, input_pose="{q}", output_pose="{o}")
+    assert tick(unknown) is Status.FAILURE
+    assert unknown.feedback_message.startswith("unknown frame 'gripper_finger'")
+
+
+# -- IsPoseNearIdentity ----------------------------------------------------------------------
+@pytest.mark.parametrize(
+    ("msg", "expected"),
+    [
+        (pose(0.006, 0.0, -0.008), Status.SUCCESS),  # 10.0 mm: on the tolerance
+        (pose(0.0, 0.0101, 0.0), Status.FAILURE),
+        (pose(0.0, 0.0, 0.0, rot_z(0.0099)), Status.SUCCESS),
+        (pose(0.0, 0.0, 0.0, rot_x(-0.0101)), Status.FAILURE),
+    ],
+)
+def test_near_identity_default_tolerances(context, msg, expected):
+    board = Blackboard()
+    board.set("p", msg)
+    node = make_node(IsPoseNearIdentity, context, board, pose="{p}")
+    assert tick(node) is expected
+
+
+def test_near_identity_messages(context):
+    board = Blackboard()
+    board.set("p", pose(0.02, 0.0, 0.0, rot_z(0.5)))
+    node = make_node(IsPoseNearIdentity, context, board, pose="{p}", position_tolerance="0.05", rotation_tolerance="0.1")
+    assert tick(node) is Status.FAILURE
+    assert node.feedback_message == "not near identity: position 20.0 mm (tolerance 50.0), rotation 0.5000 rad (tolerance 0.1000)"
+    board.set("p", [1, 2, 3])
+    assert tick(node) is Status.FAILURE
+    assert node.feedback_message == "port 'pose' expects a geometry_msgs/PoseStamped, got list"
+
+
+# -- CheckObjectStacked --------------------------------------------------------------------------
+def place_on_green(scene: PlanningScene, dx: float = 0.0, rotation: np.ndarray | None = None) -> None:
+    green = scene.object_pose("cube_green")[:3, 3]
+    scene.move_object("cube_blue", pose_matrix(green + [dx, 0.0, CUBE], rotation))
+
+
+def check_node(context, **ports):
+    return make_node(CheckObjectStacked, context, top_object_name="cube_blue", bottom_object_name="cube_green", **ports)
+
+
+def test_cubes_apart_are_not_stacked(context):
+    node = check_node(context)
+    publish_joint_states(context)
+    assert tick(node) is Status.FAILURE
+    assert node.feedback_message == (
+        "cube_blue on cube_green: not stacked: 104.4 mm from the stacked position (dx +100.0, dy +0.0, dz -30.0 mm), tolerance 15.0 mm"
+    )
+
+
+def test_blue_on_green_with_the_gripper_away_is_stacked(context, scene):
+    place_on_green(scene, dx=0.01, rotation=rot_x(math.pi / 2) @ rot_z(0.3))
+    node = check_node(context)
+    publish_joint_states(context)
+    assert tick(node) is Status.SUCCESS
+    assert node.feedback_message.startswith("cube_blue on cube_green: stacked: 10.0 mm from the stacked position")
+
+
+def test_a_cube_still_held_above_is_not_stacked(context, scene):
+    # The cube sits at the TCP (held in the fingers) right above the green one.
+    node = check_node(context)
+    publish_joint_states(context)
+    tcp = scene.link_pose(np.array(HOME), "tcp")
+    scene.move_object("cube_green", pose_matrix(tcp[:3, 3] - [0.0, 0.0, CUBE]))
+    scene.move_object("cube_blue", tcp)
+    assert tick(node) is Status.FAILURE
+    assert node.feedback_message == (
+        "cube_blue on cube_green: stacked but the gripper is 0.0 mm from the top object (needs 50.0 mm): not released"
+    )
+
+
+def test_same_object_twice_is_refused(context):
+    node = make_node(CheckObjectStacked, context, top_object_name="cube_red", bottom_object_name="cube_red")
+    assert tick(node) is Status.FAILURE
+    assert node.feedback_message == "top_object_name and bottom_object_name are both 'cube_red'"
+
+
+# -- the SubTree, run by the runner against a minimal world -----------------------------------------
+class SceneOnlyWorld:
+    """A world that only fills the planning scene and publishes joint states every step."""
+
+    name = "scene_only"
+
+    def __init__(self, scene: PlanningScene) -> None:
+        self.scene = scene
+
+    def start(self, context: RunContext) -> None:
+        context.scene = self.scene
+        self.publisher = context.bus.create_publisher("/joint_states", JointState)
+
+    def step_to(self, t: float) -> None:
+        self.publisher.publish(JointState(name=list(ARM_JOINTS), position=list(HOME)))
+
+    def reset(self, seed: int) -> None:
+        pass
+
+    def summary(self) -> dict:
+        return {}
+
+    def close(self) -> None:
+        pass
+
+
+@pytest.fixture(scope="module")
+def registry() -> Registry:
+    registry = Registry()
+    builtin.register(registry)
+    registry.register_all(poses.NODES)
+    return registry
+
+
+def run_check(registry, scene, tmp_path, subtree: str = '<SubTree ID="Check if One Cube Is on Another"/>'):
+    path = tmp_path / "check.xml"
+    path.write_text(f'<root BTCPP_format="4"><BehaviorTree ID="Main">{subtree}</BehaviorTree></root>')
+    options = RunOptions(max_seconds=1.0)
+    context = make_run_context(options)
+    loaded = load_tree(path, registry, context, objectives_dir=OBJECTIVES)
+    return run_tree(loaded, context, options, world=SceneOnlyWorld(scene))
+
+
+def test_subtree_defaults_check_blue_on_green(registry, scene, tmp_path):
+    apart = run_check(registry, scene, tmp_path)
+    assert (apart.status, apart.ticks, apart.failing_node) == ("FAILURE", 1, "top cube on bottom cube")
+    assert apart.reason.startswith("cube_blue on cube_green: not stacked: 104.4 mm")
+    place_on_green(scene)
+    stacked = run_check(registry, scene, tmp_path)
+    assert (stacked.status, stacked.ticks) == ("SUCCESS", 1)
+
+
+def test_subtree_colors_are_ports(registry, scene, tmp_path):
+    place_on_green(scene)  # blue on green, so red on blue is not
+    result = run_check(registry, scene, tmp_path, '<SubTree ID="Check if One Cube Is on Another" top_color="red" bottom_color="blue"/>')
+    assert result.status == "FAILURE"
+    assert result.reason.startswith("cube_red on cube_blue: not stacked")
+
+
+def test_subtree_guards_a_reactive_fallback(registry, scene, tmp_path):
+    # Once the check passes, the ReactiveFallback stops ticking its RUNNING branch.
+    subtree = """<ReactiveFallback>
+      <SubTree ID="Check if One Cube Is on Another"/>
+      <Sequence><Script code="polls := 1"/><Wait seconds="10"/></Sequence>
+    </ReactiveFallback>"""
+    place_on_green(scene)
+    result = run_check(registry, scene, tmp_path, subtree)
+    assert (result.status, result.ticks) == ("SUCCESS", 1)
+    assert "polls" not in result.blackboard

@@ -1,0 +1,228 @@
+"""SetCollisionRule, AttachObject, DetachObject and ResetSim against a real planning scene.
+
+The scene is the cell's own robot model (sim/robot_model.py + sim/config) with the table and
+three cubes as world objects; joint states come over an InProcessBus, as the cell publishes them.
+"""
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import pytest
+import yaml
+from sensor_msgs.msg import JointState
+
+from behaviors.scene import AttachObject, DetachObject, SetCollisionRule
+from behaviors.sim_control import ResetSim
+from runtime.behavior import RunContext, Status
+from runtime.blackboard import Blackboard
+from runtime.bus import InProcessBus
+from runtime.clock import SimClock
+from runtime.events import EventLog
+from runtime.scene.collision import Box, pose_matrix
+from runtime.scene.model import RobotModel
+from runtime.scene.scene import PlanningScene
+from sim.robot_model import ARM_JOINTS, CONFIG_DIR, SRDF_PATH, WAYPOINTS_PATH, build_robot_spec
+
+HOME = tuple(yaml.safe_load(WAYPOINTS_PATH.read_text())["waypoints"]["Home"]["positions"])
+"""The cell's Home waypoint: TCP pointing straight down at (0, 0.45, 0.30)."""
+CUBE = 0.03
+CUBES = {"cube_red": (-0.1, 0.45), "cube_green": (0.0, 0.45), "cube_blue": (0.1, 0.45)}
+
+
+@pytest.fixture(scope="session")
+def robot() -> RobotModel:
+    return RobotModel.from_mjcf(build_robot_spec(), srdf=SRDF_PATH, couplings=CONFIG_DIR / "coupled_joints.yaml")
+
+
+def make_scene(robot: RobotModel) -> PlanningScene:
+    scene = PlanningScene(robot, "manipulator", "gripper_left_driver_joint")
+    scene.add_object("table", Box((1.2, 1.1, 0.04)), pose_matrix((0.0, 0.3, -0.02)))
+    for name, (x, y) in CUBES.items():
+        scene.add_object(name, Box((CUBE, CUBE, CUBE)), pose_matrix((x, y, CUBE / 2)))
+    return scene
+
+
+class FakeWorld:
+    """Records resets; ``refuse`` makes reset raise as a world does for a bad seed."""
+
+    def __init__(self, refuse: str | None = None) -> None:
+        self.resets: list[int] = []
+        self.refuse = refuse
+
+    def reset(self, seed: int) -> None:
+        if self.refuse:
+            raise ValueError(self.refuse)
+        self.resets.append(seed)
+
+
+def make_context(scene: PlanningScene | None, world: Any = None) -> RunContext:
+    clock = SimClock()
+    return RunContext(clock=clock, bus=InProcessBus(clock), events=EventLog(clock), scene=scene, world=world)
+
+
+def publish_joint_states(context: RunContext, arm: tuple[float, ...] = HOME, gripper: float = 0.0) -> None:
+    """What the cell publishes: the arm joints, then the gripper under its ROS name."""
+    publisher = context.bus.create_publisher("/joint_states", JointState)
+    publisher.publish(JointState(name=list(ARM_JOINTS) + ["robotiq_85_left_knuckle_joint"], position=list(arm) + [gripper]))
+
+
+def make_node(cls: type, context: RunContext, blackboard: Blackboard | None = None, **ports: str) -> Any:
+    node = cls(cls.__name__)
+    node.bind(context, blackboard or Blackboard(), ports)
+    node.setup()
+    return node
+
+
+def tick(node: Any) -> Status:
+    node.tick_once()
+    return node.status
+
+
+@pytest.fixture
+def scene(robot) -> PlanningScene:
+    return make_scene(robot)
+
+
+@pytest.fixture
+def context(scene) -> RunContext:
+    ctx = make_context(scene)
+    return ctx
+
+
+# -- SetCollisionRule ---------------------------------------------------------------------------
+def test_allow_a_group_then_forbid_it_again(context, scene):
+    gripper_links = scene.robot.group("gripper").links
+    node = make_node(SetCollisionRule, context, object_name="cube_blue", link_names="gripper")
+    assert tick(node) is Status.SUCCESS
+    assert all(scene.is_allowed("cube_blue", link) for link in gripper_links)
+    assert not scene.is_allowed("cube_red", "gripper_left_pad")
+    assert not scene.is_allowed("cube_blue", "wrist_3_link")
+    assert node.feedback_message == "allowed contact between cube_blue and gripper"
+
+    forbid = make_node(SetCollisionRule, context, object_name="cube_blue", link_names="gripper", allow="false")
+    assert tick(forbid) is Status.SUCCESS
+    assert not any(scene.is_allowed("cube_blue", link) for link in gripper_links)
+
+
+def test_star_allows_every_object_for_listed_links(context, scene):
+    node = make_node(SetCollisionRule, context, object_name="*", link_names="gripper_left_pad;gripper_right_pad")
+    assert tick(node) is Status.SUCCESS
+    for obj in ("cube_red", "cube_green", "cube_blue", "table"):
+        assert scene.is_allowed(obj, "gripper_left_pad") and scene.is_allowed(obj, "gripper_right_pad")
+    assert not scene.is_allowed("table", "wrist_3_link")
+
+
+def test_allowed_contact_changes_what_the_collision_check_reports(context, scene):
+    # The blue cube between the fingers, closed on it at Home: a collision until the rule allows it.
+    row = np.array(HOME + (0.8,))
+    scene.move_object("cube_blue", scene.link_pose(row, "tcp"))
+    hit = scene.check_state(row, padding=0.0)
+    assert hit is not None and "cube_blue" in (hit.first, hit.second)
+    assert tick(make_node(SetCollisionRule, context, object_name="cube_blue", link_names="gripper")) is Status.SUCCESS
+    assert scene.check_state(row, padding=0.0) is None
+
+
+def test_unknown_object_fails_and_lists_the_objects(context):
+    node = make_node(SetCollisionRule, context, object_name="cube_purple", link_names="gripper")
+    assert tick(node) is Status.FAILURE
+    assert node.feedback_message == (
+        "no object 'cube_purple' in the planning scene (objects: cube_blue, cube_green, cube_red, table, or * for all)"
+    )
+
+
+def test_unknown_link_fails_and_lists_links_and_groups(context, scene):
+    node = make_node(SetCollisionRule, context, object_name="cube_blue", link_names="gripper_base;left_finger")
+    assert tick(node) is Status.FAILURE
+    message = node.feedback_message
+    assert message.startswith("unknown robot link or group 'left_finger' (links: base, shoulder_link,")
+    assert message.endswith("; groups: manipulator, gripper)")
+    assert not scene.is_allowed("cube_blue", "gripper_base")  # nothing half-applied
+
+
+def test_without_a_scene_the_rule_fails_clearly():
+    node = make_node(SetCollisionRule, make_context(None), object_name="cube_blue", link_names="gripper")
+    assert tick(node) is Status.FAILURE
+    assert node.feedback_message == "this run has no planning scene (no world was started)"
+
+
+# -- AttachObject / DetachObject --------------------------------------------------------------
+def test_attach_carries_the_object_with_the_link_and_detach_leaves_it_there(context, scene):
+    home = np.array(HOME + (0.0,))
+    scene.move_object("cube_blue", scene.link_pose(home, "tcp"))
+    attach = make_node(AttachObject, context, object_name="cube_blue", link_name="gripper_base", touch_links="gripper")
+    detach = make_node(DetachObject, context, object_name="cube_blue")
+    publish_joint_states(context)  # after the nodes subscribed, as the cell publishes every step
+    assert tick(attach) is Status.SUCCESS
+    assert attach.feedback_message == "'cube_blue' attached to 'gripper_base'"
+    (attachment,) = scene.attachments
+    assert (attachment.name, attachment.link) == ("cube_blue", "gripper_base")
+    assert "gripper_left_pad" in attachment.touch_links
+    assert "cube_blue" not in scene.objects
+
+    # The arm moves (shoulder pan +0.3 rad): the carried cube moves with the hand.
+    moved = (HOME[0] + 0.3,) + HOME[1:]
+    publish_joint_states(context, moved)
+    expected = scene.link_pose(np.array(moved + (0.0,)), "tcp")
+    np.testing.assert_allclose(scene.object_world_pose("cube_blue", np.array(moved + (0.0,))), expected, atol=1e-9)
+
+    assert tick(detach) is Status.SUCCESS
+    assert scene.attachments == ()
+    np.testing.assert_allclose(scene.object_pose("cube_blue"), expected, atol=1e-9)
+
+
+def test_attach_needs_joint_states(context):
+    node = make_node(AttachObject, context, object_name="cube_blue", link_name="gripper_base")
+    assert tick(node) is Status.FAILURE
+    assert node.feedback_message == "cannot attach 'cube_blue': no joint states on '/joint_states' yet"
+
+
+def test_attach_refuses_unknown_names(context):
+    node = make_node(AttachObject, context, object_name="cube_blue", link_name="hand")
+    assert tick(node) is Status.FAILURE
+    assert node.feedback_message.startswith("'hand' is not a robot link (links: base, shoulder_link,")
+    node = make_node(AttachObject, context, object_name="sphere", link_name="gripper_base")
+    assert tick(node) is Status.FAILURE
+    assert node.feedback_message == "no world object 'sphere' in the planning scene (objects: cube_blue, cube_green, cube_red, table)"
+
+
+def test_attach_twice_and_detach_unattached_fail(context):
+    first = make_node(AttachObject, context, object_name="cube_red", link_name="gripper_base")
+    again = make_node(AttachObject, context, object_name="cube_red", link_name="wrist_3_link")
+    publish_joint_states(context)
+    assert tick(first) is Status.SUCCESS
+    assert tick(again) is Status.FAILURE
+    assert again.feedback_message == "'cube_red' is already attached to 'gripper_base'"
+    detach = make_node(DetachObject, context, object_name="cube_green")
+    assert tick(detach) is Status.FAILURE
+    assert detach.feedback_message == "'cube_green' is not attached (attached objects: cube_red)"
+
+
+# -- ResetSim ---------------------------------------------------------------------------------------
+def test_reset_sim_resets_then_succeeds_on_the_next_tick(scene):
+    world = FakeWorld()
+    node = make_node(ResetSim, make_context(scene, world), seed="7")
+    assert tick(node) is Status.RUNNING
+    assert world.resets == [7]
+    assert tick(node) is Status.SUCCESS
+    assert world.resets == [7]
+    assert node.feedback_message == "world reset with seed 7"
+
+
+def test_reset_sim_default_seed_is_zero(scene):
+    world = FakeWorld()
+    node = make_node(ResetSim, make_context(scene, world))
+    tick(node)
+    assert world.resets == [0]
+
+
+def test_reset_sim_without_a_world_fails(scene):
+    node = make_node(ResetSim, make_context(scene, None), seed="1")
+    assert tick(node) is Status.FAILURE
+    assert node.feedback_message == "this run hosts no simulated world to reset (ResetSim works only against a simulated cell)"
+
+
+def test_reset_sim_reports_a_refused_seed(scene):
+    node = make_node(ResetSim, make_context(scene, FakeWorld(refuse="no room for cube 'blue'")), seed="3")
+    assert tick(node) is Status.FAILURE
+    assert node.feedback_message == "the world refused the reset with seed 3: no room for cube 'blue'"
