@@ -341,3 +341,34 @@ def test_scene_tcp_is_where_mujoco_puts_the_tcp_site(kinematics):
         pose = kinematics.tcp_pose(q)
         assert pose[:3, 3] == pytest.approx(data.site(TCP_SITE).xpos, abs=1e-6)
         assert pose[:3, :3].ravel() == pytest.approx(data.site(TCP_SITE).xmat, abs=1e-6)
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_plans_for_seeded_layouts_pass_the_collision_check_executepolicy_makes(kinematics, seed):
+    """Table and cubes in the scene, 10 mm padding; only gripper contact with the top cube is allowed
+    (what the stacking Objective's SetCollisionRule allows)."""
+    from runtime.scene.collision import Box
+    from runtime.scene.scene import PlanningScene
+    from sim.layouts import layout
+
+    robot = kinematics.robot
+    scene = PlanningScene(robot, "manipulator", "gripper_left_driver_joint")
+    scene.add_object("table", Box((1.2, 1.1, 0.04)), _pose((0.0, 0.3, -0.02), 0.0))
+    scene.allow("table", ["base", "shoulder_link"])  # the robot stands on the table
+    cubes = layout(seed)
+    for color, (x, y, yaw) in cubes.items():
+        scene.add_object(f"cube_{color}", Box((0.03, 0.03, 0.03)), _pose((x, y, 0.015), yaw))
+    scene.allow("cube_blue", list(robot.group("gripper").links))
+    top, bottom = cubes["blue"], cubes["green"]
+    case = ((top[0], top[1], 0.015), top[2], (bottom[0], bottom[1], 0.015), bottom[2])
+    plan = make_plan(kinematics, case)
+    times = np.arange(0.0, plan.duration, 0.02)
+    arm, gripper = plan.sample(times)
+    assert scene.check_path(np.column_stack([arm, gripper]), times, padding=0.01) is None
+
+
+def _pose(position, yaw):
+    pose = np.eye(4)
+    pose[:2, :2] = [[math.cos(yaw), -math.sin(yaw)], [math.sin(yaw), math.cos(yaw)]]
+    pose[:3, 3] = position
+    return pose
