@@ -30,10 +30,11 @@ Names in the composed model (the SRDF in ``sim/config`` uses exactly these):
   ``gripper_{left,right}_coupler``, ``gripper_{left,right}_spring_link``,
   ``gripper_{left,right}_follower``, ``gripper_{left,right}_pad``,
   ``gripper_{left,right}_silicone_pad``.
-- Gripper joints: ``gripper_{left,right}_{driver,coupler,spring_link,follower}_joint``. The
-  driver joint ``gripper_left_driver_joint`` (range 0 open .. 0.8 closed) is the one the cell
-  publishes as ``robotiq_85_left_knuckle_joint``; the others follow it through the closed
-  linkage (see ``sim/config/joint_limits.yaml``, section ``coupled_joints``).
+- Gripper joints: ``gripper_{right}_driver_joint``, ``gripper_{left,right}_{coupler,spring_link,follower}_joint``
+  and the left driver, renamed ``robotiq_85_left_knuckle_joint`` (range 0 open .. 0.8 closed): the
+  one joint the cell publishes, the policy observes and the SRDF/planning scene know, under one
+  name everywhere. The others follow it through the closed linkage
+  (see ``sim/config/coupled_joints.yaml``).
 - Actuators: ``shoulder_pan`` .. ``wrist_3`` (position servos) and ``gripper_fingers_actuator``
   (ctrl 0..255 on the tendon ``gripper_split``).
 - Sites: ``attachment_site`` (arm flange), ``wrist_ft_site``, ``tcp``, ``gripper_pinch``.
@@ -55,7 +56,8 @@ ARM_JOINTS = (
     "wrist_2_joint",
     "wrist_3_joint",
 )
-GRIPPER_DRIVER_JOINT = "gripper_left_driver_joint"
+GRIPPER_DRIVER_JOINT = "robotiq_85_left_knuckle_joint"
+_MENAGERIE_DRIVER_JOINT = GRIPPER_PREFIX + "left_driver_joint"
 TCP_SITE = "tcp"
 FT_SITE = "wrist_ft_site"
 CONFIG_DIR = Path(__file__).resolve().parent / "config"
@@ -95,7 +97,15 @@ def build_robot_spec() -> mujoco.MjSpec:
     mount.add_site(name=FT_SITE, pos=[0.0, 0.0, 0.0], size=[0.005, 0.005, 0.005], group=4)
     base = spec.body(GRIPPER_PREFIX + "base")
     base.add_site(name=TCP_SITE, pos=list(_TCP_POS), size=[0.005, 0.005, 0.005], group=4)
-    return spec
+    return _rename_driver_joint(spec)
+
+
+def _rename_driver_joint(spec: mujoco.MjSpec) -> mujoco.MjSpec:
+    """Give the driver joint its ROS name. MjSpec does not rename references (tendon wraps,
+    equalities), so the rename goes through the XML, where every reference is a name token."""
+    xml = spec.to_xml()
+    renamed = xml.replace(f'"{_MENAGERIE_DRIVER_JOINT}"', f'"{GRIPPER_DRIVER_JOINT}"')
+    return mujoco.MjSpec.from_string(renamed)
 
 
 def planning_robot_model():

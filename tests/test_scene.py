@@ -256,7 +256,7 @@ def test_snapshot_freezes_rules_but_not_world(scene, home):
 def test_group_with_two_tips_is_an_error(robot):
     srdf = parse_srdf(
         '<robot name="x"><group name="fingers">'
-        '<joint name="gripper_left_driver_joint"/><joint name="gripper_right_driver_joint"/>'
+        '<joint name="robotiq_85_left_knuckle_joint"/><joint name="gripper_right_driver_joint"/>'
         "</group></robot>"
     )
     other = RobotModel(robot.model, robot.collision_model, srdf=srdf)
@@ -379,7 +379,7 @@ def test_robot_from_a_cell_mjcf_with_other_bodies(robot, scene):
 
 
 def test_bad_rows_are_named(scene):
-    with pytest.raises(ValueError, match=r"expected 7 or 6 \(without the gripper\): shoulder_pan_joint, .*gripper_left_driver_joint"):
+    with pytest.raises(ValueError, match=r"expected 7 or 6 \(without the gripper\): shoulder_pan_joint, .*robotiq_85_left_knuckle_joint"):
         scene.check_state(np.zeros(5))
     with pytest.raises(ValueError, match="row 0 column 2 is not finite"):
         scene.check_state(np.array([0, 0, np.nan, 0, 0, 0]))
