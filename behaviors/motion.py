@@ -17,7 +17,7 @@ from runtime.behavior import Behavior, Status
 from runtime.bus import STATUS_SUCCEEDED
 from runtime.ports import InputPort, PortType
 
-from .execute_policy.limits import JointLimitTable
+from runtime.scene import JointLimits
 from .execute_policy.shaping import Samples
 from .safety import SafetyError, make_safety
 from .waiting import Deadline, when_ready
@@ -34,7 +34,7 @@ class PlanningError(ValueError):
 def plan_point_to_point(
     start: np.ndarray,
     goal: np.ndarray,
-    limits: JointLimitTable,
+    limits: JointLimits,
     velocity_scale: float,
     acceleration_scale: float,
     period: float = SAMPLE_PERIOD,

@@ -5,7 +5,6 @@ from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
 from behaviors.execute_policy.chunk import ChunkError, read_chunk, read_policy_chunk
-from behaviors.execute_policy.limits import JointLimitTable, first_limit_violation
 from behaviors.execute_policy.shaping import densify, fit_chunk, join_at_seam
 from behaviors.execute_policy.timing import LatencyEstimate, frozen_prefix_steps, window_covers_latency
 
@@ -55,17 +54,6 @@ def test_densify_spans_the_window_and_velocity_matches_finite_differences():
     assert len(s) == 200 and s.times[0] == pytest.approx(0.3) and s.times[-1] == pytest.approx(1.5)
     fd = np.gradient(s.positions, s.times, axis=0)
     assert np.max(np.abs(fd[1:-1] - s.velocities[1:-1])) < 1e-3
-
-
-def test_limit_violation_names_the_first_sample_joint_value_and_limit():
-    limits = JointLimitTable(("j1", "j2"), np.array([-1.0, -1.0]), np.array([1.0, 1.0]), np.array([2.0, 2.0]), np.array([10.0, 10.0]))
-    spline = fit_chunk(np.linspace([0.0, 0.0], [0.0, 0.9], 10), 1e6)  # j2: 1 rad/s at dt=0.1
-    samples = densify(join_at_seam(spline, 0.1, 0.0, 0.0, 0.9, np.zeros(2), spline(0.0, nu=1) / 0.1, 0.1), 50)
-    assert first_limit_violation(samples, limits) is None
-    fast = JointLimitTable(limits.names, limits.lower, limits.upper, np.array([2.0, 0.5]), limits.max_acceleration)
-    v = first_limit_violation(samples, fast)
-    assert v is not None and v.quantity == "velocity" and v.joint == "j2" and v.limit == 0.5
-    assert "joint 'j2' velocity" in v.describe() and "exceeds the limit 0.5000 rad/s" in v.describe()
 
 
 def test_read_chunk_without_gripper_requires_group_order():

@@ -28,7 +28,6 @@ from runtime.ports import Direction
 
 from . import config as cfg
 from .chunk import ChunkError, read_chunk, read_policy_chunk
-from .limits import first_limit_violation
 from .observation import ObservationError, policy_tail, robot_state
 from ..safety import MotionSafety, SafetyError, make_safety
 from .shaping import ChunkMotion, Samples, densify, fit_chunk, join_at_seam
@@ -241,7 +240,7 @@ class ExecutePolicy(Behavior):
         elif grid.remaining > 0:
             self._maybe_request(now)
         if self.samples is not None:
-            collision = self.safety.first_collision(self.rules, self._remaining_samples(now), self.config.link_padding)
+            collision = self.safety.first_collision(self.rules, self._remaining_samples(now), self.config.link_padding, self._gripper_now())
             if collision is not None:
                 return self._stop(Status.FAILURE, f"the planning scene changed: {collision} in the remaining path; robot stopped")
         if grid.remaining == 0 and self.in_flight is None and self.goal_result is not None:
@@ -361,11 +360,14 @@ class ExecutePolicy(Behavior):
         return None
 
     def _check(self, samples: Samples, chunk: Any, window: Window) -> str | None:
-        violation = first_limit_violation(samples, self.safety.limits)
+        grid = self.grid
+        assert grid is not None
+        violation = self.safety.limits.check(samples.positions, samples.velocities, samples.accelerations, samples.times)
         if violation is not None:
-            step = window.request_step + int(np.floor((violation.time - self.grid.time(window.request_step)) / self.config.dt + 1e-9))  # type: ignore[union-attr]
-            return f"{violation.describe()} (policy step {step} of the run)"
-        return self.safety.first_collision(self.rules, samples, self.config.link_padding)
+            step = window.request_step + int(np.floor((violation.time - grid.time(window.request_step)) / self.config.dt + 1e-9))
+            return f"densified {violation} (policy step {step} of the run)"
+        collision = self.safety.first_collision(self.rules, samples, self.config.link_padding, self._gripper_now())
+        return None if collision is None else f"densified {collision}"
 
     def _state_at(self, t: float) -> tuple[np.ndarray, np.ndarray]:
         """Position and velocity of the committed motion at ``t`` (at rest after it ends)."""
@@ -519,6 +521,13 @@ class ExecutePolicy(Behavior):
         self.joint_states = None
 
     # -- small helpers -----------------------------------------------------------------------
+    def _gripper_now(self) -> float | None:
+        joint = self.config.gripper_joint_name
+        state = self.joint_states.latest if self.joint_states is not None else None
+        if not joint or state is None or joint not in state.name:
+            return None
+        return float(state.position[list(state.name).index(joint)])
+
     def _status_reason(self, response: Any, what: str) -> str:
         names = {0: "UNKNOWN", 1: "CHUNK_PRODUCED", 2: "NO_MORE_ACTIONS", 3: "ERROR"}
         status = names.get(response.status, f"status {response.status}")

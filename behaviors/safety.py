@@ -1,0 +1,80 @@
+"""What motion behaviors need from the planning scene: the group's joints, their limits, and
+collision checks of a densified motion against a snapshot of the collision rules."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from runtime.scene import ConfigurationMap, GroupError, JointLimits, PlanningScene, SceneSnapshot
+
+from .execute_policy.shaping import Samples
+
+
+class SafetyError(ValueError):
+    """The scene cannot check this group: unknown group, several tips, missing limits..."""
+
+
+@dataclass(frozen=True)
+class MotionSafety:
+    scene: PlanningScene
+    group: str
+    group_joints: tuple[str, ...]
+    tip: str
+    limits: JointLimits
+    layout: ConfigurationMap
+    gripper_joint: str | None
+
+    def snapshot(self) -> SceneSnapshot:
+        """Collision rules and attachments now; checks with it ignore later rule changes."""
+        return self.scene.snapshot()
+
+    def first_limit_violation(self, samples: Samples) -> str | None:
+        hit = self.limits.check(samples.positions, samples.velocities, samples.accelerations, samples.times)
+        return None if hit is None else str(hit)
+
+    def first_collision(
+        self, snapshot: SceneSnapshot, samples: Samples, padding: float, gripper_position: float | None = None
+    ) -> str | None:
+        """The first colliding sample as a sentence, or None. World objects are checked with
+        ``padding``; self-collision with the unpadded geometry."""
+        if len(samples) == 0:
+            return None
+        rows = samples.positions
+        if self.gripper_joint is not None:
+            value = 0.0 if gripper_position is None else gripper_position
+            rows = np.hstack([rows, np.full((len(rows), 1), value)])
+        hit = self.scene.check_path(rows, samples.times, padding, snapshot=snapshot, layout=self.layout)
+        return None if hit is None else str(hit)
+
+
+def make_safety(scene: Any, group: str, gripper_joint: str | None) -> MotionSafety:
+    """Resolve ``group`` (exactly one tip) and ``gripper_joint`` (single-DOF, outside the group)."""
+    if not isinstance(scene, PlanningScene):
+        raise SafetyError("this run has no planning scene, so motions cannot be checked (run it with a world or a robot description)")
+    robot = scene.robot
+    try:
+        joint_group = robot.group(group)
+        tip = joint_group.tip_link
+    except GroupError as err:
+        raise SafetyError(str(err)) from None
+    except KeyError:
+        raise SafetyError(f"unknown joint group '{group}' (groups: {', '.join(robot.group_names)})") from None
+    joints = tuple(joint_group.joints)
+    if gripper_joint is not None:
+        if gripper_joint in joints:
+            raise SafetyError(f"gripper joint '{gripper_joint}' is inside the joint group '{group}'; it must be outside it")
+        if gripper_joint not in robot.movable_joints:
+            raise SafetyError(f"gripper joint '{gripper_joint}' is not a joint of the robot model")
+        jid = robot.model.getJointId(gripper_joint)
+        if robot.model.joints[jid].nq != 1:
+            raise SafetyError(f"gripper joint '{gripper_joint}' has {robot.model.joints[jid].nq} degrees of freedom; only single-DOF grippers are supported")
+    if scene.limits is None:
+        raise SafetyError("the planning scene has no joint limits (joint_limits.yaml)")
+    try:
+        limits = scene.limits.subset(joints)
+        layout = scene.layout(group, gripper_joint)
+    except (KeyError, GroupError, ValueError) as err:
+        raise SafetyError(str(err).strip('"')) from None
+    return MotionSafety(scene, group, joints, tip, limits, layout, gripper_joint)
