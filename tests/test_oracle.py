@@ -25,9 +25,10 @@ from sim.policy.oracle import (
     tcp_yaw,
     top_down_pose,
 )
+from sim.robot_model import GRIPPER_DRIVER_JOINT
 
 HOME = np.array([-1.5708, -1.5708, 1.5708, -1.5708, -1.5708, 0.0])
-GRIPPER = "robotiq_85_left_knuckle_joint"
+GRIPPER = GRIPPER_DRIVER_JOINT  # as published on /joint_states
 PROMPT = "stack the blue cube on the green cube"
 
 
@@ -184,7 +185,7 @@ def test_plan_at_10_hz_stays_within_joint_limits(kinematics, limits, case):
     times = np.arange(0.0, plan.duration + 1.0, dt)
     arm, gripper = plan.sample(times)
     positions = np.column_stack([arm, gripper])
-    names = list(kinematics.joint_names) + ["gripper_left_driver_joint"]
+    names = list(kinematics.joint_names) + [GRIPPER_DRIVER_JOINT]
     velocity = np.abs(np.diff(positions, axis=0)) / dt
     acceleration = np.abs(np.diff(positions, 2, axis=0)) / dt**2
     for column, name in enumerate(names):
@@ -352,7 +353,7 @@ def test_plans_for_seeded_layouts_pass_the_collision_check_executepolicy_makes(k
     from sim.layouts import layout
 
     robot = kinematics.robot
-    scene = PlanningScene(robot, "manipulator", "gripper_left_driver_joint")
+    scene = PlanningScene(robot, "manipulator", GRIPPER_DRIVER_JOINT)
     scene.add_object("table", Box((1.2, 1.1, 0.04)), _pose((0.0, 0.3, -0.02), 0.0))
     scene.allow("table", ["base", "shoulder_link"])  # the robot stands on the table
     cubes = layout(seed)

@@ -580,3 +580,27 @@ class SceneKinematics:
                 f"orientation error {result.orientation_error:.3f} rad)"
             )
         return np.asarray(result.positions, dtype=float)
+
+
+@dataclass
+class CellPeek:
+    """``OraclePeek`` over the simulated cell (anything with ``cube_pose(color)`` and ``time()``)."""
+
+    cell: object
+    kinematics: ArmKinematics
+
+    def cube_pose(self, color: str) -> tuple[np.ndarray, np.ndarray]:
+        position, quat = self.cell.cube_pose(color)  # type: ignore[attr-defined]
+        return np.asarray(position, dtype=float), np.asarray(quat, dtype=float)
+
+    def time(self) -> float:
+        return float(self.cell.time())  # type: ignore[attr-defined]
+
+
+def oracle_for_cell(cell: object, robot: object | None = None, config: OracleConfig | None = None) -> OracleBackend:
+    """The oracle peeking at ``cell``, with IK on ``robot`` (default: the cell's planning model)."""
+    if robot is None:
+        from sim.robot_model import planning_robot_model
+
+        robot = planning_robot_model()
+    return OracleBackend(CellPeek(cell, SceneKinematics(robot)), config)
