@@ -9,7 +9,7 @@ from runtime.registry import Registry
 
 
 def register(registry: Registry) -> None:
-    from . import controllers, gripper, motion, poses, scene, sim_control
+    from . import controllers, gripper, motion, motion_pose, poses, scene, sim_control
 
-    for module in (controllers, gripper, motion, scene, poses, sim_control):
+    for module in (controllers, gripper, motion, motion_pose, scene, poses, sim_control):
         registry.register_all(module.NODES)

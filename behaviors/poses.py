@@ -141,35 +141,41 @@ class FrameError(LookupError):
 
 
 class RobotState:
-    """The latest ``/joint_states`` message, turned into a planning-scene configuration row.
+    """The latest ``/joint_states`` message, turned into joint positions or a scene row.
 
-    Created in a node's ``setup()`` (the runner calls it after the world started and before the
+    Nodes subscribe in ``setup()`` (the runner calls it after the world started and before the
     first tick), so the subscription has a message by the time the node first ticks and a
     Condition can answer in that tick.
     """
 
-    def __init__(self, bus: Any, topic: str = JOINT_STATES_TOPIC) -> None:
+    def __init__(self, subscription: Any, topic: str = JOINT_STATES_TOPIC) -> None:
         self.topic = topic
-        self.subscription = bus.create_subscription(topic, JointState, reliable=True)
+        self.subscription = subscription
 
-    def row(self, scene: Any) -> np.ndarray:
-        """The scene's default layout row (group joints, plus the gripper when it is published).
+    @classmethod
+    def subscribe(cls, bus: Any, topic: str = JOINT_STATES_TOPIC) -> RobotState:
+        return cls(bus.create_subscription(topic, JointState, reliable=True), topic)
 
-        Raises FrameError when no message arrived yet or a group joint is missing from it.
-        """
+    def positions(self, joints: tuple[str, ...] | list[str]) -> np.ndarray:
+        """Current positions of ``joints``; FrameError when no message arrived or one is missing."""
         state = self.subscription.latest
         if state is None:
             raise FrameError(f"no joint states on '{self.topic}' yet")
-        positions = dict(zip(state.name, state.position))
-        layout = scene.layout()
-        joints = layout.group.joints
-        missing = [j for j in joints if j not in positions]
+        by_name = dict(zip(state.name, state.position))
+        missing = [j for j in joints if j not in by_name]
         if missing:
             raise FrameError(f"joint states on '{self.topic}' lack {', '.join(missing)}")
-        row = [positions[j] for j in joints]
-        if layout.gripper_joint is not None and layout.gripper_joint in positions:
-            row.append(positions[layout.gripper_joint])
-        return np.array(row, dtype=float)
+        return np.array([by_name[j] for j in joints], dtype=float)
+
+    def row(self, scene: Any) -> np.ndarray:
+        """The scene's default layout row: group joints, plus the gripper when it is published
+        under the scene's gripper joint name (otherwise the scene's reference value is used)."""
+        layout = scene.layout()
+        row = self.positions(layout.group.joints)
+        state = self.subscription.latest
+        if layout.gripper_joint is not None and layout.gripper_joint in state.name:
+            row = np.append(row, state.position[list(state.name).index(layout.gripper_joint)])
+        return row
 
 
 def known_frames(scene: Any) -> str:
@@ -214,11 +220,11 @@ class ReadsRobotState:
     robot_state: RobotState | None = None
 
     def setup(self, **kwargs: Any) -> None:
-        self.robot_state = RobotState(self.context.bus)
+        self.robot_state = RobotState.subscribe(self.context.bus)
 
     def state(self) -> RobotState:
         if self.robot_state is None:  # ticked without setup (e.g. a unit test)
-            self.robot_state = RobotState(self.context.bus)
+            self.robot_state = RobotState.subscribe(self.context.bus)
         return self.robot_state
 
     def now(self) -> float:

@@ -30,9 +30,14 @@ def describe_objects(scene: Any) -> str:
 
 
 def unknown_links(scene: Any, names: list[str]) -> list[str]:
-    """Names that are neither a robot link, an SRDF group nor ``*``."""
+    """Names that are neither a robot link, an SRDF group, an attached object nor ``*``.
+
+    An attached object counts as a link: it moves with the robot, so a rule can let another
+    object touch it (placing a carried cube on another one).
+    """
     robot = scene.robot
-    return [n for n in names if n != ANY_OBJECT and n not in robot.link_names and n not in robot.group_names]
+    carried = {a.name for a in scene.attachments}
+    return [n for n in names if n != ANY_OBJECT and n not in robot.link_names and n not in robot.group_names and n not in carried]
 
 
 class SetCollisionRule(SceneBehavior):
@@ -41,7 +46,7 @@ class SetCollisionRule(SceneBehavior):
     description = "Allow or forbid contact between a planning-scene object (or * for all) and robot links or a group."
     ports = (
         InputPort("object_name", PortType.STRING, description="Planning-scene object, e.g. cube_blue, or * for every world object."),
-        InputPort("link_names", PortType.STRING_LIST, description="Robot links (';'-separated) or a group name such as gripper."),
+        InputPort("link_names", PortType.STRING_LIST, description="Robot links (';'-separated), a group name such as gripper, or an attached object."),
         InputPort("allow", PortType.BOOL, True, "true: contact is allowed; false: contact counts as a collision again."),
     )
 

@@ -9,7 +9,6 @@ from typing import Any
 
 import numpy as np
 import pytest
-import yaml
 from sensor_msgs.msg import JointState
 
 from behaviors.scene import AttachObject, DetachObject, SetCollisionRule
@@ -22,9 +21,9 @@ from runtime.events import EventLog
 from runtime.scene.collision import Box, pose_matrix
 from runtime.scene.model import RobotModel
 from runtime.scene.scene import PlanningScene
-from sim.robot_model import ARM_JOINTS, CONFIG_DIR, SRDF_PATH, WAYPOINTS_PATH, build_robot_spec
+from sim.robot_model import ARM_JOINTS, GRIPPER_DRIVER_JOINT, WAYPOINTS_PATH, load_waypoints, planning_robot_model
 
-HOME = tuple(yaml.safe_load(WAYPOINTS_PATH.read_text())["waypoints"]["Home"]["positions"])
+HOME = tuple(load_waypoints(WAYPOINTS_PATH)["Home"][j] for j in ARM_JOINTS)
 """The cell's Home waypoint: TCP pointing straight down at (0, 0.45, 0.30)."""
 CUBE = 0.03
 CUBES = {"cube_red": (-0.1, 0.45), "cube_green": (0.0, 0.45), "cube_blue": (0.1, 0.45)}
@@ -32,11 +31,11 @@ CUBES = {"cube_red": (-0.1, 0.45), "cube_green": (0.0, 0.45), "cube_blue": (0.1,
 
 @pytest.fixture(scope="session")
 def robot() -> RobotModel:
-    return RobotModel.from_mjcf(build_robot_spec(), srdf=SRDF_PATH, couplings=CONFIG_DIR / "coupled_joints.yaml")
+    return planning_robot_model()
 
 
 def make_scene(robot: RobotModel) -> PlanningScene:
-    scene = PlanningScene(robot, "manipulator", "gripper_left_driver_joint")
+    scene = PlanningScene(robot, "manipulator", GRIPPER_DRIVER_JOINT)
     scene.add_object("table", Box((1.2, 1.1, 0.04)), pose_matrix((0.0, 0.3, -0.02)))
     for name, (x, y) in CUBES.items():
         scene.add_object(name, Box((CUBE, CUBE, CUBE)), pose_matrix((x, y, CUBE / 2)))
@@ -64,7 +63,7 @@ def make_context(scene: PlanningScene | None, world: Any = None) -> RunContext:
 def publish_joint_states(context: RunContext, arm: tuple[float, ...] = HOME, gripper: float = 0.0) -> None:
     """What the cell publishes: the arm joints, then the gripper under its ROS name."""
     publisher = context.bus.create_publisher("/joint_states", JointState)
-    publisher.publish(JointState(name=list(ARM_JOINTS) + ["robotiq_85_left_knuckle_joint"], position=list(arm) + [gripper]))
+    publisher.publish(JointState(name=list(ARM_JOINTS) + [GRIPPER_DRIVER_JOINT], position=list(arm) + [gripper]))
 
 
 def make_node(cls: type, context: RunContext, blackboard: Blackboard | None = None, **ports: str) -> Any:
