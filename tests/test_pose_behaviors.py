@@ -360,3 +360,85 @@ def test_subtree_guards_a_reactive_fallback(registry, scene, tmp_path):
     result = run_check(registry, scene, tmp_path, subtree)
     assert (result.status, result.ticks) == ("SUCCESS", 1)
     assert "polls" not in result.blackboard
+
+
+# -- MoveToPose (IK + a checked joint motion) against a controller that records the goal ----------
+class RecordingController:
+    """Accepts one trajectory goal, remembers it and reports success at once."""
+
+    def __init__(self, context: RunContext) -> None:
+        from moveit_pro_controllers_msgs.action import FollowJointTrajectoryWithAdmittance
+
+        self.goals: list = []
+        self.result_type = FollowJointTrajectoryWithAdmittance.Result
+        context.bus.create_action_server(
+            "/joint_trajectory_admittance_controller/follow_joint_trajectory", FollowJointTrajectoryWithAdmittance, self.on_goal
+        )
+
+    def on_goal(self, handle) -> bool:
+        self.goals.append(handle.request)
+        handle.succeed(self.result_type())
+        return True
+
+
+@pytest.fixture
+def motion_context(robot) -> RunContext:
+    from runtime.scene.limits import load_joint_limits
+    from sim.robot_model import GRIPPER_DRIVER_JOINT, JOINT_LIMITS_PATH
+
+    joints = ARM_JOINTS + (GRIPPER_DRIVER_JOINT,)
+    limits = load_joint_limits(JOINT_LIMITS_PATH, dict(zip(joints, zip(*robot.position_limits(joints)))))
+    scene = make_scene(robot)
+    scene.limits = limits
+    return make_context(scene)
+
+
+def run_move(context: RunContext, board: Blackboard, **ports) -> tuple[Status, object, RecordingController]:
+    from behaviors.motion_pose import MoveToPose
+
+    controller = RecordingController(context)
+    node = make_node(MoveToPose, context, board, **ports)
+    status = Status.RUNNING
+    for _ in range(5):
+        status = tick(node)
+        publish_joint_states(context)
+        if status is not Status.RUNNING:
+            break
+    return status, node, controller
+
+
+def test_move_to_pose_puts_the_tcp_above_the_cube(motion_context):
+    board = Blackboard()
+    scene = motion_context.scene
+    flip = pose_matrix((0.0, 0.0, 0.1), rot_x(math.pi))  # 10 cm above, pointing down
+    board.set("target", matrix_to_pose("cube_blue", flip))
+    status, node, controller = run_move(motion_context, board, target_pose="{target}")
+    assert status is Status.SUCCESS, node.feedback_message
+    (goal,) = controller.goals
+    final = np.array(goal.joint_trajectory.points[-1].positions)
+    reached = scene.link_pose(final, "tcp")
+    np.testing.assert_allclose(reached[:3, 3], scene.object_pose("cube_blue")[:3, 3] + [0, 0, 0.1], atol=5e-4)
+    assert reached[:3, 2] == pytest.approx((0, 0, -1), abs=5e-3)
+    first = np.array(goal.joint_trajectory.points[0].positions)
+    np.testing.assert_allclose(first, HOME, atol=1e-9)  # starts where the robot is
+
+
+def test_move_to_pose_out_of_reach_fails_with_the_ik_error(motion_context):
+    board = Blackboard()
+    board.set("far", pose(2.0, 0.0, 0.5))
+    status, node, controller = run_move(motion_context, board, target_pose="{far}")
+    assert status is Status.FAILURE
+    assert node.feedback_message.startswith("no IK solution puts 'tcp' at (2.000, 0.000, 0.500) in 'world': best is ")
+    assert controller.goals == []
+
+
+def test_move_to_pose_refuses_a_colliding_target(motion_context):
+    board = Blackboard()
+    for cube in ("cube_red", "cube_green", "cube_blue"):
+        motion_context.scene.remove_object(cube)  # only the table is in the way
+    board.set("into_table", pose(0.0, 0.45, 0.0, rot_x(math.pi)))  # the TCP at the table top
+    status, node, controller = run_move(motion_context, board, target_pose="{into_table}")
+    assert status is Status.FAILURE
+    assert node.feedback_message.startswith("the motion would collide: step ")
+    assert "vs table" in node.feedback_message
+    assert controller.goals == []

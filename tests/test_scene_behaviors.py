@@ -37,6 +37,7 @@ def robot() -> RobotModel:
 def make_scene(robot: RobotModel) -> PlanningScene:
     scene = PlanningScene(robot, "manipulator", GRIPPER_DRIVER_JOINT)
     scene.add_object("table", Box((1.2, 1.1, 0.04)), pose_matrix((0.0, 0.3, -0.02)))
+    scene.allow("table", ["base", "shoulder_link"])  # the robot stands on the table
     for name, (x, y) in CUBES.items():
         scene.add_object(name, Box((CUBE, CUBE, CUBE)), pose_matrix((x, y, CUBE / 2)))
     return scene
