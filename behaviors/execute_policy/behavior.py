@@ -554,3 +554,6 @@ class ExecutePolicy(Behavior):
         for key in ("absolute_force_torque_threshold", "image_topics", "image_names"):
             values[key] = tuple(values[key])
         return cfg.PolicyRunConfig(**values)
+
+
+NODES = (ExecutePolicy,)
