@@ -39,9 +39,16 @@ class Hardware(Protocol):
         ...
 
     def wrench(self) -> np.ndarray:
-        """Fx Fy Fz Tx Ty Tz at the wrist F/T sensor, tared (the gripper's own weight removed)."""
+        """Fx Fy Fz Tx Ty Tz at the wrist F/T sensor, tared (the gripper's own weight removed).
+
+        Sign and frame, as the admittance controller needs them: the wrench the environment
+        applies to the tool (pushing the gripper down gives Fz < 0), expressed in the same frame
+        as ``wrist_jacobian`` (the world/base frame). MuJoCo's force/torque sensors report the
+        opposite sign in the site frame: negate and rotate by the site's orientation.
+        """
         ...
 
     def wrist_jacobian(self) -> np.ndarray:
-        """6 x 6 Jacobian of the F/T frame (linear; angular) with respect to the arm joints."""
+        """6 x 6 Jacobian of the F/T frame (linear; angular) with respect to the arm joints,
+        in the world/base frame (``mujoco.mj_jacSite``), the frame ``wrench`` is expressed in."""
         ...
