@@ -7,6 +7,7 @@ from controller_manager_msgs.srv import ListControllers, SwitchController as Swi
 
 from runtime.behavior import Behavior, Status
 from runtime.ports import InputPort, PortType
+from runtime.timestamps import duration_msg
 
 from .waiting import Deadline, when_ready
 
@@ -82,8 +83,7 @@ class SwitchController(Behavior):
                 return Status.SUCCESS
             request.strictness = self.strictness
             remaining = max(0.0, self.deadline.until - self.context.clock.now())
-            request.timeout.sec = int(remaining)
-            request.timeout.nanosec = int((remaining - int(remaining)) * 1e9)
+            request.timeout = duration_msg(remaining)
             self.future = self.switcher.call_async(request)
             self.phase = Phase.SWITCH
         if not self.future.done():

@@ -7,7 +7,6 @@ controller as one trajectory goal.
 from __future__ import annotations
 
 import numpy as np
-from builtin_interfaces.msg import Duration
 from moveit_pro_controllers_msgs.action import FollowJointTrajectoryWithAdmittance as FollowTrajectory
 from ruckig import InputParameter, Result, Ruckig, Trajectory
 from sensor_msgs.msg import JointState
@@ -16,6 +15,7 @@ from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 from runtime.behavior import Behavior, Status
 from runtime.bus import STATUS_SUCCEEDED
 from runtime.ports import InputPort, PortType
+from runtime.timestamps import duration_msg
 
 from runtime.scene import JointLimits
 from .execute_policy.shaping import Samples
@@ -71,14 +71,8 @@ def trajectory_goal(samples: Samples, joints: tuple[str, ...], path_tolerance: f
     goal = FollowTrajectory.Goal()
     trajectory = JointTrajectory(joint_names=list(joints))
     for t, p, v, a in zip(samples.times, samples.positions, samples.velocities, samples.accelerations):
-        sec = int(t)
         trajectory.points.append(
-            JointTrajectoryPoint(
-                positions=p.tolist(),
-                velocities=v.tolist(),
-                accelerations=a.tolist(),
-                time_from_start=Duration(sec=sec, nanosec=int((t - sec) * 1e9)),
-            )
+            JointTrajectoryPoint(positions=p.tolist(), velocities=v.tolist(), accelerations=a.tolist(), time_from_start=duration_msg(t))
         )
     goal.joint_trajectory = trajectory
     goal.path_tolerance = path_tolerance

@@ -15,7 +15,6 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from builtin_interfaces.msg import Duration, Time
 from control_msgs.action import GripperCommand
 from moveit_pro_controllers_msgs.action import FollowJointTrajectoryWithAdmittance as FollowTrajectory
 from moveit_pro_ml_msgs.srv import GetActionChunk
@@ -25,6 +24,7 @@ from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 from runtime.behavior import Behavior, Status
 from runtime.bus import STATUS_ABORTED, STATUS_SUCCEEDED
 from runtime.ports import Direction
+from runtime.timestamps import duration_msg, time_msg
 
 from . import config as cfg
 from .chunk import ChunkError, read_chunk, read_policy_chunk
@@ -79,16 +79,6 @@ class RunMetrics:
             "latency_max_s": round(float(lat.max()), 4),
             "warnings": list(self.warnings),
         }
-
-
-def _stamp(t: float) -> Time:
-    sec = int(np.floor(t))
-    return Time(sec=sec, nanosec=int(round((t - sec) * 1e9)) % 1_000_000_000)
-
-
-def _duration(t: float) -> Duration:
-    sec = int(np.floor(t))
-    return Duration(sec=sec, nanosec=int(round((t - sec) * 1e9)) % 1_000_000_000)
 
 
 class ExecutePolicy(Behavior):
@@ -384,11 +374,11 @@ class ExecutePolicy(Behavior):
         c = self.config
         goal = FollowTrajectory.Goal()
         trajectory = JointTrajectory()
-        trajectory.header.stamp = _stamp(seam_time)
+        trajectory.header.stamp = time_msg(seam_time)
         trajectory.joint_names = list(self.safety.group_joints)
         for t, p, v, a in zip(samples.times, samples.positions, samples.velocities, samples.accelerations):
             trajectory.points.append(
-                JointTrajectoryPoint(positions=p.tolist(), velocities=v.tolist(), accelerations=a.tolist(), time_from_start=_duration(t - seam_time))
+                JointTrajectoryPoint(positions=p.tolist(), velocities=v.tolist(), accelerations=a.tolist(), time_from_start=duration_msg(t - seam_time))
             )
         goal.joint_trajectory = trajectory
         goal.path_tolerance = c.goal_path_tolerance

@@ -1,0 +1,64 @@
+"""The cell's planning scene: the robot model the simulator uses, its limits, the table and the
+cubes as world objects. Shared by every world that hosts the cell (MuJoCo or kinematic)."""
+from __future__ import annotations
+
+import functools
+from typing import Mapping
+
+import numpy as np
+
+from runtime.scene import Box, PlanningScene, RobotModel, load_joint_limits, pose_matrix
+
+from .cell_model import CUBE_COLORS, TABLE_CENTER_XY, TABLE_HALF_SIZE, TABLE_TOP_Z
+from .robot_model import ARM_JOINTS, GRIPPER_DRIVER_JOINT, JOINT_LIMITS_PATH, planning_robot_model
+
+CUBE_SIZE = 0.03
+
+
+@functools.lru_cache(maxsize=1)
+def cell_robot() -> RobotModel:
+    """Building the model takes ~0.3 s; it is immutable, so one per process is enough."""
+    return planning_robot_model()
+
+
+def cube_object(color: str) -> str:
+    return f"cube_{color}"
+
+
+def quat_to_matrix(quat_wxyz: np.ndarray) -> np.ndarray:
+    w, x, y, z = np.asarray(quat_wxyz, dtype=float) / np.linalg.norm(quat_wxyz)
+    return np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+        ]
+    )
+
+
+def make_cell_scene(cube_poses: Mapping[str, tuple[np.ndarray, np.ndarray]], cube_size: float = CUBE_SIZE) -> PlanningScene:
+    """Robot (group ``manipulator`` + the gripper joint), limits, table and cubes.
+
+    The robot stands on the table, so the table is allowed against its base and shoulder.
+    """
+    robot = cell_robot()
+    joints = list(ARM_JOINTS) + [GRIPPER_DRIVER_JOINT]
+    lower, upper = robot.position_limits(joints)
+    limits = load_joint_limits(JOINT_LIMITS_PATH, {j: (lo, hi) for j, lo, hi in zip(joints, lower, upper)})
+    scene = PlanningScene(robot, "manipulator", GRIPPER_DRIVER_JOINT, limits=limits)
+    hx, hy, hz = TABLE_HALF_SIZE
+    scene.add_object("table", Box((2 * hx, 2 * hy, 2 * hz)), pose_matrix((TABLE_CENTER_XY[0], TABLE_CENTER_XY[1], TABLE_TOP_Z - hz)))
+    scene.allow("table", ["base", "shoulder_link"])
+    for color in CUBE_COLORS:
+        pos, quat = cube_poses[color]
+        scene.add_object(cube_object(color), Box((cube_size,) * 3), pose_matrix(pos, quat_to_matrix(quat)))
+    return scene
+
+
+def sync_cubes(scene: PlanningScene, cube_poses: Mapping[str, tuple[np.ndarray, np.ndarray]]) -> None:
+    """Move the scene's cubes to where the world has them (attached cubes move with the robot)."""
+    carried = {a.name for a in scene.attachments}
+    for color, (pos, quat) in cube_poses.items():
+        name = cube_object(color)
+        if name not in carried:
+            scene.move_object(name, pose_matrix(pos, quat_to_matrix(quat)))
