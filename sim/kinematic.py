@@ -160,7 +160,7 @@ class KinematicWorld:
     """World ``kinematic``: the cell's services on the bus, stepped at 500 Hz without physics."""
 
     name = "kinematic"
-    OPTIONS = ("seed", "realtime", "policy_latency", "record_dir", "image_size", "policy", "start")
+    OPTIONS = ("seed", "realtime", "policy_latency", "record_dir", "image_size", "policy", "start", "joint_states_reliable")
 
     def __init__(self, options: dict[str, Any]) -> None:
         unknown = sorted(set(options) - set(self.OPTIONS))
@@ -183,7 +183,8 @@ class KinematicWorld:
         self.context = context
         bus = context.bus
         self.controllers = make_controllers(bus, self.cell, context.clock)
-        self.joint_states = bus.create_publisher("/joint_states", JointState)
+        reliable = bool(self.options.get("joint_states_reliable", True))
+        self.joint_states = bus.create_publisher("/joint_states", JointState, reliable=reliable)
         self.frame = np.full((self.image_size, self.image_size, 3), 128, dtype=np.uint8)
         for topic in CAMERA_TOPICS.values():
             bus.create_lazy_publisher(topic, Image, self._camera_frame)

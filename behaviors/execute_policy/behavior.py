@@ -117,7 +117,6 @@ class ExecutePolicy(Behavior):
         self.gripper_schedule: list[tuple[float, float]] = []
         self.gripper_sent: float | None = None
         self.gripper_goal: Any = None
-        self.drained_since: float | None = None
         self.warned_period = False
         try:
             self.config = self._read_config()
@@ -322,12 +321,16 @@ class ExecutePolicy(Behavior):
             start_v,
             blend_duration=max(c.dt, 0.5 * window.steps * c.dt),
         )
+        if window.end_step >= grid.total_steps:
+            motion = motion.at_rest_at_end()
         samples = densify(motion, c.num_interpolation_points)
         reason = self._check(samples, chunk, window)
         if reason is not None:
             return self._reject(f"chunk {index} rejected: {reason}")
         goal_future = self.controller.send_goal_async(self._goal(samples, seam_time))
         self.pending_goal = goal_future
+        if self.motion is not None and seam_time > self.motion.end:
+            self.metrics.stall_seconds += seam_time - self.motion.end  # drained until the seam
         self.motion, self.samples = motion, samples
         grid.commit(window)
         self.goal_result = None
@@ -364,7 +367,7 @@ class ExecutePolicy(Behavior):
         if self.motion is None:
             state = robot_state(self.joint_states.latest, self.safety.group_joints, None, self.config.joint_states_topic)
             return np.asarray(state.position, dtype=float), np.zeros(len(state.position))
-        if t >= self.motion.end:
+        if t > self.motion.end + 1e-9:  # drained: the arm rests at the end of the motion
             p, _, _ = self.motion.evaluate(np.array([self.motion.end]))
             return p[0], np.zeros(p.shape[1])
         p, v, _ = self.motion.evaluate(np.array([t]))
@@ -437,12 +440,6 @@ class ExecutePolicy(Behavior):
             return
         executed = grid.executed_until - max(0, grid.committed_end - grid.step_at_or_before(now))
         self.metrics.steps_executed = max(self.metrics.steps_executed, min(executed, grid.executed_until))
-        if now > self.motion.end + 1e-9 and grid.remaining > 0:
-            if self.drained_since is None:
-                self.drained_since = self.motion.end
-        elif self.drained_since is not None:
-            self.metrics.stall_seconds += now - self.drained_since
-            self.drained_since = None
 
     def _remaining_samples(self, now: float) -> Samples:
         s = self.samples
@@ -464,9 +461,6 @@ class ExecutePolicy(Behavior):
     def _finish(self, status: Status, message: str) -> Status:
         self.phase = Phase.DONE
         self.message = message
-        if self.drained_since is not None:
-            self.metrics.stall_seconds += self.context.clock.now() - self.drained_since
-            self.drained_since = None
         self.feedback_message = message
         self._write_outputs()
         self.context.events.emit("policy_finished", self.name, status=status.value, message=message)

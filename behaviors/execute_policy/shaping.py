@@ -11,7 +11,7 @@ are what the safety checks see and what the controller receives.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy.interpolate import BSpline, make_interp_spline, make_smoothing_spline
@@ -83,6 +83,9 @@ class ChunkMotion:
     offset_position: np.ndarray
     offset_velocity: np.ndarray
     blend_duration: float
+    end_velocity: np.ndarray | None = None
+    """When set (the run's last window), a mirrored blend cancels this velocity at ``end`` so
+    the motion comes to rest exactly at the chunk's final position."""
 
     def evaluate(self, times: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Positions, velocities and accelerations (each (M, J)) at clock ``times``."""
@@ -100,7 +103,21 @@ class ChunkMotion:
         p = p + dp * hp + dv * T * hv
         v = v + np.where(inside, dp * hp1 / T + dv * hv1, 0.0)
         a = a + np.where(inside, dp * hp2 / (T * T) + dv * hv2 / T, 0.0)
+        if self.end_velocity is not None:
+            # g(t) = c T h(s), s = (end - t) / T: g(end) = 0, g'(end) = -c, g''(end) = 0.
+            s = np.clip((self.end - times) / T, 0.0, 1.0)[:, None]
+            near_end = ((times <= self.end) & (times >= self.end - T))[:, None]
+            hs, hs1, hs2 = _h_velocity(s)
+            c = self.end_velocity[None, :]
+            p = p + c * T * hs
+            v = v - np.where(near_end, c * hs1, 0.0)
+            a = a + np.where(near_end, c * hs2 / T, 0.0)
         return p, v, a
+
+    def at_rest_at_end(self) -> ChunkMotion:
+        """The same motion, decelerated so that it ends at rest (for the run's last window)."""
+        _, v_end, _ = replace(self, end_velocity=None).evaluate(np.array([self.end]))
+        return replace(self, end_velocity=v_end[0])
 
 
 def join_at_seam(

@@ -1,0 +1,462 @@
+"""ExecutePolicy end to end on the kinematic cell: every troubleshooting case of the guide with a
+misbehaving policy or configuration, streaming continuity, RTC carryover, latency, halting."""
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass, field
+from typing import Any, Callable
+
+import numpy as np
+import pytest
+from moveit_pro_ml_msgs.srv import GetActionChunk
+from std_msgs.msg import Float64MultiArray, MultiArrayDimension
+from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
+
+from runtime.bus import FixedLatency
+from runtime.loader import load_tree
+from runtime.registry import Registry
+from runtime.runner import RunOptions, make_context, run_tree
+from runtime.scene import Box, pose_matrix
+from sim.kinematic import KinematicWorld
+from sim.robot_model import ARM_JOINTS
+
+R = GetActionChunk.Response
+SERVICE = "/get_action_chunk"
+GRIPPER = "robotiq_85_left_knuckle_joint"
+CAMERAS = 'image_topics="/scene_camera/color;/wrist_camera/color" image_names="scene;wrist"'
+GRIPPER_PORTS = f'gripper_command_action_name="/robotiq_gripper_controller/gripper_cmd" gripper_joint_name="{GRIPPER}"'
+
+
+@pytest.fixture(scope="module")
+def registry() -> Registry:
+    return Registry.from_entry_points()
+
+
+@dataclass
+class ScriptedPolicy:
+    """A policy service whose answers a test writes: ``answer(call_index, request) -> Response``."""
+
+    answer: Callable[[int, Any], Any]
+    requests: list[Any] = field(default_factory=list)
+
+    def __call__(self, request: Any) -> Any:
+        self.requests.append(request)
+        return self.answer(len(self.requests) - 1, request)
+
+
+def chunk_response(names: list[str], rows: np.ndarray, period: float = 0.1, policy_rows: np.ndarray | None = None) -> Any:
+    response = R(status=R.CHUNK_PRODUCED, native_control_period=period)
+    response.chunk = JointTrajectory(joint_names=names, points=[JointTrajectoryPoint(positions=[float(v) for v in r]) for r in rows])
+    if policy_rows is not None:
+        steps, width = policy_rows.shape
+        response.policy_action_chunk = Float64MultiArray(data=policy_rows.ravel().tolist())
+        response.policy_action_chunk.layout.dim = [
+            MultiArrayDimension(label="step", size=steps, stride=steps * width),
+            MultiArrayDimension(label="action", size=width, stride=width),
+        ]
+    return response
+
+
+def hold(steps: int = 50, velocity: np.ndarray | None = None, dt: float = 0.1) -> Callable[[int, Any], Any]:
+    """Chunks that start at the observed state and move each joint at ``velocity`` rad/s."""
+
+    def answer(index: int, request: Any) -> Any:
+        start = np.array(request.robot_state.position)
+        rate = np.zeros(len(start)) if velocity is None else np.append(velocity, np.zeros(len(start) - len(velocity)))
+        rows = start + np.outer(np.arange(steps) * dt, rate)
+        return chunk_response(list(request.robot_state.name), rows)
+
+    return answer
+
+
+def policy_xml(ports: str, prepare: bool = True, wrap: str | None = None) -> str:
+    node = f'<ExecutePolicy policy_service_name="{SERVICE}" joint_group_name="manipulator" {ports} steps_executed="{{steps}}" chunks_received="{{chunks}}" rejection_reason="{{rejection}}" status_message="{{message}}"/>'
+    if wrap:
+        node = wrap.format(node=node)
+    prep = '<SwitchController activate_controllers="joint_trajectory_admittance_controller" deactivate_controllers="velocity_force_controller"/>' if prepare else ""
+    return f'<root BTCPP_format="4"><BehaviorTree ID="T"><Sequence>{prep}{node}</Sequence></BehaviorTree></root>'
+
+
+@dataclass
+class Run:
+    result: Any
+    world: KinematicWorld
+    context: Any
+    policy: ScriptedPolicy | None
+
+    @property
+    def summary(self) -> dict[str, Any]:
+        return self.result.extra["execute_policy"]
+
+
+def run_policy(
+    registry: Registry,
+    ports: str,
+    policy: ScriptedPolicy | None = None,
+    latency: Any = 0.02,
+    prepare: bool = True,
+    wrap: str | None = None,
+    seed: int = 0,
+    max_seconds: float = 60.0,
+    world_options: dict[str, Any] | None = None,
+    before: Callable[[Any, KinematicWorld], None] | None = None,
+) -> Run:
+    options = RunOptions(seed=seed, max_seconds=max_seconds, world="kinematic")
+    context = make_context(options)
+    world = KinematicWorld({"seed": seed, "policy": "none" if policy is not None else "oracle", **(world_options or {})})
+    loaded = load_tree(policy_xml(ports, prepare, wrap), registry, context)
+    if policy is not None:
+        context.bus.create_service(SERVICE, GetActionChunk, policy)
+    if latency is not None:
+        context.bus.set_latency(SERVICE, latency if not isinstance(latency, (int, float)) else FixedLatency(latency))
+    if before is not None:
+        before(context, world)
+    result = run_tree(loaded, context, options, world=world)
+    return Run(result, world, context, policy)
+
+
+BASE = 'total_action_steps="60" dt="0.1" committed_action_steps="20" goal_path_tolerance="0.3" policy_call_timeout="3.0"'
+
+
+# -- the happy path ------------------------------------------------------------------------
+def test_steps_run_for_total_action_steps_times_dt_and_report(registry):
+    run = run_policy(registry, BASE, ScriptedPolicy(hold()))
+    assert run.result.status == "SUCCESS", run.result.reason
+    s = run.summary
+    assert s["steps_executed"] == 60 and s["chunks"] == 3 and s["stall_seconds"] == 0.0 and s["rejections"] == 0
+    assert run.result.blackboard["steps"] == 60 and run.result.blackboard["chunks"] == 3
+    assert run.result.blackboard["message"] == "executed 60 steps"
+    # Warmup plus three chunks; both the warmup and the first real request start an episode.
+    assert [r.new_episode for r in run.policy.requests] == [True, True, False, False]
+
+
+def test_request_carries_group_joints_then_gripper_and_one_frame_per_camera(registry):
+    run = run_policy(registry, f'{BASE} {CAMERAS} {GRIPPER_PORTS} prompt="stack it"', ScriptedPolicy(hold()))
+    assert run.result.status == "SUCCESS", run.result.reason
+    request = run.policy.requests[1]
+    assert list(request.robot_state.name) == list(ARM_JOINTS) + [GRIPPER]
+    assert len(request.robot_state.position) == 7 and len(request.robot_state.velocity) == 0
+    assert list(request.image_names) == ["scene", "wrist"] and len(request.images) == 2
+    assert request.images[0].encoding == "rgb8" and request.prompt == "stack it"
+    assert len(request.previous_action_chunk.data) == 0  # RTC is off
+
+
+def test_no_more_actions_ends_with_success_and_the_message(registry):
+    def answer(i, request):
+        return hold()(i, request) if i < 2 else R(status=R.NO_MORE_ACTIONS, message="replay finished")
+
+    run = run_policy(registry, BASE, ScriptedPolicy(answer))
+    assert run.result.status == "SUCCESS"
+    assert run.result.blackboard["message"] == "the policy has no more actions: replay finished"
+    assert run.summary["chunks"] == 1
+
+
+@pytest.mark.parametrize(
+    "status, message, expected",
+    [
+        (R.ERROR, "model still loading", "the policy answered ERROR for the chunk 2: model still loading"),
+        (R.UNKNOWN, "", "the policy answered UNKNOWN for the chunk 2: the policy left the status unset"),
+    ],
+)
+def test_error_and_unknown_fail_with_the_reason(registry, status, message, expected):
+    def answer(i, request):
+        return hold()(i, request) if i < 2 else R(status=status, message=message)
+
+    run = run_policy(registry, BASE, ScriptedPolicy(answer))
+    assert run.result.status == "FAILURE" and run.result.failing_node == "ExecutePolicy"
+    assert run.result.reason == expected
+
+
+# -- start-up ------------------------------------------------------------------------------
+def test_missing_service_fails_after_five_seconds_naming_it(registry):
+    run = run_policy(registry, BASE, None, world_options={"policy": "none"})
+    assert run.result.status == "FAILURE"
+    assert run.result.reason == (
+        "not available after 5 s: policy service '/get_action_chunk' (start the adapter before running the Objective)"
+    )
+    assert run.result.sim_seconds == pytest.approx(5.0, abs=0.05)
+
+
+def test_silent_camera_fails_naming_the_topic(registry):
+    ports = f'{BASE} image_topics="/scene_camera/color;/thermal_camera/color" image_names="scene;thermal"'
+    run = run_policy(registry, ports, ScriptedPolicy(hold()))
+    assert run.result.reason == "not available after 5 s: a frame on camera topic '/thermal_camera/color'"
+
+
+def test_best_effort_joint_states_never_connect(registry):
+    run = run_policy(registry, BASE, ScriptedPolicy(hold()), prepare=False, world_options={"joint_states_reliable": False})
+    assert run.result.reason == "not available after 5 s: joint states on '/joint_states' (the publisher must use reliable QoS)"
+
+
+def test_gripper_port_alone_fails_at_start(registry):
+    run = run_policy(registry, f'{BASE} gripper_joint_name="{GRIPPER}"', ScriptedPolicy(hold()))
+    assert run.result.reason == (
+        "gripper_command_action_name and gripper_joint_name must be set together: "
+        "gripper_joint_name is set but gripper_command_action_name is empty"
+    )
+    assert run.policy.requests == []
+
+
+def test_image_lists_must_be_index_aligned(registry):
+    run = run_policy(registry, f'{BASE} image_topics="/scene_camera/color;/wrist_camera/color" image_names="scene"', ScriptedPolicy(hold()))
+    assert run.result.reason == "image_topics has 2 entries and image_names has 1; they must be index-aligned"
+
+
+def test_group_with_two_tips_and_gripper_inside_the_group_fail_at_start(registry):
+    run = run_policy(registry, BASE.replace("", "", 1) + ' gripper_command_action_name="/g" gripper_joint_name="wrist_3_joint"', ScriptedPolicy(hold()))
+    assert run.result.reason == "gripper joint 'wrist_3_joint' is inside the joint group 'manipulator'; it must be outside it"
+
+
+def test_warmup_timeout_names_policy_call_timeout(registry):
+    run = run_policy(registry, BASE, ScriptedPolicy(hold()), latency=4.0)
+    assert run.result.reason == (
+        "warming up the policy service '/get_action_chunk' timed out after 3 s "
+        "(raise policy_call_timeout, or make the server finish its own warmup before it reports ready)"
+    )
+
+
+# -- malformed chunks ----------------------------------------------------------------------
+def _bad_chunk(mutate: Callable[[Any], None]) -> Callable[[int, Any], Any]:
+    def answer(i, request):
+        response = hold()(i, request)
+        if i == 2:
+            mutate(response)
+        return response
+
+    return answer
+
+
+def _nan(response):
+    response.chunk.points[3].positions[1] = float("nan")
+
+
+def _short_row(response):
+    response.chunk.points[0].positions = response.chunk.points[0].positions[:5]
+
+
+def _swapped(response):
+    names = list(response.chunk.joint_names)
+    names[0], names[1] = names[1], names[0]
+    response.chunk.joint_names = names
+
+
+@pytest.mark.parametrize(
+    "mutate, reason",
+    [
+        (_nan, "chunk 2 rejected: step 3 joint 'shoulder_lift_joint' is not finite (nan)"),
+        (_short_row, "chunk 2 rejected: step 0 has 5 positions for 6 joint names"),
+        (_swapped, "chunk 2 rejected: joint names do not match the joint group"),
+    ],
+)
+def test_malformed_chunk_is_rejected_and_the_robot_stops(registry, mutate, reason):
+    run = run_policy(registry, BASE, ScriptedPolicy(_bad_chunk(mutate)))
+    assert run.result.status == "FAILURE"
+    assert run.result.reason.startswith(reason)
+    assert run.result.blackboard["rejection"] == run.result.reason
+    assert run.summary["rejections"] == 1
+
+
+def test_chunk_naming_another_gripper_joint_is_rejected(registry):
+    def answer(i, request):
+        response = hold()(i, request)
+        response.chunk.joint_names = list(ARM_JOINTS) + ["finger_joint"]
+        return response
+
+    run = run_policy(registry, f"{BASE} {GRIPPER_PORTS}", ScriptedPolicy(answer))
+    assert run.result.reason == (
+        f"chunk 1 rejected: chunk names two gripper joints: the configured gripper joint is '{GRIPPER}', "
+        "the chunk's extra joint is 'finger_joint'"
+    )
+
+
+def test_missing_gripper_joint_in_joint_states_fails_at_the_first_observation(registry):
+    run = run_policy(registry, f'{BASE} gripper_command_action_name="/robotiq_gripper_controller/gripper_cmd" gripper_joint_name="gripper_right_driver_joint"', ScriptedPolicy(hold()))
+    assert run.result.reason == (
+        "the joint states on '/joint_states' do not include the gripper joint 'gripper_right_driver_joint': "
+        "it must be published alongside the arm joints"
+    )
+
+
+# -- safety --------------------------------------------------------------------------------
+def test_dt_mismatch_doubles_velocity_and_the_chunk_is_rejected_before_moving(registry):
+    fast = np.array([0.0, 0.0, 0.0, 0.0, 0.0, 1.8])  # rad/s at the policy's 10 Hz
+    policy = ScriptedPolicy(hold(velocity=fast))
+    run = run_policy(registry, BASE.replace('dt="0.1"', 'dt="0.05"'), policy)
+    assert run.result.status == "FAILURE"
+    assert "chunk 1 rejected: densified step" in run.result.reason
+    # Blending from rest into 3.6 rad/s trips the acceleration limit first: the guide's case
+    # "every chunk rejected for a velocity or acceleration limit: check dt first".
+    assert re.search(r"joint wrist_3_joint (velocity \S+ rad/s exceeds the limit 3.1416|acceleration \S+ rad/s\^2 exceeds the limit 5.0000)", run.result.reason)
+    assert any("trained at 0.1 s per step but dt is 0.05 s" in w for w in run.summary["warnings"])
+    # Nothing moved: the rejected chunk never reached the controller.
+    start = np.array([run.world.waypoints["Ready"][j] for j in ARM_JOINTS])
+    assert np.allclose(run.world.cell.arm, start, atol=1e-9)
+
+
+def test_chunk_into_the_table_is_rejected_for_padding(registry):
+    down = np.array([0.0, 0.6, 0.0, 0.0, 0.0, 0.0])  # shoulder_lift: the arm sweeps down to the table
+    run = run_policy(registry, BASE, ScriptedPolicy(hold(velocity=down)))
+    assert run.result.status == "FAILURE"
+    assert "world collision" in run.result.reason and "vs table" in run.result.reason
+    assert run.result.reason.startswith("chunk 1 rejected: densified step")
+
+
+def test_object_appearing_in_the_remaining_path_stops_the_robot(registry):
+    turn = np.array([0.3, 0.0, 0.0, 0.0, 0.0, 0.0])
+
+    def drop_a_box_at_one_second(context, world):
+        step_to = world.step_to
+
+        def step(t):
+            step_to(t)
+            if t >= 1.0 and "intruder" not in context.scene.objects:
+                # Where the gripper will be 0.5 s from now, on the committed motion.
+                q = world.cell.arm + turn * 0.5
+                tip = context.scene.link_pose(np.append(q, world.cell.gripper), "gripper_base")
+                context.scene.add_object("intruder", Box((0.12, 0.12, 0.12)), pose_matrix(tip[:3, 3]))
+
+        world.step_to = step
+
+    run = run_policy(registry, BASE, ScriptedPolicy(hold(velocity=turn)), before=drop_a_box_at_one_second)
+    assert run.result.status == "FAILURE"
+    assert run.result.reason.startswith("the planning scene changed:")
+    assert "intruder" in run.result.reason and run.result.reason.endswith("in the remaining path; robot stopped")
+    assert run.result.sim_seconds == pytest.approx(1.0, abs=0.02)
+
+
+def test_force_torque_spike_aborts_with_the_controller_reason(registry):
+    def spike(context, world):
+        def answer(i, request):
+            if i == 2:
+                world.cell.external_wrench = np.array([0.0, 0.0, 80.0, 0.0, 0.0, 0.0])
+            return hold(velocity=np.array([0.1, 0, 0, 0, 0, 0]))(i, request)
+
+        policy.answer = answer
+
+    policy = ScriptedPolicy(hold())
+    run = run_policy(registry, BASE, policy, before=spike)
+    assert run.result.status == "FAILURE"
+    assert run.result.reason.startswith("the controller aborted the motion:")
+    assert "Fz" in run.result.reason and "45" in run.result.reason
+
+
+# -- streaming ------------------------------------------------------------------------------
+def _record_commands(world: KinematicWorld) -> list[tuple[float, np.ndarray]]:
+    log: list[tuple[float, np.ndarray]] = []
+    original = world.cell.command_arm
+
+    def command_arm(position, velocity=None):
+        log.append((world.cell.t, np.array(position, dtype=float)))
+        original(position, velocity)
+
+    world.cell.command_arm = command_arm  # type: ignore[method-assign]
+    return log
+
+
+def test_streamed_motion_has_no_velocity_jump_at_any_seam(registry):
+    holder: dict[str, Any] = {}
+
+    def install(context, world):
+        holder["log"] = _record_commands(world)
+
+    def wave(i, request):
+        start = np.array(request.robot_state.position)
+        rows = start + np.outer(np.sin(np.arange(50) * 0.15 + i), [0.05, 0.04, -0.03, 0.05, 0.05, 0.1])
+        return chunk_response(list(request.robot_state.name), rows)
+
+    run = run_policy(registry, BASE, ScriptedPolicy(wave), before=install)
+    assert run.result.status == "SUCCESS", run.result.reason
+    last_per_step = {t: p for t, p in holder["log"]}  # a controller switch may command twice in a step
+    times = np.array(sorted(last_per_step))
+    q = np.array([last_per_step[t] for t in times])
+    v = np.diff(q, axis=0) / np.diff(times)[:, None]
+    dv = np.abs(np.diff(v, axis=0))
+    # 5 rad/s^2 is the acceleration limit: over one 2 ms control step velocity changes < 0.011 rad/s.
+    assert dv.max() < 0.011, dv.max()
+    assert np.abs(v[-1]).max() < 1e-6  # the last window ends at rest
+    seams = [e.data["seam_time"] for e in run.context.events.of_kind("chunk_executed")]
+    assert len(seams) == 3
+
+
+def test_rtc_sends_the_unexecuted_tail_from_the_request_instant(registry):
+    def answer(i, request):
+        response = hold()(i, request)
+        policy_rows = np.array([[1000.0 * i + k, -k] for k in range(50)])
+        return chunk_response(list(request.robot_state.name), np.array([list(p.positions) for p in response.chunk.points]), policy_rows=policy_rows)
+
+    ports = f'{BASE} policy_uses_real_time_chunking="true" guidance_horizon="7"'
+    run = run_policy(registry, ports, ScriptedPolicy(answer), latency=0.25)
+    assert run.result.status == "SUCCESS", run.result.reason
+    warmup, first, second, third = run.policy.requests
+    assert len(first.previous_action_chunk.data) == 0  # a new episode carries nothing over
+    frozen = second.frozen_prefix_steps
+    # Latency 0.25 s is measured on the 10 ms tick grid; frozen = ceil((0.25 + 2 ticks + 10%) / 0.1).
+    assert frozen == 3
+    tail = np.array(second.previous_action_chunk.data).reshape(-1, 2)
+    # Chunk 1 was requested at step 0 (seam at step 3); chunk 2 at the next seam (3 + 20) minus 3.
+    assert tail[0, 0] == 1000.0 * 1 + 20 and len(tail) == 30
+    assert second.previous_action_chunk.layout.data_offset == 0
+    assert [d.label for d in second.previous_action_chunk.layout.dim] == ["step", "action"]
+    assert list(second.previous_anchor_state.position) == list(first.robot_state.position)
+    assert second.guidance_horizon == 7 and third.frozen_prefix_steps == frozen
+
+
+def test_rtc_off_sends_no_carryover(registry):
+    def answer(i, request):
+        return chunk_response(list(request.robot_state.name), np.tile(request.robot_state.position, (50, 1)), policy_rows=np.ones((50, 2)))
+
+    run = run_policy(registry, BASE, ScriptedPolicy(answer))
+    assert all(len(r.previous_action_chunk.data) == 0 for r in run.policy.requests)
+
+
+@pytest.mark.parametrize("latency", [0.0, 0.3, 0.6, 0.95])
+def test_no_stalls_while_latency_is_within_half_the_committed_window(registry, latency):
+    run = run_policy(registry, BASE, ScriptedPolicy(hold(velocity=np.array([0.1, 0, 0, 0, 0, 0]))), latency=latency)
+    assert run.result.status == "SUCCESS", run.result.reason
+    assert run.summary["stall_seconds"] == 0.0
+
+
+def test_latency_beyond_the_window_pauses_between_chunks_and_warns(registry):
+    run = run_policy(registry, BASE, ScriptedPolicy(hold()), latency=2.5)
+    assert run.result.status == "SUCCESS", run.result.reason
+    # Each chunk can only be asked for once the previous one arrived: two 0.5 s gaps in 60 steps.
+    assert run.summary["stall_seconds"] == pytest.approx(1.0, abs=0.05)
+    assert any("is below twice the measured latency 2.500 s" in w for w in run.summary["warnings"])
+
+
+class SpikeAt:
+    """Fixed latency, with one call (by index) slower."""
+
+    def __init__(self, base: float, spike_index: int, spike: float) -> None:
+        self.base, self.spike_index, self.spike, self.calls = base, spike_index, spike, 0
+
+    def delay(self, measured_wall_s: float) -> float:
+        self.calls += 1
+        return self.spike if self.calls - 1 == self.spike_index else self.base
+
+
+def test_chunk_arriving_too_late_to_join_fails_with_the_seam_message(registry):
+    # Chunk 2 is requested one step before the committed motion ends; it arrives 5 ms before the
+    # end, too late to take over inside the motion still playing.
+    run = run_policy(registry, BASE, ScriptedPolicy(hold(velocity=np.array([0.1, 0, 0, 0, 0, 0]))), latency=SpikeAt(0.05, 2, 0.095))
+    assert run.result.status == "FAILURE"
+    assert "seam time exceeds the end of the current trajectory" in run.result.reason
+
+
+def test_halt_cancels_the_goal_and_the_robot_stops(registry):
+    # The Timeout halts ExecutePolicy at 3 s; the Wait keeps the cell running for a second after.
+    wrap = '<ForceSuccess><Timeout msec="3000">{node}</Timeout></ForceSuccess><Wait seconds="1.0"/>'
+    run = run_policy(registry, BASE, ScriptedPolicy(hold(velocity=np.array([0.2, 0, 0, 0, 0, 0]))), wrap=wrap)
+    assert run.result.status == "SUCCESS"
+    assert [e.time for e in run.context.events.of_kind("policy_halted")] == [pytest.approx(3.0, abs=0.05)]
+    controller = run.world.controllers["joint_trajectory_admittance_controller"]
+    assert not controller.executing
+    assert np.allclose(run.world.cell.arm_velocity_now, 0.0, atol=1e-9)
+
+
+def test_same_seed_same_result(registry):
+    a = run_policy(registry, BASE, None, seed=3, latency=0.05)
+    b = run_policy(registry, BASE, None, seed=3, latency=0.05)
+    assert a.result.status == b.result.status
+    assert np.array_equal(a.world.cell.arm, b.world.cell.arm)
+    assert a.summary == b.summary
