@@ -442,3 +442,33 @@ def test_move_to_pose_refuses_a_colliding_target(motion_context):
     assert node.feedback_message.startswith("the motion would collide: step ")
     assert "vs table" in node.feedback_message
     assert controller.goals == []
+
+
+# -- end to end: the shipped Objective on the kinematic cell ------------------------------------
+def test_check_objective_fails_on_the_initial_layout():
+    from runtime.runner import run_file
+
+    result = run_file(OBJECTIVES / "check_cube_on_cube.xml", Registry.from_entry_points(), RunOptions(seed=0, world="kinematic"))
+    assert (result.status, result.ticks, result.failing_node) == ("FAILURE", 1, "top cube on bottom cube")
+    assert result.reason.startswith("cube_blue on cube_green: not stacked: ")
+    assert result.reason.endswith("tolerance 15.0 mm")
+
+
+@pytest.mark.parametrize(
+    ("instance", "status", "reason"),
+    [
+        ('<SubTree ID="Move to Waypoint"/>', "SUCCESS", ""),  # the default: Home
+        ('<SubTree ID="Move to Waypoint" waypoint_name="Observe"/>', "SUCCESS", ""),
+        ('<SubTree ID="Move to Waypoint" waypoint_name="Nowhere"/>', "FAILURE", "unknown waypoint 'Nowhere' (known: Home, Observe, Ready)"),
+    ],
+)
+def test_move_to_waypoint_subtree_on_the_cell(tmp_path, instance, status, reason):
+    from runtime.runner import run_file
+
+    path = tmp_path / "move.xml"
+    path.write_text(f"""<root BTCPP_format="4"><BehaviorTree ID="Main"><Sequence>
+      <SwitchController activate_controllers="joint_trajectory_admittance_controller" deactivate_controllers="velocity_force_controller"/>
+      {instance}
+    </Sequence></BehaviorTree></root>""")
+    result = run_file(path, Registry.from_entry_points(), RunOptions(world="kinematic", max_seconds=20.0))
+    assert (result.status, result.reason) == (status, reason)

@@ -5,6 +5,7 @@ three cubes as world objects; joint states come over an InProcessBus, as the cel
 """
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -18,9 +19,12 @@ from runtime.blackboard import Blackboard
 from runtime.bus import InProcessBus
 from runtime.clock import SimClock
 from runtime.events import EventLog
+from runtime.registry import Registry
+from runtime.runner import RunOptions, RunResult, run_file
 from runtime.scene.collision import Box, pose_matrix
 from runtime.scene.model import RobotModel
 from runtime.scene.scene import PlanningScene
+from sim.layouts import layout
 from sim.robot_model import ARM_JOINTS, GRIPPER_DRIVER_JOINT, WAYPOINTS_PATH, load_waypoints, planning_robot_model
 
 HOME = tuple(load_waypoints(WAYPOINTS_PATH)["Home"][j] for j in ARM_JOINTS)
@@ -226,3 +230,46 @@ def test_reset_sim_reports_a_refused_seed(scene):
     node = make_node(ResetSim, make_context(scene, FakeWorld(refuse="no room for cube 'blue'")), seed="3")
     assert tick(node) is Status.FAILURE
     assert node.feedback_message == "the world refused the reset with seed 3: no room for cube 'blue'"
+
+
+# -- end to end: `objective run` on the kinematic cell (same controllers and topics, no physics) ---
+OBJECTIVES = Path(__file__).resolve().parent.parent / "objectives"
+
+
+@pytest.fixture(scope="module")
+def all_behaviors() -> Registry:
+    return Registry.from_entry_points()
+
+
+def run_on_cell(registry: Registry, source: Path | str, seed: int) -> RunResult:
+    return run_file(source, registry, RunOptions(seed=seed, world="kinematic", max_seconds=60.0))
+
+
+def test_scripted_pick_and_place_stacks_blue_on_green(all_behaviors):
+    """Pick with MoveToPose/MoveGripperAction/SetCollisionRule, place, go Home, then the check."""
+    result = run_on_cell(all_behaviors, OBJECTIVES / "examples" / "pick_and_place_scripted.xml", seed=3)
+    assert (result.status, result.reason) == ("SUCCESS", "")
+    cubes = result.extra["world"]["cubes"]
+    green, blue = np.array(cubes["green"]), np.array(cubes["blue"])
+    assert blue - green == pytest.approx([0.0, 0.0, 0.03], abs=2e-3)
+    assert result.extra["world"]["carried"] is None
+
+
+def test_reset_sim_puts_the_cubes_of_a_new_layout(all_behaviors, tmp_path):
+    # Stack, reset with seed 5, then the check fails again: the cubes are back apart.
+    path = tmp_path / "reset.xml"
+    path.write_text("""<root BTCPP_format="4" main_tree_to_execute="Main">
+  <BehaviorTree ID="Main">
+    <Sequence>
+      <SubTree ID="Pick and Place Scripted"/>
+      <ResetSim seed="5"/>
+      <SubTree ID="Check if One Cube Is on Another"/>
+    </Sequence>
+  </BehaviorTree>
+</root>""")
+    options = RunOptions(seed=3, world="kinematic", max_seconds=60.0)
+    result = run_file(path, all_behaviors, options, search_paths=[OBJECTIVES / "examples"])
+    assert (result.status, result.failing_node) == ("FAILURE", "top cube on bottom cube")
+    assert result.reason.startswith("cube_blue on cube_green: not stacked")
+    x, y, _ = layout(5)["blue"]
+    assert result.extra["world"]["cubes"]["blue"] == pytest.approx([x, y, 0.015], abs=1e-4)
