@@ -1,0 +1,227 @@
+"""The simulated cell's MuJoCo scene: the robot on a table, three cubes, lights and cameras.
+
+``build_cell_spec`` starts from the robot model that the planning scene also loads
+(``sim.robot_model.build_robot_spec``), so the simulation and the collision checks see one robot.
+It adds what only the simulation needs:
+
+- a table whose top is the plane z = 0 of the world frame, with the robot base standing on it at
+  the origin (world frame = robot base frame, so cube poses need no extra transform);
+- three 30 mm cubes (``cube_red``, ``cube_green``, ``cube_blue``) on free joints, 40 g each, with
+  enough friction for the 2F-85 pads to hold one by friction alone;
+- cheap lighting (no shadows, no reflections, no multisampling: a frame set costs tens of ms on
+  CPU instead of most of a second) and three cameras: ``scene`` (in front of the table, looking
+  back at the robot), ``overview`` (straight down on the workspace) and ``wrist`` (on the
+  gripper, looking along the fingers).
+
+The robot faces +y: the Menagerie ``home`` keyframe (-pi/2, -pi/2, pi/2, -pi/2, -pi/2, 0) hovers
+the gripper over the table, and ``sim.layouts`` places cubes in front of it.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import mujoco
+import numpy as np
+
+from sim.robot_model import FT_SITE, GRIPPER_PREFIX, build_robot_spec
+
+CUBE_COLORS: dict[str, tuple[float, float, float, float]] = {
+    "red": (0.85, 0.1, 0.1, 1.0),
+    "green": (0.1, 0.7, 0.15, 1.0),
+    "blue": (0.1, 0.25, 0.85, 1.0),
+}
+"""The cubes, in a fixed order (layouts and published topics follow it)."""
+
+CAMERA_NAMES: tuple[str, ...] = ("scene", "wrist", "overview")
+
+TABLE_TOP_Z = 0.0
+TABLE_HALF_SIZE = (0.6, 0.55, 0.02)
+TABLE_CENTER_XY = (0.0, 0.3)
+"""The table spans x in [-0.6, 0.6] and y in [-0.25, 0.85]; its top is z = 0."""
+
+HOME_CONFIGURATION: tuple[float, ...] = (-1.5708, -1.5708, 1.5708, -1.5708, -1.5708, 0.0)
+"""Where the arm starts after a reset (the Menagerie ``home`` keyframe, gripper above the table)."""
+
+
+@dataclass(frozen=True)
+class CellOptions:
+    """What can vary between cells. Defaults are the reference cell."""
+
+    cube_size: float = 0.03
+    cube_mass: float = 0.04
+    cube_friction: float = 1.0
+    image_width: int = 224
+    image_height: int = 224
+    timestep: float = 0.002
+
+    def __post_init__(self) -> None:
+        if not 0.01 <= self.cube_size <= 0.06:
+            raise ValueError(f"cube_size {self.cube_size} m: must be in [0.01, 0.06] for the 2F-85 to grasp it")
+        if self.cube_mass <= 0:
+            raise ValueError(f"cube_mass {self.cube_mass} kg: must be positive")
+        if self.cube_friction <= 0:
+            raise ValueError(f"cube_friction {self.cube_friction}: must be positive")
+        for name in ("image_width", "image_height"):
+            value = getattr(self, name)
+            if not isinstance(value, int) or not 16 <= value <= 4096:
+                raise ValueError(f"{name} {value!r}: must be an integer in [16, 4096]")
+        if not 0 < self.timestep <= 0.005:
+            raise ValueError(f"timestep {self.timestep} s: must be in (0, 0.005]")
+
+
+def cube_body_name(color: str) -> str:
+    return f"cube_{color}"
+
+
+def build_cell_spec(options: CellOptions | None = None) -> mujoco.MjSpec:
+    """The whole cell as an uncompiled spec (compile with ``spec.compile()``)."""
+    options = options or CellOptions()
+    spec = build_robot_spec()
+    spec.modelname = "vla_sim_cell"
+    spec.option.timestep = options.timestep
+    _configure_rendering(spec, options)
+    _add_lights(spec)
+    _add_table(spec)
+    for color, rgba in CUBE_COLORS.items():
+        _add_cube(spec, color, rgba, options)
+    _add_cameras(spec)
+    _add_ft_sensor(spec)
+    return spec
+
+
+FT_FORCE_SENSOR = "wrist_ft_force"
+FT_TORQUE_SENSOR = "wrist_ft_torque"
+
+
+def _add_ft_sensor(spec: mujoco.MjSpec) -> None:
+    """Force and torque at the gripper mount: what the gripper (and anything it touches) exerts."""
+    for name, kind in ((FT_FORCE_SENSOR, mujoco.mjtSensor.mjSENS_FORCE), (FT_TORQUE_SENSOR, mujoco.mjtSensor.mjSENS_TORQUE)):
+        sensor = spec.add_sensor()
+        sensor.name = name
+        sensor.type = kind
+        sensor.objtype = mujoco.mjtObj.mjOBJ_SITE
+        sensor.objname = FT_SITE
+
+
+def _configure_rendering(spec: mujoco.MjSpec, options: CellOptions) -> None:
+    spec.visual.global_.offwidth = max(options.image_width, 640)
+    spec.visual.global_.offheight = max(options.image_height, 480)
+    spec.visual.quality.offsamples = 0
+    spec.visual.quality.shadowsize = 0
+    spec.visual.headlight.ambient = [0.35, 0.35, 0.35]
+    spec.visual.headlight.diffuse = [0.4, 0.4, 0.4]
+    spec.visual.headlight.specular = [0.0, 0.0, 0.0]
+    for light in spec.lights:  # the robot models may bring their own lights
+        light.castshadow = False
+
+
+def _add_lights(spec: mujoco.MjSpec) -> None:
+    light = spec.worldbody.add_light()
+    light.name = "cell_light"
+    light.type = mujoco.mjtLightType.mjLIGHT_DIRECTIONAL
+    light.pos = [0.0, 0.3, 2.0]
+    light.dir = [0.0, 0.2, -1.0]
+    light.diffuse = [0.6, 0.6, 0.6]
+    light.specular = [0.0, 0.0, 0.0]
+    light.castshadow = False
+
+
+def _add_table(spec: mujoco.MjSpec) -> None:
+    wood = spec.add_material()
+    wood.name = "table_top"
+    wood.rgba = [0.72, 0.62, 0.48, 1.0]
+    wood.specular = 0.0
+    wood.shininess = 0.0
+    wood.reflectance = 0.0
+
+    hx, hy, hz = TABLE_HALF_SIZE
+    table = spec.worldbody.add_body()
+    table.name = "table"
+    table.pos = [TABLE_CENTER_XY[0], TABLE_CENTER_XY[1], TABLE_TOP_Z - hz]
+    top = table.add_geom()
+    top.name = "table"
+    top.type = mujoco.mjtGeom.mjGEOM_BOX
+    top.size = [hx, hy, hz]
+    top.material = "table_top"
+    top.friction = [0.8, 0.005, 0.0001]
+    leg_height = 0.73
+    for i, (sx, sy) in enumerate(((1, 1), (1, -1), (-1, 1), (-1, -1))):
+        leg = table.add_geom()  # visual only: nothing reaches below the top
+        leg.name = f"table_leg_{i}"
+        leg.type = mujoco.mjtGeom.mjGEOM_BOX
+        leg.size = [0.03, 0.03, leg_height / 2]
+        leg.pos = [sx * (hx - 0.05), sy * (hy - 0.05), -hz - leg_height / 2]
+        leg.rgba = [0.35, 0.3, 0.25, 1.0]
+        leg.contype = 0
+        leg.conaffinity = 0
+    floor = spec.worldbody.add_geom()
+    floor.name = "floor"
+    floor.type = mujoco.mjtGeom.mjGEOM_PLANE
+    floor.size = [3.0, 3.0, 0.1]
+    floor.pos = [0.0, 0.0, TABLE_TOP_Z - 2 * hz - leg_height]
+    floor.rgba = [0.5, 0.52, 0.55, 1.0]
+    floor.contype = 0
+    floor.conaffinity = 0
+
+
+def _add_cube(spec: mujoco.MjSpec, color: str, rgba: tuple[float, ...], options: CellOptions) -> None:
+    half = options.cube_size / 2
+    body = spec.worldbody.add_body()
+    body.name = cube_body_name(color)
+    body.pos = [0.0, 0.45, TABLE_TOP_Z + half]  # placed properly by Cell.reset
+    joint = body.add_freejoint()
+    joint.name = f"{body.name}_joint"
+    geom = body.add_geom()
+    geom.name = body.name
+    geom.type = mujoco.mjtGeom.mjGEOM_BOX
+    geom.size = [half, half, half]
+    geom.mass = options.cube_mass
+    geom.rgba = list(rgba)
+    # condim 4 adds torsional friction, so a grasped cube does not spin about the pad normal.
+    geom.condim = 4
+    geom.friction = [options.cube_friction, 0.01, 0.0001]
+    geom.solref = [0.004, 1.0]
+    geom.solimp = [0.95, 0.99, 0.001, 0.5, 2.0]
+
+
+def look_at_quat(pos: np.ndarray, target: np.ndarray, up: np.ndarray = np.array([0.0, 0.0, 1.0])) -> np.ndarray:
+    """Quaternion (w, x, y, z) of a MuJoCo camera at ``pos`` looking at ``target``.
+
+    A MuJoCo camera looks along its -z axis with +y up in the image.
+    """
+    forward = np.asarray(target, float) - np.asarray(pos, float)
+    forward /= np.linalg.norm(forward)
+    right = np.cross(forward, up)
+    if np.linalg.norm(right) < 1e-9:
+        raise ValueError(f"camera at {pos} looks straight along the up vector {up}: pick another up")
+    right /= np.linalg.norm(right)
+    cam_up = np.cross(right, forward)
+    rotation = np.column_stack([right, cam_up, -forward])
+    quat = np.zeros(4)
+    mujoco.mju_mat2Quat(quat, rotation.flatten())
+    return quat
+
+
+def _add_cameras(spec: mujoco.MjSpec) -> None:
+    workspace = np.array([0.0, 0.45, 0.0])
+
+    scene = spec.worldbody.add_camera()
+    scene.name = "scene"
+    scene.pos = [0.0, 1.35, 0.55]
+    scene.quat = look_at_quat(np.array(scene.pos), workspace + [0.0, -0.05, 0.05])
+    scene.fovy = 50.0
+
+    overview = spec.worldbody.add_camera()
+    overview.name = "overview"
+    overview.pos = [0.0, 0.42, 1.25]
+    overview.quat = look_at_quat(np.array(overview.pos), [0.0, 0.42, 0.0], up=np.array([0.0, 1.0, 0.0]))
+    overview.fovy = 55.0
+
+    # On the gripper body (z along the fingers, fingers opening along y): offset sideways along x
+    # and tilted toward the fingertips, like a camera on a wrist bracket.
+    gripper = spec.body(GRIPPER_PREFIX + "base")
+    wrist = gripper.add_camera()
+    wrist.name = "wrist"
+    wrist.pos = [0.075, 0.0, 0.02]
+    wrist.quat = look_at_quat(np.array([0.075, 0.0, 0.02]), np.array([0.0, 0.0, 0.2]), up=np.array([1.0, 0.0, 0.0]))
+    wrist.fovy = 70.0
