@@ -392,10 +392,16 @@ class CheckObjectStacked(ReadsRobotState, Condition):
             self.get_input("min_gripper_distance"),
         )
         message = f"{top} on {bottom}: {answer.reason}"
+        self.last_check = {"top": top, "bottom": bottom, "stacked": answer.stacked, "reason": answer.reason}
         if answer.stacked:
             self.feedback_message = message
             return Status.SUCCESS
         return self.fail(message)
+
+    def run_summary(self) -> dict:
+        """The last answer, for ``objective run --json`` (under ``stack_check``)."""
+        check = getattr(self, "last_check", None)
+        return {} if check is None else {"stack_check": check}
 
 
 NODES = (GetObjectPose, GetLatestTransform, TransformPose, IsPoseNearIdentity, CheckObjectStacked)

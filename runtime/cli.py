@@ -77,6 +77,8 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--max-seconds", type=_positive_float, metavar="S", help="fail after S seconds of clock time")
     run.add_argument("--policy-latency", metavar="SPEC",
                      help="policy call latency: 'measured' (default), seconds (e.g. 0.3) or lognormal:MEAN,SD")
+    run.add_argument("--policy", metavar="SPEC",
+                     help="policy the world serves on /get_action_chunk in headless runs: oracle (default), replay:FILE or none")
     run.add_argument("--tick-hz", type=_positive_float, default=100.0, help=argparse.SUPPRESS)
     add_paths(run)
 
@@ -113,6 +115,7 @@ def cmd_run(args: argparse.Namespace, registry: Registry) -> int:
         world=args.world,
         sets=dict(args.set),
         policy_latency=args.policy_latency,
+        world_options={"policy": args.policy} if args.policy else {},
     )
     progress = ProgressLine(sys.stderr) if sys.stderr.isatty() else None
     if progress is not None:

@@ -119,7 +119,10 @@ def create_world(name: str, options: dict[str, Any]) -> Any:
         known = ", ".join(sorted(available)) or "none installed"
         raise ObjectiveError(f"no world named '{name}' (worlds: {known})")
     create = available[name].load()
-    return create(options)
+    try:
+        return create(options)
+    except ValueError as err:  # a world refuses bad options with ValueError: that is bad input
+        raise ObjectiveError(f"world '{name}': {err}") from None
 
 
 def json_entries(board_items: Iterable[tuple[str, Any]]) -> dict[str, Any]:
@@ -233,7 +236,10 @@ def run_tree(
     try:
         if world is not None:
             context.world = world
-            world.start(context)
+            try:
+                world.start(context)
+            except ValueError as err:
+                raise ObjectiveError(f"world '{getattr(world, 'name', '?')}': {err}") from None
         for node in nodes:
             node.setup()
         context.events.emit("run_started", loaded.tree_id, seed=options.seed)

@@ -15,13 +15,13 @@ import pinocchio as pin
 from sensor_msgs.msg import Image, JointState
 
 from runtime.behavior import RunContext
-from runtime.bus import parse_latency
 from runtime.scene import frame_pose
 from runtime.timestamps import time_msg
 
 from .cell_model import CUBE_COLORS
 from .controllers import make_controllers
 from .layouts import layout
+from .policy.embedded import serve_embedded_policy
 from .planning import CUBE_SIZE, cell_robot, make_cell_scene, sync_cubes
 from .robot_model import ARM_JOINTS, GRIPPER_DRIVER_JOINT, TCP_SITE, load_waypoints
 
@@ -30,7 +30,6 @@ GRIPPER_SPEED = 1.6  # rad/s of the driver joint: fully closed in 0.5 s
 GRIPPER_CLOSED_ON_CUBE = 0.52  # driver angle where the 2F-85's pads meet a 30 mm cube
 GRASP_RADIUS = 0.025  # a cube centre this close to the TCP is between the fingers
 CAMERA_TOPICS = {"scene": "/scene_camera/color", "wrist": "/wrist_camera/color", "overview": "/overview_camera/color"}
-POLICY_SERVICE = "/get_action_chunk"
 
 
 def _yaw_quat(yaw: float) -> np.ndarray:
@@ -191,14 +190,7 @@ class KinematicWorld:
         context.scene = make_cell_scene(self.cell.cubes)
         context.resources["waypoints"] = self.waypoints
         context.world = self
-        if (self.options.get("policy") or "oracle") == "oracle":
-            from .policy.adapter import PolicyAdapter
-            from .policy.oracle import oracle_for_cell
-
-            self.adapter = PolicyAdapter(oracle_for_cell(self.cell)).serve(bus, POLICY_SERVICE)
-        latency = self.options.get("policy_latency")
-        if latency:
-            bus.set_latency(POLICY_SERVICE, parse_latency(latency, self.seed))
+        self.adapter = serve_embedded_policy(bus, self.options.get("policy"), self.cell, self.options.get("policy_latency"), self.seed)
         self._publish()
 
     def step_to(self, t: float) -> None:

@@ -1,0 +1,55 @@
+"""The shipped stacking Objectives through the CLI, on the kinematic cell (fast) — with the
+embedded oracle, with a replay of recorded chunks, and with a bad policy spec."""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from runtime.cli import main
+from sim.policy.replay import RecordedChunk, write_replay
+from sim.robot_model import ARM_JOINTS, GRIPPER_DRIVER_JOINT, load_waypoints
+
+
+def run_cli(capsys, *args: str) -> tuple[int, dict]:
+    code = main(["run", *args, "--json"])
+    out = capsys.readouterr().out.strip().splitlines()
+    return code, json.loads(out[-1])
+
+
+def test_stack_cubes_succeeds_and_reports_the_policy_and_the_check(capsys):
+    code, summary = run_cli(capsys, "objectives/stack_cubes.xml", "--world", "kinematic", "--seed", "3", "--policy-latency", "0.2")
+    assert code == 0, summary["reason"]
+    policy = summary["execute_policy"]
+    assert policy["steps_executed"] == 300 and policy["rejections"] == 0 and policy["stall_seconds"] == 0.0
+    assert policy["chunks"] == 15 and policy["latency_max_s"] == pytest.approx(0.2, abs=0.011)
+    assert summary["stack_check"]["stacked"] is True
+    assert summary["blackboard"]["policy_message"] == "executed 300 steps"
+
+
+def test_stack_until_check_stops_the_policy_as_soon_as_the_stack_is_there(capsys):
+    code, summary = run_cli(capsys, "objectives/stack_cubes_until_check.xml", "--world", "kinematic", "--seed", "3")
+    assert code == 0, summary["reason"]
+    assert summary["execute_policy"]["steps_executed"] < 300
+    assert summary["execute_policy"]["message"] == "halted: goals cancelled, robot stopped"
+
+
+def test_replayed_chunks_end_with_no_more_actions(capsys, tmp_path):
+    home = load_waypoints()["Home"]
+    row = [home[j] for j in ARM_JOINTS] + [0.0]
+    names = list(ARM_JOINTS) + [GRIPPER_DRIVER_JOINT]
+    replay = tmp_path / "hold.jsonl"
+    write_replay(replay, [RecordedChunk(names, np.tile(row, (50, 1)), 0.1) for _ in range(4)])
+    # The check fails (nothing was stacked), but the policy run itself ends with SUCCESS.
+    code, summary = run_cli(capsys, "objectives/stack_cubes.xml", "--world", "kinematic", "--policy", f"replay:{replay}")
+    assert code == 1 and summary["failing_node"] == "top cube on bottom cube"
+    policy = summary["execute_policy"]
+    assert policy["message"] == "the policy has no more actions: replay of 'hold.jsonl' finished after 4 chunks"
+    # The warmup and the first request both start an episode, so all four chunks are played.
+    assert policy["chunks"] == 4
+
+
+def test_unknown_policy_spec_is_bad_input(capsys):
+    assert main(["run", "objectives/stack_cubes.xml", "--world", "kinematic", "--policy", "bogus"]) == 2
+    assert "world 'kinematic': unknown policy 'bogus' (expected oracle, replay:FILE or none)" in capsys.readouterr().err
