@@ -100,6 +100,13 @@ class NodeMixin:
         self.location = location
         self.xml_id = xml_id or type(self).__name__
         self.bindings = make_bindings(type(self), values or {}, location, self.xml_id)
+        self.check_literals()
+
+    def check_literals(self) -> None:
+        """Override to reject bad literal port values at load time (beyond their type).
+
+        Raise PortError/LoadError; ``self.bindings``, ``self.location`` and ``self.xml_id`` are set.
+        """
 
     # -- reading and writing ports ----------------------------------------------------------
     def get_input(self, name: str) -> Any:

@@ -10,9 +10,8 @@ from __future__ import annotations
 from typing import Any, ClassVar
 
 from . import script as scripting
-from .behavior import Behavior, Condition, RunContext, Status
-from .blackboard import Blackboard
-from .errors import LoadError, SourceLocation
+from .behavior import Behavior, Condition, Status
+from .errors import LoadError
 from .ports import InOutPort, InputPort, PortInfo, PortType
 
 
@@ -38,23 +37,15 @@ class _CompiledCode:
 
     script: scripting.Script
 
-    def bind(
-        self,
-        context: RunContext,
-        blackboard: Blackboard,
-        values: dict[str, str] | None = None,
-        location: SourceLocation | None = None,
-        xml_id: str | None = None,
-    ) -> None:
-        super().bind(context, blackboard, values, location, xml_id)  # type: ignore[misc]
+    def check_literals(self) -> None:
         binding = self.bindings["code"]  # type: ignore[attr-defined]
         if binding.key is not None:
             raise LoadError(
                 f"port 'code' must be the script itself, not a blackboard reference '{{{binding.key}}}'",
-                location,
+                self.location,  # type: ignore[attr-defined]
                 self.xml_id,  # type: ignore[attr-defined]
             )
-        self.script = compile_at_load(binding.literal, location, self.xml_id)  # type: ignore[attr-defined]
+        self.script = compile_at_load(binding.literal, self.location, self.xml_id)  # type: ignore[attr-defined]
 
 
 _CODE = InputPort("code", PortType.STRING, description="The script: statements separated by ';'")

@@ -8,10 +8,9 @@ from __future__ import annotations
 import logging
 from typing import ClassVar
 
-from .behavior import Behavior, RunContext, Status
-from .blackboard import Blackboard
+from .behavior import Behavior, Status
 from .decorators import elapsed
-from .errors import PortError, SourceLocation
+from .errors import PortError
 from .ports import InputPort, PortType
 
 
@@ -63,15 +62,7 @@ class Wait(_TimedWait):
     )
     ports = (InputPort("seconds", PortType.FLOAT, description="How long to wait, in seconds."),)
 
-    def bind(
-        self,
-        context: RunContext,
-        blackboard: Blackboard,
-        values: dict[str, str] | None = None,
-        location: SourceLocation | None = None,
-        xml_id: str | None = None,
-    ) -> None:
-        super().bind(context, blackboard, values, location, xml_id)
+    def check_literals(self) -> None:
         seconds = self.bindings["seconds"]
         if seconds.key is None:
             self._check(seconds.literal)  # a negative literal is a load-time error
@@ -104,15 +95,7 @@ class LogMessage(Behavior):
         InputPort("log_level", PortType.STRING, "info", "debug, info, warn or error."),
     )
 
-    def bind(
-        self,
-        context: RunContext,
-        blackboard: Blackboard,
-        values: dict[str, str] | None = None,
-        location: SourceLocation | None = None,
-        xml_id: str | None = None,
-    ) -> None:
-        super().bind(context, blackboard, values, location, xml_id)
+    def check_literals(self) -> None:
         level = self.bindings["log_level"]
         if level.key is None:
             self._level(level.literal)  # a bad literal is a load-time error
