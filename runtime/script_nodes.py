@@ -11,7 +11,7 @@ from typing import Any, ClassVar
 
 from . import script as scripting
 from .behavior import Behavior, Condition, Status
-from .errors import LoadError
+from .errors import LoadError, SourceLocation
 from .ports import InOutPort, InputPort, PortInfo, PortType
 
 

@@ -34,7 +34,6 @@ from dataclasses import dataclass, field
 from typing import Any, Callable
 
 import rclpy
-from action_msgs.msg import GoalStatus
 from action_msgs.srv import CancelGoal
 from rclpy.action import ActionClient as _RclpyActionClient
 from rclpy.action import ActionServer as _RclpyActionServer

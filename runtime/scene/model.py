@@ -13,7 +13,7 @@ gripper linkage. Callers think in a joint group plus one gripper value, so
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Iterable, Mapping, Sequence
 

@@ -36,7 +36,7 @@ from .collision import (
 )
 from .kinematics import frame_pose
 from .limits import JointLimits
-from .model import WORLD_LINK, ConfigurationMap, GroupError, RobotModel
+from .model import ConfigurationMap, RobotModel
 
 ANY = "*"
 
