@@ -32,6 +32,8 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 from trajectory_msgs.msg import JointTrajectoryPoint
 
+from runtime.timestamps import time_msg, to_seconds
+
 from .backend import PolicyBackend, PolicyRequest, PolicyResponse, PolicyStatus
 from .images import image_to_rgb, rgb_to_image
 
@@ -131,6 +133,7 @@ def request_from_msg(msg: GetActionChunk.Request) -> PolicyRequest:
         previous_anchor_positions=_anchor_positions(msg.previous_anchor_state, names),
         frozen_prefix_steps=int(msg.frozen_prefix_steps),
         guidance_horizon=int(msg.guidance_horizon),
+        stamp=to_seconds(msg.robot_state.header.stamp),
     )
 
 
@@ -158,6 +161,7 @@ def request_to_msg(request: PolicyRequest, image_encoding: str = "rgb8") -> GetA
     msg.prompt = request.prompt
     msg.robot_state.name = list(request.joint_names)
     msg.robot_state.position = np.asarray(request.joint_positions, dtype=float)
+    msg.robot_state.header.stamp = time_msg(request.stamp)
     msg.image_names = list(request.images)
     msg.images = [rgb_to_image(pixels, image_encoding) for pixels in request.images.values()]
     msg.new_episode = bool(request.new_episode)

@@ -49,6 +49,10 @@ class PolicyRequest:
     """Positions of ``previous_anchor_state`` (request joint order); None when not sent."""
     frozen_prefix_steps: int = 0
     guidance_horizon: int = 0
+    stamp: float = 0.0
+    """``robot_state.header.stamp`` in seconds: when the observed joint state was sampled, on the
+    robot's clock (sim time in the simulated cell). A backend in another process that needs the
+    robot's clock (the remote oracle) reads it here."""
 
 
 @dataclass
