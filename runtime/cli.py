@@ -9,6 +9,7 @@ and worlds from ``objective.worlds``, so the runtime imports neither.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import logging
 import sys
@@ -72,6 +73,10 @@ def build_parser() -> argparse.ArgumentParser:
                      help="set a root blackboard entry (a string) before the first tick; repeatable")
     run.add_argument("--seed", type=int, default=0, help="seed of the world's layout and random latencies")
     run.add_argument("--realtime", action="store_true", help="pace the ticks to wall-clock time")
+    run.add_argument("--ros", action="store_true",
+                     help="run on real ROS 2 as node /objective_runtime (implies --realtime); the world's topics, "
+                          "controllers and cameras are served on ROS 2 and the policy comes from an adapter "
+                          "(--policy none unless given)")
     run.add_argument("--json", action="store_true", help="print a JSON summary as the last line of stdout")
     run.add_argument("--world", metavar="NAME", help="world for trees that need one (default: vla_sim)")
     run.add_argument("--max-seconds", type=_positive_float, metavar="S", help="fail after S seconds of clock time")
@@ -79,6 +84,8 @@ def build_parser() -> argparse.ArgumentParser:
                      help="policy call latency: 'measured' (default), seconds (e.g. 0.3) or lognormal:MEAN,SD")
     run.add_argument("--policy", metavar="SPEC",
                      help="policy the world serves on /get_action_chunk in headless runs: oracle (default), replay:FILE or none")
+    run.add_argument("--world-option", action="append", type=_parse_set, default=[], metavar="KEY=VALUE",
+                     help="an option of the world, e.g. urdf=robot.urdf for --world robot (repeatable)")
     run.add_argument("--tick-hz", type=_positive_float, default=100.0, help=argparse.SUPPRESS)
     add_paths(run)
 
@@ -109,20 +116,29 @@ def cmd_run(args: argparse.Namespace, registry: Registry) -> int:
 
     options = RunOptions(
         seed=args.seed,
-        realtime=args.realtime,
+        realtime=args.realtime or args.ros,
+        ros=args.ros,
         tick_hz=args.tick_hz,
         max_seconds=args.max_seconds,
         world=args.world,
         sets=dict(args.set),
         policy_latency=args.policy_latency,
-        world_options={"policy": args.policy} if args.policy else {},
+        world_options={**dict(args.world_option), **({"policy": args.policy} if args.policy else {})},
     )
     progress = ProgressLine(sys.stderr) if sys.stderr.isatty() else None
     if progress is not None:
         for handler in logging.getLogger("objective").handlers:
             handler.addFilter(lambda record: progress.clear() or True)  # log lines replace the progress line
+    interrupts: Any = contextlib.nullcontext()
+    if args.ros:
+        from .ros.run import graph_description, sigterm_as_interrupt
+
+        options.check()
+        logging.getLogger("objective").info("running %s", graph_description(options.ros_node_name))
+        interrupts = sigterm_as_interrupt()  # a stopped runner halts the tree and leaves the graph cleanly
     try:
-        result = run_file(args.file, registry, options, args.tree, args.path, args.objectives_dir, progress)
+        with interrupts:
+            result = run_file(args.file, registry, options, args.tree, args.path, args.objectives_dir, progress)
     finally:
         if progress is not None:
             progress.clear()

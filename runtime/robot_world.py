@@ -1,0 +1,86 @@
+"""World ``robot``: your own robot from URDF + SRDF + joint_limits.yaml, no simulator.
+
+For running Objectives against a real ROS 2 graph (``objective run --ros --realtime --world robot``):
+the robot's drivers and controllers live elsewhere; this world only gives the behaviors a
+planning scene to check motions against. Options (``--world-option KEY=VALUE``):
+
+``urdf`` (required), ``srdf`` (required), ``joint_limits`` (MoveIt-style YAML; without it only
+position limits are known and velocity/acceleration are unbounded, which ExecutePolicy refuses),
+``group`` (default ``manipulator``), ``gripper_joint``, ``package_dirs`` (``;``-separated, for
+``package://`` meshes), ``waypoints`` (YAML ``waypoints: {Name: {joints: [...], positions: [...]}}``).
+"""
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from .behavior import RunContext
+from .scene import PlanningScene, RobotModel, load_joint_limits
+
+OPTIONS = ("seed", "realtime", "policy_latency", "record_dir", "policy", "urdf", "srdf", "joint_limits",
+           "group", "gripper_joint", "package_dirs", "waypoints")
+
+
+def _existing(options: dict[str, Any], key: str) -> Path:
+    value = options.get(key)
+    if not value:
+        raise ValueError(f"option '{key}' is required (--world-option {key}=PATH)")
+    path = Path(str(value))
+    if not path.is_file():
+        raise ValueError(f"option '{key}': no such file {path}")
+    return path
+
+
+def load_waypoints_yaml(path: Path) -> dict[str, dict[str, float]]:
+    doc = yaml.safe_load(path.read_text()) or {}
+    out: dict[str, dict[str, float]] = {}
+    for name, entry in (doc.get("waypoints") or {}).items():
+        joints, positions = entry.get("joints"), entry.get("positions")
+        if not isinstance(joints, list) or not isinstance(positions, list) or len(joints) != len(positions):
+            raise ValueError(f"{path}: waypoint '{name}' needs equally long 'joints' and 'positions' lists")
+        out[str(name)] = {str(j): float(p) for j, p in zip(joints, positions)}
+    return out
+
+
+class RobotDescriptionWorld:
+    name = "robot"
+
+    def __init__(self, options: dict[str, Any]) -> None:
+        unknown = sorted(set(options) - set(OPTIONS))
+        if unknown:
+            raise ValueError(f"unknown options {', '.join(unknown)} (known: {', '.join(OPTIONS[4:])})")
+        urdf, srdf = _existing(options, "urdf"), _existing(options, "srdf")
+        dirs = [d for d in str(options.get("package_dirs") or "").split(";") if d]
+        self.robot = RobotModel.from_urdf(urdf, srdf, package_dirs=dirs)
+        self.group = str(options.get("group") or "manipulator")
+        self.gripper_joint = options.get("gripper_joint") or None
+        limits = None
+        if options.get("joint_limits"):
+            joints = list(self.robot.movable_joints)
+            lower, upper = self.robot.position_limits(joints)
+            position = {j: (lo, hi) for j, lo, hi in zip(joints, lower, upper)}
+            limits = load_joint_limits(_existing(options, "joint_limits"), position)
+        self.limits = limits
+        self.waypoints = load_waypoints_yaml(_existing(options, "waypoints")) if options.get("waypoints") else {}
+
+    def start(self, context: RunContext) -> None:
+        context.scene = PlanningScene(self.robot, self.group, self.gripper_joint, limits=self.limits)
+        context.resources["waypoints"] = self.waypoints
+
+    def step_to(self, t: float) -> None:
+        """Nothing to simulate: the real robot moves on its own clock."""
+
+    def reset(self, seed: int) -> None:
+        raise ValueError("world 'robot' drives a real robot: it cannot be reset")
+
+    def summary(self) -> dict[str, Any]:
+        return {"robot": self.robot.source if hasattr(self.robot, "source") else "", "group": self.group}
+
+    def close(self) -> None:
+        pass
+
+
+def create(options: dict[str, Any]) -> RobotDescriptionWorld:
+    return RobotDescriptionWorld(options)
