@@ -11,7 +11,7 @@ export ROS_DOMAIN_ID ?= 42
 export MUJOCO_GL ?= egl
 export ROS_LOG_DIR ?= $(CURDIR)/build/ros_log
 
-.PHONY: setup demo test test-all bench clean
+.PHONY: setup demo test test-all bench clean lerobot lerobot-policy
 
 setup: $(STAMP)
 
@@ -21,6 +21,20 @@ $(STAMP): pyproject.toml tools/build_interfaces.py $(shell find runtime/ros/inte
 	$(PY) -m pip install --quiet -e '.[ros-build,test]'
 	$(PY) tools/build_interfaces.py
 	@touch $(STAMP)
+
+# Optional LeRobot extra (torch CPU + lerobot 0.4.4); see requirements/lerobot.txt for why the order
+# and --no-deps matter: torch==2.13.0 is the local CPU wheel and nothing may pull another torch.
+LEROBOT_STAMP := $(VENV)/.lerobot-stamp
+LEROBOT_PIP := $(PY) -m pip install --quiet -c requirements/lerobot-constraints.txt
+
+lerobot: $(LEROBOT_STAMP)
+
+$(LEROBOT_STAMP): $(STAMP) requirements/lerobot.txt requirements/lerobot-constraints.txt sim/policy/lerobot_compat.py
+	$(LEROBOT_PIP) torch==2.13.0
+	$(LEROBOT_PIP) --no-deps torchvision==0.28.0 lerobot==0.4.4
+	set -o pipefail; $(LEROBOT_PIP) -r requirements/lerobot.txt 2>&1 | { grep -v "is ignored: it is neither" || true; }
+	HF_HUB_OFFLINE=1 $(PY) -c "from sim.policy.lerobot_compat import ensure_torchvision; print('torchvision ops:', ensure_torchvision()); import lerobot.policies.smolvla.modeling_smolvla"
+	@touch $@
 
 demo: setup
 	$(VENV)/bin/objective run objectives/stack_cubes.xml
