@@ -1,0 +1,304 @@
+"""Two baseline chunk executors, and the task policy they are compared on (``benchmarks/bench_streaming.py``).
+
+What is compared is the *commanded joint stream*: the setpoint each executor sends the arm at
+every policy tick (``dt``). The baselines are pure simulations of that stream on the sim clock
+(no controller, no physics): the arm is taken to be exactly where it is commanded, which is what
+the kinematic world does for ExecutePolicy too. Both baselines get the same policy answers (the
+same chunk for the same call index and observed state) and the same latency trace (call ``i``
+takes ``trace[i]`` seconds) as ExecutePolicy does in the benchmark.
+
+- ``run_sync``: stop, infer, execute the chunk, repeat. The arm holds its last setpoint while a
+  call is in flight, then plays chunk steps ``1 .. committed`` at one per tick (step 0 is the
+  observed state) and asks again.
+- ``run_lerobot_aggregate``: LeRobot's async robot client (``lerobot.async_inference``): a queue
+  of timestamped actions; an observation is sent (one call in flight at a time) whenever
+  ``len(queue) / chunk_size <= threshold`` (0.5); an arriving chunk's actions whose timestep has
+  already been played are dropped, those already queued are aggregated ``0.3 * old + 0.7 * new``
+  (LeRobot's ``weighted_average``), the rest are appended; one action is played per tick with no
+  smoothing, and the arm holds when the queue is empty.
+
+``TaskPolicy`` answers with chunks of a smooth task path, starting from where the observed state
+lies on the path (like a real policy, it sees only the observation), with realistic
+chunk-to-chunk disagreement: a per-chunk phase offset, a per-chunk position offset and small
+per-step jitter, seeded by the call index so every executor sees the same disagreement.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+
+# --------------------------------------------------------------------------------------------
+# The task and the policy
+# --------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class TaskPath:
+    """``q(s) = start + sum_m amplitude[m] * (1 - cos(m * pi * s / duration))`` for s in [0, duration].
+
+    Every term has zero velocity at both ends, so the task starts and ends at rest; outside
+    ``[0, duration]`` the path holds its end points.
+    """
+
+    start: np.ndarray
+    amplitudes: np.ndarray  # (harmonics, joints); row m-1 multiplies harmonic m
+    duration: float
+
+    def at(self, s: np.ndarray | float) -> np.ndarray:
+        s = np.clip(np.atleast_1d(np.asarray(s, dtype=float)), 0.0, self.duration)
+        m = np.arange(1, len(self.amplitudes) + 1)[None, :]
+        basis = 1.0 - np.cos(m * math.pi * s[:, None] / self.duration)  # (N, harmonics)
+        return self.start[None, :] + basis @ self.amplitudes
+
+    @property
+    def goal(self) -> np.ndarray:
+        return self.at(self.duration)[0]
+
+
+@dataclass
+class TaskPolicy:
+    """Chunks of ``path`` from the observed state's place on it, with per-chunk disagreement.
+
+    The place on the path is found by projecting the observation onto the path near where the
+    previous call found it (a policy knows roughly where it is in its task). Disagreement for
+    call ``index``: the chunk plays the path shifted by a phase offset ~ N(0, ``phase_sd``) s,
+    plus a constant offset ~ N(0, ``offset_sd``) rad per joint, plus white jitter
+    ~ N(0, ``jitter_sd``) rad per step and joint. Step 0 of a chunk is the request instant.
+    """
+
+    path: TaskPath
+    dt: float
+    chunk_steps: int = 50
+    phase_sd: float = 0.03
+    offset_sd: float = 0.003
+    jitter_sd: float = 0.0005
+    seed: int = 0
+    _phase: float = field(default=0.0, init=False)
+    _grid: np.ndarray = field(init=False, repr=False)
+    _points: np.ndarray = field(init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        self._grid = np.arange(0.0, self.path.duration + 1e-9, 0.002)
+        self._points = self.path.at(self._grid)
+
+    def reset(self) -> None:
+        self._phase = 0.0
+
+    def phase_of(self, observed: np.ndarray) -> float:
+        """Where on the path ``observed`` lies, searched from 0.5 s before the last answer on."""
+        window = (self._grid >= self._phase - 0.5) & (self._grid <= self._phase + 8.0)
+        idx = np.flatnonzero(window)
+        dist = np.abs(self._points[idx] - np.asarray(observed)[None, :]).max(axis=1)
+        return float(self._grid[idx[int(np.argmin(dist))]])
+
+    def chunk(self, index: int, observed: np.ndarray) -> np.ndarray:
+        """The (chunk_steps, joints) answer to call ``index`` observing ``observed``."""
+        self._phase = self.phase_of(observed)
+        rng = np.random.default_rng([self.seed, index])
+        joints = self.path.start.shape[0]
+        shift = rng.normal(0.0, self.phase_sd)
+        offset = rng.normal(0.0, self.offset_sd, joints)
+        jitter = rng.normal(0.0, self.jitter_sd, (self.chunk_steps, joints))
+        times = self._phase + shift + np.arange(self.chunk_steps) * self.dt
+        return self.path.at(times) + offset[None, :] + jitter
+
+
+def benchmark_task(start: np.ndarray, duration: float = 10.0) -> TaskPath:
+    """The benchmark's task: a 10 s sweep from ``start`` (up to about 0.8 rad per joint, peak
+    joint speed about 0.24 rad/s), collision-free in the cell from the Ready waypoint."""
+    amplitudes = np.array(
+        [
+            [0.40, -0.20, 0.30, -0.20, 0.30, 0.40],  # harmonic 1: out to the far end
+            [0.16, 0.08, -0.12, 0.12, -0.10, 0.20],  # harmonic 2: a return bend
+            [0.06, -0.04, 0.04, -0.06, 0.06, -0.08],  # harmonic 3: a wiggle
+        ]
+    )
+    return TaskPath(np.asarray(start, dtype=float), amplitudes, duration)
+
+
+# --------------------------------------------------------------------------------------------
+# The executors' output
+# --------------------------------------------------------------------------------------------
+@dataclass
+class Stream:
+    """A commanded joint stream sampled every ``dt`` from the first request (t = 0)."""
+
+    dt: float
+    positions: np.ndarray  # (ticks, joints): the setpoint at tick k, time k * dt
+    seams: list[int]  # ticks whose setpoint is the first one taken from a newly arrived chunk
+    calls: int
+
+    @property
+    def times(self) -> np.ndarray:
+        return np.arange(len(self.positions)) * self.dt
+
+
+def run_sync(policy: TaskPolicy, trace: list[float], start: np.ndarray, dt: float, committed: int, total_steps: int) -> Stream:
+    """Stop, infer, execute ``committed`` steps of the chunk, repeat, until ``total_steps`` played."""
+    policy.reset()
+    q = np.asarray(start, dtype=float).copy()
+    out, seams = [q.copy()], []
+    played = call = 0
+    while played < total_steps:
+        latency = trace[call % len(trace)]
+        chunk = policy.chunk(call, q)
+        call += 1
+        wait_ticks = math.ceil(latency / dt - 1e-9)
+        if wait_ticks and played:
+            seams.append(len(out))  # the stop at the end of the previous chunk is a seam too
+        out.extend(q.copy() for _ in range(wait_ticks))  # holding still while the call is in flight
+        steps = min(committed, total_steps - played, len(chunk) - 1)
+        seams.append(len(out))
+        for row in chunk[1 : steps + 1]:
+            out.append(row.copy())
+        q = out[-1].copy()
+        played += steps
+    return Stream(dt, np.array(out), seams, call)
+
+
+def run_lerobot_aggregate(
+    policy: TaskPolicy,
+    trace: list[float],
+    start: np.ndarray,
+    dt: float,
+    total_steps: int,
+    threshold: float = 0.5,
+    old_weight: float = 0.3,
+) -> Stream:
+    """LeRobot-async-style action queue with weighted-average aggregation; ``total_steps`` played."""
+    policy.reset()
+    q = np.asarray(start, dtype=float).copy()
+    queue: dict[int, np.ndarray] = {}  # timestep -> action, in timestep order
+    latest = -1  # timestep of the last played action
+    in_flight: tuple[float, int, np.ndarray] | None = None  # (arrival time, obs timestep, chunk)
+    out, seams = [q.copy()], []
+    played = call = tick = 0
+    holding = False
+    fresh = False  # the queue's head came from a chunk that has not been played yet
+    while played < total_steps:
+        now = tick * dt
+        if in_flight is not None and in_flight[0] <= now + 1e-9:
+            _, obs_step, chunk = in_flight
+            in_flight = None
+            merged: dict[int, np.ndarray] = {}
+            for i, action in enumerate(chunk):
+                step = obs_step + i
+                if step <= latest:
+                    continue
+                merged[step] = old_weight * queue[step] + (1.0 - old_weight) * action if step in queue else action
+            queue, fresh = merged, True
+        if tick > 0:  # tick 0 is the observed start
+            if queue:
+                step = min(queue)
+                q = queue.pop(step)
+                latest = step
+                played += 1
+                holding = False
+                if fresh:
+                    seams.append(len(out))
+                    fresh = False
+            elif played and not holding:
+                seams.append(len(out))  # the queue ran dry: the arm stops at a chunk boundary
+                holding = True
+            out.append(q.copy())
+        if in_flight is None and len(queue) / policy.chunk_steps <= threshold:
+            latency = trace[call % len(trace)]
+            in_flight = (now + latency, max(latest, 0), policy.chunk(call, q))
+            call += 1
+        tick += 1
+    return Stream(dt, np.array(out), seams, call)
+
+
+# --------------------------------------------------------------------------------------------
+# Metrics of a commanded stream
+# --------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class StreamMetrics:
+    stall_fraction: float
+    task_time_s: float
+    max_vel_jump: float
+    max_acc_jump: float
+    rms_jerk: float
+    max_path_dev: float
+    done: bool
+
+
+def stream_metrics(stream: Stream, path: TaskPath, goal_tolerance: float = 0.02) -> StreamMetrics:
+    """Metrics of the stream up to task completion.
+
+    Task completion: the first tick after which every setpoint stays within ``goal_tolerance``
+    rad (max over joints) of the path's goal. Stall: ticks between the first motion and
+    completion whose setpoint equals the previous one. Velocities, accelerations and jerk are
+    finite differences over ``dt``; a seam's jumps are the largest change of velocity
+    (acceleration) between consecutive intervals within one tick of the seam. ``max_path_dev``
+    is the largest distance (max over joints) of a setpoint from the task path: how far the
+    executor cut corners.
+    """
+    q, dt = stream.positions, stream.dt
+    far = np.abs(q - path.goal[None, :]).max(axis=1) > goal_tolerance
+    done = not far[-1]
+    end = int(np.flatnonzero(far)[-1]) + 1 if far.any() else 0
+    end = min(end, len(q) - 1)
+    moving = np.abs(np.diff(q[: end + 1], axis=0)).max(axis=1) > 1e-12
+    first_move = int(np.argmax(moving)) if moving.any() else end
+    stalled = int((~moving[first_move:]).sum())
+    v = np.diff(q, axis=0) / dt  # v[k-1] is the velocity over (k-1, k)
+    a = np.diff(v, axis=0) / dt
+    j = np.diff(a, axis=0) / dt
+    vel_jump = acc_jump = 0.0
+    for s in stream.seams:
+        for k in (s - 1, s, s + 1):
+            if 1 <= k - 1 and k < len(v):
+                vel_jump = max(vel_jump, float(np.abs(v[k] - v[k - 1]).max()))
+            if 1 <= k - 1 and k < len(a):
+                acc_jump = max(acc_jump, float(np.abs(a[k] - a[k - 1]).max()))
+    jerk = j[: max(1, end)]
+    rms_jerk = float(np.sqrt(np.mean(jerk * jerk))) if len(jerk) else 0.0
+    grid = path.at(np.arange(0.0, path.duration + 1e-9, 0.005))
+    dev = max(float(np.abs(grid - row[None, :]).max(axis=1).min()) for row in q[: end + 1])
+    return StreamMetrics(
+        stall_fraction=stalled * dt / max(end * dt, 1e-9),
+        task_time_s=end * dt,
+        max_vel_jump=vel_jump,
+        max_acc_jump=acc_jump,
+        rms_jerk=rms_jerk,
+        max_path_dev=dev,
+        done=done,
+    )
+
+
+def sample_stream(times: np.ndarray, positions: np.ndarray, origin: float, dt: float, end: float) -> np.ndarray:
+    """A stream recorded at arbitrary ``times`` (e.g. the 500 Hz control loop), resampled on the
+    tick grid ``origin + k * dt`` up to ``end`` by linear interpolation (exact at ticks that
+    coincide with control steps)."""
+    ticks = origin + np.arange(0, int(math.floor((end - origin) / dt + 1e-9)) + 1) * dt
+    return np.column_stack([np.interp(ticks, times, positions[:, j]) for j in range(positions.shape[1])])
+
+
+def latency_trace(kind: str, seconds: float, calls: int, seed: int) -> list[float]:
+    """``calls`` latencies: ``fixed`` (all ``seconds``) or ``lognormal`` (mean ``seconds``,
+    standard deviation ``seconds``: a heavy tail, seeded)."""
+    if kind == "fixed":
+        return [float(seconds)] * calls
+    if kind == "lognormal":
+        if seconds <= 0:
+            return [0.0] * calls
+        sigma2 = math.log(2.0)  # sd == mean
+        mu = math.log(seconds) - sigma2 / 2.0
+        return np.random.default_rng(seed).lognormal(mu, math.sqrt(sigma2), calls).tolist()
+    raise ValueError(f"latency trace kind must be 'fixed' or 'lognormal', got {kind!r}")
+
+
+class TraceLatency:
+    """A ``runtime.bus`` latency model replaying ``trace``: the first call (ExecutePolicy's
+    warmup) takes ``warmup`` seconds, call ``i`` after it takes ``trace[i]``."""
+
+    def __init__(self, trace: list[float], warmup: float) -> None:
+        self.trace, self.warmup, self.calls = list(trace), float(warmup), 0
+
+    def delay(self, measured_wall_s: float) -> float:
+        self.calls += 1
+        if self.calls == 1:
+            return self.warmup
+        return self.trace[(self.calls - 2) % len(self.trace)]
