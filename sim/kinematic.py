@@ -7,11 +7,13 @@ benchmarks (hundreds of simulated seconds per wall second). World name ``kinemat
 """
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 import pinocchio as pin
+from geometry_msgs.msg import TransformStamped
 from sensor_msgs.msg import Image, JointState
 
 from runtime.behavior import RunContext
@@ -22,6 +24,7 @@ from .cell_model import CUBE_COLORS
 from .controllers import make_controllers
 from .layouts import layout
 from .policy.embedded import serve_embedded_policy
+from .policy.oracle_remote import CUBE_POSE_TOPIC, cube_pose_msg
 from .planning import CUBE_SIZE, cell_robot, make_cell_scene, sync_cubes
 from .robot_model import ARM_JOINTS, GRIPPER_DRIVER_JOINT, TCP_SITE, load_waypoints
 
@@ -187,6 +190,9 @@ class KinematicWorld:
         self.frame = np.full((self.image_size, self.image_size, 3), 128, dtype=np.uint8)
         for topic in CAMERA_TOPICS.values():
             bus.create_lazy_publisher(topic, Image, self._camera_frame)
+        for color in self.cell.cubes:  # the remote oracle's privileged view; produced only when read
+            bus.create_lazy_publisher(CUBE_POSE_TOPIC.format(color=color), TransformStamped,
+                                      functools.partial(self._cube_pose, color), rate_hz=50.0)
         context.scene = make_cell_scene(self.cell.cubes)
         context.resources["waypoints"] = self.waypoints
         context.world = self
@@ -228,6 +234,10 @@ class KinematicWorld:
         msg.position = self.cell.arm.tolist() + [self.cell.gripper]
         msg.velocity = self.cell.arm_velocity_now.tolist() + [self.cell.gripper_rate]
         self.joint_states.publish(msg)
+
+    def _cube_pose(self, color: str) -> TransformStamped:
+        position, quat = self.cell.cubes[color]
+        return cube_pose_msg(color, position, quat, self.cell.t)
 
     def _camera_frame(self) -> Image:
         from .policy.images import rgb_to_image

@@ -1,0 +1,442 @@
+"""The HTTP inference server: one ``PolicyBackend`` behind ``GET /health`` and ``POST /infer``.
+
+Run it as ``objective serve --backend oracle|replay [--replay-file F] [--host H] [--port N]``.
+The adapter node (``sim/policy/node.py``) forwards each GetActionChunk call here; the body is
+the JSON of ``sim/policy/wire.py`` (no pickle anywhere).
+
+Endpoints:
+
+- ``GET /health``, no token (launchers and probes poll it unauthenticated):
+  ``{"status": "loading" | "ready" | "error", "backend": NAME, "message": TEXT}``. ``ready`` only
+  once ``backend.load()`` and one full-size ``backend.warmup(example)`` have finished, so the
+  caller's own warmup call (which seeds ExecutePolicy's latency estimate, an estimate that only
+  grows) never pays for model compilation or cache setup.
+- ``POST /infer`` with ``Authorization: Bearer <key>``. Answers, in the order they are checked:
+  ``401`` no or wrong key (the answer says nothing about the key); ``411`` no Content-Length;
+  ``413`` body above ``max_body_bytes`` (refused before it is read); ``503`` still loading, or
+  loading failed (with the reason); ``400`` a body that is not a valid request (with the reason);
+  ``500`` the backend raised (with its message); ``200`` the backend's answer, which may itself
+  be ``status: error`` when the policy understood the problem (a prompt it cannot read).
+
+Security: the key comes from ``POLICY_SERVER_KEY`` and is compared with ``hmac.compare_digest``
+(constant time). The server refuses to start without one unless told ``--insecure-no-key``.
+It binds ``127.0.0.1`` by default: over plain HTTP the key travels in cleartext, which is only
+acceptable on loopback. ``--tls-cert/--tls-key`` serve HTTPS instead (``--tls-client-ca``
+also requires client certificates) for a server on another machine.
+
+One inference at a time (a lock): backends keep per-episode state and are not thread-safe.
+Health checks never wait for that lock. Each request is logged on one line with its status and
+latency.
+"""
+from __future__ import annotations
+
+import hmac
+import json
+import logging
+import os
+import signal
+import socket
+import ssl
+import threading
+import time
+from dataclasses import dataclass, field
+from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+
+from .backend import PolicyBackend, PolicyRequest
+from .wire import CONTENT_TYPE, DEFAULT_MAX_BODY_BYTES, WireError, decode_request, encode_response, error_body
+
+KEY_ENV = "POLICY_SERVER_KEY"
+CELL_JOINTS = (
+    "shoulder_pan_joint", "shoulder_lift_joint", "elbow_joint", "wrist_1_joint", "wrist_2_joint",
+    "wrist_3_joint", "robotiq_85_left_knuckle_joint",
+)
+"""The simulated cell's observed joints (arm, then gripper): the default warmup observation."""
+LOADING, READY, ERROR = "loading", "ready", "error"
+SOCKET_TIMEOUT_S = 30.0
+"""A client that stops sending mid-body is dropped after this, so it cannot hold a thread forever."""
+DRAIN_S = 2.0
+
+log = logging.getLogger("sim.policy.server")
+
+
+def execution_horizon(frozen_prefix_steps: int, guidance_horizon: int, default_guidance: int) -> int:
+    """LeRobot's ``execution_horizon`` from the request's RTC fields (the guide's conversion).
+
+    ``guidance_horizon`` counts steps past the frozen prefix, ``execution_horizon`` from the
+    chunk's start; 0 means "the server's configured width". Both halves matter: adding a zero
+    width guides nothing, and passing the width through without the prefix re-decides steps the
+    robot is already executing.
+    """
+    if frozen_prefix_steps < 0 or guidance_horizon < 0 or default_guidance < 0:
+        raise ValueError("frozen_prefix_steps, guidance_horizon and default_guidance must be >= 0")
+    width = guidance_horizon if guidance_horizon > 0 else default_guidance
+    return frozen_prefix_steps + width
+
+
+# --------------------------------------------------------------------------------------------
+# Configuration
+# --------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class WarmupSpec:
+    """The shape of the startup warmup request: as large as the real ones will be."""
+
+    joint_names: tuple[str, ...] = CELL_JOINTS
+    images: tuple[tuple[str, int, int], ...] = (("scene", 224, 224),)
+    """``(camera name, height, width)`` per view; frames are RGB uint8."""
+    prompt: str = "stack the red cube on the blue cube"
+
+    def request(self) -> PolicyRequest:
+        """A mid-gray, zero-joint observation with ``new_episode`` set."""
+        return PolicyRequest(
+            prompt=self.prompt,
+            joint_names=list(self.joint_names),
+            joint_positions=np.zeros(len(self.joint_names)),
+            images={name: np.full((h, w, 3), 128, dtype=np.uint8) for name, h, w in self.images},
+            new_episode=True,
+        )
+
+
+def parse_warmup_images(text: str) -> tuple[tuple[str, int, int], ...]:
+    """``"scene=224x224;wrist=480x640"`` (name=HEIGHTxWIDTH, ``;``-separated) -> specs; ValueError."""
+    specs = []
+    for item in (part.strip() for part in text.split(";")):
+        if not item:
+            continue
+        name, sep, size = item.partition("=")
+        height, x, width = size.lower().partition("x")
+        if not sep or not name.strip() or not x or not height.isdigit() or not width.isdigit() or not int(height) or not int(width):
+            raise ValueError(f"warmup image {item!r}: expected name=HEIGHTxWIDTH, e.g. scene=224x224")
+        specs.append((name.strip(), int(height), int(width)))
+    return tuple(specs)
+
+
+@dataclass
+class ServerConfig:
+    host: str = "127.0.0.1"
+    port: int = 0
+    """0 picks a free port (read it from ``InferenceServer.url``)."""
+    key: str | None = None
+    """The bearer key; None only with ``insecure_no_key``."""
+    insecure_no_key: bool = False
+    max_body_bytes: int = DEFAULT_MAX_BODY_BYTES
+    warmup: WarmupSpec = field(default_factory=WarmupSpec)
+    tls_cert: Path | None = None
+    tls_key: Path | None = None
+    tls_client_ca: Path | None = None
+    """When set, clients must present a certificate signed by this CA (mutual TLS)."""
+
+    def __post_init__(self) -> None:
+        if not self.key and not self.insecure_no_key:
+            raise ValueError(
+                f"no bearer key: set {KEY_ENV} (the adapter sends the same key), or pass "
+                "--insecure-no-key to serve /infer to anyone who can reach the port"
+            )
+        if self.max_body_bytes <= 0:
+            raise ValueError(f"max_body_bytes must be positive, got {self.max_body_bytes}")
+        if (self.tls_cert is None) != (self.tls_key is None):
+            raise ValueError("--tls-cert and --tls-key go together")
+        if self.tls_client_ca is not None and self.tls_cert is None:
+            raise ValueError("--tls-client-ca needs --tls-cert and --tls-key")
+
+
+# --------------------------------------------------------------------------------------------
+# The server
+# --------------------------------------------------------------------------------------------
+@dataclass
+class Reply:
+    code: int
+    body: bytes
+    note: str = ""
+    """What the request log line says after the status (the answer's status or error)."""
+
+
+class InferenceServer:
+    """A backend served over HTTP. ``start()`` binds, serves and loads in background threads."""
+
+    def __init__(self, backend: PolicyBackend, config: ServerConfig) -> None:
+        self.backend = backend
+        self.config = config
+        self.backend_name = str(getattr(backend, "name", type(backend).__name__))
+        self.status = LOADING
+        self.message = "loading the backend"
+        self.requests = 0
+        self._infer_lock = threading.Lock()
+        self._httpd: ThreadingHTTPServer | None = None
+        self._threads: list[threading.Thread] = []
+        self.ready = threading.Event()
+        """Set once the status leaves ``loading`` (ready or error)."""
+
+    # -- lifecycle ---
+    def start(self) -> InferenceServer:
+        """Bind (the port is known when this returns), serve, and load + warm up the backend."""
+        self._httpd = _make_httpd(self)
+        serve = threading.Thread(target=self._httpd.serve_forever, kwargs={"poll_interval": 0.1},
+                                 name="inference-server", daemon=True)
+        load = threading.Thread(target=self._load, name="inference-server-load", daemon=True)
+        self._threads = [serve, load]
+        serve.start()
+        load.start()
+        return self
+
+    @property
+    def port(self) -> int:
+        assert self._httpd is not None, "start() first"
+        return int(self._httpd.server_address[1])
+
+    @property
+    def url(self) -> str:
+        scheme = "https" if self.config.tls_cert else "http"
+        host = self.config.host
+        host = f"[{host}]" if ":" in host else host
+        return f"{scheme}://{host}:{self.port}"
+
+    def stop(self) -> None:
+        """Stop accepting, finish the requests in flight, close the socket. Idempotent."""
+        httpd, self._httpd = self._httpd, None
+        if httpd is None:
+            return
+        httpd.shutdown()
+        httpd.server_close()
+        close = getattr(self.backend, "close", None)
+        if callable(close):
+            close()
+
+    def _load(self) -> None:
+        started = time.monotonic()
+        try:
+            self.backend.load()
+            self.message = "warming up"
+            loaded = time.monotonic()
+            with self._infer_lock:
+                self.backend.warmup(self.config.warmup.request())
+            self.message = f"loaded in {loaded - started:.2f} s, warmup took {time.monotonic() - loaded:.2f} s"
+            self.status = READY
+            log.info("backend '%s' ready (%s)", self.backend_name, self.message)
+        except Exception as exc:
+            self.message = f"backend '{self.backend_name}' failed to load: {type(exc).__name__}: {exc}"
+            self.status = ERROR
+            log.error("%s", self.message)
+        finally:
+            self.ready.set()
+
+    # -- endpoints (pure of HTTP plumbing, so tests and the handler share them) ---
+    def health(self) -> Reply:
+        body = {"status": self.status, "backend": self.backend_name, "message": self.message}
+        return Reply(200, json.dumps(body).encode("utf-8"), self.status)
+
+    def authorized(self, header: str | None) -> bool:
+        """Is ``header`` ``Bearer <the key>``? Constant-time; always true with no key configured."""
+        if not self.config.key:
+            return True
+        scheme, _, token = (header or "").partition(" ")
+        if scheme.lower() != "bearer":
+            return False
+        return hmac.compare_digest(token.strip().encode("utf-8"), self.config.key.encode("utf-8"))
+
+    def infer(self, body: bytes) -> Reply:
+        """Decode, run the backend (one at a time), encode."""
+        if self.status != READY:
+            return _error(503, f"policy server is not ready: {self.message}" if self.status == ERROR
+                          else f"policy server is still loading ({self.message})")
+        try:
+            request = decode_request(body)
+        except WireError as exc:
+            return _error(400, f"bad request: {exc}")
+        with self._infer_lock:
+            self.requests += 1
+            try:
+                response = self.backend.infer(request)
+            except Exception as exc:
+                return _error(500, f"policy backend '{self.backend_name}' failed: {type(exc).__name__}: {exc}")
+        try:
+            return Reply(200, encode_response(response), getattr(response.status, "value", "?"))
+        except WireError as exc:
+            return _error(500, f"policy backend '{self.backend_name}' returned an invalid answer: {exc}")
+
+
+def _error(code: int, reason: str) -> Reply:
+    return Reply(code, error_body(reason), reason)
+
+
+class _Handler(BaseHTTPRequestHandler):
+    protocol_version = "HTTP/1.1"
+    timeout = SOCKET_TIMEOUT_S
+    server_version = "objective-inference/1"
+    app: InferenceServer  # set on the per-server subclass
+
+    def do_GET(self) -> None:  # noqa: N802 (http.server's naming)
+        started = time.monotonic()
+        if self.path.split("?", 1)[0] == "/health":
+            reply = self.app.health()
+        else:
+            reply = _error(404, f"no such endpoint {self.path!r} (GET /health, POST /infer)")
+        self._send(reply, started)
+
+    def do_POST(self) -> None:  # noqa: N802
+        started = time.monotonic()
+        length_text = self.headers.get("Content-Length")
+        length = int(length_text) if length_text is not None and length_text.strip().isdigit() else None
+        limit = self.app.config.max_body_bytes
+        if self.path.split("?", 1)[0] != "/infer":
+            return self._refuse(_error(404, f"no such endpoint {self.path!r} (GET /health, POST /infer)"), started, length)
+        if not self.app.authorized(self.headers.get("Authorization")):
+            return self._refuse(_error(401, "unauthorized: send Authorization: Bearer <key>"), started, length,
+                                authenticate=True)
+        if length is None:
+            return self._refuse(_error(411, "a Content-Length header is required"), started, None)
+        if length > limit:
+            reason = f"request body of {length} bytes exceeds the limit of {limit} bytes"
+            return self._refuse(_error(413, reason), started, length)
+        body = self.rfile.read(length)
+        if len(body) != length:
+            self.close_connection = True
+            return self._send(_error(400, f"request body ended after {len(body)} of {length} bytes"), started)
+        self._send(self.app.infer(body), started)
+
+    def _refuse(self, reply: Reply, started: float, length: int | None, authenticate: bool = False) -> None:
+        """Answer without using the body, then close the connection.
+
+        The unread body is drained first (at most ``2 * max_body_bytes``, for at most
+        ``DRAIN_S`` seconds): closing a socket with unread data makes the kernel send a reset,
+        which can destroy the answer before the client reads it, leaving it a bare "connection
+        reset" instead of the reason.
+        """
+        self.close_connection = True
+        self._send(reply, started, authenticate)
+        if not length:
+            return
+        budget = min(length, 2 * self.app.config.max_body_bytes)
+        deadline = time.monotonic() + DRAIN_S
+        try:
+            while budget > 0 and time.monotonic() < deadline:
+                self.connection.settimeout(max(0.01, deadline - time.monotonic()))
+                piece = self.rfile.read1(min(budget, 1 << 16))
+                if not piece:
+                    break
+                budget -= len(piece)
+        except OSError:
+            pass
+
+    def _send(self, reply: Reply, started: float, authenticate: bool = False) -> None:
+        self.send_response(reply.code)
+        self.send_header("Content-Type", CONTENT_TYPE)
+        self.send_header("Content-Length", str(len(reply.body)))
+        if authenticate:
+            self.send_header("WWW-Authenticate", "Bearer")
+        if self.close_connection:
+            self.send_header("Connection", "close")
+        self.end_headers()
+        self.wfile.write(reply.body)
+        latency_ms = (time.monotonic() - started) * 1000
+        log.info("%s %s %d %.1f ms %s", self.command, self.path, reply.code, latency_ms, reply.note[:160])
+
+    def log_message(self, format: str, *args: Any) -> None:  # noqa: A002 (http.server's signature)
+        """Silence http.server's own access log: ``_send`` logs one line per request."""
+
+    def log_error(self, format: str, *args: Any) -> None:  # noqa: A002
+        log.warning("%s: %s", self.address_string(), format % args)
+
+
+def _make_httpd(app: InferenceServer) -> ThreadingHTTPServer:
+    config = app.config
+    handler = type("InferenceHandler", (_Handler,), {"app": app})
+
+    class Server(ThreadingHTTPServer):
+        address_family = socket.AF_INET6 if ":" in config.host else socket.AF_INET
+        daemon_threads = True
+        allow_reuse_address = True
+
+    httpd = Server((config.host, config.port), handler)
+    if config.tls_cert is not None:
+        context = ssl.create_default_context(ssl.Purpose.CLIENT_AUTH)
+        context.load_cert_chain(str(config.tls_cert), str(config.tls_key))
+        if config.tls_client_ca is not None:
+            context.load_verify_locations(cafile=str(config.tls_client_ca))
+            context.verify_mode = ssl.CERT_REQUIRED
+        httpd.socket = context.wrap_socket(httpd.socket, server_side=True)
+    return httpd
+
+
+# --------------------------------------------------------------------------------------------
+# Backends by name
+# --------------------------------------------------------------------------------------------
+@dataclass
+class BackendOptions:
+    """What ``objective serve`` knows about the backend it should build."""
+
+    replay_file: Path | None = None
+    default_guidance: int = 0
+    """The server's RTC guidance width (``guidance_horizon`` 0 means this), for denoising backends."""
+
+
+def _replay(options: BackendOptions) -> PolicyBackend:
+    from .replay import ReplayBackend
+
+    if options.replay_file is None:
+        raise ValueError("--backend replay needs --replay-file FILE (chunks as JSON lines)")
+    if not options.replay_file.is_file():
+        raise ValueError(f"--replay-file {options.replay_file}: no such file")
+    return ReplayBackend(options.replay_file)
+
+
+def _oracle(options: BackendOptions) -> PolicyBackend:
+    from .oracle_remote import RemoteOracleBackend
+
+    return RemoteOracleBackend()
+
+
+BACKENDS: dict[str, Callable[[BackendOptions], PolicyBackend]] = {"oracle": _oracle, "replay": _replay}
+"""``--backend`` name -> factory. A new backend (LeRobot) adds itself here: one class with
+``load`` / ``warmup`` / ``infer``, nothing else about the server changes."""
+
+
+def make_backend(name: str, options: BackendOptions) -> PolicyBackend:
+    """The backend ``name`` built from ``options``; ValueError naming the known ones."""
+    factory = BACKENDS.get(name)
+    if factory is None:
+        raise ValueError(f"unknown backend {name!r} (known: {', '.join(sorted(BACKENDS))})")
+    return factory(options)
+
+
+def key_from_env(environ: dict[str, str] | None = None) -> str | None:
+    """The bearer key in ``POLICY_SERVER_KEY`` (None when unset or blank)."""
+    value = (os.environ if environ is None else environ).get(KEY_ENV, "").strip()
+    return value or None
+
+
+def stop_on_signals(stop: threading.Event) -> Callable[[], None]:
+    """Set ``stop`` on SIGINT/SIGTERM (main thread only); returns a function restoring the handlers.
+
+    Installed before rclpy's handlers (a backend or node that joins ROS 2 installs those), which
+    shut their contexts down and then call these.
+    """
+    if threading.current_thread() is not threading.main_thread():
+        return lambda: None
+    previous = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM)}
+    for sig in previous:
+        signal.signal(sig, lambda signum, frame: stop.set())
+
+    def restore() -> None:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+
+    return restore
+
+
+def serve_forever(server: InferenceServer, stop: threading.Event) -> None:
+    """Run ``server`` until ``stop`` is set (the CLI sets it on SIGINT/SIGTERM), then stop it."""
+    server.start()
+    print(f"listening on {server.url}", flush=True)
+    if server.config.host not in ("127.0.0.1", "localhost", "::1") and not server.config.tls_cert:
+        log.warning("serving plain HTTP on %s: the bearer key travels in cleartext; use TLS or a private network",
+                    server.config.host)
+    try:
+        while not stop.wait(0.2):
+            pass
+    finally:
+        server.stop()
+        log.info("stopped after %d inference requests", server.requests)

@@ -1,0 +1,529 @@
+"""The HTTP inference server: health lifecycle, bearer key, 400/413/503/500 answers, the wire format,
+the `objective serve` process, and the oracle backend's privileged view over ROS 2."""
+from __future__ import annotations
+
+import base64
+import http.client
+import json
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from sim.policy.backend import PolicyRequest, PolicyResponse, PolicyStatus
+from sim.policy.replay import RecordedChunk, write_replay
+from sim.policy.server import (
+    CELL_JOINTS,
+    KEY_ENV,
+    InferenceServer,
+    ServerConfig,
+    WarmupSpec,
+    execution_horizon,
+    parse_warmup_images,
+)
+from sim.policy.wire import (
+    WireError,
+    decode_request,
+    decode_response,
+    encode_array,
+    encode_request,
+    encode_response,
+)
+
+pytestmark = pytest.mark.timeout(60)
+
+KEY = "test-key-0123456789"
+ROOT = Path(__file__).resolve().parents[1]
+
+
+class FakeBackend:
+    """Loads when ``release`` is set; answers ``answer`` (a response, an exception, or a function)."""
+
+    name = "fake"
+
+    def __init__(self, answer=None, gated: bool = False, load_error: Exception | None = None):
+        self.answer = answer
+        self.release = threading.Event()
+        if not gated:
+            self.release.set()
+        self.load_error = load_error
+        self.warmups: list[PolicyRequest] = []
+        self.requests: list[PolicyRequest] = []
+
+    def load(self):
+        assert self.release.wait(10), "test never released the load"
+        if self.load_error:
+            raise self.load_error
+
+    def warmup(self, example_request):
+        self.warmups.append(example_request)
+
+    def infer(self, request):
+        self.requests.append(request)
+        if isinstance(self.answer, Exception):
+            raise self.answer
+        if callable(self.answer):
+            return self.answer(request)
+        return self.answer
+
+
+def chunk_answer(request: PolicyRequest) -> PolicyResponse:
+    steps = 4
+    return PolicyResponse.chunk(np.tile(request.joint_positions, (steps, 1)) + 0.01, 0.1)
+
+
+def observation(**fields) -> PolicyRequest:
+    values = dict(
+        prompt="stack the red cube on the blue cube",
+        joint_names=list(CELL_JOINTS),
+        joint_positions=np.linspace(-1, 1, len(CELL_JOINTS)),
+        images={"scene": np.arange(8 * 6 * 3, dtype=np.uint8).reshape(8, 6, 3)},
+        new_episode=True,
+        stamp=12.5,
+    )
+    values.update(fields)
+    return PolicyRequest(**values)
+
+
+@pytest.fixture
+def serve():
+    """Start servers on 127.0.0.1 with a free port; every one is stopped at the end."""
+    started: list[InferenceServer] = []
+
+    def start(backend, wait_ready: bool = True, **config) -> InferenceServer:
+        config.setdefault("key", KEY)
+        server = InferenceServer(backend, ServerConfig(host="127.0.0.1", port=0, **config)).start()
+        started.append(server)
+        if wait_ready:
+            assert server.ready.wait(10), "server never finished loading"
+        return server
+
+    yield start
+    for server in started:
+        server.stop()
+
+
+def call(server: InferenceServer, method: str, path: str, body: bytes | None = None, key: str | None = KEY,
+         headers: dict | None = None) -> tuple[int, dict, dict]:
+    conn = http.client.HTTPConnection("127.0.0.1", server.port, timeout=5)
+    try:
+        all_headers = dict(headers or {})
+        if key is not None:
+            all_headers["Authorization"] = f"Bearer {key}"
+        conn.request(method, path, body=body, headers=all_headers)
+        response = conn.getresponse()
+        payload = response.read()
+        return response.status, json.loads(payload), dict(response.getheaders())
+    finally:
+        conn.close()
+
+
+# --------------------------------------------------------------------------------------------
+# Health and loading
+# --------------------------------------------------------------------------------------------
+def test_health_goes_loading_then_ready_after_a_full_size_warmup(serve):
+    backend = FakeBackend(chunk_answer, gated=True)
+    server = serve(backend, wait_ready=False, warmup=WarmupSpec(images=(("scene", 224, 224), ("wrist", 120, 160))))
+
+    code, health, _ = call(server, "GET", "/health", key=None)
+    assert (code, health["status"], health["backend"]) == (200, "loading", "fake")
+    code, body, _ = call(server, "POST", "/infer", encode_request(observation()))
+    assert code == 503
+    assert body["error"].startswith("policy server is still loading")
+    assert backend.requests == []
+
+    backend.release.set()
+    assert server.ready.wait(5)
+    code, health, _ = call(server, "GET", "/health", key=None)
+    assert (code, health["status"]) == (200, "ready")
+    assert "warmup took" in health["message"]
+    [example] = backend.warmups
+    assert example.joint_names == list(CELL_JOINTS)
+    assert {name: image.shape for name, image in example.images.items()} == {"scene": (224, 224, 3), "wrist": (120, 160, 3)}
+    assert example.new_episode
+
+
+def test_load_failure_reports_error_and_infer_answers_503_with_the_reason(serve):
+    server = serve(FakeBackend(load_error=FileNotFoundError("checkpoint.safetensors")))
+    code, health, _ = call(server, "GET", "/health", key=None)
+    assert health["status"] == "error"
+    assert health["message"] == "backend 'fake' failed to load: FileNotFoundError: checkpoint.safetensors"
+    code, body, _ = call(server, "POST", "/infer", encode_request(observation()))
+    assert code == 503
+    assert body["error"] == "policy server is not ready: backend 'fake' failed to load: FileNotFoundError: checkpoint.safetensors"
+
+
+def test_health_answers_while_an_inference_runs():
+    gate = threading.Event()
+
+    def slow(request):
+        gate.wait(5)
+        return chunk_answer(request)
+
+    server = InferenceServer(FakeBackend(slow), ServerConfig(key=KEY)).start()
+    try:
+        assert server.ready.wait(5)
+        worker = threading.Thread(target=call, args=(server, "POST", "/infer", encode_request(observation())))
+        worker.start()
+        started = time.monotonic()
+        code, health, _ = call(server, "GET", "/health", key=None)
+        assert (code, health["status"]) == (200, "ready")
+        assert time.monotonic() - started < 1.0
+        gate.set()
+        worker.join(5)
+    finally:
+        gate.set()
+        server.stop()
+
+
+def test_warmup_images_option_is_parsed_with_clear_errors():
+    assert parse_warmup_images("scene=224x224; wrist=480x640") == (("scene", 224, 224), ("wrist", 480, 640))
+    with pytest.raises(ValueError, match="warmup image 'scene=224': expected name=HEIGHTxWIDTH"):
+        parse_warmup_images("scene=224")
+
+
+# --------------------------------------------------------------------------------------------
+# Bearer key
+# --------------------------------------------------------------------------------------------
+@pytest.mark.parametrize("key, headers", [
+    (None, {}),
+    ("wrong-key", {}),
+    (KEY[:-1], {}),
+    (None, {"Authorization": f"Basic {KEY}"}),
+    (None, {"Authorization": KEY}),
+])
+def test_infer_without_the_right_key_is_401_and_says_nothing_about_the_key(serve, key, headers):
+    backend = FakeBackend(chunk_answer)
+    server = serve(backend)
+    code, body, response_headers = call(server, "POST", "/infer", encode_request(observation()), key=key, headers=headers)
+    assert code == 401
+    assert body == {"error": "unauthorized: send Authorization: Bearer <key>"}
+    assert response_headers["WWW-Authenticate"] == "Bearer"
+    assert backend.requests == []
+
+
+def test_the_right_key_is_served(serve):
+    backend = FakeBackend(chunk_answer)
+    server = serve(backend)
+    code, body, _ = call(server, "POST", "/infer", encode_request(observation()))
+    assert code == 200
+    answer = decode_response(json.dumps(body).encode())
+    assert answer.status is PolicyStatus.CHUNK
+    assert answer.actions.shape == (4, len(CELL_JOINTS))
+    assert len(backend.requests) == 1
+
+
+def test_server_refuses_to_start_without_a_key():
+    with pytest.raises(ValueError, match=f"no bearer key: set {KEY_ENV} .* or pass --insecure-no-key"):
+        ServerConfig(key=None)
+
+
+def test_insecure_no_key_serves_anyone(serve):
+    server = serve(FakeBackend(chunk_answer), key=None, insecure_no_key=True)
+    code, _, _ = call(server, "POST", "/infer", encode_request(observation()), key=None)
+    assert code == 200
+
+
+# --------------------------------------------------------------------------------------------
+# Bad requests, size limit, model errors
+# --------------------------------------------------------------------------------------------
+def _request_json(**changes) -> bytes:
+    obj = json.loads(encode_request(observation()))
+    obj.update(changes)
+    return json.dumps(obj).encode()
+
+
+@pytest.mark.parametrize("body, reason", [
+    (b"{not json", "bad request: request body is not valid JSON"),
+    (b"[1, 2]", "bad request: request body must be a JSON object"),
+    (_request_json(version=2), "bad request: request 'version' must be 1, got 2"),
+    (_request_json(temperature=0.5), "bad request: request has unknown fields: temperature"),
+    (_request_json(joint_positions=encode_array(np.zeros(3))),
+     "bad request: 'joint_positions' has shape [3], expected [7] (one per joint name)"),
+    (_request_json(images=[{"dtype": "uint8", "shape": [8, 6, 3], "data": base64.b64encode(b"abc").decode()}]),
+     "bad request: 'images[scene]' has 3 bytes of data, expected 144 for shape [8, 6, 3] of uint8"),
+    (_request_json(images=[encode_array(np.zeros((8, 6), dtype=np.uint8))]),
+     "bad request: 'images[scene]' must be a non-empty H x W x 3 RGB frame, got shape [8, 6]"),
+    (_request_json(image_names=["scene", "wrist"]),
+     "bad request: 'images' must be a list index-aligned with 'image_names': 1 images for 2 names"),
+    (_request_json(frozen_prefix_steps=-1), "bad request: 'frozen_prefix_steps' must be an integer in [0, 2^32), got -1"),
+    (_request_json(joint_positions=encode_array(np.array([np.nan] * 7))), "bad request: 'joint_positions' has non-finite values"),
+])
+def test_bad_request_shapes_are_400_with_the_reason(serve, body, reason):
+    backend = FakeBackend(chunk_answer)
+    server = serve(backend)
+    code, answer, _ = call(server, "POST", "/infer", body)
+    assert code == 400
+    assert answer["error"].startswith(reason), answer["error"]
+    assert backend.requests == []
+
+
+def test_body_above_the_limit_is_413_before_it_is_read(serve):
+    backend = FakeBackend(chunk_answer)
+    server = serve(backend, max_body_bytes=4096)
+    body = encode_request(observation(images={"scene": np.zeros((64, 64, 3), dtype=np.uint8)}))
+    assert len(body) > 4096
+    code, answer, _ = call(server, "POST", "/infer", body)
+    assert code == 413
+    assert answer["error"] == f"request body of {len(body)} bytes exceeds the limit of 4096 bytes"
+    assert backend.requests == []
+
+
+def test_missing_content_length_is_411(serve):
+    server = serve(FakeBackend(chunk_answer))
+    conn = http.client.HTTPConnection("127.0.0.1", server.port, timeout=5)
+    try:
+        conn.putrequest("POST", "/infer")
+        conn.putheader("Authorization", f"Bearer {KEY}")
+        conn.endheaders()
+        response = conn.getresponse()
+        assert response.status == 411
+        assert json.loads(response.read())["error"] == "a Content-Length header is required"
+    finally:
+        conn.close()
+
+
+def test_backend_exception_is_500_with_its_message(serve):
+    server = serve(FakeBackend(RuntimeError("CUDA out of memory")))
+    code, body, _ = call(server, "POST", "/infer", encode_request(observation()))
+    assert code == 500
+    assert body["error"] == "policy backend 'fake' failed: RuntimeError: CUDA out of memory"
+
+
+def test_backend_error_answer_is_a_200_error_status(serve):
+    server = serve(FakeBackend(PolicyResponse.error("cannot read the prompt")))
+    code, body, _ = call(server, "POST", "/infer", encode_request(observation()))
+    assert code == 200
+    assert (body["status"], body["message"], body["actions"]) == ("error", "cannot read the prompt", None)
+
+
+def test_unknown_path_is_404(serve):
+    server = serve(FakeBackend(chunk_answer))
+    assert call(server, "GET", "/metrics", key=None)[0] == 404
+    assert call(server, "POST", "/predict", b"{}")[0] == 404
+
+
+def test_one_inference_at_a_time():
+    active, most = [0], [0]
+    lock = threading.Lock()
+
+    def counting(request):
+        with lock:
+            active[0] += 1
+            most[0] = max(most[0], active[0])
+        time.sleep(0.05)
+        with lock:
+            active[0] -= 1
+        return chunk_answer(request)
+
+    server = InferenceServer(FakeBackend(counting), ServerConfig(key=KEY)).start()
+    try:
+        assert server.ready.wait(5)
+        workers = [threading.Thread(target=call, args=(server, "POST", "/infer", encode_request(observation())))
+                   for _ in range(4)]
+        for w in workers:
+            w.start()
+        for w in workers:
+            w.join(10)
+        assert most[0] == 1
+        assert server.requests == 4
+    finally:
+        server.stop()
+
+
+# --------------------------------------------------------------------------------------------
+# Wire format
+# --------------------------------------------------------------------------------------------
+def test_request_round_trip_is_exact_and_images_are_lossless():
+    rng = np.random.default_rng(3)
+    request = observation(
+        images={"scene": rng.integers(0, 256, (48, 64, 3), dtype=np.uint8), "wrist": rng.integers(0, 256, (5, 7, 3), dtype=np.uint8)},
+        previous_action_chunk=rng.normal(size=(20, 9)),
+        previous_anchor_positions=rng.normal(size=7),
+        frozen_prefix_steps=6,
+        guidance_horizon=10,
+        new_episode=False,
+        stamp=123.456789,
+    )
+    decoded = decode_request(encode_request(request))
+    assert list(decoded.images) == ["scene", "wrist"]
+    for name in request.images:
+        assert np.array_equal(decoded.images[name], request.images[name])
+    assert np.array_equal(decoded.joint_positions, request.joint_positions)
+    assert np.array_equal(decoded.previous_action_chunk, request.previous_action_chunk)
+    assert np.array_equal(decoded.previous_anchor_positions, request.previous_anchor_positions)
+    assert (decoded.prompt, decoded.joint_names, decoded.new_episode) == (request.prompt, request.joint_names, False)
+    assert (decoded.frozen_prefix_steps, decoded.guidance_horizon, decoded.stamp) == (6, 10, 123.456789)
+
+
+def test_response_round_trip_and_strictness():
+    actions, policy = np.random.default_rng(1).normal(size=(50, 7)), np.random.default_rng(2).normal(size=(50, 32))
+    decoded = decode_response(encode_response(PolicyResponse.chunk(actions, 0.1, policy, "ok")))
+    assert decoded.status is PolicyStatus.CHUNK and decoded.message == "ok"
+    assert np.array_equal(decoded.actions, actions) and np.array_equal(decoded.policy_actions, policy)
+    assert decoded.native_control_period == 0.1
+    assert decode_response(encode_response(PolicyResponse.no_more_actions("end"))).status is PolicyStatus.NO_MORE_ACTIONS
+    with pytest.raises(WireError, match="'actions' is null in a chunk answer"):
+        decode_response(json.dumps({"version": 1, "status": "chunk", "message": "", "actions": None,
+                                    "native_control_period": 0.1, "policy_actions": None}).encode())
+    with pytest.raises(WireError, match="'status' must be one of chunk, no_more_actions, error, got 'done'"):
+        decode_response(json.dumps({"version": 1, "status": "done", "message": "", "actions": None,
+                                    "native_control_period": 0.0, "policy_actions": None}).encode())
+
+
+def test_nothing_on_the_wire_is_pickle():
+    source = "".join((ROOT / "sim" / "policy" / f).read_text() for f in ("wire.py", "server.py", "http_client.py", "node.py"))
+    assert "pickle" not in source.replace("no pickle", "").replace("No pickle", "").replace("not pickle", "").replace("and not pickle", "")
+
+
+@pytest.mark.parametrize("frozen, guidance, default, expected", [(5, 0, 10, 15), (5, 3, 10, 8), (0, 0, 10, 10), (7, 20, 0, 27)])
+def test_guidance_horizon_converts_to_execution_horizon(frozen, guidance, default, expected):
+    assert execution_horizon(frozen, guidance, default) == expected
+
+
+# --------------------------------------------------------------------------------------------
+# `objective serve` as a process
+# --------------------------------------------------------------------------------------------
+def _objective(*args: str, env: dict | None = None) -> subprocess.Popen:
+    return subprocess.Popen([sys.executable, "-m", "runtime.cli", *args], cwd=ROOT, env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+
+def test_serve_refuses_to_start_without_a_key(tmp_path):
+    env = {k: v for k, v in os.environ.items() if k != KEY_ENV}
+    replay = tmp_path / "r.jsonl"
+    write_replay(replay, [RecordedChunk(list(CELL_JOINTS), np.zeros((3, 7)), 0.1)])
+    proc = _objective("serve", "--backend", "replay", "--replay-file", str(replay), env=env)
+    try:
+        out, err = proc.communicate(timeout=30)
+    finally:
+        proc.kill()
+    assert proc.returncode == 2
+    assert f"error: no bearer key: set {KEY_ENV}" in err
+    assert "listening" not in out
+
+
+def test_serve_process_reports_its_port_serves_and_stops_on_sigterm(tmp_path):
+    replay = tmp_path / "r.jsonl"
+    write_replay(replay, [RecordedChunk(list(CELL_JOINTS), np.full((3, 7), 0.2), 0.1)])
+    proc = _objective("serve", "--backend", "replay", "--replay-file", str(replay), "--port", "0",
+                      env={**os.environ, KEY_ENV: KEY})
+    try:
+        line = proc.stdout.readline()
+        assert line.startswith("listening on http://127.0.0.1:"), line
+        port = int(line.rsplit(":", 1)[1])
+        conn = http.client.HTTPConnection("127.0.0.1", port, timeout=5)
+        deadline = time.monotonic() + 10
+        while True:
+            conn.request("GET", "/health")
+            health = json.loads(conn.getresponse().read())
+            if health["status"] != "loading" or time.monotonic() > deadline:
+                break
+            time.sleep(0.05)
+        assert health["status"] == "ready"
+        conn.request("POST", "/infer", body=encode_request(observation()), headers={"Authorization": f"Bearer {KEY}"})
+        response = conn.getresponse()
+        answer = decode_response(response.read())
+        conn.close()
+        assert response.status == 200 and np.allclose(answer.actions, 0.2)
+        proc.send_signal(signal.SIGTERM)
+        assert proc.wait(timeout=10) == 0
+        err = proc.stderr.read()
+        assert "POST /infer 200" in err
+        assert "stopped after 1 inference requests" in err
+    finally:
+        proc.kill()
+        proc.wait()
+
+
+# --------------------------------------------------------------------------------------------
+# The oracle backend in its own process: cube poses over ROS 2, time from the request stamp
+# --------------------------------------------------------------------------------------------
+@pytest.mark.ros
+def test_remote_oracle_answers_what_the_embedded_oracle_answers():
+    from runtime.clock import WallClock
+    from runtime.ros import RosBus
+    from geometry_msgs.msg import TransformStamped
+    from sim.layouts import layout
+    from sim.planning import CUBE_SIZE
+    from sim.policy.oracle import OracleBackend, SceneKinematics
+    from sim.policy.oracle_remote import CUBE_POSE_TOPIC, RemoteOracleBackend, cube_pose_msg
+    from sim.robot_model import ARM_JOINTS, load_waypoints, planning_robot_model
+
+    cubes = {c: (np.array([x, y, CUBE_SIZE / 2]), np.array([np.cos(yaw / 2), 0, 0, np.sin(yaw / 2)]))
+             for c, (x, y, yaw) in layout(0).items()}
+    ready = load_waypoints()["Ready"]
+    request = observation(joint_positions=np.array([ready[j] for j in ARM_JOINTS] + [0.0]), stamp=3.25)
+    robot = planning_robot_model()
+
+    class Peek:
+        kinematics = SceneKinematics(robot)
+
+        def cube_pose(self, color):
+            return cubes[color]
+
+        def time(self):
+            return 3.25
+
+    expected = OracleBackend(Peek()).infer(request)
+    world = RosBus(WallClock(), node_name="fake_world")
+    remote = RemoteOracleBackend(robot=robot, wait_s=5.0)
+    try:
+        for color, (pos, quat) in cubes.items():
+            world.create_lazy_publisher(CUBE_POSE_TOPIC.format(color=color), TransformStamped,
+                                        lambda c=color: cube_pose_msg(c, *cubes[c], 3.0), rate_hz=50.0)
+        remote.load()
+        answer = remote.infer(request)
+    finally:
+        remote.close()
+        world.close()
+    assert answer.status is PolicyStatus.CHUNK, answer.message
+    assert answer.actions.shape == (50, 7)
+    assert np.allclose(answer.actions, expected.actions, atol=1e-9)
+
+
+@pytest.mark.ros
+def test_remote_oracle_without_cube_poses_answers_error_naming_the_topics():
+    from sim.policy.oracle_remote import RemoteOracleBackend
+    from sim.robot_model import planning_robot_model
+
+    remote = RemoteOracleBackend(robot=planning_robot_model(), wait_s=0.2, node_name="lonely_oracle")
+    try:
+        remote.load()
+        answer = remote.infer(observation())
+    finally:
+        remote.close()
+    assert answer.status is PolicyStatus.ERROR
+    assert answer.message.startswith(
+        "the oracle has no cube pose on /cube_poses/cube_red, /cube_poses/cube_green, /cube_poses/cube_blue after 0.2 s"
+    )
+
+
+def test_kinematic_world_publishes_cube_poses_for_the_remote_oracle():
+    from runtime.behavior import RunContext
+    from runtime.bus import InProcessBus
+    from runtime.clock import SimClock
+    from runtime.events import EventLog
+    from geometry_msgs.msg import TransformStamped
+    from sim.kinematic import KinematicWorld
+    from sim.policy.oracle_remote import pose_from_msg
+
+    clock = SimClock()
+    bus = InProcessBus(clock)
+    context = RunContext(clock=clock, bus=bus, events=EventLog(clock))
+    world = KinematicWorld({"policy": "none"})
+    world.start(context)
+    world.step_to(0.5)
+    sub = bus.create_subscription("/cube_poses/cube_red", TransformStamped)
+    msg = sub.latest
+    assert (msg.header.frame_id, msg.child_frame_id) == ("world", "cube_red")
+    assert msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9 == pytest.approx(0.5)
+    position, quat = pose_from_msg(msg)
+    expected_position, expected_quat = world.cell.cube_pose("red")
+    assert np.allclose(position, expected_position) and np.allclose(quat, expected_quat)
