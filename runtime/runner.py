@@ -55,6 +55,15 @@ class RunOptions:
     """Latency model of policy service calls (``runtime.bus.parse_latency`` syntax), for the world."""
     record_dir: Path | None = None
     world_options: dict[str, Any] = field(default_factory=dict)
+    ros: bool = False
+    """Run on real ROS 2 (``runtime.ros.run``): a RosBus node, paced by a WallClock (implies
+    ``realtime``); the world serves no policy of its own unless ``world_options`` names one."""
+    ros_node_name: str = "objective_runtime"
+
+    @property
+    def paced(self) -> bool:
+        """True when the run follows wall-clock time (``--realtime``, or ``--ros``)."""
+        return self.realtime or self.ros
 
     def check(self) -> None:
         """Raise ObjectiveError for options that cannot work (before anything starts)."""
@@ -70,6 +79,10 @@ class RunOptions:
         for name in self.sets:
             if not name or name.strip() != name:
                 raise ObjectiveError(f"--set needs name=value with a non-empty name, got {name!r}")
+        if self.ros and self.policy_latency is not None:
+            raise ObjectiveError(
+                "--policy-latency models latency on the in-process bus; with --ros the policy's latency is real"
+            )
 
 
 @dataclass
@@ -106,7 +119,12 @@ class RunResult:
 
 
 def make_context(options: RunOptions) -> RunContext:
-    """Clock, in-process bus and event log for one run."""
+    """Clock, bus and event log for one run: in-process, or a RosBus node with ``options.ros``."""
+    if options.ros:
+        from .ros.run import make_ros_bus  # rclpy is imported only for ROS runs
+
+        wall = WallClock()
+        return RunContext(clock=wall, bus=make_ros_bus(wall, options.ros_node_name), events=EventLog(wall), seed=options.seed)
     clock = WallClock() if options.realtime else SimClock()
     bus = InProcessBus(clock)
     return RunContext(clock=clock, bus=bus, events=EventLog(clock), seed=options.seed)
@@ -194,9 +212,33 @@ def tick_once(root: py_trees.behaviour.Behaviour, context: RunContext) -> tuple[
             return result, visited
 
 
-def _halt(root: py_trees.behaviour.Behaviour) -> None:
+def _halt(root: py_trees.behaviour.Behaviour) -> bool:
+    """Halt the RUNNING branch; True when something was running."""
     if any(node.status is Status.RUNNING for node in root.iterate()):
         root.stop(Status.INVALID)
+        return True
+    return False
+
+
+@dataclass
+class Pacing:
+    """How well a wall-clock run kept its tick rate: ticks whose work took longer than a period.
+
+    The clock never makes up for lost ticks (``WallClock.advance``), so a late tick only delays
+    that tick; these numbers say whether the world or the tree was too slow for real time.
+    """
+
+    period: float
+    late_ticks: int = 0
+    worst_tick_s: float = 0.0
+
+    def record(self, seconds: float) -> None:
+        self.worst_tick_s = max(self.worst_tick_s, seconds)
+        if seconds > self.period:
+            self.late_ticks += 1
+
+    def as_dict(self) -> dict[str, Any]:
+        return {"late_ticks": self.late_ticks, "worst_tick_s": round(self.worst_tick_s, 4), "period_s": self.period}
 
 
 def run_tree(
@@ -220,11 +262,13 @@ def run_tree(
     if world is None and any(getattr(type(n), "needs_world", False) for n in nodes):
         world_options = {
             "seed": options.seed,
-            "realtime": options.realtime,
+            "realtime": options.paced,
             "policy_latency": options.policy_latency,
             "record_dir": options.record_dir,
             **options.world_options,
         }
+        if options.ros:  # the policy comes from the ROS graph (an adapter), not from the world
+            world_options.setdefault("policy", "none")
         world = create_world(options.world or DEFAULT_WORLD, world_options)
     period = 1.0 / options.tick_hz
     clock, bus = context.clock, context.bus
@@ -232,6 +276,7 @@ def run_tree(
     blame: tuple[py_trees.behaviour.Behaviour, str] | None = None
     status = Status.INVALID
     timed_out = False
+    pacing = Pacing(period) if options.paced else None
     wall_start = time.monotonic()
     try:
         if world is not None:
@@ -248,11 +293,14 @@ def run_tree(
                 timed_out = True
                 break
             clock.advance(period)
+            tick_start = time.monotonic()
             if world is not None:
                 world.step_to(clock.now())
             bus.spin_once()
             status, visited = tick_once(root, context)
             ticks += 1
+            if pacing is not None:
+                pacing.record(time.monotonic() - tick_start)
             if progress is not None:
                 tip = root.tip()
                 progress(clock.now(), ticks, tip.name if tip is not None else "")
@@ -269,7 +317,10 @@ def run_tree(
     finally:
         summary_world = None
         try:
-            _halt(root)
+            if _halt(root) and options.ros:
+                from .ros.run import deliver_pending
+
+                deliver_pending(bus)  # let the cancels of a halted run reach the graph
         finally:
             try:
                 if world is not None:
@@ -288,6 +339,8 @@ def run_tree(
             extra.update(summarise() or {})
     if summary_world:
         extra["world"] = summary_world
+    if pacing is not None:
+        extra["pacing"] = pacing.as_dict()
 
     failing_node = reason = location = None
     if blame is not None:

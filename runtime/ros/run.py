@@ -1,0 +1,83 @@
+"""``objective run --ros``: the runtime as a node on a real ROS 2 graph.
+
+In ROS mode the run's bus is a ``RosBus`` and its clock a ``WallClock``: every service, action
+and topic the behaviors use, and every one the hosted world (the simulated cell) serves, is a
+real ROS 2 endpoint of one node (``/objective_runtime`` by default). A policy adapter, an
+inference server or a real controller in another process is then reached exactly as the
+in-process ones are in a headless run.
+
+Why these choices:
+- ``WallClock``: the other processes on the graph live in real time (their timeouts, ROS
+  timers, a policy's latency), so simulated time that runs ahead of the wall would make every
+  answer look instant and every timeout meaningless. ``--ros`` therefore implies ``--realtime``.
+- ``serve_in_spin_once=True``: the hosted world's servers (simulated controllers, the controller
+  manager, camera frames) share state with the world, which the runner steps on its own thread
+  (and MuJoCo renders on the thread that owns its GL context). Their callbacks therefore wait
+  for the runner's ``bus.spin_once()`` once per tick instead of running on rclpy's threads.
+- SIGTERM is turned into ``KeyboardInterrupt`` while the run lasts, so a process manager (or a
+  test) that stops the runner gets the same clean end as Ctrl-C: the tree is halted (goals
+  cancelled, the robot stopped), the world closed and the node destroyed.
+"""
+from __future__ import annotations
+
+import contextlib
+import os
+import signal
+import threading
+import time
+from typing import Any, Iterator
+
+from runtime.clock import WallClock
+
+DEFAULT_NODE_NAME = "objective_runtime"
+HALT_GRACE_S = 0.25
+"""Wall time the runner keeps serving after halting a tree, so cancel requests leave the node
+(and hosted controllers, which serve in ``spin_once``, act on them) before it is destroyed."""
+EXECUTOR_THREADS = 12
+"""Executor threads of the runner's node. Each active action goal holds one (the controller's
+trajectory goal and the gripper goal, from both the client and the server side, since the hosted
+controllers live on the same node); the rest deliver replies, frames and discovery."""
+
+
+def make_ros_bus(clock: WallClock, node_name: str = DEFAULT_NODE_NAME) -> Any:
+    """The runner's ``RosBus``: server callbacks run in ``spin_once`` on the runner thread."""
+    from runtime.ros.bus import RosBus  # rclpy is imported only for ROS runs
+
+    return RosBus(clock, node_name=node_name, serve_in_spin_once=True, num_threads=EXECUTOR_THREADS)
+
+
+def graph_description(node_name: str = DEFAULT_NODE_NAME) -> str:
+    """One line saying where the run lives on ROS 2, for the start-up log."""
+    domain = os.environ.get("ROS_DOMAIN_ID", "0")
+    scope = os.environ.get("ROS_AUTOMATIC_DISCOVERY_RANGE", "SUBNET (ROS default)")
+    return f"on ROS 2 as node /{node_name} (ROS_DOMAIN_ID={domain}, ROS_AUTOMATIC_DISCOVERY_RANGE={scope})"
+
+
+def deliver_pending(bus: Any, seconds: float = HALT_GRACE_S) -> None:
+    """Keep spinning ``bus`` for ``seconds`` of wall time (after a halt, before closing)."""
+    deadline = time.monotonic() + seconds
+    while True:
+        bus.spin_once()
+        if time.monotonic() >= deadline:
+            return
+        time.sleep(0.01)
+
+
+@contextlib.contextmanager
+def sigterm_as_interrupt() -> Iterator[None]:
+    """While inside, SIGTERM raises ``KeyboardInterrupt`` in the main thread (as SIGINT does).
+
+    Outside the main thread Python cannot install signal handlers; then nothing changes.
+    """
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def interrupt(signum: int, frame: Any) -> None:
+        raise KeyboardInterrupt(f"signal {signum}")
+
+    previous = signal.signal(signal.SIGTERM, interrupt)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
