@@ -2,6 +2,8 @@
 
 ``oracle`` (default): the scripted cube-stacking oracle, peeking at the cell.
 ``replay:FILE``: the chunks recorded in FILE (JSON lines), then NO_MORE_ACTIONS.
+``lerobot:DIR``: the LeRobot checkpoint in DIR (``sim.policy.lerobot_backend``; needs ``make lerobot``),
+warmed up with a synthetic full-size observation when loaded.
 ``none``: serve nothing (a policy comes from elsewhere, or a test serves its own).
 """
 from __future__ import annotations
@@ -32,6 +34,13 @@ def make_backend(spec: str | None, cell: Any) -> Any:
         if not path.is_file():
             raise ValueError(f"policy 'replay:{path}': no such file")
         return ReplayBackend(path)
+    if spec.startswith("lerobot:"):
+        from .lerobot_backend import make_lerobot_backend
+
+        path = Path(spec.split(":", 1)[1])
+        if not path.is_dir():
+            raise ValueError(f"policy 'lerobot:{path}': no such checkpoint directory")
+        return make_lerobot_backend(path, warmup_on_load=True)
     raise ValueError(f"unknown policy '{spec}' (expected {POLICY_SPECS})")
 
 

@@ -1,0 +1,542 @@
+"""LeRobot backend: a local LeRobot checkpoint behind the GetActionChunk contract, with RTC.
+
+Serve your own checkpoint with ``make_lerobot_backend(DIR)`` (the HTTP server's ``--backend lerobot
+--checkpoint DIR``, or ``--policy lerobot:DIR`` embedded in a headless world). ``DIR`` is what
+LeRobot's ``save_pretrained`` writes (``config.json``, ``model.safetensors``,
+``policy_preprocessor.json`` / ``policy_postprocessor.json`` with their normalization stats), or a
+training output folder holding it under ``pretrained_model/``. Nothing is downloaded:
+``HF_HUB_OFFLINE=1`` is set before LeRobot is imported, so a checkpoint that names a hub backbone
+fails at load with the hub's offline error instead of hanging on the network.
+
+Per request (``infer``):
+
+1. **Cameras.** Each request image name is mapped to one of the checkpoint's camera features
+   (``observation.images.<name>``); see :func:`map_cameras`. Any mismatch is refused with both
+   lists named, because a camera fed into the wrong slot fails silently otherwise.
+2. **Frames** arrive H x W x 3 uint8 RGB (the adapters convert ``bgr8``/``mono8``; a transport
+   that hands raw BGR sets ``image_encoding="bgr8"``), become float CHW in [0, 1] and are resized
+   to the feature's size.
+3. **State** is reordered from the request's ``joint_names`` into the checkpoint's joint order
+   (``objective_policy.json``'s ``joint_names``, else the request order); the preprocessor
+   normalizes it and tokenizes the prompt.
+4. **RTC.** When the policy has a denoising loop that LeRobot can guide (SmolVLA, pi0, pi0.5) RTC
+   is enabled in the config *before* the policy is built (otherwise LeRobot silently ignores the
+   arguments), and a request carrying ``previous_action_chunk`` calls
+   ``predict_action_chunk(batch, inference_delay=frozen_prefix_steps,
+   prev_chunk_left_over=<that tail>, execution_horizon=...)`` with the guide's conversion
+   (:func:`execution_horizon`).
+5. **Answer.** The postprocessor denormalizes; the absolute chunk goes back in the request's joint
+   order, and the raw normalized chunk as ``policy_actions`` (only for RTC-capable policies: the
+   caller echoes its tail back as the next ``previous_action_chunk``).
+
+``warmup`` runs one full-size inference (twice: the first pays for lazy initialisation) so the
+server reports ready with steady latency. When the steady latency exceeds half the committed
+window (``committed_window`` seconds) a warning is logged: ExecutePolicy would then spend most of
+every window waiting for the next chunk.
+
+The pure functions here (:func:`execution_horizon`, :func:`map_cameras`, :func:`frame_to_rgb`,
+:func:`joint_order`, :class:`LatencyMonitor`) import neither torch nor LeRobot.
+"""
+from __future__ import annotations
+
+import json
+import logging
+import statistics
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Mapping, Sequence
+
+import numpy as np
+
+from .backend import PolicyRequest, PolicyResponse
+
+LOG = logging.getLogger("objective.policy.lerobot")
+
+IMAGE_PREFIX = "observation.images."
+STATE_KEY = "observation.state"
+ACTION_KEY = "action"
+VLM_DIRNAME = "vlm"
+"""A checkpoint's local SmolVLM description folder (see ``tiny_smolvla``); used instead of the
+hub name its config records."""
+METADATA_FILE = "objective_policy.json"
+"""Optional file next to a checkpoint with what LeRobot's format does not keep: ``joint_names``
+(state/action columns), ``control_period`` (seconds per step at training), ``default_guidance_horizon``."""
+RTC_POLICY_TYPES = frozenset({"smolvla", "pi0", "pi05"})
+"""LeRobot 0.4.4 policies whose sampling loop takes RTC guidance."""
+DEFAULT_GUIDANCE_HORIZON = 10
+"""LeRobot's own RTCConfig default ``execution_horizon``, used as the width when nothing says otherwise."""
+
+
+# ---------------------------------------------------------------------------------------------
+# Pure functions (no torch)
+# ---------------------------------------------------------------------------------------------
+class CameraMappingError(ValueError):
+    """Request image names and checkpoint cameras do not correspond; names both sides."""
+
+
+def execution_horizon(frozen_prefix_steps: int, guidance_horizon: int, server_default: int) -> int:
+    """LeRobot's ``execution_horizon`` for a request (the guide's conversion).
+
+    ``guidance_horizon`` counts steps past the frozen prefix, 0 meaning "the server's configured
+    width"; LeRobot's ``execution_horizon`` counts from the start of the chunk. So the width is
+    substituted first, then the prefix added: adding a zero width would leave the guided region
+    empty, and passing the width without the prefix would let the policy re-decide steps already
+    under way.
+    """
+    if frozen_prefix_steps < 0:
+        raise ValueError(f"frozen_prefix_steps must be >= 0, got {frozen_prefix_steps}")
+    if guidance_horizon < 0:
+        raise ValueError(f"guidance_horizon must be >= 0, got {guidance_horizon}")
+    if server_default < 1:
+        raise ValueError(f"the server's default guidance horizon must be >= 1, got {server_default}")
+    width = guidance_horizon if guidance_horizon > 0 else server_default
+    return frozen_prefix_steps + width
+
+
+def camera_name(feature_key: str) -> str:
+    """``observation.images.wrist`` -> ``wrist`` (other keys are returned unchanged)."""
+    return feature_key[len(IMAGE_PREFIX):] if feature_key.startswith(IMAGE_PREFIX) else feature_key
+
+
+def map_cameras(
+    request_names: Sequence[str],
+    checkpoint_keys: Sequence[str],
+    explicit: Mapping[str, str] | None = None,
+) -> dict[str, str]:
+    """Request image name -> checkpoint image feature key, one to one, or ``CameraMappingError``.
+
+    A request name matches the feature ``observation.images.<name>`` (or the full key itself).
+    ``explicit`` maps request names to checkpoint cameras (bare or full keys) for checkpoints
+    trained with other camera names, e.g. ``{"scene": "top"}``. Every checkpoint camera must be fed
+    and every request image must land somewhere: a missing, extra or doubly-fed camera is refused
+    naming both lists, since a frame in the wrong slot fails silently otherwise.
+    """
+    keys = list(checkpoint_keys)
+    by_name = {camera_name(key): key for key in keys}
+    wanted = f"[{', '.join(camera_name(k) for k in keys)}]"
+    given = f"[{', '.join(request_names)}]"
+    explicit = dict(explicit or {})
+    unknown_explicit = [name for name in explicit if name not in request_names]
+    if unknown_explicit:
+        raise CameraMappingError(
+            f"camera map names request images [{', '.join(unknown_explicit)}] that the request does not have "
+            f"(request images {given})"
+        )
+    mapping: dict[str, str] = {}
+    for name in request_names:
+        target = explicit.get(name, name)
+        key = target if target in keys else by_name.get(target)
+        if key is None:
+            raise CameraMappingError(
+                f"request image '{name}'" + (f" (mapped to '{target}')" if target != name else "")
+                + f" is not a camera of the checkpoint: checkpoint cameras {wanted}, request images {given}"
+            )
+        mapping[name] = key
+    fed = list(mapping.values())
+    doubled = sorted({camera_name(k) for k in fed if fed.count(k) > 1})
+    if doubled:
+        raise CameraMappingError(
+            f"checkpoint cameras [{', '.join(doubled)}] are fed by more than one request image: "
+            f"checkpoint cameras {wanted}, request images {given}"
+        )
+    missing = [camera_name(k) for k in keys if k not in fed]
+    if missing:
+        raise CameraMappingError(
+            f"checkpoint cameras [{', '.join(missing)}] get no request image: checkpoint cameras {wanted}, "
+            f"request images {given}"
+        )
+    return mapping
+
+
+def parse_camera_map(text: str) -> dict[str, str]:
+    """``"scene=top;wrist=hand"`` -> ``{"scene": "top", "wrist": "hand"}`` (``;`` or ``,`` separated)."""
+    mapping: dict[str, str] = {}
+    for item in text.replace(",", ";").split(";"):
+        if not item.strip():
+            continue
+        name, sep, target = item.partition("=")
+        if not sep or not name.strip() or not target.strip():
+            raise ValueError(f"camera map item {item!r} is not request_name=checkpoint_camera")
+        mapping[name.strip()] = target.strip()
+    return mapping
+
+
+def frame_to_rgb(frame: np.ndarray, encoding: str = "rgb8", name: str = "") -> np.ndarray:
+    """An H x W x 3 uint8 RGB view of ``frame`` given as ``rgb8``, ``bgr8`` (H x W x 3) or ``mono8`` (H x W)."""
+    label = f"image '{name}'" if name else "image"
+    array = np.asarray(frame)
+    if array.dtype != np.uint8:
+        raise ValueError(f"{label}: expected uint8 pixels, got {array.dtype}")
+    encoding = encoding.lower()
+    if encoding == "mono8":
+        if array.ndim == 3 and array.shape[2] == 1:
+            array = array[:, :, 0]
+        if array.ndim != 2:
+            raise ValueError(f"{label}: mono8 needs H x W pixels, got shape {array.shape}")
+        return np.repeat(array[:, :, None], 3, axis=2)
+    if encoding not in ("rgb8", "bgr8"):
+        raise ValueError(f"{label}: unsupported encoding '{encoding}' (expected rgb8, bgr8 or mono8)")
+    if array.ndim != 3 or array.shape[2] != 3:
+        raise ValueError(f"{label}: {encoding} needs H x W x 3 pixels, got shape {array.shape}")
+    return array[:, :, ::-1] if encoding == "bgr8" else array
+
+
+def joint_order(request_names: Sequence[str], checkpoint_names: Sequence[str]) -> list[int]:
+    """For each checkpoint joint, its column in the request; ValueError naming both lists on a mismatch."""
+    if sorted(request_names) != sorted(checkpoint_names) or len(set(request_names)) != len(request_names):
+        raise ValueError(
+            f"the checkpoint's joints [{', '.join(checkpoint_names)}] do not match the request's robot_state "
+            f"joints [{', '.join(request_names)}]"
+        )
+    return [list(request_names).index(name) for name in checkpoint_names]
+
+
+class LatencyMonitor:
+    """Steady inference latency (median of the last ``window`` calls) against half the committed window.
+
+    ExecutePolicy commits ``committed_action_steps`` steps of each chunk and must have the next
+    chunk before they run out; a policy slower than half that window leaves little margin and
+    makes the frozen prefix eat most of every chunk. ``record`` returns a warning text the first
+    time the steady latency crosses the limit (and again only after it has recovered).
+    """
+
+    def __init__(self, committed_window: float | None, window: int = 10) -> None:
+        self.limit = None if committed_window is None else committed_window / 2.0
+        self.samples: list[float] = []
+        self.window = window
+        self.warned = False
+
+    def record(self, seconds: float) -> str | None:
+        self.samples = (self.samples + [float(seconds)])[-self.window:]
+        if self.limit is None:
+            return None
+        steady = self.steady()
+        if steady > self.limit and not self.warned:
+            self.warned = True
+            return (
+                f"steady inference latency {steady * 1000:.0f} ms exceeds half the committed window "
+                f"({self.limit * 2 * 1000:.0f} ms): commit more steps per chunk (committed_action_steps) "
+                f"or serve a faster policy"
+            )
+        if steady <= self.limit:
+            self.warned = False
+        return None
+
+    def steady(self) -> float:
+        return statistics.median(self.samples) if self.samples else 0.0
+
+
+# ---------------------------------------------------------------------------------------------
+# The backend
+# ---------------------------------------------------------------------------------------------
+@dataclass
+class LeRobotOptions:
+    """How a checkpoint is served. Every field has a command-line spelling in the server."""
+
+    device: str = "cpu"
+    rtc: bool = True
+    """Enable RTC guidance when the policy type supports it (SmolVLA, pi0, pi0.5)."""
+    guidance_horizon: int | None = None
+    """The server's default RTC width (steps past the frozen prefix) for requests with
+    ``guidance_horizon`` 0. None: the checkpoint metadata's, else LeRobot's default (10)."""
+    camera_map: dict[str, str] = field(default_factory=dict)
+    """Request image name -> checkpoint camera, when they are named differently."""
+    joint_names: list[str] | None = None
+    """The checkpoint's state/action column order; None: metadata's, else the request's order."""
+    control_period: float | None = None
+    """Seconds per step at training (``native_control_period``); None: metadata's, else 0 (unknown)."""
+    image_encoding: str = "rgb8"
+    """Encoding of ``PolicyRequest.images`` (the adapters deliver rgb8)."""
+    committed_window: float | None = 2.0
+    """Seconds of motion committed per chunk (committed_action_steps * dt: 20 x 0.1 s in the shipped
+    Objectives); the latency warning fires above half of it. None disables the warning."""
+    torch_threads: int | None = 1
+    """CPU threads for torch (None: torch's default). One thread measured fastest on 2 shared cores."""
+    seed: int | None = 0
+    """Seeds torch's noise for the flow-matching sampler (None: unseeded)."""
+    warmup_on_load: bool = False
+    """Run the full-size warmup at the end of ``load()`` on a synthetic observation (zero images at
+    the checkpoint's sizes, zero state): for hosts that call ``load()`` only, like the embedded world."""
+
+
+@dataclass
+class RtcCall:
+    """What the last guided ``predict_action_chunk`` call received (for logs and tests)."""
+
+    inference_delay: int
+    execution_horizon: int
+    leftover_steps: int
+
+
+def resolve_checkpoint(path: str | Path) -> Path:
+    """The folder holding ``config.json``: ``path`` itself or its ``pretrained_model/``."""
+    path = Path(path)
+    for candidate in (path, path / "pretrained_model"):
+        if (candidate / "config.json").is_file():
+            return candidate
+    if not path.exists():
+        raise FileNotFoundError(f"LeRobot checkpoint '{path}' does not exist")
+    raise FileNotFoundError(
+        f"'{path}' is not a LeRobot checkpoint: no config.json in it or in its pretrained_model/ "
+        f"(expected what policy.save_pretrained writes)"
+    )
+
+
+def enable_rtc(config: Any, execution_horizon: int = DEFAULT_GUIDANCE_HORIZON) -> None:
+    """Turn RTC on in a policy config; must happen before the policy is built or loaded.
+
+    Exponential prefix schedule (LeRobot's recommendation); ``execution_horizon`` is only the
+    fallback for calls that pass none (this backend always passes one).
+    """
+    from lerobot.configs.types import RTCAttentionSchedule
+    from lerobot.policies.rtc.configuration_rtc import RTCConfig
+
+    config.rtc_config = RTCConfig(
+        enabled=True, execution_horizon=execution_horizon, prefix_attention_schedule=RTCAttentionSchedule.EXP
+    )
+
+
+class LeRobotBackend:
+    """A LeRobot checkpoint as a ``PolicyBackend`` (see the module docstring)."""
+
+    name = "lerobot"
+
+    def __init__(self, checkpoint: str | Path, options: LeRobotOptions | None = None) -> None:
+        self.checkpoint = Path(checkpoint)
+        self.options = options or LeRobotOptions()
+        self.policy: Any = None
+        self.preprocessor: Any = None
+        self.postprocessor: Any = None
+        self.config: Any = None
+        self.metadata: dict[str, Any] = {}
+        self.rtc = False
+        self.default_guidance = DEFAULT_GUIDANCE_HORIZON
+        self.camera_keys: list[str] = []
+        self.image_sizes: dict[str, tuple[int, int]] = {}
+        self.state_dim = 0
+        self.action_dim = 0
+        self.control_period = 0.0
+        self.latency = LatencyMonitor(self.options.committed_window)
+        self.last_rtc: RtcCall | None = None
+        self.joint_names: list[str] | None = None
+        self.calls = 0
+        self._mappings: dict[tuple[str, ...], dict[str, str]] = {}
+
+    # -- lifecycle ---
+    def load(self) -> None:
+        from .lerobot_compat import ensure_torchvision
+
+        ensure_torchvision()
+        import torch
+        from lerobot.configs.policies import PreTrainedConfig
+        from lerobot.policies.factory import get_policy_class, make_pre_post_processors
+
+        folder = resolve_checkpoint(self.checkpoint)
+        options = self.options
+        if options.torch_threads:
+            torch.set_num_threads(options.torch_threads)
+        if options.seed is not None:
+            torch.manual_seed(options.seed)
+        metadata_path = folder / METADATA_FILE
+        self.metadata = json.loads(metadata_path.read_text(encoding="utf-8")) if metadata_path.is_file() else {}
+
+        config = PreTrainedConfig.from_pretrained(folder)
+        config.device = options.device
+        overrides: dict[str, Any] = {"device_processor": {"device": options.device}}
+        vlm = folder / VLM_DIRNAME
+        if getattr(config, "type", "") == "smolvla" and vlm.is_dir():
+            config.vlm_model_name = str(vlm)
+            overrides["tokenizer_processor"] = {"tokenizer_name": str(vlm)}
+        self.default_guidance = int(
+            options.guidance_horizon or self.metadata.get("default_guidance_horizon") or DEFAULT_GUIDANCE_HORIZON
+        )
+        self.rtc = bool(options.rtc and config.type in RTC_POLICY_TYPES and hasattr(config, "rtc_config"))
+        if self.rtc:
+            enable_rtc(config, self.default_guidance)
+        elif hasattr(config, "rtc_config"):
+            config.rtc_config = None
+        self.policy = get_policy_class(config.type).from_pretrained(str(folder), config=config)
+        self.policy.eval()
+        self.preprocessor, self.postprocessor = make_pre_post_processors(
+            config, pretrained_path=str(folder), preprocessor_overrides=overrides
+        )
+        self.config = config
+        self.camera_keys = [key for key in config.input_features if key.startswith(IMAGE_PREFIX)]
+        self.image_sizes = {key: tuple(config.input_features[key].shape[-2:]) for key in self.camera_keys}
+        self.state_dim = int(config.input_features[STATE_KEY].shape[0]) if STATE_KEY in config.input_features else 0
+        self.action_dim = int(config.output_features[ACTION_KEY].shape[0])
+        names = options.joint_names or self.metadata.get("joint_names")
+        if names is not None and len(names) != self.action_dim:
+            raise ValueError(
+                f"checkpoint '{folder}': {len(names)} joint names [{', '.join(names)}] for {self.action_dim} action dimensions"
+            )
+        self.joint_names = list(names) if names else None
+        period = options.control_period if options.control_period is not None else self.metadata.get("control_period", 0.0)
+        self.control_period = float(period)
+        LOG.info(
+            "loaded %s policy from %s: cameras [%s], state %d, action %d, chunk %s, RTC %s (default width %d)",
+            config.type, folder, ", ".join(camera_name(k) for k in self.camera_keys), self.state_dim,
+            self.action_dim, getattr(config, "chunk_size", "?"), "on" if self.rtc else "off", self.default_guidance,
+        )
+        if options.warmup_on_load:
+            self.warmup(self.synthetic_request())
+
+    def synthetic_request(self, prompt: str = "warm up") -> PolicyRequest:
+        """A full-size request the checkpoint accepts: zero state, black frames at the feature sizes."""
+        self._require_loaded()
+        names = self.joint_names or [f"joint_{i}" for i in range(self.action_dim)]
+        request_name = {target: name for name, target in self.options.camera_map.items()}
+        images = {}
+        for key in self.camera_keys:
+            height, width = self.image_sizes[key]
+            name = request_name.get(camera_name(key), request_name.get(key, camera_name(key)))
+            images[name] = np.zeros((height, width, 3), dtype=np.uint8)
+        return PolicyRequest(prompt, list(names), np.zeros(len(names)), images, new_episode=True)
+
+    def warmup(self, example_request: PolicyRequest) -> None:
+        """Two full-size inferences (the first pays one-off costs); a bad example raises ValueError."""
+        self._require_loaded()
+        for attempt in range(2):
+            response = self.infer(example_request)
+            if response.actions is None:
+                raise ValueError(f"warmup inference failed: {response.message}")
+        LOG.info("warmup done: %.0f ms per chunk", self.latency.steady() * 1000)
+
+    def infer(self, request: PolicyRequest) -> PolicyResponse:
+        self._require_loaded()
+        try:
+            columns = self._columns(request)
+            observation = self._observation(request)
+            guidance = self._guidance(request)
+        except (ValueError, CameraMappingError) as exc:
+            return PolicyResponse.error(str(exc))
+        import torch
+
+        if request.new_episode:
+            self.policy.reset()
+        started = time.perf_counter()
+        # no_grad, not inference_mode: RTC's guidance takes a gradient inside the sampling loop
+        # (under torch.enable_grad), which inference_mode would forbid.
+        with torch.no_grad():
+            batch = self.preprocessor(observation)
+            normalized = self.policy.predict_action_chunk(batch, **guidance)
+            absolute = self.postprocessor(normalized)
+        elapsed = time.perf_counter() - started
+        self.calls += 1
+        warning = self.latency.record(elapsed)
+        if warning:
+            LOG.warning(warning)
+        normalized_np = normalized[0].detach().to("cpu", torch.float64).numpy()
+        absolute_np = absolute[0].detach().to("cpu", torch.float64).numpy()
+        actions = np.empty_like(absolute_np)
+        actions[:, columns] = absolute_np
+        return PolicyResponse.chunk(actions, self.control_period, normalized_np if self.rtc else None)
+
+    def describe(self) -> dict[str, Any]:
+        """What is served, for a health endpoint or a log line."""
+        return {
+            "backend": self.name,
+            "checkpoint": str(self.checkpoint),
+            "policy_type": getattr(self.config, "type", None),
+            "cameras": [camera_name(k) for k in self.camera_keys],
+            "joint_names": self.joint_names,
+            "state_dim": self.state_dim,
+            "action_dim": self.action_dim,
+            "chunk_size": getattr(self.config, "chunk_size", None),
+            "rtc": self.rtc,
+            "default_guidance_horizon": self.default_guidance,
+            "native_control_period": self.control_period,
+            "steady_latency_s": round(self.latency.steady(), 4),
+        }
+
+    # -- request conversion ---
+    def _observation(self, request: PolicyRequest) -> dict[str, Any]:
+        import torch
+
+        state = np.asarray(request.joint_positions, dtype=np.float32)
+        if self.state_dim and state.shape != (self.state_dim,):
+            raise ValueError(
+                f"the checkpoint observes {self.state_dim} joint positions, the request has {state.shape[0]} "
+                f"([{', '.join(request.joint_names)}])"
+            )
+        if self.joint_names:
+            state = state[joint_order(request.joint_names, self.joint_names)]
+        observation: dict[str, Any] = {STATE_KEY: torch.from_numpy(state), "task": request.prompt}
+        mapping = self._camera_mapping(list(request.images))
+        for name, key in mapping.items():
+            rgb = frame_to_rgb(request.images[name], self.options.image_encoding, name)
+            observation[key] = self._image_tensor(rgb, self.image_sizes[key])
+        return observation
+
+    def _camera_mapping(self, names: list[str]) -> dict[str, str]:
+        cache_key = tuple(names)
+        if cache_key not in self._mappings:
+            self._mappings[cache_key] = map_cameras(names, self.camera_keys, self.options.camera_map)
+        return self._mappings[cache_key]
+
+    @staticmethod
+    def _image_tensor(rgb: np.ndarray, size: tuple[int, int]) -> Any:
+        """CHW float32 in [0, 1] at ``size`` (bilinear, antialiased when shrinking)."""
+        import torch
+        import torch.nn.functional as F
+
+        tensor = torch.from_numpy(np.ascontiguousarray(rgb)).permute(2, 0, 1).float().div_(255.0)
+        if tuple(tensor.shape[-2:]) != tuple(size):
+            shrinking = tensor.shape[-2] > size[0] or tensor.shape[-1] > size[1]
+            tensor = F.interpolate(tensor[None], size=size, mode="bilinear", align_corners=False, antialias=shrinking)[0]
+        return tensor
+
+    def _guidance(self, request: PolicyRequest) -> dict[str, Any]:
+        """The RTC keyword arguments of ``predict_action_chunk`` for this request (empty without RTC)."""
+        self.last_rtc = None
+        tail = request.previous_action_chunk
+        if not self.rtc or tail is None or np.asarray(tail).size == 0:
+            return {}
+        import torch
+
+        tail = np.asarray(tail, dtype=np.float32)
+        if tail.ndim != 2 or tail.shape[1] != self.action_dim:
+            raise ValueError(
+                f"previous_action_chunk has shape {tail.shape}; this policy's normalized actions are "
+                f"(steps, {self.action_dim}) (echo policy_action_chunk back untouched)"
+            )
+        delay = int(request.frozen_prefix_steps)
+        horizon = execution_horizon(delay, int(request.guidance_horizon), self.default_guidance)
+        self.last_rtc = RtcCall(delay, horizon, int(tail.shape[0]))
+        LOG.debug("RTC: inference_delay=%d execution_horizon=%d leftover=%d steps", delay, horizon, tail.shape[0])
+        return {
+            "inference_delay": delay,
+            "prev_chunk_left_over": torch.from_numpy(tail),
+            "execution_horizon": horizon,
+        }
+
+    def _columns(self, request: PolicyRequest) -> list[int]:
+        """Request column of each checkpoint action dimension."""
+        if self.joint_names:
+            return joint_order(request.joint_names, self.joint_names)
+        if len(request.joint_names) != self.action_dim:
+            raise ValueError(
+                f"the checkpoint outputs {self.action_dim} action dimensions, the request observes "
+                f"{len(request.joint_names)} joints ([{', '.join(request.joint_names)}])"
+            )
+        return list(range(self.action_dim))
+
+    def _require_loaded(self) -> None:
+        if self.policy is None:
+            raise RuntimeError(f"LeRobot backend for '{self.checkpoint}' is not loaded: call load() first")
+
+
+def make_lerobot_backend(checkpoint: str | Path, **options: Any) -> LeRobotBackend:
+    """A LeRobot backend for ``checkpoint`` with :class:`LeRobotOptions` given by keyword.
+
+    ``camera_map`` may be given as text (``"scene=top;wrist=hand"``). Unknown options raise
+    ValueError naming the known ones. The backend is not loaded yet: call ``load()``.
+    """
+    known = set(LeRobotOptions.__dataclass_fields__)
+    unknown = sorted(set(options) - known)
+    if unknown:
+        raise ValueError(f"unknown LeRobot backend options {', '.join(unknown)} (known: {', '.join(sorted(known))})")
+    if isinstance(options.get("camera_map"), str):
+        options["camera_map"] = parse_camera_map(options["camera_map"])
+    return LeRobotBackend(checkpoint, LeRobotOptions(**options))

@@ -1,0 +1,247 @@
+"""LeRobot backend: the guide's guidance-horizon conversion and the camera mapping as pure functions
+(always run), then a tiny SmolVLA checkpoint served for real (skipped without `make lerobot`)."""
+from __future__ import annotations
+
+import importlib.util
+import logging
+
+import numpy as np
+import pytest
+
+from sim.policy.backend import PolicyRequest, PolicyStatus
+from sim.policy.lerobot_backend import (
+    CameraMappingError,
+    LatencyMonitor,
+    execution_horizon,
+    frame_to_rgb,
+    joint_order,
+    make_lerobot_backend,
+    map_cameras,
+    parse_camera_map,
+    resolve_checkpoint,
+)
+
+KEYS = ["observation.images.scene", "observation.images.wrist", "observation.images.overview"]
+JOINTS = ["shoulder_pan_joint", "shoulder_lift_joint", "elbow_joint", "wrist_1_joint", "wrist_2_joint",
+          "wrist_3_joint", "robotiq_85_left_knuckle_joint"]
+PROMPT = "stack the blue cube on the green cube"
+
+
+# ---------------------------------------------------------------------------------------------
+# Pure functions
+# ---------------------------------------------------------------------------------------------
+def test_guidance_horizon_zero_means_the_server_default_then_the_prefix_is_added():
+    assert execution_horizon(frozen_prefix_steps=4, guidance_horizon=0, server_default=10) == 14
+    assert execution_horizon(frozen_prefix_steps=0, guidance_horizon=0, server_default=10) == 10
+
+
+def test_guidance_horizon_overrides_the_default_and_still_counts_past_the_prefix():
+    assert execution_horizon(frozen_prefix_steps=4, guidance_horizon=18, server_default=10) == 22
+    # A width smaller than the delay must not shrink the frozen prefix.
+    assert execution_horizon(frozen_prefix_steps=7, guidance_horizon=2, server_default=10) == 9
+
+
+@pytest.mark.parametrize("args, message", [
+    ((-1, 0, 10), "frozen_prefix_steps must be >= 0, got -1"),
+    ((0, -3, 10), "guidance_horizon must be >= 0, got -3"),
+    ((0, 0, 0), "the server's default guidance horizon must be >= 1, got 0"),
+])
+def test_guidance_horizon_refuses_negative_or_empty_widths(args, message):
+    with pytest.raises(ValueError, match=message):
+        execution_horizon(*args)
+
+
+def test_cameras_map_by_name_in_any_order():
+    assert map_cameras(["wrist", "overview", "scene"], KEYS) == {
+        "wrist": "observation.images.wrist",
+        "overview": "observation.images.overview",
+        "scene": "observation.images.scene",
+    }
+
+
+def test_cameras_map_explicitly_to_other_names_or_full_keys():
+    keys = ["observation.images.top", "observation.images.hand"]
+    assert map_cameras(["scene", "wrist"], keys, {"scene": "top", "wrist": "observation.images.hand"}) == {
+        "scene": "observation.images.top", "wrist": "observation.images.hand",
+    }
+    assert parse_camera_map("scene=top; wrist=hand") == {"scene": "top", "wrist": "hand"}
+
+
+def test_an_unknown_request_camera_is_refused_naming_both_sides():
+    with pytest.raises(CameraMappingError) as err:
+        map_cameras(["scene", "wirst", "overview"], KEYS)
+    assert str(err.value) == (
+        "request image 'wirst' is not a camera of the checkpoint: checkpoint cameras [scene, wrist, overview], "
+        "request images [scene, wirst, overview]"
+    )
+
+
+def test_a_checkpoint_camera_left_unfed_is_refused_naming_both_sides():
+    with pytest.raises(CameraMappingError) as err:
+        map_cameras(["scene", "wrist"], KEYS)
+    assert str(err.value) == (
+        "checkpoint cameras [overview] get no request image: checkpoint cameras [scene, wrist, overview], "
+        "request images [scene, wrist]"
+    )
+
+
+def test_two_request_images_into_one_camera_are_refused():
+    with pytest.raises(CameraMappingError, match=r"checkpoint cameras \[scene\] are fed by more than one request image"):
+        map_cameras(["scene", "front"], ["observation.images.scene"], {"front": "scene"})
+    with pytest.raises(CameraMappingError, match=r"camera map names request images \[top\] that the request does not have"):
+        map_cameras(["scene"], ["observation.images.scene"], {"top": "scene"})
+
+
+def test_bgr_frames_are_reversed_and_mono_replicated():
+    bgr = np.zeros((2, 3, 3), dtype=np.uint8)
+    bgr[..., 0] = 200  # blue in BGR
+    assert frame_to_rgb(bgr, "bgr8")[0, 0].tolist() == [0, 0, 200]
+    assert frame_to_rgb(np.full((2, 2), 7, dtype=np.uint8), "mono8").shape == (2, 2, 3)
+    with pytest.raises(ValueError, match="image 'wrist': expected uint8 pixels, got float64"):
+        frame_to_rgb(np.zeros((2, 2, 3)), "rgb8", "wrist")
+
+
+def test_joint_order_maps_checkpoint_columns_and_names_both_lists_on_mismatch():
+    assert joint_order(["b", "a", "c"], ["a", "b", "c"]) == [1, 0, 2]
+    with pytest.raises(ValueError, match=r"checkpoint's joints \[a, b\] do not match the request's robot_state joints \[a, x\]"):
+        joint_order(["a", "x"], ["a", "b"])
+
+
+def test_latency_monitor_warns_once_when_steady_latency_passes_half_the_window():
+    monitor = LatencyMonitor(committed_window=0.2, window=3)
+    assert monitor.record(0.05) is None
+    assert monitor.record(0.05) is None
+    assert monitor.record(0.3) is None  # one slow call is not steady latency
+    warning = monitor.record(0.3)
+    assert warning.startswith("steady inference latency 300 ms exceeds half the committed window (200 ms)")
+    assert monitor.record(0.3) is None
+
+
+def test_bad_options_and_missing_checkpoints_are_named(tmp_path):
+    with pytest.raises(ValueError, match="unknown LeRobot backend options bogus"):
+        make_lerobot_backend(tmp_path, bogus=1)
+    with pytest.raises(FileNotFoundError, match="is not a LeRobot checkpoint: no config.json"):
+        resolve_checkpoint(tmp_path)
+
+
+# ---------------------------------------------------------------------------------------------
+# A real tiny SmolVLA (needs the LeRobot extra)
+# ---------------------------------------------------------------------------------------------
+needs_lerobot = pytest.mark.skipif(
+    importlib.util.find_spec("lerobot") is None or importlib.util.find_spec("torch") is None,
+    reason="the LeRobot extra is not installed (make lerobot)",
+)
+ACTION_MEAN = np.arange(7.0)
+ACTION_STD = np.full(7, 2.0)
+
+
+@pytest.fixture(scope="module")
+def checkpoint(tmp_path_factory):
+    """A random-weight tiny SmolVLA saved in LeRobot's format with known action statistics."""
+    from sim.policy.tiny_smolvla import TinySmolVLASpec, build_tiny_smolvla, save_checkpoint
+
+    folder = tmp_path_factory.mktemp("tiny_smolvla")
+    spec = TinySmolVLASpec(image_size=64, num_steps=4)
+    config, policy = build_tiny_smolvla(folder, spec)
+    stats = {
+        "observation.state": {"mean": np.zeros(7), "std": np.ones(7), "min": -np.ones(7), "max": np.ones(7)},
+        "action": {"mean": ACTION_MEAN, "std": ACTION_STD, "min": -np.ones(7), "max": np.ones(7)},
+    }
+    save_checkpoint(folder, config, policy, stats, {"joint_names": JOINTS, "control_period": 0.1,
+                                                    "default_guidance_horizon": 8})
+    return folder
+
+
+@pytest.fixture(scope="module")
+def backend(checkpoint):
+    served = make_lerobot_backend(checkpoint, committed_window=None)
+    served.load()
+    return served
+
+
+def frames(size: int = 64) -> dict[str, np.ndarray]:
+    return {name: np.full((size, size, 3), 90, dtype=np.uint8) for name in ("scene", "wrist", "overview")}
+
+
+def spy_on_predict(backend, monkeypatch) -> list[dict]:
+    calls: list[dict] = []
+    original = backend.policy.predict_action_chunk
+
+    def predict(batch, **kwargs):
+        calls.append({"batch": batch, **kwargs})
+        return original(batch, **kwargs)
+
+    monkeypatch.setattr(backend.policy, "predict_action_chunk", predict)
+    return calls
+
+
+@needs_lerobot
+def test_checkpoint_answers_a_denormalized_chunk_in_the_request_joint_order(backend, monkeypatch):
+    response = backend.infer(PolicyRequest(PROMPT, JOINTS, np.zeros(7), frames(), new_episode=True))
+    assert response.status is PolicyStatus.CHUNK, response.message
+    assert response.actions.shape == (50, 7) and response.policy_actions.shape == (50, 7)
+    assert response.native_control_period == 0.1
+    np.testing.assert_allclose(response.actions, response.policy_actions * ACTION_STD + ACTION_MEAN, atol=1e-5)
+
+    reversed_joints = JOINTS[::-1]
+    again = backend.infer(PolicyRequest(PROMPT, reversed_joints, np.zeros(7), frames()))
+    # Column j of the answer is joint reversed_joints[j]: the checkpoint's last joint comes first.
+    np.testing.assert_allclose(again.actions[:, ::-1], again.policy_actions * ACTION_STD + ACTION_MEAN, atol=1e-5)
+
+
+@needs_lerobot
+def test_frames_of_another_size_are_resized_to_the_checkpoint_features(backend, monkeypatch):
+    calls = spy_on_predict(backend, monkeypatch)
+    response = backend.infer(PolicyRequest(PROMPT, JOINTS, np.zeros(7), frames(size=100)))
+    assert response.status is PolicyStatus.CHUNK, response.message
+    assert tuple(calls[0]["batch"]["observation.images.wrist"].shape) == (1, 3, 64, 64)
+
+
+@needs_lerobot
+def test_rtc_carryover_reaches_predict_action_chunk_with_the_converted_horizon(backend, monkeypatch):
+    first = backend.infer(PolicyRequest(PROMPT, JOINTS, np.zeros(7), frames(), new_episode=True))
+    tail = first.policy_actions[20:]
+    calls = spy_on_predict(backend, monkeypatch)
+
+    guided = backend.infer(PolicyRequest(PROMPT, JOINTS, np.zeros(7), frames(), previous_action_chunk=tail,
+                                         frozen_prefix_steps=4, guidance_horizon=0))
+    assert calls[-1]["inference_delay"] == 4
+    assert calls[-1]["execution_horizon"] == 12  # 4 frozen + the checkpoint's default width 8
+    np.testing.assert_array_equal(calls[-1]["prev_chunk_left_over"].numpy(), tail.astype(np.float32))
+    # Guidance holds the frozen prefix to the carried tail (unguided, it would be fresh noise).
+    assert np.abs(guided.policy_actions[:4] - tail[:4]).mean() < 0.1
+
+    backend.infer(PolicyRequest(PROMPT, JOINTS, np.zeros(7), frames(), previous_action_chunk=tail,
+                                frozen_prefix_steps=4, guidance_horizon=18))
+    assert calls[-1]["execution_horizon"] == 22
+
+    backend.infer(PolicyRequest(PROMPT, JOINTS, np.zeros(7), frames()))
+    assert "prev_chunk_left_over" not in calls[-1]  # no carryover: an unguided call
+
+
+@needs_lerobot
+def test_request_problems_answer_error_naming_both_sides(backend):
+    wrong_cameras = backend.infer(PolicyRequest(PROMPT, JOINTS, np.zeros(7), {"scene": frames()["scene"]}))
+    assert wrong_cameras.status is PolicyStatus.ERROR
+    assert wrong_cameras.message == (
+        "checkpoint cameras [wrist, overview] get no request image: checkpoint cameras [scene, wrist, overview], "
+        "request images [scene]"
+    )
+    wrong_joints = backend.infer(PolicyRequest(PROMPT, JOINTS[:6] + ["finger"], np.zeros(7), frames()))
+    assert wrong_joints.status is PolicyStatus.ERROR and "do not match the request's robot_state joints" in wrong_joints.message
+    wrong_tail = backend.infer(PolicyRequest(PROMPT, JOINTS, np.zeros(7), frames(), previous_action_chunk=np.zeros((10, 3)),
+                                             frozen_prefix_steps=2))
+    assert wrong_tail.message == (
+        "previous_action_chunk has shape (10, 3); this policy's normalized actions are (steps, 7) "
+        "(echo policy_action_chunk back untouched)"
+    )
+
+
+@needs_lerobot
+def test_warmup_on_load_and_the_latency_warning(checkpoint, caplog):
+    served = make_lerobot_backend(checkpoint, warmup_on_load=True, committed_window=1e-4)
+    with caplog.at_level(logging.WARNING, logger="objective.policy.lerobot"):
+        served.load()
+    assert served.calls == 2  # the full-size warmup ran inside load()
+    assert any("exceeds half the committed window (0 ms)" in r.message for r in caplog.records)
+    assert served.describe()["cameras"] == ["scene", "wrist", "overview"]
