@@ -115,7 +115,8 @@ def build_parser() -> argparse.ArgumentParser:
 def _add_policy_commands(sub: Any) -> None:
     """``serve``, ``adapter``, ``smoke-test``: the policy side (sim.policy, imported lazily)."""
     serve = sub.add_parser("serve", help="run the HTTP inference server (GET /health, POST /infer)")
-    serve.add_argument("--backend", required=True, help="oracle or replay")
+    serve.add_argument("--backend", required=True, help="oracle, replay or lerobot")
+    serve.add_argument("--checkpoint", type=Path, metavar="DIR", help="LeRobot checkpoint folder (--backend lerobot)")
     serve.add_argument("--replay-file", type=Path, metavar="FILE", help="chunks as JSON lines (--backend replay)")
     serve.add_argument("--host", default="127.0.0.1", help="address to bind (default 127.0.0.1: loopback only)")
     serve.add_argument("--port", type=int, default=0, help="port (default 0: pick a free one, printed at start)")
@@ -349,7 +350,7 @@ def cmd_serve(args: argparse.Namespace, registry: Registry) -> int:
             max_body_bytes=args.max_body_bytes, warmup=warmup,
             tls_cert=args.tls_cert, tls_key=args.tls_key, tls_client_ca=args.tls_client_ca,
         )
-        backend = make_backend(args.backend, BackendOptions(args.replay_file, args.default_guidance))
+        backend = make_backend(args.backend, BackendOptions(args.replay_file, args.default_guidance, args.checkpoint))
         server = InferenceServer(backend, config)
         stop = threading.Event()
         restore = stop_on_signals(stop)

@@ -245,3 +245,27 @@ def test_warmup_on_load_and_the_latency_warning(checkpoint, caplog):
     assert served.calls == 2  # the full-size warmup ran inside load()
     assert any("exceeds half the committed window (0 ms)" in r.message for r in caplog.records)
     assert served.describe()["cameras"] == ["scene", "wrist", "overview"]
+
+
+@needs_lerobot
+def test_objective_serve_backend_lerobot_answers_over_http_with_the_rtc_echo(checkpoint):
+    from sim.policy.http_client import ClientConfig, HttpBackend
+    from sim.policy.server import BackendOptions, InferenceServer, ServerConfig, make_backend
+
+    with pytest.raises(ValueError, match="--backend lerobot needs --checkpoint DIR"):
+        make_backend("lerobot", BackendOptions())
+    backend = make_backend("lerobot", BackendOptions(checkpoint=checkpoint, default_guidance=6))
+    # The server's generic warmup (one 224 px 'scene' view) does not fit the checkpoint: the
+    # backend warms up on its own full-size observation instead of failing to become ready.
+    server = InferenceServer(backend, ServerConfig(key="k" * 32)).start()
+    try:
+        assert server.ready.wait(60), server.message
+        client = HttpBackend(ClientConfig(server.url + "/infer", timeout=30, key="k" * 32))
+        first = client.infer(PolicyRequest(PROMPT, JOINTS, np.zeros(7), frames(), new_episode=True))
+        assert first.status is PolicyStatus.CHUNK and first.policy_actions.shape == (50, 7)
+        client.infer(PolicyRequest(PROMPT, JOINTS, np.zeros(7), frames(), previous_action_chunk=first.policy_actions[10:],
+                                   frozen_prefix_steps=3))
+        assert backend.last_rtc is not None
+        assert (backend.last_rtc.inference_delay, backend.last_rtc.execution_horizon, backend.last_rtc.leftover_steps) == (3, 9, 40)
+    finally:
+        server.stop()

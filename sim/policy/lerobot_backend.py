@@ -395,8 +395,19 @@ class LeRobotBackend:
         return PolicyRequest(prompt, list(names), np.zeros(len(names)), images, new_episode=True)
 
     def warmup(self, example_request: PolicyRequest) -> None:
-        """Two full-size inferences (the first pays one-off costs); a bad example raises ValueError."""
+        """Two full-size inferences (the first pays one-off costs); a failed inference raises ValueError.
+
+        The example only sizes the warmup: when its cameras or joints are not the checkpoint's (a
+        server started with generic warmup settings), a synthetic observation at the checkpoint's
+        own sizes is used instead, since the model runs at those sizes whatever arrives.
+        """
         self._require_loaded()
+        try:
+            self._camera_mapping(list(example_request.images))
+            self._columns(example_request)
+        except ValueError as exc:
+            LOG.info("warmup example does not fit the checkpoint (%s); warming up on a synthetic observation", exc)
+            example_request = self.synthetic_request(example_request.prompt)
         for attempt in range(2):
             response = self.infer(example_request)
             if response.actions is None:
@@ -481,7 +492,7 @@ class LeRobotBackend:
         import torch
         import torch.nn.functional as F
 
-        tensor = torch.from_numpy(np.ascontiguousarray(rgb)).permute(2, 0, 1).float().div_(255.0)
+        tensor = torch.from_numpy(np.array(rgb, copy=True)).permute(2, 0, 1).float().div_(255.0)
         if tuple(tensor.shape[-2:]) != tuple(size):
             shrinking = tensor.shape[-2] > size[0] or tensor.shape[-1] > size[1]
             tensor = F.interpolate(tensor[None], size=size, mode="bilinear", align_corners=False, antialias=shrinking)[0]
@@ -495,7 +506,7 @@ class LeRobotBackend:
             return {}
         import torch
 
-        tail = np.asarray(tail, dtype=np.float32)
+        tail = np.array(tail, dtype=np.float32, copy=True)
         if tail.ndim != 2 or tail.shape[1] != self.action_dim:
             raise ValueError(
                 f"previous_action_chunk has shape {tail.shape}; this policy's normalized actions are "

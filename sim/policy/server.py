@@ -166,6 +166,7 @@ class InferenceServer:
         self.requests = 0
         self._infer_lock = threading.Lock()
         self._httpd: ThreadingHTTPServer | None = None
+        self._port: int | None = None
         self._threads: list[threading.Thread] = []
         self.ready = threading.Event()
         """Set once the status leaves ``loading`` (ready or error)."""
@@ -174,6 +175,7 @@ class InferenceServer:
     def start(self) -> InferenceServer:
         """Bind (the port is known when this returns), serve, and load + warm up the backend."""
         self._httpd = _make_httpd(self)
+        self._port = int(self._httpd.server_address[1])
         serve = threading.Thread(target=self._httpd.serve_forever, kwargs={"poll_interval": 0.1},
                                  name="inference-server", daemon=True)
         load = threading.Thread(target=self._load, name="inference-server-load", daemon=True)
@@ -184,8 +186,8 @@ class InferenceServer:
 
     @property
     def port(self) -> int:
-        assert self._httpd is not None, "start() first"
-        return int(self._httpd.server_address[1])
+        assert self._port is not None, "start() first"
+        return self._port
 
     @property
     def url(self) -> str:
@@ -371,6 +373,8 @@ class BackendOptions:
     replay_file: Path | None = None
     default_guidance: int = 0
     """The server's RTC guidance width (``guidance_horizon`` 0 means this), for denoising backends."""
+    checkpoint: Path | None = None
+    """A LeRobot checkpoint directory (``--backend lerobot``)."""
 
 
 def _replay(options: BackendOptions) -> PolicyBackend:
@@ -389,7 +393,17 @@ def _oracle(options: BackendOptions) -> PolicyBackend:
     return RemoteOracleBackend()
 
 
-BACKENDS: dict[str, Callable[[BackendOptions], PolicyBackend]] = {"oracle": _oracle, "replay": _replay}
+def _lerobot(options: BackendOptions) -> PolicyBackend:
+    from .lerobot_backend import make_lerobot_backend
+
+    if options.checkpoint is None:
+        raise ValueError("--backend lerobot needs --checkpoint DIR (a LeRobot checkpoint folder)")
+    if not options.checkpoint.is_dir():
+        raise ValueError(f"--checkpoint {options.checkpoint}: no such directory")
+    return make_lerobot_backend(options.checkpoint, guidance_horizon=options.default_guidance or None)
+
+
+BACKENDS: dict[str, Callable[[BackendOptions], PolicyBackend]] = {"oracle": _oracle, "replay": _replay, "lerobot": _lerobot}
 """``--backend`` name -> factory. A new backend (LeRobot) adds itself here: one class with
 ``load`` / ``warmup`` / ``infer``, nothing else about the server changes."""
 
