@@ -1,0 +1,368 @@
+"""Fault injection on the policy side: whatever the policy service does wrong, ExecutePolicy ends
+with a clean stop (the arm at rest, no goal executing) and the right status and message, within
+``policy_call_timeout`` of sim time.
+
+Faults of the call itself (latency spikes, a dropped answer, malformed answers, a crashing
+handler) are injected on the in-process bus; faults of the HTTP inference server (killed mid-run,
+malformed JSON, 401, 503 while loading) go through the real adapter (``PolicyAdapter`` +
+``HttpBackend``) to a real server on loopback.
+"""
+from __future__ import annotations
+
+import http.server
+import threading
+from dataclasses import dataclass, field
+from typing import Any, Callable
+
+import numpy as np
+import pytest
+from moveit_pro_ml_msgs.srv import GetActionChunk
+from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
+
+from runtime.bus import FixedLatency
+from runtime.loader import load_tree
+from runtime.registry import Registry
+from runtime.runner import RunOptions, make_context, run_tree
+from sim.kinematic import KinematicWorld
+
+R = GetActionChunk.Response
+SERVICE = "/get_action_chunk"
+TIMEOUT = 3.0
+TICK = 0.01
+BASE = f'total_action_steps="60" dt="0.1" committed_action_steps="20" goal_path_tolerance="0.3" policy_call_timeout="{TIMEOUT}"'
+MOVE = np.array([0.1, 0.0, 0.0, 0.0, 0.0, 0.0])  # rad/s of shoulder_pan: the arm is moving when faults hit
+
+
+@pytest.fixture(scope="module")
+def registry() -> Registry:
+    return Registry.from_entry_points()
+
+
+def moving_chunk(request: Any, steps: int = 50, dt: float = 0.1) -> Any:
+    start = np.array(request.robot_state.position)
+    rate = np.append(MOVE, np.zeros(len(start) - len(MOVE)))
+    rows = start + np.outer(np.arange(steps) * dt, rate)
+    response = R(status=R.CHUNK_PRODUCED, native_control_period=dt)
+    response.chunk = JointTrajectory(joint_names=list(request.robot_state.name),
+                                     points=[JointTrajectoryPoint(positions=[float(v) for v in r]) for r in rows])
+    return response
+
+
+@dataclass
+class Policy:
+    """Answers good moving chunks, except call ``fault_at`` (0 = warmup), answered by ``fault``."""
+
+    fault_at: int = -1
+    fault: Callable[[Any], Any] | None = None
+    calls: int = 0
+
+    def __call__(self, request: Any) -> Any:
+        index, self.calls = self.calls, self.calls + 1
+        if index == self.fault_at and self.fault is not None:
+            return self.fault(request)
+        return moving_chunk(request)
+
+
+class Latencies:
+    """Latency per call index (0 = warmup); ``base`` for the others."""
+
+    def __init__(self, base: float, **by_index: float) -> None:
+        self.base, self.by_index, self.calls = base, {int(k[1:]): v for k, v in by_index.items()}, 0
+
+    def delay(self, measured_wall_s: float) -> float:
+        index, self.calls = self.calls, self.calls + 1
+        return self.by_index.get(index, self.base)
+
+
+@dataclass
+class Outcome:
+    status: str  # ExecutePolicy's own status
+    message: str
+    finished_at: float
+    requested_at: list[float]
+    world: KinematicWorld
+    summary: dict[str, Any] = field(default_factory=dict)
+
+    def assert_stopped_cleanly(self) -> None:
+        controller = self.world.controllers["joint_trajectory_admittance_controller"]
+        assert not controller.executing
+        assert np.allclose(self.world.cell.arm_velocity_now, 0.0, atol=1e-9)
+
+
+def run_with_faults(registry: Registry, handler: Callable[[Any], Any] | None, latency: Any,
+                    before: Callable[[Any, KinematicWorld], None] | None = None) -> Outcome:
+    """ExecutePolicy under ForceSuccess, then a 1 s Wait so the stop after a failure can be seen."""
+    node = (f'<ExecutePolicy policy_service_name="{SERVICE}" joint_group_name="manipulator" {BASE} '
+            'status_message="{message}"/>')
+    xml = ('<root BTCPP_format="4"><BehaviorTree ID="T"><Sequence>'
+           '<SwitchController activate_controllers="joint_trajectory_admittance_controller" deactivate_controllers="velocity_force_controller"/>'
+           f'<ForceSuccess>{node}</ForceSuccess><Wait seconds="1.0"/></Sequence></BehaviorTree></root>')
+    options = RunOptions(seed=0, max_seconds=60.0, world="kinematic")
+    context = make_context(options)
+    world = KinematicWorld({"seed": 0, "policy": "none"})
+    loaded = load_tree(xml, registry, context)
+    if handler is not None:
+        context.bus.create_service(SERVICE, GetActionChunk, handler)
+    if latency is not None:
+        context.bus.set_latency(SERVICE, latency)
+    if before is not None:
+        before(context, world)
+    result = run_tree(loaded, context, options, world=world)
+    assert result.status == "SUCCESS", result.reason  # the Wait after ForceSuccess ran
+    finished = context.events.of_kind("policy_finished")
+    assert len(finished) == 1
+    return Outcome(
+        status=finished[0].data["status"],
+        message=finished[0].data["message"],
+        finished_at=finished[0].time,
+        requested_at=[e.time for e in context.events.of_kind("chunk_requested")],
+        world=world,
+        summary=result.extra.get("execute_policy", {}),
+    )
+
+
+# -- latency ---------------------------------------------------------------------------------
+def test_dropped_response_fails_at_policy_call_timeout_and_stops(registry):
+    # Call 2 (the second real chunk) never answers: its future never completes.
+    out = run_with_faults(registry, Policy(), Latencies(0.1, c2=float("inf")))
+    assert out.status == "FAILURE"
+    assert out.message == f"the policy service '{SERVICE}' did not answer within policy_call_timeout = {TIMEOUT:g} s"
+    assert out.finished_at - out.requested_at[2] == pytest.approx(TIMEOUT, abs=2 * TICK)
+    out.assert_stopped_cleanly()
+
+
+def test_warmup_that_never_answers_fails_at_policy_call_timeout(registry):
+    out = run_with_faults(registry, Policy(), Latencies(0.1, c0=float("inf")))
+    assert out.status == "FAILURE"
+    assert out.message.startswith(f"warming up the policy service '{SERVICE}' timed out after {TIMEOUT:g} s")
+    assert out.finished_at - out.requested_at[0] == pytest.approx(TIMEOUT, abs=2 * TICK)
+    out.assert_stopped_cleanly()
+
+
+def test_latency_spike_beyond_the_timeout_fails_within_it(registry):
+    out = run_with_faults(registry, Policy(), Latencies(0.1, c3=TIMEOUT + 0.5))
+    assert out.status == "FAILURE" and "did not answer within policy_call_timeout" in out.message
+    assert out.finished_at - out.requested_at[3] <= TIMEOUT + 2 * TICK
+    out.assert_stopped_cleanly()
+
+
+def test_latency_spike_beyond_the_window_pauses_then_finishes(registry):
+    # The last chunk (call 3) takes 2.8 s (committed window 2 s, under the 3 s timeout). It was
+    # asked for 0.2 s before the committed motion ends: the arm drains the motion, waits at rest
+    # for 2.6 s plus the wait for the next step, and the run finishes when the chunk lands.
+    out = run_with_faults(registry, Policy(), Latencies(0.1, c3=2.8))
+    assert out.status == "SUCCESS", out.message
+    assert out.message == "executed 60 steps"
+    assert out.summary["stall_seconds"] == pytest.approx(2.7, abs=0.01)
+    out.assert_stopped_cleanly()
+
+
+@pytest.mark.xfail(strict=True, reason=(
+    "known ExecutePolicy bug (reported): after a spike the latency estimate (which only grows) makes the "
+    "frozen prefix larger than the time left in the committed motion; the next chunk, asked for at once, "
+    "arrives quickly but StepGrid.plan_window puts its seam at request + frozen, past the end of the "
+    "committed motion, and the admittance controller refuses the goal ('seam time exceeds the end of "
+    "the current trajectory'): the run fails instead of continuing"))
+def test_run_continues_after_a_spike_in_the_middle(registry):
+    out = run_with_faults(registry, Policy(), Latencies(0.1, c2=2.8))
+    assert out.status == "SUCCESS", out.message
+
+
+# -- malformed answers -----------------------------------------------------------------------
+def _nan(request):
+    response = moving_chunk(request)
+    response.chunk.points[4].positions[2] = float("inf")
+    return response
+
+
+def _empty(request):
+    response = moving_chunk(request)
+    response.chunk.points = []
+    return response
+
+
+def _ragged(request):
+    response = moving_chunk(request)
+    response.chunk.points[7].positions = response.chunk.points[7].positions[:3]
+    return response
+
+
+def _renamed(request):
+    response = moving_chunk(request)
+    response.chunk.joint_names = ["joint_" + n for n in response.chunk.joint_names]
+    return response
+
+
+def _one_step(request):
+    response = moving_chunk(request, steps=1)
+    return response
+
+
+def _status(value):
+    def answer(request):
+        response = moving_chunk(request)
+        response.status = value
+        return response
+
+    return answer
+
+
+def _raises(request):
+    raise ConnectionResetError("adapter crashed")
+
+
+def _jump(request):
+    response = moving_chunk(request)
+    for point in response.chunk.points:
+        point.positions = [p + 1.5 for p in point.positions]  # 1.5 rad away from where the arm is
+    return response
+
+
+@pytest.mark.parametrize(
+    "fault, status, message",
+    [
+        (_nan, "FAILURE", "chunk 2 rejected: step 4 joint 'elbow_joint' is not finite (inf)"),
+        (_empty, "FAILURE", "chunk 2 rejected: chunk has no points"),
+        (_ragged, "FAILURE", "chunk 2 rejected: step 7 has 3 positions for 6 joint names"),
+        (_renamed, "FAILURE", "chunk 2 rejected: joint names do not match the joint group"),
+        (_one_step, "FAILURE", "chunk 2 rejected: chunk 2 has 1 steps but takes over at its step"),
+        (_status(R.UNKNOWN), "FAILURE", "the policy answered UNKNOWN for the chunk 2"),
+        (_status(R.ERROR), "FAILURE", "the policy answered ERROR for the chunk 2"),
+        (_status(42), "FAILURE", "the policy answered status 42 for the chunk 2"),
+        (_status(R.NO_MORE_ACTIONS), "SUCCESS", "the policy has no more actions"),
+        (_raises, "FAILURE", f"calling the policy service '{SERVICE}' failed: adapter crashed"),
+        (_jump, "FAILURE", "chunk 2 rejected: densified step"),
+    ],
+    ids=["inf", "empty", "ragged", "renamed", "one-step", "unknown", "error", "status-42", "no-more-actions", "raises", "jump"],
+)
+def test_malformed_answer_stops_the_arm_with_the_reason(registry, fault, status, message):
+    out = run_with_faults(registry, Policy(fault_at=2, fault=fault), FixedLatency(0.1))
+    assert out.status == status, out.message
+    assert out.message.startswith(message), out.message
+    # Decided when the answer lands, one tick after it is due.
+    assert out.finished_at - out.requested_at[2] == pytest.approx(0.1, abs=2 * TICK)
+    out.assert_stopped_cleanly()
+
+
+# -- the HTTP inference server behind the adapter --------------------------------------------
+server_mod = pytest.importorskip("sim.policy.server", reason="the HTTP inference server (sim/policy/server.py) is not there yet")
+node_mod = pytest.importorskip("sim.policy.node", reason="the HTTP adapter (sim/policy/node.py) is not there yet")
+
+
+class ChunkBackend:
+    """A backend answering moving chunks; ``load`` waits for ``release`` (to hold the server in loading)."""
+
+    name = "faulty"
+
+    def __init__(self, release: threading.Event | None = None) -> None:
+        self.release = release
+
+    def load(self) -> None:
+        if self.release is not None:
+            self.release.wait(30.0)
+
+    def warmup(self, example_request: Any) -> None:
+        pass
+
+    def infer(self, request: Any) -> Any:
+        from sim.policy.backend import PolicyResponse
+
+        rate = np.append(MOVE, np.zeros(len(request.joint_positions) - len(MOVE)))
+        return PolicyResponse.chunk(request.joint_positions + np.outer(np.arange(50) * 0.1, rate), 0.1)
+
+
+@pytest.fixture
+def servers():
+    started: list[Any] = []
+
+    def start(backend: Any, key: str = "right-key", wait: bool = True) -> Any:
+        server = server_mod.InferenceServer(backend, server_mod.ServerConfig(key=key)).start()
+        started.append(server)
+        if wait:
+            assert server.ready.wait(10.0)
+        return server
+
+    yield start
+    for server in started:
+        server.stop()
+
+
+def serve_adapter(url: str, key: str = "right-key") -> Callable[[Any, KinematicWorld], None]:
+    def install(context: Any, world: KinematicWorld) -> None:
+        adapter = node_mod.http_adapter(node_mod.AdapterConfig(infer_url=url, key=key, timeout=TIMEOUT))
+        adapter.serve(context.bus, SERVICE)
+        context.bus.set_latency(SERVICE, FixedLatency(0.1))  # sim-time latency; the HTTP hop is real
+
+    return install
+
+
+def test_server_killed_mid_run_fails_with_the_adapter_reason(registry, servers):
+    server = servers(ChunkBackend())
+    base = server.url
+    url = f"{base}/infer"
+
+    def kill_after_first_chunk(context, world):
+        serve_adapter(url)(context, world)
+        step_to = world.step_to
+
+        def step(t):
+            step_to(t)
+            if t >= 1.0 and server._httpd is not None:
+                server.stop()
+
+        world.step_to = step
+
+    out = run_with_faults(registry, None, None, before=kill_after_first_chunk)
+    assert out.status == "FAILURE"
+    assert out.message.startswith(f"the policy answered ERROR for the chunk 2: cannot reach the inference server at {base}")
+    out.assert_stopped_cleanly()
+
+
+def test_wrong_key_is_a_401_error_at_the_warmup(registry, servers):
+    server = servers(ChunkBackend())
+    out = run_with_faults(registry, None, None, before=serve_adapter(f"{server.url}/infer", key="wrong-key"))
+    assert out.status == "FAILURE"
+    assert out.message.startswith(f"the policy answered ERROR for the warmup: the inference server at {server.url}")
+    assert "answered 401" in out.message
+    out.assert_stopped_cleanly()
+
+
+def test_server_still_loading_answers_503_and_the_run_fails_cleanly(registry, servers):
+    release = threading.Event()
+    server = servers(ChunkBackend(release), wait=False)
+    try:
+        out = run_with_faults(registry, None, None, before=serve_adapter(f"{server.url}/infer"))
+    finally:
+        release.set()
+    assert out.status == "FAILURE"
+    assert "answered 503" in out.message and "still loading" in out.message
+    out.assert_stopped_cleanly()
+
+
+class _MalformedJson(http.server.BaseHTTPRequestHandler):
+    def do_POST(self) -> None:  # noqa: N802
+        self.rfile.read(int(self.headers.get("Content-Length", 0)))
+        body = b'{"status": "chunk", "actions": [[0.1, 0.2], [0.3'  # cut off mid-array
+        self.send_response(200)
+        self.send_header("Content-Type", "application/json")
+        self.send_header("Content-Length", str(len(body)))
+        self.end_headers()
+        self.wfile.write(body)
+
+    def log_message(self, *args: Any) -> None:
+        pass
+
+
+def test_malformed_json_from_the_server_is_an_error_with_the_reason(registry):
+    httpd = http.server.ThreadingHTTPServer(("127.0.0.1", 0), _MalformedJson)
+    thread = threading.Thread(target=httpd.serve_forever, kwargs={"poll_interval": 0.05}, daemon=True)
+    thread.start()
+    try:
+        url = f"http://127.0.0.1:{httpd.server_address[1]}"
+        out = run_with_faults(registry, None, None, before=serve_adapter(f"{url}/infer"))
+    finally:
+        httpd.shutdown()
+        httpd.server_close()
+    assert out.status == "FAILURE"
+    assert out.message.startswith(f"the policy answered ERROR for the warmup: the inference server at {url}/infer sent a malformed answer: response body is not valid JSON")
+    out.assert_stopped_cleanly()
