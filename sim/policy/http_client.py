@@ -233,18 +233,19 @@ class HttpBackend:
                 conn.putheader("Content-Type", CONTENT_TYPE)
                 conn.putheader("Content-Length", str(len(body)))
             conn.endheaders()  # connects (and handshakes) here
+            sock = conn.sock  # kept: the connection lets go of it once a response says "close"
             view = memoryview(body or b"")
             try:
                 for start in range(0, len(view), _SEND_PIECE):
-                    conn.sock.settimeout(remaining())
-                    conn.sock.sendall(view[start : start + _SEND_PIECE])
+                    sock.settimeout(remaining())
+                    sock.sendall(view[start : start + _SEND_PIECE])
             except (BrokenPipeError, ConnectionResetError) as exc:
                 send_error = exc  # the server may have answered early (401, 413): read that answer
-            conn.sock.settimeout(remaining())
+            sock.settimeout(remaining())
             response = conn.getresponse()
             chunks, size = [], 0
             while True:
-                conn.sock.settimeout(remaining())
+                sock.settimeout(remaining())
                 piece = response.read1(1 << 16)
                 if not piece:
                     break
