@@ -1,0 +1,325 @@
+"""Property: whatever chunks a policy sends, nothing unsafe reaches the controller.
+
+Random chunks (values near and beyond the joint limits, NaN/inf, wrong shapes, wrong/permuted/
+duplicated names, huge steps, motions into the table, arms starting next to a limit) go through
+the real ExecutePolicy (loaded from XML, ticked by the real runner) on an in-process bus, against
+a recording controller. Checked on every run:
+
+- every point of every goal that reached the controller is within the position limits and its
+  stated velocity and acceleration are within the velocity and acceleration limits; the velocity
+  between consecutive points (finite differences) is within the velocity limit too;
+- no such point is in self-collision or in world collision (with the run's link_padding), per
+  the cell's planning scene;
+- the run ends SUCCESS or FAILURE, never with an exception; a FAILURE caused by a chunk says why
+  (``rejection_reason`` is set, and names what was wrong).
+
+The default run draws 30 examples; ``-m slow`` runs the 2,000-example profile.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, event, given, settings
+from hypothesis import strategies as st
+from moveit_pro_controllers_msgs.action import FollowJointTrajectoryWithAdmittance as FollowTrajectory
+from moveit_pro_ml_msgs.srv import GetActionChunk
+from sensor_msgs.msg import JointState
+from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
+
+from behaviors.execute_policy.shaping import Samples
+from behaviors.safety import make_safety
+from runtime.bus import FixedLatency
+from runtime.loader import load_tree
+from runtime.registry import Registry
+from runtime.runner import RunOptions, make_context, run_tree
+from runtime.timestamps import time_msg
+from sim.layouts import layout
+from sim.planning import CUBE_SIZE, make_cell_scene
+from sim.robot_model import ARM_JOINTS, GRIPPER_DRIVER_JOINT, load_waypoints
+
+R = GetActionChunk.Response
+SERVICE = "/get_action_chunk"
+CONTROLLER = "/joint_trajectory_admittance_controller/follow_joint_trajectory"
+PADDING = 0.01
+READY = np.array([load_waypoints()["Ready"][j] for j in ARM_JOINTS])
+CUBES = {c: (np.array([x, y, CUBE_SIZE / 2]), np.array([np.cos(yaw / 2), 0, 0, np.sin(yaw / 2)])) for c, (x, y, yaw) in layout(0).items()}
+_REGISTRY: list[Registry] = []
+
+
+def registry() -> Registry:
+    if not _REGISTRY:
+        _REGISTRY.append(Registry.from_entry_points())
+    return _REGISTRY[0]
+
+
+# --------------------------------------------------------------------------------------------
+# A recording controller and a world that is nothing but it, the joint states and the scene
+# --------------------------------------------------------------------------------------------
+@dataclass
+class Goal:
+    seam: float
+    times: np.ndarray
+    positions: np.ndarray
+    velocities: np.ndarray
+    accelerations: np.ndarray
+    names: list[str]
+
+
+@dataclass
+class RecordingWorld:
+    """Accepts every goal, records it, "executes" it perfectly (the joint states follow the
+    newest goal from its seam on), succeeds it at its end, and cancels superseded goals."""
+
+    initial: np.ndarray
+    name: str = "recording"
+    goals: list[Goal] = field(default_factory=list)
+
+    def start(self, context: Any) -> None:
+        self.context = context
+        context.scene = make_cell_scene(CUBES)
+        self.active: Any = None
+        self.active_end = 0.0
+        bus = context.bus
+        bus.create_action_server(CONTROLLER, FollowTrajectory, self._on_goal, lambda goal: True)
+        self.joint_states = bus.create_publisher("/joint_states", JointState)
+        self._publish(0.0)
+
+    def _on_goal(self, handle: Any) -> bool:
+        traj = handle.request.joint_trajectory
+        seam = traj.header.stamp.sec + traj.header.stamp.nanosec * 1e-9
+        pts = traj.points
+        offsets = np.array([p.time_from_start.sec + p.time_from_start.nanosec * 1e-9 for p in pts])
+        self.goals.append(Goal(
+            seam,
+            seam + offsets,
+            np.array([list(p.positions) for p in pts], dtype=float),
+            np.array([list(p.velocities) for p in pts], dtype=float),
+            np.array([list(p.accelerations) for p in pts], dtype=float),
+            list(traj.joint_names),
+        ))
+        if self.active is not None and self.active.is_active:
+            self.active.canceled(FollowTrajectory.Result(error_code=FollowTrajectory.Result.SUPERSEDED, error_string="superseded"))
+        self.active, self.active_end = handle, float(seam + offsets[-1]) if len(offsets) else seam
+        return True
+
+    def position_at(self, t: float) -> np.ndarray:
+        q = self.initial
+        for goal in self.goals:
+            if len(goal.times) and t >= goal.seam:
+                q = np.array([np.interp(t, goal.times, goal.positions[:, j]) for j in range(goal.positions.shape[1])])
+        return q
+
+    def step_to(self, t: float) -> None:
+        if self.active is not None and self.active.is_active:
+            if self.active.is_cancel_requested:
+                self.active.canceled(FollowTrajectory.Result(error_code=0, error_string="cancelled"))
+            elif t >= self.active_end:
+                self.active.succeed(FollowTrajectory.Result(error_code=0, error_string=""))
+        self._publish(t)
+
+    def _publish(self, t: float) -> None:
+        msg = JointState(name=list(ARM_JOINTS) + [GRIPPER_DRIVER_JOINT], position=self.position_at(t).tolist() + [0.0])
+        msg.header.stamp = time_msg(t)
+        self.joint_states.publish(msg)
+
+    def summary(self) -> dict[str, Any]:
+        return {}
+
+    def close(self) -> None:
+        pass
+
+
+# --------------------------------------------------------------------------------------------
+# Random chunks
+# --------------------------------------------------------------------------------------------
+LIMITS = make_safety(make_cell_scene(CUBES), "manipulator", None).limits
+KINDS = ("smooth", "near_limit", "beyond_limit", "nonfinite", "jump", "into_table", "names", "width", "empty")
+
+
+@st.composite
+def chunk_spec(draw: Any) -> dict[str, Any]:
+    """A recipe for one chunk; built against the observed state when the policy is called."""
+    return {
+        "kind": draw(st.sampled_from(KINDS)),
+        "steps": draw(st.one_of(st.integers(1, 60), st.sampled_from([0, 1, 2, 3, 50]))),
+        "velocity": draw(st.lists(st.floats(-2.0, 2.0), min_size=6, max_size=6)),
+        "joint": draw(st.integers(0, 5)),
+        "at": draw(st.floats(0.0, 1.0)),
+        "size": draw(st.floats(-4.0, 4.0)),
+        "bad": draw(st.sampled_from([float("nan"), float("inf"), float("-inf")])),
+        "names": draw(st.sampled_from(["permuted", "renamed", "duplicated", "missing", "extra", "gripper"])),
+        "width": draw(st.sampled_from([0, 5, 7, 12])),
+        "seed": draw(st.integers(0, 2**16)),
+    }
+
+
+def build_chunk(spec: dict[str, Any], observed: np.ndarray, dt: float) -> tuple[list[str], list[list[float]]]:
+    names = list(ARM_JOINTS)
+    steps, j = spec["steps"], spec["joint"]
+    at = min(int(spec["at"] * steps), max(steps - 1, 0))
+    velocity = np.array(spec["velocity"])
+    rows = observed[None, :] + np.outer(np.arange(steps) * dt, velocity)
+    kind = spec["kind"]
+    if kind == "near_limit":  # head for a limit and stop a hair before or after it
+        bound = LIMITS.upper[j] if spec["size"] >= 0 else LIMITS.lower[j]
+        target = bound - np.sign(spec["size"]) * (abs(spec["size"]) % 0.02 - 0.01)
+        rows[:, j] = np.linspace(observed[j], target, max(steps, 1))[:steps]
+    elif kind == "beyond_limit" and steps:
+        rows[at:, j] = (LIMITS.upper[j] if spec["size"] >= 0 else LIMITS.lower[j]) + spec["size"]
+    elif kind == "nonfinite" and steps:
+        rows[at, j] = spec["bad"]
+    elif kind == "jump" and steps:
+        rows[at:, j] += spec["size"]
+    elif kind == "into_table":  # shoulder_lift and elbow fold the arm down onto the table
+        rows = observed[None, :] + np.outer(np.arange(steps) * dt, [0.0, 0.4 + abs(spec["size"]) / 4, 0.3, 0.0, 0.0, 0.0])
+    elif kind == "names":
+        rng = np.random.default_rng(spec["seed"])
+        change = spec["names"]
+        if change == "permuted":
+            order = rng.permutation(6) if not np.array_equal(rng.permutation(6), np.arange(6)) else np.array([1, 0, 2, 3, 4, 5])
+            names = [names[i] for i in order]
+            rows = rows[:, order]
+        elif change == "renamed":
+            names[j] = names[j] + "_x"
+        elif change == "duplicated":
+            names[j] = names[(j + 1) % 6]
+        elif change == "missing":
+            names = names[:-1]
+            rows = rows[:, :-1]
+        elif change == "extra":
+            names = names + ["finger_joint"]
+            rows = np.hstack([rows, np.zeros((steps, 1))])
+        else:  # a gripper column the run did not configure
+            names = names + [GRIPPER_DRIVER_JOINT]
+            rows = np.hstack([rows, np.zeros((steps, 1))])
+    elif kind == "width" and steps:
+        values = [list(r) for r in rows]
+        values[at] = (list(values[at]) * 3)[: spec["width"]]
+        return names, values
+    elif kind == "empty":
+        return names, []
+    return names, [list(r) for r in rows]
+
+
+# --------------------------------------------------------------------------------------------
+# One run and the property
+# --------------------------------------------------------------------------------------------
+@dataclass
+class Outcome:
+    status: str
+    reason: str
+    rejection: str
+    goals: list[Goal]
+    snapshot_scene: Any
+
+
+def run_chunks(specs: list[dict[str, Any]], start: np.ndarray, dt: float, points: int) -> Outcome:
+    ports = (f'total_action_steps="20" dt="{dt}" committed_action_steps="10" num_interpolation_points="{points}" '
+             f'link_padding="{PADDING}" goal_path_tolerance="0.3" policy_call_timeout="2.0"')
+    xml = (f'<root BTCPP_format="4"><BehaviorTree ID="T"><ExecutePolicy policy_service_name="{SERVICE}" '
+           f'joint_group_name="manipulator" {ports} rejection_reason="{{rejection}}"/></BehaviorTree></root>')
+    options = RunOptions(seed=0, max_seconds=20.0)
+    context = make_context(options)
+    world = RecordingWorld(start)
+    loaded = load_tree(xml, registry(), context)
+    calls = {"n": 0}
+
+    def serve(request: Any) -> Any:
+        index, calls["n"] = calls["n"], calls["n"] + 1
+        observed = np.array(request.robot_state.position)
+        spec = specs[min(index - 1, len(specs) - 1)] if index > 0 else {**specs[0], "kind": "smooth", "steps": 30}
+        names, rows = build_chunk(spec, observed, dt)
+        response = R(status=R.CHUNK_PRODUCED, native_control_period=dt)
+        response.chunk = JointTrajectory(joint_names=names, points=[JointTrajectoryPoint(positions=[float(v) for v in r]) for r in rows])
+        return response
+
+    context.bus.create_service(SERVICE, GetActionChunk, serve)
+    context.bus.set_latency(SERVICE, FixedLatency(0.05))
+    result = run_tree(loaded, context, options, world=world)
+    return Outcome(result.status, result.reason, result.blackboard.get("rejection", ""), world.goals, context.scene)
+
+
+def assert_nothing_unsafe_reached_the_controller(out: Outcome) -> None:
+    safety = make_safety(out.snapshot_scene, "manipulator", None)
+    snapshot = safety.snapshot()
+    lower, upper = LIMITS.lower, LIMITS.upper
+    vmax, amax = LIMITS.max_velocity, LIMITS.max_acceleration
+    tol = 1e-9
+    for g in out.goals:
+        assert g.names == list(ARM_JOINTS)
+        assert np.isfinite(g.positions).all() and np.isfinite(g.velocities).all() and np.isfinite(g.accelerations).all()
+        assert (g.positions >= lower - tol).all() and (g.positions <= upper + tol).all(), "a position beyond a limit reached the controller"
+        assert (np.abs(g.velocities) <= vmax + tol).all(), "a velocity beyond its limit reached the controller"
+        assert (np.abs(g.accelerations) <= amax + tol).all(), "an acceleration beyond its limit reached the controller"
+        if len(g.times) > 1:
+            fd = np.abs(np.diff(g.positions, axis=0)) / np.diff(g.times)[:, None]
+            assert (fd <= vmax * (1 + 1e-6) + 1e-6).all(), "consecutive points imply a speed beyond the limit"
+        samples = Samples(g.times, g.positions, g.velocities, g.accelerations)
+        hit = safety.first_collision(snapshot, samples, PADDING, 0.0)
+        assert hit is None, f"a point in collision reached the controller: {hit}"
+    assert out.status in ("SUCCESS", "FAILURE")
+    if out.status == "FAILURE" and "rejected" in out.reason:
+        assert out.rejection == out.reason and len(out.rejection) > len("chunk 1 rejected: ")
+
+
+starts = st.one_of(
+    st.just(READY),
+    st.tuples(st.integers(0, 5), st.booleans(), st.floats(0.0, 0.05)).map(
+        lambda t: np.where(np.arange(6) == t[0], (LIMITS.upper if t[1] else LIMITS.lower)[t[0]] - (1 if t[1] else -1) * t[2], READY)
+    ),
+)
+examples = dict(
+    specs=st.lists(chunk_spec(), min_size=1, max_size=2),
+    start=starts,
+    dt=st.sampled_from([0.05, 0.1]),
+    points=st.sampled_from([2, 10, 50, 100]),
+)
+common = dict(deadline=None, database=None, suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
+
+
+@settings(max_examples=30, **common)
+@given(**examples)
+def test_no_unsafe_point_reaches_the_controller(specs, start, dt, points):
+    assert_nothing_unsafe_reached_the_controller(run_chunks(specs, start, dt, points))
+
+
+def _classify(out: Outcome) -> None:
+    """Label the example for ``--hypothesis-show-statistics``: how far did the chunks get?"""
+    event(f"{out.status}, {len(out.goals)} goal(s) reached the controller")
+    if out.status == "FAILURE":
+        event("rejected: " + out.reason.split(":")[1].strip().split(" ")[0] if "rejected" in out.reason else "failed: " + out.reason[:40])
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(3600)
+@settings(max_examples=2000, **common)
+@given(**examples)
+def test_no_unsafe_point_reaches_the_controller_2000_examples(specs, start, dt, points):
+    out = run_chunks(specs, start, dt, points)
+    _classify(out)
+    assert_nothing_unsafe_reached_the_controller(out)
+
+
+# -- the property's own sanity: the harness does reach the controller and does reject -------------
+def test_a_smooth_chunk_reaches_the_controller_and_a_nan_is_rejected_with_a_reason():
+    smooth = {"kind": "smooth", "steps": 40, "velocity": [0.05] * 6, "joint": 0, "at": 0.5, "size": 0.0,
+              "bad": float("nan"), "names": "permuted", "width": 0, "seed": 0}
+    out = run_chunks([smooth], READY, 0.1, 50)
+    assert out.status == "SUCCESS", out.reason
+    assert len(out.goals) == 2 and all(len(g.times) == 50 for g in out.goals)
+    assert_nothing_unsafe_reached_the_controller(out)
+    out = run_chunks([smooth, {**smooth, "kind": "nonfinite", "joint": 2}], READY, 0.1, 50)
+    assert out.status == "FAILURE" and len(out.goals) == 1
+    assert out.rejection == "chunk 2 rejected: step 20 joint 'elbow_joint' is not finite (nan)"
+
+
+def test_a_chunk_into_the_table_never_reaches_the_controller():
+    down = {"kind": "into_table", "steps": 50, "velocity": [0.0] * 6, "joint": 0, "at": 0.0, "size": 0.0,
+            "bad": float("nan"), "names": "permuted", "width": 0, "seed": 0}
+    out = run_chunks([down], READY, 0.1, 100)
+    assert out.status == "FAILURE"
+    assert "world collision" in out.rejection and "vs table" in out.rejection
+    assert_nothing_unsafe_reached_the_controller(out)  # the windows before the table went through
