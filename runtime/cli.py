@@ -109,7 +109,22 @@ def build_parser() -> argparse.ArgumentParser:
     report = sub.add_parser("report", help="render the plots, video, tree and page of a recording again")
     report.add_argument("dir", type=Path, help="a directory written by `objective run --record DIR`")
     _add_policy_commands(sub)
+    _add_demo_commands(sub)
     return parser
+
+
+def _add_demo_commands(sub: Any) -> None:
+    """``record-demos``: oracle demonstrations as a LeRobot dataset (sim.demos, needs `make lerobot`)."""
+    demos = sub.add_parser("record-demos", help="record oracle demonstrations in the cell as a local LeRobot dataset")
+    demos.add_argument("out", type=Path, help="dataset folder to create")
+    demos.add_argument("--episodes", type=int, default=10, help="episodes to record (default 10)")
+    demos.add_argument("--seed", type=int, default=0, help="seed of the first episode's layout; episode i uses seed+i")
+    demos.add_argument("--world", metavar="NAME", help="world to record in (default: vla_sim if installed, else kinematic)")
+    demos.add_argument("--image-size", type=int, default=128, metavar="PX", help="camera frames, square (default 128)")
+    demos.add_argument("--steps", type=int, default=250, help="policy steps (0.1 s) recorded per episode (default 250)")
+    demos.add_argument("--prompt", default="stack the blue cube on the green cube", help="the task, as the oracle reads it")
+    demos.add_argument("--keep-failed", action="store_true", help="keep episodes whose stack check failed")
+    demos.add_argument("--overwrite", action="store_true", help="replace OUT if it exists")
 
 
 def _add_policy_commands(sub: Any) -> None:
@@ -399,6 +414,25 @@ def cmd_smoke_test(args: argparse.Namespace, registry: Registry) -> int:
     return EXIT_SUCCESS if report.passed else EXIT_FAILURE
 
 
+def cmd_record_demos(args: argparse.Namespace, registry: Registry) -> int:
+    from sim.demos import DemoOptions, record_demos
+
+    try:
+        summary = record_demos(DemoOptions(
+            episodes=args.episodes, seed=args.seed, out=args.out, world=args.world, image_size=args.image_size,
+            total_steps=args.steps, prompt=args.prompt, keep_failed=args.keep_failed, overwrite=args.overwrite,
+        ))
+    except ValueError as err:
+        print(f"error: {err}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except RuntimeError as err:
+        print(f"error: {err}", file=sys.stderr)
+        return EXIT_FAILURE
+    dropped = f", dropped seeds {summary.episodes_dropped}" if summary.episodes_dropped else ""
+    print(f"{summary.out}: {summary.episodes_kept} episodes, {summary.frames} frames from world '{summary.world}'{dropped}")
+    return EXIT_SUCCESS
+
+
 COMMANDS = {
     "run": cmd_run,
     "validate": cmd_validate,
@@ -409,6 +443,7 @@ COMMANDS = {
     "serve": cmd_serve,
     "adapter": cmd_adapter,
     "smoke-test": cmd_smoke_test,
+    "record-demos": cmd_record_demos,
 }
 
 

@@ -1,0 +1,305 @@
+"""``objective record-demos``: oracle demonstrations recorded in the cell as a local LeRobotDataset.
+
+How an episode is recorded (through the normal runtime, so the demonstrations see exactly what a
+policy sees in deployment: the same camera topics, joint states and prompt, and the robot moved
+by ExecutePolicy through the admittance controller with the shipped Objective's settings):
+
+1. The world (``vla_sim`` when installed, else ``kinematic``; ``--world`` picks) starts with the
+   episode's seed, so the cube layout differs per episode, and serves no policy of its own.
+2. :data:`RECORD_XML` runs the shipped "Prepare for Policy" SubTree, then ExecutePolicy exactly as
+   ``objectives/stack_cubes.xml`` does (dt 0.1 s, 20 committed steps) with the scripted oracle
+   behind ``/get_action_chunk``, then the stack check.
+3. While ExecutePolicy runs, the world wrapper samples a frame every policy step (0.1 s of sim
+   time): the camera topics and ``/joint_states`` as a subscriber reads them, and as ``action``
+   the oracle's plan at that instant (the same function its chunks sample: a chunk's row ``k`` is
+   the plan ``k`` steps after the request). So the 50-step chunk a policy must learn at frame
+   ``t`` is the ``action`` of frames ``t .. t+49``: what LeRobot's ``delta_timestamps`` loads.
+   (Requests alone would give an observation only every 20 steps, and a run with one committed
+   step per chunk is not what ExecutePolicy is built for: every window would end at rest.)
+4. After the run, the frames go into the dataset (``add_frame`` / ``save_episode``), images as
+   PNG (``image`` features, no video codec to depend on); episodes whose stack check failed are
+   dropped unless ``keep_failed``.
+
+Features: ``observation.state`` and ``action`` (float32, the 6 arm joints then the gripper joint,
+the request's ``robot_state`` order), ``observation.images.<camera>`` (H x W x 3 uint8) per camera,
+and the prompt as the frame's task. ``meta/info.json`` keeps the joint names.
+
+The seeds of episode ``i`` is ``seed + i``; the same seeds give the same dataset.
+"""
+from __future__ import annotations
+
+import logging
+import math
+import shutil
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from sim.policy.backend import PolicyRequest, PolicyResponse
+
+LOG = logging.getLogger("objective.demos")
+
+DEFAULT_PROMPT = "stack the blue cube on the green cube"
+CAMERAS = ("scene", "wrist", "overview")
+FPS = 10
+"""The dataset's rate: frames (requests) are 0.1 s apart, the learned policy's step."""
+
+RECORD_XML = """<?xml version="1.0" encoding="UTF-8"?>
+<root BTCPP_format="4" main_tree_to_execute="Record Demonstration">
+  <BehaviorTree ID="Record Demonstration">
+    <Sequence>
+      <SubTree ID="Prepare for Policy"/>
+      <ExecutePolicy
+          policy_service_name="/get_action_chunk"
+          joint_group_name="manipulator"
+          prompt="{prompt}"
+          total_action_steps="{total_steps}"
+          dt="0.1"
+          committed_action_steps="20"
+          num_interpolation_points="200"
+          goal_path_tolerance="0.3"
+          policy_tracking_weight="300.0"
+          policy_call_timeout="10.0"
+          image_topics="/scene_camera/color;/wrist_camera/color;/overview_camera/color"
+          image_names="scene;wrist;overview"
+          joint_states_topic="/joint_states"
+          absolute_force_torque_threshold="250;250;250;80;80;80"
+          gripper_command_action_name="/robotiq_gripper_controller/gripper_cmd"
+          gripper_joint_name="robotiq_85_left_knuckle_joint"/>
+      <SubTree ID="Check if One Cube Is on Another" top_color="{top}" bottom_color="{bottom}"/>
+    </Sequence>
+  </BehaviorTree>
+</root>
+"""
+
+
+@dataclass
+class DemoFrame:
+    images: dict[str, np.ndarray]
+    state: np.ndarray
+    action: np.ndarray
+    prompt: str
+    time: float
+
+
+class _RecordingWorld:
+    """The world, with the oracle served on ``/get_action_chunk`` and a frame sampled every step.
+
+    Delegates everything else to the wrapped world. ``frames`` holds the episode's samples, taken
+    from the first real request (ExecutePolicy's second ``new_episode`` request; the first is its
+    discarded warmup) for ``duration`` seconds of sim time.
+    """
+
+    def __init__(self, inner: Any, prompt: str, duration: float) -> None:
+        self.inner = inner
+        self.prompt = prompt
+        self.duration = duration
+        self.frames: list[DemoFrame] = []
+        self.joint_names: list[str] = []
+        self.oracle: Any = None
+        self.started_at: float | None = None
+        self.episode_requests = 0
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self.inner, name)
+
+    def start(self, context: Any) -> None:
+        from sensor_msgs.msg import Image, JointState
+
+        from sim.policy.adapter import DEFAULT_SERVICE_NAME, PolicyAdapter
+        from sim.policy.oracle import oracle_for_cell
+
+        self.inner.start(context)
+        self.oracle = oracle_for_cell(self.inner.cell)
+        self.oracle.load()
+        PolicyAdapter(_EpisodeStart(self.oracle, self)).serve(context.bus, DEFAULT_SERVICE_NAME)
+        self.joint_sub = context.bus.create_subscription("/joint_states", JointState, None)
+        self.camera_subs = {c: context.bus.create_subscription(f"/{c}_camera/color", Image, None) for c in CAMERAS}
+
+    def step_to(self, t: float) -> None:
+        self.inner.step_to(t)
+        if self.started_at is None or self.oracle.plan is None:
+            return
+        now = float(self.oracle.peek.time())
+        elapsed = now - self.started_at
+        if elapsed > self.duration - 1e-9:
+            return
+        if elapsed + 1e-9 >= len(self.frames) / FPS:
+            self.frames.append(self._sample(now))
+
+    def _sample(self, now: float) -> DemoFrame:
+        from sim.policy.images import image_to_rgb
+
+        joints = self.joint_sub.latest
+        names = list(joints.name)
+        arm_names = list(self.oracle.peek.kinematics.joint_names)
+        arm, gripper = self.oracle.plan.sample(np.array([now - self.oracle.plan.start]))
+        action = np.empty(len(names), dtype=np.float32)
+        for column, name in enumerate(names):
+            action[column] = arm[0, arm_names.index(name)] if name in arm_names else float(np.ravel(gripper)[0])
+        self.joint_names = names
+        return DemoFrame(
+            images={c: image_to_rgb(sub.latest, c) for c, sub in self.camera_subs.items()},
+            state=np.asarray(joints.position, dtype=np.float32),
+            action=action,
+            prompt=self.prompt,
+            time=now,
+        )
+
+
+class _EpisodeStart:
+    """The oracle as a backend, telling the world when the real episode starts."""
+
+    def __init__(self, inner: Any, world: _RecordingWorld) -> None:
+        self.inner, self.world, self.name = inner, world, "oracle"
+
+    def load(self) -> None:
+        self.inner.load()
+
+    def warmup(self, example_request: PolicyRequest) -> None:
+        self.inner.warmup(example_request)
+
+    def infer(self, request: PolicyRequest) -> PolicyResponse:
+        response = self.inner.infer(request)
+        if request.new_episode:
+            self.world.episode_requests += 1
+            if self.world.episode_requests == 2:  # the first one is ExecutePolicy's discarded warmup
+                self.world.started_at = float(self.inner.peek.time())
+                self.world.frames = []
+        return response
+
+
+@dataclass
+class DemoOptions:
+    episodes: int
+    seed: int
+    out: Path
+    world: str | None = None
+    """None: ``vla_sim`` when installed, else ``kinematic`` (whose cameras are flat gray)."""
+    image_size: int = 128
+    total_steps: int = 250
+    prompt: str = DEFAULT_PROMPT
+    keep_failed: bool = False
+    """Keep episodes whose final stack check failed (default: drop them, a demonstration must succeed)."""
+    overwrite: bool = False
+
+
+@dataclass
+class DemoSummary:
+    out: Path
+    world: str
+    episodes_kept: int
+    episodes_dropped: list[int]
+    frames: int
+    joint_names: list[str]
+
+
+def default_world() -> str:
+    from importlib.metadata import entry_points
+
+    names = {ep.name for ep in entry_points(group="objective.worlds")}
+    return "vla_sim" if "vla_sim" in names else "kinematic"
+
+
+def dataset_features(joint_names: list[str], image_size: int, cameras: tuple[str, ...] = CAMERAS) -> dict:
+    """LeRobotDataset features of the recording."""
+    vector = {"dtype": "float32", "shape": (len(joint_names),), "names": list(joint_names)}
+    features = {"observation.state": dict(vector), "action": dict(vector)}
+    for camera in cameras:
+        features[f"observation.images.{camera}"] = {
+            "dtype": "image", "shape": (image_size, image_size, 3), "names": ["height", "width", "channels"],
+        }
+    return features
+
+
+def record_demos(options: DemoOptions) -> DemoSummary:
+    """Record ``options.episodes`` oracle episodes into a LeRobotDataset at ``options.out``."""
+    from sim.policy.lerobot_compat import ensure_torchvision
+
+    ensure_torchvision()
+    import datasets
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    datasets.disable_progress_bars()
+
+    from runtime.loader import load_tree
+    from runtime.registry import Registry
+    from runtime.runner import RunOptions, create_world, make_context, run_tree
+    from sim.policy.oracle import parse_prompt
+
+    if options.episodes < 1:
+        raise ValueError(f"--episodes must be >= 1, got {options.episodes}")
+    top, bottom = parse_prompt(options.prompt)
+    out = Path(options.out)
+    if out.exists():
+        if not options.overwrite:
+            raise ValueError(f"{out} already exists (pass --overwrite to replace it)")
+        shutil.rmtree(out)
+    world_name = options.world or default_world()
+    registry = Registry.from_entry_points()
+    objectives = Path(__file__).resolve().parent.parent / "objectives"
+    dataset = None
+    dropped: list[int] = []
+    kept = frames = 0
+    joint_names: list[str] = []
+    for episode in range(options.episodes):
+        seed = options.seed + episode
+        run_options = RunOptions(seed=seed, world=world_name, policy_latency="0", sets={
+            "prompt": options.prompt, "total_steps": str(options.total_steps), "top": top, "bottom": bottom,
+        })
+        world_options = {"seed": seed, "realtime": False, "policy": "none", "policy_latency": "0"}
+        probe = create_world(world_name, {"seed": seed})
+        if "image_size" in getattr(probe, "OPTIONS", ()):
+            world_options["image_size"] = options.image_size
+        probe.close()
+        world = _RecordingWorld(create_world(world_name, world_options), options.prompt, options.total_steps / FPS)
+        context = make_context(run_options)
+        loaded = load_tree(RECORD_XML, registry, context, objectives_dir=objectives)
+        result = run_tree(loaded, context, run_options, world=world)
+        episode_frames = world.frames
+        if result.status != "SUCCESS" and not options.keep_failed:
+            LOG.warning("episode %d (seed %d) dropped: %s", episode, seed, result.reason)
+            dropped.append(seed)
+            continue
+        _check_frames(episode_frames, seed, options.image_size)
+        if dataset is None:
+            joint_names = world.joint_names
+            dataset = LeRobotDataset.create(
+                repo_id="local/stack_cubes_demos", fps=FPS, root=out, robot_type="ur5e_2f85",
+                features=dataset_features(joint_names, options.image_size), use_videos=False,
+            )
+        for frame in episode_frames:
+            dataset.add_frame({
+                "observation.state": frame.state,
+                "action": frame.action,
+                **{f"observation.images.{c}": frame.images[c] for c in CAMERAS},
+                "task": frame.prompt,
+            })
+        dataset.save_episode()
+        kept += 1
+        frames += len(episode_frames)
+        LOG.info("episode %d (seed %d): %d frames, %s", episode, seed, len(episode_frames), result.status)
+    if dataset is None:
+        raise RuntimeError(f"no successful episode in {options.episodes} (seeds {options.seed}..{options.seed + options.episodes - 1})")
+    dataset.finalize()
+    return DemoSummary(out, world_name, kept, dropped, frames, joint_names)
+
+
+def _check_frames(frames: list[DemoFrame], seed: int, image_size: int) -> None:
+    """Frames must be one policy step apart and full size, or the chunk labels would be wrong."""
+    if not frames:
+        raise RuntimeError(f"episode with seed {seed} recorded no frame")
+    for frame in frames:
+        missing = [c for c in CAMERAS if c not in frame.images]
+        if missing:
+            raise RuntimeError(f"episode with seed {seed}: no frame from cameras {missing}")
+        shape = frame.images[CAMERAS[0]].shape
+        if shape != (image_size, image_size, 3):
+            raise RuntimeError(
+                f"episode with seed {seed}: camera frames are {shape}, expected {image_size} x {image_size} x 3 "
+                f"(does the world take the image_size option?)"
+            )
+    if not math.isfinite(float(np.sum([f.action.sum() for f in frames]))):
+        raise RuntimeError(f"episode with seed {seed}: non-finite actions")
