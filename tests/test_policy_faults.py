@@ -157,12 +157,6 @@ def test_latency_spike_beyond_the_window_pauses_then_finishes(registry):
     out.assert_stopped_cleanly()
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "known ExecutePolicy bug (reported): after a spike the latency estimate (which only grows) makes the "
-    "frozen prefix larger than the time left in the committed motion; the next chunk, asked for at once, "
-    "arrives quickly but StepGrid.plan_window puts its seam at request + frozen, past the end of the "
-    "committed motion, and the admittance controller refuses the goal ('seam time exceeds the end of "
-    "the current trajectory'): the run fails instead of continuing"))
 def test_run_continues_after_a_spike_in_the_middle(registry):
     out = run_with_faults(registry, Policy(), Latencies(0.1, c2=2.8))
     assert out.status == "SUCCESS", out.message

@@ -106,6 +106,9 @@ class ExecutePolicy(Behavior):
         self.rejection = ""
         self.started_at = self.context.clock.now()
         self.in_flight: InFlight | None = None
+        self.waiting_chunk: tuple[Any, Any, InFlight] | None = None
+        """A chunk that arrived too late to join the motion still playing: it starts, from rest,
+        once the controller reports that motion finished."""
         self.goal_handle: Any = None
         self.goal_result: Any = None
         self.motion: ChunkMotion | None = None
@@ -222,7 +225,14 @@ class ExecutePolicy(Behavior):
             return status
         self._stream_gripper(now)
         self._track_progress(now)
-        if self.in_flight is not None:
+        if self.waiting_chunk is not None:
+            if self.goal_result is not None:
+                chunk, response, flight = self.waiting_chunk
+                self.waiting_chunk = None
+                status = self._execute(chunk, response, flight, now)
+                if status is not None:
+                    return status
+        elif self.in_flight is not None:
             status = self._receive(now)
             if status is not None:
                 return status
@@ -309,6 +319,12 @@ class ExecutePolicy(Behavior):
         except WindowError as err:
             return self._reject(f"chunk {index} rejected: {err}")
         seam_time = grid.time(window.seam_step)
+        if self.motion is not None and seam_time > self.motion.end + 1e-9 and self.goal_result is None:
+            # Too late to join the motion the controller is still playing: a seam after its end
+            # would be refused ("seam time exceeds the end of the current trajectory"). Wait for
+            # the motion to finish; the chunk then starts from rest (a pause, counted as a stall).
+            self.waiting_chunk = (chunk, response, flight)
+            return None
         start_p, start_v = self._state_at(seam_time)
         spline = fit_chunk(chunk.arm, c.policy_tracking_weight)
         motion = join_at_seam(
@@ -481,6 +497,7 @@ class ExecutePolicy(Behavior):
         if self.in_flight is not None:
             self.in_flight.future.cancel()
             self.in_flight = None
+        self.waiting_chunk = None
         self.gripper_schedule = []
 
     def _write_outputs(self) -> None:

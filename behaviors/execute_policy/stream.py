@@ -61,13 +61,16 @@ class StepGrid:
         return self.committed_end - frozen
 
     def plan_window(self, index: int, request_step: int, frozen: int, chunk_steps: int, earliest_seam: int) -> Window:
-        """The window a chunk of ``chunk_steps`` steps requested at ``request_step`` executes.
+        """The window a chunk of ``chunk_steps`` steps requested at ``request_step`` executes,
+        given the first step it can still join at (``earliest_seam``, from its arrival).
 
-        The seam is the planned one (request + frozen prefix), pushed later when the chunk
-        arrived after it (``earliest_seam``). Raises WindowError when the chunk ends before
-        the seam.
+        Raises WindowError when the chunk ends before the seam.
         """
-        seam = max(request_step + frozen, earliest_seam, self.committed_end if index > 1 else 0)
+        # The chunk takes over where the committed motion ends (normally request + frozen prefix);
+        # a chunk that arrives after that starts at the first step it can (the robot paused).
+        # The frozen prefix is only the estimate sent to the policy: a chunk that arrives early
+        # after a late request still joins at the end of the committed motion.
+        seam = max(earliest_seam, self.committed_end if index > 1 else request_step)
         # A chunk with N steps has positions up to chunk step N-1: the window needs its end point.
         available = request_step + chunk_steps - 1 - seam
         steps = min(self.committed_steps, self.remaining, available)
