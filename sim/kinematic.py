@@ -1,38 +1,29 @@
-"""A kinematic cell: the same robot, controllers, topics and policy service as the MuJoCo cell,
-without physics. The arm is exactly where its controller commands it; a cube between closing
-fingers is carried rigidly and dropped onto whatever is below when the fingers open.
+"""A kinematic cell: the same robot, controllers, topics and policy service as the MuJoCo cell
+(``sim.world.CellWorld`` hosts either), without physics. The arm is exactly where its controller
+commands it; a cube between closing fingers is carried rigidly and dropped onto whatever is
+below when the fingers open; cameras show a flat gray frame.
 
 Use it where physics is beside the point: ExecutePolicy's streaming tests, latency sweeps and
 benchmarks (hundreds of simulated seconds per wall second). World name ``kinematic``.
 """
 from __future__ import annotations
 
-import functools
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 import pinocchio as pin
-from geometry_msgs.msg import TransformStamped
-from sensor_msgs.msg import Image, JointState
 
-from runtime.behavior import RunContext
 from runtime.scene import frame_pose
-from runtime.timestamps import time_msg
 
-from .cell_model import CUBE_COLORS
-from .controllers import make_controllers
 from .layouts import layout
-from .policy.embedded import serve_embedded_policy
-from .policy.oracle_remote import CUBE_POSE_TOPIC, cube_pose_msg
-from .planning import CUBE_SIZE, cell_robot, make_cell_scene, sync_cubes
-from .robot_model import ARM_JOINTS, GRIPPER_DRIVER_JOINT, TCP_SITE, load_waypoints
+from .planning import CUBE_SIZE, cell_robot
+from .robot_model import ARM_JOINTS, GRIPPER_DRIVER_JOINT, TCP_SITE
+from .world import CellWorld
 
-CONTROL_PERIOD = 0.002
 GRIPPER_SPEED = 1.6  # rad/s of the driver joint: fully closed in 0.5 s
 GRIPPER_CLOSED_ON_CUBE = 0.52  # driver angle where the 2F-85's pads meet a 30 mm cube
 GRASP_RADIUS = 0.025  # a cube centre this close to the TCP is between the fingers
-CAMERA_TOPICS = {"scene": "/scene_camera/color", "wrist": "/wrist_camera/color", "overview": "/overview_camera/color"}
 
 
 def _yaw_quat(yaw: float) -> np.ndarray:
@@ -49,6 +40,7 @@ class KinematicCell:
     gripper_joint_name: str = GRIPPER_DRIVER_JOINT
     external_wrench: np.ndarray = field(default_factory=lambda: np.zeros(6))
     cubes: dict[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
+    image_size: int = 32
 
     def __post_init__(self) -> None:
         self.arm = np.asarray(self.arm, dtype=float).copy()
@@ -60,6 +52,7 @@ class KinematicCell:
         self.grasp_offset = np.eye(4)
         self._robot = cell_robot()
         self._full = self._robot.neutral().copy()
+        self.frame = np.full((self.image_size, self.image_size, 3), 128, dtype=np.uint8)
 
     # -- Hardware ---
     def time(self) -> float:
@@ -93,6 +86,29 @@ class KinematicCell:
         frame = robot.frame_id(TCP_SITE)
         J = pin.computeFrameJacobian(robot.model, robot.model.createData(), q, frame, pin.ReferenceFrame.LOCAL_WORLD_ALIGNED)
         return np.asarray(J[:, [robot.joint_q_index(j) for j in ARM_JOINTS]])
+
+    # -- the world's view ---
+    @classmethod
+    def at_layout(cls, arm: np.ndarray, seed: int, image_size: int = 32) -> KinematicCell:
+        cell = cls(arm, image_size=image_size)
+        cell.reset(seed, arm)
+        return cell
+
+    def cube_poses(self) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+        return {c: self.cube_pose(c) for c in self.cubes}
+
+    def reset(self, seed: int, arm: np.ndarray) -> None:
+        self.cubes = {c: (np.array([x, y, CUBE_SIZE / 2]), _yaw_quat(yaw)) for c, (x, y, yaw) in layout(seed).items()}
+        self.arm = np.asarray(arm, dtype=float).copy()
+        self.arm_velocity_now = np.zeros(6)
+        self.gripper = self.gripper_target = self.gripper_rate = 0.0
+        self.carried = None
+
+    def render(self, camera: str) -> np.ndarray:
+        return self.frame
+
+    def close(self) -> None:
+        pass
 
     # -- kinematics of the cell ---
     def _configuration(self) -> np.ndarray:
@@ -158,91 +174,12 @@ def _matrix_quat(R: np.ndarray) -> np.ndarray:
     return np.array([q.w, q.x, q.y, q.z])
 
 
-class KinematicWorld:
-    """World ``kinematic``: the cell's services on the bus, stepped at 500 Hz without physics."""
-
-    name = "kinematic"
-    OPTIONS = ("seed", "realtime", "policy_latency", "record_dir", "image_size", "policy", "start", "joint_states_reliable")
+class KinematicWorld(CellWorld):
+    """World ``kinematic`` (a ``CellWorld`` around a ``KinematicCell``)."""
 
     def __init__(self, options: dict[str, Any]) -> None:
-        unknown = sorted(set(options) - set(self.OPTIONS))
-        if unknown:
-            raise ValueError(f"world 'kinematic': unknown options {', '.join(unknown)} (known: {', '.join(self.OPTIONS)})")
-        self.options = options
-        self.seed = int(options.get("seed") or 0)
-        self.image_size = int(options.get("image_size") or 32)
-        self.waypoints = load_waypoints()
-        start = options.get("start") or "Ready"
-        self.start_arm = np.array([self.waypoints[start][j] for j in ARM_JOINTS])
-        self.cell = self._new_cell(self.seed)
-
-    def _new_cell(self, seed: int) -> KinematicCell:
-        cubes = {c: (np.array([x, y, CUBE_SIZE / 2]), _yaw_quat(yaw)) for c, (x, y, yaw) in layout(seed).items()}
-        return KinematicCell(self.start_arm, cubes=cubes)
-
-    # -- World ---
-    def start(self, context: RunContext) -> None:
-        self.context = context
-        bus = context.bus
-        self.controllers = make_controllers(bus, self.cell, context.clock)
-        reliable = bool(self.options.get("joint_states_reliable", True))
-        self.joint_states = bus.create_publisher("/joint_states", JointState, reliable=reliable)
-        self.frame = np.full((self.image_size, self.image_size, 3), 128, dtype=np.uint8)
-        for topic in CAMERA_TOPICS.values():
-            bus.create_lazy_publisher(topic, Image, self._camera_frame)
-        for color in self.cell.cubes:  # the remote oracle's privileged view; produced only when read
-            bus.create_lazy_publisher(CUBE_POSE_TOPIC.format(color=color), TransformStamped,
-                                      functools.partial(self._cube_pose, color), rate_hz=50.0)
-        context.scene = make_cell_scene(self.cell.cubes)
-        context.resources["waypoints"] = self.waypoints
-        context.world = self
-        self.adapter = serve_embedded_policy(bus, self.options.get("policy"), self.cell, self.options.get("policy_latency"), self.seed)
-        self._publish()
-
-    def step_to(self, t: float) -> None:
-        while self.cell.t + CONTROL_PERIOD <= t + 1e-9:
-            self.controllers.update(self.cell.t, CONTROL_PERIOD)
-            self.cell.step(CONTROL_PERIOD)
-        self._publish()
-        sync_cubes(self.context.scene, self.cell.cubes)
-
-    def reset(self, seed: int) -> None:
-        self.seed = seed
-        self.cell.cubes = self._new_cell(seed).cubes
-        self.cell.arm = self.start_arm.copy()
-        self.cell.carried = None
-        self.controllers.reset()
-        sync_cubes(self.context.scene, self.cell.cubes)
-        self._publish()
-
-    def summary(self) -> dict[str, Any]:
-        return {
-            "cubes": {c: [round(float(v), 4) for v in self.cell.cubes[c][0]] for c in CUBE_COLORS},
-            "gripper": round(self.cell.gripper, 4),
-            "carried": self.cell.carried,
-        }
-
-    def close(self) -> None:
-        pass
-
-    # -- publishing ---
-    def _publish(self) -> None:
-        msg = JointState()
-        t = self.cell.t
-        msg.header.stamp = time_msg(t)
-        msg.name = list(ARM_JOINTS) + [GRIPPER_DRIVER_JOINT]
-        msg.position = self.cell.arm.tolist() + [self.cell.gripper]
-        msg.velocity = self.cell.arm_velocity_now.tolist() + [self.cell.gripper_rate]
-        self.joint_states.publish(msg)
-
-    def _cube_pose(self, color: str) -> TransformStamped:
-        position, quat = self.cell.cubes[color]
-        return cube_pose_msg(color, position, quat, self.cell.t)
-
-    def _camera_frame(self) -> Image:
-        from .policy.images import rgb_to_image
-
-        return rgb_to_image(self.frame)
+        size = int(options.get("image_size") or 32)
+        super().__init__("kinematic", options, lambda arm, seed: KinematicCell.at_layout(arm, seed, size))
 
 
 def create(options: dict[str, Any]) -> KinematicWorld:

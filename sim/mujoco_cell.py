@@ -1,0 +1,164 @@
+"""The physics cell: MuJoCo UR5e + Robotiq 2F-85 on a table with three cubes.
+
+Implements ``sim.hardware.Hardware`` for the simulated controllers, plus what the world needs:
+cube poses, seeded resets, and camera frames. A grasped cube is held by friction between the
+pads, not welded. Rendering needs ``MUJOCO_GL=egl`` (set here before mujoco is imported).
+"""
+from __future__ import annotations
+
+import os
+
+os.environ.setdefault("MUJOCO_GL", "egl")
+
+import mujoco  # noqa: E402
+import numpy as np  # noqa: E402
+
+from .cell_model import CAMERA_NAMES, CUBE_COLORS, FT_FORCE_SENSOR, FT_TORQUE_SENSOR, CellOptions, build_cell_spec, cube_body_name  # noqa: E402
+from .layouts import layout  # noqa: E402
+from .robot_model import ARM_JOINTS, FT_SITE, GRIPPER_DRIVER_JOINT  # noqa: E402
+
+GRIPPER_ACTUATOR = "gripper_fingers_actuator"
+GRIPPER_CTRL_PER_RAD = 255.0 / 0.8  # the Menagerie 2F-85 maps ctrl 0..255 onto the driver's 0..0.8 rad
+SETTLE_SECONDS = 0.2  # after a reset: cubes come to rest on the table before time starts
+
+
+def _yaw_quat(yaw: float) -> np.ndarray:
+    return np.array([np.cos(yaw / 2), 0.0, 0.0, np.sin(yaw / 2)])
+
+
+class MujocoCell:
+    """The cell's physics and sensors. ``t`` is the world time (runtime clock), which a reset
+    does not rewind; MuJoCo's own ``data.time`` is not used for anything the outside sees."""
+
+    arm_joint_names = ARM_JOINTS
+    gripper_joint_name = GRIPPER_DRIVER_JOINT
+
+    def __init__(self, options: CellOptions | None = None, arm: np.ndarray | None = None, seed: int = 0) -> None:
+        self.options = options or CellOptions()
+        self.model = build_cell_spec(self.options).compile()
+        self.data = mujoco.MjData(self.model)
+        m = self.model
+        self._arm_qpos = np.array([m.joint(j).qposadr[0] for j in ARM_JOINTS])
+        self._arm_dof = np.array([m.joint(j).dofadr[0] for j in ARM_JOINTS])
+        self._arm_ctrl = np.array([m.actuator(j.replace("_joint", "")).id for j in ARM_JOINTS])
+        # The arm servos are PD on position: force = kp (ctrl - q) - kd qdot. At constant speed v
+        # they lag by kd v / kp; adding that to the target (velocity feed-forward) removes the lag.
+        self._lead = np.array([-m.actuator_biasprm[a][2] / m.actuator_gainprm[a][0] for a in self._arm_ctrl])
+        self._gripper_qpos = m.joint(GRIPPER_DRIVER_JOINT).qposadr[0]
+        self._gripper_dof = m.joint(GRIPPER_DRIVER_JOINT).dofadr[0]
+        self._gripper_ctrl = m.actuator(GRIPPER_ACTUATOR).id
+        self._cube_body = {c: m.body(cube_body_name(c)).id for c in CUBE_COLORS}
+        self._cube_qpos = {c: m.joint(f"{cube_body_name(c)}_joint").qposadr[0] for c in CUBE_COLORS}
+        self._ft_site = m.site(FT_SITE).id
+        self._force_adr = m.sensor(FT_FORCE_SENSOR).adr[0]
+        self._torque_adr = m.sensor(FT_TORQUE_SENSOR).adr[0]
+        self._renderers: dict[str, mujoco.Renderer] = {}
+        self._frames: dict[str, tuple[float, np.ndarray]] = {}
+        self.external_wrench = np.zeros(6)  # tests push the tool with this (world frame, at the F/T site)
+        self.t = 0.0
+        self.renders = 0
+        self.reset(seed, np.asarray(arm if arm is not None else self.data.qpos[self._arm_qpos]))
+
+    # -- Hardware ---------------------------------------------------------------------------
+    def time(self) -> float:
+        return self.t
+
+    def arm_position(self) -> np.ndarray:
+        return self.data.qpos[self._arm_qpos].copy()
+
+    def arm_velocity(self) -> np.ndarray:
+        return self.data.qvel[self._arm_dof].copy()
+
+    def command_arm(self, position: np.ndarray, velocity: np.ndarray | None = None) -> None:
+        target = np.asarray(position, dtype=float)
+        if velocity is not None:
+            target = target + self._lead * np.asarray(velocity, dtype=float)
+        self.data.ctrl[self._arm_ctrl] = target
+
+    def gripper_position(self) -> float:
+        return float(self.data.qpos[self._gripper_qpos])
+
+    def gripper_velocity(self) -> float:
+        return float(self.data.qvel[self._gripper_dof])
+
+    def command_gripper(self, position: float, max_effort: float) -> None:
+        """Position control of the driver. The 2F-85 model's actuator has a fixed force range,
+        so ``max_effort`` is not modelled (documented in the README)."""
+        self.data.ctrl[self._gripper_ctrl] = float(np.clip(position, 0.0, 0.8)) * GRIPPER_CTRL_PER_RAD
+
+    def wrench(self) -> np.ndarray:
+        return self._raw_wrench() - self._tare
+
+    def wrist_jacobian(self) -> np.ndarray:
+        jacp = np.zeros((3, self.model.nv))
+        jacr = np.zeros((3, self.model.nv))
+        mujoco.mj_jacSite(self.model, self.data, jacp, jacr, self._ft_site)
+        return np.vstack([jacp[:, self._arm_dof], jacr[:, self._arm_dof]])
+
+    # -- the world's view -------------------------------------------------------------------
+    def cube_pose(self, color: str) -> tuple[np.ndarray, np.ndarray]:
+        body = self._cube_body[color]
+        return self.data.xpos[body].copy(), self.data.xquat[body].copy()
+
+    def cube_poses(self) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+        return {c: self.cube_pose(c) for c in CUBE_COLORS}
+
+    def step(self, dt: float) -> None:
+        self._apply_external_wrench()
+        for _ in range(max(1, int(round(dt / self.model.opt.timestep)))):
+            mujoco.mj_step(self.model, self.data)
+        self.t += dt
+
+    def reset(self, seed: int, arm: np.ndarray) -> None:
+        """Arm at ``arm``, gripper open, cubes at the layout of ``seed``, settled at rest."""
+        mujoco.mj_resetData(self.model, self.data)
+        self.data.qpos[self._arm_qpos] = arm
+        self.data.ctrl[self._arm_ctrl] = arm
+        self.data.ctrl[self._gripper_ctrl] = 0.0
+        half = self.options.cube_size / 2
+        for color, (x, y, yaw) in layout(seed).items():
+            adr = self._cube_qpos[color]
+            self.data.qpos[adr:adr + 3] = (x, y, half)
+            self.data.qpos[adr + 3:adr + 7] = _yaw_quat(yaw)
+        mujoco.mj_forward(self.model, self.data)
+        for _ in range(int(SETTLE_SECONDS / self.model.opt.timestep)):
+            mujoco.mj_step(self.model, self.data)
+        self._tare = self._raw_wrench()
+        self._frames.clear()
+
+    def render(self, camera: str) -> np.ndarray:
+        """An RGB frame of ``camera`` now (rendered once per instant, then cached)."""
+        cached = self._frames.get(camera)
+        if cached is not None and cached[0] == self.t:
+            return cached[1]
+        if camera not in CAMERA_NAMES:
+            raise ValueError(f"unknown camera '{camera}' (cameras: {', '.join(CAMERA_NAMES)})")
+        renderer = self._renderers.get(camera)
+        if renderer is None:
+            renderer = mujoco.Renderer(self.model, self.options.image_height, self.options.image_width)
+            self._renderers[camera] = renderer
+        renderer.update_scene(self.data, camera=camera)
+        frame = renderer.render().copy()
+        self.renders += 1
+        self._frames[camera] = (self.t, frame)
+        return frame
+
+    def close(self) -> None:
+        for renderer in self._renderers.values():
+            renderer.close()
+        self._renderers.clear()
+
+    # -- internals --------------------------------------------------------------------------
+    def _raw_wrench(self) -> np.ndarray:
+        """What the environment applies to the tool, in the world frame (sensor: site frame,
+        the other way round)."""
+        R = self.data.site_xmat[self._ft_site].reshape(3, 3)
+        force = self.data.sensordata[self._force_adr:self._force_adr + 3]
+        torque = self.data.sensordata[self._torque_adr:self._torque_adr + 3]
+        return -np.concatenate([R @ force, R @ torque])
+
+    def _apply_external_wrench(self) -> None:
+        body = self.model.site_bodyid[self._ft_site]
+        self.data.xfrc_applied[:] = 0.0
+        if np.any(self.external_wrench):
+            self.data.xfrc_applied[body] = self.external_wrench

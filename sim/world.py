@@ -1,0 +1,154 @@
+"""The worlds that host the cell in a run: ``vla_sim`` (MuJoCo physics) and ``kinematic``.
+
+Both put the same things on the bus, with ROS names: ``/joint_states`` (the six arm joints, then
+``robotiq_85_left_knuckle_joint``), the three cameras (rendered lazily: a frame is produced when
+someone reads it), ``/cube_poses/cube_<color>``, the controller manager and its controllers,
+and the embedded policy on ``/get_action_chunk`` (``--policy``). They fill the run's planning
+scene (robot, table, cubes; cubes follow the simulation every tick) and its waypoints. They
+differ only in the cell behind them: a ``MujocoCell`` or a ``KinematicCell``.
+"""
+from __future__ import annotations
+
+import functools
+from typing import Any, Callable, Protocol
+
+import numpy as np
+from geometry_msgs.msg import TransformStamped
+from sensor_msgs.msg import Image, JointState
+
+from runtime.behavior import RunContext
+from runtime.timestamps import time_msg
+
+from .cell_model import CAMERA_NAMES, CUBE_COLORS, CellOptions
+from .controllers import make_controllers
+from .hardware import Hardware
+from .planning import make_cell_scene, sync_cubes
+from .policy.embedded import serve_embedded_policy
+from .policy.images import rgb_to_image
+from .policy.oracle_remote import CUBE_POSE_TOPIC, cube_pose_msg
+from .robot_model import ARM_JOINTS, GRIPPER_DRIVER_JOINT, load_waypoints
+
+CONTROL_PERIOD = 0.002
+CAMERA_TOPICS = {name: f"/{name}_camera/color" for name in CAMERA_NAMES}
+
+
+class Cell(Hardware, Protocol):
+    t: float
+
+    def cube_pose(self, color: str) -> tuple[np.ndarray, np.ndarray]: ...
+
+    def cube_poses(self) -> dict[str, tuple[np.ndarray, np.ndarray]]: ...
+
+    def step(self, dt: float) -> None: ...
+
+    def reset(self, seed: int, arm: np.ndarray) -> None: ...
+
+    def render(self, camera: str) -> np.ndarray: ...
+
+    def close(self) -> None: ...
+
+
+COMMON_OPTIONS = ("seed", "realtime", "policy_latency", "record_dir", "policy", "start", "joint_states_reliable",
+                  "image_size", "encoding", "camera_rate_hz")
+
+
+class CellWorld:
+    """A cell's services on the bus, stepped at 500 Hz of the runtime clock."""
+
+    def __init__(self, name: str, options: dict[str, Any], make_cell: Callable[[np.ndarray, int], Cell]) -> None:
+        unknown = sorted(set(options) - set(COMMON_OPTIONS))
+        if unknown:
+            raise ValueError(f"unknown options {', '.join(unknown)} (known: {', '.join(COMMON_OPTIONS[4:])})")
+        self.name = name
+        self.options = options
+        self.seed = int(options.get("seed") or 0)
+        self.encoding = str(options.get("encoding") or "rgb8")
+        if self.encoding not in ("rgb8", "bgr8"):
+            raise ValueError(f"encoding must be rgb8 or bgr8, got '{self.encoding}'")
+        self.waypoints = load_waypoints()
+        start = str(options.get("start") or "Ready")
+        if start not in self.waypoints:
+            raise ValueError(f"unknown start waypoint '{start}' (waypoints: {', '.join(self.waypoints)})")
+        self.start_arm = np.array([self.waypoints[start][j] for j in ARM_JOINTS])
+        self.cell = make_cell(self.start_arm, self.seed)
+
+    # -- World -------------------------------------------------------------------------------
+    def start(self, context: RunContext) -> None:
+        self.context = context
+        bus = context.bus
+        self.controllers = make_controllers(bus, self.cell, context.clock)
+        reliable = bool(self.options.get("joint_states_reliable", True))
+        self.joint_states = bus.create_publisher("/joint_states", JointState, reliable=reliable)
+        rate = float(self.options.get("camera_rate_hz") or 10.0)  # used on real ROS only
+        for name, topic in CAMERA_TOPICS.items():
+            bus.create_lazy_publisher(topic, Image, functools.partial(self._camera_frame, name), rate_hz=rate)
+        for color in CUBE_COLORS:  # the remote oracle's privileged view
+            bus.create_lazy_publisher(
+                CUBE_POSE_TOPIC.format(color=color), TransformStamped, functools.partial(self._cube_pose, color), rate_hz=50.0
+            )
+        context.scene = make_cell_scene(self.cell.cube_poses())
+        context.resources["waypoints"] = self.waypoints
+        context.world = self
+        self.adapter = serve_embedded_policy(bus, self.options.get("policy"), self.cell, self.options.get("policy_latency"), self.seed)
+        self._publish()
+
+    def step_to(self, t: float) -> None:
+        while self.cell.t + CONTROL_PERIOD <= t + 1e-9:
+            self.controllers.update(self.cell.t, CONTROL_PERIOD)
+            self.cell.step(CONTROL_PERIOD)
+        self._publish()
+        sync_cubes(self.context.scene, self.cell.cube_poses())
+
+    def reset(self, seed: int) -> None:
+        self.seed = seed
+        self.cell.reset(seed, self.start_arm)
+        self.controllers.reset()
+        sync_cubes(self.context.scene, self.cell.cube_poses())
+        self._publish()
+
+    def summary(self) -> dict[str, Any]:
+        return {
+            "seed": self.seed,
+            "cubes": {c: [round(float(v), 4) for v in self.cell.cube_pose(c)[0]] for c in CUBE_COLORS},
+            "gripper": round(self.cell.gripper_position(), 4),
+        }
+
+    def close(self) -> None:
+        self.cell.close()
+
+    # -- publishing --------------------------------------------------------------------------
+    def _publish(self) -> None:
+        msg = JointState()
+        msg.header.stamp = time_msg(self.cell.t)
+        msg.name = list(ARM_JOINTS) + [GRIPPER_DRIVER_JOINT]
+        msg.position = self.cell.arm_position().tolist() + [self.cell.gripper_position()]
+        msg.velocity = self.cell.arm_velocity().tolist() + [self.cell.gripper_velocity()]
+        self.joint_states.publish(msg)
+
+    def _cube_pose(self, color: str) -> TransformStamped:
+        position, quat = self.cell.cube_pose(color)
+        return cube_pose_msg(color, position, quat, self.cell.t)
+
+    def _camera_frame(self, camera: str) -> Image:
+        pixels = self.cell.render(camera)
+        if self.encoding == "bgr8":
+            pixels = np.ascontiguousarray(pixels[..., ::-1])
+        image = rgb_to_image(pixels, encoding=self.encoding, frame_id=f"{camera}_camera")
+        image.header.stamp = time_msg(self.cell.t)
+        return image
+
+
+def create_vla_sim(options: dict[str, Any]) -> CellWorld:
+    """World ``vla_sim``: the MuJoCo cell."""
+    from .mujoco_cell import MujocoCell
+
+    size = int(options.get("image_size") or 224)
+    cell_options = CellOptions(image_width=size, image_height=size)
+    return CellWorld("vla_sim", options, lambda arm, seed: MujocoCell(cell_options, arm, seed))
+
+
+def create_kinematic(options: dict[str, Any]) -> CellWorld:  # noqa: D401
+    """World ``kinematic``: perfect tracking and rigid grasps, no physics (see sim/kinematic.py)."""
+    from .kinematic import KinematicWorld
+
+    return KinematicWorld(options)
