@@ -1,0 +1,204 @@
+"""`objective run --ros`: the runtime and its hosted cell on a real ROS 2 graph (loopback only).
+
+The runner's node serves the kinematic cell's joint states, cameras, controllers and controller
+manager on ROS 2; a separate node (another process's view) sees them, and ExecutePolicy calls a
+policy served by another node, as it will call an adapter.
+"""
+from __future__ import annotations
+
+import json
+import os
+import random
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+import pytest
+
+pytestmark = [pytest.mark.ros, pytest.mark.timeout(60)]
+
+from controller_manager_msgs.srv import ListControllers  # noqa: E402
+from moveit_pro_ml_msgs.srv import GetActionChunk  # noqa: E402
+from sensor_msgs.msg import JointState  # noqa: E402
+from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint  # noqa: E402
+
+from runtime.clock import WallClock  # noqa: E402
+from runtime.errors import ObjectiveError  # noqa: E402
+from runtime.loader import load_tree  # noqa: E402
+from runtime.registry import Registry  # noqa: E402
+from runtime.ros import RosBus  # noqa: E402
+from runtime.runner import RunOptions, make_context, run_tree  # noqa: E402
+
+REPO = Path(__file__).resolve().parent.parent
+OBJECTIVE = [sys.executable, "-m", "runtime.cli"]
+R = GetActionChunk.Response
+GRIPPER = "robotiq_85_left_knuckle_joint"
+ARM = ["shoulder_pan_joint", "shoulder_lift_joint", "elbow_joint", "wrist_1_joint", "wrist_2_joint", "wrist_3_joint"]
+
+
+@pytest.fixture
+def ros_env(monkeypatch) -> dict[str, str]:
+    """A ROS domain of this test's own (other test runs on the machine use theirs), on loopback."""
+    monkeypatch.setenv("ROS_DOMAIN_ID", str(random.randint(100, 199)))
+    monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    return dict(os.environ)
+
+
+@pytest.fixture
+def observer(ros_env):
+    """A node of the test's own: what another process on the graph sees."""
+    bus = RosBus(WallClock(), node_name="test_observer")
+    yield bus
+    bus.close()
+
+
+def wait_for(condition: Callable[[], Any], bus: RosBus | None = None, timeout: float = 10.0, what: str = "it") -> Any:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if bus is not None:
+            bus.spin_once()
+        value = condition()
+        if value:
+            return value
+        time.sleep(0.02)
+    raise AssertionError(f"timed out after {timeout} s waiting for {what}")
+
+
+def objective(*args: str, env: dict[str, str]) -> subprocess.Popen:
+    return subprocess.Popen(
+        [*OBJECTIVE, *args], cwd=REPO, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+    )
+
+
+def finish(proc: subprocess.Popen, timeout: float = 30.0) -> tuple[int, str, str]:
+    try:
+        out, err = proc.communicate(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        out, err = proc.communicate()
+        raise AssertionError(f"the runner did not stop within {timeout} s; stderr:\n{err}")
+    return proc.returncode, out, err
+
+
+# -- the CLI -------------------------------------------------------------------------------
+def test_open_gripper_on_ros_succeeds_and_says_where_it_runs(ros_env):
+    code, out, err = finish(objective("run", "objectives/cell/open_gripper.xml", "--ros", "--realtime",
+                                      "--world", "kinematic", "--json", env=ros_env))
+    assert code == 0, err
+    summary = json.loads(out.strip().splitlines()[-1])
+    assert summary["status"] == "SUCCESS" and summary["world"]["gripper"] == 0.0
+    assert set(summary["pacing"]) == {"late_ticks", "worst_tick_s", "period_s"}
+    domain = ros_env["ROS_DOMAIN_ID"]
+    assert f"[INFO] running on ROS 2 as node /objective_runtime (ROS_DOMAIN_ID={domain}, ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST)" in err
+
+
+def close_wait_open(tmp_path: Path, seconds: float) -> Path:
+    path = tmp_path / "close_wait_open.xml"
+    path.write_text(
+        '<root BTCPP_format="4"><BehaviorTree ID="T"><Sequence>'
+        '<MoveGripperAction gripper_command_action_name="/robotiq_gripper_controller/gripper_cmd" position="0.5"/>'
+        f'<Wait seconds="{seconds}"/>'
+        '<MoveGripperAction gripper_command_action_name="/robotiq_gripper_controller/gripper_cmd" position="0.0"/>'
+        "</Sequence></BehaviorTree></root>"
+    )
+    return path
+
+
+def test_the_hosted_cell_is_on_ros_while_the_run_lasts(ros_env, observer, tmp_path):
+    joint_states = observer.create_subscription("/joint_states", JointState)
+    controllers = observer.create_client("/controller_manager/list_controllers", ListControllers)
+    runner = objective("run", str(close_wait_open(tmp_path, 4.0)), "--ros", "--world", "kinematic", "--json", env=ros_env)
+    try:
+        wait_for(lambda: joint_states.count >= 5, observer, what="/joint_states from the runner")
+        assert list(joint_states.latest.name) == ARM + [GRIPPER]
+        wait_for(controllers.service_is_ready, observer, what="/controller_manager/list_controllers")
+        future = controllers.call_async(ListControllers.Request())
+        states = {c.name: c.state for c in wait_for(lambda: future.done() and future.result(), observer,
+                                                    what="the controller list").controller}
+        assert states == {
+            "joint_trajectory_admittance_controller": "inactive",
+            "velocity_force_controller": "active",
+            "robotiq_gripper_controller": "active",
+        }
+        # the gripper closes on the runner's side and the observer sees it move
+        wait_for(lambda: joint_states.latest.position[-1] > 0.4, observer, what="the gripper to close")
+    finally:
+        code, out, err = finish(runner)
+    assert code == 0, err
+    summary = json.loads(out.strip().splitlines()[-1])
+    assert summary["status"] == "SUCCESS" and summary["world"]["gripper"] == 0.0
+    assert 4.0 < summary["wall_seconds"] < 15.0
+
+
+def test_sigterm_halts_the_run_and_the_node_leaves_the_graph(ros_env, observer, tmp_path):
+    joint_states = observer.create_subscription("/joint_states", JointState)
+    runner = objective("run", str(close_wait_open(tmp_path, 60.0)), "--ros", "--world", "kinematic", env=ros_env)
+    try:
+        wait_for(lambda: joint_states.count >= 1, observer, what="/joint_states from the runner")
+        runner.send_signal(signal.SIGTERM)
+        code, _, err = finish(runner, timeout=10.0)
+    finally:
+        if runner.poll() is None:
+            runner.kill()
+    assert code == 130 and err.rstrip().endswith("interrupted")
+    wait_for(lambda: "objective_runtime" not in observer.node.get_node_names(), observer,
+             what="the runner's node to leave the graph")
+
+
+def test_policy_latency_is_refused_with_ros(ros_env):
+    code, out, err = finish(objective("run", "objectives/cell/open_gripper.xml", "--ros", "--world", "kinematic",
+                                      "--policy-latency", "0.3", env=ros_env))
+    assert code == 2
+    assert err.strip() == (
+        "error: --policy-latency models latency on the in-process bus; with --ros the policy's latency is real"
+    )
+    with pytest.raises(ObjectiveError):
+        RunOptions(ros=True, policy_latency="0.3").check()
+
+
+# -- ExecutePolicy against a policy served by another node -----------------------------------
+def test_execute_policy_over_ros_calls_a_policy_served_by_another_node(ros_env):
+    requests: list[Any] = []
+
+    def policy(request: Any) -> Any:
+        """Chunks that hold the observed state (a still arm is a valid motion)."""
+        requests.append(request)
+        names = list(request.robot_state.name)
+        response = R(status=R.CHUNK_PRODUCED, native_control_period=0.05)
+        position = [float(v) for v in request.robot_state.position]
+        response.chunk = JointTrajectory(joint_names=names, points=[JointTrajectoryPoint(positions=position) for _ in range(30)])
+        return response
+
+    server = RosBus(WallClock(), node_name="scripted_policy")  # answers on its own threads, like an adapter
+    server.create_service("/get_action_chunk", GetActionChunk, policy)
+    options = RunOptions(ros=True, world="kinematic", max_seconds=20.0)
+    context = make_context(options)
+    xml = (
+        '<root BTCPP_format="4"><BehaviorTree ID="T"><Sequence>'
+        '<SwitchController activate_controllers="joint_trajectory_admittance_controller" deactivate_controllers="velocity_force_controller"/>'
+        '<ExecutePolicy policy_service_name="/get_action_chunk" joint_group_name="manipulator" total_action_steps="40" '
+        'dt="0.05" committed_action_steps="20" goal_path_tolerance="0.3" policy_call_timeout="3.0" '
+        'image_topics="/scene_camera/color;/wrist_camera/color" image_names="scene;wrist" '
+        f'gripper_command_action_name="/robotiq_gripper_controller/gripper_cmd" gripper_joint_name="{GRIPPER}" '
+        'steps_executed="{steps}" chunks_received="{chunks}" status_message="{message}"/>'
+        "</Sequence></BehaviorTree></root>"
+    )
+    try:
+        loaded = load_tree(xml, Registry.from_entry_points(), context)
+        result = run_tree(loaded, context, options)
+    finally:
+        server.close()
+    assert result.status == "SUCCESS", result.reason
+    assert result.blackboard["message"] == "executed 40 steps" and result.blackboard["steps"] == 40
+    assert [r.new_episode for r in requests[:2]] == [True, True] and not any(r.new_episode for r in requests[2:])
+    assert len(requests) == 1 + result.blackboard["chunks"]
+    # the request carried real frames from the runner's cameras and the state from /joint_states
+    assert list(requests[1].image_names) == ["scene", "wrist"] and requests[1].images[0].encoding == "rgb8"
+    assert list(requests[1].robot_state.name) == ARM + [GRIPPER]
+    latency = result.extra["execute_policy"]
+    assert 0.0 < latency["latency_p50_s"] < 0.5  # a real round trip over DDS, measured on the wall clock
+    assert 2.0 <= result.sim_seconds - 0.0 and result.wall_seconds < 15.0
