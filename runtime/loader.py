@@ -51,6 +51,8 @@ log = logging.getLogger("objective.loader")
 MAX_FILE_BYTES = 5 * 1024 * 1024
 MAX_DEPTH = 200
 MAX_ATTRIBUTE_CHARS = 65536
+MAX_ATTRIBUTES = 1000
+"""Attributes per element: lxml reads an element's attribute values in time quadratic in their count."""
 MAX_NODES = 20000
 """Bound on nodes after SubTree expansion: nested SubTrees used several times grow exponentially."""
 
@@ -185,10 +187,13 @@ def _use_start_lines(root: Any, data: bytes) -> None:
     """
     starts = (m for m in _MARKUP.finditer(data) if m.group(1) is not None)
     fixes = []
+    line, counted = 1, 0  # newlines are counted once, from the previous tag on (linear in the file)
     for element, match in zip(root.iter(), starts):
         if match.group(1).decode("utf-8", "replace") != element.tag:
             return
-        fixes.append((element, data.count(b"\n", 0, match.start()) + 1))
+        line += data.count(b"\n", counted, match.start())
+        counted = match.start()
+        fixes.append((element, line))
     for element, line in fixes:
         element.sourceline = line
 
@@ -201,6 +206,11 @@ def _check_bounds(root: Any, display: str) -> None:
             raise LoadError(f"elements nest deeper than {MAX_DEPTH} levels", SourceLocation(display, element.sourceline or 0))
         if not isinstance(element.tag, str):
             raise LoadError("entity references are not allowed", SourceLocation(display, element.sourceline or 0))
+        if len(element.attrib) > MAX_ATTRIBUTES:
+            raise LoadError(
+                f"<{element.tag}> has {len(element.attrib)} attributes (limit {MAX_ATTRIBUTES})",
+                SourceLocation(display, element.sourceline or 0),
+            )
         for name, value in element.attrib.items():
             if len(value) > MAX_ATTRIBUTE_CHARS:
                 raise LoadError(
