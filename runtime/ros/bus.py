@@ -254,6 +254,8 @@ class _LazyPublisher:
             msg = self.bus._serve(self.produce)
             if msg is not None:
                 self.publisher.publish(msg)
+        except BusClosed:  # closing while the owner had not served this frame: nothing to publish
+            pass
         finally:
             self._busy.release()
 
