@@ -223,6 +223,8 @@ def cmd_run(args: argparse.Namespace, registry: Registry) -> int:
         node = f"'{result.failing_node}'{where}" if result.failing_node else "the root"
         print(f"FAILURE after {result.sim_seconds:.2f} s: {node} failed: {result.reason or 'no reason given'}",
               file=sys.stderr)
+    if args.record is not None:
+        print(f"recorded to {args.record}/ (open {args.record / 'report.html'})", file=sys.stderr)
     if args.json:
         print(json.dumps(result.to_json(), default=str))
     return result.exit_code

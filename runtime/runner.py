@@ -212,6 +212,39 @@ def tick_once(root: py_trees.behaviour.Behaviour, context: RunContext) -> tuple[
             return result, visited
 
 
+class StatusEvents:
+    """Emits a ``node_status`` event each time a node reports a status different from its last one.
+
+    ``node`` in the event is the node's index in ``root.iterate()`` order (names are not
+    unique); a recording stores the tree in the same order. A RUNNING node that a parent halted
+    (it was not ticked again and is idle now) is reported once as ``INVALID`` with "halted".
+    """
+
+    def __init__(self, events: EventLog, nodes: list[py_trees.behaviour.Behaviour]) -> None:
+        self.events, self.nodes = events, nodes
+        self.index = {id(node): i for i, node in enumerate(nodes)}
+        self.last: dict[int, str] = {}
+
+    def _emit(self, i: int, status: str, message: str) -> None:
+        if self.last.get(i) != status:
+            self.last[i] = status
+            self.events.emit("node_status", self.nodes[i].name, node=i, status=status, message=message)
+
+    def update(self, visited: list[Visit]) -> None:
+        seen = set()
+        for node, status, message in visited:
+            i = self.index.get(id(node))
+            if i is not None:
+                seen.add(i)
+                self._emit(i, "SKIPPED" if status is SKIPPED and is_skipped(node) else status.value, message)
+        self.halted(seen)
+
+    def halted(self, seen: set[int] = frozenset()) -> None:
+        for i, last in list(self.last.items()):
+            if last == Status.RUNNING.value and i not in seen and self.nodes[i].status is Status.INVALID:
+                self._emit(i, Status.INVALID.value, "halted")
+
+
 def _halt(root: py_trees.behaviour.Behaviour) -> bool:
     """Halt the RUNNING branch; True when something was running."""
     if any(node.status is Status.RUNNING for node in root.iterate()):
@@ -276,6 +309,9 @@ def run_tree(
     blame: tuple[py_trees.behaviour.Behaviour, str] | None = None
     status = Status.INVALID
     timed_out = False
+    statuses = StatusEvents(context.events, nodes)
+    if callable(getattr(progress, "attach", None)):
+        progress.attach(root)  # type: ignore[union-attr]
     pacing = Pacing(period) if options.paced else None
     wall_start = time.monotonic()
     try:
@@ -298,6 +334,7 @@ def run_tree(
                 world.step_to(clock.now())
             bus.spin_once()
             status, visited = tick_once(root, context)
+            statuses.update(visited)
             ticks += 1
             if pacing is not None:
                 pacing.record(time.monotonic() - tick_start)
@@ -323,6 +360,7 @@ def run_tree(
                 deliver_pending(bus)  # let the cancels of a halted run reach the graph
         finally:
             try:
+                statuses.halted()
                 if world is not None:
                     try:
                         summary_world = world.summary()
@@ -375,4 +413,26 @@ def run_file(
     options.check()
     context = make_context(options)
     loaded = load_tree(source, registry, context, tree_id, search_paths, objectives_dir)
-    return run_tree(loaded, context, options, progress)
+    if options.record_dir is None:
+        return run_tree(loaded, context, options, progress)
+    return _run_recorded(loaded, context, options, progress)
+
+
+def _run_recorded(loaded: LoadedTree, context: RunContext, options: RunOptions, progress: Progress | None) -> RunResult:
+    """``run_tree`` with a ``Recorder`` on the bus, then the report rendered into ``options.record_dir``."""
+    from .recording import Recorder
+    from .report import render_report
+
+    assert options.record_dir is not None
+    recorder = Recorder(options.record_dir, context, list(loaded.root.iterate()), loaded)
+    try:
+        result = run_tree(loaded, context, options, progress)
+    except BaseException:
+        recorder.close()
+        raise
+    recorder.finish(result.to_json())
+    try:
+        render_report(options.record_dir, context.logger)
+    except Exception as err:  # the run itself is over and recorded: its result stands
+        context.logger.warning("recording %s: the report could not be rendered: %s", options.record_dir, err)
+    return result

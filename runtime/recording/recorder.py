@@ -1,0 +1,118 @@
+"""``Recorder``: one run recorded into a directory (``objective run --record DIR``).
+
+- ``run.mcap``: the bus traffic, through a ``RecordingBus`` installed as ``context.bus``;
+- ``events.jsonl``: one JSON object per line, ``{"time", "kind", "source", "data"}``: first the
+  tree (``kind: "tree"``, every node with its parent, so the tree can be drawn again later),
+  then every event of the run's ``EventLog`` as it happens (node status changes, chunk
+  requests, seams, rejections, warnings...), then the joint limits and the run's summary.
+
+The report (plots, video, tree, page) is rendered from these two files alone
+(``runtime.report``), so ``objective report DIR`` can redo it after the run.
+"""
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+from typing import Any, Iterable, TextIO
+
+from ..errors import ObjectiveError
+from ..events import Event
+from .bus import JOINT_STATES_HZ, RecordingBus
+from .mcap_writer import McapRos2Writer
+
+MCAP_FILE = "run.mcap"
+EVENTS_FILE = "events.jsonl"
+
+
+def jsonable(value: Any) -> Any:
+    """``value`` with numpy arrays/scalars as lists/numbers and non-finite floats as None."""
+    if hasattr(value, "tolist"):
+        value = value.tolist()
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
+    if isinstance(value, dict):
+        return {str(k): jsonable(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [jsonable(v) for v in value]
+    if value is None or isinstance(value, (bool, int, str)):
+        return value
+    return str(value)
+
+
+def node_record(index: int, node: Any, ids: dict[int, int], tree: Any) -> dict[str, Any]:
+    """One node of the tree as ``events.jsonl`` stores it."""
+    kind = getattr(type(node), "kind", None)
+    info = tree.info(node) if tree is not None else None
+    parent = getattr(node, "parent", None)
+    return {
+        "id": index,
+        "parent": ids.get(id(parent)) if parent is not None else None,
+        "name": node.name,
+        "type": getattr(node, "tree_id", None) if kind is not None and kind.value == "SubTree"
+        else getattr(node, "xml_id", type(node).__name__),
+        "kind": kind.value if kind is not None else type(node).__name__,
+        "transparent": bool(getattr(node, "transparent", False)),
+        "location": str(info.location) if info is not None else None,
+    }
+
+
+class Recorder:
+    """Records a run into ``directory``; see the module doc. Install it before the world starts."""
+
+    def __init__(self, directory: Path | str, context: Any, nodes: Iterable[Any] = (), tree: Any = None,
+                 joint_states_hz: float = JOINT_STATES_HZ) -> None:
+        self.directory = Path(directory)
+        if self.directory.exists() and not self.directory.is_dir():
+            raise ObjectiveError(f"--record {self.directory}: exists and is not a directory")
+        try:
+            self.directory.mkdir(parents=True, exist_ok=True)
+            self.writer = McapRos2Writer(self.directory / MCAP_FILE)
+        except OSError as err:
+            raise ObjectiveError(f"--record {self.directory}: cannot write there ({err.strerror})") from None
+        self._events: TextIO | None = open(self.directory / EVENTS_FILE, "w", encoding="utf-8")
+        self.context = context
+        self.bus = RecordingBus(context.bus, self.writer, joint_states_hz)
+        context.bus = self.bus
+        nodes = list(nodes)
+        ids = {id(node): i for i, node in enumerate(nodes)}
+        tree_id = getattr(tree, "tree_id", "")
+        self._write({"time": context.clock.now(), "kind": "tree", "source": tree_id,
+                     "data": {"nodes": [node_record(i, n, ids, tree) for i, n in enumerate(nodes)]}})
+        context.events.subscribe(self._on_event)
+        self.stopped = False
+
+    def _write(self, record: dict[str, Any]) -> None:
+        if self._events is not None:
+            self._events.write(json.dumps(jsonable(record), allow_nan=False) + "\n")
+
+    def _on_event(self, event: Event) -> None:
+        if not self.stopped:
+            self._write({"time": event.time, "kind": event.kind, "source": event.source, "data": event.data})
+
+    def stop(self) -> None:
+        """Stop recording (idempotent): the MCAP file is finished, the joint limits noted."""
+        if self.stopped:
+            return
+        self.stopped = True
+        try:
+            self.writer.close()
+        finally:
+            limits = getattr(getattr(self.context, "scene", None), "limits", None)
+            if limits is not None:
+                joints = [{"name": j.name, "lower": j.lower, "upper": j.upper, "max_velocity": j.max_velocity}
+                          for j in limits.joints]
+                self._write({"time": self.context.clock.now(), "kind": "joint_limits", "source": "scene",
+                             "data": {"joints": joints}})
+
+    def finish(self, summary: dict[str, Any]) -> None:
+        """Stop, append the run's summary and close ``events.jsonl``."""
+        self.stop()
+        self._write({"time": self.context.clock.now(), "kind": "run_summary", "source": "runner", "data": summary})
+        self.close()
+
+    def close(self) -> None:
+        self.stop()
+        if self._events is not None:
+            self._events.close()
+            self._events = None

@@ -1,0 +1,236 @@
+"""A recording read back: ``events.jsonl`` and ``run.mcap`` as plain arrays for the report.
+
+Everything the report draws comes from these two files, so a recording can be rendered again
+(``objective report DIR``) on another machine. Messages are decoded with rclpy's deserializer
+(the inverse of what the recorder wrote); the tests decode the same files independently with
+mcap-ros2-support, the way Foxglove would.
+"""
+from __future__ import annotations
+
+import json
+from collections import defaultdict
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from mcap.reader import make_reader
+from rclpy.serialization import deserialize_message
+
+from ..errors import ObjectiveError
+from ..recording.bus import JOINT_STATES_TOPIC
+from ..recording.recorder import EVENTS_FILE, MCAP_FILE
+from ..recording.schema import message_class
+
+
+@dataclass
+class JointSeries:
+    """Measured joint states: ``position``/``velocity`` are (samples x joints), NaN where missing."""
+
+    times: np.ndarray
+    names: list[str]
+    position: np.ndarray
+    velocity: np.ndarray
+
+
+@dataclass
+class CommandedGoal:
+    """One trajectory sent to a controller: absolute times (the seam stamp plus time_from_start)."""
+
+    topic: str
+    sent_at: float
+    names: list[str]
+    times: np.ndarray
+    position: np.ndarray
+    velocity: np.ndarray
+
+    @property
+    def start(self) -> float:
+        return float(self.times[0]) if len(self.times) else self.sent_at
+
+    @property
+    def end(self) -> float:
+        return float(self.times[-1]) if len(self.times) else self.sent_at
+
+
+@dataclass
+class CameraFrame:
+    """The views a policy was given in one request, at the request instant."""
+
+    time: float
+    request: int
+    views: list[tuple[str, np.ndarray]]
+    """(image name, H x W x 3 uint8 RGB) in the request's order."""
+
+
+@dataclass
+class Recording:
+    directory: Path
+    tree_id: str = ""
+    nodes: list[dict[str, Any]] = field(default_factory=list)
+    events: list[dict[str, Any]] = field(default_factory=list)
+    summary: dict[str, Any] | None = None
+    limits: dict[str, dict[str, Any]] = field(default_factory=dict)
+    topics: dict[str, tuple[str, int]] = field(default_factory=dict)
+    """topic -> (type name, message count)."""
+    joints: JointSeries | None = None
+    goals: list[CommandedGoal] = field(default_factory=list)
+    gripper_commands: list[tuple[float, float]] = field(default_factory=list)
+    requests: list[dict[str, Any]] = field(default_factory=list)
+    responses: list[dict[str, Any]] = field(default_factory=list)
+    frames: list[CameraFrame] = field(default_factory=list)
+
+    def of_kind(self, kind: str) -> list[dict[str, Any]]:
+        return [e for e in self.events if e["kind"] == kind]
+
+    def final_statuses(self) -> dict[int, tuple[str, str]]:
+        """node index -> (last status, its message), from the node_status events."""
+        out: dict[int, tuple[str, str]] = {}
+        for e in self.of_kind("node_status"):
+            out[int(e["data"]["node"])] = (e["data"]["status"], e["data"].get("message") or "")
+        return out
+
+
+def image_rgb(msg: Any) -> np.ndarray:
+    """H x W x 3 uint8 RGB pixels of a sensor_msgs/Image (rgb8, bgr8, rgba8, bgra8, mono8)."""
+    channels = {"rgb8": 3, "bgr8": 3, "rgba8": 4, "bgra8": 4, "mono8": 1}
+    encoding = msg.encoding.lower()
+    if encoding not in channels:
+        raise ValueError(f"camera image encoding '{msg.encoding}' is not one the report can show ({', '.join(channels)})")
+    n = channels[encoding]
+    raw = np.frombuffer(bytes(msg.data), dtype=np.uint8)
+    rows = raw.reshape(msg.height, msg.step)[:, : msg.width * n].reshape(msg.height, msg.width, n)
+    if encoding == "mono8":
+        return np.repeat(rows, 3, axis=2)
+    if encoding.startswith("bgr"):
+        rows = rows[:, :, 2::-1]
+    return np.ascontiguousarray(rows[:, :, :3])
+
+
+def _seconds(t: Any) -> float:
+    return t.sec + t.nanosec * 1e-9
+
+
+def read_events(path: Path, recording: Recording) -> None:
+    with open(path, encoding="utf-8") as stream:
+        for number, line in enumerate(stream, 1):
+            if not line.strip():
+                continue
+            try:
+                record = json.loads(line)
+            except json.JSONDecodeError as err:
+                raise ObjectiveError(f"{path}:{number}: not a JSON event ({err.msg})") from None
+            kind = record.get("kind")
+            if kind == "tree":
+                recording.tree_id = record.get("source", "")
+                recording.nodes = record["data"]["nodes"]
+            elif kind == "joint_limits":
+                recording.limits = {j["name"]: j for j in record["data"]["joints"]}
+            elif kind == "run_summary":
+                recording.summary = record["data"]
+            else:
+                recording.events.append(record)
+
+
+def _joint_series(messages: list[tuple[float, Any]]) -> JointSeries:
+    names: list[str] = []
+    for _, msg in messages:
+        names.extend(n for n in msg.name if n not in names)
+    column = {n: i for i, n in enumerate(names)}
+    position = np.full((len(messages), len(names)), np.nan)
+    velocity = np.full((len(messages), len(names)), np.nan)
+    for row, (_, msg) in enumerate(messages):
+        cols = [column[n] for n in msg.name]
+        if len(msg.position) == len(cols):
+            position[row, cols] = msg.position
+        if len(msg.velocity) == len(cols):
+            velocity[row, cols] = msg.velocity
+    return JointSeries(np.array([t for t, _ in messages]), names, position, velocity)
+
+
+def _goal(topic: str, sent_at: float, msg: Any) -> CommandedGoal:
+    stamp = _seconds(msg.header.stamp)
+    start = stamp if stamp > 0 else sent_at  # a zero stamp means "start now"
+    times = np.array([start + _seconds(p.time_from_start) for p in msg.points])
+    n = len(msg.joint_names)
+
+    def column(field_name: str) -> np.ndarray:
+        rows = [list(getattr(p, field_name)) or [np.nan] * n for p in msg.points]
+        return np.array(rows, dtype=float).reshape(len(msg.points), n)
+
+    return CommandedGoal(topic, sent_at, list(msg.joint_names), times, column("positions"), column("velocities"))
+
+
+def _wanted(topic: str, type_name: str) -> bool:
+    """The messages the report draws; the rest (feedback, goals, results...) are only counted."""
+    if topic == JOINT_STATES_TOPIC:
+        return True
+    if type_name == "trajectory_msgs/msg/JointTrajectory":
+        return topic.endswith("/joint_trajectory")
+    if type_name == "std_msgs/msg/String":
+        return topic.endswith("/request") or topic.endswith("/response")
+    return type_name.endswith("GripperCommand_Goal")
+
+
+def read_mcap(path: Path, recording: Recording) -> None:
+    classes: dict[str, type] = {}
+    joint_messages: list[tuple[float, Any]] = []
+    images: dict[tuple[str, int], Any] = {}
+    counts: dict[str, list[Any]] = defaultdict(lambda: ["", 0])
+    with open(path, "rb") as stream:
+        reader = make_reader(stream)
+        # File order is recording order, which is clock order (the recorder writes as time passes).
+        for schema, channel, message in reader.iter_messages(log_time_order=False):
+            topic, type_name = channel.topic, schema.name if schema is not None else ""
+            counts[topic][0] = type_name
+            counts[topic][1] += 1
+            if type_name == "sensor_msgs/msg/Image":
+                images[(topic, message.log_time)] = message.data  # decoded only if a request shows it
+                continue
+            if not _wanted(topic, type_name):
+                continue
+            cls = classes.get(type_name)
+            if cls is None:
+                cls = classes[type_name] = message_class(type_name)
+            t = message.log_time * 1e-9
+            msg = deserialize_message(message.data, cls)
+            if topic == JOINT_STATES_TOPIC:
+                joint_messages.append((t, msg))
+            elif type_name == "trajectory_msgs/msg/JointTrajectory" and topic.endswith("/joint_trajectory"):
+                recording.goals.append(_goal(topic, t, msg))
+            elif type_name.endswith("GripperCommand_Goal"):
+                recording.gripper_commands.append((t, float(msg.command.position)))
+            elif topic.endswith("/request"):
+                recording.requests.append(json.loads(msg.data))
+            elif topic.endswith("/response"):
+                recording.responses.append(json.loads(msg.data))
+    recording.topics = {topic: (name, count) for topic, (name, count) in counts.items()}
+    if joint_messages:
+        recording.joints = _joint_series(joint_messages)
+    image_class = message_class("sensor_msgs/msg/Image")
+    for request in recording.requests:
+        views = []
+        for view in request.get("images", []):
+            data = images.get((view["topic"], int(round(request["time"] * 1e9))))
+            if data is not None:
+                views.append((view["name"], image_rgb(deserialize_message(data, image_class))))
+        if views:
+            recording.frames.append(CameraFrame(request["time"], request["request"], views))
+
+
+def load_recording(directory: Path | str) -> Recording:
+    """Read ``DIR/events.jsonl`` and ``DIR/run.mcap``; ObjectiveError if either is missing or unreadable."""
+    directory = Path(directory)
+    events, mcap = directory / EVENTS_FILE, directory / MCAP_FILE
+    for path in (events, mcap):
+        if not path.is_file():
+            raise ObjectiveError(f"{directory}: no {path.name} (is this a directory written by `objective run --record`?)")
+    recording = Recording(directory)
+    read_events(events, recording)
+    try:
+        read_mcap(mcap, recording)
+    except ObjectiveError:
+        raise
+    except Exception as err:  # a truncated file (the run was killed) or not MCAP at all
+        raise ObjectiveError(f"{mcap}: cannot read the recording: {err}") from None
+    return recording
