@@ -116,6 +116,8 @@ def test_the_hosted_cell_is_on_ros_while_the_run_lasts(ros_env, observer, tmp_pa
         wait_for(lambda: joint_states.count >= 5, observer, what="/joint_states from the runner")
         assert list(joint_states.latest.name) == ARM + [GRIPPER]
         wait_for(controllers.service_is_ready, observer, what="/controller_manager/list_controllers")
+        # the runner's services are discovered, and a policy is not among them: it serves none of its own
+        assert observer.create_client("/get_action_chunk", GetActionChunk).service_is_ready() is False
         future = controllers.call_async(ListControllers.Request())
         states = {c.name: c.state for c in wait_for(lambda: future.done() and future.result(), observer,
                                                     what="the controller list").controller}
@@ -165,10 +167,18 @@ def test_execute_policy_over_ros_calls_a_policy_served_by_another_node(ros_env):
     requests: list[Any] = []
 
     def policy(request: Any) -> Any:
-        """Chunks that hold the observed state (a still arm is a valid motion)."""
+        """Chunks that hold the observed state (a still arm is a valid motion).
+
+        The warmup answers after 0.3 s: it seeds ExecutePolicy's latency estimate (which only
+        grows), so every later chunk is requested 0.4 s before its seam. A loaded test machine
+        can stall the runner for a tenth of a second; this keeps such a stall from making a chunk
+        miss its seam, which is not what this test is about.
+        """
         requests.append(request)
+        if len(requests) == 1:
+            time.sleep(0.3)
         names = list(request.robot_state.name)
-        response = R(status=R.CHUNK_PRODUCED, native_control_period=0.05)
+        response = R(status=R.CHUNK_PRODUCED, native_control_period=0.1)
         position = [float(v) for v in request.robot_state.position]
         response.chunk = JointTrajectory(joint_names=names, points=[JointTrajectoryPoint(positions=position) for _ in range(30)])
         return response
@@ -181,7 +191,7 @@ def test_execute_policy_over_ros_calls_a_policy_served_by_another_node(ros_env):
         '<root BTCPP_format="4"><BehaviorTree ID="T"><Sequence>'
         '<SwitchController activate_controllers="joint_trajectory_admittance_controller" deactivate_controllers="velocity_force_controller"/>'
         '<ExecutePolicy policy_service_name="/get_action_chunk" joint_group_name="manipulator" total_action_steps="40" '
-        'dt="0.05" committed_action_steps="20" goal_path_tolerance="0.3" policy_call_timeout="3.0" '
+        'dt="0.1" committed_action_steps="20" goal_path_tolerance="0.3" policy_call_timeout="3.0" '
         'image_topics="/scene_camera/color;/wrist_camera/color" image_names="scene;wrist" '
         f'gripper_command_action_name="/robotiq_gripper_controller/gripper_cmd" gripper_joint_name="{GRIPPER}" '
         'steps_executed="{steps}" chunks_received="{chunks}" status_message="{message}"/>'
@@ -200,5 +210,5 @@ def test_execute_policy_over_ros_calls_a_policy_served_by_another_node(ros_env):
     assert list(requests[1].image_names) == ["scene", "wrist"] and requests[1].images[0].encoding == "rgb8"
     assert list(requests[1].robot_state.name) == ARM + [GRIPPER]
     latency = result.extra["execute_policy"]
-    assert 0.0 < latency["latency_p50_s"] < 0.5  # a real round trip over DDS, measured on the wall clock
-    assert 2.0 <= result.sim_seconds - 0.0 and result.wall_seconds < 15.0
+    assert 0.0 < latency["latency_p50_s"] < 0.3  # a real round trip over DDS, measured on the wall clock
+    assert latency["stall_seconds"] == 0.0 and result.wall_seconds < 20.0
