@@ -40,6 +40,14 @@ def jsonable(value: Any) -> Any:
     return str(value)
 
 
+def _type_label(node: Any, kind: str) -> str:
+    """What the node is: its XML ID, or ``SubTree`` (with the tree's ID when the instance is renamed)."""
+    if kind == "SubTree":
+        tree_id = getattr(node, "tree_id", "")
+        return "SubTree" if tree_id in ("", node.name) else f"SubTree {tree_id}"
+    return getattr(node, "xml_id", type(node).__name__)
+
+
 def node_record(index: int, node: Any, ids: dict[int, int], tree: Any) -> dict[str, Any]:
     """One node of the tree as ``events.jsonl`` stores it."""
     kind = getattr(type(node), "kind", None)
@@ -49,8 +57,7 @@ def node_record(index: int, node: Any, ids: dict[int, int], tree: Any) -> dict[s
         "id": index,
         "parent": ids.get(id(parent)) if parent is not None else None,
         "name": node.name,
-        "type": getattr(node, "tree_id", None) if kind is not None and kind.value == "SubTree"
-        else getattr(node, "xml_id", type(node).__name__),
+        "type": _type_label(node, kind.value if kind is not None else ""),
         "kind": kind.value if kind is not None else type(node).__name__,
         "transparent": bool(getattr(node, "transparent", False)),
         "location": str(info.location) if info is not None else None,

@@ -37,8 +37,7 @@ class Box:
 
     @property
     def lines(self) -> list[str]:
-        first = self.name if self.type in ("", self.name) else f"{self.name}"
-        lines = [first]
+        lines = [self.name]
         if self.type and self.type != self.name:
             lines.append(self.type)
         lines.append(STYLE[self.status][2])

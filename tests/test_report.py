@@ -1,0 +1,205 @@
+"""The report of a recording: each artifact valid (PNG and MP4 decodable, SVG parseable, the page's
+links resolving), ``objective report DIR`` re-rendering them, the plotted quantities, and the page
+rendered by a headless Chromium (slow)."""
+from __future__ import annotations
+
+import io
+import json
+import re
+import shutil
+import subprocess
+import xml.etree.ElementTree as ET
+from html.parser import HTMLParser
+from pathlib import Path
+
+import imageio.v2 as imageio
+import imageio.v3 as iio
+import numpy as np
+import pytest
+
+from runtime.cli import main
+from runtime.display import ProgressLine
+from runtime.report import load_recording, render_report
+from runtime.report.data import CommandedGoal, Recording
+from runtime.report.plots import commanded_series, stall_spans
+from runtime.report.tree_svg import build_boxes, tree_svg
+
+from .test_recording import HALTED_XML, record_run
+
+ARTIFACTS = ("joints.png", "latency.png", "tree.svg", "cameras.mp4", "report.html")
+
+
+@pytest.fixture(scope="module")
+def recording(tmp_path_factory) -> Path:
+    code, rec = record_run(tmp_path_factory.mktemp("report"))
+    assert code == 0
+    return rec
+
+
+class Links(HTMLParser):
+    def __init__(self) -> None:
+        super().__init__()
+        self.targets: list[str] = []
+        self.tags: list[str] = []
+
+    def handle_starttag(self, tag: str, attrs: list[tuple[str, str | None]]) -> None:
+        self.tags.append(tag)
+        for name, value in attrs:
+            if name in ("src", "href") and value:
+                self.targets.append(value)
+
+
+def page_links(path: Path) -> Links:
+    parser = Links()
+    parser.feed(path.read_text())
+    return parser
+
+
+def test_every_artifact_is_written_and_valid(recording):
+    for name in ARTIFACTS:
+        assert (recording / name).stat().st_size > 0, name
+    joints = iio.imread(recording / "joints.png")
+    assert joints.ndim == 3 and joints.shape[0] > 600 and joints.shape[1] > 800
+    latency = iio.imread(recording / "latency.png")
+    assert latency.shape[1] > 500
+    svg = ET.parse(recording / "tree.svg").getroot()
+    assert svg.tag == "{http://www.w3.org/2000/svg}svg"
+
+
+def test_video_has_one_frame_per_policy_request_with_the_three_views(recording):
+    requests = len(load_recording(recording).requests)
+    reader = imageio.get_reader(recording / "cameras.mp4")
+    try:
+        frames = [frame for frame in reader]
+    finally:
+        reader.close()
+    assert len(frames) == requests == 4  # the warmup and three chunk requests
+    # Three 32x32 views scaled to 240 px high, side by side; the kinematic cell's frames are flat gray.
+    assert frames[0].shape == (240, 720, 3)
+    assert abs(float(frames[0].mean()) - 128) < 3
+
+
+def test_page_references_only_files_that_exist(recording):
+    links = page_links(recording / "report.html")
+    assert set(links.targets) >= {"joints.png", "latency.png", "tree.svg", "cameras.mp4", "run.mcap", "events.jsonl"}
+    for target in links.targets:
+        assert not re.match(r"^[a-z]+://", target), f"the page loads {target} from outside the recording"
+        assert (recording / target).is_file(), target
+    text = (recording / "report.html").read_text()
+    assert "Short Policy Run: <span class=\"SUCCESS\">SUCCESS</span>" in text
+    assert "<th>ExecutePolicy steps executed</th><td>60</td>" in text
+    assert "video" in links.tags
+
+
+def test_tree_svg_colours_each_node_by_its_final_status(recording):
+    svg = (recording / "tree.svg").read_text()
+    statuses = re.findall(r'<g class="node" data-status="(\w+)"><title>([^<]*)</title>', svg)
+    by_name = {title.split(" [")[0]: status for status, title in statuses}
+    assert by_name["ExecutePolicy"] == "SUCCESS"
+    assert by_name["skipped check"] == "SKIPPED"
+    assert by_name["Sequence"] == "SUCCESS"
+    assert len(statuses) == 5  # guards are drawn as the node they guard
+
+
+def test_report_command_renders_again_from_the_recording(recording, capsys, tmp_path):
+    copy = tmp_path / "copy"
+    shutil.copytree(recording, copy)
+    for name in ARTIFACTS:
+        (copy / name).unlink()
+    assert main(["report", str(copy)]) == 0
+    printed = capsys.readouterr().out.split()
+    assert sorted(Path(p).name for p in printed) == sorted(ARTIFACTS)
+    for name in ARTIFACTS:
+        assert (copy / name).stat().st_size > 0
+    assert (copy / "tree.svg").read_text() == (recording / "tree.svg").read_text()
+
+
+def test_report_of_a_directory_that_is_no_recording_is_bad_input(tmp_path, capsys):
+    assert main(["report", str(tmp_path)]) == 2
+    assert f"error: {tmp_path}: no events.jsonl (is this a directory written by `objective run --record`?)" in capsys.readouterr().err
+
+
+def test_a_run_without_policy_or_robot_still_gets_a_report(tmp_path):
+    code, rec = record_run(tmp_path, HALTED_XML)
+    assert code == 1
+    report = render_report(rec)
+    assert report.errors == {} and "video" not in report.files
+    page = (rec / "report.html").read_text()
+    assert "no camera frames were recorded" in page and "<video" not in page
+    assert 'data-status="HALTED"><title>long wait [Wait] halted: halted' in (rec / "tree.svg").read_text()
+    assert 'data-status="FAILURE"><title>Timeout' in (rec / "tree.svg").read_text()
+    for target in page_links(rec / "report.html").targets:
+        assert (rec / target).is_file(), target
+
+
+# -- the plotted quantities --------------------------------------------------------------------
+def goal(sent_at: float, start: float, steps: int, value: float) -> CommandedGoal:
+    times = start + 0.5 * np.arange(steps)
+    return CommandedGoal("/c/joint_trajectory", sent_at, ["j"], times, np.full((steps, 1), value), np.zeros((steps, 1)))
+
+
+def test_commanded_motion_switches_to_each_goal_at_its_seam():
+    series = commanded_series([goal(0.0, 0.0, 5, 1.0), goal(0.8, 1.0, 3, 2.0)], "j")
+    assert series is not None
+    assert series.times.tolist() == [0.0, 0.5, 1.0, 1.5, 2.0]
+    assert series.position.tolist() == [1.0, 1.0, 2.0, 2.0, 2.0]
+    assert commanded_series([goal(0.0, 0.0, 5, 1.0)], "other") is None
+
+
+def test_stalls_are_the_gaps_between_consecutive_chunk_motions():
+    recording = Recording(Path("."))
+    recording.goals = [goal(0.0, 0.0, 3, 1.0), goal(0.9, 1.0, 3, 1.0), goal(2.4, 2.5, 3, 1.0)]
+    recording.events = [{"kind": "chunk_executed", "time": g.sent_at, "source": "p", "data": {"seam_time": g.start}}
+                        for g in recording.goals]
+    assert stall_spans(recording) == [(2.0, 2.5)]
+
+
+def test_tree_layout_never_overlaps_boxes_of_one_level():
+    nodes = [{"id": i, "parent": 6 if i < 6 else None, "name": f"node with a long name {i}", "type": "Wait",
+              "kind": "Action", "transparent": False, "location": None} for i in range(6)]
+    nodes.append({"id": 6, "parent": None, "name": "root", "type": "Sequence", "kind": "Control", "transparent": False, "location": None})
+    svg = tree_svg(nodes, {6: ("RUNNING", "")})
+    rects = [tuple(float(v) for v in m) for m in re.findall(r'<rect x="([\d.]+)" y="([\d.]+)" width="([\d.]+)"', svg)][7:]
+    leaves = sorted(r for r in rects if r[1] == max(r[1] for r in rects))
+    assert len(leaves) == 6
+    assert all(a[0] + a[2] <= b[0] for a, b in zip(leaves, leaves[1:]))
+    root = build_boxes(nodes, {6: ("RUNNING", "")})
+    assert root is not None and root.status == "RUNNING" and {c.status for c in root.children} == {"IDLE"}
+
+
+def test_progress_line_shows_the_policy_run():
+    class Policy:
+        def __init__(self) -> None:
+            self.children: list = []
+
+        def iterate(self):
+            yield self
+
+        def run_summary(self):
+            return {"execute_policy": {"chunks": 6, "steps_executed": 120, "latency_p50_s": 0.0123,
+                                       "latency_max_s": 0.2, "stall_seconds": 0.5}}
+
+    stream = io.StringIO()
+    line = ProgressLine(stream)
+    line.attach(Policy())  # type: ignore[arg-type]
+    line(12.3, 1230, "ExecutePolicy")
+    assert stream.getvalue() == ("\rt=   12.30s  ticks=   1230  steps 120  chunks 6  latency p50/max 0.012/0.200 s  "
+                                 "stalls 0.50 s  running: ExecutePolicy")
+
+
+# -- in a browser ------------------------------------------------------------------------------
+def chromium() -> str | None:
+    return shutil.which("chromium") or shutil.which("chromium-browser")
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(chromium() is None, reason="headless Chromium is not installed (apt-get install chromium)")
+def test_the_page_shows_its_plots_in_headless_chromium(recording, tmp_path):
+    command = [chromium(), "--headless", "--no-sandbox", "--disable-gpu", f"--user-data-dir={tmp_path / 'profile'}",
+               "--virtual-time-budget=5000", "--dump-dom", (recording / "report.html").as_uri()]
+    dom = subprocess.run(command, capture_output=True, text=True, timeout=120).stdout
+    widths = dict(re.findall(r'<img src="([^"]+)"[^>]*data-natural-width="(\d+)"', dom))
+    assert set(widths) == {"joints.png", "latency.png", "tree.svg"}
+    assert int(widths["joints.png"]) == iio.imread(recording / "joints.png").shape[1]
+    assert all(int(w) > 0 for w in widths.values()), widths
+    assert "<p class=\"missing\">" not in dom
