@@ -36,6 +36,11 @@ $(LEROBOT_STAMP): $(STAMP) requirements/lerobot.txt requirements/lerobot-constra
 	HF_HUB_OFFLINE=1 $(PY) -c "from sim.policy.lerobot_compat import ensure_torchvision; print('torchvision ops:', ensure_torchvision()); import lerobot.policies.smolvla.modeling_smolvla"
 	@touch $@
 
+# The demo's tiny SmolVLA: records oracle demonstrations (build/demos/stack_cubes, reused when
+# present), trains on CPU for a few minutes (seeded), saves build/policies/tiny_smolvla.
+lerobot-policy: lerobot
+	HF_HUB_OFFLINE=1 $(PY) tools/train_tiny_smolvla.py --episodes 12 --seed 0 --steps 400 --minutes 5
+
 demo: setup
 	$(VENV)/bin/objective run objectives/stack_cubes.xml
 

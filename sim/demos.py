@@ -249,11 +249,8 @@ def record_demos(options: DemoOptions) -> DemoSummary:
         run_options = RunOptions(seed=seed, world=world_name, policy_latency="0", sets={
             "prompt": options.prompt, "total_steps": str(options.total_steps), "top": top, "bottom": bottom,
         })
-        world_options = {"seed": seed, "realtime": False, "policy": "none", "policy_latency": "0"}
-        probe = create_world(world_name, {"seed": seed})
-        if "image_size" in getattr(probe, "OPTIONS", ()):
-            world_options["image_size"] = options.image_size
-        probe.close()
+        world_options = {"seed": seed, "realtime": False, "policy": "none", "policy_latency": "0",
+                         "image_size": options.image_size}
         world = _RecordingWorld(create_world(world_name, world_options), options.prompt, options.total_steps / FPS)
         context = make_context(run_options)
         loaded = load_tree(RECORD_XML, registry, context, objectives_dir=objectives)

@@ -269,3 +269,77 @@ def test_objective_serve_backend_lerobot_answers_over_http_with_the_rtc_echo(che
         assert (backend.last_rtc.inference_delay, backend.last_rtc.execution_horizon, backend.last_rtc.leftover_steps) == (3, 9, 40)
     finally:
         server.stop()
+
+
+@pytest.fixture(scope="module")
+def calm_checkpoint(tmp_path_factory):
+    """A random-weight tiny SmolVLA whose denormalized actions stay within a milliradian of Home,
+    so ExecutePolicy executes its chunks (no limit rejections) and the RTC loop can be watched."""
+    from sim.policy.tiny_smolvla import TinySmolVLASpec, build_tiny_smolvla, save_checkpoint
+    from sim.robot_model import ARM_JOINTS, load_waypoints
+
+    folder = tmp_path_factory.mktemp("calm_smolvla")
+    config, policy = build_tiny_smolvla(folder, TinySmolVLASpec(image_size=32, num_steps=4))
+    home = load_waypoints()["Home"]
+    mean = np.array([home[j] for j in ARM_JOINTS] + [0.0])
+    stats = {
+        "observation.state": {"mean": mean, "std": np.ones(7), "min": mean - 1, "max": mean + 1},
+        "action": {"mean": mean, "std": np.full(7, 1e-3), "min": mean - 1, "max": mean + 1},
+    }
+    save_checkpoint(folder, config, policy, stats, {"joint_names": JOINTS, "control_period": 0.1})
+    return folder
+
+
+@needs_lerobot
+def test_stack_cubes_lerobot_objective_carries_the_rtc_tail_into_predict_action_chunk(calm_checkpoint, monkeypatch, capsys):
+    """The shipped Objective headless with RTC on: every guided call gets ExecutePolicy's frozen
+    prefix as inference_delay, frozen prefix + 18 (the Objective's guidance_horizon) as
+    execution_horizon, and as prev_chunk_left_over the unexecuted tail of the previous chunk's
+    normalized output, untouched, starting at the request instant."""
+    import json
+
+    from runtime.cli import main
+    from sim.policy.lerobot_backend import LeRobotBackend
+
+    calls: list[dict] = []
+    original_load = LeRobotBackend.load
+
+    requests: list[PolicyRequest] = []
+
+    def load_and_spy(self):
+        original_load(self)
+        predict, infer = self.policy.predict_action_chunk, self.infer
+
+        def spy(batch, **kwargs):
+            output = predict(batch, **kwargs)
+            calls.append({**kwargs, "output": output[0].detach().numpy().copy(), "request": requests[-1]})
+            return output
+
+        def keep_request(request):
+            requests.append(request)
+            return infer(request)
+
+        self.policy.predict_action_chunk = spy
+        self.infer = keep_request
+
+    monkeypatch.setattr(LeRobotBackend, "load", load_and_spy)
+    code = main(["run", "objectives/stack_cubes_lerobot.xml", "--world", "kinematic", "--seed", "1",
+                 "--policy", f"lerobot:{calm_checkpoint}", "--policy-latency", "0.3", "--json"])
+    summary = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    # A random policy holding Home stacks nothing: the run fails at the check, not in ExecutePolicy.
+    assert code == 1 and summary["failing_node"] == "top cube on bottom cube", summary["reason"]
+    assert summary["execute_policy"]["steps_executed"] == 250 and summary["execute_policy"]["rejections"] == 0
+
+    guided = [i for i, call in enumerate(calls) if "prev_chunk_left_over" in call]
+    assert len(guided) >= 10
+    for i in guided:
+        call, previous = calls[i], calls[i - 1]["output"]
+        tail = call["prev_chunk_left_over"].numpy()
+        request = call["request"]
+        assert request.frozen_prefix_steps >= 3  # 0.3 s of latency at dt 0.1, plus ExecutePolicy's margin
+        assert call["inference_delay"] == request.frozen_prefix_steps
+        assert request.guidance_horizon == 18
+        assert call["execution_horizon"] == request.frozen_prefix_steps + 18
+        # The tail is the previous chunk's unexecuted remainder from this request's instant on.
+        np.testing.assert_array_equal(tail, previous[len(previous) - len(tail):].astype(np.float32))
+        assert 0 < len(tail) < len(previous)
