@@ -674,3 +674,12 @@ def test_reset_ends_goals_and_holds_the_new_state(cell):
     assert watch.result.error_string == "the simulation was reset at t=0.500 s"
     cell.run(0.2)
     np.testing.assert_allclose(cell.hw.q, np.zeros(6), atol=1e-9)
+
+
+def test_seam_at_the_end_up_to_stamp_rounding_joins_the_last_points_velocity():
+    # Stamps travel as integer nanoseconds: a seam "at the end" can land a nanosecond after it.
+    # It must join the moving end state, not the hold that follows the trajectory.
+    current = Trajectory(np.array([0.0, 1.0]), np.array([[0.0], [1.0]]), np.array([[1.0], [1.0]]), np.zeros((2, 1)))
+    new = Trajectory(np.array([1.0 + 1e-9, 2.0]), np.array([[1.0], [2.0]]), np.array([[1.0], [1.0]]), np.zeros((2, 1)))
+    stitched = stitch(current, new, 1.0 + 1e-9, path_tolerance=0.3)
+    assert stitched.sample(1.0 + 1e-9).velocity[0] == pytest.approx(1.0)

@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-TIME_EPS = 1e-9
+TIME_EPS = 1e-6  # seconds: stamps travel as integer nanoseconds, rounded on both sides
 """Seconds within which two instants are the same (seam exactly at a point, at the end)."""
 
 
@@ -209,7 +209,9 @@ def stitch(
         )
     if new.start_time < seam_time - TIME_EPS:
         raise SeamError(f"the new trajectory starts at t={new.start_time:.4f} s, before the seam t={seam_time:.4f} s")
-    at_seam = current.sample(seam_time)
+    # A seam at the very end (up to the nanosecond rounding of stamps) joins the last point's
+    # state, not the hold that follows it.
+    at_seam = current.sample(min(seam_time, current.end_time) if seam_time <= current.end_time + TIME_EPS else seam_time)
     new_starts_at_seam = new.start_time <= seam_time + TIME_EPS
     if new_starts_at_seam and path_tolerance > 0:
         comparisons = [("position", "rad", at_seam.position, new.positions[0])]

@@ -48,6 +48,12 @@ def test_ours_matches_recorded_statuses(case: Case) -> None:
 @pytest.mark.parametrize("case", CASES, ids=[c.name for c in CASES])
 def test_ours_matches_behaviortree_cpp(case: Case) -> None:
     theirs = run_btcpp(case)
+    # Timed cases tick BT.CPP on wall time, and its timers run on threads: on a loaded machine a
+    # late timer shifts a status by a tick. Retry those (bounded) before calling it a difference.
+    for _ in range(3 if case.dt_ms else 0):
+        if theirs.statuses == list(case.expect):
+            break
+        theirs = run_btcpp(case)
     ours = run_ours(case)
     assert theirs.statuses == list(case.expect), f"BT.CPP itself changed: {theirs.statuses} ({theirs.error})"
     assert ours.statuses == theirs.statuses
