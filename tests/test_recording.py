@@ -207,6 +207,15 @@ def test_a_halted_node_is_recorded_as_halted(tmp_path):
     assert (rec / "run.mcap").stat().st_size > 0
 
 
+def test_recording_again_into_a_directory_replaces_the_old_report(tmp_path):
+    stale = tmp_path / "rec" / "cameras.mp4"
+    stale.parent.mkdir()
+    stale.write_bytes(b"an older run's video")
+    code, rec = record_run(tmp_path, HALTED_XML)
+    assert code == 1 and not stale.exists()  # this run had no camera frames
+    assert (rec / "report.html").is_file()
+
+
 def test_record_into_a_file_is_bad_input(tmp_path, capsys):
     target = tmp_path / "not-a-dir"
     target.write_text("x")

@@ -23,6 +23,10 @@ from .mcap_writer import McapRos2Writer
 
 MCAP_FILE = "run.mcap"
 EVENTS_FILE = "events.jsonl"
+JOINTS_FILE, LATENCY_FILE, VIDEO_FILE, TREE_FILE, HTML_FILE = (
+    "joints.png", "latency.png", "cameras.mp4", "tree.svg", "report.html")
+REPORT_FILES = (JOINTS_FILE, LATENCY_FILE, VIDEO_FILE, TREE_FILE, HTML_FILE)
+"""Rendered by ``runtime.report``; a new recording into the same directory removes the old ones."""
 
 
 def jsonable(value: Any) -> Any:
@@ -74,6 +78,8 @@ class Recorder:
             raise ObjectiveError(f"--record {self.directory}: exists and is not a directory")
         try:
             self.directory.mkdir(parents=True, exist_ok=True)
+            for name in REPORT_FILES:  # a previous run's video must not pass for this run's
+                (self.directory / name).unlink(missing_ok=True)
             self.writer = McapRos2Writer(self.directory / MCAP_FILE)
         except OSError as err:
             raise ObjectiveError(f"--record {self.directory}: cannot write there ({err.strerror})") from None

@@ -14,8 +14,7 @@ from .data import Recording, load_recording
 
 __all__ = ["Report", "Recording", "load_recording", "render_report"]
 
-JOINTS_FILE, LATENCY_FILE, VIDEO_FILE, TREE_FILE, HTML_FILE = (
-    "joints.png", "latency.png", "cameras.mp4", "tree.svg", "report.html")
+from ..recording.recorder import HTML_FILE, JOINTS_FILE, LATENCY_FILE, TREE_FILE, VIDEO_FILE
 
 
 @dataclass

@@ -211,8 +211,9 @@ def _patch(color: str, label: str) -> Any:
 def latency_plot(recording: Recording, path: Path, dpi: int = 72) -> Path:
     """Round trip of each executed chunk's request against the motion that chunk committed."""
     executed = recording.of_kind("chunk_executed")
-    fig = Figure(figsize=(10, 4), layout="constrained")
+    fig = Figure(figsize=(10, 4))
     ax = fig.subplots()
+    fig.subplots_adjust(left=0.08, right=0.98, bottom=0.13, top=0.91)  # fixed: no layout solver
     if not executed and not recording.responses:
         ax.axis("off")
         ax.text(0.5, 0.5, "no policy calls were recorded in this run", ha="center", va="center")
