@@ -461,7 +461,7 @@ class _InProcessActionClient:
         accepted = bool(server.on_goal(server_goal))
         if accepted and server_goal.status == STATUS_ACCEPTED:
             server_goal.status = STATUS_EXECUTING
-        future: Future[ClientGoalHandle] = Future()
+        future: Future[ClientGoalHandle] = Future(self.bus.clock, self.bus.clock.now())  # accepted at once
         future.set_result(_InProcessClientGoal(server_goal if accepted else None, accepted))
         return future
 

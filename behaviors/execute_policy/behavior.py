@@ -115,6 +115,8 @@ class ExecutePolicy(Behavior):
         self.samples: Samples | None = None
         self.grid: StepGrid | None = None
         self.latency = LatencyEstimate()
+        self.goal_latency = LatencyEstimate()
+        """Send -> accepted of controller goals: zero in process, a tick or more over ROS."""
         self.policy_chunk: np.ndarray | None = None
         self.policy_chunk_request_step = 0
         self.gripper_schedule: list[tuple[float, float]] = []
@@ -249,7 +251,7 @@ class ExecutePolicy(Behavior):
     # -- requests and responses --------------------------------------------------------------
     def _frozen(self) -> int:
         est = self.latency.seconds
-        return frozen_prefix_steps(est, self.config.dt, prefetch_margin(est, TICK_PERIOD))
+        return frozen_prefix_steps(est, self.config.dt, prefetch_margin(est, TICK_PERIOD) + 2 * self.goal_latency.seconds)
 
     def _maybe_request(self, now: float) -> None:
         grid = self.grid
@@ -313,7 +315,9 @@ class ExecutePolicy(Behavior):
         index = self.metrics.chunks
         if chunk.steps <= c.committed_action_steps and index == 1:
             self._warn(f"committed_action_steps ({c.committed_action_steps}) should be smaller than the chunk size ({chunk.steps})")
-        earliest = grid.step_at_or_after(now + TICK_PERIOD)
+        # The goal must reach the controller before its seam: one tick, plus twice the goal
+        # delivery time seen so far (zero in process; over ROS, transport and the next spin).
+        earliest = grid.step_at_or_after(now + TICK_PERIOD + 2 * self.goal_latency.seconds)
         try:
             window = grid.plan_window(index, flight.request_step, flight.frozen, chunk.steps, earliest)
         except WindowError as err:
@@ -344,7 +348,7 @@ class ExecutePolicy(Behavior):
         if reason is not None:
             return self._reject(f"chunk {index} rejected: {reason}")
         goal_future = self.controller.send_goal_async(self._goal(samples, seam_time))
-        self.pending_goal = goal_future
+        self.pending_goal, self.goal_sent_at = goal_future, now
         if self.motion is not None and seam_time > self.motion.end:
             self.metrics.stall_seconds += seam_time - self.motion.end  # drained until the seam
         self.motion, self.samples = motion, samples
@@ -410,6 +414,7 @@ class ExecutePolicy(Behavior):
         pending = getattr(self, "pending_goal", None)
         if pending is not None and pending.done():
             self.pending_goal = None
+            self.goal_latency.update(max(0.0, pending.ready_at - self.goal_sent_at))  # arrival, not when we looked
             handle = pending.result()
             if not handle.accepted:
                 return self._stop(Status.FAILURE, f"the controller '{self.config.controller_action_name}' rejected the goal")
