@@ -4,7 +4,6 @@ rendered by a headless Chromium (slow)."""
 from __future__ import annotations
 
 import io
-import json
 import re
 import shutil
 import subprocess

@@ -138,7 +138,7 @@ def tree_svg(nodes: list[dict[str, Any]], statuses: dict[int, tuple[str, str]], 
     width = max(width, 620)
     out = [f'<svg xmlns="http://www.w3.org/2000/svg" width="{width:.0f}" height="{height:.0f}" '
            f'viewBox="0 0 {width:.0f} {height:.0f}" font-family="sans-serif" font-size="12">',
-           f'<rect width="100%" height="100%" fill="white"/>',
+           '<rect width="100%" height="100%" fill="white"/>',
            f'<text x="{MARGIN}" y="{MARGIN + 4}" font-size="14" font-weight="bold">{escape(title)}</text>']
     lx = MARGIN
     for status in ("SUCCESS", "FAILURE", "RUNNING", "HALTED", "SKIPPED", "IDLE"):
