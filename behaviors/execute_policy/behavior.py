@@ -38,6 +38,7 @@ STARTUP_WAIT_S = 5.0
 GRIPPER_MAX_EFFORT = 60.0  # N; the 2F-85 holds a 30 mm cube well below its 235 N maximum
 GRIPPER_DEADBAND = 0.01  # rad of the driver joint: smaller changes are not re-sent
 TICK_PERIOD = 0.01
+MAX_LATE_RETRIES = 3
 
 
 class Phase(enum.Enum):
@@ -56,6 +57,19 @@ class InFlight:
     request_step: int
     frozen: int
     anchor: JointState
+
+
+@dataclass
+class _SentChunk:
+    """A chunk sent to the controller, and the stream state from before it was committed."""
+
+    chunk: Any
+    response: Any
+    flight: InFlight
+    committed_end: int
+    executed_until: int
+    motion: ChunkMotion | None
+    samples: Samples | None
 
 
 @dataclass
@@ -116,6 +130,7 @@ class ExecutePolicy(Behavior):
         self.grid: StepGrid | None = None
         self.latency = LatencyEstimate()
         self.goal_latency = LatencyEstimate()
+        self.late_retries = 0
         """Send -> accepted of controller goals: zero in process, a tick or more over ROS."""
         self.policy_chunk: np.ndarray | None = None
         self.policy_chunk_request_step = 0
@@ -351,6 +366,9 @@ class ExecutePolicy(Behavior):
         self.pending_goal, self.goal_sent_at = goal_future, now
         if self.motion is not None and seam_time > self.motion.end:
             self.metrics.stall_seconds += seam_time - self.motion.end  # drained until the seam
+        # Kept until the controller accepts the seam: a goal refused only for arriving late is
+        # planned again from the same chunk (see _retry_late_goal).
+        self.last_sent = _SentChunk(chunk, response, flight, grid.committed_end, grid.executed_until, self.motion, self.samples)
         self.motion, self.samples = motion, samples
         grid.commit(window)
         self.goal_result = None
@@ -427,10 +445,30 @@ class ExecutePolicy(Behavior):
             if outcome.status == STATUS_ABORTED or outcome.result.error_code not in (0,):
                 if outcome.result.error_code == FollowTrajectory.Result.SUPERSEDED:
                     return None
+                if self._retry_late_goal(outcome.result):
+                    return None
                 return self._stop(Status.FAILURE, f"the controller aborted the motion: {outcome.result.error_string}")
             if outcome.status != STATUS_SUCCEEDED:
                 return self._stop(Status.FAILURE, f"the controller ended the motion: {outcome.result.error_string}")
         return None
+
+    def _retry_late_goal(self, result: Any) -> bool:
+        """A goal refused because it reached the controller after its seam, while the arm was at
+        rest (a first goal on a new connection, a slow tick on a loaded machine): nothing moved,
+        so plan the same chunk again, now with the measured delivery time. At most 3 times."""
+        sent = getattr(self, "last_sent", None)
+        late = result.error_code == FollowTrajectory.Result.OLD_HEADER_TIMESTAMP or "seam time exceeds the end" in result.error_string
+        at_rest = sent is not None and (sent.motion is None or self.context.clock.now() > sent.motion.end)
+        if not (late and at_rest) or self.late_retries >= MAX_LATE_RETRIES:
+            return False
+        self.late_retries += 1
+        grid = self.grid
+        assert grid is not None and sent is not None
+        grid.committed_end, grid.executed_until = sent.committed_end, sent.executed_until
+        self.motion, self.samples = sent.motion, sent.samples
+        self.waiting_chunk = (sent.chunk, sent.response, sent.flight)  # goal_result is set: runs next tick
+        self._warn(f"the controller received a goal after its seam ({result.error_string}); planning the chunk again")
+        return True
 
     def _queue_gripper(self, chunk: Any, window: Window) -> None:
         if self.gripper is None or chunk.gripper is None:
