@@ -130,8 +130,8 @@ class ExecutePolicy(Behavior):
         self.grid: StepGrid | None = None
         self.latency = LatencyEstimate()
         self.goal_latency = LatencyEstimate()
-        self.late_retries = 0
         """Send -> accepted of controller goals: zero in process, a tick or more over ROS."""
+        self.late_retries = 0
         self.policy_chunk: np.ndarray | None = None
         self.policy_chunk_request_step = 0
         self.gripper_schedule: list[tuple[float, float]] = []
