@@ -108,3 +108,11 @@ def test_stack_cubes_on_the_physics_cell(capsys):
     assert code == 0, summary["reason"]
     assert summary["stack_check"]["stacked"] is True
     assert summary["execute_policy"]["rejections"] == 0 and summary["execute_policy"]["stall_seconds"] == 0.0
+
+
+def test_scripted_pick_and_place_on_the_physics_cell(capsys):
+    # MoveToPose / MoveGripperAction / SetCollisionRule pick the blue cube by friction and
+    # place it on the green one; the shipped check then confirms the stack.
+    code, summary = run_cli(capsys, "objectives/examples/pick_and_place_scripted.xml", "--seed", "3")
+    assert code == 0, summary["reason"]
+    assert summary["stack_check"]["stacked"] is True
