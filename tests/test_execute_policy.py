@@ -393,8 +393,9 @@ def test_rtc_sends_the_unexecuted_tail_from_the_request_instant(registry):
     # Latency 0.25 s is measured on the 10 ms tick grid; frozen = ceil((0.25 + 2 ticks + 10%) / 0.1).
     assert frozen == 3
     tail = np.array(second.previous_action_chunk.data).reshape(-1, 2)
-    # Chunk 1 was requested at step 0 (seam at step 3); chunk 2 at the next seam (3 + 20) minus 3.
-    assert tail[0, 0] == 1000.0 * 1 + 20 and len(tail) == 30
+    # Chunk 1 found the arm at rest, so its step 0 is played at its seam (run step 3). Chunk 2 is
+    # requested 3 steps before the next seam (3 + 20): at run step 20, which is chunk 1's step 17.
+    assert tail[0, 0] == 1000.0 * 1 + 17 and len(tail) == 33
     assert second.previous_action_chunk.layout.data_offset == 0
     assert [d.label for d in second.previous_action_chunk.layout.dim] == ["step", "action"]
     assert list(second.previous_anchor_state.position) == list(first.robot_state.position)

@@ -349,7 +349,7 @@ class ExecutePolicy(Behavior):
         motion = join_at_seam(
             spline,
             c.dt,
-            grid.time(flight.request_step),
+            grid.time(window.request_step),
             seam_time,
             grid.time(window.end_step),
             start_p,
@@ -376,7 +376,7 @@ class ExecutePolicy(Behavior):
         self._queue_gripper(chunk, window)
         policy_chunk = read_policy_chunk(response.policy_action_chunk)
         if c.policy_uses_real_time_chunking:
-            self.policy_chunk, self.policy_chunk_request_step = policy_chunk, flight.request_step
+            self.policy_chunk, self.policy_chunk_request_step = policy_chunk, window.request_step
             self.previous_anchor = flight.anchor
         self.context.events.emit(
             "chunk_executed",

@@ -16,7 +16,7 @@ class Window:
     """The part of one chunk that is executed: chunk steps ``[seam - request, ... + steps]``."""
 
     index: int  # chunk number, 1-based (the warmup is not counted)
-    request_step: int
+    request_step: int  # the run step where the chunk's step 0 is played (its request, or shifted)
     seam_step: int
     steps: int
 
@@ -67,10 +67,16 @@ class StepGrid:
         Raises WindowError when the chunk ends before the seam.
         """
         # The chunk takes over where the committed motion ends (normally request + frozen prefix);
-        # a chunk that arrives after that starts at the first step it can (the robot paused).
-        # The frozen prefix is only the estimate sent to the policy: a chunk that arrives early
-        # after a late request still joins at the end of the committed motion.
-        seam = max(earliest_seam, self.committed_end if index > 1 else request_step)
+        # the frozen prefix is only the estimate sent to the policy, so a chunk that arrives early
+        # after a late request still joins there. A chunk that arrives later finds the arm at rest
+        # (the first chunk, or a drained motion): it starts at the first step it can, played from
+        # the chunk step that matches where the arm stopped rather than from the step the clock
+        # says, so the arm does not have to catch up on steps it never moved through.
+        moving = index > 1 and earliest_seam <= self.committed_end
+        seam = self.committed_end if moving else max(earliest_seam, self.committed_end if index > 1 else 0)
+        if not moving:
+            stopped_at = 0 if index == 1 else max(0, self.committed_end - request_step)
+            request_step = seam - stopped_at  # the chunk's time line, shifted to start at the arm's state
         # A chunk with N steps has positions up to chunk step N-1: the window needs its end point.
         available = request_step + chunk_steps - 1 - seam
         steps = min(self.committed_steps, self.remaining, available)
