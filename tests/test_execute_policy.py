@@ -321,7 +321,7 @@ def test_object_appearing_in_the_remaining_path_stops_the_robot(registry):
     assert run.result.status == "FAILURE"
     assert run.result.reason.startswith("the planning scene changed:")
     assert "intruder" in run.result.reason and run.result.reason.endswith("in the remaining path; robot stopped")
-    assert run.result.sim_seconds == pytest.approx(1.0, abs=0.02)
+    assert run.result.sim_seconds == pytest.approx(1.0, abs=0.06)  # the scene is watched every 50 ms
 
 
 def test_force_torque_spike_aborts_with_the_controller_reason(registry):

@@ -39,6 +39,7 @@ GRIPPER_MAX_EFFORT = 60.0  # N; the 2F-85 holds a 30 mm cube well below its 235 
 GRIPPER_DEADBAND = 0.01  # rad of the driver joint: smaller changes are not re-sent
 TICK_PERIOD = 0.01
 MAX_LATE_RETRIES = 3
+SCENE_WATCH_PERIOD = 0.05  # s: how often the rest of the committed motion is checked against the live scene
 
 
 class Phase(enum.Enum):
@@ -132,6 +133,7 @@ class ExecutePolicy(Behavior):
         self.goal_latency = LatencyEstimate()
         """Send -> accepted of controller goals: zero in process, a tick or more over ROS."""
         self.late_retries = 0
+        self.next_scene_check = 0.0
         self.policy_chunk: np.ndarray | None = None
         self.policy_chunk_request_step = 0
         self.gripper_schedule: list[tuple[float, float]] = []
@@ -255,7 +257,8 @@ class ExecutePolicy(Behavior):
                 return status
         elif grid.remaining > 0:
             self._maybe_request(now)
-        if self.samples is not None:
+        if self.samples is not None and now >= self.next_scene_check - 1e-9:
+            self.next_scene_check = now + SCENE_WATCH_PERIOD
             collision = self.safety.first_collision(self.rules, self._remaining_samples(now), self.config.link_padding, self._gripper_now())
             if collision is not None:
                 return self._stop(Status.FAILURE, f"the planning scene changed: {collision} in the remaining path; robot stopped")

@@ -140,8 +140,16 @@ def join_at_seam(
     return ChunkMotion(spline, dt, chunk_start, seam, end, offset_p, offset_v, max(blend_duration, 1e-6))
 
 
+MAX_SAMPLE_SPACING = 0.01
+"""Seconds. Samples are never sparser than this, whatever ``num_interpolation_points`` says: the
+checks see only the samples, and the controller interpolates between them, so a sparse window
+could hide an over-speed between two points that are each within the limits."""
+
+
 def densify(motion: ChunkMotion, num_points: int) -> Samples:
-    """``num_points`` evenly spaced samples from the seam to the end of the window (inclusive)."""
-    times = np.linspace(motion.seam, motion.end, max(2, num_points))
+    """At least ``num_points`` evenly spaced samples from the seam to the end of the window
+    (inclusive), and no more than ``MAX_SAMPLE_SPACING`` apart."""
+    needed = int(np.ceil((motion.end - motion.seam) / MAX_SAMPLE_SPACING - 1e-9)) + 1
+    times = np.linspace(motion.seam, motion.end, max(2, num_points, needed))
     p, v, a = motion.evaluate(times)
     return Samples(times, p, v, a)
