@@ -39,7 +39,7 @@ $(LEROBOT_STAMP): $(STAMP) requirements/lerobot.txt requirements/lerobot-constra
 # The demo's tiny SmolVLA: records oracle demonstrations (build/demos/stack_cubes, reused when
 # present), trains on CPU for a few minutes (seeded), saves build/policies/tiny_smolvla.
 lerobot-policy: lerobot
-	HF_HUB_OFFLINE=1 $(PY) tools/train_tiny_smolvla.py --episodes 12 --seed 0 --steps 400 --minutes 5
+	HF_HUB_OFFLINE=1 $(PY) tools/train_tiny_smolvla.py --episodes 12 --seed 0 --steps 1500 --minutes 8
 
 demo: setup
 	$(VENV)/bin/objective run objectives/stack_cubes.xml

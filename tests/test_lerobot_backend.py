@@ -343,3 +343,29 @@ def test_stack_cubes_lerobot_objective_carries_the_rtc_tail_into_predict_action_
         # The tail is the previous chunk's unexecuted remainder from this request's instant on.
         np.testing.assert_array_equal(tail, previous[len(previous) - len(tail):].astype(np.float32))
         assert 0 < len(tail) < len(previous)
+
+
+@needs_lerobot
+def test_record_demos_writes_a_lerobot_dataset_of_oracle_steps(tmp_path, capsys):
+    from sim.policy.lerobot_compat import ensure_torchvision
+
+    ensure_torchvision()  # before anything imports lerobot
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    from runtime.cli import main
+
+    out = tmp_path / "demos"
+    code = main(["record-demos", str(out), "--episodes", "1", "--seed", "3", "--world", "kinematic",
+                 "--image-size", "32", "--steps", "30", "--keep-failed"])
+    assert code == 0
+    assert capsys.readouterr().out.strip() == f"{out}: 1 episodes, 30 frames from world 'kinematic'"
+    dataset = LeRobotDataset("local/stack_cubes_demos", root=out)
+    assert dataset.meta.fps == 10 and dataset.meta.total_frames == 30
+    assert dataset.meta.features["action"]["names"] == JOINTS
+    frame = dataset[5]
+    assert frame["task"] == PROMPT
+    assert tuple(frame["observation.images.wrist"].shape) == (3, 32, 32)
+    # The label is the oracle's target for that instant, next to where the arm actually is.
+    assert np.abs(frame["action"].numpy() - frame["observation.state"].numpy()).max() < 0.1
+    assert main(["record-demos", str(out), "--episodes", "1"]) == 2
+    assert "already exists (pass --overwrite to replace it)" in capsys.readouterr().err
