@@ -22,12 +22,12 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from builtin_interfaces.msg import Time
 from geometry_msgs.msg import Pose, PoseStamped
 from scipy.spatial.transform import Rotation
 from sensor_msgs.msg import JointState
 
 from runtime.behavior import Behavior, Condition, Status
+from runtime.timestamps import time_msg
 from runtime.ports import InputPort, OutputPort, PortType
 
 WORLD_FRAME = "world"
@@ -55,7 +55,7 @@ def matrix_to_pose(frame_id: str, matrix: np.ndarray, stamp: float = 0.0) -> Pos
     """A ``PoseStamped`` in ``frame_id`` from a 4x4 matrix, stamped ``stamp`` seconds."""
     msg = PoseStamped()
     msg.header.frame_id = frame_id
-    msg.header.stamp = seconds_to_time(stamp)
+    msg.header.stamp = time_msg(stamp)
     x, y, z = (float(v) for v in matrix[:3, 3])
     msg.pose.position.x, msg.pose.position.y, msg.pose.position.z = x, y, z
     qx, qy, qz, qw = (float(v) for v in Rotation.from_matrix(matrix[:3, :3]).as_quat())
@@ -64,11 +64,6 @@ def matrix_to_pose(frame_id: str, matrix: np.ndarray, stamp: float = 0.0) -> Pos
     o = msg.pose.orientation
     o.x, o.y, o.z, o.w = qx, qy, qz, qw
     return msg
-
-
-def seconds_to_time(seconds: float) -> Time:
-    sec = math.floor(seconds)
-    return Time(sec=int(sec), nanosec=min(int(round((seconds - sec) * 1e9)), 999_999_999))
 
 
 def offset_matrix(translation_xyz: list[float], quaternion_xyzw: list[float]) -> np.ndarray:

@@ -38,7 +38,7 @@ from sim.controllers import (
     stitch,
     stop_trajectory,
 )
-from sim.controllers.admittance import time_msg
+from runtime.timestamps import time_msg
 
 Action = FollowJointTrajectoryWithAdmittance
 Result = Action.Result

@@ -42,11 +42,11 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from builtin_interfaces.msg import Time
 from geometry_msgs.msg import Wrench
 from moveit_pro_controllers_msgs.action import FollowJointTrajectoryWithAdmittance
 from trajectory_msgs.msg import JointTrajectoryPoint
 
+from runtime.timestamps import time_msg, to_seconds
 from runtime.bus import Bus, ServerGoalHandle
 from runtime.clock import Clock
 
@@ -88,16 +88,6 @@ class ParsedGoal:
     goal_time_tolerance: float
     force_torque_threshold: np.ndarray | None
     admittance: AdmittanceParams
-
-
-def stamp_seconds(stamp) -> float:
-    return float(stamp.sec) + float(stamp.nanosec) * 1e-9
-
-
-def time_msg(seconds: float) -> Time:
-    sec = math.floor(seconds)
-    nanosec = min(int(round((seconds - sec) * 1e9)), 999_999_999)
-    return Time(sec=int(sec), nanosec=nanosec)
 
 
 def _finite_nonnegative(name: str, value: float) -> float:
@@ -174,7 +164,7 @@ def parse_goal(goal, arm_joints: tuple[str, ...], now: float, admittance: Admitt
     except ValueError as exc:
         raise GoalError(Result.INVALID_GOAL, str(exc)) from None
 
-    stamp = stamp_seconds(trajectory.header.stamp)
+    stamp = to_seconds(trajectory.header.stamp)
     zero_stamp = stamp == 0.0
     seam = now if zero_stamp else stamp
     return ParsedGoal(

@@ -26,13 +26,12 @@ import math
 from typing import Any, Sequence
 
 import numpy as np
-from builtin_interfaces.msg import Duration
 from moveit_pro_ml_msgs.srv import GetActionChunk
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 from trajectory_msgs.msg import JointTrajectoryPoint
 
-from runtime.timestamps import time_msg, to_seconds
+from runtime.timestamps import duration_msg, time_msg, to_seconds
 
 from .backend import PolicyBackend, PolicyRequest, PolicyResponse, PolicyStatus
 from .images import image_to_rgb, rgb_to_image
@@ -232,7 +231,7 @@ def response_to_msg(response: PolicyResponse, joint_names: Sequence[str]) -> Get
     for step, row in enumerate(actions):
         point = JointTrajectoryPoint()
         point.positions = row
-        point.time_from_start = _duration(step * period)  # informative only: the caller ignores it
+        point.time_from_start = duration_msg(step * period)  # informative only: the caller ignores it
         points.append(point)
     msg.chunk.points = points
     msg.native_control_period = period
@@ -266,11 +265,6 @@ def error_msg(reason: str) -> GetActionChunk.Response:
     msg.status = GetActionChunk.Response.ERROR
     msg.message = reason
     return msg
-
-
-def _duration(seconds: float) -> Duration:
-    nanos = int(round(seconds * 1e9))
-    return Duration(sec=nanos // 1_000_000_000, nanosec=nanos % 1_000_000_000)
 
 
 # --------------------------------------------------------------------------------------------
