@@ -50,6 +50,7 @@ class MujocoCell:
         self._cube_body = {c: m.body(cube_body_name(c)).id for c in CUBE_COLORS}
         self._cube_qpos = {c: m.joint(f"{cube_body_name(c)}_joint").qposadr[0] for c in CUBE_COLORS}
         self._ft_site = m.site(FT_SITE).id
+        self._ft_body = m.site_bodyid[self._ft_site]
         self._force_adr = m.sensor(FT_FORCE_SENSOR).adr[0]
         self._torque_adr = m.sensor(FT_TORQUE_SENSOR).adr[0]
         self._renderers: dict[str, mujoco.Renderer] = {}
@@ -150,12 +151,19 @@ class MujocoCell:
 
     # -- internals --------------------------------------------------------------------------
     def _raw_wrench(self) -> np.ndarray:
-        """What the environment applies to the tool, in the world frame (sensor: site frame,
-        the other way round)."""
+        """What the environment applies to the tool, in the world frame, about the sensor.
+
+        The sensors give what the wrist exerts on the gripper (site frame). At rest that support
+        balances the gripper's weight plus the external wrench, so the external part is minus the
+        support minus the weight, with the weight's torque taken about the gripper's current
+        centre of mass: a constant tare alone would drift by ~0.4 Nm as the wrist turns.
+        """
         R = self.data.site_xmat[self._ft_site].reshape(3, 3)
-        force = self.data.sensordata[self._force_adr:self._force_adr + 3]
-        torque = self.data.sensordata[self._torque_adr:self._torque_adr + 3]
-        return -np.concatenate([R @ force, R @ torque])
+        support_force = R @ self.data.sensordata[self._force_adr:self._force_adr + 3]
+        support_torque = R @ self.data.sensordata[self._torque_adr:self._torque_adr + 3]
+        weight = self.model.body_subtreemass[self._ft_body] * self.model.opt.gravity
+        lever = self.data.subtree_com[self._ft_body] - self.data.site_xpos[self._ft_site]
+        return np.concatenate([-support_force - weight, -support_torque - np.cross(lever, weight)])
 
     def _apply_external_wrench(self) -> None:
         body = self.model.site_bodyid[self._ft_site]
