@@ -339,13 +339,7 @@ def cmd_models(args: argparse.Namespace, registry: Registry) -> int:
 
 def _policy_logging() -> None:
     """The policy processes log to stderr (one line per request, served-chunk counts)."""
-    logger = logging.getLogger("sim.policy")
-    if not logger.handlers:
-        handler = _StderrHandler()
-        handler.setFormatter(logging.Formatter("[%(levelname)s] %(name)s: %(message)s"))
-        logger.addHandler(handler)
-        logger.setLevel(logging.INFO)
-        logger.propagate = False
+    _log_to_stderr("sim.policy", "[%(levelname)s] %(name)s: %(message)s")
 
 
 def cmd_serve(args: argparse.Namespace, registry: Registry) -> int:
@@ -491,10 +485,14 @@ class _StderrHandler(logging.StreamHandler):  # type: ignore[type-arg]
 
 def _setup_logging() -> None:
     """Runtime messages (LogMessage, warnings) go to stderr, once per process."""
-    logger = logging.getLogger("objective")
+    _log_to_stderr("objective", "[%(levelname)s] %(message)s")
+
+
+def _log_to_stderr(name: str, fmt: str) -> None:
+    logger = logging.getLogger(name)
     if not logger.handlers:
         handler = _StderrHandler()
-        handler.setFormatter(logging.Formatter("[%(levelname)s] %(message)s"))
+        handler.setFormatter(logging.Formatter(fmt))
         logger.addHandler(handler)
         logger.setLevel(logging.INFO)
         logger.propagate = False

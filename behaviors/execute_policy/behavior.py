@@ -126,6 +126,9 @@ class ExecutePolicy(Behavior):
         once the controller reports that motion finished."""
         self.goal_handle: Any = None
         self.goal_result: Any = None
+        self.pending_goal: Any = None
+        self.goal_sent_at = 0.0
+        self.last_sent: _SentChunk | None = None
         self.motion: ChunkMotion | None = None
         self.samples: Samples | None = None
         self.grid: StepGrid | None = None
@@ -432,7 +435,7 @@ class ExecutePolicy(Behavior):
 
     # -- controller and gripper --------------------------------------------------------------
     def _watch_controller(self) -> Status | None:
-        pending = getattr(self, "pending_goal", None)
+        pending = self.pending_goal
         if pending is not None and pending.done():
             self.pending_goal = None
             self.goal_latency.update(max(0.0, pending.ready_at - self.goal_sent_at))  # arrival, not when we looked
@@ -459,7 +462,7 @@ class ExecutePolicy(Behavior):
         """A goal refused because it reached the controller after its seam, while the arm was at
         rest (a first goal on a new connection, a slow tick on a loaded machine): nothing moved,
         so plan the same chunk again, now with the measured delivery time. At most 3 times."""
-        sent = getattr(self, "last_sent", None)
+        sent = self.last_sent
         late = result.error_code == FollowTrajectory.Result.OLD_HEADER_TIMESTAMP or "seam time exceeds the end" in result.error_string
         at_rest = sent is not None and (sent.motion is None or self.context.clock.now() > sent.motion.end)
         if not (late and at_rest) or self.late_retries >= MAX_LATE_RETRIES:
@@ -534,7 +537,7 @@ class ExecutePolicy(Behavior):
         if self.goal_handle is not None:
             self.goal_handle.cancel_goal_async()
             self.goal_handle = None
-        pending = getattr(self, "pending_goal", None)
+        pending = self.pending_goal
         if pending is not None and pending.done():
             handle = pending.result()
             if handle.accepted:
