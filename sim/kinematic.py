@@ -17,8 +17,8 @@ import pinocchio as pin
 from runtime.scene import frame_pose
 
 from .layouts import layout
-from .planning import CUBE_SIZE, cell_robot
-from .robot_model import ARM_JOINTS, GRIPPER_DRIVER_JOINT, TCP_SITE
+from .planning import CUBE_SIZE
+from .robot_model import ARM_JOINTS, GRIPPER_DRIVER_JOINT, TCP_SITE, planning_robot_model
 from .world import CellWorld
 
 GRIPPER_SPEED = 1.6  # rad/s of the driver joint: fully closed in 0.5 s
@@ -50,7 +50,7 @@ class KinematicCell:
         self.gripper_rate = 0.0
         self.carried: str | None = None
         self.grasp_offset = np.eye(4)
-        self._robot = cell_robot()
+        self._robot = planning_robot_model()
         self._full = self._robot.neutral().copy()
         self.frame = np.full((self.image_size, self.image_size, 3), 128, dtype=np.uint8)
 

@@ -2,23 +2,16 @@
 cubes as world objects. Shared by every world that hosts the cell (MuJoCo or kinematic)."""
 from __future__ import annotations
 
-import functools
 from typing import Mapping
 
 import numpy as np
 
-from runtime.scene import Box, PlanningScene, RobotModel, load_joint_limits, pose_matrix
+from runtime.scene import Box, PlanningScene, load_joint_limits, pose_matrix
 
 from .cell_model import CUBE_COLORS, TABLE_CENTER_XY, TABLE_HALF_SIZE, TABLE_TOP_Z
 from .robot_model import ARM_JOINTS, GRIPPER_DRIVER_JOINT, JOINT_LIMITS_PATH, planning_robot_model
 
 CUBE_SIZE = 0.03
-
-
-@functools.lru_cache(maxsize=1)
-def cell_robot() -> RobotModel:
-    """Building the model takes ~0.3 s; it is immutable, so one per process is enough."""
-    return planning_robot_model()
 
 
 def cube_object(color: str) -> str:
@@ -41,7 +34,7 @@ def make_cell_scene(cube_poses: Mapping[str, tuple[np.ndarray, np.ndarray]], cub
 
     The robot stands on the table, so the table is allowed against its base and shoulder.
     """
-    robot = cell_robot()
+    robot = planning_robot_model()
     joints = list(ARM_JOINTS) + [GRIPPER_DRIVER_JOINT]
     lower, upper = robot.position_limits(joints)
     limits = load_joint_limits(JOINT_LIMITS_PATH, {j: (lo, hi) for j, lo, hi in zip(joints, lower, upper)})
@@ -55,10 +48,33 @@ def make_cell_scene(cube_poses: Mapping[str, tuple[np.ndarray, np.ndarray]], cub
     return scene
 
 
-def sync_cubes(scene: PlanningScene, cube_poses: Mapping[str, tuple[np.ndarray, np.ndarray]]) -> None:
-    """Move the scene's cubes to where the world has them (attached cubes move with the robot)."""
+SYNC_TOLERANCE = 1e-6
+"""Metres (and quaternion components): a cube that moved less than this since the last sync is
+left alone, so a scene whose cubes rest keeps its collision placements (and its version)."""
+
+CubePoses = Mapping[str, tuple[np.ndarray, np.ndarray]]
+
+
+def sync_cubes(scene: PlanningScene, cube_poses: CubePoses, synced: CubePoses | None = None) -> CubePoses:
+    """Move the scene's cubes to where the world has them (attached cubes move with the robot).
+
+    ``synced`` is what the previous call returned: cubes still within ``SYNC_TOLERANCE`` of it
+    are skipped. Returns the poses the scene now holds, to pass back next time.
+    """
     carried = {a.name for a in scene.attachments}
+    now = dict(synced or {})
     for color, (pos, quat) in cube_poses.items():
         name = cube_object(color)
-        if name not in carried:
-            scene.move_object(name, pose_matrix(pos, quat_to_matrix(quat)))
+        if name in carried:
+            now.pop(color, None)  # placed afresh once it is released
+            continue
+        last = now.get(color)
+        if last is not None and _within(last[0], pos) and _within(last[1], quat):
+            continue
+        scene.move_object(name, pose_matrix(pos, quat_to_matrix(quat)))
+        now[color] = (np.array(pos, dtype=float), np.array(quat, dtype=float))
+    return now
+
+
+def _within(a: np.ndarray, b: np.ndarray) -> bool:
+    return float(np.max(np.abs(a - b))) < SYNC_TOLERANCE

@@ -111,8 +111,12 @@ def _robot_xml() -> str:
     return spec.to_xml().replace(f'"{_MENAGERIE_DRIVER_JOINT}"', f'"{GRIPPER_DRIVER_JOINT}"')
 
 
+@functools.lru_cache(maxsize=1)
 def planning_robot_model():
-    """The cell's robot as a planning-scene ``RobotModel`` (same spec as the simulator)."""
+    """The cell's robot as a planning-scene ``RobotModel`` (same spec as the simulator).
+
+    Loading it takes ~0.3 s; a ``RobotModel`` is immutable (users make their own pinocchio
+    data), so one per process serves the planning scene, the oracle's IK and the tests."""
     from runtime.scene import RobotModel
 
     return RobotModel.from_mjcf(build_robot_spec(), srdf=SRDF_PATH, couplings=COUPLINGS_PATH)

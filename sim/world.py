@@ -87,6 +87,7 @@ class CellWorld:
                 CUBE_POSE_TOPIC.format(color=color), TransformStamped, functools.partial(self._cube_pose, color), rate_hz=50.0
             )
         context.scene = make_cell_scene(self.cell.cube_poses())
+        self.synced_cubes = sync_cubes(context.scene, self.cell.cube_poses())
         context.resources["waypoints"] = self.waypoints
         context.world = self
         self.adapter = serve_embedded_policy(bus, self.options.get("policy"), self.cell, self.options.get("policy_latency"), self.seed)
@@ -97,13 +98,13 @@ class CellWorld:
             self.controllers.update(self.cell.t, CONTROL_PERIOD)
             self.cell.step(CONTROL_PERIOD)
         self._publish()
-        sync_cubes(self.context.scene, self.cell.cube_poses())
+        self.synced_cubes = sync_cubes(self.context.scene, self.cell.cube_poses(), self.synced_cubes)
 
     def reset(self, seed: int) -> None:
         self.seed = seed
         self.cell.reset(seed, self.start_arm)
         self.controllers.reset()
-        sync_cubes(self.context.scene, self.cell.cube_poses())
+        self.synced_cubes = sync_cubes(self.context.scene, self.cell.cube_poses())
         self._publish()
 
     def summary(self) -> dict[str, Any]:

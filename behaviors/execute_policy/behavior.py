@@ -137,6 +137,7 @@ class ExecutePolicy(Behavior):
         """Send -> accepted of controller goals: zero in process, a tick or more over ROS."""
         self.late_retries = 0
         self.next_scene_check = 0.0
+        self.checked_scene: tuple[object, ...] | None = None  # what the committed samples were last checked against
         self.policy_chunk: np.ndarray | None = None
         self.policy_chunk_request_step = 0
         self.gripper_schedule: list[tuple[float, float]] = []
@@ -262,9 +263,12 @@ class ExecutePolicy(Behavior):
             self._maybe_request(now)
         if self.samples is not None and now >= self.next_scene_check - 1e-9:
             self.next_scene_check = now + SCENE_WATCH_PERIOD
-            collision = self.safety.first_collision(self.rules, self._remaining_samples(now), self.config.link_padding, self._gripper_now())
-            if collision is not None:
-                return self._stop(Status.FAILURE, f"the planning scene changed: {collision} in the remaining path; robot stopped")
+            scene_state = self._scene_state()
+            if scene_state != self.checked_scene:  # else the remaining samples were checked against this very scene
+                collision = self.safety.first_collision(self.rules, self._remaining_samples(now), self.config.link_padding, self._gripper_now())
+                if collision is not None:
+                    return self._stop(Status.FAILURE, f"the planning scene changed: {collision} in the remaining path; robot stopped")
+                self.checked_scene = scene_state
         if grid.remaining == 0 and self.in_flight is None and self.goal_result is not None:
             return self._stop(Status.SUCCESS, f"executed {grid.total_steps} steps")
         return Status.RUNNING
@@ -365,6 +369,7 @@ class ExecutePolicy(Behavior):
         if window.end_step >= grid.total_steps:
             motion = motion.at_rest_at_end()
         samples = densify(motion, c.num_interpolation_points)
+        scene_state = self._scene_state()
         reason = self._check(samples, chunk, window)
         if reason is not None:
             return self._reject(f"chunk {index} rejected: {reason}")
@@ -376,6 +381,7 @@ class ExecutePolicy(Behavior):
         # planned again from the same chunk (see _retry_late_goal).
         self.last_sent = _SentChunk(chunk, response, flight, grid.committed_end, grid.executed_until, self.motion, self.samples)
         self.motion, self.samples = motion, samples
+        self.checked_scene = scene_state
         grid.commit(window)
         self.goal_result = None
         self.goal_handle = None
@@ -571,6 +577,11 @@ class ExecutePolicy(Behavior):
         self.joint_states = None
 
     # -- small helpers -----------------------------------------------------------------------
+    def _scene_state(self) -> tuple[object, ...]:
+        """What a collision check of the committed samples depends on, besides the samples."""
+        gripper = self._gripper_now()
+        return (self.safety.scene.version, None if gripper is None else round(gripper, 4))
+
     def _gripper_now(self) -> float | None:
         joint = self.config.gripper_joint_name
         state = self.joint_states.latest if self.joint_states is not None else None

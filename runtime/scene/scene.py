@@ -153,6 +153,13 @@ class PlanningScene:
             self._objects[name] = WorldObject(name, shape, _pose_tuple(pose))
             self._structure += 1
 
+    @property
+    def version(self) -> tuple[int, int]:
+        """Changes whenever a world object is added, removed, attached, detached or moved:
+        a check repeated at the same version gives the same answer."""
+        with self._lock:
+            return (self._structure, self._poses)
+
     def move_object(self, name: str, pose: np.ndarray) -> None:
         with self._lock:
             obj = self._object(name)
