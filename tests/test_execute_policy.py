@@ -447,6 +447,32 @@ def test_chunk_arriving_too_late_to_join_pauses_the_robot_then_continues(registr
     assert run.summary["steps_executed"] == 60
 
 
+def test_a_late_chunk_joins_during_the_runout_and_the_arm_never_stops_dead(registry):
+    # Chunk 2 is asked for one step before the committed motion ends and takes 0.5 s: it joins
+    # five steps after that end (the first step after its arrival). Meanwhile the arm goes on along
+    # chunk 1's path, slowing down (the runout), and chunk 2 takes over from that moving state:
+    # the commanded velocity never jumps and never reaches zero before the run's last window.
+    commanded: list[tuple[float, float]] = []
+
+    def record(context, world):
+        command = world.cell.command_arm
+
+        def recording(position, velocity=None):
+            commanded.append((world.cell.t, 0.0 if velocity is None else float(velocity[0])))
+            command(position, velocity)
+
+        world.cell.command_arm = recording
+
+    velocity = np.array([0.1, 0, 0, 0, 0, 0])
+    run = run_policy(registry, BASE, ScriptedPolicy(hold(velocity=velocity)), latency=SpikeAt(0.05, 2, 0.5), before=record)
+    assert run.result.status == "SUCCESS", run.result.reason
+    assert run.summary["stall_seconds"] == pytest.approx(0.5, abs=0.01)  # from the window's end to the late seam
+    t, v = np.array(commanded).T
+    moving = (t > t[np.argmax(v > 0.05)]) & (t < 5.0)
+    assert np.min(v[moving]) > 0.03  # slowed, never stopped
+    assert np.max(np.abs(np.diff(v))) < 0.002  # rad/s per 2 ms control step: no jump anywhere
+
+
 def test_chunk_arriving_early_after_a_spike_joins_at_the_end_of_the_committed_motion(registry):
     # A 2.8 s spike grows the latency estimate past the committed window; the next chunk is asked
     # for at once with a large frozen prefix but arrives in 0.1 s, and joins without a pause.

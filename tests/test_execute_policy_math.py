@@ -5,7 +5,8 @@ from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
 from behaviors.execute_policy.chunk import ChunkError, read_chunk, read_policy_chunk
-from behaviors.execute_policy.shaping import densify, fit_chunk, join_at_seam
+from behaviors.execute_policy.shaping import densify, fit_chunk, join_at_seam, runout_duration
+from behaviors.execute_policy.stream import runout_progress
 from behaviors.execute_policy.timing import LatencyEstimate, frozen_prefix_steps, window_covers_latency
 
 GROUP = ["j1", "j2"]
@@ -54,6 +55,45 @@ def test_densify_spans_the_window_and_velocity_matches_finite_differences():
     assert len(s) == 200 and s.times[0] == pytest.approx(0.3) and s.times[-1] == pytest.approx(1.5)
     fd = np.gradient(s.positions, s.times, axis=0)
     assert np.max(np.abs(fd[1:-1] - s.velocities[1:-1])) < 1e-3
+
+
+def _moving_window(runout: float):
+    """A window of a chunk moving at 0.2 and -0.1 rad/s (30 steps of 0.1 s), seam 0.3 s, end 1.5 s."""
+    spline = fit_chunk(np.linspace([0.0, 0.0], [0.58, -0.29], 30), 300.0)
+    motion = join_at_seam(spline, 0.1, 0.0, 0.3, 1.5, spline(3.0), spline(3.0, nu=1) / 0.1, 0.4)
+    return spline, motion.with_runout(runout)
+
+
+def test_runout_continues_the_window_smoothly_along_the_chunk_and_ends_at_rest():
+    spline, motion = _moving_window(0.6)
+    bare = motion.with_runout(0.0)
+    at_end = [x[0] for x in motion.evaluate(np.array([1.5]))]
+    just_after = [x[0] for x in motion.evaluate(np.array([1.5 + 1e-7]))]
+    for mine, unbounded, after in zip(at_end, (x[0] for x in bare.evaluate(np.array([1.5]))), just_after):
+        assert np.allclose(mine, unbounded, atol=1e-12)  # the window itself is unchanged
+        assert np.allclose(after, mine, atol=1e-4)  # position, velocity and acceleration continuous
+    p, v, a = (x[0] for x in motion.evaluate(np.array([motion.rest_time])))
+    assert motion.rest_time == pytest.approx(2.1)
+    assert np.allclose(v, 0.0, atol=1e-12) and np.allclose(a, 0.0, atol=1e-12)
+    assert np.allclose(p, spline(15.0 + 3.0), atol=1e-12)  # 0.6 s of runout cover 3 chunk steps
+    s = densify(motion, 200)
+    assert s.times[199] == pytest.approx(1.5) and s.times[-1] == pytest.approx(2.1)
+    assert np.max(np.diff(s.times)) <= 0.01 + 1e-12
+    speed = np.abs(s.velocities[199:, 0])
+    assert np.all(np.diff(speed) <= 1e-12)  # only slows down
+
+
+def test_runout_length_brakes_within_half_the_acceleration_limit_and_needs_spare_steps():
+    v, a_max = np.array([0.2, -0.1]), np.array([5.0, 5.0])
+    assert runout_duration(v, a_max, 0.1, 1.0, spare_steps=10) == pytest.approx(1.0)  # nominal: 5 steps
+    assert runout_duration(np.array([2.0, 0.0]), np.array([3.0, 3.0]), 0.1, 1.0, 20) == pytest.approx(2.0)  # 3 v / a
+    assert runout_duration(v, a_max, 0.1, 1.0, spare_steps=4) == 0.0  # the chunk ends too soon
+    assert runout_duration(np.zeros(2), np.full(2, np.inf), 0.1, 0.3, 5) == pytest.approx(0.4)
+
+
+def test_runout_progress_counts_chunk_steps_covered():
+    assert [runout_progress(i, 5) for i in (0, 1, 5, 10, 12)] == [0, 1, 4, 5, 5]
+    assert runout_progress(3, 0) == 0
 
 
 def test_read_chunk_without_gripper_requires_group_order():

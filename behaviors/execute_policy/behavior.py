@@ -30,7 +30,7 @@ from . import config as cfg
 from .chunk import ChunkError, read_chunk, read_policy_chunk
 from .observation import ObservationError, policy_tail, robot_state
 from ..safety import MotionSafety, SafetyError, make_safety
-from .shaping import ChunkMotion, Samples, densify, fit_chunk, join_at_seam
+from .shaping import ChunkMotion, Samples, densify, fit_chunk, join_at_seam, runout_duration
 from .stream import StepGrid, Window, WindowError
 from .timing import LatencyEstimate, frozen_prefix_steps, prefetch_margin, window_covers_latency
 
@@ -69,6 +69,7 @@ class _SentChunk:
     flight: InFlight
     committed_end: int
     executed_until: int
+    runout_steps: int
     motion: ChunkMotion | None
     samples: Samples | None
 
@@ -348,10 +349,11 @@ class ExecutePolicy(Behavior):
         except WindowError as err:
             return self._reject(f"chunk {index} rejected: {err}")
         seam_time = grid.time(window.seam_step)
-        if self.motion is not None and seam_time > self.motion.end + 1e-9 and self.goal_result is None:
-            # Too late to join the motion the controller is still playing: a seam after its end
-            # would be refused ("seam time exceeds the end of the current trajectory"). Wait for
-            # the motion to finish; the chunk then starts from rest (a pause, counted as a stall).
+        if self.motion is not None and seam_time > self.motion.rest_time + 1e-9 and self.goal_result is None:
+            # Too late to join the motion the controller is still playing (its runout included): a
+            # seam after its end would be refused ("seam time exceeds the end of the current
+            # trajectory"). Wait for the motion to finish; the chunk then starts from rest (a
+            # pause, counted as a stall).
             self.waiting_chunk = (chunk, response, flight)
             return None
         start_p, start_v = self._state_at(seam_time)
@@ -368,21 +370,31 @@ class ExecutePolicy(Behavior):
         )
         if window.end_step >= grid.total_steps:
             motion = motion.at_rest_at_end()
+        else:
+            motion = motion.with_runout(self._runout(motion, chunk, window))
         samples = densify(motion, c.num_interpolation_points)
         scene_state = self._scene_state()
         reason = self._check(samples, chunk, window)
+        if reason is not None and motion.runout > 0:
+            # The runout only makes a late next chunk a gentle pause: when the chunk's path beyond
+            # its window is unsafe but the window is not, the window ends without one.
+            bare = motion.with_runout(0.0)
+            bare_samples = densify(bare, c.num_interpolation_points)
+            if self._check(bare_samples, chunk, window) is None:
+                motion, samples, reason = bare, bare_samples, None
         if reason is not None:
             return self._reject(f"chunk {index} rejected: {reason}")
         goal_future = self.controller.send_goal_async(self._goal(samples, seam_time))
         self.pending_goal, self.goal_sent_at = goal_future, now
         if self.motion is not None and seam_time > self.motion.end:
-            self.metrics.stall_seconds += seam_time - self.motion.end  # drained until the seam
+            # Drained until the seam: in the runout (slowing down), then at rest.
+            self.metrics.stall_seconds += seam_time - self.motion.end
         # Kept until the controller accepts the seam: a goal refused only for arriving late is
         # planned again from the same chunk (see _retry_late_goal).
-        self.last_sent = _SentChunk(chunk, response, flight, grid.committed_end, grid.executed_until, self.motion, self.samples)
+        self.last_sent = _SentChunk(chunk, response, flight, grid.committed_end, grid.executed_until, grid.runout_steps, self.motion, self.samples)
         self.motion, self.samples = motion, samples
         self.checked_scene = scene_state
-        grid.commit(window)
+        grid.commit(window, runout_steps=round(motion.runout / (2 * c.dt)))
         self.goal_result = None
         self.goal_handle = None
         self._queue_gripper(chunk, window)
@@ -417,11 +429,18 @@ class ExecutePolicy(Behavior):
         if self.motion is None:
             state = robot_state(self.joint_states.latest, self.safety.group_joints, None, self.config.joint_states_topic)
             return np.asarray(state.position, dtype=float), np.zeros(len(state.position))
-        if t > self.motion.end + 1e-9:  # drained: the arm rests at the end of the motion
-            p, _, _ = self.motion.evaluate(np.array([self.motion.end]))
+        if t > self.motion.rest_time + 1e-9:  # drained: the arm rests where the motion ended
+            p, _, _ = self.motion.evaluate(np.array([self.motion.rest_time]))
             return p[0], np.zeros(p.shape[1])
         p, v, _ = self.motion.evaluate(np.array([t]))
         return p[0], v[0]
+
+    def _runout(self, motion: ChunkMotion, chunk: Any, window: Window) -> float:
+        """Seconds for the window's motion to come to rest along the chunk if no chunk follows."""
+        _, v_end, _ = motion.evaluate(np.array([motion.end]))
+        spare = chunk.steps - 1 - (window.end_step - window.request_step)
+        nominal = 0.5 * self.config.committed_action_steps * self.config.dt
+        return runout_duration(v_end[0], self.safety.limits.max_acceleration, self.config.dt, nominal, spare)
 
     def _goal(self, samples: Samples, seam_time: float) -> Any:
         c = self.config
@@ -470,13 +489,13 @@ class ExecutePolicy(Behavior):
         so plan the same chunk again, now with the measured delivery time. At most 3 times."""
         sent = self.last_sent
         late = result.error_code == FollowTrajectory.Result.OLD_HEADER_TIMESTAMP or "seam time exceeds the end" in result.error_string
-        at_rest = sent is not None and (sent.motion is None or self.context.clock.now() > sent.motion.end)
+        at_rest = sent is not None and (sent.motion is None or self.context.clock.now() > sent.motion.rest_time)
         if not (late and at_rest) or self.late_retries >= MAX_LATE_RETRIES:
             return False
         self.late_retries += 1
         grid = self.grid
         assert grid is not None and sent is not None
-        grid.committed_end, grid.executed_until = sent.committed_end, sent.executed_until
+        grid.committed_end, grid.executed_until, grid.runout_steps = sent.committed_end, sent.executed_until, sent.runout_steps
         self.motion, self.samples = sent.motion, sent.samples
         self.waiting_chunk = (sent.chunk, sent.response, sent.flight)  # goal_result is set: runs next tick
         self._warn(f"the controller received a goal after its seam ({result.error_string}); planning the chunk again")

@@ -11,6 +11,7 @@ are what the safety checks see and what the controller receives.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -86,14 +87,32 @@ class ChunkMotion:
     end_velocity: np.ndarray | None = None
     """When set (the run's last window), a mirrored blend cancels this velocity at ``end`` so
     the motion comes to rest exactly at the chunk's final position."""
+    runout: float = 0.0
+    """Seconds after ``end`` in which the motion, unless the next chunk takes over at ``end``,
+    goes on along the chunk's own path while slowing to rest (see ``runout_warp``): a stream
+    whose next chunk is late pauses smoothly instead of stopping dead at the window's end."""
+
+    @property
+    def rest_time(self) -> float:
+        """When the motion is at rest if no chunk follows: its end, or the end of the runout."""
+        return self.end + self.runout
 
     def evaluate(self, times: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Positions, velocities and accelerations (each (M, J)) at clock ``times``."""
         times = np.atleast_1d(np.asarray(times, dtype=float))
+        # The chunk is played at step k(t); inside the window k advances one step per dt.
         k = (times - self.chunk_start) / self.dt
+        k_rate = np.full_like(times, 1.0 / self.dt)
+        k_accel = np.zeros_like(times)
+        if self.runout > 0:
+            after = times > self.end
+            warped = runout_warp((times[after] - self.end) / self.runout, self.runout, self.dt)
+            k[after] = (self.end - self.chunk_start) / self.dt + warped[0]
+            k_rate[after], k_accel[after] = warped[1], warped[2]
+        slope = self.spline(k, nu=1)
         p = self.spline(k)
-        v = self.spline(k, nu=1) / self.dt
-        a = self.spline(k, nu=2) / (self.dt * self.dt)
+        v = slope * k_rate[:, None]
+        a = self.spline(k, nu=2) * (k_rate * k_rate)[:, None] + slope * k_accel[:, None]
         T = self.blend_duration
         tau = np.clip((times - self.seam) / T, 0.0, 1.0)[:, None]
         inside = ((times >= self.seam) & (times <= self.seam + T))[:, None]
@@ -116,8 +135,40 @@ class ChunkMotion:
 
     def at_rest_at_end(self) -> ChunkMotion:
         """The same motion, decelerated so that it ends at rest (for the run's last window)."""
-        _, v_end, _ = replace(self, end_velocity=None).evaluate(np.array([self.end]))
-        return replace(self, end_velocity=v_end[0])
+        _, v_end, _ = replace(self, end_velocity=None, runout=0.0).evaluate(np.array([self.end]))
+        return replace(self, end_velocity=v_end[0], runout=0.0)
+
+    def with_runout(self, seconds: float) -> ChunkMotion:
+        return replace(self, runout=max(0.0, float(seconds)), end_velocity=None)
+
+
+def runout_warp(s: np.ndarray, runout: float, dt: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Chunk steps advanced since the window's end, their rate and its rate, at runout fraction ``s``.
+
+    The playback speed falls from one step per ``dt`` to zero as ``1 - (3 s^2 - 2 s^3)``: no
+    acceleration step where the runout begins (the speed's slope is zero there) nor where it
+    ends, and ``runout / (2 dt)`` steps are covered in all.
+    """
+    s = np.clip(s, 0.0, 1.0)
+    steps = runout / dt * (s - s**3 + 0.5 * s**4)
+    rate = (1.0 - 3.0 * s**2 + 2.0 * s**3) / dt
+    rate_of_rate = (-6.0 * s + 6.0 * s**2) / (runout * dt)
+    return steps, rate, rate_of_rate
+
+
+def runout_duration(end_velocity: np.ndarray, max_acceleration: np.ndarray, dt: float, nominal: float, spare_steps: int) -> float:
+    """Length of the runout after a window that ends at ``end_velocity``: ``nominal`` seconds,
+    longer if that would brake harder than half of ``max_acceleration`` (the warp peaks at
+    1.5 v / runout), in whole pairs of ``dt`` so the runout covers whole chunk steps. Zero when
+    the chunk has fewer than the needed ``spare_steps`` beyond the window: it says nothing about
+    where to go."""
+    speed = np.abs(np.asarray(end_velocity, dtype=float))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        needed = float(np.max(np.where(speed > 0, 3.0 * speed / np.asarray(max_acceleration, dtype=float), 0.0), initial=0.0))
+    steps = math.ceil(max(nominal, needed) / (2 * dt) - 1e-9)
+    if steps < 1 or steps > spare_steps:
+        return 0.0
+    return 2 * dt * steps
 
 
 def join_at_seam(
@@ -148,8 +199,12 @@ could hide an over-speed between two points that are each within the limits."""
 
 def densify(motion: ChunkMotion, num_points: int) -> Samples:
     """At least ``num_points`` evenly spaced samples from the seam to the end of the window
-    (inclusive), and no more than ``MAX_SAMPLE_SPACING`` apart."""
+    (inclusive), and no more than ``MAX_SAMPLE_SPACING`` apart; then the runout, if any, at that
+    spacing (the window's end stays a sample: the next seam)."""
     needed = int(np.ceil((motion.end - motion.seam) / MAX_SAMPLE_SPACING - 1e-9)) + 1
     times = np.linspace(motion.seam, motion.end, max(2, num_points, needed))
+    if motion.runout > 0:
+        count = int(np.ceil(motion.runout / MAX_SAMPLE_SPACING - 1e-9))
+        times = np.concatenate([times, motion.end + motion.runout * np.arange(1, count + 1) / count])
     p, v, a = motion.evaluate(times)
     return Samples(times, p, v, a)

@@ -10,6 +10,10 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import numpy as np
+
+from .shaping import runout_warp
+
 
 @dataclass(frozen=True)
 class Window:
@@ -30,6 +34,17 @@ class Window:
         return self.seam_step - self.request_step
 
 
+def runout_progress(steps_since_end: int, runout_steps: int) -> int:
+    """Chunk steps (rounded) the arm has covered ``steps_since_end`` run steps into a runout
+    that covers ``runout_steps`` chunk steps in ``2 * runout_steps`` run steps."""
+    if runout_steps <= 0 or steps_since_end <= 0:
+        return 0
+    if steps_since_end >= 2 * runout_steps:
+        return runout_steps
+    covered, _, _ = runout_warp(np.array([steps_since_end / (2 * runout_steps)]), 2.0 * runout_steps, 1.0)
+    return int(round(float(covered[0])))
+
+
 class WindowError(ValueError):
     pass
 
@@ -42,6 +57,7 @@ class StepGrid:
     total_steps: int
     committed_end: int = 0  # step where the committed motion ends (the next seam)
     executed_until: int = 0  # steps committed so far (sum of windows)
+    runout_steps: int = 0  # chunk steps the arm covers after committed_end when no chunk follows
 
     def time(self, step: int) -> float:
         return self.origin + step * self.dt
@@ -68,15 +84,18 @@ class StepGrid:
         """
         # The chunk takes over where the committed motion ends (normally request + frozen prefix);
         # the frozen prefix is only the estimate sent to the policy, so a chunk that arrives early
-        # after a late request still joins there. A chunk that arrives later finds the arm at rest
-        # (the first chunk, or a drained motion): it starts at the first step it can, played from
-        # the chunk step that matches where the arm stopped rather than from the step the clock
-        # says, so the arm does not have to catch up on steps it never moved through.
-        moving = index > 1 and earliest_seam <= self.committed_end
-        seam = self.committed_end if moving else max(earliest_seam, self.committed_end if index > 1 else 0)
-        if not moving:
-            stopped_at = 0 if index == 1 else max(0, self.committed_end - request_step)
-            request_step = seam - stopped_at  # the chunk's time line, shifted to start at the arm's state
+        # after a late request still joins there. A chunk that arrives later starts at the first
+        # step it can: the first chunk from rest, a later one during the previous window's runout
+        # or after it, at rest. It is played from the chunk step that matches how far the arm got
+        # along the previous chunk rather than from the step the clock says, so the arm does not
+        # have to catch up on steps it never moved through.
+        on_time = index > 1 and earliest_seam <= self.committed_end
+        seam = self.committed_end if on_time else max(earliest_seam, self.committed_end if index > 1 else 0)
+        if not on_time:
+            reached = 0
+            if index > 1:
+                reached = self.committed_end + runout_progress(seam - self.committed_end, self.runout_steps) - request_step
+            request_step = seam - max(0, reached)  # the chunk's time line, shifted to start at the arm's state
         # A chunk with N steps has positions up to chunk step N-1: the window needs its end point.
         available = request_step + chunk_steps - 1 - seam
         steps = min(self.committed_steps, self.remaining, available)
@@ -87,6 +106,7 @@ class StepGrid:
             )
         return Window(index, request_step, seam, steps)
 
-    def commit(self, window: Window) -> None:
+    def commit(self, window: Window, runout_steps: int = 0) -> None:
         self.committed_end = window.end_step
         self.executed_until += window.steps
+        self.runout_steps = runout_steps
