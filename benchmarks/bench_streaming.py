@@ -151,7 +151,7 @@ def main() -> None:
         f"seeds {seeds}; no-stall bound (committed-1)*dt/2 = {(COMMITTED - 1) * DT / 2:g} s",
         "medians over seeds; jumps and jerk from the setpoints at the policy ticks (finite differences over dt)",
     ]
-    columns = ["method", "latency", "latency_s", "ok_runs", "reached_goal", "stall_fraction", "task_time_s", "max_vel_jump", "max_acc_jump", "rms_jerk", "max_path_dev"]
+    columns = ["method", "latency", "latency_s", "ok_runs", "reached_goal", "stall_fraction", "task_time_s", "motion_time_s", "max_vel_jump", "max_acc_jump", "rms_jerk", "max_path_dev"]
     report("bench_streaming: executors under policy latency (sim clock)", rows, columns, notes)
 
 
@@ -172,6 +172,7 @@ def _row(method: str, kind: str, latency: float, entries: list[dict[str, Any]]) 
         "ok_runs": sum(e["ok"] for e in entries),
         "stall_fraction": med("stall_fraction"),
         "task_time_s": med("task_time_s"),
+        "motion_time_s": med("motion_time_s"),
         "max_vel_jump": med("max_vel_jump"),
         "max_acc_jump": med("max_acc_jump"),
         "rms_jerk": med("rms_jerk"),

@@ -217,6 +217,8 @@ def run_lerobot_aggregate(
 class StreamMetrics:
     stall_fraction: float
     task_time_s: float
+    motion_time_s: float
+    """From the first motion to completion: the task time without the wait for the first chunk."""
     max_vel_jump: float
     max_acc_jump: float
     rms_jerk: float
@@ -260,6 +262,7 @@ def stream_metrics(stream: Stream, path: TaskPath, goal_tolerance: float = 0.02)
     return StreamMetrics(
         stall_fraction=stalled * dt / max(end * dt, 1e-9),
         task_time_s=end * dt,
+        motion_time_s=(end - first_move) * dt,
         max_vel_jump=vel_jump,
         max_acc_jump=acc_jump,
         rms_jerk=rms_jerk,
