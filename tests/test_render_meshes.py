@@ -181,6 +181,23 @@ def test_trajectories_are_bit_identical(models):
     assert min(contacts[10:]) >= 12  # the cubes on the table: contacts are part of what matches
 
 
+def test_meshes_that_collisions_or_masses_need_get_a_drawn_copy():
+    spec = build_cell_spec(ORIGINAL)
+    reductions = {r.source: r for r in render_meshes.simplify_visual_meshes(spec, keep=lambda mesh: 0.2, tolerance=lambda mesh: 1e-3)}
+    # only drawn: replaced in place
+    assert reductions["upperarm_3"].mesh == "upperarm_3" and spec.mesh("upperarm_3").file == ""
+    assert reductions["upperarm_3"].faces_after <= 0.2 * reductions["upperarm_3"].faces_before
+    # also a collision mesh: the collision geom keeps it, the drawn geom gets a copy
+    assert reductions["gripper_base"].mesh == "gripper_base_visual"
+    users = {(g.meshname, g.contype != 0) for g in spec.geoms if g.meshname.startswith("gripper_base")}
+    assert ("gripper_base", True) in users and ("gripper_base_visual", False) in users
+    assert spec.mesh("gripper_base").file.endswith("base.stl")
+    # gives its body mass (no <inertial>): hidden but kept, a massless copy draws it
+    mount = [g for g in spec.geoms if g.parent.name == "gripper_base_mount" and g.contype == 0]
+    assert [g.group for g in mount if g.meshname == "gripper_base_mount"] == [render_meshes.HIDDEN_GROUP]
+    assert [(g.meshname, g.mass) for g in mount if g.group == 2] == [("gripper_base_mount_visual", 0.0)]
+
+
 def test_simplified_meshes_are_made_once_per_process():
     build_cell_spec(LIGHT)
     hits = render_meshes.simplified_mesh.cache_info().hits
