@@ -42,9 +42,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from geometry_msgs.msg import Wrench
 from moveit_pro_controllers_msgs.action import FollowJointTrajectoryWithAdmittance
-from trajectory_msgs.msg import JointTrajectoryPoint
 
 from runtime.timestamps import time_msg, to_seconds
 from runtime.bus import Bus, ServerGoalHandle
@@ -52,12 +50,11 @@ from runtime.clock import Clock
 
 from ..hardware import Hardware
 from .base import FT_STATE_INTERFACES, Controller, ControllersConfig, arm_command_interfaces, arm_state_interfaces
-from .compliance import AdmittanceParams, AdmittanceState, admittance_step, cartesian_to_joint
+from .compliance import AdmittanceParams, AdmittanceState, admittance_step, damped_pseudo_inverse
 from .trajectory import (
     TIME_EPS,
     SeamError,
     Trajectory,
-    TrajectoryState,
     path_violation,
     stitch,
     stop_trajectory,
@@ -198,6 +195,8 @@ class JointTrajectoryAdmittanceController(Controller):
         self._params = config.admittance
         self._compliance = AdmittanceState()
         self._joint_offset = np.zeros(len(self.joint_names))
+        self._pseudo_inverse: np.ndarray | None = None
+        self._pseudo_inverse_time = -math.inf
         self._last_feedback = -math.inf
         bus.create_action_server(self.action_name, Action, self._on_goal, self._on_cancel)
 
@@ -220,6 +219,7 @@ class JointTrajectoryAdmittanceController(Controller):
         self._params = self.config.admittance
         self._compliance = AdmittanceState()
         self._joint_offset = np.zeros(len(self.joint_names))
+        self._pseudo_inverse = None
         self.hardware.command_arm(self._reference.positions[0], np.zeros(len(self.joint_names)))
 
     def on_reset(self, t: float) -> None:
@@ -306,16 +306,15 @@ class JointTrajectoryAdmittanceController(Controller):
             self._finish(t, "abort", Result(error_code=Result.INVALID_GOAL, error_string=f"controller {self.name} was deactivated"))
 
     def update(self, t: float, dt: float) -> None:
-        if self._goal is not None and (self._goal.cancel_requested or self._goal.handle.is_cancel_requested):
+        goal = self._goal
+        if goal is not None and (goal.cancel_requested or goal.handle.is_cancel_requested):
             self._finish(t, "canceled", Result(error_code=Result.CANCELED, error_string="canceled by the client"))
 
         wrench = np.asarray(self.hardware.wrench(), dtype=float)
-        self._compliance = admittance_step(self._compliance, wrench, self._params, dt)
-        if np.any(self._compliance.offset) or np.any(self._compliance.rate):
-            both = cartesian_to_joint(
-                self.hardware.wrist_jacobian(), np.column_stack([self._compliance.offset, self._compliance.rate])
-            )
-            self._joint_offset, offset_rate = both[:, 0], both[:, 1]
+        compliance = self._compliance = admittance_step(self._compliance, wrench, self._params, dt)
+        if compliance.offset.any() or compliance.rate.any():
+            pseudo_inverse = self._wrist_pseudo_inverse(t)
+            self._joint_offset, offset_rate = pseudo_inverse @ compliance.offset, pseudo_inverse @ compliance.rate
         else:
             self._joint_offset, offset_rate = np.zeros(len(self.joint_names)), np.zeros(len(self.joint_names))
 
@@ -323,18 +322,26 @@ class JointTrajectoryAdmittanceController(Controller):
         command = desired.position + self._joint_offset
         if self._goal is not None:
             reference = self._reference
-            self._supervise(t, wrench, command)
+            self._supervise(t, wrench, command, desired.velocity)
             if self._reference is not reference:  # a stop began: same position at t, new velocity
                 desired = self._reference.sample(t)
                 command = desired.position + self._joint_offset
         self.hardware.command_arm(command, desired.velocity + offset_rate)
 
-    def _supervise(self, t: float, wrench: np.ndarray, command: np.ndarray) -> None:
+    def _wrist_pseudo_inverse(self, t: float) -> np.ndarray:
+        """The damped pseudo-inverse of the wrist Jacobian, at most ``jacobian_refresh_period`` old."""
+        age = t - self._pseudo_inverse_time
+        if self._pseudo_inverse is None or not 0.0 <= age < self.config.jacobian_refresh_period - TIME_EPS:
+            self._pseudo_inverse = damped_pseudo_inverse(self.hardware.wrist_jacobian())
+            self._pseudo_inverse_time = t
+        return self._pseudo_inverse
+
+    def _supervise(self, t: float, wrench: np.ndarray, command: np.ndarray, desired_velocity: np.ndarray) -> None:
         goal = self._goal
         assert goal is not None
         parsed = goal.goal
         actual = np.asarray(self.hardware.arm_position(), dtype=float)
-        self._publish_feedback(t, goal, command, actual, wrench)
+        self._publish_feedback(t, goal, command, desired_velocity, actual, wrench)
 
         ft = wrench_violation(wrench, parsed.force_torque_threshold)
         if ft is not None:
@@ -381,22 +388,23 @@ class JointTrajectoryAdmittanceController(Controller):
         else:
             goal.handle.abort(result)
 
-    def _publish_feedback(self, t: float, goal: _ActiveGoal, command: np.ndarray, actual: np.ndarray, wrench: np.ndarray) -> None:
+    def _publish_feedback(
+        self, t: float, goal: _ActiveGoal, command: np.ndarray, desired_velocity: np.ndarray, actual: np.ndarray, wrench: np.ndarray
+    ) -> None:
         if t - self._last_feedback < 1.0 / self.config.feedback_rate - TIME_EPS:
             return
         self._last_feedback = t
-        desired: TrajectoryState = self._reference.sample(t)
         velocity = np.asarray(self.hardware.arm_velocity(), dtype=float)
+        # Fill the sub-messages the constructor already built (building messages dominates here).
         feedback = Action.Feedback()
         feedback.header.stamp = time_msg(t)
         feedback.joint_names = list(self.joint_names)
-        feedback.desired = JointTrajectoryPoint(positions=command.tolist(), velocities=desired.velocity.tolist())
-        feedback.actual = JointTrajectoryPoint(positions=actual.tolist(), velocities=velocity.tolist())
-        feedback.error = JointTrajectoryPoint(
-            positions=(command - actual).tolist(), velocities=(desired.velocity - velocity).tolist()
-        )
-        wrench_msg = Wrench()
-        wrench_msg.force.x, wrench_msg.force.y, wrench_msg.force.z = (float(v) for v in wrench[:3])
-        wrench_msg.torque.x, wrench_msg.torque.y, wrench_msg.torque.z = (float(v) for v in wrench[3:])
-        feedback.wrench = wrench_msg
+        for point, positions, velocities in (
+            (feedback.desired, command, desired_velocity),
+            (feedback.actual, actual, velocity),
+            (feedback.error, command - actual, desired_velocity - velocity),
+        ):
+            point.positions, point.velocities = positions.tolist(), velocities.tolist()
+        force, torque = feedback.wrench.force, feedback.wrench.torque
+        force.x, force.y, force.z, torque.x, torque.y, torque.z = wrench.tolist()
         goal.handle.publish_feedback(feedback)

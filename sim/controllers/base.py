@@ -30,6 +30,9 @@ class ControllersConfig:
     default_goal_time_tolerance: float = 1.0
     """Seconds allowed to settle after the last point when a goal's goal_time_tolerance is 0."""
     admittance: AdmittanceParams = field(default_factory=AdmittanceParams)
+    jacobian_refresh_period: float = 0.01
+    """Seconds for which the admittance reuses the damped pseudo-inverse of the wrist Jacobian
+    (0 = recompute it every control step). See ``compliance`` for the (tiny) approximation."""
     velocity_command_timeout: float = 0.1
     """The velocity controller stops the arm when no command arrived for this long (seconds)."""
     max_joint_velocity: float = math.pi
