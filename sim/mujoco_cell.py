@@ -53,6 +53,18 @@ class MujocoCell:
         self._ft_body = m.site_bodyid[self._ft_site]
         self._force_adr = m.sensor(FT_FORCE_SENSOR).adr[0]
         self._torque_adr = m.sensor(FT_TORQUE_SENSOR).adr[0]
+        # Views into MjData's buffers for the 500 Hz reads (valid for the cell's lifetime: resets
+        # write into the same buffers); each attribute access through the bindings builds a new
+        # array object, which costs more than the arithmetic done with it.
+        d = self.data
+        self._qpos, self._qvel, self._xfrc_applied = d.qpos, d.qvel, d.xfrc_applied
+        self._site_rotation = d.site_xmat[self._ft_site].reshape(3, 3)
+        self._site_position = d.site_xpos[self._ft_site]
+        self._gripper_com = d.subtree_com[self._ft_body]
+        self._support_force = d.sensordata[self._force_adr:self._force_adr + 3]
+        self._support_torque = d.sensordata[self._torque_adr:self._torque_adr + 3]
+        self._gripper_weight = tuple((m.body_subtreemass[self._ft_body] * m.opt.gravity).tolist())  # fixed once compiled
+        self._site_jacobian = np.zeros((6, m.nv))  # mj_jacSite fills rows 0-2 (linear) and 3-5 (angular)
         self._renderers: dict[str, mujoco.Renderer] = {}
         self._frames: dict[str, tuple[float, np.ndarray]] = {}
         self.external_wrench = np.zeros(6)  # tests push the tool with this (world frame, at the F/T site)
@@ -65,10 +77,10 @@ class MujocoCell:
         return self.t
 
     def arm_position(self) -> np.ndarray:
-        return self.data.qpos[self._arm_qpos].copy()
+        return self._qpos[self._arm_qpos]  # indexing with an array copies
 
     def arm_velocity(self) -> np.ndarray:
-        return self.data.qvel[self._arm_dof].copy()
+        return self._qvel[self._arm_dof]
 
     def command_arm(self, position: np.ndarray, velocity: np.ndarray | None = None) -> None:
         target = np.asarray(position, dtype=float)
@@ -91,10 +103,9 @@ class MujocoCell:
         return self._raw_wrench() - self._tare
 
     def wrist_jacobian(self) -> np.ndarray:
-        jacp = np.zeros((3, self.model.nv))
-        jacr = np.zeros((3, self.model.nv))
-        mujoco.mj_jacSite(self.model, self.data, jacp, jacr, self._ft_site)
-        return np.vstack([jacp[:, self._arm_dof], jacr[:, self._arm_dof]])
+        jacobian = self._site_jacobian
+        mujoco.mj_jacSite(self.model, self.data, jacobian[:3], jacobian[3:], self._ft_site)
+        return jacobian[:, self._arm_dof]  # a copy: the buffer is overwritten by the next call
 
     # -- the world's view -------------------------------------------------------------------
     def cube_pose(self, color: str) -> tuple[np.ndarray, np.ndarray]:
@@ -158,15 +169,15 @@ class MujocoCell:
         support minus the weight, with the weight's torque taken about the gripper's current
         centre of mass: a constant tare alone would drift by ~0.4 Nm as the wrist turns.
         """
-        R = self.data.site_xmat[self._ft_site].reshape(3, 3)
-        support_force = R @ self.data.sensordata[self._force_adr:self._force_adr + 3]
-        support_torque = R @ self.data.sensordata[self._torque_adr:self._torque_adr + 3]
-        weight = self.model.body_subtreemass[self._ft_body] * self.model.opt.gravity
-        lever = self.data.subtree_com[self._ft_body] - self.data.site_xpos[self._ft_site]
-        return np.concatenate([-support_force - weight, -support_torque - np.cross(lever, weight)])
+        R = self._site_rotation
+        support = np.concatenate([R @ self._support_force, R @ self._support_torque])
+        # The weight's wrench (force; lever x force) written out: numpy.cross spends tens of
+        # microseconds on axis handling for one pair of 3-vectors, and this runs at 500 Hz.
+        (lx, ly, lz), (wx, wy, wz) = (self._gripper_com - self._site_position).tolist(), self._gripper_weight
+        weight = np.array([wx, wy, wz, ly * wz - lz * wy, lz * wx - lx * wz, lx * wy - ly * wx])
+        return -support - weight
 
     def _apply_external_wrench(self) -> None:
-        body = self.model.site_bodyid[self._ft_site]
-        self.data.xfrc_applied[:] = 0.0
-        if np.any(self.external_wrench):
-            self.data.xfrc_applied[body] = self.external_wrench
+        self._xfrc_applied[:] = 0.0
+        if self.external_wrench.any():
+            self._xfrc_applied[self._ft_body] = self.external_wrench
