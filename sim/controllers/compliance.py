@@ -126,7 +126,7 @@ def damped_pseudo_inverse(jacobian: np.ndarray, damping: float = 1e-3) -> np.nda
     J J^T + l^2 I is symmetric, so J^T (J J^T + l^2 I)^-1 = ((J J^T + l^2 I)^-1 J)^T: one solve,
     no explicit inverse. LAPACK's ``dgesv`` (the LU solver behind ``numpy.linalg.solve``) is called
     directly because numpy's wrapper costs five times the 6 x 6 solve itself, and the controller
-    solves once per control step.
+    solves every few control steps.
     """
     jacobian = np.asarray(jacobian, dtype=float)
     rows = jacobian.shape[0]
