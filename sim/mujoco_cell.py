@@ -65,7 +65,7 @@ class MujocoCell:
         self._support_torque = d.sensordata[self._torque_adr:self._torque_adr + 3]
         self._gripper_weight = tuple((m.body_subtreemass[self._ft_body] * m.opt.gravity).tolist())  # fixed once compiled
         self._site_jacobian = np.zeros((6, m.nv))  # mj_jacSite fills rows 0-2 (linear) and 3-5 (angular)
-        self._renderers: dict[str, mujoco.Renderer] = {}
+        self._renderer: mujoco.Renderer | None = None  # one for all cameras: each costs ~50 ms to create
         self._frames: dict[str, tuple[float, np.ndarray]] = {}
         self.external_wrench = np.zeros(6)  # tests push the tool with this (world frame, at the F/T site)
         self.t = 0.0
@@ -145,20 +145,18 @@ class MujocoCell:
             return cached[1]
         if camera not in CAMERA_NAMES:
             raise ValueError(f"unknown camera '{camera}' (cameras: {', '.join(CAMERA_NAMES)})")
-        renderer = self._renderers.get(camera)
-        if renderer is None:
-            renderer = mujoco.Renderer(self.model, self.options.image_height, self.options.image_width)
-            self._renderers[camera] = renderer
-        renderer.update_scene(self.data, camera=camera)
-        frame = renderer.render().copy()
+        if self._renderer is None:
+            self._renderer = mujoco.Renderer(self.model, self.options.image_height, self.options.image_width)
+        self._renderer.update_scene(self.data, camera=camera)
+        frame = self._renderer.render().copy()
         self.renders += 1
         self._frames[camera] = (self.t, frame)
         return frame
 
     def close(self) -> None:
-        for renderer in self._renderers.values():
-            renderer.close()
-        self._renderers.clear()
+        if self._renderer is not None:
+            self._renderer.close()
+            self._renderer = None
 
     # -- internals --------------------------------------------------------------------------
     def _raw_wrench(self) -> np.ndarray:
