@@ -1,8 +1,8 @@
 """Soak: 50 consecutive seeded headless episodes of the cube-stacking Objective in one process,
-without growth in memory or file descriptors. Slow (6-12 minutes on the kinematic world, two busy cores).
+without growth in memory or file descriptors. Slow (a few minutes).
 
 Runs on ``kinematic`` (``SOAK_WORLD=vla_sim`` soaks the MuJoCo world instead, when installed:
-about 30-60 s per episode on two CPU cores); prints which, and the success count. Memory is watched three ways after a garbage collection at the end of every
+about 3 s per episode); prints which, and the success count. Memory is watched three ways after a garbage collection at the end of every
 episode: resident set size, live Python objects (``gc.get_objects``), and open file descriptors.
 The first five episodes warm caches (scene checkers, renderers, imports) and are not judged.
 """
