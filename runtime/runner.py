@@ -421,18 +421,23 @@ def run_file(
 def _run_recorded(loaded: LoadedTree, context: RunContext, options: RunOptions, progress: Progress | None) -> RunResult:
     """``run_tree`` with a ``Recorder`` on the bus, then the report rendered into ``options.record_dir``."""
     from .recording import Recorder
-    from .report import render_report
+    from .report.worker import ReportWorker
 
     assert options.record_dir is not None
     recorder = Recorder(options.record_dir, context, list(loaded.root.iterate()), loaded)
+    worker = ReportWorker()
+    worker.start()  # imports the report's libraries while the run goes on
     try:
         result = run_tree(loaded, context, options, progress)
     except BaseException:
         recorder.close()
+        worker.close()
         raise
     recorder.finish(result.to_json())
     try:
-        render_report(options.record_dir, context.logger)
+        worker.render(options.record_dir, context.logger)
     except Exception as err:  # the run itself is over and recorded: its result stands
         context.logger.warning("recording %s: the report could not be rendered: %s", options.record_dir, err)
+    finally:
+        worker.close()
     return result

@@ -165,6 +165,8 @@ def test_wrench_and_feedback_come_from_the_controller_feedback(messages):
     stamp = lambda m: (m.header.stamp.sec, m.header.stamp.nanosec)  # noqa: E731
     assert [stamp(row[2]) for row in wrench] == [stamp(row[2]) for row in feedback]
     assert {len(row[2].actual.positions) for row in feedback} == {6}
+    # The controller publishes feedback at 50 Hz; the recording keeps at most 25 per second.
+    assert min(b[0] - a[0] for a, b in zip(feedback, feedback[1:])) >= 40_000_000 - 1
 
 
 # -- events.jsonl ------------------------------------------------------------------------------

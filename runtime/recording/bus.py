@@ -15,7 +15,8 @@ What lands in the MCAP file (topic names as ``ros2 bag`` users expect them):
 - policy calls: ``<service>/request`` and ``<service>/response`` as ``std_msgs/String`` JSON
   summaries (the images are on the camera topics, not repeated) and ``<service>/chunk``, the
   chunk as the policy sent it; other services' requests and responses as their own types;
-- actions: every goal on ``<action>/goal``, feedback on ``<action>/feedback``, results on
+- actions: every goal on ``<action>/goal``, feedback on ``<action>/feedback`` (at most
+  ``FEEDBACK_HZ`` per action), results on
   ``<action>/result``; a goal's ``joint_trajectory`` also on ``<controller>/joint_trajectory``
   (the commanded motion) and a feedback's wrench on ``/force_torque_sensor_broadcaster/wrench``
   as ``geometry_msgs/WrenchStamped``.
@@ -36,6 +37,9 @@ from .mcap_writer import McapRos2Writer
 
 WRENCH_TOPIC = "/force_torque_sensor_broadcaster/wrench"
 JOINT_STATES_TOPIC = "/joint_states"
+FEEDBACK_HZ = 25.0
+"""Action feedback (and the wrench it carries) is recorded at most this often per action: the
+controller publishes it at 50 Hz, and it is half of a recording's messages at that rate."""
 JOINT_STATES_HZ = 50.0
 """Joint states are recorded at most this often (per second of clock time): twice the rate of
 any policy step this project runs (dt >= 0.05 s), and it keeps recording within its budget."""
@@ -267,6 +271,10 @@ class RecordingBus:
 
     def _feedback(self, name: str, feedback: Any) -> None:
         now = self.clock.now()
+        last = self._last_recorded.get(f"{name}/feedback")
+        if last is not None and now - last < 1.0 / FEEDBACK_HZ - 1e-9:
+            return
+        self._last_recorded[f"{name}/feedback"] = now
         self.writer.write(f"{name}/feedback", feedback, now)
         wrench = getattr(feedback, "wrench", None)
         if wrench is not None:

@@ -6,9 +6,12 @@ in ``Report.errors`` and logged, and the others are still written.
 """
 from __future__ import annotations
 
+import json
 import logging
+import os
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Callable
 
 from .data import Recording, load_recording
 
@@ -25,8 +28,13 @@ class Report:
     errors: dict[str, str] = field(default_factory=dict)
 
 
-def render_report(directory: Path | str, logger: logging.Logger | None = None) -> Report:
-    """Render every artifact of the recording in ``directory`` (ObjectiveError if it is not one)."""
+def render_report(directory: Path | str, logger: logging.Logger | None = None, parallel: bool = False) -> Report:
+    """Render every artifact of the recording in ``directory`` (ObjectiveError if it is not one).
+
+    ``parallel``: draw the joint plot (the largest part) in a forked process while this one
+    renders the rest. Only for a process that has no threads of its own (``fork`` copies one
+    thread, so a lock another thread held would never be released): the report worker.
+    """
     from .html import report_html
     from .plots import joints_plot, latency_plot
     from .tree_svg import write_tree_svg
@@ -44,11 +52,13 @@ def render_report(directory: Path | str, logger: logging.Logger | None = None) -
     ]
     if recording.frames:
         steps.append(("video", lambda: camera_video(recording.frames, directory / VIDEO_FILE)))
-    for name, render in steps:
-        try:
-            report.files[name] = render()
-        except Exception as err:  # one broken artifact must not cost the others
-            report.errors[name] = f"{type(err).__name__}: {err}"
+    forked = _fork(*steps[0]) if parallel and hasattr(os, "fork") else None
+    for name, render in steps[1:] if forked is not None else steps:
+        _render_one(report, name, render)
+    if forked is not None:
+        report.files.update({k: Path(v) for k, v in forked().get("files", {}).items()})
+        report.errors.update(forked().get("errors", {}))
+    report.files = {name: report.files[name] for name, _ in steps if name in report.files}  # steps' order
     html_path = directory / HTML_FILE
     html_path.write_text(report_html(recording, report.files), encoding="utf-8")
     report.files["html"] = html_path
@@ -56,3 +66,42 @@ def render_report(directory: Path | str, logger: logging.Logger | None = None) -
         for name, error in report.errors.items():
             logger.warning("recording %s: the %s artifact could not be rendered: %s", directory, name, error)
     return report
+
+
+def _render_one(report: Report, name: str, render: Callable[[], Path]) -> None:
+    try:
+        report.files[name] = render()
+    except Exception as err:  # one broken artifact must not cost the others
+        report.errors[name] = f"{type(err).__name__}: {err}"
+
+
+def _fork(name: str, render: Callable[[], Path]) -> Callable[[], dict]:
+    """Start ``render`` in a forked child; the returned call waits for it and gives its outcome
+    as ``{"files": {name: path}}`` or ``{"errors": {name: reason}}``."""
+    read_end, write_end = os.pipe()
+    pid = os.fork()
+    if pid == 0:  # the child: render, say how it went, leave without running any cleanup
+        try:
+            os.close(read_end)
+            outcome = Report(Path("."))
+            _render_one(outcome, name, render)
+            message = {"files": {k: str(v) for k, v in outcome.files.items()}, "errors": outcome.errors}
+            with os.fdopen(write_end, "w") as pipe:
+                pipe.write(json.dumps(message))
+        finally:
+            os._exit(0)
+    os.close(write_end)
+    result: dict = {}
+
+    def wait() -> dict:
+        if not result:
+            with os.fdopen(read_end) as pipe:
+                text = pipe.read()
+            _, status = os.waitpid(pid, 0)
+            try:
+                result.update(json.loads(text))
+            except ValueError:
+                result["errors"] = {name: f"the process drawing it ended with status {status} and no answer"}
+        return result
+
+    return wait

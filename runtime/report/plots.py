@@ -15,7 +15,7 @@ import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.collections import LineCollection
 from matplotlib.figure import Figure
-from matplotlib.ticker import MaxNLocator
+from matplotlib.ticker import MaxNLocator, NullLocator
 
 from .data import CommandedGoal, Recording
 
@@ -146,7 +146,10 @@ def joints_plot(recording: Recording, path: Path, dpi: int = 72) -> Path:
     off_scale = False
     height = 1.7 * len(names) + 1.0
     fig = Figure(figsize=(15, height))
-    axes = fig.subplots(len(names), 2, sharex=True, squeeze=False)
+    # Not sharex: shared axes share one tick locator, and ticks are most of the drawing cost; the
+    # rows above the last get no x ticks at all, and every axes the same time range.
+    axes = fig.subplots(len(names), 2, squeeze=False)
+    span = _time_span(recording, measured)
     # Fixed margins: the constrained-layout solver costs more than all the drawing here.
     fig.subplots_adjust(left=0.075, right=0.99, bottom=0.55 / height, top=1 - 0.65 / height, wspace=0.16, hspace=0.12)
     for row, name in enumerate(names):
@@ -176,6 +179,10 @@ def joints_plot(recording: Recording, path: Path, dpi: int = 72) -> Path:
             off_scale |= _limits_on(ax, np.concatenate(shown) if shown else np.zeros(0), [b for b in bounds if b is not None])
             ax.tick_params(labelsize=7)
             ax.yaxis.set_major_locator(MaxNLocator(4))
+            if span is not None:
+                ax.set_xlim(*span)
+            if row < len(names) - 1:
+                ax.xaxis.set_major_locator(NullLocator())
             ax.ticklabel_format(axis="y", useOffset=False, style="plain")
         axes[row][0].set_ylabel(name, fontsize=8)
     # Text is most of matplotlib's cost here: one label per row and per column, no grid.
@@ -183,7 +190,7 @@ def joints_plot(recording: Recording, path: Path, dpi: int = 72) -> Path:
     axes[0][1].set_title("velocity (rad/s)", fontsize=9)
     for col in range(2):
         axes[-1][col].set_xlabel("time (s, runtime clock)", fontsize=8)
-        axes[-1][col].xaxis.set_major_locator(MaxNLocator(8))  # shared: one locator for the column
+        axes[-1][col].xaxis.set_major_locator(MaxNLocator(8))
     if off_scale:
         fig.text(0.99, 0.003, "joint limits far outside the plotted range are not drawn", ha="right", va="bottom",
                  fontsize=7, color=LIMIT_COLOR)
@@ -194,6 +201,26 @@ def joints_plot(recording: Recording, path: Path, dpi: int = 72) -> Path:
     ]
     fig.legend(handles=handles, loc="upper center", ncols=len(handles), fontsize=8, frameon=False)
     return _save(fig, path, dpi)
+
+
+def _time_span(recording: Recording, measured: Any) -> tuple[float, float] | None:
+    """First and last instant of the measured and commanded series (None if there are none)."""
+    starts, ends = [], []
+    if measured is not None and len(measured.times):
+        starts.append(float(measured.times[0]))
+        ends.append(float(measured.times[-1]))
+    for goal in recording.goals:
+        if len(goal.times):
+            starts.append(float(np.min(goal.times)))
+            ends.append(float(np.max(goal.times)))
+    for t, _ in recording.gripper_commands:
+        starts.append(float(t))
+        ends.append(float(t))
+    if not starts:
+        return None
+    lo, hi = min(starts), max(ends)
+    pad = 0.01 * max(hi - lo, 1e-3)
+    return lo - pad, hi + pad
 
 
 def _line(color: str, style: str, label: str) -> Any:

@@ -1,0 +1,99 @@
+"""Render a recorded run's report in a second process that gets ready while the run goes on.
+
+Most of what a report costs after the run is fixed: importing matplotlib and imageio, then
+drawing. ``ReportWorker`` starts ``python -m runtime.report.worker`` when the recorded run starts;
+that process imports everything the report needs (on the other core, while the run ticks) and
+waits for one line on stdin. When the run is over and ``run.mcap`` is closed, ``render`` sends
+the directory, the worker renders the report (``render_report(..., parallel=True)``: the joint
+plot in a forked process beside the rest) and answers one JSON line with the files written and
+the artifacts that failed.
+
+Nothing is lost if the worker cannot help: if it died, answers garbage or takes longer than
+``timeout``, ``render`` stops it and the report is rendered in this process as before. If this
+process dies, the worker reads end-of-file and exits without rendering anything.
+"""
+from __future__ import annotations
+
+import json
+import logging
+import subprocess
+import sys
+from pathlib import Path
+from typing import Any
+
+from . import Report, render_report
+
+RENDER_TIMEOUT = 600.0
+"""Seconds the worker may take to render a report (a long run's video is the slow part)."""
+
+
+class ReportWorker:
+    """One report, rendered by a process started before it is needed (see the module doc)."""
+
+    def __init__(self) -> None:
+        self.process: subprocess.Popen[str] | None = None
+
+    def start(self) -> None:
+        try:
+            self.process = subprocess.Popen(
+                [sys.executable, "-m", "runtime.report.worker"],
+                stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True,
+            )
+        except OSError:
+            self.process = None  # rendered in process instead
+
+    def render(self, directory: Path | str, logger: logging.Logger | None = None, timeout: float = RENDER_TIMEOUT) -> Report:
+        """The report of ``directory``, from the worker if it can, else rendered here."""
+        directory = Path(directory)
+        answer = self._ask(directory, timeout)
+        if answer is None:
+            return render_report(directory, logger)
+        report = Report(directory, {k: Path(v) for k, v in answer["files"].items()}, dict(answer["errors"]))
+        if logger is not None:
+            for name, error in report.errors.items():
+                logger.warning("recording %s: the %s artifact could not be rendered: %s", directory, name, error)
+        return report
+
+    def close(self) -> None:
+        """Stop the worker if it is still there (a run that ended without a report)."""
+        process, self.process = self.process, None
+        if process is not None and process.poll() is None:
+            process.kill()
+            process.communicate()
+
+    def _ask(self, directory: Path, timeout: float) -> dict[str, Any] | None:
+        process, self.process = self.process, None
+        if process is None:
+            return None
+        try:
+            out, _ = process.communicate(json.dumps({"directory": str(directory)}) + "\n", timeout=timeout)
+            answer = json.loads(out.strip().splitlines()[-1]) if process.returncode == 0 and out.strip() else None
+        except (subprocess.TimeoutExpired, OSError, ValueError):
+            process.kill()
+            process.communicate()
+            return None
+        if not isinstance(answer, dict) or not isinstance(answer.get("files"), dict) or not isinstance(answer.get("errors"), dict):
+            return None
+        return answer
+
+
+def main() -> int:
+    # Everything the report imports, before the directory arrives.
+    from . import html, plots, tree_svg, video  # noqa: F401
+
+    import imageio.v2  # noqa: F401
+    import matplotlib.backends.backend_agg  # noqa: F401
+    import sensor_msgs.msg  # noqa: F401  (the recording's messages are read back with these)
+    import trajectory_msgs.msg  # noqa: F401
+
+    line = sys.stdin.readline()
+    if not line.strip():
+        return 0  # the run ended without a report (or its process died)
+    directory = json.loads(line)["directory"]
+    report = render_report(directory, parallel=True)
+    print(json.dumps({"files": {k: str(v) for k, v in report.files.items()}, "errors": report.errors}), flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

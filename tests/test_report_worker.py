@@ -1,0 +1,79 @@
+"""The report worker: a second process renders the report after a recorded run, with the joint
+plot drawn in a forked process beside the rest; whatever goes wrong there, the report still
+comes out (rendered in process), and a worker never outlives its run."""
+from __future__ import annotations
+
+import os
+import shutil
+from pathlib import Path
+
+import pytest
+
+from runtime.report import render_report
+from runtime.report.worker import ReportWorker
+
+from .test_recording import record_run
+
+ARTIFACTS = {"joints": "joints.png", "latency": "latency.png", "tree": "tree.svg", "video": "cameras.mp4", "html": "report.html"}
+
+
+@pytest.fixture(scope="module")
+def recording(tmp_path_factory) -> Path:
+    code, rec = record_run(tmp_path_factory.mktemp("worker"))
+    assert code == 0
+    return rec
+
+
+def fresh_copy(recording: Path, tmp_path: Path) -> Path:
+    target = tmp_path / "rec"
+    target.mkdir()
+    for name in ("events.jsonl", "run.mcap"):
+        shutil.copy(recording / name, target / name)
+    return target
+
+
+def test_the_worker_renders_every_artifact(recording, tmp_path):
+    target = fresh_copy(recording, tmp_path)
+    worker = ReportWorker()
+    worker.start()
+    report = worker.render(target)
+    assert report.errors == {}
+    assert {k: p.name for k, p in report.files.items()} == ARTIFACTS
+    assert all((target / name).stat().st_size > 0 for name in ARTIFACTS.values())
+    assert worker.process is None
+
+
+def test_a_dead_worker_means_the_report_is_rendered_in_process(recording, tmp_path):
+    target = fresh_copy(recording, tmp_path)
+    worker = ReportWorker()
+    worker.start()
+    worker.process.kill()
+    worker.process.wait()
+    report = worker.render(target)
+    assert report.errors == {} and set(report.files) == set(ARTIFACTS)
+    assert (target / "joints.png").stat().st_size > 0
+
+
+def test_a_worker_that_is_not_asked_is_stopped(tmp_path):
+    worker = ReportWorker()
+    worker.start()
+    process = worker.process
+    worker.close()
+    assert process.poll() is not None and worker.process is None
+
+
+def test_parallel_rendering_reports_a_failing_joint_plot_and_writes_the_rest(recording, tmp_path, monkeypatch):
+    target = fresh_copy(recording, tmp_path)
+
+    def broken(*args, **kwargs):
+        (tmp_path / "drawn_by").write_text(str(os.getpid()))
+        raise RuntimeError("no joints today")
+
+    import runtime.report.plots as plots
+
+    monkeypatch.setattr(plots, "joints_plot", broken)  # the forked process inherits it
+    report = render_report(target, parallel=True)
+    assert report.errors == {"joints": "RuntimeError: no joints today"}
+    assert set(report.files) == set(ARTIFACTS) - {"joints"}
+    assert not (target / "joints.png").exists()
+    assert int((tmp_path / "drawn_by").read_text()) != os.getpid()  # drawn in the forked process
