@@ -10,6 +10,7 @@ from pathlib import Path
 import pytest
 
 from runtime.report import render_report
+from runtime.errors import ObjectiveError
 from runtime.report.worker import ReportWorker
 
 from .test_recording import record_run
@@ -77,3 +78,15 @@ def test_parallel_rendering_reports_a_failing_joint_plot_and_writes_the_rest(rec
     assert set(report.files) == set(ARTIFACTS) - {"joints"}
     assert not (target / "joints.png").exists()
     assert int((tmp_path / "drawn_by").read_text()) != os.getpid()  # drawn in the forked process
+
+
+def test_an_unreadable_recording_is_one_clear_error_not_a_traceback(tmp_path, capfd):
+    target = tmp_path / "rec"
+    target.mkdir()
+    (target / "events.jsonl").write_text("")
+    (target / "run.mcap").write_bytes(b"not an mcap file")
+    worker = ReportWorker()
+    worker.start()
+    with pytest.raises(ObjectiveError, match="run.mcap: cannot read the recording"):
+        worker.render(target)
+    assert "Traceback" not in capfd.readouterr().err

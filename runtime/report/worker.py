@@ -22,6 +22,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from ..errors import ObjectiveError
 from . import Report, render_report
 
 RENDER_TIMEOUT = 600.0
@@ -49,6 +50,8 @@ class ReportWorker:
         answer = self._ask(directory, timeout)
         if answer is None:
             return render_report(directory, logger)
+        if "failed" in answer:  # the recording itself cannot be read: rendering here would fail alike
+            raise ObjectiveError(str(answer["failed"]))
         report = Report(directory, {k: Path(v) for k, v in answer["files"].items()}, dict(answer["errors"]))
         if logger is not None:
             for name, error in report.errors.items():
@@ -73,26 +76,32 @@ class ReportWorker:
             process.kill()
             process.communicate()
             return None
+        if isinstance(answer, dict) and "failed" in answer:
+            return answer
         if not isinstance(answer, dict) or not isinstance(answer.get("files"), dict) or not isinstance(answer.get("errors"), dict):
             return None
         return answer
 
 
 def main() -> int | None:
-    # Everything the report imports, before the directory arrives.
-    from . import html, plots, tree_svg, video  # noqa: F401
+    try:  # everything the report imports, before the directory arrives
+        from . import html, plots, tree_svg, video  # noqa: F401
 
-    import imageio.v2  # noqa: F401
-    import matplotlib.backends.backend_agg  # noqa: F401
-    import sensor_msgs.msg  # noqa: F401  (the recording's messages are read back with these)
-    import trajectory_msgs.msg  # noqa: F401
-
+        import imageio.v2  # noqa: F401
+        import matplotlib.backends.backend_agg  # noqa: F401
+        import sensor_msgs.msg  # noqa: F401  (the recording's messages are read back with these)
+        import trajectory_msgs.msg  # noqa: F401
+    except Exception:
+        return 1  # the run renders in its own process and reports what is missing there
     line = sys.stdin.readline()
     if not line.strip():
         return 0  # the run ended without a report (or its process died)
-    directory = json.loads(line)["directory"]
-    report = render_report(directory, parallel=True)
-    print(json.dumps({"files": {k: str(v) for k, v in report.files.items()}, "errors": report.errors}), flush=True)
+    try:
+        report = render_report(json.loads(line)["directory"], parallel=True)
+        answer = {"files": {k: str(v) for k, v in report.files.items()}, "errors": report.errors}
+    except Exception as err:
+        answer = {"failed": str(err) if isinstance(err, ObjectiveError) else f"{type(err).__name__}: {err}"}
+    print(json.dumps(answer), flush=True)
     os._exit(0)  # every file is closed; skip the interpreter's teardown, which the run waits for
 
 
