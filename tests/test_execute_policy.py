@@ -473,6 +473,43 @@ def test_a_late_chunk_joins_during_the_runout_and_the_arm_never_stops_dead(regis
     assert np.max(np.abs(np.diff(v))) < 0.002  # rad/s per 2 ms control step: no jump anywhere
 
 
+def test_a_goal_that_reaches_the_controller_after_its_seam_while_moving_is_planned_again(registry, monkeypatch):
+    # Chunk 2's goal reaches the controller 3 ms after its seam (a busy transport): the controller
+    # refuses it and goes on with chunk 1's window and runout. ExecutePolicy plans chunk 2 again
+    # from that moving state instead of failing the run, and the arm never stops dead.
+    import dataclasses
+
+    import sim.controllers.admittance as admittance
+
+    parse, calls = admittance.parse_goal, []
+
+    def delivered_late(request, joint_names, now, *args):
+        goal = parse(request, joint_names, now, *args)
+        calls.append(goal.seam_time)
+        if len(calls) == 3:  # Move to Waypoint, chunk 1, then chunk 2
+            return dataclasses.replace(goal, seam_time=now - 0.003)
+        return goal
+
+    monkeypatch.setattr(admittance, "parse_goal", delivered_late)
+    commanded: list[tuple[float, float]] = []
+
+    def record(context, world):
+        command = world.cell.command_arm
+
+        def recording(position, velocity=None):
+            commanded.append((world.cell.t, 0.0 if velocity is None else float(velocity[0])))
+            command(position, velocity)
+
+        world.cell.command_arm = recording
+
+    run = run_policy(registry, BASE, ScriptedPolicy(hold(velocity=np.array([0.1, 0, 0, 0, 0, 0]))), latency=0.05, before=record)
+    assert run.result.status == "SUCCESS", run.result.reason
+    assert run.summary["steps_executed"] == 60
+    assert any("received a goal after its seam" in w and "is already past" in w for w in run.summary["warnings"])
+    t, v = np.array(commanded).T
+    assert np.max(np.abs(np.diff(v))) < 0.002  # rad/s per control step: no dead stop, no jump
+
+
 def test_chunk_arriving_early_after_a_spike_joins_at_the_end_of_the_committed_motion(registry):
     # A 2.8 s spike grows the latency estimate past the committed window; the next chunk is asked
     # for at once with a large frozen prefix but arrives in 0.1 s, and joins without a pause.

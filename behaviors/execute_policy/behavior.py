@@ -72,6 +72,8 @@ class _SentChunk:
     runout_steps: int
     motion: ChunkMotion | None
     samples: Samples | None
+    goal_handle: Any  # the goal that was playing when this chunk was sent (None: the arm was at rest)
+    result_future: Any
 
 
 @dataclass
@@ -136,7 +138,8 @@ class ExecutePolicy(Behavior):
         self.latency = LatencyEstimate()
         self.goal_latency = LatencyEstimate()
         """Send -> accepted of controller goals: zero in process, a tick or more over ROS."""
-        self.late_retries = 0
+        self.late_retries = 0  # of the chunk being sent
+        self.result_future: Any = None
         self.next_scene_check = 0.0
         self.checked_scene: tuple[object, ...] | None = None  # what the committed samples were last checked against
         self.policy_chunk: np.ndarray | None = None
@@ -250,12 +253,11 @@ class ExecutePolicy(Behavior):
         self._stream_gripper(now)
         self._track_progress(now)
         if self.waiting_chunk is not None:
-            if self.goal_result is not None:
-                chunk, response, flight = self.waiting_chunk
-                self.waiting_chunk = None
-                status = self._execute(chunk, response, flight, now)
-                if status is not None:
-                    return status
+            chunk, response, flight = self.waiting_chunk
+            self.waiting_chunk = None
+            status = self._execute(chunk, response, flight, now)  # waits again while it cannot join
+            if status is not None:
+                return status
         elif self.in_flight is not None:
             status = self._receive(now)
             if status is not None:
@@ -333,6 +335,7 @@ class ExecutePolicy(Behavior):
             chunk = read_chunk(response.chunk, self.safety.group_joints, c.gripper_joint_name or None)
         except ChunkError as err:
             return self._reject(f"chunk {self.metrics.chunks} rejected: {err}")
+        self.late_retries = 0
         return self._execute(chunk, response, flight, now)
 
     def _execute(self, chunk: Any, response: Any, flight: InFlight, now: float) -> Status | None:
@@ -391,7 +394,8 @@ class ExecutePolicy(Behavior):
             self.metrics.stall_seconds += seam_time - self.motion.end
         # Kept until the controller accepts the seam: a goal refused only for arriving late is
         # planned again from the same chunk (see _retry_late_goal).
-        self.last_sent = _SentChunk(chunk, response, flight, grid.committed_end, grid.executed_until, grid.runout_steps, self.motion, self.samples)
+        self.last_sent = _SentChunk(chunk, response, flight, grid.committed_end, grid.executed_until, grid.runout_steps,
+                                    self.motion, self.samples, self.goal_handle, self.result_future)
         self.motion, self.samples = motion, samples
         self.checked_scene = scene_state
         grid.commit(window, runout_steps=round(motion.runout / (2 * c.dt)))
@@ -484,20 +488,23 @@ class ExecutePolicy(Behavior):
         return None
 
     def _retry_late_goal(self, result: Any) -> bool:
-        """A goal refused because it reached the controller after its seam, while the arm was at
-        rest (a first goal on a new connection, a slow tick on a loaded machine): nothing moved,
-        so plan the same chunk again, now with the measured delivery time. At most 3 times."""
+        """A goal refused only because it reached the controller after its seam (a first goal on
+        a new connection, a slow tick or a busy transport): the controller goes on with what it
+        was playing, the previous window and its runout, or rest. So plan the same chunk again
+        from there, now with the measured delivery time: it joins the runout, or starts from
+        rest. At most ``MAX_LATE_RETRIES`` times per chunk."""
         sent = self.last_sent
         late = result.error_code == FollowTrajectory.Result.OLD_HEADER_TIMESTAMP or "seam time exceeds the end" in result.error_string
-        at_rest = sent is not None and (sent.motion is None or self.context.clock.now() > sent.motion.rest_time)
-        if not (late and at_rest) or self.late_retries >= MAX_LATE_RETRIES:
+        if not late or sent is None or self.late_retries >= MAX_LATE_RETRIES:
             return False
         self.late_retries += 1
         grid = self.grid
-        assert grid is not None and sent is not None
+        assert grid is not None
         grid.committed_end, grid.executed_until, grid.runout_steps = sent.committed_end, sent.executed_until, sent.runout_steps
         self.motion, self.samples = sent.motion, sent.samples
-        self.waiting_chunk = (sent.chunk, sent.response, sent.flight)  # goal_result is set: runs next tick
+        if sent.goal_handle is not None:  # still playing (or its result is waiting to be read)
+            self.goal_handle, self.result_future, self.goal_result = sent.goal_handle, sent.result_future, None
+        self.waiting_chunk = (sent.chunk, sent.response, sent.flight)  # planned again next tick
         self._warn(f"the controller received a goal after its seam ({result.error_string}); planning the chunk again")
         return True
 
