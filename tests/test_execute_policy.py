@@ -510,6 +510,66 @@ def test_a_goal_that_reaches_the_controller_after_its_seam_while_moving_is_plann
     assert np.max(np.abs(np.diff(v))) < 0.002  # rad/s per control step: no dead stop, no jump
 
 
+def test_a_goal_answered_only_after_the_next_chunk_arrived_is_waited_for(registry, monkeypatch):
+    # Chunk 1's goal reaches the controller after its seam and is refused, and the answer takes
+    # 0.6 s to come back (a first goal over a new ROS connection), longer than the 0.5 s window:
+    # chunk 2 arrives first. Stitched onto chunk 1's motion, which the controller never played,
+    # its first point would be 25 mrad off the arm ("position deviation at the seam"). It waits
+    # for the answer instead, and then takes over from where the arm really is; chunk 1 is dropped.
+    import dataclasses
+
+    import runtime.bus as bus_module
+    import sim.controllers.admittance as admittance
+
+    parse, calls = admittance.parse_goal, []
+
+    def delivered_late(request, joint_names, now, *args):
+        goal = parse(request, joint_names, now, *args)
+        calls.append(now)
+        return dataclasses.replace(goal, seam_time=now - 0.003) if len(calls) == 1 else goal
+
+    send = bus_module._InProcessActionClient.send_goal_async
+
+    def slow_answer(self, goal, feedback_callback=None):
+        future = send(self, goal, feedback_callback)
+        if len(calls) != 1:
+            return future
+        delayed = bus_module.Future(self.bus.clock, self.bus.clock.now() + 0.6)
+        delayed.set_result(future.result())
+        return delayed
+
+    monkeypatch.setattr(admittance, "parse_goal", delivered_late)
+    monkeypatch.setattr(bus_module._InProcessActionClient, "send_goal_async", slow_answer)
+    ports = 'total_action_steps="20" dt="0.1" committed_action_steps="5" goal_path_tolerance="0.01" policy_call_timeout="3.0"'
+    run = run_policy(registry, ports, ScriptedPolicy(hold(velocity=np.array([0.05, 0, 0, 0, 0, 0]))), latency=0.05)
+    assert run.result.status == "SUCCESS", run.result.reason
+    assert any("the next chunk takes over" in w for w in run.summary["warnings"])
+    second = [e.data for e in run.context.events.of_kind("chunk_executed") if e.data["chunk"] == 2]
+    assert len(second) == 1 and second[0]["request_step"] == second[0]["seam_step"]  # from its step 0: the arm never moved
+    assert run.summary["steps_executed"] == 20
+
+
+def test_a_controller_that_never_acknowledges_a_goal_ends_the_run(registry, monkeypatch):
+    import runtime.bus as bus_module
+
+    send = bus_module._InProcessActionClient.send_goal_async
+
+    def never_answered(self, goal, feedback_callback=None):
+        future = send(self, goal, feedback_callback)
+        if self.name.endswith("follow_joint_trajectory"):
+            silent = bus_module.Future(self.bus.clock, float("inf"))
+            silent.set_result(future.result())
+            return silent
+        return future
+
+    monkeypatch.setattr(bus_module._InProcessActionClient, "send_goal_async", never_answered)
+    run = run_policy(registry, BASE, ScriptedPolicy(hold()))
+    assert run.result.status == "FAILURE"
+    assert run.result.reason == (
+        "the controller '/joint_trajectory_admittance_controller/follow_joint_trajectory' did not acknowledge a goal within 5 s"
+    )
+
+
 def test_chunk_arriving_early_after_a_spike_joins_at_the_end_of_the_committed_motion(registry):
     # A 2.8 s spike grows the latency estimate past the committed window; the next chunk is asked
     # for at once with a large frozen prefix but arrives in 0.1 s, and joins without a pause.

@@ -39,6 +39,7 @@ GRIPPER_MAX_EFFORT = 60.0  # N; the 2F-85 holds a 30 mm cube well below its 235 
 GRIPPER_DEADBAND = 0.01  # rad of the driver joint: smaller changes are not re-sent
 TICK_PERIOD = 0.01
 MAX_LATE_RETRIES = 3
+GOAL_ACK_TIMEOUT = 5.0  # s: a controller that does not acknowledge a goal by then is gone
 SCENE_WATCH_PERIOD = 0.05  # s: how often the rest of the committed motion is checked against the live scene
 
 
@@ -125,8 +126,9 @@ class ExecutePolicy(Behavior):
         self.started_at = self.context.clock.now()
         self.in_flight: InFlight | None = None
         self.waiting_chunk: tuple[Any, Any, InFlight] | None = None
-        """A chunk that arrived too late to join the motion still playing: it starts, from rest,
-        once the controller reports that motion finished."""
+        """A chunk that cannot be planned yet: the controller has not acknowledged the previous
+        goal, or the motion still playing ends before the chunk could join it (it starts from
+        rest once that motion finished)."""
         self.goal_handle: Any = None
         self.goal_result: Any = None
         self.pending_goal: Any = None
@@ -341,6 +343,11 @@ class ExecutePolicy(Behavior):
     def _execute(self, chunk: Any, response: Any, flight: InFlight, now: float) -> Status | None:
         c, grid = self.config, self.grid
         assert grid is not None
+        if self.pending_goal is not None:
+            # Whether the controller plays the previous goal decides how this chunk joins: wait
+            # for its answer (a refused goal rolls the stream back, see _retry_late_goal).
+            self.waiting_chunk = (chunk, response, flight)
+            return None
         index = self.metrics.chunks
         if chunk.steps <= c.committed_action_steps and index == 1:
             self._warn(f"committed_action_steps ({c.committed_action_steps}) should be smaller than the chunk size ({chunk.steps})")
@@ -465,6 +472,9 @@ class ExecutePolicy(Behavior):
     # -- controller and gripper --------------------------------------------------------------
     def _watch_controller(self) -> Status | None:
         pending = self.pending_goal
+        if pending is not None and not pending.done() and self.context.clock.now() - self.goal_sent_at > GOAL_ACK_TIMEOUT:
+            return self._stop(Status.FAILURE, f"the controller '{self.config.controller_action_name}' did not acknowledge "
+                                              f"a goal within {GOAL_ACK_TIMEOUT:g} s")
         if pending is not None and pending.done():
             self.pending_goal = None
             self.goal_latency.update(max(0.0, pending.ready_at - self.goal_sent_at))  # arrival, not when we looked
@@ -504,6 +514,11 @@ class ExecutePolicy(Behavior):
         self.motion, self.samples = sent.motion, sent.samples
         if sent.goal_handle is not None:  # still playing (or its result is waiting to be read)
             self.goal_handle, self.result_future, self.goal_result = sent.goal_handle, sent.result_future, None
+        if self.waiting_chunk is not None:
+            # A newer chunk arrived while this goal was unanswered: it takes over from what the
+            # arm actually does, and the refused one is dropped.
+            self._warn(f"the controller received a goal after its seam ({result.error_string}); the next chunk takes over")
+            return True
         self.waiting_chunk = (sent.chunk, sent.response, sent.flight)  # planned again next tick
         self._warn(f"the controller received a goal after its seam ({result.error_string}); planning the chunk again")
         return True
