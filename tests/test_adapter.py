@@ -21,33 +21,11 @@ from sim.policy.adapter import (
 from sim.policy.backend import PolicyRequest, PolicyResponse, PolicyStatus
 from sim.policy.images import ImageError, image_to_rgb, rgb_to_image
 
+from .fakes import FakeBackend
+
 ARM = ["shoulder_pan_joint", "shoulder_lift_joint", "elbow_joint", "wrist_1_joint", "wrist_2_joint", "wrist_3_joint"]
 GRIPPER = "robotiq_85_left_knuckle_joint"
 R = GetActionChunk.Response
-
-
-class FakeBackend:
-    """Answers whatever the test sets in ``answer`` (a response, or an exception to raise)."""
-
-    name = "fake"
-
-    def __init__(self, answer=None):
-        self.answer = answer
-        self.requests: list[PolicyRequest] = []
-
-    def load(self):
-        pass
-
-    def warmup(self, example_request):
-        pass
-
-    def infer(self, request):
-        self.requests.append(request)
-        if isinstance(self.answer, Exception):
-            raise self.answer
-        if callable(self.answer):
-            return self.answer(request)
-        return self.answer
 
 
 def request_msg(names=ARM + [GRIPPER], images=None, **fields) -> GetActionChunk.Request:

@@ -2,6 +2,7 @@
 misbehaving policy or configuration, streaming continuity, RTC carryover, latency, halting."""
 from __future__ import annotations
 
+import dataclasses
 import re
 from dataclasses import dataclass, field
 from typing import Any, Callable
@@ -12,6 +13,7 @@ from moveit_pro_ml_msgs.srv import GetActionChunk
 from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
+import runtime.bus as bus_module
 from runtime.bus import FixedLatency
 from runtime.loader import load_tree
 from runtime.registry import Registry
@@ -447,14 +449,10 @@ def test_chunk_arriving_too_late_to_join_pauses_the_robot_then_continues(registr
     assert run.summary["steps_executed"] == 60
 
 
-def test_a_late_chunk_joins_during_the_runout_and_the_arm_never_stops_dead(registry):
-    # Chunk 2 is asked for one step before the committed motion ends and takes 0.5 s: it joins
-    # five steps after that end (the first step after its arrival). Meanwhile the arm goes on along
-    # chunk 1's path, slowing down (the runout), and chunk 2 takes over from that moving state:
-    # the commanded velocity never jumps and never reaches zero before the run's last window.
-    commanded: list[tuple[float, float]] = []
+def record_commanded_velocity(commanded: list[tuple[float, float]]) -> Callable[[Any, KinematicWorld], None]:
+    """A ``before`` hook: every arm command appends (time, the first joint's commanded velocity)."""
 
-    def record(context, world):
+    def hook(context: Any, world: KinematicWorld) -> None:
         command = world.cell.command_arm
 
         def recording(position, velocity=None):
@@ -463,8 +461,50 @@ def test_a_late_chunk_joins_during_the_runout_and_the_arm_never_stops_dead(regis
 
         world.cell.command_arm = recording
 
+    return hook
+
+
+def refuse_as_late(monkeypatch, goal_number: int) -> list[float]:
+    """The controller refuses its ``goal_number``-th trajectory goal (1-based) as if it arrived
+    3 ms after its seam. Returns the arrival times of the goals, one per goal so far."""
+    import sim.controllers.admittance as admittance
+
+    parse, arrivals = admittance.parse_goal, []
+
+    def delivered_late(request, joint_names, now, *args):
+        goal = parse(request, joint_names, now, *args)
+        arrivals.append(now)
+        return dataclasses.replace(goal, seam_time=now - 0.003) if len(arrivals) == goal_number else goal
+
+    monkeypatch.setattr(admittance, "parse_goal", delivered_late)
+    return arrivals
+
+
+def answer_late(monkeypatch, delay: float, which: Callable[[Any], bool]) -> None:
+    """Action goals sent by a client for which ``which(client)`` holds (asked after the goal
+    reached its server) are answered ``delay`` seconds later (``inf``: never)."""
+    send = bus_module._InProcessActionClient.send_goal_async
+
+    def slow(self, goal, feedback_callback=None):
+        future = send(self, goal, feedback_callback)
+        if not which(self):
+            return future
+        delayed = bus_module.Future(self.bus.clock, self.bus.clock.now() + delay)
+        delayed.set_result(future.result())
+        return delayed
+
+    monkeypatch.setattr(bus_module._InProcessActionClient, "send_goal_async", slow)
+
+
+def test_a_late_chunk_joins_during_the_runout_and_the_arm_never_stops_dead(registry):
+    # Chunk 2 is asked for one step before the committed motion ends and takes 0.5 s: it joins
+    # five steps after that end (the first step after its arrival). Meanwhile the arm goes on along
+    # chunk 1's path, slowing down (the runout), and chunk 2 takes over from that moving state:
+    # the commanded velocity never jumps and never reaches zero before the run's last window.
+    commanded: list[tuple[float, float]] = []
     velocity = np.array([0.1, 0, 0, 0, 0, 0])
-    run = run_policy(registry, BASE, ScriptedPolicy(hold(velocity=velocity)), latency=SpikeAt(0.05, 2, 0.5), before=record)
+    run = run_policy(registry, BASE, ScriptedPolicy(hold(velocity=velocity)), latency=SpikeAt(0.05, 2, 0.5),
+                     before=record_commanded_velocity(commanded))
     assert run.result.status == "SUCCESS", run.result.reason
     assert run.summary["stall_seconds"] == pytest.approx(0.5, abs=0.01)  # from the window's end to the late seam
     t, v = np.array(commanded).T
@@ -474,35 +514,13 @@ def test_a_late_chunk_joins_during_the_runout_and_the_arm_never_stops_dead(regis
 
 
 def test_a_goal_that_reaches_the_controller_after_its_seam_while_moving_is_planned_again(registry, monkeypatch):
-    # Chunk 2's goal reaches the controller 3 ms after its seam (a busy transport): the controller
-    # refuses it and goes on with chunk 1's window and runout. ExecutePolicy plans chunk 2 again
+    # Chunk 3's goal reaches the controller 3 ms after its seam (a busy transport): the controller
+    # refuses it and goes on with chunk 2's window and runout. ExecutePolicy plans chunk 3 again
     # from that moving state instead of failing the run, and the arm never stops dead.
-    import dataclasses
-
-    import sim.controllers.admittance as admittance
-
-    parse, calls = admittance.parse_goal, []
-
-    def delivered_late(request, joint_names, now, *args):
-        goal = parse(request, joint_names, now, *args)
-        calls.append(goal.seam_time)
-        if len(calls) == 3:  # Move to Waypoint, chunk 1, then chunk 2
-            return dataclasses.replace(goal, seam_time=now - 0.003)
-        return goal
-
-    monkeypatch.setattr(admittance, "parse_goal", delivered_late)
+    refuse_as_late(monkeypatch, 3)
     commanded: list[tuple[float, float]] = []
-
-    def record(context, world):
-        command = world.cell.command_arm
-
-        def recording(position, velocity=None):
-            commanded.append((world.cell.t, 0.0 if velocity is None else float(velocity[0])))
-            command(position, velocity)
-
-        world.cell.command_arm = recording
-
-    run = run_policy(registry, BASE, ScriptedPolicy(hold(velocity=np.array([0.1, 0, 0, 0, 0, 0]))), latency=0.05, before=record)
+    run = run_policy(registry, BASE, ScriptedPolicy(hold(velocity=np.array([0.1, 0, 0, 0, 0, 0]))), latency=0.05,
+                     before=record_commanded_velocity(commanded))
     assert run.result.status == "SUCCESS", run.result.reason
     assert run.summary["steps_executed"] == 60
     assert any("received a goal after its seam" in w and "is already past" in w for w in run.summary["warnings"])
@@ -516,30 +534,8 @@ def test_a_goal_answered_only_after_the_next_chunk_arrived_is_waited_for(registr
     # chunk 2 arrives first. Stitched onto chunk 1's motion, which the controller never played,
     # its first point would be 25 mrad off the arm ("position deviation at the seam"). It waits
     # for the answer instead, and then takes over from where the arm really is; chunk 1 is dropped.
-    import dataclasses
-
-    import runtime.bus as bus_module
-    import sim.controllers.admittance as admittance
-
-    parse, calls = admittance.parse_goal, []
-
-    def delivered_late(request, joint_names, now, *args):
-        goal = parse(request, joint_names, now, *args)
-        calls.append(now)
-        return dataclasses.replace(goal, seam_time=now - 0.003) if len(calls) == 1 else goal
-
-    send = bus_module._InProcessActionClient.send_goal_async
-
-    def slow_answer(self, goal, feedback_callback=None):
-        future = send(self, goal, feedback_callback)
-        if len(calls) != 1:
-            return future
-        delayed = bus_module.Future(self.bus.clock, self.bus.clock.now() + 0.6)
-        delayed.set_result(future.result())
-        return delayed
-
-    monkeypatch.setattr(admittance, "parse_goal", delivered_late)
-    monkeypatch.setattr(bus_module._InProcessActionClient, "send_goal_async", slow_answer)
+    arrivals = refuse_as_late(monkeypatch, 1)
+    answer_late(monkeypatch, 0.6, lambda client: len(arrivals) == 1)
     ports = 'total_action_steps="20" dt="0.1" committed_action_steps="5" goal_path_tolerance="0.01" policy_call_timeout="3.0"'
     run = run_policy(registry, ports, ScriptedPolicy(hold(velocity=np.array([0.05, 0, 0, 0, 0, 0]))), latency=0.05)
     assert run.result.status == "SUCCESS", run.result.reason
@@ -550,19 +546,7 @@ def test_a_goal_answered_only_after_the_next_chunk_arrived_is_waited_for(registr
 
 
 def test_a_controller_that_never_acknowledges_a_goal_ends_the_run(registry, monkeypatch):
-    import runtime.bus as bus_module
-
-    send = bus_module._InProcessActionClient.send_goal_async
-
-    def never_answered(self, goal, feedback_callback=None):
-        future = send(self, goal, feedback_callback)
-        if self.name.endswith("follow_joint_trajectory"):
-            silent = bus_module.Future(self.bus.clock, float("inf"))
-            silent.set_result(future.result())
-            return silent
-        return future
-
-    monkeypatch.setattr(bus_module._InProcessActionClient, "send_goal_async", never_answered)
+    answer_late(monkeypatch, float("inf"), lambda client: client.name.endswith("follow_joint_trajectory"))
     run = run_policy(registry, BASE, ScriptedPolicy(hold()))
     assert run.result.status == "FAILURE"
     assert run.result.reason == (

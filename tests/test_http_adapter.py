@@ -27,6 +27,8 @@ from sim.policy.replay import RecordedChunk, write_replay
 from sim.policy.server import CELL_JOINTS, KEY_ENV, InferenceServer, ServerConfig
 from sim.policy.replay import ReplayBackend
 
+from .fakes import FakeBackend
+
 pytestmark = pytest.mark.timeout(60)
 
 KEY = "adapter-test-key"
@@ -35,27 +37,11 @@ R = GetActionChunk.Response
 JOINTS = list(CELL_JOINTS)
 
 
-class Recorder:
-    """A server backend that keeps every request and answers ``answer(request)``."""
-
-    name = "recorder"
-
-    def __init__(self, answer=None, gate: threading.Event | None = None):
-        self.answer = answer or (lambda r: PolicyResponse.chunk(np.tile(r.joint_positions, (5, 1)), 0.1))
-        self.gate = gate
-        self.requests: list[PolicyRequest] = []
-
-    def load(self):
-        pass
-
-    def warmup(self, example_request):
-        pass
-
-    def infer(self, request):
-        self.requests.append(request)
-        if self.gate is not None:
-            self.gate.wait(10)
-        return self.answer(request)
+def Recorder(answer=None, gate: threading.Event | None = None) -> FakeBackend:  # noqa: N802 (reads like the class it was)
+    """A server backend that keeps every request and answers ``answer(request)`` (by default 5
+    steps holding the observed joints); with ``gate``, each answer waits for it."""
+    default = lambda r: PolicyResponse.chunk(np.tile(r.joint_positions, (5, 1)), 0.1)  # noqa: E731
+    return FakeBackend(answer or default, infer_gate=gate, name="recorder")
 
 
 @pytest.fixture
@@ -196,17 +182,12 @@ def test_http_errors_answer_error_with_the_servers_reason(serve, case, reason):
 
 
 def test_server_still_loading_answers_error_503(serve):
-    gate = threading.Event()
-
-    class SlowLoad(Recorder):
-        def load(self):
-            gate.wait(10)
-
-    server = InferenceServer(SlowLoad(), ServerConfig(key=KEY)).start()
+    slow_load = FakeBackend(gated=True)  # loads only once released
+    server = InferenceServer(slow_load, ServerConfig(key=KEY)).start()
     try:
         response, _, _ = call_in_process(server.url, request_msg())
     finally:
-        gate.set()
+        slow_load.release.set()
         server.stop()
     assert response.status == R.ERROR
     assert response.message == f"the inference server at {server.url}/infer answered 503: policy server is still loading (loading the backend)"

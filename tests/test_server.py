@@ -36,41 +36,12 @@ from sim.policy.wire import (
     encode_response,
 )
 
+from .fakes import FakeBackend
+
 pytestmark = pytest.mark.timeout(60)
 
 KEY = "test-key-0123456789"
 ROOT = Path(__file__).resolve().parents[1]
-
-
-class FakeBackend:
-    """Loads when ``release`` is set; answers ``answer`` (a response, an exception, or a function)."""
-
-    name = "fake"
-
-    def __init__(self, answer=None, gated: bool = False, load_error: Exception | None = None):
-        self.answer = answer
-        self.release = threading.Event()
-        if not gated:
-            self.release.set()
-        self.load_error = load_error
-        self.warmups: list[PolicyRequest] = []
-        self.requests: list[PolicyRequest] = []
-
-    def load(self):
-        assert self.release.wait(10), "test never released the load"
-        if self.load_error:
-            raise self.load_error
-
-    def warmup(self, example_request):
-        self.warmups.append(example_request)
-
-    def infer(self, request):
-        self.requests.append(request)
-        if isinstance(self.answer, Exception):
-            raise self.answer
-        if callable(self.answer):
-            return self.answer(request)
-        return self.answer
 
 
 def chunk_answer(request: PolicyRequest) -> PolicyResponse:

@@ -4,7 +4,6 @@ from __future__ import annotations
 import os
 import subprocess
 import sys
-import time
 import uuid
 from pathlib import Path
 
@@ -19,6 +18,8 @@ from sim.policy.adapter import PolicyAdapter, array_to_multiarray
 from sim.policy.backend import PolicyResponse
 from sim.policy.images import rgb_to_image
 from sim.policy.smoke import FAIL, PASS, SmokeConfig, SmokeReport, judge_response, observed_state, run_smoke_test
+
+from .fakes import FakeBackend
 
 pytestmark = pytest.mark.timeout(60)
 
@@ -133,23 +134,9 @@ def test_cli_bad_input_exits_2(capsys):
 # --------------------------------------------------------------------------------------------
 # Over real ROS 2
 # --------------------------------------------------------------------------------------------
-class Echo:
-    name = "echo"
-
-    def __init__(self, policy: bool = False):
-        self.policy = policy
-        self.requests = []
-
-    def load(self):
-        pass
-
-    def warmup(self, example_request):
-        pass
-
-    def infer(self, request):
-        self.requests.append(request)
-        actions = np.tile(request.joint_positions, (50, 1))
-        return PolicyResponse.chunk(actions, 0.1, np.zeros((50, 32)) if self.policy else None)
+def echo_backend() -> FakeBackend:
+    """Answers 50 steps holding the observed joints."""
+    return FakeBackend(lambda r: PolicyResponse.chunk(np.tile(r.joint_positions, (50, 1)), 0.1), name="echo")
 
 
 @pytest.fixture
@@ -160,7 +147,7 @@ def cell():
 
     tag = f"/t{uuid.uuid4().hex[:8]}"
     bus = RosBus(WallClock(), node_name="fake_cell")
-    backend = Echo()
+    backend = echo_backend()
     PolicyAdapter(backend).serve(bus, f"{tag}/get_action_chunk")
     state = JointState(name=NAMES, position=[0.1, -1.2, 1.3, -1.6, -1.5, 0.2, 0.0])
     state.header.stamp.sec = 7

@@ -180,15 +180,11 @@ class RecordingBus:
         """Record every message on ``name`` (at most ``max_hz`` per second of clock time)."""
         if name in self._recorded_topics:
             return
-        min_interval = 1.0 / max_hz if max_hz else 0.0
 
         def record(msg: Any) -> None:
             now = self.clock.now()
-            last = self._last_recorded.get(name)
-            if last is not None and now - last < min_interval - 1e-9:
-                return
-            self._last_recorded[name] = now
-            self.writer.write(name, msg, now)
+            if self._due(name, now, max_hz):
+                self.writer.write(name, msg, now)
 
         # Best effort connects to reliable and best-effort publishers alike.
         self._recorded_topics[name] = self.inner.create_subscription(name, msg_type, record, reliable=False)
@@ -269,12 +265,19 @@ class RecordingBus:
 
         future.add_done_callback(sent)
 
+    def _due(self, topic: str, now: float, max_hz: float | None) -> bool:
+        """Whether ``topic`` may be recorded at ``now`` under its ``max_hz`` (None: always); if
+        so, ``now`` becomes its last recording time."""
+        last = self._last_recorded.get(topic)
+        if max_hz and last is not None and now - last < 1.0 / max_hz - 1e-9:
+            return False
+        self._last_recorded[topic] = now
+        return True
+
     def _feedback(self, name: str, feedback: Any) -> None:
         now = self.clock.now()
-        last = self._last_recorded.get(f"{name}/feedback")
-        if last is not None and now - last < 1.0 / FEEDBACK_HZ - 1e-9:
+        if not self._due(f"{name}/feedback", now, FEEDBACK_HZ):
             return
-        self._last_recorded[f"{name}/feedback"] = now
         self.writer.write(f"{name}/feedback", feedback, now)
         wrench = getattr(feedback, "wrench", None)
         if wrench is not None:

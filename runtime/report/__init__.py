@@ -15,7 +15,7 @@ from typing import Callable
 
 from .data import Recording, load_recording
 
-__all__ = ["Report", "Recording", "load_recording", "render_report"]
+__all__ = ["Report", "Recording", "load_recording", "log_errors", "render_report"]
 
 from ..recording.recorder import HTML_FILE, JOINTS_FILE, LATENCY_FILE, TREE_FILE, VIDEO_FILE
 
@@ -56,16 +56,22 @@ def render_report(directory: Path | str, logger: logging.Logger | None = None, p
     for name, render in steps[1:] if forked is not None else steps:
         _render_one(report, name, render)
     if forked is not None:
-        report.files.update({k: Path(v) for k, v in forked().get("files", {}).items()})
-        report.errors.update(forked().get("errors", {}))
+        outcome = forked()
+        report.files.update({k: Path(v) for k, v in outcome.get("files", {}).items()})
+        report.errors.update(outcome.get("errors", {}))
     report.files = {name: report.files[name] for name, _ in steps if name in report.files}  # steps' order
     html_path = directory / HTML_FILE
     html_path.write_text(report_html(recording, report.files), encoding="utf-8")
     report.files["html"] = html_path
+    log_errors(report, logger)
+    return report
+
+
+def log_errors(report: Report, logger: logging.Logger | None) -> None:
+    """One warning per artifact that could not be rendered."""
     if logger is not None:
         for name, error in report.errors.items():
-            logger.warning("recording %s: the %s artifact could not be rendered: %s", directory, name, error)
-    return report
+            logger.warning("recording %s: the %s artifact could not be rendered: %s", report.directory, name, error)
 
 
 def _render_one(report: Report, name: str, render: Callable[[], Path]) -> None:
@@ -91,17 +97,14 @@ def _fork(name: str, render: Callable[[], Path]) -> Callable[[], dict]:
         finally:
             os._exit(0)
     os.close(write_end)
-    result: dict = {}
 
     def wait() -> dict:
-        if not result:
-            with os.fdopen(read_end) as pipe:
-                text = pipe.read()
-            _, status = os.waitpid(pid, 0)
-            try:
-                result.update(json.loads(text))
-            except ValueError:
-                result["errors"] = {name: f"the process drawing it ended with status {status} and no answer"}
-        return result
+        with os.fdopen(read_end) as pipe:
+            text = pipe.read()
+        _, status = os.waitpid(pid, 0)
+        try:
+            return json.loads(text)
+        except ValueError:
+            return {"errors": {name: f"the process drawing it ended with status {status} and no answer"}}
 
     return wait

@@ -23,7 +23,7 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import ObjectiveError
-from . import Report, render_report
+from . import Report, log_errors, render_report
 
 RENDER_TIMEOUT = 600.0
 """Seconds the worker may take to render a report (a long run's video is the slow part)."""
@@ -53,9 +53,7 @@ class ReportWorker:
         if "failed" in answer:  # the recording itself cannot be read: rendering here would fail alike
             raise ObjectiveError(str(answer["failed"]))
         report = Report(directory, {k: Path(v) for k, v in answer["files"].items()}, dict(answer["errors"]))
-        if logger is not None:
-            for name, error in report.errors.items():
-                logger.warning("recording %s: the %s artifact could not be rendered: %s", directory, name, error)
+        log_errors(report, logger)
         return report
 
     def close(self) -> None:

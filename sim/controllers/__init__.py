@@ -6,7 +6,7 @@ world calls ``manager.update(t, dt)`` at 500 Hz before each physics step. The tr
 """
 from .admittance import JointTrajectoryAdmittanceController, ParsedGoal, parse_goal
 from .base import Controller, ControllersConfig
-from .compliance import AdmittanceParams, AdmittanceState, admittance_step, cartesian_to_joint
+from .compliance import AdmittanceParams, AdmittanceState, admittance_step, damped_pseudo_inverse
 from .gripper import GripperActionController
 from .manager import (
     BEST_EFFORT,
@@ -60,7 +60,7 @@ __all__ = [
     "VELOCITY_CONTROLLER",
     "VelocityForceController",
     "admittance_step",
-    "cartesian_to_joint",
+    "damped_pseudo_inverse",
     "make_controllers",
     "parse_goal",
     "path_violation",

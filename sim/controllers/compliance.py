@@ -135,10 +135,3 @@ def damped_pseudo_inverse(jacobian: np.ndarray, damping: float = 1e-3) -> np.nda
         raise np.linalg.LinAlgError(f"J J^T + l^2 I is singular (LAPACK dgesv info={info}): is the Jacobian finite?")
     return solution.T
 
-
-def cartesian_to_joint(jacobian: np.ndarray, cartesian: np.ndarray, damping: float = 1e-3) -> np.ndarray:
-    """Joint displacement producing ``cartesian`` at the wrist: ``damped_pseudo_inverse(jacobian) @ cartesian``.
-
-    ``cartesian`` is a 6-vector, or 6 x k to map k vectors at once.
-    """
-    return damped_pseudo_inverse(jacobian, damping) @ np.asarray(cartesian, dtype=float)
