@@ -96,7 +96,7 @@ class MujocoCell:
 
     def command_gripper(self, position: float, max_effort: float) -> None:
         """Position control of the driver. The 2F-85 model's actuator has a fixed force range,
-        so ``max_effort`` is not modelled (documented in the README)."""
+        so ``max_effort`` is not modelled (documented in docs/cell.md)."""
         self.data.ctrl[self._gripper_ctrl] = float(np.clip(position, 0.0, 0.8)) * GRIPPER_CTRL_PER_RAD
 
     def wrench(self) -> np.ndarray:
