@@ -21,23 +21,27 @@ Halting versus resetting
     when it is preempted, never after it already finished. Our composites' ``stop(INVALID)`` is
     BT.CPP's ``halt()``: it halts running children and resets the others.
 
-Synchronous loops and the wake-up signal
-    In BT.CPP 4.8, SequenceWithMemory, Repeat and RetryUntilSuccessful return RUNNING after a
-    child that completed synchronously (it was IDLE before the tick) and emit a wake-up signal;
-    ``Tree::tickOnce`` then ticks the whole tree again at once, while ``tickExactlyOnce`` does
-    not. We reproduce both: those nodes call ``emit_wake_up`` and return RUNNING, and
-    ``tick_tree`` is ``tickOnce`` (tick, and tick again while RUNNING and woken). A runner that
-    calls ``tick_tree`` therefore finishes ``Repeat num_cycles="100"`` of a synchronous child
-    within one of its ticks, like BT.CPP's ``tickWhileRunning``.
+One tick is one pass
+    ``tick_tree`` ticks the root once (BT.CPP ``tickExactlyOnce``) and is the only tick loop:
+    the runner and the conformance suite both call it. No node loops inside a tick: Repeat,
+    RetryUntilSuccessful, SequenceWithMemory, AsyncSequence/AsyncFallback and the Loop nodes
+    return RUNNING after a child that completed synchronously (it was IDLE before the tick),
+    exactly where BT.CPP 4.x emits its wake-up signal, and go on at the next tick. BT.CPP's
+    ``tickOnce`` re-ticks the whole tree at once on that signal, which finishes a
+    ``Repeat num_cycles="3"`` of a synchronous child within one call but never returns from
+    ``num_cycles="-1"`` (measured with behaviortreepy: the process spins at 100 % CPU and no
+    Timeout, ``_while`` or Parallel sibling can stop it). Here every iteration is a tick, so a
+    loop is always interruptible and the runner's clock, Timeouts and halts reach it.
 """
 from __future__ import annotations
 
 import abc
+from dataclasses import dataclass
 from typing import Any, ClassVar, Generator, Iterator
 
 import py_trees
 
-from .behavior import NodeKind, NodeMixin, RunContext, Status
+from .behavior import NodeKind, NodeMixin, Status
 from .errors import ObjectiveError
 from .ports import InputPort, PortType
 
@@ -48,7 +52,6 @@ SKIPPED = Status.INVALID
 """As the *result* of a child's tick (never as a stored status): the child was skipped."""
 
 COMPLETED = (Status.SUCCESS, Status.FAILURE)
-WAKE_UP_KEY = "behaviortree.wake_up"
 
 
 # -- the node protocol shared by controls, decorators and condition guards --------------------
@@ -87,41 +90,36 @@ def reset_status(node: Behaviour) -> None:
     node.status = Status.INVALID
 
 
-def emit_wake_up(context: RunContext) -> None:
-    """Ask ``tick_tree`` to tick the tree again at once (BT.CPP ``emitWakeUpSignal``)."""
-    context.resources[WAKE_UP_KEY] = True
+Visit = tuple[Behaviour, Status, str]
+"""A node that reported in a tick, with the status and feedback message it reported."""
 
 
-def consume_wake_up(context: RunContext) -> bool:
-    return bool(context.resources.pop(WAKE_UP_KEY, False))
+@dataclass(frozen=True)
+class Tick:
+    """What one tick of the tree gave: the root's result and every node that reported."""
+
+    status: Status
+    """RUNNING, SUCCESS, FAILURE or SKIPPED (``Status.INVALID``)."""
+    visited: list[Visit]
+    """Post-order: each node visited, with the status and message it had when it reported."""
 
 
-def tick_root(root: Behaviour) -> Status:
-    """One tick of the tree (BT.CPP ``tickExactlyOnce``); returns the root's result.
+def tick_tree(root: Behaviour) -> Tick:
+    """One tick of the tree (BT.CPP ``tickExactlyOnce``): the runner's and the tests' only tick loop.
 
-    The result is RUNNING, SUCCESS, FAILURE or SKIPPED (``Status.INVALID`` with
-    ``root.skipped``). Like BT.CPP's tree, a root that completed is set back to idle so its next
-    tick starts a fresh run.
+    Like BT.CPP's tree, a root that completed is set back to idle so its next tick starts a
+    fresh run.
     """
-    for _ in root.tick():
-        pass
+    visited = [(node, node.status, node.feedback_message) for node in root.tick()]
     result = SKIPPED if is_skipped(root) else root.status
     if result in COMPLETED:
         reset_status(root)
-    return result
+    return Tick(result, visited)
 
 
-def tick_tree(root: Behaviour, context: RunContext) -> Status:
-    """BT.CPP ``tickOnce``: tick, then tick again while RUNNING and a node asked to be woken.
-
-    Synchronous loops (Repeat, RetryUntilSuccessful, SequenceWithMemory) thus finish within
-    one call, exactly as they do in BT.CPP's ``tickOnce``/``tickWhileRunning``.
-    """
-    consume_wake_up(context)
-    result = tick_root(root)
-    while result is Status.RUNNING and consume_wake_up(context):
-        result = tick_root(root)
-    return result
+def tick_root(root: Behaviour) -> Status:
+    """``tick_tree(root).status``: one tick, for callers that only need the result."""
+    return tick_tree(root).status
 
 
 def _at_tree_root(node: Behaviour) -> bool:
@@ -193,9 +191,6 @@ class _BtComposite(NodeMixin, py_trees.composites.Composite):
         """BT.CPP ``resetChildren``: the same as halting every child."""
         for child in self.children:
             halt_child(child)
-
-    def wake_up(self) -> None:
-        emit_wake_up(self.context)
 
     def fail_now(self, what: str) -> ObjectiveError:
         return ObjectiveError(what, self.location, f"{self.xml_id} '{self.name}'")
@@ -315,8 +310,7 @@ class SequenceWithMemory(ControlNode):
             if result is SKIPPED:
                 self.skipped_count += 1
             elif was_idle and self.index < count:
-                self.wake_up()
-                return Status.RUNNING
+                return Status.RUNNING  # yield between synchronous children (see the module docstring)
         all_skipped = self.skipped_count == count
         self.reset_children()
         self.index = 0

@@ -124,8 +124,7 @@ class RetryUntilSuccessful(DecoratorNode):
             loop = self.tries < max_attempts or max_attempts == -1
             halt_child(self.child)
             if was_idle and loop:
-                self.wake_up()
-                return Status.RUNNING
+                return Status.RUNNING  # one attempt per tick: the loop stays interruptible
         self.tries = 0
         return Status.FAILURE
 
@@ -169,8 +168,7 @@ class Repeat(DecoratorNode):
             loop = self.cycles < num_cycles or num_cycles == -1
             halt_child(self.child)
             if was_idle and loop:
-                self.wake_up()
-                return Status.RUNNING
+                return Status.RUNNING  # one attempt per tick: the loop stays interruptible
         self.cycles = 0
         return Status.SUCCESS
 

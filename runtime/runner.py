@@ -28,7 +28,7 @@ import py_trees
 from .behavior import RunContext, Status
 from .bus import InProcessBus, parse_latency
 from .clock import SimClock, WallClock
-from .controls import COMPLETED, SKIPPED, consume_wake_up, is_skipped, reset_status
+from .controls import SKIPPED, Visit, is_skipped, tick_tree
 from .errors import ObjectiveError
 from .events import EventLog
 from .loader import LoadedTree, load_tree
@@ -157,9 +157,6 @@ def json_entries(board_items: Iterable[tuple[str, Any]]) -> dict[str, Any]:
     return out
 
 
-Visit = tuple[py_trees.behaviour.Behaviour, Status, str]
-
-
 def _unwrap(node: py_trees.behaviour.Behaviour) -> py_trees.behaviour.Behaviour:
     """The node a transparent wrapper (a condition guard) stands for."""
     while getattr(node, "transparent", False) and len(node.children) == 1:
@@ -194,22 +191,6 @@ def _failing(root: py_trees.behaviour.Behaviour, visited: list[Visit]) -> tuple[
     message = last[id(node)][2]
     inner = _unwrap(node)
     return inner, message or inner.feedback_message
-
-
-def tick_once(root: py_trees.behaviour.Behaviour, context: RunContext) -> tuple[Status, list[Visit]]:
-    """One tick of the runner: ``runtime.controls.tick_tree`` (BT.CPP ``tickOnce``), keeping what was visited.
-
-    Returns the root's result (RUNNING, SUCCESS, FAILURE or SKIPPED) and, for the last pass,
-    every node visited with the status and message it had when it reported (post-order).
-    """
-    consume_wake_up(context)
-    while True:
-        visited = [(node, node.status, node.feedback_message) for node in root.tick()]
-        result = SKIPPED if is_skipped(root) else root.status
-        if result in COMPLETED:
-            reset_status(root)
-        if result is not Status.RUNNING or not consume_wake_up(context):
-            return result, visited
 
 
 class StatusEvents:
@@ -333,7 +314,8 @@ def run_tree(
             if world is not None:
                 world.step_to(clock.now())
             bus.spin_once()
-            status, visited = tick_once(root, context)
+            tick = tick_tree(root)
+            status, visited = tick.status, tick.visited
             statuses.update(visited)
             ticks += 1
             if pacing is not None:

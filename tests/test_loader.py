@@ -43,7 +43,7 @@ def run_to_end(tree: LoadedTree, limit: int = 1000) -> Status:
     context = tree.nodes[0].node.context
     for _ in range(limit):
         context.clock.advance(0.01)
-        status = tick_tree(tree.root, context)
+        status = tick_tree(tree.root).status
         if status is not Status.RUNNING:
             return status
     raise AssertionError("tree did not finish")

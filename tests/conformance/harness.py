@@ -14,10 +14,13 @@ spelled in their ``name`` (BT.CPP's Python bindings give simple nodes no ports):
 A case file is a BTCPP_format="4" XML document starting with a comment of ``key: value`` lines:
 
     ticks: 6           how many ticks to run (default 5)
-    mode: once         'once' = BT.CPP tickOnce vs our tick_tree; 'exact' = tickExactlyOnce vs tick_root
     dt_ms: 100         time between ticks: our SimClock advances, BT.CPP sleeps (wall time)
     keys: n x          blackboard entries compared after every tick
     expect: RUNNING SUCCESS ...   the statuses both engines must produce (ERROR: the tick raised)
+
+Our side ticks through ``runtime.controls.tick_tree``, the one tick loop the runner uses; BT.CPP
+is ticked with ``tickExactlyOnce`` (one pass per tick, the semantics ``tick_tree`` implements; its
+``tickOnce`` re-ticks on a wake-up signal and never returns from an endless synchronous loop).
 
 ``run_ours`` and ``run_btcpp`` return a ``Run``: per tick the root's status, the leaves' events
 and the listed blackboard values.
@@ -34,13 +37,13 @@ from runtime import builtin
 from runtime.behavior import Behavior, NodeKind, RunContext, Status
 from runtime.bus import InProcessBus
 from runtime.clock import SimClock
-from runtime.controls import COMPLETED, tick_root, tick_tree
+from runtime.controls import COMPLETED, tick_tree
 from runtime.events import EventLog
 from runtime.registry import Registry
 
 CASES_DIR = Path(__file__).parent / "cases"
 LETTERS = {"R": "RUNNING", "S": "SUCCESS", "F": "FAILURE"}
-_HEADER = re.compile(r"^\s*(ticks|mode|dt_ms|keys|expect)\s*:\s*(.*?)\s*$", re.MULTILINE)
+_HEADER = re.compile(r"^\s*(ticks|dt_ms|keys|expect)\s*:\s*(.*?)\s*$", re.MULTILINE)
 
 
 @dataclass(frozen=True)
@@ -48,7 +51,6 @@ class Case:
     name: str
     xml: str
     ticks: int = 5
-    mode: str = "once"
     dt_ms: int = 0
     keys: tuple[str, ...] = ()
     expect: tuple[str, ...] = ()
@@ -62,13 +64,10 @@ class Case:
             name=path.stem,
             xml=xml,
             ticks=int(fields.get("ticks", 5)),
-            mode=fields.get("mode", "once"),
             dt_ms=int(fields.get("dt_ms", 0)),
             keys=tuple(fields.get("keys", "").split()),
             expect=tuple(fields.get("expect", "").split()),
         )
-        if case.mode not in ("once", "exact"):
-            raise ValueError(f"{path}: mode must be 'once' or 'exact', got {case.mode!r}")
         return case
 
 
@@ -177,7 +176,7 @@ def run_ours(case: Case) -> Run:
         if index and case.dt_ms:
             clock.advance(case.dt_ms / 1000.0)
         try:
-            result = tick_tree(tree.root, context) if case.mode == "once" else tick_root(tree.root)
+            result = tick_tree(tree.root).status
         except Exception as err:  # noqa: BLE001 - the comparison records that the tick raised
             run.error = f"{type(err).__name__}: {err}"
             run.statuses.append("ERROR")
@@ -237,7 +236,7 @@ def run_btcpp(case: Case) -> Run:
         if index and case.dt_ms:
             time.sleep(case.dt_ms / 1000.0)
         try:
-            result = tree.tick_once() if case.mode == "once" else tree.tick_exactly_once()
+            result = tree.tick_exactly_once()
         except Exception as err:  # noqa: BLE001
             run.error = f"{type(err).__name__}: {err}"
             run.statuses.append("ERROR")

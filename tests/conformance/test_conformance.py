@@ -6,9 +6,8 @@ events (start / run / halt / check, in order) and the same blackboard values aft
 See ``harness.py`` for the case format and the scripted leaves.
 
 Known, intentional differences (not covered by cases):
-- Timers: BT.CPP's Timeout/Delay/Sleep run on wall-clock timer threads whose wake-up signal can
-  make ``tickOnce`` tick twice; ours read the run clock at tick time. The timing cases therefore
-  use ``mode: exact`` with thresholds between ticks. A Delay of 0 ms ticks its child at once
+- Timers: BT.CPP's Timeout/Delay/Sleep run on wall-clock timer threads; ours read the run clock
+  at tick time. The timing cases therefore put their thresholds between ticks. A Delay of 0 ms ticks its child at once
   here; in BT.CPP it usually returns RUNNING first.
 - Leaves: BT.CPP's StatefulActionNode returns its old status when re-ticked after finishing
   without a reset; a py_trees leaf of ours starts a new run (``initialise``) instead. The

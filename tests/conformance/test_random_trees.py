@@ -79,8 +79,7 @@ def random_case(seed: int) -> Case:
     gen = _Gen(seed)
     body = gen.node(depth=3, may_skip=False)
     xml = f'<root BTCPP_format="4"><BehaviorTree ID="Main">{body}</BehaviorTree></root>'
-    mode = "exact" if seed % 2 else "once"
-    return Case(name=f"random_{seed}", xml=xml, ticks=8, mode=mode)
+    return Case(name=f"random_{seed}", xml=xml, ticks=8)
 
 
 @pytest.mark.parametrize("chunk", range(4))
