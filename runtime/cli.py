@@ -1,7 +1,8 @@
 """``objective``: run, validate, show and describe BehaviorTree.CPP v4 Objectives.
 
-Exit codes: 0 SUCCESS, 1 FAILURE (the failing node and its reason on stderr), 2 bad input
-(the error, ``file:line: Node: what``, on stderr; never a traceback).
+Exit codes: 0 SUCCESS (or SKIPPED: the root's children were all skipped), 1 FAILURE (the failing
+node and its reason on stderr), 2 bad input or an error while running, such as a failing script
+(the error, ``file:line: Node: what``, on stderr; never a traceback; ``ERROR`` in ``--json``).
 
 The CLI is the composition root: behaviors come from the ``objective.behaviors`` entry points
 and worlds from ``objective.worlds``, so the runtime imports neither.
@@ -56,7 +57,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="objective",
         description="Run BehaviorTree.CPP v4 Objectives headless.",
-        epilog="Exit codes: 0 SUCCESS, 1 FAILURE, 2 bad input.",
+        epilog="Exit codes: 0 SUCCESS (or SKIPPED), 1 FAILURE, 2 bad input or a run-time error (ERROR).",
     )
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
@@ -218,6 +219,9 @@ def cmd_run(args: argparse.Namespace, registry: Registry) -> int:
             progress.clear()
     if result.status == "SUCCESS":
         print(f"SUCCESS after {result.sim_seconds:.2f} s ({result.ticks} ticks)", file=sys.stderr)
+    elif result.status == "SKIPPED":
+        print(f"SKIPPED after {result.sim_seconds:.2f} s: every child of the root was skipped, nothing ran",
+              file=sys.stderr)
     else:
         where = f" ({result.failing_location})" if result.failing_location else ""
         node = f"'{result.failing_node}'{where}" if result.failing_node else "the root"

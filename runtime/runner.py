@@ -88,7 +88,7 @@ class RunOptions:
 @dataclass
 class RunResult:
     status: str
-    """"SUCCESS" or "FAILURE"."""
+    """"SUCCESS", "FAILURE" or "SKIPPED" (every child of the root was skipped: nothing ran)."""
     failing_node: str | None
     reason: str
     sim_seconds: float
@@ -100,7 +100,8 @@ class RunResult:
 
     @property
     def exit_code(self) -> int:
-        return 0 if self.status == "SUCCESS" else 1
+        """0 for SUCCESS and SKIPPED (nothing failed), 1 for FAILURE."""
+        return 1 if self.status == "FAILURE" else 0
 
     def to_json(self) -> dict[str, Any]:
         """The summary object ``objective run --json`` prints (extras merged at the top level)."""
@@ -255,6 +256,13 @@ class Pacing:
         return {"late_ticks": self.late_ticks, "worst_tick_s": round(self.worst_tick_s, 4), "period_s": self.period}
 
 
+def outcome(status: Status, timed_out: bool) -> str:
+    """How a run ended, from the root's last result: SUCCESS, FAILURE or SKIPPED (as in BT.CPP)."""
+    if status is Status.FAILURE or timed_out:
+        return "FAILURE"
+    return "SKIPPED" if status is SKIPPED else "SUCCESS"
+
+
 def run_tree(
     loaded: LoadedTree,
     context: RunContext,
@@ -332,7 +340,7 @@ def run_tree(
             running = f" while '{tip.name}' was RUNNING" if tip is not None else ""
             reason = f"stopped after --max-seconds {options.max_seconds:g} s of clock time{running}"
             blame = (tip if tip is not None else root, reason)
-        context.events.emit("run_finished", loaded.tree_id, status=str(status.value))
+        context.events.emit("run_finished", loaded.tree_id, status=outcome(status, timed_out))
     finally:
         summary_world = None
         try:
@@ -369,8 +377,7 @@ def run_tree(
         info = loaded.info(node)
         location = str(info.location) if info is not None else None
     return RunResult(
-        # A root skipped by its _skipIf did nothing and failed nothing: that counts as SUCCESS.
-        status="FAILURE" if status is Status.FAILURE or timed_out else "SUCCESS",
+        status=outcome(status, timed_out),
         failing_node=failing_node,
         reason=reason or "",
         sim_seconds=clock.now(),

@@ -424,6 +424,10 @@ def test_set_blackboard_copies_an_entry_with_its_type(context):
     assert tick(bound(SetBlackboard, context, board, value="{pose}", output_key="{goal}")) is Status.SUCCESS
     assert board.get("goal") == [0.1, 0.2, 0.3]
     node = bound(SetBlackboard, context, board, value="{nowhere}", output_key="goal")
+    assert board.has("nowhere")  # declared when the node was bound, as BT.CPP does; no value yet
+    assert tick(node) is Status.FAILURE  # BT.CPP: an empty source fails
+    assert node.feedback_message == "port 'value' reads blackboard entry 'nowhere', which is empty"
+    board.unset("nowhere")
     with pytest.raises(ScriptRunError, match="port 'value' reads blackboard entry 'nowhere', which does not exist"):
         tick(node)
 

@@ -157,7 +157,8 @@ class Check(Behavior):
 
 
 def _our_value(board: Any, key: str) -> Any:
-    return _number_or_text(board.get(key)) if board.has(key) else None
+    value = board.get(key) if board.has(key) else None
+    return None if value is None else _number_or_text(value)
 
 
 def run_ours(case: Case) -> Run:
@@ -196,7 +197,11 @@ def _bt_value(board: Any, key: str) -> Any:
     try:
         return float(board.get_double(key))
     except Exception:  # noqa: BLE001 - not a number: read it as text
+        pass
+    try:
         return str(board.get_string(key))
+    except Exception:  # noqa: BLE001 - an entry created for a port and never written
+        return None
 
 
 def run_btcpp(case: Case) -> Run:
