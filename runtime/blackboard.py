@@ -102,9 +102,9 @@ class Blackboard:
         self._store(key, value)
 
     def unset(self, key: str) -> None:
-        """Remove the entry (where it is stored: a remapped key removes the caller's entry)."""
-        board, mapped = self._owner(key)
-        board._entries.pop(mapped, None)
+        """Remove the entry if it is stored here (as BT.CPP, remapped entries are left alone)."""
+        self._entries.pop(key, None)
+        self._versions.pop(key, None)
 
     def items(self) -> Iterator[tuple[str, Any]]:
         """The entries stored on this blackboard (not its parent's) that hold a value."""

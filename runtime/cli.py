@@ -19,19 +19,19 @@ from typing import Any, Sequence
 from xml.sax.saxutils import escape, quoteattr
 
 from .errors import ObjectiveError
-from .ports import Direction, PortType
+from .ports import PortType
 from .registry import Registry
 
 EXIT_SUCCESS, EXIT_FAILURE, EXIT_BAD_INPUT = 0, 1, 2
 
 # Nodes BehaviorTree.CPP (and so Groot2) already knows; `objective models` leaves them out.
 BTCPP_BUILTINS = frozenset({
-    "AlwaysFailure", "AlwaysSuccess", "Delay", "Fallback", "ForceFailure", "ForceSuccess",
-    "IfThenElse", "Inverter", "KeepRunningUntilFailure", "Parallel", "ParallelAll", "Precondition",
-    "ReactiveFallback", "ReactiveSequence", "Repeat", "RetryUntilSuccessful", "RunOnce", "Script",
-    "ScriptCondition", "Sequence", "SequenceWithMemory", "SetBlackboard", "Sleep", "SubTree",
-    "Switch2", "Switch3", "Switch4", "Switch5", "Switch6", "Timeout", "UnsetBlackboard",
-    "WhileDoElse", "WasEntryUpdated", "SkipUnlessUpdated", "WaitValueUpdate",
+    "AlwaysFailure", "AlwaysSuccess", "AsyncFallback", "AsyncSequence", "Delay", "Fallback", "ForceFailure",
+    "ForceSuccess", "IfThenElse", "Inverter", "KeepRunningUntilFailure", "LoopBool", "LoopDouble", "LoopInt",
+    "LoopString", "Parallel", "ParallelAll", "Precondition", "ReactiveFallback", "ReactiveSequence", "Repeat",
+    "RetryUntilSuccessful", "RunOnce", "Script", "ScriptCondition", "Sequence", "SequenceWithMemory",
+    "SetBlackboard", "Sleep", "SubTree", "Switch2", "Switch3", "Switch4", "Switch5", "Switch6", "Timeout",
+    "TryCatch", "UnsetBlackboard", "WhileDoElse", "WasEntryUpdated", "SkipUnlessUpdated", "WaitValueUpdate",
 })
 _MODEL_TYPES = {PortType.STRING: "std::string"}
 
@@ -263,7 +263,7 @@ def behaviors_data(registry: Registry) -> list[dict[str, Any]]:
                     "name": p.name,
                     "direction": p.direction.value.removesuffix("_port"),
                     "type": p.type.value,
-                    "default": None if p.required or p.direction is Direction.OUTPUT else p.describe_default(),
+                    "default": p.describe_default() if p.has_default else None,
                     "required": p.required,
                     "description": p.description,
                 }
@@ -313,7 +313,7 @@ def models_xml(registry: Registry, include_builtins: bool = False) -> str:
         lines.append(f"    <{tag} ID={quoteattr(spec.id)}>")
         for port in spec.cls.ports:
             attrs = f"name={quoteattr(port.name)} type={quoteattr(_MODEL_TYPES.get(port.type, port.type.value))}"
-            if not port.required and port.direction is not Direction.OUTPUT:
+            if port.has_default:
                 attrs += f" default={quoteattr(port.describe_default())}"
             lines.append(f"      <{port.direction.value} {attrs}>{escape(port.description)}</{port.direction.value}>")
         if spec.cls.description:

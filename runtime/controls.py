@@ -245,6 +245,9 @@ class Sequence(ControlNode):
         "re-ticking the ones before it. Skipped children are passed over; all skipped: skipped."
     )
 
+    yields_between_children: ClassVar[bool] = False
+    """AsyncSequence: RUNNING after a child that succeeded synchronously; the next goes on next tick."""
+
     def __init__(self, name: str) -> None:
         super().__init__(name)
         self.index = 0
@@ -256,7 +259,9 @@ class Sequence(ControlNode):
             self.skipped_count = 0
         self.status = Status.RUNNING
         while self.index < count:
-            result = yield from self.tick_child(self.children[self.index])
+            child = self.children[self.index]
+            was_idle = child.status is Status.INVALID
+            result = yield from self.tick_child(child)
             if result is Status.RUNNING:
                 return Status.RUNNING
             if result is Status.FAILURE:
@@ -266,6 +271,8 @@ class Sequence(ControlNode):
             self.index += 1
             if result is SKIPPED:
                 self.skipped_count += 1
+            elif self.yields_between_children and was_idle and self.index < count:
+                return Status.RUNNING
         all_skipped = self.skipped_count == count
         self.reset_children()
         self.index = 0
@@ -328,6 +335,9 @@ class Fallback(ControlNode):
         "when all fail. A RUNNING child is resumed next tick. Skipped children are passed over."
     )
 
+    yields_between_children: ClassVar[bool] = False
+    """AsyncFallback: RUNNING after a child that failed synchronously; the next goes on next tick."""
+
     def __init__(self, name: str) -> None:
         super().__init__(name)
         self.index = 0
@@ -339,7 +349,9 @@ class Fallback(ControlNode):
             self.skipped_count = 0
         self.status = Status.RUNNING
         while self.index < count:
-            result = yield from self.tick_child(self.children[self.index])
+            child = self.children[self.index]
+            was_idle = child.status is Status.INVALID
+            result = yield from self.tick_child(child)
             if result is Status.RUNNING:
                 return Status.RUNNING
             if result is Status.SUCCESS:
@@ -349,6 +361,8 @@ class Fallback(ControlNode):
             self.index += 1
             if result is SKIPPED:
                 self.skipped_count += 1
+            elif self.yields_between_children and was_idle and self.index < count:
+                return Status.RUNNING
         all_skipped = self.skipped_count == count
         self.reset_children()
         self.index = 0
@@ -359,6 +373,26 @@ class Fallback(ControlNode):
         self.index = 0
         self.skipped_count = 0
         super().halt()
+
+
+class AsyncSequence(Sequence):
+    """BT.CPP ``SequenceNode`` registered as ``AsyncSequence`` (make_async = true)."""
+
+    description: ClassVar[str] = (
+        "Like Sequence, but returns RUNNING after each child that succeeded at once and ticks the "
+        "next one at the next tick, so a long chain of quick children can be interrupted."
+    )
+    yields_between_children = True
+
+
+class AsyncFallback(Fallback):
+    """BT.CPP ``FallbackNode`` registered as ``AsyncFallback`` (make_async = true)."""
+
+    description: ClassVar[str] = (
+        "Like Fallback, but returns RUNNING after each child that failed at once and tries the "
+        "next one at the next tick."
+    )
+    yields_between_children = True
 
 
 class ReactiveSequence(ControlNode):
@@ -623,14 +657,86 @@ class WhileDoElse(_TwoOrThreeChildren):
         return result
 
 
+class TryCatch(ControlNode):
+    """BT.CPP 4.10 ``TryCatchNode`` (src/controls/try_catch_node.cpp)."""
+
+    description: ClassVar[str] = (
+        "Runs every child but the last as a Sequence (the try block): SUCCESS when they all "
+        "succeed. When one fails, the last child (catch) runs to completion and TryCatch returns "
+        "FAILURE. With catch_on_halt=true, halting it during the try block runs the catch child too."
+    )
+    ports = (
+        InputPort("catch_on_halt", PortType.BOOL, False, "Run the catch child when halted during the try block."),
+    )
+
+    def __init__(self, name: str) -> None:
+        super().__init__(name)
+        self.index = 0
+        self.skipped_count = 0
+        self.in_catch = False
+
+    @classmethod
+    def check_children(cls, n: int) -> str | None:
+        return None if n >= 2 else f"TryCatch needs at least 2 children (try block and catch), got {n}"
+
+    def run(self) -> TickGenerator:
+        if not self.was_active():
+            self.skipped_count = 0
+            self.in_catch = False
+        self.status = Status.RUNNING
+        try_count = len(self.children) - 1
+        while not self.in_catch and self.index < try_count:
+            result = yield from self.tick_child(self.children[self.index])
+            if result is Status.RUNNING:
+                return Status.RUNNING
+            if result is Status.FAILURE:
+                self.reset_children()
+                self.index = 0
+                self.in_catch = True  # the catch child runs in this same tick
+            else:
+                self.index += 1
+                if result is SKIPPED:
+                    self.skipped_count += 1
+        if self.in_catch:
+            result = yield from self.tick_child(self.children[-1])
+            if result is Status.RUNNING:
+                return Status.RUNNING
+            self.reset_children()
+            self.index = 0
+            self.in_catch = False
+            return Status.FAILURE
+        all_skipped = self.skipped_count == try_count
+        self.reset_children()
+        self.index = 0
+        self.skipped_count = 0
+        return SKIPPED if all_skipped else Status.SUCCESS
+
+    def halt(self) -> None:
+        if self.get_input("catch_on_halt") and not self.in_catch and self.status is Status.RUNNING:
+            for child in self.children[:-1]:
+                halt_child(child)
+            catch = self.children[-1]
+            for _ in tick_child(catch):  # best-effort cleanup, synchronously, inside the halt
+                pass
+            if catch.status is Status.RUNNING:
+                halt_child(catch)
+        self.index = 0
+        self.skipped_count = 0
+        self.in_catch = False
+        super().halt()
+
+
 NODES = (
     Sequence,
+    AsyncSequence,
     SequenceWithMemory,
     Fallback,
+    AsyncFallback,
     ReactiveSequence,
     ReactiveFallback,
     Parallel,
     ParallelAll,
     IfThenElse,
     WhileDoElse,
+    TryCatch,
 )

@@ -140,4 +140,19 @@ class SetBlackboard(Behavior):
         return ScriptRunError(f"value {shown!r}: {what}", self.location, f"{self.xml_id} '{self.name}'", shown)
 
 
-NODES = (Script, ScriptCondition, SetBlackboard)
+class UnsetBlackboard(Behavior):
+    """BT.CPP ``UnsetBlackboardNode``: removes an entry of this blackboard, then SUCCESS.
+
+    Like BT.CPP's ``Blackboard::unset`` it removes only an entry stored on the node's own
+    blackboard: in a SubTree, a remapped or auto-remapped entry of the caller is left alone.
+    """
+
+    ports: ClassVar[tuple[PortInfo, ...]] = (InputPort("key", PortType.STRING, description="Key of the entry to remove"),)
+    description = "Remove a blackboard entry (nothing happens if it does not exist); SUCCESS."
+
+    def update(self) -> Status:
+        self.blackboard.unset(self.get_input("key"))
+        return Status.SUCCESS
+
+
+NODES = (Script, ScriptCondition, SetBlackboard, UnsetBlackboard)

@@ -136,7 +136,7 @@ def test_unknown_node_suggests_the_closest_names(registry, tmp_path, empty_lib):
     </Sequence>
   </BehaviorTree>
 </root>""")
-    assert error_of(registry, path, empty_lib) == f"{path}:4: Sequense: unknown node 'Sequense'; did you mean 'Sequence'?"
+    assert error_of(registry, path, empty_lib) == f"{path}:4: Sequense: unknown node 'Sequense'; did you mean 'Sequence' or 'AsyncSequence'?"
 
 
 def test_unknown_node_without_any_close_name(registry, tmp_path, empty_lib):

@@ -435,7 +435,7 @@ def test_set_blackboard_copies_an_entry_with_its_type(context):
 def test_nodes_are_registered():
     registry = Registry()
     registry.register_all(NODES)
-    assert [s.id for s in registry.specs()] == ["Script", "ScriptCondition", "SetBlackboard"]
+    assert [s.id for s in registry.specs()] == ["Script", "ScriptCondition", "SetBlackboard", "UnsetBlackboard"]
     assert registry.get("ScriptCondition").kind.value == "Condition"
 
 

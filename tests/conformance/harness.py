@@ -14,6 +14,8 @@ spelled in their ``name`` (BT.CPP's Python bindings give simple nodes no ports):
 A case file is a BTCPP_format="4" XML document starting with a comment of ``key: value`` lines:
 
     ticks: 6           how many ticks to run (default 5)
+    since: 4.10        the BT.CPP release the case needs (behaviortreepy is 4.8.2: such cases hold
+                       expectations taken from that release's source and are not run in BT.CPP)
     dt_ms: 100         time between ticks: our SimClock advances, BT.CPP sleeps (wall time)
     keys: n x          blackboard entries compared after every tick
     expect: RUNNING SUCCESS ...   the statuses both engines must produce (ERROR: the tick raised)
@@ -43,7 +45,7 @@ from runtime.registry import Registry
 
 CASES_DIR = Path(__file__).parent / "cases"
 LETTERS = {"R": "RUNNING", "S": "SUCCESS", "F": "FAILURE"}
-_HEADER = re.compile(r"^\s*(ticks|dt_ms|keys|expect)\s*:\s*(.*?)\s*$", re.MULTILINE)
+_HEADER = re.compile(r"^\s*(ticks|since|dt_ms|keys|expect)\s*:\s*(.*?)\s*$", re.MULTILINE)
 
 
 @dataclass(frozen=True)
@@ -51,6 +53,7 @@ class Case:
     name: str
     xml: str
     ticks: int = 5
+    since: str = ""
     dt_ms: int = 0
     keys: tuple[str, ...] = ()
     expect: tuple[str, ...] = ()
@@ -64,6 +67,7 @@ class Case:
             name=path.stem,
             xml=xml,
             ticks=int(fields.get("ticks", 5)),
+            since=fields.get("since", ""),
             dt_ms=int(fields.get("dt_ms", 0)),
             keys=tuple(fields.get("keys", "").split()),
             expect=tuple(fields.get("expect", "").split()),
