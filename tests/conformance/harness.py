@@ -14,6 +14,8 @@ spelled in their ``name`` (BT.CPP's Python bindings give simple nodes no ports):
 A case file is a BTCPP_format="4" XML document starting with a comment of ``key: value`` lines:
 
     ticks: 6           how many ticks to run (default 5)
+    main: Top          BT.CPP creates this tree by ID (``createTree``) instead of from the file's
+                       main_tree_to_execute; ours picks the main tree itself
     since: 4.10        the BT.CPP release the case needs (behaviortreepy is 4.8.2: such cases hold
                        expectations taken from that release's source and are not run in BT.CPP)
     dt_ms: 100         time between ticks: our SimClock advances, BT.CPP sleeps (wall time)
@@ -45,7 +47,7 @@ from runtime.registry import Registry
 
 CASES_DIR = Path(__file__).parent / "cases"
 LETTERS = {"R": "RUNNING", "S": "SUCCESS", "F": "FAILURE"}
-_HEADER = re.compile(r"^\s*(ticks|since|dt_ms|keys|expect)\s*:\s*(.*?)\s*$", re.MULTILINE)
+_HEADER = re.compile(r"^\s*(ticks|main|since|dt_ms|keys|expect)\s*:\s*(.*?)\s*$", re.MULTILINE)
 
 
 @dataclass(frozen=True)
@@ -53,6 +55,7 @@ class Case:
     name: str
     xml: str
     ticks: int = 5
+    main: str = ""
     since: str = ""
     dt_ms: int = 0
     keys: tuple[str, ...] = ()
@@ -67,6 +70,7 @@ class Case:
             name=path.stem,
             xml=xml,
             ticks=int(fields.get("ticks", 5)),
+            main=fields.get("main", ""),
             since=fields.get("since", ""),
             dt_ms=int(fields.get("dt_ms", 0)),
             keys=tuple(fields.get("keys", "").split()),
@@ -238,7 +242,11 @@ def run_btcpp(case: Case) -> Run:
     factory = bt.BehaviorTreeFactory()
     factory.register_simple_stateful_action("Step", on_start, on_running, on_halted)
     factory.register_simple_condition("Check", check)
-    tree = factory.create_tree_from_text(case.xml)
+    if case.main:
+        factory.register_behavior_tree_from_text(case.xml)
+        tree = factory.create_tree(case.main)
+    else:
+        tree = factory.create_tree_from_text(case.xml)
     board = tree.root_blackboard()
     run = Run()
     for index in range(case.ticks):

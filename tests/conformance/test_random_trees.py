@@ -19,7 +19,7 @@ pytestmark = pytest.mark.skipif(
     importlib.util.find_spec("behaviortreepy") is None, reason="behaviortreepy is not installed"
 )
 
-CONTROLS = ["Sequence", "SequenceWithMemory", "Fallback", "ReactiveSequence", "ReactiveFallback", "Parallel", "ParallelAll"]
+CONTROLS = ["Sequence", "AsyncSequence", "SequenceWithMemory", "Fallback", "AsyncFallback", "ReactiveSequence", "ReactiveFallback", "Parallel", "ParallelAll"]
 DECORATORS = ["Inverter", "ForceSuccess", "ForceFailure", "KeepRunningUntilFailure", "RetryUntilSuccessful", "Repeat", "RunOnce"]
 
 
