@@ -265,3 +265,27 @@ def run_btcpp(case: Case) -> Run:
         trace.clear()
     tree.halt_tree()
     return run
+
+
+def run_in_runner(case: Case) -> tuple[str, int]:
+    """Run the case with ``runtime.runner.run_tree``, the loop ``objective run`` uses.
+
+    Returns how the run ended ("SUCCESS", "FAILURE", "SKIPPED" or "ERROR") and after how many
+    ticks; the runner ticks every ``dt_ms`` (10 ms when the case sets none).
+    """
+    from runtime.errors import ObjectiveError
+    from runtime.loader import load_tree
+    from runtime.runner import RunOptions, make_context, run_tree
+
+    registry = Registry()
+    builtin.register(registry)
+    registry.register_all((Step, Check))
+    options = RunOptions(tick_hz=1000.0 / (case.dt_ms or 10), max_seconds=(case.ticks * (case.dt_ms or 10) + 1) / 1000.0)
+    context = make_context(options)
+    context.resources["trace"] = []
+    tree = load_tree(case.xml, registry, context, case.main or None)
+    try:
+        result = run_tree(tree, context, options)
+    except ObjectiveError:
+        return "ERROR", round(context.clock.now() * 1000.0 / (case.dt_ms or 10))
+    return result.status, result.ticks

@@ -20,7 +20,7 @@ import importlib.util
 
 import pytest
 
-from .harness import Case, all_cases, run_btcpp, run_ours
+from .harness import Case, all_cases, run_btcpp, run_in_runner, run_ours
 
 CASES = all_cases()
 HAVE_BTCPP = importlib.util.find_spec("behaviortreepy") is not None
@@ -65,3 +65,13 @@ def test_ours_matches_behaviortree_cpp(case: Case) -> None:
     for tick, (our_events, their_events) in enumerate(zip(ours.events, theirs.events)):
         assert our_events == their_events, f"leaf events differ at tick {tick}"
     assert ours.values == theirs.values
+
+
+ENDING = [case for case in CASES if any(status != "RUNNING" for status in case.expect)]
+
+
+@pytest.mark.parametrize("case", ENDING, ids=[c.name for c in ENDING])
+def test_the_runner_ends_at_the_first_completed_tick(case: Case) -> None:
+    """``objective run``'s loop (clock, world, bus, tick) ends where the recorded statuses first complete."""
+    first = next(index for index, status in enumerate(case.expect) if status != "RUNNING")
+    assert run_in_runner(case) == (case.expect[first], first + 1)
