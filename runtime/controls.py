@@ -236,22 +236,38 @@ class DecoratorNode(_BtComposite):
 
 
 # -- sequences and fallbacks ---------------------------------------------------------------------
-class Sequence(ControlNode):
-    """BT.CPP ``SequenceNode`` (src/controls/sequence_node.cpp)."""
-
-    description: ClassVar[str] = (
-        "Ticks its children in order while they succeed; SUCCESS when all succeed, FAILURE at the "
-        "first failure (then it starts over). A RUNNING child is resumed next tick without "
-        "re-ticking the ones before it. Skipped children are passed over; all skipped: skipped."
-    )
-
-    yields_between_children: ClassVar[bool] = False
-    """AsyncSequence: RUNNING after a child that succeeded synchronously; the next goes on next tick."""
+class _InOrder(ControlNode):
+    """What Sequence, Fallback, their variants and TryCatch share: a position and a skip count."""
 
     def __init__(self, name: str) -> None:
         super().__init__(name)
         self.index = 0
         self.skipped_count = 0
+
+    def finish(self, count: int, result: Status) -> Status:
+        """Every one of ``count`` children is done: start over next time; SKIPPED if all were skipped."""
+        all_skipped = self.skipped_count == count
+        self.reset_children()
+        self.index = 0
+        self.skipped_count = 0
+        return SKIPPED if all_skipped else result
+
+    def halt(self) -> None:
+        self.index = 0
+        self.skipped_count = 0
+        super().halt()
+
+
+class _Ordered(_InOrder):
+    """Sequence and Fallback: tick children in order until one returns ``stops_on``.
+
+    ``yields_between_children`` (AsyncSequence, AsyncFallback): RUNNING after a child that
+    finished at once without deciding, and the next child goes on at the next tick.
+    """
+
+    stops_on: ClassVar[Status]
+    completes_with: ClassVar[Status]
+    yields_between_children: ClassVar[bool] = False
 
     def run(self) -> TickGenerator:
         count = len(self.children)
@@ -264,39 +280,37 @@ class Sequence(ControlNode):
             result = yield from self.tick_child(child)
             if result is Status.RUNNING:
                 return Status.RUNNING
-            if result is Status.FAILURE:
+            if result is self.stops_on:
                 self.reset_children()
                 self.index = 0
-                return Status.FAILURE
+                return result
             self.index += 1
             if result is SKIPPED:
                 self.skipped_count += 1
             elif self.yields_between_children and was_idle and self.index < count:
                 return Status.RUNNING
-        all_skipped = self.skipped_count == count
-        self.reset_children()
-        self.index = 0
-        self.skipped_count = 0
-        return SKIPPED if all_skipped else Status.SUCCESS
-
-    def halt(self) -> None:
-        self.index = 0
-        self.skipped_count = 0
-        super().halt()
+        return self.finish(count, self.completes_with)
 
 
-class SequenceWithMemory(ControlNode):
+class Sequence(_Ordered):
+    """BT.CPP ``SequenceNode`` (src/controls/sequence_node.cpp)."""
+
+    description: ClassVar[str] = (
+        "Ticks its children in order while they succeed; SUCCESS when all succeed, FAILURE at the "
+        "first failure (then it starts over). A RUNNING child is resumed next tick without "
+        "re-ticking the ones before it. Skipped children are passed over; all skipped: skipped."
+    )
+    stops_on = Status.FAILURE
+    completes_with = Status.SUCCESS
+
+
+class SequenceWithMemory(_InOrder):
     """BT.CPP ``SequenceWithMemory`` (src/controls/sequence_with_memory_node.cpp)."""
 
     description: ClassVar[str] = (
         "Like Sequence, but a failure does not send it back to the first child: the next tick "
         "retries the child that failed. Halting it keeps its place too."
     )
-
-    def __init__(self, name: str) -> None:
-        super().__init__(name)
-        self.index = 0
-        self.skipped_count = 0
 
     def run(self) -> TickGenerator:
         count = len(self.children)
@@ -318,61 +332,22 @@ class SequenceWithMemory(ControlNode):
                 self.skipped_count += 1
             elif was_idle and self.index < count:
                 return Status.RUNNING  # yield between synchronous children (see the module docstring)
-        all_skipped = self.skipped_count == count
-        self.reset_children()
-        self.index = 0
-        self.skipped_count = 0
-        return SKIPPED if all_skipped else Status.SUCCESS
+        return self.finish(count, Status.SUCCESS)
 
-    # halt() keeps ``index`` on purpose: BT.CPP's SequenceWithMemory::halt does not reset it.
+    def halt(self) -> None:
+        # Keeps its place on purpose: BT.CPP's SequenceWithMemory::halt resets neither counter.
+        ControlNode.halt(self)
 
 
-class Fallback(ControlNode):
+class Fallback(_Ordered):
     """BT.CPP ``FallbackNode`` (src/controls/fallback_node.cpp)."""
 
     description: ClassVar[str] = (
         "Ticks its children in order until one succeeds; SUCCESS at the first success, FAILURE "
         "when all fail. A RUNNING child is resumed next tick. Skipped children are passed over."
     )
-
-    yields_between_children: ClassVar[bool] = False
-    """AsyncFallback: RUNNING after a child that failed synchronously; the next goes on next tick."""
-
-    def __init__(self, name: str) -> None:
-        super().__init__(name)
-        self.index = 0
-        self.skipped_count = 0
-
-    def run(self) -> TickGenerator:
-        count = len(self.children)
-        if not self.was_active():
-            self.skipped_count = 0
-        self.status = Status.RUNNING
-        while self.index < count:
-            child = self.children[self.index]
-            was_idle = child.status is Status.INVALID
-            result = yield from self.tick_child(child)
-            if result is Status.RUNNING:
-                return Status.RUNNING
-            if result is Status.SUCCESS:
-                self.reset_children()
-                self.index = 0
-                return Status.SUCCESS
-            self.index += 1
-            if result is SKIPPED:
-                self.skipped_count += 1
-            elif self.yields_between_children and was_idle and self.index < count:
-                return Status.RUNNING
-        all_skipped = self.skipped_count == count
-        self.reset_children()
-        self.index = 0
-        self.skipped_count = 0
-        return SKIPPED if all_skipped else Status.FAILURE
-
-    def halt(self) -> None:
-        self.index = 0
-        self.skipped_count = 0
-        super().halt()
+    stops_on = Status.SUCCESS
+    completes_with = Status.FAILURE
 
 
 class AsyncSequence(Sequence):
@@ -657,7 +632,7 @@ class WhileDoElse(_TwoOrThreeChildren):
         return result
 
 
-class TryCatch(ControlNode):
+class TryCatch(_InOrder):
     """BT.CPP 4.10 ``TryCatchNode`` (src/controls/try_catch_node.cpp)."""
 
     description: ClassVar[str] = (
@@ -671,8 +646,6 @@ class TryCatch(ControlNode):
 
     def __init__(self, name: str) -> None:
         super().__init__(name)
-        self.index = 0
-        self.skipped_count = 0
         self.in_catch = False
 
     @classmethod
@@ -705,11 +678,7 @@ class TryCatch(ControlNode):
             self.index = 0
             self.in_catch = False
             return Status.FAILURE
-        all_skipped = self.skipped_count == try_count
-        self.reset_children()
-        self.index = 0
-        self.skipped_count = 0
-        return SKIPPED if all_skipped else Status.SUCCESS
+        return self.finish(try_count, Status.SUCCESS)
 
     def halt(self) -> None:
         if self.get_input("catch_on_halt") and not self.in_catch and self.status is Status.RUNNING:
@@ -720,8 +689,6 @@ class TryCatch(ControlNode):
                 pass
             if catch.status is Status.RUNNING:
                 halt_child(catch)
-        self.index = 0
-        self.skipped_count = 0
         self.in_catch = False
         super().halt()
 

@@ -72,36 +72,20 @@ class _Loop(DecoratorNode):
         super().halt()
 
 
-def _ports(element: PortType) -> tuple:
-    return (
+def _loop(name: str, element: PortType, noun: str) -> type[_Loop]:
+    """BT.CPP ``LoopNode<T>`` registered as ``name``, popping elements of type ``element``."""
+    ports = (
         InOutPort("queue", PortType.ANY, description="The elements: a ';'-separated literal, or an entry holding a list."),
         InputPort("if_empty", PortType.NODE_STATUS, "SUCCESS", "Status to return if the queue is empty: SUCCESS, FAILURE, SKIPPED."),
         OutputPort("value", element, "The element the child runs with."),
     )
+    description = f"Runs its child once per {noun} of 'queue', each written to 'value'; then returns if_empty."
+    namespace = {"element_type": element, "ports": ports, "description": description, "__module__": __name__}
+    return type(name, (_Loop,), namespace)
 
 
-class LoopInt(_Loop):
-    description: ClassVar[str] = "Runs its child once per integer of 'queue', each written to 'value'."
-    element_type = PortType.INT
-    ports = _ports(PortType.INT)
-
-
-class LoopBool(_Loop):
-    description: ClassVar[str] = "Runs its child once per boolean of 'queue', each written to 'value'."
-    element_type = PortType.BOOL
-    ports = _ports(PortType.BOOL)
-
-
-class LoopDouble(_Loop):
-    description: ClassVar[str] = "Runs its child once per number of 'queue', each written to 'value'."
-    element_type = PortType.FLOAT
-    ports = _ports(PortType.FLOAT)
-
-
-class LoopString(_Loop):
-    description: ClassVar[str] = "Runs its child once per string of 'queue', each written to 'value'."
-    element_type = PortType.STRING
-    ports = _ports(PortType.STRING)
-
-
+LoopInt = _loop("LoopInt", PortType.INT, "integer")
+LoopBool = _loop("LoopBool", PortType.BOOL, "boolean")
+LoopDouble = _loop("LoopDouble", PortType.FLOAT, "number")
+LoopString = _loop("LoopString", PortType.STRING, "string")
 NODES = (LoopInt, LoopBool, LoopDouble, LoopString)
