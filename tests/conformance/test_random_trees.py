@@ -20,7 +20,10 @@ pytestmark = pytest.mark.skipif(
 )
 
 CONTROLS = ["Sequence", "AsyncSequence", "SequenceWithMemory", "Fallback", "AsyncFallback", "ReactiveSequence", "ReactiveFallback", "Parallel", "ParallelAll"]
-DECORATORS = ["Inverter", "ForceSuccess", "ForceFailure", "KeepRunningUntilFailure", "RetryUntilSuccessful", "Repeat", "RunOnce"]
+DECORATORS = [
+    "Inverter", "ForceSuccess", "ForceFailure", "KeepRunningUntilFailure", "RetryUntilSuccessful", "Repeat", "RunOnce",
+    "Precondition",
+]
 
 
 class _Gen:
@@ -72,6 +75,9 @@ class _Gen:
             attrs = f' num_cycles="{self.rng.randint(1, 3)}"'
         elif name == "RunOnce":
             attrs = f' then_skip="{self.rng.choice(["true", "false"])}"'
+        elif name == "Precondition":  # a constant condition: see dialect.md on halting a Precondition
+            otherwise = self.rng.choice(["SUCCESS", "FAILURE", "SKIPPED", "RUNNING"])
+            attrs = f' if="{self.rng.choice(["true", "false"])}" else="{otherwise}"'
         return f"<{name}{attrs}{skip}>{self.node(depth - 1)}</{name}>"
 
 
