@@ -100,6 +100,9 @@ class NodeMixin:
         self.location = location
         self.xml_id = xml_id or type(self).__name__
         self.bindings = make_bindings(type(self), values or {}, location, self.xml_id)
+        for binding in self.bindings.values():
+            if binding.key is not None:
+                blackboard.declare(binding.key)  # as BT.CPP creates a port's entry when it builds the tree
         self.check_literals()
 
     def check_literals(self) -> None:
@@ -117,7 +120,7 @@ class NodeMixin:
         binding = self.bindings[name]
         if binding.key is None:
             return binding.literal
-        if not self.blackboard.has(binding.key):
+        if not self.blackboard.has(binding.key) or self.blackboard.get(binding.key) is None:
             raise PortError(
                 f"port '{name}' reads blackboard entry '{binding.key}', which is not set",
                 self.location,

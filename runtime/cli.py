@@ -1,7 +1,8 @@
 """``objective``: run, validate, show and describe BehaviorTree.CPP v4 Objectives.
 
-Exit codes: 0 SUCCESS, 1 FAILURE (the failing node and its reason on stderr), 2 bad input
-(the error, ``file:line: Node: what``, on stderr; never a traceback).
+Exit codes: 0 SUCCESS (or SKIPPED: the root's children were all skipped), 1 FAILURE (the failing
+node and its reason on stderr), 2 bad input or an error while running, such as a failing script
+(the error, ``file:line: Node: what``, on stderr; never a traceback; ``ERROR`` in ``--json``).
 
 The CLI is the composition root: behaviors come from the ``objective.behaviors`` entry points
 and worlds from ``objective.worlds``, so the runtime imports neither.
@@ -18,19 +19,19 @@ from typing import Any, Sequence
 from xml.sax.saxutils import escape, quoteattr
 
 from .errors import ObjectiveError
-from .ports import Direction, PortType
+from .ports import PortType
 from .registry import Registry
 
 EXIT_SUCCESS, EXIT_FAILURE, EXIT_BAD_INPUT = 0, 1, 2
 
 # Nodes BehaviorTree.CPP (and so Groot2) already knows; `objective models` leaves them out.
 BTCPP_BUILTINS = frozenset({
-    "AlwaysFailure", "AlwaysSuccess", "Delay", "Fallback", "ForceFailure", "ForceSuccess",
-    "IfThenElse", "Inverter", "KeepRunningUntilFailure", "Parallel", "ParallelAll", "Precondition",
-    "ReactiveFallback", "ReactiveSequence", "Repeat", "RetryUntilSuccessful", "RunOnce", "Script",
-    "ScriptCondition", "Sequence", "SequenceWithMemory", "SetBlackboard", "Sleep", "SubTree",
-    "Switch2", "Switch3", "Switch4", "Switch5", "Switch6", "Timeout", "UnsetBlackboard",
-    "WhileDoElse", "WasEntryUpdated", "SkipUnlessUpdated", "WaitValueUpdate",
+    "AlwaysFailure", "AlwaysSuccess", "AsyncFallback", "AsyncSequence", "Delay", "Fallback", "ForceFailure",
+    "ForceSuccess", "IfThenElse", "Inverter", "KeepRunningUntilFailure", "LoopBool", "LoopDouble", "LoopInt",
+    "LoopString", "Parallel", "ParallelAll", "Precondition", "ReactiveFallback", "ReactiveSequence", "Repeat",
+    "RetryUntilSuccessful", "RunOnce", "Script", "ScriptCondition", "Sequence", "SequenceWithMemory",
+    "SetBlackboard", "Sleep", "SubTree", "Switch2", "Switch3", "Switch4", "Switch5", "Switch6", "Timeout",
+    "TryCatch", "UnsetBlackboard", "WhileDoElse", "WasEntryUpdated", "SkipUnlessUpdated", "WaitValueUpdate",
 })
 _MODEL_TYPES = {PortType.STRING: "std::string"}
 
@@ -56,7 +57,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="objective",
         description="Run BehaviorTree.CPP v4 Objectives headless.",
-        epilog="Exit codes: 0 SUCCESS, 1 FAILURE, 2 bad input.",
+        epilog="Exit codes: 0 SUCCESS (or SKIPPED), 1 FAILURE, 2 bad input or a run-time error (ERROR).",
     )
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
@@ -218,6 +219,9 @@ def cmd_run(args: argparse.Namespace, registry: Registry) -> int:
             progress.clear()
     if result.status == "SUCCESS":
         print(f"SUCCESS after {result.sim_seconds:.2f} s ({result.ticks} ticks)", file=sys.stderr)
+    elif result.status == "SKIPPED":
+        print(f"SKIPPED after {result.sim_seconds:.2f} s: every child of the root was skipped, nothing ran",
+              file=sys.stderr)
     else:
         where = f" ({result.failing_location})" if result.failing_location else ""
         node = f"'{result.failing_node}'{where}" if result.failing_node else "the root"
@@ -259,7 +263,7 @@ def behaviors_data(registry: Registry) -> list[dict[str, Any]]:
                     "name": p.name,
                     "direction": p.direction.value.removesuffix("_port"),
                     "type": p.type.value,
-                    "default": None if p.required or p.direction is Direction.OUTPUT else p.describe_default(),
+                    "default": p.describe_default() if p.has_default else None,
                     "required": p.required,
                     "description": p.description,
                 }
@@ -309,7 +313,7 @@ def models_xml(registry: Registry, include_builtins: bool = False) -> str:
         lines.append(f"    <{tag} ID={quoteattr(spec.id)}>")
         for port in spec.cls.ports:
             attrs = f"name={quoteattr(port.name)} type={quoteattr(_MODEL_TYPES.get(port.type, port.type.value))}"
-            if not port.required and port.direction is not Direction.OUTPUT:
+            if port.has_default:
                 attrs += f" default={quoteattr(port.describe_default())}"
             lines.append(f"      <{port.direction.value} {attrs}>{escape(port.description)}</{port.direction.value}>")
         if spec.cls.description:

@@ -32,7 +32,7 @@ import py_trees
 
 from .behavior import Status
 from .controls import COMPLETED, SKIPPED, Behaviour, tick_child
-from .errors import LoadError, ObjectiveError, SourceLocation
+from .errors import LoadError, ScriptRunError, SourceLocation
 from .script import Script, ScriptError, compile_script, evaluate_condition
 
 PRE_CONDITIONS = ("_failureIf", "_successIf", "_skipIf", "_while")
@@ -167,7 +167,7 @@ class ConditionGuard(py_trees.composites.Composite):
         try:
             return evaluate_condition(script, self.node.blackboard)
         except ScriptError as err:
-            raise ObjectiveError(f"attribute '{name}': {err}", self.location, _node_label(self.node)) from None
+            raise self._run_error(name, script, err) from None
 
     def _run(self, name: str) -> Any:
         script = self.scripts.get(name)
@@ -176,7 +176,11 @@ class ConditionGuard(py_trees.composites.Composite):
         try:
             return script.evaluate(self.node.blackboard)
         except ScriptError as err:
-            raise ObjectiveError(f"attribute '{name}': {err}", self.location, _node_label(self.node)) from None
+            raise self._run_error(name, script, err) from None
+
+    def _run_error(self, name: str, script: Script, err: ScriptError) -> ScriptRunError:
+        what = f"attribute '{name}', script {script.source!r}: {err}"
+        return ScriptRunError(what, self.location, _node_label(self.node), script.source)
 
 
 def unwrap(node: Behaviour) -> Behaviour:

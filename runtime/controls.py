@@ -21,23 +21,27 @@ Halting versus resetting
     when it is preempted, never after it already finished. Our composites' ``stop(INVALID)`` is
     BT.CPP's ``halt()``: it halts running children and resets the others.
 
-Synchronous loops and the wake-up signal
-    In BT.CPP 4.8, SequenceWithMemory, Repeat and RetryUntilSuccessful return RUNNING after a
-    child that completed synchronously (it was IDLE before the tick) and emit a wake-up signal;
-    ``Tree::tickOnce`` then ticks the whole tree again at once, while ``tickExactlyOnce`` does
-    not. We reproduce both: those nodes call ``emit_wake_up`` and return RUNNING, and
-    ``tick_tree`` is ``tickOnce`` (tick, and tick again while RUNNING and woken). A runner that
-    calls ``tick_tree`` therefore finishes ``Repeat num_cycles="100"`` of a synchronous child
-    within one of its ticks, like BT.CPP's ``tickWhileRunning``.
+One tick is one pass
+    ``tick_tree`` ticks the root once (BT.CPP ``tickExactlyOnce``) and is the only tick loop:
+    the runner and the conformance suite both call it. No node loops inside a tick: Repeat,
+    RetryUntilSuccessful, SequenceWithMemory, AsyncSequence/AsyncFallback and the Loop nodes
+    return RUNNING after a child that completed synchronously (it was IDLE before the tick),
+    exactly where BT.CPP 4.x emits its wake-up signal, and go on at the next tick. BT.CPP's
+    ``tickOnce`` re-ticks the whole tree at once on that signal, which finishes a
+    ``Repeat num_cycles="3"`` of a synchronous child within one call but never returns from
+    ``num_cycles="-1"`` (measured with behaviortreepy: the process spins at 100 % CPU and no
+    Timeout, ``_while`` or Parallel sibling can stop it). Here every iteration is a tick, so a
+    loop is always interruptible and the runner's clock, Timeouts and halts reach it.
 """
 from __future__ import annotations
 
 import abc
+from dataclasses import dataclass
 from typing import Any, ClassVar, Generator, Iterator
 
 import py_trees
 
-from .behavior import NodeKind, NodeMixin, RunContext, Status
+from .behavior import NodeKind, NodeMixin, Status
 from .errors import ObjectiveError
 from .ports import InputPort, PortType
 
@@ -48,7 +52,6 @@ SKIPPED = Status.INVALID
 """As the *result* of a child's tick (never as a stored status): the child was skipped."""
 
 COMPLETED = (Status.SUCCESS, Status.FAILURE)
-WAKE_UP_KEY = "behaviortree.wake_up"
 
 
 # -- the node protocol shared by controls, decorators and condition guards --------------------
@@ -87,41 +90,36 @@ def reset_status(node: Behaviour) -> None:
     node.status = Status.INVALID
 
 
-def emit_wake_up(context: RunContext) -> None:
-    """Ask ``tick_tree`` to tick the tree again at once (BT.CPP ``emitWakeUpSignal``)."""
-    context.resources[WAKE_UP_KEY] = True
+Visit = tuple[Behaviour, Status, str]
+"""A node that reported in a tick, with the status and feedback message it reported."""
 
 
-def consume_wake_up(context: RunContext) -> bool:
-    return bool(context.resources.pop(WAKE_UP_KEY, False))
+@dataclass(frozen=True)
+class Tick:
+    """What one tick of the tree gave: the root's result and every node that reported."""
+
+    status: Status
+    """RUNNING, SUCCESS, FAILURE or SKIPPED (``Status.INVALID``)."""
+    visited: list[Visit]
+    """Post-order: each node visited, with the status and message it had when it reported."""
 
 
-def tick_root(root: Behaviour) -> Status:
-    """One tick of the tree (BT.CPP ``tickExactlyOnce``); returns the root's result.
+def tick_tree(root: Behaviour) -> Tick:
+    """One tick of the tree (BT.CPP ``tickExactlyOnce``): the runner's and the tests' only tick loop.
 
-    The result is RUNNING, SUCCESS, FAILURE or SKIPPED (``Status.INVALID`` with
-    ``root.skipped``). Like BT.CPP's tree, a root that completed is set back to idle so its next
-    tick starts a fresh run.
+    Like BT.CPP's tree, a root that completed is set back to idle so its next tick starts a
+    fresh run.
     """
-    for _ in root.tick():
-        pass
+    visited = [(node, node.status, node.feedback_message) for node in root.tick()]
     result = SKIPPED if is_skipped(root) else root.status
     if result in COMPLETED:
         reset_status(root)
-    return result
+    return Tick(result, visited)
 
 
-def tick_tree(root: Behaviour, context: RunContext) -> Status:
-    """BT.CPP ``tickOnce``: tick, then tick again while RUNNING and a node asked to be woken.
-
-    Synchronous loops (Repeat, RetryUntilSuccessful, SequenceWithMemory) thus finish within
-    one call, exactly as they do in BT.CPP's ``tickOnce``/``tickWhileRunning``.
-    """
-    consume_wake_up(context)
-    result = tick_root(root)
-    while result is Status.RUNNING and consume_wake_up(context):
-        result = tick_root(root)
-    return result
+def tick_root(root: Behaviour) -> Status:
+    """``tick_tree(root).status``: one tick, for callers that only need the result."""
+    return tick_tree(root).status
 
 
 def _at_tree_root(node: Behaviour) -> bool:
@@ -194,9 +192,6 @@ class _BtComposite(NodeMixin, py_trees.composites.Composite):
         for child in self.children:
             halt_child(child)
 
-    def wake_up(self) -> None:
-        emit_wake_up(self.context)
-
     def fail_now(self, what: str) -> ObjectiveError:
         return ObjectiveError(what, self.location, f"{self.xml_id} '{self.name}'")
 
@@ -241,41 +236,21 @@ class DecoratorNode(_BtComposite):
 
 
 # -- sequences and fallbacks ---------------------------------------------------------------------
-class Sequence(ControlNode):
-    """BT.CPP ``SequenceNode`` (src/controls/sequence_node.cpp)."""
-
-    description: ClassVar[str] = (
-        "Ticks its children in order while they succeed; SUCCESS when all succeed, FAILURE at the "
-        "first failure (then it starts over). A RUNNING child is resumed next tick without "
-        "re-ticking the ones before it. Skipped children are passed over; all skipped: skipped."
-    )
+class _InOrder(ControlNode):
+    """What Sequence, Fallback, their variants and TryCatch share: a position and a skip count."""
 
     def __init__(self, name: str) -> None:
         super().__init__(name)
         self.index = 0
         self.skipped_count = 0
 
-    def run(self) -> TickGenerator:
-        count = len(self.children)
-        if not self.was_active():
-            self.skipped_count = 0
-        self.status = Status.RUNNING
-        while self.index < count:
-            result = yield from self.tick_child(self.children[self.index])
-            if result is Status.RUNNING:
-                return Status.RUNNING
-            if result is Status.FAILURE:
-                self.reset_children()
-                self.index = 0
-                return Status.FAILURE
-            self.index += 1
-            if result is SKIPPED:
-                self.skipped_count += 1
+    def finish(self, count: int, result: Status) -> Status:
+        """Every one of ``count`` children is done: start over next time; SKIPPED if all were skipped."""
         all_skipped = self.skipped_count == count
         self.reset_children()
         self.index = 0
         self.skipped_count = 0
-        return SKIPPED if all_skipped else Status.SUCCESS
+        return SKIPPED if all_skipped else result
 
     def halt(self) -> None:
         self.index = 0
@@ -283,18 +258,59 @@ class Sequence(ControlNode):
         super().halt()
 
 
-class SequenceWithMemory(ControlNode):
+class _Ordered(_InOrder):
+    """Sequence and Fallback: tick children in order until one returns ``stops_on``.
+
+    ``yields_between_children`` (AsyncSequence, AsyncFallback): RUNNING after a child that
+    finished at once without deciding, and the next child goes on at the next tick.
+    """
+
+    stops_on: ClassVar[Status]
+    completes_with: ClassVar[Status]
+    yields_between_children: ClassVar[bool] = False
+
+    def run(self) -> TickGenerator:
+        count = len(self.children)
+        if not self.was_active():
+            self.skipped_count = 0
+        self.status = Status.RUNNING
+        while self.index < count:
+            child = self.children[self.index]
+            was_idle = child.status is Status.INVALID
+            result = yield from self.tick_child(child)
+            if result is Status.RUNNING:
+                return Status.RUNNING
+            if result is self.stops_on:
+                self.reset_children()
+                self.index = 0
+                return result
+            self.index += 1
+            if result is SKIPPED:
+                self.skipped_count += 1
+            elif self.yields_between_children and was_idle and self.index < count:
+                return Status.RUNNING
+        return self.finish(count, self.completes_with)
+
+
+class Sequence(_Ordered):
+    """BT.CPP ``SequenceNode`` (src/controls/sequence_node.cpp)."""
+
+    description: ClassVar[str] = (
+        "Ticks its children in order while they succeed; SUCCESS when all succeed, FAILURE at the "
+        "first failure (then it starts over). A RUNNING child is resumed next tick without "
+        "re-ticking the ones before it. Skipped children are passed over; all skipped: skipped."
+    )
+    stops_on = Status.FAILURE
+    completes_with = Status.SUCCESS
+
+
+class SequenceWithMemory(_InOrder):
     """BT.CPP ``SequenceWithMemory`` (src/controls/sequence_with_memory_node.cpp)."""
 
     description: ClassVar[str] = (
         "Like Sequence, but a failure does not send it back to the first child: the next tick "
         "retries the child that failed. Halting it keeps its place too."
     )
-
-    def __init__(self, name: str) -> None:
-        super().__init__(name)
-        self.index = 0
-        self.skipped_count = 0
 
     def run(self) -> TickGenerator:
         count = len(self.children)
@@ -315,56 +331,43 @@ class SequenceWithMemory(ControlNode):
             if result is SKIPPED:
                 self.skipped_count += 1
             elif was_idle and self.index < count:
-                self.wake_up()
-                return Status.RUNNING
-        all_skipped = self.skipped_count == count
-        self.reset_children()
-        self.index = 0
-        self.skipped_count = 0
-        return SKIPPED if all_skipped else Status.SUCCESS
+                return Status.RUNNING  # yield between synchronous children (see the module docstring)
+        return self.finish(count, Status.SUCCESS)
 
-    # halt() keeps ``index`` on purpose: BT.CPP's SequenceWithMemory::halt does not reset it.
+    def halt(self) -> None:
+        # Keeps its place on purpose: BT.CPP's SequenceWithMemory::halt resets neither counter.
+        ControlNode.halt(self)
 
 
-class Fallback(ControlNode):
+class Fallback(_Ordered):
     """BT.CPP ``FallbackNode`` (src/controls/fallback_node.cpp)."""
 
     description: ClassVar[str] = (
         "Ticks its children in order until one succeeds; SUCCESS at the first success, FAILURE "
         "when all fail. A RUNNING child is resumed next tick. Skipped children are passed over."
     )
+    stops_on = Status.SUCCESS
+    completes_with = Status.FAILURE
 
-    def __init__(self, name: str) -> None:
-        super().__init__(name)
-        self.index = 0
-        self.skipped_count = 0
 
-    def run(self) -> TickGenerator:
-        count = len(self.children)
-        if not self.was_active():
-            self.skipped_count = 0
-        self.status = Status.RUNNING
-        while self.index < count:
-            result = yield from self.tick_child(self.children[self.index])
-            if result is Status.RUNNING:
-                return Status.RUNNING
-            if result is Status.SUCCESS:
-                self.reset_children()
-                self.index = 0
-                return Status.SUCCESS
-            self.index += 1
-            if result is SKIPPED:
-                self.skipped_count += 1
-        all_skipped = self.skipped_count == count
-        self.reset_children()
-        self.index = 0
-        self.skipped_count = 0
-        return SKIPPED if all_skipped else Status.FAILURE
+class AsyncSequence(Sequence):
+    """BT.CPP ``SequenceNode`` registered as ``AsyncSequence`` (make_async = true)."""
 
-    def halt(self) -> None:
-        self.index = 0
-        self.skipped_count = 0
-        super().halt()
+    description: ClassVar[str] = (
+        "Like Sequence, but returns RUNNING after each child that succeeded at once and ticks the "
+        "next one at the next tick, so a long chain of quick children can be interrupted."
+    )
+    yields_between_children = True
+
+
+class AsyncFallback(Fallback):
+    """BT.CPP ``FallbackNode`` registered as ``AsyncFallback`` (make_async = true)."""
+
+    description: ClassVar[str] = (
+        "Like Fallback, but returns RUNNING after each child that failed at once and tries the "
+        "next one at the next tick."
+    )
+    yields_between_children = True
 
 
 class ReactiveSequence(ControlNode):
@@ -629,14 +632,78 @@ class WhileDoElse(_TwoOrThreeChildren):
         return result
 
 
+class TryCatch(_InOrder):
+    """BT.CPP 4.10 ``TryCatchNode`` (src/controls/try_catch_node.cpp)."""
+
+    description: ClassVar[str] = (
+        "Runs every child but the last as a Sequence (the try block): SUCCESS when they all "
+        "succeed. When one fails, the last child (catch) runs to completion and TryCatch returns "
+        "FAILURE. With catch_on_halt=true, halting it during the try block runs the catch child too."
+    )
+    ports = (
+        InputPort("catch_on_halt", PortType.BOOL, False, "Run the catch child when halted during the try block."),
+    )
+
+    def __init__(self, name: str) -> None:
+        super().__init__(name)
+        self.in_catch = False
+
+    @classmethod
+    def check_children(cls, n: int) -> str | None:
+        return None if n >= 2 else f"TryCatch needs at least 2 children (try block and catch), got {n}"
+
+    def run(self) -> TickGenerator:
+        if not self.was_active():
+            self.skipped_count = 0
+            self.in_catch = False
+        self.status = Status.RUNNING
+        try_count = len(self.children) - 1
+        while not self.in_catch and self.index < try_count:
+            result = yield from self.tick_child(self.children[self.index])
+            if result is Status.RUNNING:
+                return Status.RUNNING
+            if result is Status.FAILURE:
+                self.reset_children()
+                self.index = 0
+                self.in_catch = True  # the catch child runs in this same tick
+            else:
+                self.index += 1
+                if result is SKIPPED:
+                    self.skipped_count += 1
+        if self.in_catch:
+            result = yield from self.tick_child(self.children[-1])
+            if result is Status.RUNNING:
+                return Status.RUNNING
+            self.reset_children()
+            self.index = 0
+            self.in_catch = False
+            return Status.FAILURE
+        return self.finish(try_count, Status.SUCCESS)
+
+    def halt(self) -> None:
+        if self.get_input("catch_on_halt") and not self.in_catch and self.status is Status.RUNNING:
+            for child in self.children[:-1]:
+                halt_child(child)
+            catch = self.children[-1]
+            for _ in tick_child(catch):  # best-effort cleanup, synchronously, inside the halt
+                pass
+            if catch.status is Status.RUNNING:
+                halt_child(catch)
+        self.in_catch = False
+        super().halt()
+
+
 NODES = (
     Sequence,
+    AsyncSequence,
     SequenceWithMemory,
     Fallback,
+    AsyncFallback,
     ReactiveSequence,
     ReactiveFallback,
     Parallel,
     ParallelAll,
     IfThenElse,
     WhileDoElse,
+    TryCatch,
 )

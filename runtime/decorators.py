@@ -10,9 +10,14 @@ from __future__ import annotations
 
 from typing import ClassVar
 
+from . import script as scripting
 from .behavior import Status
 from .controls import COMPLETED, SKIPPED, DecoratorNode, TickGenerator, halt_child
+from .errors import LoadError, ScriptRunError
 from .ports import InputPort, PortType
+
+STATUS_BY_NAME = {"SUCCESS": Status.SUCCESS, "FAILURE": Status.FAILURE, "RUNNING": Status.RUNNING, "SKIPPED": SKIPPED}
+"""A NodeStatus port's value (its name) as the tick result it stands for."""
 
 # SimClock time is a float sum of tick periods (0.01 * 10 == 0.09999999999999999), so a
 # deadline compares with a tolerance far below any period a runner uses.
@@ -124,8 +129,7 @@ class RetryUntilSuccessful(DecoratorNode):
             loop = self.tries < max_attempts or max_attempts == -1
             halt_child(self.child)
             if was_idle and loop:
-                self.wake_up()
-                return Status.RUNNING
+                return Status.RUNNING  # one attempt per tick: the loop stays interruptible
         self.tries = 0
         return Status.FAILURE
 
@@ -169,8 +173,7 @@ class Repeat(DecoratorNode):
             loop = self.cycles < num_cycles or num_cycles == -1
             halt_child(self.child)
             if was_idle and loop:
-                self.wake_up()
-                return Status.RUNNING
+                return Status.RUNNING  # one attempt per tick: the loop stays interruptible
         self.cycles = 0
         return Status.SUCCESS
 
@@ -280,6 +283,65 @@ class Delay(DecoratorNode):
         super().halt()
 
 
+class Precondition(DecoratorNode):
+    """BT.CPP ``PreconditionNode`` (include/behaviortree_cpp/decorators/script_precondition.h)."""
+
+    description: ClassVar[str] = (
+        "Ticks its child when the script in 'if' is true, else returns 'else' (FAILURE by "
+        "default). Once the child is RUNNING the script is not checked again until it finishes."
+    )
+    ports = (
+        InputPort("if", PortType.STRING, description="A script: the condition."),
+        InputPort("else", PortType.NODE_STATUS, "FAILURE", "Status to return if the condition is false."),
+    )
+
+    def __init__(self, name: str) -> None:
+        super().__init__(name)
+        self.child_running = False
+        self.compiled: scripting.Script | None = None
+
+    def check_literals(self) -> None:
+        if self.bindings["if"].key is None:
+            self.compiled = self._compile(self.bindings["if"].literal, LoadError)
+
+    def _compile(self, source: str, error: type) -> scripting.Script:
+        try:
+            return scripting.compile_script(source)
+        except scripting.ScriptError as err:
+            what = f"port 'if': {err} in script {source!r}"
+            if error is ScriptRunError:
+                raise ScriptRunError(what, self.location, f"{self.xml_id} '{self.name}'", source) from None
+            raise LoadError(what, self.location, self.xml_id) from None
+
+    def _condition(self) -> bool:
+        script = self.compiled
+        source = self.get_input("if")
+        if script is None or script.source != source:  # 'if' read from the blackboard
+            script = self.compiled = self._compile(source, ScriptRunError)
+        try:
+            return scripting.evaluate_condition(script, self.blackboard)
+        except scripting.ScriptError as err:
+            raise ScriptRunError(
+                f"port 'if': script {script.source!r}: {err}", self.location, f"{self.xml_id} '{self.name}'", script.source
+            ) from None
+
+    def run(self) -> TickGenerator:
+        otherwise = STATUS_BY_NAME[self.get_input("else")]
+        if not self.child_running:
+            self.child_running = self._condition()
+        if not self.child_running:
+            return otherwise
+        result = yield from self.tick_child(self.child)
+        if result in COMPLETED:
+            halt_child(self.child)
+            self.child_running = False
+        return result
+
+    def halt(self) -> None:
+        self.child_running = False  # not in BT.CPP 4.10, where a halted child keeps the flag set
+        super().halt()
+
+
 NODES = (
     Inverter,
     ForceSuccess,
@@ -290,4 +352,5 @@ NODES = (
     RunOnce,
     Timeout,
     Delay,
+    Precondition,
 )

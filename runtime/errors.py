@@ -38,3 +38,15 @@ class LoadError(ObjectiveError):
 
 class PortError(ObjectiveError):
     """A port value is missing, unknown or of the wrong type."""
+
+
+class ScriptRunError(ObjectiveError):
+    """A script failed while the tree ran: BT.CPP throws there, so the run stops as an error (exit 2).
+
+    Examples: ``=`` to an entry that was never declared, an assignment or a SetBlackboard that
+    would change an entry's type, reading an entry nobody wrote. ``script`` is the source text.
+    """
+
+    def __init__(self, what: str, location: SourceLocation | None, node: str | None, script: str) -> None:
+        self.script = script
+        super().__init__(what, location, node)

@@ -56,7 +56,7 @@ MAX_ATTRIBUTES = 1000
 MAX_NODES = 20000
 """Bound on nodes after SubTree expansion: nested SubTrees used several times grow exponentially."""
 
-METADATA_ATTRIBUTES = frozenset({"_description", "_favorite", "_collapsed", "_uid", "_fullpath"})
+METADATA_ATTRIBUTES = frozenset({"_description", "_favorite", "_collapsed", "_uid", "_fullpath", "_external"})
 CONDITION_ATTRIBUTES = (
     "_skipIf", "_successIf", "_failureIf", "_while", "_onSuccess", "_onFailure", "_post", "_onHalted",
 )
@@ -127,6 +127,8 @@ class Document:
     own_tree_ids: list[str] = field(default_factory=list)
     """Trees written in this file itself, in order (not those of included files)."""
     models: dict[str, NodeModel] = field(default_factory=dict)
+    unnamed_trees: int = 0
+    """``<BehaviorTree>`` elements without an ID so far; BT.CPP names them BehaviorTree_0, _1, ..."""
 
     @property
     def key(self) -> str:
@@ -270,8 +272,11 @@ def parse_document(
         eloc = SourceLocation(display, element.sourceline or 0)
         if element.tag == "BehaviorTree":
             tree_id = element.get("ID")
-            if not tree_id:
-                raise LoadError("<BehaviorTree> needs an ID attribute", eloc)
+            if tree_id is None:
+                tree_id = f"BehaviorTree_{doc.unnamed_trees}"
+                doc.unnamed_trees += 1
+            elif not tree_id.strip():
+                raise LoadError("<BehaviorTree> has an empty ID", eloc)
             if tree_id in doc.trees:
                 raise LoadError(f"BehaviorTree '{tree_id}' is defined twice (first at {doc.trees[tree_id].location})", eloc)
             doc.trees[tree_id] = TreeDef(tree_id, element, doc, eloc)
@@ -643,15 +648,28 @@ def _select_tree(doc: Document, tree_id: str | None, builder: _Builder) -> TreeD
             hint = _suggest(choice, doc.trees)
             raise LoadError(f"{what} names BehaviorTree '{choice}', which is not defined (trees: {', '.join(doc.trees) or 'none'}){hint}", loc)
         return found
-    if len(doc.own_tree_ids) == 1:
-        return doc.trees[doc.own_tree_ids[0]]
     if not doc.own_tree_ids:
         raise LoadError("no <BehaviorTree> in this file", loc)
+    # Groot2 drops main_tree_to_execute when it saves: run the one tree no other tree uses.
+    tops = top_level_trees(doc)
+    if len(tops) == 1:
+        return doc.trees[tops[0]]
     raise LoadError(
-        f"several BehaviorTrees ({', '.join(doc.own_tree_ids)}) and no main_tree_to_execute: "
-        "name the one to run with main_tree_to_execute or --tree",
+        f"several BehaviorTrees ({', '.join(tops or doc.own_tree_ids)}) are not used as a SubTree by another "
+        "and there is no main_tree_to_execute: name the one to run with main_tree_to_execute or --tree",
         loc,
     )
+
+
+def top_level_trees(doc: Document) -> list[str]:
+    """The file's own trees that no tree of the document (includes too) uses as a SubTree."""
+    used = {
+        element.get("ID")
+        for tree in doc.trees.values()
+        for element in tree.element.iter("SubTree")
+        if element is not tree.element
+    }
+    return [tree_id for tree_id in doc.own_tree_ids if tree_id not in used]
 
 
 def _library_for(doc: Document, search_paths: Iterable[Path], objectives_dir: Path | None) -> Library:

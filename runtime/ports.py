@@ -40,6 +40,8 @@ class PortType(enum.Enum):
     FLOAT_LIST = "std::vector<double>"
     INT_LIST = "std::vector<int>"
     STRING_LIST = "std::vector<std::string>"
+    NODE_STATUS = "NodeStatus"
+    """A status a node returns: SUCCESS, FAILURE, RUNNING or SKIPPED (converted to its name)."""
     ANY = "AnyTypeAllowed"
 
 
@@ -55,8 +57,13 @@ class PortInfo:
     def required(self) -> bool:
         return self.default is REQUIRED and self.direction is not Direction.OUTPUT
 
+    @property
+    def has_default(self) -> bool:
+        """False for required ports, outputs and optional ports without a value (default None)."""
+        return self.default is not REQUIRED and self.default is not None and self.direction is not Direction.OUTPUT
+
     def describe_default(self) -> str:
-        return "" if self.default is REQUIRED else to_xml_string(self.default)
+        return to_xml_string(self.default) if self.has_default else ""
 
 
 def InputPort(name: str, type: PortType = PortType.STRING, default: Any = REQUIRED, description: str = "") -> PortInfo:
@@ -93,7 +100,9 @@ _EXPECTS = {
     PortType.FLOAT_LIST: "a ';'-separated list of numbers",
     PortType.INT_LIST: "a ';'-separated list of integers",
     PortType.STRING_LIST: "a ';'-separated list of strings",
+    PortType.NODE_STATUS: "SUCCESS, FAILURE, RUNNING or SKIPPED",
 }
+NODE_STATUSES = ("SUCCESS", "FAILURE", "RUNNING", "SKIPPED")
 
 
 class ConversionError(ValueError):
@@ -160,6 +169,8 @@ def convert(value: Any, port_type: PortType) -> Any:
                 return [_int(p) for p in _split(value)]
             if port_type is PortType.STRING_LIST:
                 return _split(value)
+            if port_type is PortType.NODE_STATUS and value.strip() in NODE_STATUSES:
+                return value.strip()
         # A typed value from the blackboard: accept what fits, coerce numbers sensibly.
         if port_type is PortType.FLOAT and isinstance(value, (int, float)) and not isinstance(value, bool):
             return float(value)

@@ -28,7 +28,7 @@ import py_trees
 from .behavior import RunContext, Status
 from .bus import InProcessBus, parse_latency
 from .clock import SimClock, WallClock
-from .controls import COMPLETED, SKIPPED, consume_wake_up, is_skipped, reset_status
+from .controls import SKIPPED, Visit, is_skipped, tick_tree
 from .errors import ObjectiveError
 from .events import EventLog
 from .loader import LoadedTree, load_tree
@@ -88,7 +88,7 @@ class RunOptions:
 @dataclass
 class RunResult:
     status: str
-    """"SUCCESS" or "FAILURE"."""
+    """"SUCCESS", "FAILURE" or "SKIPPED" (every child of the root was skipped: nothing ran)."""
     failing_node: str | None
     reason: str
     sim_seconds: float
@@ -100,7 +100,8 @@ class RunResult:
 
     @property
     def exit_code(self) -> int:
-        return 0 if self.status == "SUCCESS" else 1
+        """0 for SUCCESS and SKIPPED (nothing failed), 1 for FAILURE."""
+        return 1 if self.status == "FAILURE" else 0
 
     def to_json(self) -> dict[str, Any]:
         """The summary object ``objective run --json`` prints (extras merged at the top level)."""
@@ -157,9 +158,6 @@ def json_entries(board_items: Iterable[tuple[str, Any]]) -> dict[str, Any]:
     return out
 
 
-Visit = tuple[py_trees.behaviour.Behaviour, Status, str]
-
-
 def _unwrap(node: py_trees.behaviour.Behaviour) -> py_trees.behaviour.Behaviour:
     """The node a transparent wrapper (a condition guard) stands for."""
     while getattr(node, "transparent", False) and len(node.children) == 1:
@@ -194,22 +192,6 @@ def _failing(root: py_trees.behaviour.Behaviour, visited: list[Visit]) -> tuple[
     message = last[id(node)][2]
     inner = _unwrap(node)
     return inner, message or inner.feedback_message
-
-
-def tick_once(root: py_trees.behaviour.Behaviour, context: RunContext) -> tuple[Status, list[Visit]]:
-    """One tick of the runner: ``runtime.controls.tick_tree`` (BT.CPP ``tickOnce``), keeping what was visited.
-
-    Returns the root's result (RUNNING, SUCCESS, FAILURE or SKIPPED) and, for the last pass,
-    every node visited with the status and message it had when it reported (post-order).
-    """
-    consume_wake_up(context)
-    while True:
-        visited = [(node, node.status, node.feedback_message) for node in root.tick()]
-        result = SKIPPED if is_skipped(root) else root.status
-        if result in COMPLETED:
-            reset_status(root)
-        if result is not Status.RUNNING or not consume_wake_up(context):
-            return result, visited
 
 
 class StatusEvents:
@@ -274,6 +256,13 @@ class Pacing:
         return {"late_ticks": self.late_ticks, "worst_tick_s": round(self.worst_tick_s, 4), "period_s": self.period}
 
 
+def outcome(status: Status, timed_out: bool) -> str:
+    """How a run ended, from the root's last result: SUCCESS, FAILURE or SKIPPED (as in BT.CPP)."""
+    if status is Status.FAILURE or timed_out:
+        return "FAILURE"
+    return "SKIPPED" if status is SKIPPED else "SUCCESS"
+
+
 def run_tree(
     loaded: LoadedTree,
     context: RunContext,
@@ -333,7 +322,8 @@ def run_tree(
             if world is not None:
                 world.step_to(clock.now())
             bus.spin_once()
-            status, visited = tick_once(root, context)
+            tick = tick_tree(root)
+            status, visited = tick.status, tick.visited
             statuses.update(visited)
             ticks += 1
             if pacing is not None:
@@ -350,7 +340,7 @@ def run_tree(
             running = f" while '{tip.name}' was RUNNING" if tip is not None else ""
             reason = f"stopped after --max-seconds {options.max_seconds:g} s of clock time{running}"
             blame = (tip if tip is not None else root, reason)
-        context.events.emit("run_finished", loaded.tree_id, status=str(status.value))
+        context.events.emit("run_finished", loaded.tree_id, status=outcome(status, timed_out))
     finally:
         summary_world = None
         try:
@@ -387,8 +377,7 @@ def run_tree(
         info = loaded.info(node)
         location = str(info.location) if info is not None else None
     return RunResult(
-        # A root skipped by its _skipIf did nothing and failed nothing: that counts as SUCCESS.
-        status="FAILURE" if status is Status.FAILURE or timed_out else "SUCCESS",
+        status=outcome(status, timed_out),
         failing_node=failing_node,
         reason=reason or "",
         sim_seconds=clock.now(),

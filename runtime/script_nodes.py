@@ -2,8 +2,10 @@
 
 The ``code`` of a script node is compiled when the node is bound (at load time), so a syntax
 error stops the load with the file, line, node and column; ticking only evaluates.
-A script that fails while running (a missing entry, a type mismatch) makes the node fail with
-the reason as its ``feedback_message``; the run goes on as the tree decides.
+A script that fails while running (``=`` to an undeclared entry, a missing entry, a type
+mismatch) raises ``ScriptRunError``: BT.CPP throws there, so the tick is aborted and the run ends
+as an error (exit 2, ``ERROR`` in ``--json``, running nodes halted) instead of a FAILURE that a
+Fallback would quietly take its next branch on.
 """
 from __future__ import annotations
 
@@ -11,7 +13,7 @@ from typing import Any, ClassVar
 
 from . import script as scripting
 from .behavior import Behavior, Condition, Status
-from .errors import LoadError, SourceLocation
+from .errors import LoadError, ScriptRunError, SourceLocation
 from .ports import InOutPort, InputPort, PortInfo, PortType
 
 
@@ -37,6 +39,11 @@ class _CompiledCode:
 
     script: scripting.Script
 
+    def run_error(self, err: scripting.ScriptError) -> ScriptRunError:
+        source = self.script.source
+        label = f"{self.xml_id} '{self.name}'"  # type: ignore[attr-defined]
+        return ScriptRunError(f"script {source!r}: {err}", self.location, label, source)  # type: ignore[attr-defined]
+
     def check_literals(self) -> None:
         binding = self.bindings["code"]  # type: ignore[attr-defined]
         if binding.key is not None:
@@ -52,21 +59,21 @@ _CODE = InputPort("code", PortType.STRING, description="The script: statements s
 
 
 class Script(_CompiledCode, Behavior):
-    """Runs a script (e.g. ``count := count + 1``) and succeeds; fails if the script does."""
+    """Runs a script (e.g. ``count := count + 1``) and succeeds; a failing script is a run error."""
 
     ports: ClassVar[tuple[PortInfo, ...]] = (_CODE,)
-    description = "Run a script against the blackboard; SUCCESS, or FAILURE when it cannot be evaluated."
+    description = "Run a script against the blackboard; SUCCESS (a script that cannot be evaluated stops the run)."
 
     def update(self) -> Status:
         try:
             self.script.evaluate(self.blackboard)
         except scripting.ScriptError as err:
-            return self.fail(f"script {self.script.source!r}: {err}")
+            raise self.run_error(err) from None
         return Status.SUCCESS
 
 
 class ScriptCondition(_CompiledCode, Condition):
-    """SUCCESS when the script's value is true, FAILURE when false (or when it cannot be evaluated)."""
+    """SUCCESS when the script's value is true, FAILURE when false; a failing script is a run error."""
 
     ports: ClassVar[tuple[PortInfo, ...]] = (
         InputPort("code", PortType.STRING, description="An expression that is true or false"),
@@ -77,7 +84,7 @@ class ScriptCondition(_CompiledCode, Condition):
         try:
             holds = scripting.evaluate_condition(self.script, self.blackboard)
         except scripting.ScriptError as err:
-            return self.fail(f"script {self.script.source!r}: {err}")
+            raise self.run_error(err) from None
         if holds:
             return Status.SUCCESS
         return self.fail(f"{self.script.source!r} is false")
@@ -107,19 +114,45 @@ class SetBlackboard(Behavior):
             return self.fail("port 'output_key' is empty")
         source = self.bindings["value"]
         value: Any
-        if source.key is not None:
-            if not self.blackboard.has(source.key) or self.blackboard.get(source.key) is None:
-                return self.fail(f"port 'value' reads blackboard entry '{source.key}', which is not set")
-            self.blackboard.set(key, self.blackboard.get(source.key))
-            return Status.SUCCESS
-        value = source.literal
         current = self.blackboard.get(key) if self.blackboard.has(key) else None
-        try:
-            value = scripting.coerce_for_entry(key, current, value)
-        except scripting.ScriptError as err:
-            return self.fail(str(err))
+        if source.key is not None:
+            if not self.blackboard.has(source.key):  # BT.CPP throws: the entry does not exist
+                raise self.run_error(f"port 'value' reads blackboard entry '{source.key}', which does not exist")
+            value = self.blackboard.get(source.key)
+            if value is None:  # declared but never written: BT.CPP returns FAILURE
+                return self.fail(f"port 'value' reads blackboard entry '{source.key}', which is empty")
+            if current is not None and type(value) is not type(current):
+                value = self._coerce(key, current, value)
+        else:
+            value = self._coerce(key, current, source.literal)
         self.blackboard.set(key, value)
         return Status.SUCCESS
 
+    def _coerce(self, key: str, current: Any, value: Any) -> Any:
+        try:
+            return scripting.coerce_for_entry(key, current, value)
+        except scripting.ScriptError as err:
+            raise self.run_error(str(err)) from None
 
-NODES = (Script, ScriptCondition, SetBlackboard)
+    def run_error(self, what: str) -> ScriptRunError:
+        value = self.bindings["value"]
+        shown = f"{{{value.key}}}" if value.key is not None else str(value.literal)
+        return ScriptRunError(f"value {shown!r}: {what}", self.location, f"{self.xml_id} '{self.name}'", shown)
+
+
+class UnsetBlackboard(Behavior):
+    """BT.CPP ``UnsetBlackboardNode``: removes an entry of this blackboard, then SUCCESS.
+
+    Like BT.CPP's ``Blackboard::unset`` it removes only an entry stored on the node's own
+    blackboard: in a SubTree, a remapped or auto-remapped entry of the caller is left alone.
+    """
+
+    ports: ClassVar[tuple[PortInfo, ...]] = (InputPort("key", PortType.STRING, description="Key of the entry to remove"),)
+    description = "Remove a blackboard entry (nothing happens if it does not exist); SUCCESS."
+
+    def update(self) -> Status:
+        self.blackboard.unset(self.get_input("key"))
+        return Status.SUCCESS
+
+
+NODES = (Script, ScriptCondition, SetBlackboard, UnsetBlackboard)

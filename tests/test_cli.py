@@ -132,7 +132,7 @@ def test_validate_lists_each_error_and_exits_2(cli, tmp_path):
     assert out == f"ok: {good}: T (1 nodes)\n"
     assert err.splitlines() == [
         f"error: {bad_port}:3: Typed: unknown port 'y' (ports: flag, n, out, x)",
-        f"error: {bad_node}:3: Sequense: unknown node 'Sequense'; did you mean 'Sequence'?",
+        f"error: {bad_node}:3: Sequense: unknown node 'Sequense'; did you mean 'Sequence' or 'AsyncSequence'?",
     ]
     code, out, _ = cli("validate", str(good), str(DATA / "subtrees.xml"))
     assert code == 0

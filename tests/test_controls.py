@@ -17,7 +17,7 @@ from runtime.blackboard import Blackboard
 from runtime.bus import InProcessBus
 from runtime.clock import SimClock
 from runtime.conditions import ConditionGuard, attach_conditions, unwrap
-from runtime.controls import tick_root, tick_tree
+from runtime.controls import tick_root
 from runtime.errors import LoadError, ObjectiveError, PortError, SourceLocation
 from runtime.registry import Registry
 
@@ -115,8 +115,7 @@ def test_sequence_resumes_the_running_child_and_restarts_after_failure(make, lea
 def test_sequence_with_memory_retries_the_failed_child(make, leaf, context) -> None:
     first, second = leaf("first", S), leaf("second", F, S)
     root = make(controls.SequenceWithMemory, first, second)
-    assert tick_tree(root, context) is F
-    assert tick_tree(root, context) is S
+    assert run(root, 3) == [R, F, S]  # RUNNING after the synchronous first child: one child per tick
     assert first.ticks == 1 and second.ticks == 2
 
 
@@ -197,21 +196,17 @@ def test_inverter_and_force_nodes(make, leaf) -> None:
     assert run(make(decorators.ForceFailure, leaf("c", S)), 1) == [F]
 
 
-def test_repeat_loops_within_one_tick_with_tick_tree(make, leaf, context) -> None:
+def test_repeat_runs_one_synchronous_cycle_per_tick(make, leaf) -> None:
     child = leaf("a", S)
     root = make(decorators.Repeat, child, num_cycles=3)
-    assert tick_tree(root, context) is S
+    assert run(root, 3) == [R, R, S]
     assert child.ticks == 3
-    # Ticked exactly once per call (BT.CPP tickExactlyOnce), each synchronous cycle is a tick.
-    other = leaf("b", S)
-    root2 = make(decorators.Repeat, other, num_cycles=3)
-    assert run(root2, 3) == [R, R, S]
 
 
 def test_retry_gives_up_after_num_attempts(make, leaf, context) -> None:
     child = leaf("a", F)
     root = make(decorators.RetryUntilSuccessful, child, num_attempts=3)
-    assert tick_tree(root, context) is F
+    assert run(root, 3) == [R, R, F]
     assert child.ticks == 3
 
 

@@ -43,7 +43,7 @@ def run_to_end(tree: LoadedTree, limit: int = 1000) -> Status:
     context = tree.nodes[0].node.context
     for _ in range(limit):
         context.clock.advance(0.01)
-        status = tick_tree(tree.root, context)
+        status = tick_tree(tree.root).status
         if status is not Status.RUNNING:
             return status
     raise AssertionError("tree did not finish")
@@ -111,15 +111,36 @@ def test_main_tree_to_execute_and_tree_override(registry, tmp_path, empty_lib):
     )
 
 
-def test_several_trees_without_main_is_an_error(registry, tmp_path, empty_lib):
+def test_several_top_level_trees_without_main_is_an_error(registry, tmp_path, empty_lib):
     path = write(tmp_path, """<root BTCPP_format="4">
   <BehaviorTree ID="A"><AlwaysFailure/></BehaviorTree>
   <BehaviorTree ID="B"><AlwaysSuccess/></BehaviorTree>
+  <BehaviorTree ID="C"><SubTree ID="B"/></BehaviorTree>
 </root>""")
     assert error_of(registry, path, empty_lib) == (
-        f"{path}: several BehaviorTrees (A, B) and no main_tree_to_execute: "
-        "name the one to run with main_tree_to_execute or --tree"
+        f"{path}: several BehaviorTrees (A, C) are not used as a SubTree by another and there is no "
+        "main_tree_to_execute: name the one to run with main_tree_to_execute or --tree"
     )
+
+
+def test_without_main_the_tree_no_other_uses_runs(registry, tmp_path, empty_lib):
+    """Groot2 drops main_tree_to_execute when it saves: the one tree nothing uses is the main one."""
+    path = write(tmp_path, """<root BTCPP_format="4">
+  <BehaviorTree ID="Leaf"><AlwaysSuccess/></BehaviorTree>
+  <BehaviorTree ID="Middle"><SubTree ID="Leaf" _external="true"/></BehaviorTree>
+  <BehaviorTree ID="Top"><Sequence><SubTree ID="Middle"/><SubTree ID="Leaf"/></Sequence></BehaviorTree>
+</root>""")
+    assert load(registry, path, empty_lib).tree_id == "Top"
+
+
+def test_a_single_tree_without_id_runs(registry, tmp_path, empty_lib):
+    """BT.CPP names ID-less trees BehaviorTree_0, BehaviorTree_1, ... (its own tests write them)."""
+    path = write(tmp_path, """<root BTCPP_format="4">
+  <BehaviorTree><Script code="ran := 1"/></BehaviorTree>
+</root>""")
+    tree = load(registry, path, empty_lib)
+    assert tree.tree_id == "BehaviorTree_0"
+    assert run_to_end(tree) is Status.SUCCESS and tree.blackboard.get("ran") == 1
 
 
 def test_xml_text_source(registry, empty_lib):
@@ -136,7 +157,7 @@ def test_unknown_node_suggests_the_closest_names(registry, tmp_path, empty_lib):
     </Sequence>
   </BehaviorTree>
 </root>""")
-    assert error_of(registry, path, empty_lib) == f"{path}:4: Sequense: unknown node 'Sequense'; did you mean 'Sequence'?"
+    assert error_of(registry, path, empty_lib) == f"{path}:4: Sequense: unknown node 'Sequense'; did you mean 'Sequence' or 'AsyncSequence'?"
 
 
 def test_unknown_node_without_any_close_name(registry, tmp_path, empty_lib):

@@ -13,7 +13,7 @@ from runtime.behavior import RunContext, Status
 from runtime.blackboard import Blackboard
 from runtime.bus import InProcessBus
 from runtime.clock import SimClock
-from runtime.errors import LoadError, PortError, SourceLocation
+from runtime.errors import LoadError, PortError, ScriptRunError, SourceLocation
 from runtime.events import EventLog
 from runtime.registry import Registry
 from runtime.script import MAX_DEPTH, MAX_SOURCE_CHARS, ScriptError, compile_script, evaluate_condition
@@ -351,13 +351,16 @@ def test_script_node_runs_its_code_each_tick(context):
     assert board.get("msg") == "tick 2"
 
 
-def test_script_node_fails_with_the_reason(context):
+def test_a_failing_script_is_a_run_error_naming_file_line_node_and_script(context):
     board = Blackboard()
     node = bound(Script, context, board, code="speed = 2")
-    assert tick(node) is Status.FAILURE
-    assert node.feedback_message == (
-        "script 'speed = 2': blackboard entry 'speed' does not exist; use ':=' to create it at column 1"
+    with pytest.raises(ScriptRunError) as info:
+        tick(node)
+    assert str(info.value) == (
+        "objectives/check.xml:12: Script 'Script': script 'speed = 2': "
+        "blackboard entry 'speed' does not exist; use ':=' to create it at column 1"
     )
+    assert info.value.script == "speed = 2"
 
 
 def test_script_syntax_errors_stop_the_load_with_file_line_node_and_column(context):
@@ -393,10 +396,10 @@ def test_script_condition(context):
     assert tick(node) is Status.FAILURE
     assert node.feedback_message == "'height > 0.1' is false"
     board.set("height", "tall")
-    assert tick(node) is Status.FAILURE
-    assert node.feedback_message == (
-        "script 'height > 0.1': cannot compare 'height' (the string 'tall') with 0.1 using '>' at column 8"
-    )
+    with pytest.raises(ScriptRunError, match=(
+        r"script 'height > 0.1': cannot compare 'height' \(the string 'tall'\) with 0.1 using '>' at column 8"
+    )):
+        tick(node)
 
 
 def test_set_blackboard_writes_a_string_or_converts_to_the_entry_type(context):
@@ -407,8 +410,12 @@ def test_set_blackboard_writes_a_string_or_converts_to_the_entry_type(context):
     assert tick(bound(SetBlackboard, context, board, value="7", output_key="tries")) is Status.SUCCESS
     assert board.get("tries") == 7
     node = bound(SetBlackboard, context, board, value="many", output_key="tries")
-    assert tick(node) is Status.FAILURE
-    assert node.feedback_message == "entry 'tries' holds a number; cannot store the string 'many' in it"
+    with pytest.raises(ScriptRunError) as info:  # BT.CPP throws: an entry keeps its type
+        tick(node)
+    assert str(info.value) == (
+        "objectives/check.xml:12: SetBlackboard 'SetBlackboard': value 'many': "
+        "entry 'tries' holds a number; cannot store the string 'many' in it"
+    )
 
 
 def test_set_blackboard_copies_an_entry_with_its_type(context):
@@ -417,14 +424,18 @@ def test_set_blackboard_copies_an_entry_with_its_type(context):
     assert tick(bound(SetBlackboard, context, board, value="{pose}", output_key="{goal}")) is Status.SUCCESS
     assert board.get("goal") == [0.1, 0.2, 0.3]
     node = bound(SetBlackboard, context, board, value="{nowhere}", output_key="goal")
-    assert tick(node) is Status.FAILURE
-    assert node.feedback_message == "port 'value' reads blackboard entry 'nowhere', which is not set"
+    assert board.has("nowhere")  # declared when the node was bound, as BT.CPP does; no value yet
+    assert tick(node) is Status.FAILURE  # BT.CPP: an empty source fails
+    assert node.feedback_message == "port 'value' reads blackboard entry 'nowhere', which is empty"
+    board.unset("nowhere")
+    with pytest.raises(ScriptRunError, match="port 'value' reads blackboard entry 'nowhere', which does not exist"):
+        tick(node)
 
 
 def test_nodes_are_registered():
     registry = Registry()
     registry.register_all(NODES)
-    assert [s.id for s in registry.specs()] == ["Script", "ScriptCondition", "SetBlackboard"]
+    assert [s.id for s in registry.specs()] == ["Script", "ScriptCondition", "SetBlackboard", "UnsetBlackboard"]
     assert registry.get("ScriptCondition").kind.value == "Condition"
 
 
