@@ -1,0 +1,219 @@
+"""The robot and its planning scene as ROS 2 messages a 3D viewer draws (Foxglove, RViz).
+
+- ``/tf``: every link's pose relative to its parent link, computed from a joint state with the
+  planning model's forward kinematics (what ``robot_state_publisher`` publishes);
+- ``/robot_markers``: one ``visualization_msgs/MarkerArray`` of the robot's collision geometry
+  (capsules, cylinders, boxes, convex hulls as triangle lists), each marker locked to its link's
+  frame, so the recorded ``/tf`` moves it; sent once;
+- ``/planning_scene_markers``: the planning scene's world objects (table, cubes, added
+  objects) in ``world``, sent again whenever the scene's version changes (objects deleted from
+  the scene are deleted from the view).
+
+What is drawn is what the safety checks see (the collision model), not the rendered meshes.
+Functions here build messages; ``SceneView`` decides when to send them.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, Callable
+
+import coal
+import numpy as np
+import pinocchio as pin
+from builtin_interfaces.msg import Time
+from geometry_msgs.msg import Point, Pose, TransformStamped
+from std_msgs.msg import ColorRGBA
+from tf2_msgs.msg import TFMessage
+from visualization_msgs.msg import Marker, MarkerArray
+
+from ..scene.collision import Box, Capsule, Cylinder, Mesh, Sphere
+
+WORLD_FRAME = "world"
+TF_TOPIC = "/tf"
+ROBOT_MARKERS_TOPIC = "/robot_markers"
+SCENE_MARKERS_TOPIC = "/planning_scene_markers"
+
+ROBOT_RGBA = (0.62, 0.66, 0.72, 1.0)
+TABLE_RGBA = (0.55, 0.42, 0.30, 1.0)
+OBJECT_RGBA = (0.85, 0.55, 0.15, 0.9)
+NAMED_RGBA = {"red": (0.85, 0.15, 0.15, 1.0), "green": (0.15, 0.7, 0.25, 1.0), "blue": (0.15, 0.3, 0.85, 1.0)}
+
+
+def stamp_of(nanoseconds: int) -> Time:
+    return Time(sec=nanoseconds // 1_000_000_000, nanosec=nanoseconds % 1_000_000_000)
+
+
+def pose_msg(transform: pin.SE3) -> Pose:
+    pose = Pose()
+    pose.position.x, pose.position.y, pose.position.z = (float(v) for v in transform.translation)
+    x, y, z, w = pin.Quaternion(transform.rotation).coeffs()
+    pose.orientation.x, pose.orientation.y, pose.orientation.z, pose.orientation.w = float(x), float(y), float(z), float(w)
+    return pose
+
+
+def _rgba(values: tuple[float, float, float, float]) -> ColorRGBA:
+    return ColorRGBA(r=values[0], g=values[1], b=values[2], a=values[3])
+
+
+def object_color(name: str) -> tuple[float, float, float, float]:
+    """Objects named after a colour (``cube_blue``) are drawn in it; the table in wood."""
+    if name == "table":
+        return TABLE_RGBA
+    for word, rgba in NAMED_RGBA.items():
+        if word in name.split("_"):
+            return rgba
+    return OBJECT_RGBA
+
+
+@dataclass
+class LinkTree:
+    """Parent of every link (BODY frame) of a robot model, ``world`` for the root."""
+
+    model: pin.Model
+    data: pin.Data
+    frame_ids: dict[str, int]
+    parents: dict[str, str]
+
+    @classmethod
+    def of(cls, robot: Any) -> "LinkTree":
+        parents = {link: robot.parent_link(link) for link in robot.link_names if link != "universe"}
+        parents = {link: (WORLD_FRAME if parent in ("universe", link) else parent) for link, parent in parents.items()}
+        return cls(robot.model, robot.model.createData(), {link: robot.frame_id(link) for link in parents}, parents)
+
+
+def link_transforms(tree: LinkTree, q: np.ndarray, stamp: Time) -> TFMessage:
+    """``/tf`` for configuration ``q``: each link relative to its parent link."""
+    data = tree.data
+    pin.framesForwardKinematics(tree.model, data, q)
+    out = TFMessage()
+    for link, parent in tree.parents.items():
+        child_pose = data.oMf[tree.frame_ids[link]]
+        relative = child_pose if parent == WORLD_FRAME else data.oMf[tree.frame_ids[parent]].actInv(child_pose)
+        t = TransformStamped()
+        t.header.stamp = stamp
+        t.header.frame_id = parent
+        t.child_frame_id = link
+        pose = pose_msg(relative)
+        t.transform.translation.x, t.transform.translation.y, t.transform.translation.z = (
+            pose.position.x, pose.position.y, pose.position.z)
+        t.transform.rotation = pose.orientation
+        out.transforms.append(t)
+    return out
+
+
+def _hull_triangles(hull: Any) -> np.ndarray:
+    """(3 * n_triangles, 3) vertices of a coal convex hull, as a triangle list."""
+    points = np.asarray(hull.points())
+    indices = np.array([[hull.polygons(i)[k] for k in range(3)] for i in range(hull.num_polygons)], dtype=int)
+    return points[indices.reshape(-1)]
+
+
+def _shape_markers(geometry: Any, pose: pin.SE3) -> list[Marker]:
+    """Markers (without header, id or colour) drawing one collision geometry at ``pose``."""
+    def marker(kind: int, at: pin.SE3, sx: float, sy: float, sz: float) -> Marker:
+        m = Marker(type=kind, action=Marker.ADD, pose=pose_msg(at))
+        m.scale.x, m.scale.y, m.scale.z = float(sx), float(sy), float(sz)
+        return m
+
+    if isinstance(geometry, (coal.Box, Box)):
+        size = 2 * np.asarray(geometry.halfSide) if isinstance(geometry, coal.Box) else geometry.size
+        return [marker(Marker.CUBE, pose, *size)]
+    if isinstance(geometry, (coal.Sphere, Sphere)):
+        return [marker(Marker.SPHERE, pose, *(2 * geometry.radius,) * 3)]
+    if isinstance(geometry, (coal.Cylinder, Cylinder)):
+        length = 2 * geometry.halfLength if isinstance(geometry, coal.Cylinder) else geometry.length
+        return [marker(Marker.CYLINDER, pose, 2 * geometry.radius, 2 * geometry.radius, length)]
+    if isinstance(geometry, (coal.Capsule, Capsule)):
+        half = geometry.halfLength if isinstance(geometry, coal.Capsule) else geometry.length / 2
+        d = 2 * geometry.radius
+        ends = [pose * pin.SE3(np.eye(3), np.array([0.0, 0.0, z])) for z in (-half, half)]
+        return [marker(Marker.CYLINDER, pose, d, d, 2 * half)] + [marker(Marker.SPHERE, e, d, d, d) for e in ends]
+    if isinstance(geometry, coal.ConvexBase):
+        m = marker(Marker.TRIANGLE_LIST, pose, 1.0, 1.0, 1.0)
+        m.points = [Point(x=float(x), y=float(y), z=float(z)) for x, y, z in _hull_triangles(geometry)]
+        return [m]
+    if isinstance(geometry, Mesh):
+        return []  # a world mesh is drawn through its collision hull once it is in the model
+    return []
+
+
+def robot_markers(robot: Any, stamp: Time) -> MarkerArray:
+    """The robot's collision geometry, each marker in its link's frame (``frame_locked``)."""
+    out = MarkerArray()
+    for go in robot.collision_model.geometryObjects:
+        link = robot.link_of_frame(go.parentFrame)
+        link_in_joint = robot.model.frames[robot.frame_id(link)].placement
+        pose = link_in_joint.actInv(go.placement)  # geometry placements are relative to the joint
+        for m in _shape_markers(go.geometry, pose):
+            m.header.frame_id = link
+            m.header.stamp = stamp
+            m.ns = "robot"
+            m.id = len(out.markers)
+            m.frame_locked = True
+            m.color = _rgba(ROBOT_RGBA)
+            out.markers.append(m)
+    return out
+
+
+def object_markers(objects: dict[str, Any], attachments: tuple[Any, ...], stamp: Time,
+                   previous: dict[str, int] | None = None) -> MarkerArray:
+    """The scene's world objects in ``world`` and the objects the robot carries, locked to their
+    link; the markers of ``previous`` (name -> marker count) that are gone now are deleted."""
+    placed = [(name, WORLD_FRAME, obj.shape, obj.pose) for name, obj in objects.items()]
+    placed += [(a.name, a.link, a.shape, a.pose) for a in attachments]
+    out = MarkerArray()
+    for name, frame, shape, pose in sorted(placed, key=lambda p: p[0]):
+        for k, m in enumerate(_shape_markers(shape, pin.SE3(np.asarray(pose, dtype=float).reshape(4, 4)))):
+            m.header.frame_id = frame
+            m.header.stamp = stamp
+            m.ns = name
+            m.id = k
+            m.frame_locked = frame != WORLD_FRAME
+            m.color = _rgba(object_color(name))
+            out.markers.append(m)
+    drawn = marker_counts(out)
+    for name, count in sorted((previous or {}).items()):
+        out.markers += [Marker(ns=name, id=k, action=Marker.DELETE) for k in range(drawn.get(name, 0), count)]
+    return out
+
+
+def marker_counts(markers: MarkerArray) -> dict[str, int]:
+    counts: dict[str, int] = {}
+    for m in markers.markers:
+        if m.action == Marker.ADD:
+            counts[m.ns] = counts.get(m.ns, 0) + 1
+    return counts
+
+
+class SceneView:
+    """Sends ``/tf`` with every recorded joint state, the robot's markers once, and the scene's
+    objects whenever the scene changes. ``scene`` is read lazily: worlds create it on start."""
+
+    def __init__(self, scene: Callable[[], Any], write: Callable[[str, Any, float], None],
+                 stamp: Callable[[float], Time]) -> None:
+        self._scene = scene
+        self._write = write
+        self._stamp = stamp
+        self._tree: LinkTree | None = None
+        self._robot: Any = None
+        self._scene_version: Any = None
+        self._objects: dict[str, int] = {}
+
+    def joint_state(self, msg: Any, seconds: float) -> None:
+        scene = self._scene()
+        robot = getattr(scene, "robot", None)
+        if robot is None:
+            return
+        stamp = self._stamp(seconds)
+        if robot is not self._robot:
+            self._robot, self._tree = robot, LinkTree.of(robot)
+            self._write(ROBOT_MARKERS_TOPIC, robot_markers(robot, stamp), seconds)
+        positions = {n: float(p) for n, p in zip(msg.name, msg.position)}
+        self._write(TF_TOPIC, link_transforms(self._tree, robot.configuration(positions), stamp), seconds)
+        version = scene.version
+        if version != self._scene_version:
+            self._scene_version = version
+            objects, attachments = scene.objects, scene.attachments
+            markers = object_markers(objects, attachments, stamp, self._objects)
+            self._write(SCENE_MARKERS_TOPIC, markers, seconds)
+            self._objects = marker_counts(markers)
