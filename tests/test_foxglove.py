@@ -60,7 +60,7 @@ def test_every_channel_follows_the_mcap_ros2_profile(recorded):
         assert profile["deadline"] == {"sec": 9223372036, "nsec": 854775807}
     latched = {c.topic for c in summary.channels.values()
                if yaml.safe_load(c.metadata["offered_qos_profiles"])[0]["durability"] == "transient_local"}
-    assert latched == {"/robot_markers", "/planning_scene_markers"}
+    assert latched == {"/tf_static", "/robot_markers", "/planning_scene_markers"}
     # Log times are wall-clock: the run's start plus the runtime clock.
     origin = clock_origin_ns(rec / "run.mcap")
     assert started_ns - 10**9 < origin < time.time_ns()
@@ -87,8 +87,11 @@ def test_tf_follows_the_joint_states_and_matches_forward_kinematics(messages):
     assert len(tf) == len(joint_states) and tf[0][1] == "tf2_msgs/msg/TFMessage"
     log_time, _, state = joint_states[-1]
     last = tf[-1][2]
-    frames = {t.child_frame_id: t for t in last.transforms}
-    assert set(frames) == set(robot.link_names) - {"universe"}
+    ((_, _, static),) = messages["/tf_static"]
+    fixed = {t.child_frame_id for t in static.transforms}
+    assert {"base", "gripper_base", "gripper_left_pad"} <= fixed and "shoulder_link" not in fixed
+    frames = {t.child_frame_id: t for t in [*last.transforms, *static.transforms]}
+    assert set(frames) == set(robot.link_names) - {"universe"} and len(frames) == len(last.transforms) + len(fixed)
     # Chain world -> ... -> wrist_3_link from the recorded transforms.
     pose, link = pin.SE3.Identity(), "wrist_3_link"
     while link != "world":

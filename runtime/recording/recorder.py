@@ -25,7 +25,7 @@ from .bus import JOINT_STATES_HZ, RecordingBus
 from .live import LiveOptions, LiveView
 from .event_messages import NODE_STATUS_TOPIC, ROSOUT_TOPIC, log_message, node_status_message
 from .mcap_writer import LATCHED_QOS, McapRos2Writer, to_nanoseconds, wall_clock_origin_ns
-from .scene_view import ROBOT_MARKERS_TOPIC, SCENE_MARKERS_TOPIC, SceneView, stamp_of
+from .scene_view import ROBOT_MARKERS_TOPIC, SCENE_MARKERS_TOPIC, TF_STATIC_TOPIC, SceneView, stamp_of
 
 MCAP_FILE = "run.mcap"
 EVENTS_FILE = "events.jsonl"
@@ -111,7 +111,7 @@ class Recorder:
             sinks.insert(0, self.writer)
             self._events = open(self.directory / EVENTS_FILE, "w", encoding="utf-8")
         self.sink = Tee(sinks)
-        self.sink.qos.update({ROBOT_MARKERS_TOPIC: LATCHED_QOS, SCENE_MARKERS_TOPIC: LATCHED_QOS})
+        self.sink.qos.update({topic: LATCHED_QOS for topic in (TF_STATIC_TOPIC, ROBOT_MARKERS_TOPIC, SCENE_MARKERS_TOPIC)})
         self.context = context
         self.bus = RecordingBus(context.bus, self.sink, joint_states_hz)
         context.bus = self.bus

@@ -1,7 +1,8 @@
 """The robot and its planning scene as ROS 2 messages a 3D viewer draws (Foxglove, RViz).
 
-- ``/tf``: every link's pose relative to its parent link, computed from a joint state with the
-  planning model's forward kinematics (what ``robot_state_publisher`` publishes);
+- ``/tf`` and ``/tf_static``: every link's pose relative to its parent link, computed from a
+  joint state with the planning model's forward kinematics, links behind a joint on ``/tf``, links
+  fixed to their parent once on ``/tf_static`` (what ``robot_state_publisher`` publishes);
 - ``/robot_markers``: one ``visualization_msgs/MarkerArray`` of the robot's collision geometry
   (capsules, cylinders, boxes, convex hulls as triangle lists), each marker locked to its link's
   frame, so the recorded ``/tf`` moves it; sent once;
@@ -21,8 +22,9 @@ import coal
 import numpy as np
 import pinocchio as pin
 from builtin_interfaces.msg import Time
-from geometry_msgs.msg import Point, Pose, TransformStamped
-from std_msgs.msg import ColorRGBA
+from geometry_msgs.msg import Point, Pose, Quaternion, Transform, TransformStamped, Vector3
+from scipy.spatial.transform import Rotation
+from std_msgs.msg import ColorRGBA, Header
 from tf2_msgs.msg import TFMessage
 from visualization_msgs.msg import Marker, MarkerArray
 
@@ -30,6 +32,7 @@ from ..scene.collision import Box, Capsule, Cylinder, Mesh, Sphere
 
 WORLD_FRAME = "world"
 TF_TOPIC = "/tf"
+TF_STATIC_TOPIC = "/tf_static"
 ROBOT_MARKERS_TOPIC = "/robot_markers"
 SCENE_MARKERS_TOPIC = "/planning_scene_markers"
 
@@ -67,38 +70,48 @@ def object_color(name: str) -> tuple[float, float, float, float]:
 
 @dataclass
 class LinkTree:
-    """Parent of every link (BODY frame) of a robot model, ``world`` for the root."""
+    """Parent of every link (BODY frame) of a robot model, ``world`` for the root; which links
+    move relative to their parent (a joint between them) and which are fixed to it."""
 
     model: pin.Model
     data: pin.Data
     frame_ids: dict[str, int]
     parents: dict[str, str]
+    moving: tuple[str, ...]
+    fixed: tuple[str, ...]
 
     @classmethod
     def of(cls, robot: Any) -> "LinkTree":
         parents = {link: robot.parent_link(link) for link in robot.link_names if link != "universe"}
         parents = {link: (WORLD_FRAME if parent in ("universe", link) else parent) for link, parent in parents.items()}
-        return cls(robot.model, robot.model.createData(), {link: robot.frame_id(link) for link in parents}, parents)
+        frame_ids = {link: robot.frame_id(link) for link in parents}
+
+        def joint_of(link: str) -> int:
+            return 0 if link == WORLD_FRAME else robot.model.frames[frame_ids[link]].parentJoint
+
+        moving = tuple(link for link, parent in parents.items() if joint_of(link) != joint_of(parent))
+        fixed = tuple(link for link in parents if link not in moving)
+        return cls(robot.model, robot.model.createData(), frame_ids, parents, moving, fixed)
 
 
-def link_transforms(tree: LinkTree, q: np.ndarray, stamp: Time) -> TFMessage:
-    """``/tf`` for configuration ``q``: each link relative to its parent link."""
-    data = tree.data
-    pin.framesForwardKinematics(tree.model, data, q)
-    out = TFMessage()
-    for link, parent in tree.parents.items():
-        child_pose = data.oMf[tree.frame_ids[link]]
-        relative = child_pose if parent == WORLD_FRAME else data.oMf[tree.frame_ids[parent]].actInv(child_pose)
-        t = TransformStamped()
-        t.header.stamp = stamp
-        t.header.frame_id = parent
-        t.child_frame_id = link
-        pose = pose_msg(relative)
-        t.transform.translation.x, t.transform.translation.y, t.transform.translation.z = (
-            pose.position.x, pose.position.y, pose.position.z)
-        t.transform.rotation = pose.orientation
-        out.transforms.append(t)
-    return out
+def link_transforms(tree: LinkTree, q: np.ndarray, stamp: Time, links: tuple[str, ...]) -> TFMessage:
+    """``links`` relative to their parent links at configuration ``q`` (``tree.moving`` for
+    ``/tf``, ``tree.fixed`` once for ``/tf_static``)."""
+    pin.framesForwardKinematics(tree.model, tree.data, q)
+    relative = []
+    for link in links:
+        parent = tree.parents[link]
+        child_pose = tree.data.oMf[tree.frame_ids[link]]
+        relative.append(child_pose if parent == WORLD_FRAME else tree.data.oMf[tree.frame_ids[parent]].actInv(child_pose))
+    quaternions = Rotation.from_matrix(np.array([r.rotation for r in relative])).as_quat() if relative else []
+    return TFMessage(transforms=[
+        TransformStamped(
+            header=Header(stamp=stamp, frame_id=tree.parents[link]),
+            child_frame_id=link,
+            transform=Transform(translation=Vector3(x=float(p.translation[0]), y=float(p.translation[1]),
+                                                    z=float(p.translation[2])),
+                                rotation=Quaternion(x=float(qx), y=float(qy), z=float(qz), w=float(qw))))
+        for link, p, (qx, qy, qz, qw) in zip(links, relative, quaternions)])
 
 
 def _hull_triangles(hull: Any) -> np.ndarray:
@@ -186,8 +199,8 @@ def marker_counts(markers: MarkerArray) -> dict[str, int]:
 
 
 class SceneView:
-    """Sends ``/tf`` with every recorded joint state, the robot's markers once, and the scene's
-    objects whenever the scene changes. ``scene`` is read lazily: worlds create it on start."""
+    """Sends ``/tf`` with every recorded joint state, ``/tf_static`` and the robot's markers once,
+    and the scene's objects whenever the scene changes. ``scene`` is read lazily: worlds create it on start."""
 
     def __init__(self, scene: Callable[[], Any], write: Callable[[str, Any, float], None],
                  stamp: Callable[[float], Time]) -> None:
@@ -205,11 +218,12 @@ class SceneView:
         if robot is None:
             return
         stamp = self._stamp(seconds)
+        q = robot.configuration(dict(zip(msg.name, msg.position)))
         if robot is not self._robot:
             self._robot, self._tree = robot, LinkTree.of(robot)
+            self._write(TF_STATIC_TOPIC, link_transforms(self._tree, q, stamp, self._tree.fixed), seconds)
             self._write(ROBOT_MARKERS_TOPIC, robot_markers(robot, stamp), seconds)
-        positions = {n: float(p) for n, p in zip(msg.name, msg.position)}
-        self._write(TF_TOPIC, link_transforms(self._tree, robot.configuration(positions), stamp), seconds)
+        self._write(TF_TOPIC, link_transforms(self._tree, q, stamp, self._tree.moving), seconds)
         version = scene.version
         if version != self._scene_version:
             self._scene_version = version
