@@ -70,6 +70,25 @@ def test_every_channel_follows_the_mcap_ros2_profile(recorded):
     assert summary.statistics.message_end_time - origin == pytest.approx(sim_seconds * 1e9, abs=0.05e9)
 
 
+def test_the_directory_is_a_rosbag2_bag(recorded):
+    """metadata.yaml as ``ros2 bag record`` (Jazzy) writes it, agreeing with run.mcap."""
+    rec = recorded[0]
+    info = yaml.safe_load((rec / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
+    with open(rec / "run.mcap", "rb") as stream:
+        summary = make_reader(stream).get_summary()
+    stats = summary.statistics
+    assert (info["version"], info["storage_identifier"], info["ros_distro"]) == (9, "mcap", "jazzy")
+    assert info["relative_file_paths"] == ["run.mcap"] and info["message_count"] == stats.message_count
+    assert info["starting_time"]["nanoseconds_since_epoch"] == stats.message_start_time
+    assert info["duration"]["nanoseconds"] == stats.message_end_time - stats.message_start_time
+    per_topic = {t["topic_metadata"]["name"]: t for t in info["topics_with_message_count"]}
+    channel_counts = {summary.channels[cid].topic: n for cid, n in stats.channel_message_counts.items()}
+    assert {name: t["message_count"] for name, t in per_topic.items()} == channel_counts
+    joint_states = per_topic["/joint_states"]["topic_metadata"]
+    assert joint_states["type"] == "sensor_msgs/msg/JointState" and joint_states["serialization_format"] == "cdr"
+    assert joint_states["offered_qos_profiles"][0]["reliability"] == "reliable"
+
+
 def test_schemas_carry_constants_from_the_installed_definitions(recorded):
     with open(recorded[0] / "run.mcap", "rb") as stream:
         schemas = {s.name: s.data.decode() for s in make_reader(stream).get_summary().schemas.values()}

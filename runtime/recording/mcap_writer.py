@@ -76,6 +76,10 @@ class McapRos2Writer:
         self._channels: dict[str, tuple[int, type]] = {}
         self._sequence: dict[str, int] = {}
         self.counts: dict[str, int] = {}
+        self.topics: dict[str, tuple[str, OfferedQos]] = {}
+        """Topic -> (type name, offered QoS), in the order the channels were opened."""
+        self.first_ns: int | None = None
+        self.last_ns: int | None = None
         self.closed = False
 
     def _channel(self, topic: str, msg_class: type) -> int:
@@ -94,6 +98,7 @@ class McapRos2Writer:
         qos = self.qos.get(topic, OfferedQos())
         channel = self._writer.register_channel(topic, MessageEncoding.CDR, schema, {"offered_qos_profiles": qos.yaml()})
         self._channels[topic] = (channel, msg_class)
+        self.topics[topic] = (type_name(msg_class), qos)
         return channel
 
     def write(self, topic: str, msg: Any, seconds: float) -> None:
@@ -106,6 +111,8 @@ class McapRos2Writer:
         self._sequence[topic] = sequence + 1
         self._writer.add_message(channel, log_time=stamp, data=serialize_message(msg), publish_time=stamp, sequence=sequence)
         self.counts[topic] = self.counts.get(topic, 0) + 1
+        self.first_ns = stamp if self.first_ns is None else min(self.first_ns, stamp)
+        self.last_ns = stamp if self.last_ns is None else max(self.last_ns, stamp)
 
     def close(self) -> None:
         if self.closed:

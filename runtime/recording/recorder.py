@@ -21,6 +21,7 @@ from typing import Any, Iterable, TextIO
 
 from ..errors import ObjectiveError
 from ..events import Event
+from .bag_metadata import BAG_METADATA_FILE, bag_metadata_yaml
 from .bus import JOINT_STATES_HZ, RecordingBus
 from .live import LiveOptions, LiveView
 from .event_messages import NODE_STATUS_TOPIC, ROSOUT_TOPIC, log_message, node_status_message
@@ -130,7 +131,7 @@ class Recorder:
             raise ObjectiveError(f"--record {directory}: exists and is not a directory")
         try:
             directory.mkdir(parents=True, exist_ok=True)
-            for name in REPORT_FILES:  # a previous run's video must not pass for this run's
+            for name in (*REPORT_FILES, BAG_METADATA_FILE):  # a previous run's files must not pass for this run's
                 (directory / name).unlink(missing_ok=True)
             return McapRos2Writer(directory / MCAP_FILE, self.clock_origin_ns)
         except OSError as err:
@@ -161,6 +162,10 @@ class Recorder:
         self.stopped = True
         try:
             self.sink.close()
+            if self.writer is not None and self.directory is not None:
+                w = self.writer
+                (self.directory / BAG_METADATA_FILE).write_text(
+                    bag_metadata_yaml(MCAP_FILE, w.topics, w.counts, w.first_ns, w.last_ns), encoding="utf-8")
         finally:
             limits = getattr(getattr(self.context, "scene", None), "limits", None)
             if limits is not None:
