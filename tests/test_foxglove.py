@@ -20,7 +20,7 @@ from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 
 from runtime.cli import main
-from runtime.recording.scene_view import LinkTree, link_transforms, object_markers, robot_markers, stamp_of
+from runtime.recording.scene_view import LinkTree, TfEncoder, object_markers, stamp_of
 from runtime.report.data import clock_origin_ns
 from tests.test_recording import CAMERAS, POLICY_XML, read_events, read_mcap, record_run
 
@@ -267,3 +267,37 @@ def test_live_needs_a_port_number(tmp_path, capsys):
         main(["run", str(tmp_path / "x.xml"), "--live", "http"])
     assert exit_info.value.code == 2
     assert "expected a TCP port number (0-65535), got 'http'" in capsys.readouterr().err
+
+
+def test_tf_cdr_is_what_rclpy_serializes():
+    """The hand-written TFMessage encoder against two decoders (rclpy's C one and
+    mcap-ros2-support's pure-Python one, from the recorded schema) and pinocchio's FK."""
+    from mcap_ros2._dynamic import generate_dynamic
+    from rclpy.serialization import deserialize_message
+    from tf2_msgs.msg import TFMessage
+
+    from runtime.recording.schema import message_definition
+
+    from sim.planning import planning_robot_model
+
+    robot = planning_robot_model()
+    tree = LinkTree.of(robot)
+    q = pin.randomConfiguration(robot.model, -np.ones(robot.model.nq), np.ones(robot.model.nq))
+    data = TfEncoder(tree, tree.moving).encode(q, stamp_of(1_700_000_000_123_456_789)).data
+    message = deserialize_message(data, TFMessage)
+    python_decoded = generate_dynamic("tf2_msgs/msg/TFMessage", message_definition(TFMessage))["tf2_msgs/msg/TFMessage"](data)
+    assert [(t.header.frame_id, t.child_frame_id, t.transform.rotation.w) for t in python_decoded.transforms] == [
+        (t.header.frame_id, t.child_frame_id, t.transform.rotation.w) for t in message.transforms]
+    assert [t.child_frame_id for t in message.transforms] == list(tree.moving)
+    stamp = message.transforms[0].header.stamp
+    assert (stamp.sec, stamp.nanosec) == (1_700_000_000, 123_456_789)
+    reference = robot.model.createData()
+    pin.framesForwardKinematics(robot.model, reference, q)
+    for t in message.transforms:
+        parent = t.header.frame_id
+        expected = reference.oMf[robot.frame_id(t.child_frame_id)]
+        if parent != "world":
+            expected = reference.oMf[robot.frame_id(parent)].actInv(expected)
+        r, p = t.transform.rotation, t.transform.translation
+        got = pin.SE3(pin.Quaternion(r.w, r.x, r.y, r.z).matrix(), np.array([p.x, p.y, p.z]))
+        np.testing.assert_allclose(got.homogeneous, expected.homogeneous, atol=1e-12)

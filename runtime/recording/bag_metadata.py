@@ -43,4 +43,5 @@ def bag_metadata(relative_path: str, topics: dict[str, tuple[str, Any]], counts:
 
 
 def bag_metadata_yaml(*args: Any) -> str:
-    return yaml.safe_dump(bag_metadata(*args), sort_keys=False)
+    dumper = getattr(yaml, "CSafeDumper", yaml.SafeDumper)
+    return yaml.dump(bag_metadata(*args), Dumper=dumper, sort_keys=False)

@@ -12,10 +12,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
-from rclpy.serialization import serialize_message
-
 from ..errors import ObjectiveError
-from .mcap_writer import OfferedQos, to_nanoseconds
+from .mcap_writer import OfferedQos, cdr_bytes, message_type, to_nanoseconds
 from .schema import message_definition, type_name
 
 DEFAULT_PORT = 8765
@@ -62,14 +60,14 @@ class LiveView:
     def write(self, topic: str, msg: Any, seconds: float) -> None:
         if self.closed:
             return
-        channel = self._channel(topic, type(msg))
+        channel = self._channel(topic, message_type(msg))
         log_time = self.clock_origin_ns + to_nanoseconds(seconds)
         if self.qos.get(topic, OfferedQos()).transient_local:
-            data = serialize_message(msg)
+            data = cdr_bytes(msg)
             self._latched[topic] = (data, log_time)
             channel.log(data, log_time=log_time)
         elif channel.has_sinks():  # serialize only while someone is connected
-            channel.log(serialize_message(msg), log_time=log_time)
+            channel.log(cdr_bytes(msg), log_time=log_time)
 
     def resend_latched(self, topic: str) -> None:
         latched = self._latched.get(topic)

@@ -51,6 +51,23 @@ SENSOR_DATA_QOS = OfferedQos(reliable=False, depth=5)
 LATCHED_QOS = OfferedQos(transient_local=True, depth=1)
 
 
+@dataclass(frozen=True)
+class SerializedMessage:
+    """A message already serialized (CDR), with its type: written as it is."""
+
+    msg_class: type
+    data: bytes
+
+
+def message_type(msg: Any) -> type:
+    return msg.msg_class if isinstance(msg, SerializedMessage) else type(msg)
+
+
+def cdr_bytes(msg: Any) -> bytes:
+    """The CDR bytes a ROS 2 subscriber would get (rclpy's C serializer)."""
+    return msg.data if isinstance(msg, SerializedMessage) else serialize_message(msg)
+
+
 def to_nanoseconds(seconds: float) -> int:
     return max(0, int(round(seconds * 1e9)))
 
@@ -105,11 +122,11 @@ class McapRos2Writer:
         """Record ``msg`` on ``topic`` at ``seconds`` of the runtime clock."""
         if self.closed:
             return
-        channel = self._channel(topic, type(msg))
+        channel = self._channel(topic, message_type(msg))
         stamp = self.clock_origin_ns + to_nanoseconds(seconds)
         sequence = self._sequence.get(topic, 0)
         self._sequence[topic] = sequence + 1
-        self._writer.add_message(channel, log_time=stamp, data=serialize_message(msg), publish_time=stamp, sequence=sequence)
+        self._writer.add_message(channel, log_time=stamp, data=cdr_bytes(msg), publish_time=stamp, sequence=sequence)
         self.counts[topic] = self.counts.get(topic, 0) + 1
         self.first_ns = stamp if self.first_ns is None else min(self.first_ns, stamp)
         self.last_ns = stamp if self.last_ns is None else max(self.last_ns, stamp)

@@ -15,6 +15,7 @@ Functions here build messages; ``SceneView`` decides when to send them.
 """
 from __future__ import annotations
 
+import struct
 from dataclasses import dataclass
 from typing import Any, Callable
 
@@ -22,19 +23,23 @@ import coal
 import numpy as np
 import pinocchio as pin
 from builtin_interfaces.msg import Time
-from geometry_msgs.msg import Point, Pose, Quaternion, Transform, TransformStamped, Vector3
-from scipy.spatial.transform import Rotation
-from std_msgs.msg import ColorRGBA, Header
+from geometry_msgs.msg import Point, Pose
+from std_msgs.msg import ColorRGBA
 from tf2_msgs.msg import TFMessage
 from visualization_msgs.msg import Marker, MarkerArray
 
 from ..scene.collision import Box, Capsule, Cylinder, Mesh, Sphere
+from .mcap_writer import SerializedMessage
 
 WORLD_FRAME = "world"
 TF_TOPIC = "/tf"
 TF_STATIC_TOPIC = "/tf_static"
 ROBOT_MARKERS_TOPIC = "/robot_markers"
 SCENE_MARKERS_TOPIC = "/planning_scene_markers"
+
+SCENE_MARKERS_PERIOD_S = 0.1
+"""The scene's objects are sent at most this often (clock time): cubes pushed by the gripper
+change the scene at every physics step, and 10 Hz is smooth enough to watch."""
 
 ROBOT_RGBA = (0.62, 0.66, 0.72, 1.0)
 TABLE_RGBA = (0.55, 0.42, 0.30, 1.0)
@@ -94,24 +99,56 @@ class LinkTree:
         return cls(robot.model, robot.model.createData(), frame_ids, parents, moving, fixed)
 
 
-def link_transforms(tree: LinkTree, q: np.ndarray, stamp: Time, links: tuple[str, ...]) -> TFMessage:
-    """``links`` relative to their parent links at configuration ``q`` (``tree.moving`` for
-    ``/tf``, ``tree.fixed`` once for ``/tf_static``)."""
-    pin.framesForwardKinematics(tree.model, tree.data, q)
-    relative = []
-    for link in links:
-        parent = tree.parents[link]
-        child_pose = tree.data.oMf[tree.frame_ids[link]]
-        relative.append(child_pose if parent == WORLD_FRAME else tree.data.oMf[tree.frame_ids[parent]].actInv(child_pose))
-    quaternions = Rotation.from_matrix(np.array([r.rotation for r in relative])).as_quat() if relative else []
-    return TFMessage(transforms=[
-        TransformStamped(
-            header=Header(stamp=stamp, frame_id=tree.parents[link]),
-            child_frame_id=link,
-            transform=Transform(translation=Vector3(x=float(p.translation[0]), y=float(p.translation[1]),
-                                                    z=float(p.translation[2])),
-                                rotation=Quaternion(x=float(qx), y=float(qy), z=float(qz), w=float(qw))))
-        for link, p, (qx, qy, qz, qw) in zip(links, relative, quaternions)])
+class TfEncoder:
+    """Turns a configuration into the serialized TFMessage of a fixed list of links.
+
+    Written as CDR directly into a prepared buffer (the frame names never change; only the
+    stamps and the seven numbers per link do): building rosidl TransformStamped objects 50
+    times a second cost more than the rest of the recording together."""
+
+    def __init__(self, tree: LinkTree, links: tuple[str, ...]) -> None:
+        self.tree = tree
+        self.links = links
+        self._frames = [(tree.frame_ids.get(tree.parents[link]), tree.frame_ids[link]) for link in links]
+        self._buffer, self._stamp_at, self._values_at = _tf_template([(tree.parents[l], l) for l in links])
+
+    def encode(self, q: np.ndarray, stamp: Time) -> SerializedMessage:
+        data = self.tree.data
+        pin.framesForwardKinematics(self.tree.model, data, q)
+        poses = data.oMf
+        buffer = self._buffer
+        for (parent, child), stamp_at, values_at in zip(self._frames, self._stamp_at, self._values_at):
+            relative = poses[child] if parent is None else poses[parent].actInv(poses[child])
+            struct.pack_into("<iI", buffer, stamp_at, stamp.sec, stamp.nanosec)
+            struct.pack_into("<7d", buffer, values_at, *pin.SE3ToXYZQUAT(relative).tolist())  # x y z qx qy qz qw
+        return SerializedMessage(TFMessage, bytes(buffer))
+
+
+def _align(buffer: bytearray, size: int) -> None:
+    """Pad to ``size`` bytes, counted from after the 4-byte encapsulation header (XCDR1)."""
+    buffer.extend(b"\0" * (-(len(buffer) - 4) % size))
+
+
+def _cdr_string(buffer: bytearray, text: str) -> None:
+    data = text.encode() + b"\0"
+    _align(buffer, 4)
+    buffer += struct.pack("<I", len(data)) + data
+
+
+def _tf_template(frames: list[tuple[str, str]]) -> tuple[bytearray, list[int], list[int]]:
+    """The CDR (little endian) of a TFMessage with ``frames`` (parent, child), and where each
+    entry's stamp and its seven numbers (x, y, z, qx, qy, qz, qw) go."""
+    buffer = bytearray(b"\x00\x01\x00\x00") + struct.pack("<I", len(frames))
+    stamps, values = [], []
+    for parent, child in frames:
+        stamps.append(len(buffer))
+        buffer += bytes(8)
+        _cdr_string(buffer, parent)
+        _cdr_string(buffer, child)
+        _align(buffer, 8)
+        values.append(len(buffer))
+        buffer += bytes(56)
+    return buffer, stamps, values
 
 
 def _hull_triangles(hull: Any) -> np.ndarray:
@@ -207,9 +244,10 @@ class SceneView:
         self._scene = scene
         self._write = write
         self._stamp = stamp
-        self._tree: LinkTree | None = None
+        self._tf: TfEncoder | None = None
         self._robot: Any = None
         self._scene_version: Any = None
+        self._scene_sent_s = -float("inf")
         self._objects: dict[str, int] = {}
 
     def joint_state(self, msg: Any, seconds: float) -> None:
@@ -220,13 +258,14 @@ class SceneView:
         stamp = self._stamp(seconds)
         q = robot.configuration(dict(zip(msg.name, msg.position)))
         if robot is not self._robot:
-            self._robot, self._tree = robot, LinkTree.of(robot)
-            self._write(TF_STATIC_TOPIC, link_transforms(self._tree, q, stamp, self._tree.fixed), seconds)
+            tree = LinkTree.of(robot)
+            self._robot, self._tf = robot, TfEncoder(tree, tree.moving)
+            self._write(TF_STATIC_TOPIC, TfEncoder(tree, tree.fixed).encode(q, stamp), seconds)
             self._write(ROBOT_MARKERS_TOPIC, robot_markers(robot, stamp), seconds)
-        self._write(TF_TOPIC, link_transforms(self._tree, q, stamp, self._tree.moving), seconds)
+        self._write(TF_TOPIC, self._tf.encode(q, stamp), seconds)
         version = scene.version
-        if version != self._scene_version:
-            self._scene_version = version
+        if version != self._scene_version and seconds - self._scene_sent_s >= SCENE_MARKERS_PERIOD_S - 1e-9:
+            self._scene_version, self._scene_sent_s = version, seconds
             objects, attachments = scene.objects, scene.attachments
             markers = object_markers(objects, attachments, stamp, self._objects)
             self._write(SCENE_MARKERS_TOPIC, markers, seconds)
