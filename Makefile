@@ -11,7 +11,7 @@ export ROS_DOMAIN_ID ?= 42
 export MUJOCO_GL ?= egl
 export ROS_LOG_DIR ?= $(CURDIR)/build/ros_log
 
-.PHONY: setup demo test test-all bench clean lerobot lerobot-policy
+.PHONY: setup demo test test-all bench clean lerobot lerobot-policy chromium
 
 setup: $(STAMP)
 
@@ -40,6 +40,11 @@ $(LEROBOT_STAMP): $(STAMP) requirements/lerobot.txt requirements/lerobot-constra
 # present), trains on CPU for a few minutes (seeded), saves build/policies/tiny_smolvla.
 lerobot-policy: lerobot
 	HF_HUB_OFFLINE=1 $(PY) tools/train_tiny_smolvla.py --episodes 12 --seed 0 --steps 1500 --minutes 8
+
+# Headless Chromium (Debian's package) for the report's browser test; skipped when absent.
+chromium:
+	@command -v chromium >/dev/null || { apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium >/dev/null; }
+	@chromium --version 2>/dev/null
 
 demo: setup
 	$(VENV)/bin/objective run objectives/stack_cubes.xml

@@ -43,6 +43,12 @@ def _parse_set(text: str) -> tuple[str, str]:
     return name.strip(), value
 
 
+def _port(text: str) -> int:
+    if not text.isascii() or not text.isdigit() or int(text) > 65535:
+        raise argparse.ArgumentTypeError(f"expected a TCP port number (0-65535), got {text!r}")
+    return int(text)
+
+
 def _positive_float(text: str) -> float:
     try:
         value = float(text)
@@ -89,6 +95,8 @@ def build_parser() -> argparse.ArgumentParser:
                      help="an option of the world, e.g. urdf=robot.urdf for --world robot (repeatable)")
     run.add_argument("--record", type=Path, metavar="DIR",
                      help="record the run into DIR: run.mcap, events.jsonl, plots, camera video, tree.svg, report.html")
+    run.add_argument("--live", type=_port, nargs="?", const=8765, metavar="PORT",
+                     help="serve the run's topics to Foxglove on ws://127.0.0.1:PORT while it runs (default 8765; 0 = any free port)")
     run.add_argument("--tick-hz", type=_positive_float, default=100.0, help=argparse.SUPPRESS)
     add_paths(run)
 
@@ -186,6 +194,7 @@ def _add_policy_commands(sub: Any) -> None:
 # ------------------------------------------------------------------------------------------------
 def cmd_run(args: argparse.Namespace, registry: Registry) -> int:
     from .display import ProgressLine
+    from .recording.live import LiveOptions
     from .runner import RunOptions, run_file
 
     options = RunOptions(
@@ -198,6 +207,7 @@ def cmd_run(args: argparse.Namespace, registry: Registry) -> int:
         sets=dict(args.set),
         policy_latency=args.policy_latency,
         record_dir=args.record,
+        live=LiveOptions(port=args.live) if args.live is not None else None,
         world_options={**dict(args.world_option), **({"policy": args.policy} if args.policy else {})},
     )
     progress = ProgressLine(sys.stderr) if sys.stderr.isatty() else None

@@ -21,7 +21,7 @@ import time
 from dataclasses import dataclass, field
 from importlib.metadata import entry_points
 from pathlib import Path
-from typing import Any, Callable, Iterable
+from typing import TYPE_CHECKING, Any, Callable, Iterable
 
 import py_trees
 
@@ -30,6 +30,9 @@ from .bus import InProcessBus, parse_latency
 from .clock import SimClock, WallClock
 from .controls import SKIPPED, Visit, is_skipped, tick_tree
 from .errors import ObjectiveError
+
+if TYPE_CHECKING:
+    from .recording.live import LiveOptions
 from .events import EventLog
 from .loader import LoadedTree, load_tree
 from .registry import WORLD_GROUP, Registry
@@ -54,6 +57,8 @@ class RunOptions:
     policy_latency: str | None = None
     """Latency model of policy service calls (``runtime.bus.parse_latency`` syntax), for the world."""
     record_dir: Path | None = None
+    live: "LiveOptions | None" = None
+    """Serve the run's topics to Foxglove while it runs (``--live``); see ``runtime.recording.live``."""
     world_options: dict[str, Any] = field(default_factory=dict)
     ros: bool = False
     """Run on real ROS 2 (``runtime.ros.run``): a RosBus node, paced by a WallClock (implies
@@ -402,18 +407,25 @@ def run_file(
     options.check()
     context = make_context(options)
     loaded = load_tree(source, registry, context, tree_id, search_paths, objectives_dir)
-    if options.record_dir is None:
+    if options.record_dir is None and options.live is None:
         return run_tree(loaded, context, options, progress)
     return _run_recorded(loaded, context, options, progress)
 
 
 def _run_recorded(loaded: LoadedTree, context: RunContext, options: RunOptions, progress: Progress | None) -> RunResult:
-    """``run_tree`` with a ``Recorder`` on the bus, then the report rendered into ``options.record_dir``."""
+    """``run_tree`` with a ``Recorder`` on the bus (into ``options.record_dir`` and/or served live),
+    then the report rendered into ``options.record_dir``."""
     from .recording import Recorder
     from .report.worker import ReportWorker
 
-    assert options.record_dir is not None
-    recorder = Recorder(options.record_dir, context, list(loaded.root.iterate()), loaded)
+    recorder = Recorder(options.record_dir, context, list(loaded.root.iterate()), loaded, live=options.live)
+    if recorder.live is not None:
+        context.logger.info("live view: in Foxglove, open a Foxglove WebSocket connection to %s", recorder.live.url)
+    if options.record_dir is None:
+        try:
+            return run_tree(loaded, context, options, progress)
+        finally:
+            recorder.close()
     worker = ReportWorker()
     worker.start()  # imports the report's libraries while the run goes on
     try:

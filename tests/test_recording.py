@@ -20,6 +20,7 @@ from runtime.clock import SimClock
 from runtime.cli import main
 from runtime.recording import McapRos2Writer, RecordingBus
 from runtime.recording.schema import message_class, message_definition, type_name
+from runtime.report.data import clock_origin_ns
 from runtime.timestamps import duration_msg, time_msg
 
 CAMERAS = ("/scene_camera/color", "/wrist_camera/color", "/overview_camera/color")
@@ -83,8 +84,12 @@ def recording(tmp_path_factory) -> Path:
     return rec
 
 
+ORIGIN_NS: list[int] = [0]
+
+
 @pytest.fixture(scope="module")
 def messages(recording) -> dict[str, list[tuple[int, str, Any]]]:
+    ORIGIN_NS[0] = clock_origin_ns(recording / "run.mcap")
     return read_mcap(recording / "run.mcap")
 
 
@@ -152,8 +157,8 @@ def test_policy_request_and_response_summaries(messages):
     answered = {r["request"]: r for r in responses}
     assert answered[2]["status_name"] == "CHUNK_PRODUCED" and answered[2]["latency"] == pytest.approx(0.15, abs=0.011)
     assert answered[2]["chunk_steps"] > 20
-    # Camera frames are logged at the request instant.
-    camera_times = [row[0] for row in messages[CAMERAS[0]]]
+    # Camera frames are logged at the request instant (log times are wall-clock: origin + clock).
+    camera_times = [row[0] - ORIGIN_NS[0] for row in messages[CAMERAS[0]]]
     assert camera_times == [int(round(r["time"] * 1e9)) for r in requests]
 
 
@@ -295,10 +300,18 @@ def test_writer_round_trips_nested_messages_through_mcap_ros2(tmp_path):
 
 
 def test_message_definitions_follow_the_ros2msg_concatenation():
+    """As rosbag2 writes them: the installed .msg text (comments and constants kept), then each
+    nested type after a separator and ``MSG: pkg/msg/Type``."""
     text = message_definition(JointState)
-    assert text.startswith("std_msgs/Header header\nstring[] name\nfloat64[] position\n")
-    assert "\n" + "=" * 80 + "\nMSG: std_msgs/Header\nbuiltin_interfaces/Time stamp\nstring frame_id\n" in text
-    assert "MSG: builtin_interfaces/Time\nint32 sec\nuint32 nanosec\n" in text
+    root = text.split("\n" + "=" * 80 + "\n")[0]
+    assert root.startswith("# This is a message that holds data")
+    assert [line for line in root.splitlines() if line and not line.startswith("#")] == [
+        "std_msgs/Header header", "string[] name", "float64[] position", "float64[] velocity", "float64[] effort"]
+    assert "\n" + "=" * 80 + "\nMSG: std_msgs/msg/Header\n" in text
+    assert "\nMSG: builtin_interfaces/msg/Time\n" in text and "\nint32 sec\n" in text
+    result = message_definition(message_class(
+        "moveit_pro_controllers_msgs/action/FollowJointTrajectoryWithAdmittance_Result"))
+    assert result.startswith("int32 SUCCESSFUL=0\n") and "int32 SUPERSEDED=-8\n" in result
     assert type_name(GetActionChunk.Request) == "moveit_pro_ml_msgs/srv/GetActionChunk_Request"
     assert message_class("moveit_pro_ml_msgs/srv/GetActionChunk_Request") is GetActionChunk.Request
     assert message_class("sensor_msgs/JointState") is JointState

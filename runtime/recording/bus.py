@@ -33,7 +33,7 @@ from geometry_msgs.msg import WrenchStamped
 from sensor_msgs.msg import Image, JointState
 from std_msgs.msg import String
 
-from .mcap_writer import McapRos2Writer
+from .mcap_writer import SENSOR_DATA_QOS, McapRos2Writer
 
 WRENCH_TOPIC = "/force_torque_sensor_broadcaster/wrench"
 JOINT_STATES_TOPIC = "/joint_states"
@@ -170,6 +170,8 @@ class RecordingBus:
         self._recorded_topics: dict[str, Any] = {}
         self._last_recorded: dict[str, float] = {}
         self._policy_requests = 0
+        self.joint_state_listeners: list[Callable[[Any, float], None]] = []
+        """Called with each recorded ``/joint_states`` message and its time (e.g. to send ``/tf``)."""
         self.record_topic(JOINT_STATES_TOPIC, JointState, joint_states_hz)
 
     def __getattr__(self, name: str) -> Any:
@@ -181,10 +183,14 @@ class RecordingBus:
         if name in self._recorded_topics:
             return
 
+        listeners = self.joint_state_listeners if name == JOINT_STATES_TOPIC else []
+
         def record(msg: Any) -> None:
             now = self.clock.now()
             if self._due(name, now, max_hz):
                 self.writer.write(name, msg, now)
+                for listener in listeners:
+                    listener(msg, now)
 
         # Best effort connects to reliable and best-effort publishers alike.
         self._recorded_topics[name] = self.inner.create_subscription(name, msg_type, record, reliable=False)
@@ -194,6 +200,7 @@ class RecordingBus:
         if msg_type is JointState:
             self.record_topic(name, JointState, self.joint_states_hz)
         if msg_type is Image:
+            self.writer.qos.setdefault(name, SENSOR_DATA_QOS)  # what camera drivers offer
             return _FrameTap(sub, self._frames)
         return sub
 

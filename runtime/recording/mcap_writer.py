@@ -3,10 +3,15 @@
 Messages are serialized by rclpy's C serializer (the same CDR bytes a ROS 2 subscriber gets),
 which is what keeps recording cheap: the pure-Python encoder of mcap-ros2-support costs an
 order of magnitude more per message. Schemas use the ``ros2msg`` encoding
-(``runtime.recording.schema``); times are nanoseconds of the runtime clock.
+(``runtime.recording.schema``). Each channel carries the ``offered_qos_profiles`` metadata the
+MCAP ros2 profile requires (in rosbag2's Jazzy YAML). Log times are wall-clock nanoseconds:
+the runtime clock's seconds plus the instant the run started (``clock_origin_ns``, stored in the
+file's ``objective_runtime`` metadata record so a reader gets the runtime clock back).
 """
 from __future__ import annotations
 
+import time
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -17,24 +22,81 @@ from rclpy.serialization import serialize_message
 from .schema import message_definition, type_name
 
 LIBRARY = "objective-runtime recorder"
+METADATA_NAME = "objective_runtime"
+"""The MCAP metadata record holding ``clock_origin_ns``: log time = origin + runtime clock."""
+
+_INFINITE = "\n    sec: 9223372036\n    nsec: 854775807"
+
+
+@dataclass(frozen=True)
+class OfferedQos:
+    """The QoS a topic's publisher offers, as ``ros2 bag`` records it."""
+
+    reliable: bool = True
+    transient_local: bool = False
+    depth: int = 10
+
+    def yaml(self) -> str:
+        """rosbag2's (Jazzy) ``offered_qos_profiles`` text: a list of one profile."""
+        return (
+            f"- history: keep_last\n  depth: {self.depth}\n"
+            f"  reliability: {'reliable' if self.reliable else 'best_effort'}\n"
+            f"  durability: {'transient_local' if self.transient_local else 'volatile'}\n"
+            f"  deadline:{_INFINITE}\n  lifespan:{_INFINITE}\n  liveliness: automatic\n"
+            f"  liveliness_lease_duration:{_INFINITE}\n  avoid_ros_namespace_conventions: false"
+        )
+
+
+SENSOR_DATA_QOS = OfferedQos(reliable=False, depth=5)
+LATCHED_QOS = OfferedQos(transient_local=True, depth=1)
+
+
+@dataclass(frozen=True)
+class SerializedMessage:
+    """A message already serialized (CDR), with its type: written as it is."""
+
+    msg_class: type
+    data: bytes
+
+
+def message_type(msg: Any) -> type:
+    return msg.msg_class if isinstance(msg, SerializedMessage) else type(msg)
+
+
+def cdr_bytes(msg: Any) -> bytes:
+    """The CDR bytes a ROS 2 subscriber would get (rclpy's C serializer)."""
+    return msg.data if isinstance(msg, SerializedMessage) else serialize_message(msg)
 
 
 def to_nanoseconds(seconds: float) -> int:
     return max(0, int(round(seconds * 1e9)))
 
 
+def wall_clock_origin_ns(clock_now_s: float) -> int:
+    """The wall-clock instant at which the runtime clock read zero."""
+    return time.time_ns() - to_nanoseconds(clock_now_s)
+
+
 class McapRos2Writer:
     """One ``.mcap`` file: a channel per topic (one type per topic), a schema per message type."""
 
-    def __init__(self, path: Path | str) -> None:
+    def __init__(self, path: Path | str, clock_origin_ns: int = 0) -> None:
         self.path = Path(path)
+        self.clock_origin_ns = clock_origin_ns
         self._stream = open(self.path, "wb")
         self._writer = Writer(self._stream, compression=CompressionType.ZSTD)
         self._writer.start(profile=Profile.ROS2, library=LIBRARY)
+        self._writer.add_metadata(METADATA_NAME, {"clock_origin_ns": str(clock_origin_ns)})
+        self.qos: dict[str, OfferedQos] = {}
+        """Topic -> offered QoS, for topics not published reliable/volatile (the default)."""
         self._schemas: dict[type, int] = {}
         self._channels: dict[str, tuple[int, type]] = {}
         self._sequence: dict[str, int] = {}
         self.counts: dict[str, int] = {}
+        self.topics: dict[str, tuple[str, OfferedQos]] = {}
+        """Topic -> (type name, offered QoS), in the order the channels were opened."""
+        self.first_ns: int | None = None
+        self.last_ns: int | None = None
         self.closed = False
 
     def _channel(self, topic: str, msg_class: type) -> int:
@@ -50,20 +112,24 @@ class McapRos2Writer:
                 type_name(msg_class), SchemaEncoding.ROS2, message_definition(msg_class).encode()
             )
             self._schemas[msg_class] = schema
-        channel = self._writer.register_channel(topic, MessageEncoding.CDR, schema)
+        qos = self.qos.get(topic, OfferedQos())
+        channel = self._writer.register_channel(topic, MessageEncoding.CDR, schema, {"offered_qos_profiles": qos.yaml()})
         self._channels[topic] = (channel, msg_class)
+        self.topics[topic] = (type_name(msg_class), qos)
         return channel
 
     def write(self, topic: str, msg: Any, seconds: float) -> None:
         """Record ``msg`` on ``topic`` at ``seconds`` of the runtime clock."""
         if self.closed:
             return
-        channel = self._channel(topic, type(msg))
-        stamp = to_nanoseconds(seconds)
+        channel = self._channel(topic, message_type(msg))
+        stamp = self.clock_origin_ns + to_nanoseconds(seconds)
         sequence = self._sequence.get(topic, 0)
         self._sequence[topic] = sequence + 1
-        self._writer.add_message(channel, log_time=stamp, data=serialize_message(msg), publish_time=stamp, sequence=sequence)
+        self._writer.add_message(channel, log_time=stamp, data=cdr_bytes(msg), publish_time=stamp, sequence=sequence)
         self.counts[topic] = self.counts.get(topic, 0) + 1
+        self.first_ns = stamp if self.first_ns is None else min(self.first_ns, stamp)
+        self.last_ns = stamp if self.last_ns is None else max(self.last_ns, stamp)
 
     def close(self) -> None:
         if self.closed:

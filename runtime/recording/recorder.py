@@ -1,6 +1,9 @@
 """``Recorder``: one run recorded into a directory (``objective run --record DIR``).
 
-- ``run.mcap``: the bus traffic, through a ``RecordingBus`` installed as ``context.bus``;
+- ``run.mcap``: the bus traffic, through a ``RecordingBus`` installed as ``context.bus``, with
+  what a 3D viewer needs to draw the run (``/tf``, the robot's and the scene's markers:
+  ``runtime.recording.scene_view``) and the run's events on ``/rosout`` and
+  ``/behavior_tree/node_status`` (``runtime.recording.event_messages``);
 - ``events.jsonl``: one JSON object per line, ``{"time", "kind", "source", "data"}``: first the
   tree (``kind: "tree"``, every node with its parent, so the tree can be drawn again later),
   then every event of the run's ``EventLog`` as it happens (node status changes, chunk
@@ -18,8 +21,12 @@ from typing import Any, Iterable, TextIO
 
 from ..errors import ObjectiveError
 from ..events import Event
+from .bag_metadata import BAG_METADATA_FILE, bag_metadata_yaml
 from .bus import JOINT_STATES_HZ, RecordingBus
-from .mcap_writer import McapRos2Writer
+from .live import LiveOptions, LiveView
+from .event_messages import NODE_STATUS_TOPIC, ROSOUT_TOPIC, log_message, node_status_message
+from .mcap_writer import LATCHED_QOS, McapRos2Writer, to_nanoseconds, wall_clock_origin_ns
+from .scene_view import ROBOT_MARKERS_TOPIC, SCENE_MARKERS_TOPIC, TF_STATIC_TOPIC, SceneView, stamp_of
 
 MCAP_FILE = "run.mcap"
 EVENTS_FILE = "events.jsonl"
@@ -68,25 +75,49 @@ def node_record(index: int, node: Any, ids: dict[int, int], tree: Any) -> dict[s
     }
 
 
-class Recorder:
-    """Records a run into ``directory``; see the module doc. Install it before the world starts."""
+class Tee:
+    """Writes each message to several sinks (the MCAP file and a live view)."""
 
-    def __init__(self, directory: Path | str, context: Any, nodes: Iterable[Any] = (), tree: Any = None,
-                 joint_states_hz: float = JOINT_STATES_HZ) -> None:
-        self.directory = Path(directory)
-        if self.directory.exists() and not self.directory.is_dir():
-            raise ObjectiveError(f"--record {self.directory}: exists and is not a directory")
-        try:
-            self.directory.mkdir(parents=True, exist_ok=True)
-            for name in REPORT_FILES:  # a previous run's video must not pass for this run's
-                (self.directory / name).unlink(missing_ok=True)
-            self.writer = McapRos2Writer(self.directory / MCAP_FILE)
-        except OSError as err:
-            raise ObjectiveError(f"--record {self.directory}: cannot write there ({err.strerror})") from None
-        self._events: TextIO | None = open(self.directory / EVENTS_FILE, "w", encoding="utf-8")
+    def __init__(self, sinks: list[Any]) -> None:
+        self.sinks = sinks
+        self.qos: dict[str, Any] = {}
+        for sink in sinks:
+            sink.qos = self.qos
+
+    def write(self, topic: str, msg: Any, seconds: float) -> None:
+        for sink in self.sinks:
+            sink.write(topic, msg, seconds)
+
+    def close(self) -> None:
+        for sink in self.sinks:
+            sink.close()
+
+
+class Recorder:
+    """Records a run into ``directory`` and/or serves it live to Foxglove (see the module doc).
+
+    Install it before the world starts. With ``directory=None`` nothing is written to disk.
+    """
+
+    def __init__(self, directory: Path | str | None, context: Any, nodes: Iterable[Any] = (), tree: Any = None,
+                 joint_states_hz: float = JOINT_STATES_HZ, live: LiveOptions | None = None) -> None:
+        self.directory = Path(directory) if directory is not None else None
+        self.clock_origin_ns = wall_clock_origin_ns(context.clock.now())
+        self.live = LiveView(live, self.clock_origin_ns) if live is not None else None
+        sinks: list[Any] = [] if self.live is None else [self.live]
+        self.writer: McapRos2Writer | None = None
+        self._events: TextIO | None = None
+        if self.directory is not None:
+            self.writer = self._open(self.directory)
+            sinks.insert(0, self.writer)
+            self._events = open(self.directory / EVENTS_FILE, "w", encoding="utf-8")
+        self.sink = Tee(sinks)
+        self.sink.qos.update({topic: LATCHED_QOS for topic in (TF_STATIC_TOPIC, ROBOT_MARKERS_TOPIC, SCENE_MARKERS_TOPIC)})
         self.context = context
-        self.bus = RecordingBus(context.bus, self.writer, joint_states_hz)
+        self.bus = RecordingBus(context.bus, self.sink, joint_states_hz)
         context.bus = self.bus
+        view = SceneView(lambda: getattr(context, "scene", None), self.sink.write, self.stamp)
+        self.bus.joint_state_listeners.append(view.joint_state)
         nodes = list(nodes)
         ids = {id(node): i for i, node in enumerate(nodes)}
         tree_id = getattr(tree, "tree_id", "")
@@ -95,13 +126,34 @@ class Recorder:
         context.events.subscribe(self._on_event)
         self.stopped = False
 
+    def _open(self, directory: Path) -> McapRos2Writer:
+        if directory.exists() and not directory.is_dir():
+            raise ObjectiveError(f"--record {directory}: exists and is not a directory")
+        try:
+            directory.mkdir(parents=True, exist_ok=True)
+            for name in (*REPORT_FILES, BAG_METADATA_FILE):  # a previous run's files must not pass for this run's
+                (directory / name).unlink(missing_ok=True)
+            return McapRos2Writer(directory / MCAP_FILE, self.clock_origin_ns)
+        except OSError as err:
+            raise ObjectiveError(f"--record {directory}: cannot write there ({err.strerror})") from None
+
+    def stamp(self, seconds: float) -> Any:
+        """A ROS time stamp for ``seconds`` of the runtime clock (wall-clock based, like log times)."""
+        return stamp_of(self.clock_origin_ns + to_nanoseconds(seconds))
+
     def _write(self, record: dict[str, Any]) -> None:
         if self._events is not None:
             self._events.write(json.dumps(jsonable(record), allow_nan=False) + "\n")
 
     def _on_event(self, event: Event) -> None:
-        if not self.stopped:
-            self._write({"time": event.time, "kind": event.kind, "source": event.source, "data": event.data})
+        if self.stopped:
+            return
+        self._write({"time": event.time, "kind": event.kind, "source": event.source, "data": event.data})
+        if event.kind == "node_status":
+            self.sink.write(NODE_STATUS_TOPIC, node_status_message(event.data, event.source), event.time)
+        else:
+            self.sink.write(ROSOUT_TOPIC, log_message(event.kind, event.source, jsonable(event.data),
+                                                      self.stamp(event.time)), event.time)
 
     def stop(self) -> None:
         """Stop recording (idempotent): the MCAP file is finished, the joint limits noted."""
@@ -109,7 +161,11 @@ class Recorder:
             return
         self.stopped = True
         try:
-            self.writer.close()
+            self.sink.close()
+            if self.writer is not None and self.directory is not None:
+                w = self.writer
+                (self.directory / BAG_METADATA_FILE).write_text(
+                    bag_metadata_yaml(MCAP_FILE, w.topics, w.counts, w.first_ns, w.last_ns), encoding="utf-8")
         finally:
             limits = getattr(getattr(self.context, "scene", None), "limits", None)
             if limits is not None:

@@ -1,15 +1,21 @@
-"""ROS 2 message definitions (``ros2msg`` text) generated from rosidl Python message classes.
+"""ROS 2 message definitions (``ros2msg`` text) as ``ros2 bag record`` writes them into MCAP.
 
-An MCAP file that ``ros2 bag`` and Foxglove can open stores, per message type, its definition as
-ROS 2 ``.msg`` text with every nested type appended after a separator line and ``MSG: pkg/Type``
-(the "concatenated" scheme of the MCAP ``ros2msg`` schema encoding). The ``.msg`` files are not
-reliably findable at run time here (no ``AMENT_PREFIX_PATH``), but every generated Python class
-carries its field names and types (``SLOT_TYPES``), which is all a decoder needs. Comments and
-constants are not carried there, so the generated text has neither.
+Per message type, an MCAP ``ros2msg`` schema holds the type's ``.msg`` text followed, for every
+nested type, by a separator line and ``MSG: pkg/msg/Type`` and that type's text (the
+"concatenated" scheme rosbag2 uses). The text is read from the ``.msg``/``.srv``/``.action``
+files the interface packages install (``<prefix>/share/<pkg>/<kind>/<Type>.<kind>``, prefixes
+from ``AMENT_PREFIX_PATH`` and the running interpreter's), so comments and constants are kept.
+A type whose file cannot be found is described from its generated Python class instead
+(``SLOT_TYPES``: fields and types, which is all a decoder needs, without constants).
 """
 from __future__ import annotations
 
 import importlib
+import os
+import re
+import sys
+from functools import lru_cache
+from pathlib import Path
 from typing import Any
 
 from rosidl_parser import definition as idl
@@ -59,7 +65,7 @@ def _field_type(t: Any, nested: list[idl.NamespacedType]) -> str:
         return _BASIC.get(t.typename, t.typename)
     if isinstance(t, idl.NamespacedType):
         nested.append(t)
-        return f"{t.namespaces[0]}/{t.name}"
+        return f"{t.namespaces[0]}/{t.name}"  # as .msg files spell it; the MSG: line has pkg/msg/Type
     raise TypeError(f"cannot write rosidl type {t!r} as .msg text")
 
 
@@ -68,18 +74,56 @@ def _fields_text(msg_class: type, nested: list[idl.NamespacedType]) -> str:
     return "\n".join(f"{_field_type(t, nested)} {n}" for n, t in zip(names, msg_class.SLOT_TYPES)) + "\n"
 
 
+def _share_dirs() -> list[Path]:
+    prefixes = [p for p in os.environ.get("AMENT_PREFIX_PATH", "").split(os.pathsep) if p]
+    prefixes.append(sys.prefix)
+    return [Path(p) / "share" for p in dict.fromkeys(prefixes)]
+
+
+# The sections of an interface file, in order: .srv request/response, .action goal/result/feedback.
+_SECTIONS = {"Request": 0, "Response": 1, "Goal": 0, "Result": 1, "Feedback": 2}
+
+
+@lru_cache(maxsize=None)
+def interface_text(name: str) -> str | None:
+    """The installed text of ``pkg/msg/Type`` (or one section of ``pkg/srv/T_Request``,
+    ``pkg/action/T_Goal``...), or None when no installed file has it."""
+    package, kind, type_ = name.split("/")
+    section = 0
+    if kind != "msg":
+        base, _, part = type_.rpartition("_")
+        if part not in _SECTIONS:
+            return None
+        type_, section = base, _SECTIONS[part]
+    for share in _share_dirs():
+        path = share / package / kind / f"{type_}.{kind}"
+        if path.is_file():
+            parts = re.split(r"^---[ \t]*$", path.read_text(encoding="utf-8"), flags=re.MULTILINE)
+            if section < len(parts):
+                text = parts[section].strip("\n")
+                return text + "\n" if text else ""
+    return None
+
+
+def _definition_text(msg_class: type, nested: list[idl.NamespacedType]) -> str:
+    """One type's own text: the installed file's when there is one, else generated."""
+    generated = _fields_text(msg_class, nested)  # always walked: it finds the nested types
+    installed = interface_text(type_name(msg_class))
+    return generated if installed is None else installed
+
+
 def message_definition(msg_class: type) -> str:
     """The concatenated ``ros2msg`` definition of ``msg_class`` and every type it contains."""
     nested: list[idl.NamespacedType] = []
-    parts = [_fields_text(msg_class, nested)]
+    parts = [_definition_text(msg_class, nested)]
     seen: set[str] = set()
     while nested:
         t = nested.pop(0)
-        name = f"{t.namespaces[0]}/{t.name}"
+        name = "/".join((*t.namespaces, t.name))
         if name in seen:
             continue
         seen.add(name)
-        parts.append(f"{SEPARATOR}\nMSG: {name}\n{_fields_text(_nested_class(t), nested)}")
+        parts.append(f"{SEPARATOR}\nMSG: {name}\n{_definition_text(_nested_class(t), nested)}")
     return "".join(parts)
 
 

@@ -15,10 +15,13 @@ from typing import Any
 
 import numpy as np
 from mcap.reader import make_reader
+from mcap.records import Chunk, Message, Metadata
+from mcap.stream_reader import StreamReader
 from rclpy.serialization import deserialize_message
 
 from ..errors import ObjectiveError
 from ..recording.bus import JOINT_STATES_TOPIC
+from ..recording.mcap_writer import METADATA_NAME
 from ..recording.recorder import EVENTS_FILE, MCAP_FILE
 from ..recording.schema import message_class
 
@@ -172,7 +175,20 @@ def _wanted(topic: str, type_name: str) -> bool:
     return type_name.endswith("GripperCommand_Goal")
 
 
+def clock_origin_ns(path: Path) -> int:
+    """The wall-clock instant of the runtime clock's zero in a recording (0 for older files):
+    the ``objective_runtime`` metadata record, written before the first message."""
+    with open(path, "rb") as stream:
+        for record in StreamReader(stream, skip_magic=False).records:
+            if isinstance(record, Metadata) and record.name == METADATA_NAME:
+                return int(record.metadata.get("clock_origin_ns", "0"))
+            if isinstance(record, (Message, Chunk)):
+                return 0
+    return 0
+
+
 def read_mcap(path: Path, recording: Recording) -> None:
+    origin_ns = clock_origin_ns(path)
     classes: dict[str, type] = {}
     joint_messages: list[tuple[float, Any]] = []
     images: dict[tuple[str, int], Any] = {}
@@ -185,14 +201,14 @@ def read_mcap(path: Path, recording: Recording) -> None:
             counts[topic][0] = type_name
             counts[topic][1] += 1
             if type_name == "sensor_msgs/msg/Image":
-                images[(topic, message.log_time)] = message.data  # decoded only if a request shows it
+                images[(topic, message.log_time - origin_ns)] = message.data  # decoded only if a request shows it
                 continue
             if not _wanted(topic, type_name):
                 continue
             cls = classes.get(type_name)
             if cls is None:
                 cls = classes[type_name] = message_class(type_name)
-            t = message.log_time * 1e-9
+            t = (message.log_time - origin_ns) * 1e-9
             msg = deserialize_message(message.data, cls)
             if topic == JOINT_STATES_TOPIC:
                 joint_messages.append((t, msg))

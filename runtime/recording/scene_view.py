@@ -1,0 +1,272 @@
+"""The robot and its planning scene as ROS 2 messages a 3D viewer draws (Foxglove, RViz).
+
+- ``/tf`` and ``/tf_static``: every link's pose relative to its parent link, computed from a
+  joint state with the planning model's forward kinematics, links behind a joint on ``/tf``, links
+  fixed to their parent once on ``/tf_static`` (what ``robot_state_publisher`` publishes);
+- ``/robot_markers``: one ``visualization_msgs/MarkerArray`` of the robot's collision geometry
+  (capsules, cylinders, boxes, convex hulls as triangle lists), each marker locked to its link's
+  frame, so the recorded ``/tf`` moves it; sent once;
+- ``/planning_scene_markers``: the planning scene's world objects (table, cubes, added
+  objects) in ``world``, sent again whenever the scene's version changes (objects deleted from
+  the scene are deleted from the view).
+
+What is drawn is what the safety checks see (the collision model), not the rendered meshes.
+Functions here build messages; ``SceneView`` decides when to send them.
+"""
+from __future__ import annotations
+
+import struct
+from dataclasses import dataclass
+from typing import Any, Callable
+
+import coal
+import numpy as np
+import pinocchio as pin
+from builtin_interfaces.msg import Time
+from geometry_msgs.msg import Point, Pose
+from std_msgs.msg import ColorRGBA
+from tf2_msgs.msg import TFMessage
+from visualization_msgs.msg import Marker, MarkerArray
+
+from ..scene.collision import Box, Capsule, Cylinder, Mesh, Sphere
+from .mcap_writer import SerializedMessage
+
+WORLD_FRAME = "world"
+TF_TOPIC = "/tf"
+TF_STATIC_TOPIC = "/tf_static"
+ROBOT_MARKERS_TOPIC = "/robot_markers"
+SCENE_MARKERS_TOPIC = "/planning_scene_markers"
+
+SCENE_MARKERS_PERIOD_S = 0.1
+"""The scene's objects are sent at most this often (clock time): cubes pushed by the gripper
+change the scene at every physics step, and 10 Hz is smooth enough to watch."""
+
+ROBOT_RGBA = (0.62, 0.66, 0.72, 1.0)
+TABLE_RGBA = (0.55, 0.42, 0.30, 1.0)
+OBJECT_RGBA = (0.85, 0.55, 0.15, 0.9)
+NAMED_RGBA = {"red": (0.85, 0.15, 0.15, 1.0), "green": (0.15, 0.7, 0.25, 1.0), "blue": (0.15, 0.3, 0.85, 1.0)}
+
+
+def stamp_of(nanoseconds: int) -> Time:
+    return Time(sec=nanoseconds // 1_000_000_000, nanosec=nanoseconds % 1_000_000_000)
+
+
+def pose_msg(transform: pin.SE3) -> Pose:
+    pose = Pose()
+    pose.position.x, pose.position.y, pose.position.z = (float(v) for v in transform.translation)
+    x, y, z, w = pin.Quaternion(transform.rotation).coeffs()
+    pose.orientation.x, pose.orientation.y, pose.orientation.z, pose.orientation.w = float(x), float(y), float(z), float(w)
+    return pose
+
+
+def _rgba(values: tuple[float, float, float, float]) -> ColorRGBA:
+    return ColorRGBA(r=values[0], g=values[1], b=values[2], a=values[3])
+
+
+def object_color(name: str) -> tuple[float, float, float, float]:
+    """Objects named after a colour (``cube_blue``) are drawn in it; the table in wood."""
+    if name == "table":
+        return TABLE_RGBA
+    for word, rgba in NAMED_RGBA.items():
+        if word in name.split("_"):
+            return rgba
+    return OBJECT_RGBA
+
+
+@dataclass
+class LinkTree:
+    """Parent of every link (BODY frame) of a robot model, ``world`` for the root; which links
+    move relative to their parent (a joint between them) and which are fixed to it."""
+
+    model: pin.Model
+    data: pin.Data
+    frame_ids: dict[str, int]
+    parents: dict[str, str]
+    moving: tuple[str, ...]
+    fixed: tuple[str, ...]
+
+    @classmethod
+    def of(cls, robot: Any) -> "LinkTree":
+        parents = {link: robot.parent_link(link) for link in robot.link_names if link != "universe"}
+        parents = {link: (WORLD_FRAME if parent in ("universe", link) else parent) for link, parent in parents.items()}
+        frame_ids = {link: robot.frame_id(link) for link in parents}
+
+        def joint_of(link: str) -> int:
+            return 0 if link == WORLD_FRAME else robot.model.frames[frame_ids[link]].parentJoint
+
+        moving = tuple(link for link, parent in parents.items() if joint_of(link) != joint_of(parent))
+        fixed = tuple(link for link in parents if link not in moving)
+        return cls(robot.model, robot.model.createData(), frame_ids, parents, moving, fixed)
+
+
+class TfEncoder:
+    """Turns a configuration into the serialized TFMessage of a fixed list of links.
+
+    Written as CDR directly into a prepared buffer (the frame names never change; only the
+    stamps and the seven numbers per link do): building rosidl TransformStamped objects 50
+    times a second cost more than the rest of the recording together."""
+
+    def __init__(self, tree: LinkTree, links: tuple[str, ...]) -> None:
+        self.tree = tree
+        self.links = links
+        self._frames = [(tree.frame_ids.get(tree.parents[link]), tree.frame_ids[link]) for link in links]
+        self._buffer, self._stamp_at, self._values_at = _tf_template([(tree.parents[l], l) for l in links])
+
+    def encode(self, q: np.ndarray, stamp: Time) -> SerializedMessage:
+        data = self.tree.data
+        pin.framesForwardKinematics(self.tree.model, data, q)
+        poses = data.oMf
+        buffer = self._buffer
+        for (parent, child), stamp_at, values_at in zip(self._frames, self._stamp_at, self._values_at):
+            relative = poses[child] if parent is None else poses[parent].actInv(poses[child])
+            struct.pack_into("<iI", buffer, stamp_at, stamp.sec, stamp.nanosec)
+            struct.pack_into("<7d", buffer, values_at, *pin.SE3ToXYZQUAT(relative).tolist())  # x y z qx qy qz qw
+        return SerializedMessage(TFMessage, bytes(buffer))
+
+
+def _align(buffer: bytearray, size: int) -> None:
+    """Pad to ``size`` bytes, counted from after the 4-byte encapsulation header (XCDR1)."""
+    buffer.extend(b"\0" * (-(len(buffer) - 4) % size))
+
+
+def _cdr_string(buffer: bytearray, text: str) -> None:
+    data = text.encode() + b"\0"
+    _align(buffer, 4)
+    buffer += struct.pack("<I", len(data)) + data
+
+
+def _tf_template(frames: list[tuple[str, str]]) -> tuple[bytearray, list[int], list[int]]:
+    """The CDR (little endian) of a TFMessage with ``frames`` (parent, child), and where each
+    entry's stamp and its seven numbers (x, y, z, qx, qy, qz, qw) go."""
+    buffer = bytearray(b"\x00\x01\x00\x00") + struct.pack("<I", len(frames))
+    stamps, values = [], []
+    for parent, child in frames:
+        stamps.append(len(buffer))
+        buffer += bytes(8)
+        _cdr_string(buffer, parent)
+        _cdr_string(buffer, child)
+        _align(buffer, 8)
+        values.append(len(buffer))
+        buffer += bytes(56)
+    return buffer, stamps, values
+
+
+def _hull_triangles(hull: Any) -> np.ndarray:
+    """(3 * n_triangles, 3) vertices of a coal convex hull, as a triangle list."""
+    points = np.asarray(hull.points())
+    indices = np.array([[hull.polygons(i)[k] for k in range(3)] for i in range(hull.num_polygons)], dtype=int)
+    return points[indices.reshape(-1)]
+
+
+def _shape_markers(geometry: Any, pose: pin.SE3) -> list[Marker]:
+    """Markers (without header, id or colour) drawing one collision geometry at ``pose``."""
+    def marker(kind: int, at: pin.SE3, sx: float, sy: float, sz: float) -> Marker:
+        m = Marker(type=kind, action=Marker.ADD, pose=pose_msg(at))
+        m.scale.x, m.scale.y, m.scale.z = float(sx), float(sy), float(sz)
+        return m
+
+    if isinstance(geometry, (coal.Box, Box)):
+        size = 2 * np.asarray(geometry.halfSide) if isinstance(geometry, coal.Box) else geometry.size
+        return [marker(Marker.CUBE, pose, *size)]
+    if isinstance(geometry, (coal.Sphere, Sphere)):
+        return [marker(Marker.SPHERE, pose, *(2 * geometry.radius,) * 3)]
+    if isinstance(geometry, (coal.Cylinder, Cylinder)):
+        length = 2 * geometry.halfLength if isinstance(geometry, coal.Cylinder) else geometry.length
+        return [marker(Marker.CYLINDER, pose, 2 * geometry.radius, 2 * geometry.radius, length)]
+    if isinstance(geometry, (coal.Capsule, Capsule)):
+        half = geometry.halfLength if isinstance(geometry, coal.Capsule) else geometry.length / 2
+        d = 2 * geometry.radius
+        ends = [pose * pin.SE3(np.eye(3), np.array([0.0, 0.0, z])) for z in (-half, half)]
+        return [marker(Marker.CYLINDER, pose, d, d, 2 * half)] + [marker(Marker.SPHERE, e, d, d, d) for e in ends]
+    if isinstance(geometry, coal.ConvexBase):
+        m = marker(Marker.TRIANGLE_LIST, pose, 1.0, 1.0, 1.0)
+        m.points = [Point(x=float(x), y=float(y), z=float(z)) for x, y, z in _hull_triangles(geometry)]
+        return [m]
+    if isinstance(geometry, Mesh):
+        return []  # a world mesh is drawn through its collision hull once it is in the model
+    return []
+
+
+def robot_markers(robot: Any, stamp: Time) -> MarkerArray:
+    """The robot's collision geometry, each marker in its link's frame (``frame_locked``)."""
+    out = MarkerArray()
+    for go in robot.collision_model.geometryObjects:
+        link = robot.link_of_frame(go.parentFrame)
+        link_in_joint = robot.model.frames[robot.frame_id(link)].placement
+        pose = link_in_joint.actInv(go.placement)  # geometry placements are relative to the joint
+        for m in _shape_markers(go.geometry, pose):
+            m.header.frame_id = link
+            m.header.stamp = stamp
+            m.ns = "robot"
+            m.id = len(out.markers)
+            m.frame_locked = True
+            m.color = _rgba(ROBOT_RGBA)
+            out.markers.append(m)
+    return out
+
+
+def object_markers(objects: dict[str, Any], attachments: tuple[Any, ...], stamp: Time,
+                   previous: dict[str, int] | None = None) -> MarkerArray:
+    """The scene's world objects in ``world`` and the objects the robot carries, locked to their
+    link; the markers of ``previous`` (name -> marker count) that are gone now are deleted."""
+    placed = [(name, WORLD_FRAME, obj.shape, obj.pose) for name, obj in objects.items()]
+    placed += [(a.name, a.link, a.shape, a.pose) for a in attachments]
+    out = MarkerArray()
+    for name, frame, shape, pose in sorted(placed, key=lambda p: p[0]):
+        for k, m in enumerate(_shape_markers(shape, pin.SE3(np.asarray(pose, dtype=float).reshape(4, 4)))):
+            m.header.frame_id = frame
+            m.header.stamp = stamp
+            m.ns = name
+            m.id = k
+            m.frame_locked = frame != WORLD_FRAME
+            m.color = _rgba(object_color(name))
+            out.markers.append(m)
+    drawn = marker_counts(out)
+    for name, count in sorted((previous or {}).items()):
+        out.markers += [Marker(ns=name, id=k, action=Marker.DELETE) for k in range(drawn.get(name, 0), count)]
+    return out
+
+
+def marker_counts(markers: MarkerArray) -> dict[str, int]:
+    counts: dict[str, int] = {}
+    for m in markers.markers:
+        if m.action == Marker.ADD:
+            counts[m.ns] = counts.get(m.ns, 0) + 1
+    return counts
+
+
+class SceneView:
+    """Sends ``/tf`` with every recorded joint state, ``/tf_static`` and the robot's markers once,
+    and the scene's objects whenever the scene changes. ``scene`` is read lazily: worlds create it on start."""
+
+    def __init__(self, scene: Callable[[], Any], write: Callable[[str, Any, float], None],
+                 stamp: Callable[[float], Time]) -> None:
+        self._scene = scene
+        self._write = write
+        self._stamp = stamp
+        self._tf: TfEncoder | None = None
+        self._robot: Any = None
+        self._scene_version: Any = None
+        self._scene_sent_s = -float("inf")
+        self._objects: dict[str, int] = {}
+
+    def joint_state(self, msg: Any, seconds: float) -> None:
+        scene = self._scene()
+        robot = getattr(scene, "robot", None)
+        if robot is None:
+            return
+        stamp = self._stamp(seconds)
+        q = robot.configuration(dict(zip(msg.name, msg.position)))
+        if robot is not self._robot:
+            tree = LinkTree.of(robot)
+            self._robot, self._tf = robot, TfEncoder(tree, tree.moving)
+            self._write(TF_STATIC_TOPIC, TfEncoder(tree, tree.fixed).encode(q, stamp), seconds)
+            self._write(ROBOT_MARKERS_TOPIC, robot_markers(robot, stamp), seconds)
+        self._write(TF_TOPIC, self._tf.encode(q, stamp), seconds)
+        version = scene.version
+        if version != self._scene_version and seconds - self._scene_sent_s >= SCENE_MARKERS_PERIOD_S - 1e-9:
+            self._scene_version, self._scene_sent_s = version, seconds
+            objects, attachments = scene.objects, scene.attachments
+            markers = object_markers(objects, attachments, stamp, self._objects)
+            self._write(SCENE_MARKERS_TOPIC, markers, seconds)
+            self._objects = marker_counts(markers)
