@@ -18,14 +18,14 @@ from moveit_pro_ml_msgs.srv import GetActionChunk
 
 from runtime.bus import InProcessBus
 from runtime.clock import SimClock
-from sim.policy.adapter import request_to_msg
-from sim.policy.backend import PolicyRequest, PolicyResponse
-from sim.policy.http_client import ClientConfig, HttpBackend, InferUrlError, check_infer_url
-from sim.policy.images import rgb_to_image
-from sim.policy.node import AdapterConfig, http_adapter
-from sim.policy.replay import RecordedChunk, write_replay
-from sim.policy.server import CELL_JOINTS, KEY_ENV, InferenceServer, ServerConfig
-from sim.policy.replay import ReplayBackend
+from policy.adapter import request_to_msg
+from policy.backend import PolicyRequest, PolicyResponse
+from policy.http_client import ClientConfig, HttpBackend, InferUrlError, check_infer_url
+from policy.images import rgb_to_image
+from policy.node import AdapterConfig, http_adapter
+from policy.replay import RecordedChunk, write_replay
+from policy.server import CELL_JOINTS, KEY_ENV, InferenceServer, ServerConfig
+from policy.replay import ReplayBackend
 
 from .fakes import FakeBackend
 

@@ -16,9 +16,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sim.policy.backend import PolicyRequest, PolicyResponse, PolicyStatus
-from sim.policy.replay import RecordedChunk, write_replay
-from sim.policy.server import (
+from policy.backend import PolicyRequest, PolicyResponse, PolicyStatus
+from policy.replay import RecordedChunk, write_replay
+from policy.server import (
     CELL_JOINTS,
     KEY_ENV,
     InferenceServer,
@@ -27,7 +27,7 @@ from sim.policy.server import (
     execution_horizon,
     parse_warmup_images,
 )
-from sim.policy.wire import (
+from policy.wire import (
     WireError,
     decode_request,
     decode_response,
@@ -351,8 +351,8 @@ def test_response_round_trip_and_strictness():
 def test_nothing_on_the_wire_is_pickle():
     import re
 
-    for name in ("wire.py", "server.py", "http_client.py", "node.py", "oracle_remote.py"):
-        source = (ROOT / "sim" / "policy" / name).read_text()
+    for name in ("policy/wire.py", "policy/server.py", "policy/http_client.py", "policy/node.py", "sim/oracle_remote.py"):
+        source = (ROOT / name).read_text()
         assert not re.search(r"import\s+(c?pickle|dill|marshal)|(pickle|marshal)\.loads?\(|allow_pickle\s*=\s*True", source), name
 
 
@@ -426,8 +426,8 @@ def test_remote_oracle_answers_what_the_embedded_oracle_answers():
     from geometry_msgs.msg import TransformStamped
     from sim.layouts import layout
     from sim.planning import CUBE_SIZE
-    from sim.policy.oracle import OracleBackend, SceneKinematics
-    from sim.policy.oracle_remote import CUBE_POSE_TOPIC, RemoteOracleBackend, cube_pose_msg
+    from sim.oracle import OracleBackend, SceneKinematics
+    from sim.oracle_remote import CUBE_POSE_TOPIC, RemoteOracleBackend, cube_pose_msg
     from sim.robot_model import ARM_JOINTS, load_waypoints, planning_robot_model
 
     cubes = {c: (np.array([x, y, CUBE_SIZE / 2]), np.array([np.cos(yaw / 2), 0, 0, np.sin(yaw / 2)]))
@@ -464,7 +464,7 @@ def test_remote_oracle_answers_what_the_embedded_oracle_answers():
 
 @pytest.mark.ros
 def test_remote_oracle_without_cube_poses_answers_error_naming_the_topics():
-    from sim.policy.oracle_remote import RemoteOracleBackend
+    from sim.oracle_remote import RemoteOracleBackend
     from sim.robot_model import planning_robot_model
 
     remote = RemoteOracleBackend(robot=planning_robot_model(), wait_s=0.2, node_name="lonely_oracle")
@@ -486,7 +486,7 @@ def test_kinematic_world_publishes_cube_poses_for_the_remote_oracle():
     from runtime.events import EventLog
     from geometry_msgs.msg import TransformStamped
     from sim.kinematic import KinematicWorld
-    from sim.policy.oracle_remote import pose_from_msg
+    from sim.oracle_remote import pose_from_msg
 
     clock = SimClock()
     bus = InProcessBus(clock)

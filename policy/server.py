@@ -1,8 +1,8 @@
 """The HTTP inference server: one ``PolicyBackend`` behind ``GET /health`` and ``POST /infer``.
 
-Run it as ``objective serve --backend oracle|replay [--replay-file F] [--host H] [--port N]``.
-The adapter node (``sim/policy/node.py``) forwards each GetActionChunk call here; the body is
-the JSON of ``sim/policy/wire.py`` (no pickle anywhere).
+Run it as ``objective serve --backend NAME [--replay-file F] [--host H] [--port N]``.
+The adapter node (``policy/node.py``) forwards each GetActionChunk call here; the body is
+the JSON of ``policy/wire.py`` (no pickle anywhere).
 
 Endpoints:
 
@@ -40,6 +40,7 @@ import ssl
 import threading
 import time
 from dataclasses import dataclass, field
+from importlib.metadata import entry_points
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
 from typing import Any, Callable
@@ -60,7 +61,7 @@ SOCKET_TIMEOUT_S = 30.0
 """A client that stops sending mid-body is dropped after this, so it cannot hold a thread forever."""
 DRAIN_S = 2.0
 
-log = logging.getLogger("sim.policy.server")
+log = logging.getLogger("policy.server")
 
 
 def execution_horizon(frozen_prefix_steps: int, guidance_horizon: int, default_guidance: int) -> int:
@@ -377,7 +378,8 @@ class BackendOptions:
     """A LeRobot checkpoint directory (``--backend lerobot``)."""
 
 
-def _replay(options: BackendOptions) -> PolicyBackend:
+def replay_backend(options: BackendOptions) -> PolicyBackend:
+    """``--backend replay``: the chunks of ``--replay-file``, in order."""
     from .replay import ReplayBackend
 
     if options.replay_file is None:
@@ -387,13 +389,8 @@ def _replay(options: BackendOptions) -> PolicyBackend:
     return ReplayBackend(options.replay_file)
 
 
-def _oracle(options: BackendOptions) -> PolicyBackend:
-    from .oracle_remote import RemoteOracleBackend
-
-    return RemoteOracleBackend()
-
-
-def _lerobot(options: BackendOptions) -> PolicyBackend:
+def lerobot_backend(options: BackendOptions) -> PolicyBackend:
+    """``--backend lerobot``: the LeRobot checkpoint in ``--checkpoint`` (needs `make lerobot`)."""
     from .lerobot_backend import make_lerobot_backend
 
     if options.checkpoint is None:
@@ -403,16 +400,22 @@ def _lerobot(options: BackendOptions) -> PolicyBackend:
     return make_lerobot_backend(options.checkpoint, guidance_horizon=options.default_guidance or None)
 
 
-BACKENDS: dict[str, Callable[[BackendOptions], PolicyBackend]] = {"oracle": _oracle, "replay": _replay, "lerobot": _lerobot}
-"""``--backend`` name -> factory. A new backend (LeRobot) adds itself here: one class with
-``load`` / ``warmup`` / ``infer``, nothing else about the server changes."""
+BACKEND_GROUP = "objective.policy_backends"
+"""Entry-point group naming the ``--backend`` choices: name -> ``factory(BackendOptions)``. This
+package declares ``replay`` and ``lerobot``; the simulated cell declares ``oracle``; a new backend
+is one class with ``load`` / ``warmup`` / ``infer`` and one entry point, nothing else changes."""
+
+
+def backend_names() -> list[str]:
+    return sorted({ep.name for ep in entry_points(group=BACKEND_GROUP)})
 
 
 def make_backend(name: str, options: BackendOptions) -> PolicyBackend:
     """The backend ``name`` built from ``options``; ValueError naming the known ones."""
-    factory = BACKENDS.get(name)
-    if factory is None:
-        raise ValueError(f"unknown backend {name!r} (known: {', '.join(sorted(BACKENDS))})")
+    found = [ep for ep in entry_points(group=BACKEND_GROUP) if ep.name == name]
+    if not found:
+        raise ValueError(f"unknown backend {name!r} (known: {', '.join(backend_names()) or 'none installed'})")
+    factory: Callable[[BackendOptions], PolicyBackend] = found[0].load()
     return factory(options)
 
 

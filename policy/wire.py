@@ -32,7 +32,7 @@ Any other answer (``4xx``/``5xx``) carries ``{"error": "<reason>"}``.
 Decoding is strict: an unknown or missing field, a wrong type, an array whose bytes do not
 match its shape, a non-finite number: ``WireError`` naming the field and what is wrong, which the
 server answers as ``400`` and the adapter as ERROR. Contract checks that need the request
-(one column per observed joint) stay in the adapter (``sim.policy.adapter.validate_response``).
+(one column per observed joint) stay in the adapter (``policy.adapter.validate_response``).
 This module imports no ROS, so an inference environment without rclpy can use it.
 """
 from __future__ import annotations

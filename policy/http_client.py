@@ -44,7 +44,7 @@ rather than its own timeout."""
 MAX_RESPONSE_BYTES = 64 * 1024 * 1024
 _SEND_PIECE = 1 << 20
 
-log = logging.getLogger("sim.policy.http_client")
+log = logging.getLogger("policy.http_client")
 
 
 class InferUrlError(ValueError):
