@@ -15,11 +15,11 @@ export ROS_LOG_DIR ?= $(CURDIR)/build/ros_log
 
 setup: $(STAMP)
 
-$(STAMP): pyproject.toml tools/build_interfaces.py $(shell find runtime/ros/interfaces -type f 2>/dev/null)
+$(STAMP): pyproject.toml runtime/build_interfaces.py $(shell find runtime/ros/interfaces -type f 2>/dev/null)
 	@test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
 	$(PY) -m pip install --quiet -e '.[ros-build,test]'
-	$(PY) tools/build_interfaces.py
+	$(PY) -m runtime.build_interfaces --build-dir build/interfaces
 	@touch $(STAMP)
 
 # Optional LeRobot extra (torch CPU + lerobot 0.4.4); see requirements/lerobot.txt for why the order

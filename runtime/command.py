@@ -3,9 +3,10 @@ from __future__ import annotations
 
 import argparse
 from dataclasses import dataclass
-from typing import Callable
+from typing import TYPE_CHECKING, Callable
 
-from .registry import Registry
+if TYPE_CHECKING:  # stdlib only at run time: runtime.build_interfaces runs before anything else works
+    from .registry import Registry
 
 EXIT_SUCCESS, EXIT_FAILURE, EXIT_BAD_INPUT = 0, 1, 2
 COMMAND_GROUP = "objective.commands"
@@ -23,4 +24,4 @@ class Command:
 
     help: str
     add_arguments: Callable[[argparse.ArgumentParser], None]
-    run: Callable[[argparse.Namespace, Registry], int]
+    run: Callable[[argparse.Namespace, "Registry"], int]
