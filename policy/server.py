@@ -34,7 +34,6 @@ latency.
 from __future__ import annotations
 
 import hmac
-import ipaddress
 import json
 import logging
 import os
@@ -53,6 +52,7 @@ from typing import Any, Callable
 import numpy as np
 
 from .backend import PolicyBackend, PolicyRequest
+from .http_client import is_loopback
 from .wire import CONTENT_TYPE, DEFAULT_MAX_BODY_BYTES, WireError, decode_request, encode_response, error_body
 
 KEY_ENV = "POLICY_SERVER_KEY"
@@ -153,16 +153,6 @@ class ServerConfig:
             raise ValueError("--tls-cert and --tls-key go together")
         if self.tls_client_ca is not None and self.tls_cert is None:
             raise ValueError("--tls-client-ca needs --tls-cert and --tls-key")
-
-
-def is_loopback(host: str) -> bool:
-    """Is ``host`` a loopback address (127.0.0.0/8, ::1) or ``localhost``?"""
-    if host.strip().lower() == "localhost":
-        return True
-    try:
-        return ipaddress.ip_address(host.strip().strip("[]")).is_loopback
-    except ValueError:
-        return False  # a host name: it may resolve to anything
 
 
 def exposure_warnings(config: ServerConfig) -> list[str]:
