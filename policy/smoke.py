@@ -240,8 +240,11 @@ def run_smoke_test(config: SmokeConfig, bus: Any = None) -> SmokeReport:
         bus = RosBus(WallClock(), node_name="policy_smoke_test")
     try:
         client = bus.create_client(config.service_name, GetActionChunk)
-        joint_sub = None if config.synthetic_joints else bus.create_subscription(config.joint_states_topic, JointState)
-        image_subs = [] if config.synthetic_images else [bus.create_subscription(t, Image) for t in config.image_topics]
+        joint_sub = None if config.synthetic_joints else bus.create_subscription(config.joint_states_topic, JointState, reliable=True)
+        # Joint states reliable, as ExecutePolicy subscribes them; cameras best-effort, which matches
+        # drivers publishing either (most use the best-effort sensor-data QoS).
+        image_subs = [] if config.synthetic_images else [
+            bus.create_subscription(t, Image, reliable=False) for t in config.image_topics]
 
         if _wait(client.service_is_ready, config.wait):
             report.add("service", PASS, f"{config.service_name} is available")
@@ -275,7 +278,8 @@ def run_smoke_test(config: SmokeConfig, bus: Any = None) -> SmokeReport:
         else:
             for name, topic, sub in zip(config.image_names, config.image_topics, image_subs):
                 if not _wait(lambda: sub.latest is not None, config.wait):
-                    report.add(f"camera {name}", FAIL, f"no frame on {topic} within {config.wait:g} s")
+                    report.add(f"camera {name}", FAIL, f"no frame on {topic} within {config.wait:g} s (subscribed "
+                               "best-effort, so a reliable or best-effort publisher matches: is the driver publishing?)")
                     return report
                 frame = sub.latest
                 frames.append(frame)

@@ -4,6 +4,7 @@ from __future__ import annotations
 import os
 import subprocess
 import sys
+import threading
 import uuid
 from pathlib import Path
 
@@ -200,6 +201,45 @@ def test_smoke_test_passes_against_a_working_adapter(cell):
     assert request.joint_names == NAMES and request.new_episode and request.stamp == 7.0
     assert np.allclose(request.joint_positions, [0.1, -1.2, 1.3, -1.6, -1.5, 0.2, 0.0])
     assert request.images["scene"].shape == (48, 64, 3)
+
+
+@pytest.mark.ros
+def test_a_camera_driver_publishing_best_effort_is_observed(cell):
+    """A plain rclpy publisher with the sensor-data QoS (best-effort), as camera drivers use."""
+    import rclpy
+    from rclpy.qos import qos_profile_sensor_data
+
+    tag, _ = cell
+    context = rclpy.Context()
+    rclpy.init(context=context)
+    node = rclpy.create_node("best_effort_camera", context=context)
+    publisher = node.create_publisher(Image, f"{tag}/ir_camera/image_raw", qos_profile_sensor_data)
+    frame = rgb_to_image(np.full((30, 40, 3), 50, np.uint8), "rgb8")
+    timer = node.create_timer(0.02, lambda: publisher.publish(frame))
+    executor = rclpy.executors.SingleThreadedExecutor(context=context)
+    executor.add_node(node)
+    spinning = threading.Thread(target=lambda: executor.spin(), daemon=True)
+    spinning.start()
+    try:
+        report = run_smoke_test(config(tag, image_topics=(f"{tag}/ir_camera/image_raw",), image_names=("ir",)))
+    finally:
+        node.destroy_timer(timer)
+        executor.shutdown(timeout_sec=2)
+        node.destroy_node()
+        rclpy.try_shutdown(context=context)
+        spinning.join(timeout=5)
+    checks = {c.name: c for c in report.checks}
+    assert checks["camera ir"].result == PASS and checks["camera ir"].detail == f"{tag}/ir_camera/image_raw: 40x30 rgb8"
+    assert report.passed, report.table()
+
+
+@pytest.mark.ros
+def test_a_silent_camera_fails_naming_the_qos(cell):
+    tag, _ = cell
+    report = run_smoke_test(config(tag, image_topics=(f"{tag}/nothing/image_raw",), image_names=("none",), wait=0.5))
+    assert [(c.name, c.result, c.detail) for c in report.checks][-1] == (
+        "camera none", FAIL, f"no frame on {tag}/nothing/image_raw within 0.5 s (subscribed best-effort, so a reliable "
+        "or best-effort publisher matches: is the driver publishing?)")
 
 
 @pytest.mark.ros
