@@ -212,3 +212,54 @@ def test_execute_policy_over_ros_calls_a_policy_served_by_another_node(ros_env):
     latency = result.extra["execute_policy"]
     assert 0.0 < latency["latency_p50_s"] < 0.3  # a real round trip over DDS, measured on the wall clock
     assert latency["stall_seconds"] == 0.0 and result.wall_seconds < 20.0
+
+
+def test_a_failing_execute_policy_s_cancel_reaches_the_hosted_controller(ros_env, monkeypatch, capfd):
+    """ExecutePolicy fails (not halted) while its trajectory goal runs: it cancels the goal, and
+    the cancel is served by the hosted controller before the node leaves the graph."""
+    from sim.controllers.admittance import JointTrajectoryAdmittanceController
+
+    served: list[bool] = []
+    on_cancel = JointTrajectoryAdmittanceController._on_cancel
+
+    def recording(self, handle):
+        served.append(on_cancel(self, handle))
+        return served[-1]
+
+    monkeypatch.setattr(JointTrajectoryAdmittanceController, "_on_cancel", recording)
+    requests: list[Any] = []
+
+    def policy(request: Any) -> Any:
+        requests.append(request)
+        if len(requests) == 1:
+            time.sleep(0.3)  # seeds the latency estimate, as in the test above
+        if len(requests) == 3:
+            return R(status=R.ERROR, message="model lost its weights")
+        response = R(status=R.CHUNK_PRODUCED, native_control_period=0.1)
+        position = [float(v) for v in request.robot_state.position]
+        response.chunk = JointTrajectory(joint_names=list(request.robot_state.name),
+                                         points=[JointTrajectoryPoint(positions=position) for _ in range(30)])
+        return response
+
+    server = RosBus(WallClock(), node_name="scripted_policy")
+    server.create_service("/get_action_chunk", GetActionChunk, policy)
+    options = RunOptions(ros=True, world="kinematic", max_seconds=20.0)
+    context = make_context(options)
+    xml = (
+        '<root BTCPP_format="4"><BehaviorTree ID="T"><Sequence>'
+        '<SwitchController activate_controllers="joint_trajectory_admittance_controller" deactivate_controllers="velocity_force_controller"/>'
+        '<ExecutePolicy policy_service_name="/get_action_chunk" joint_group_name="manipulator" total_action_steps="60" '
+        'dt="0.1" committed_action_steps="20" goal_path_tolerance="0.3" policy_call_timeout="3.0"/>'
+        "</Sequence></BehaviorTree></root>"
+    )
+    try:
+        loaded = load_tree(xml, Registry.from_entry_points(), context)
+        started = time.monotonic()
+        result = run_tree(loaded, context, options)
+    finally:
+        server.close()
+    assert result.status == "FAILURE"
+    assert result.reason == "the policy answered ERROR for the chunk 2: model lost its weights"
+    assert served == [True]
+    assert "BusClosed" not in capfd.readouterr().err
+    assert time.monotonic() - started < 15.0
