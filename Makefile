@@ -15,11 +15,11 @@ export ROS_LOG_DIR ?= $(CURDIR)/build/ros_log
 
 setup: $(STAMP)
 
-$(STAMP): pyproject.toml tools/build_interfaces.py $(shell find runtime/ros/interfaces -type f 2>/dev/null)
+$(STAMP): pyproject.toml runtime/build_interfaces.py $(shell find runtime/ros/interfaces -type f 2>/dev/null)
 	@test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
 	$(PY) -m pip install --quiet -e '.[ros-build,test]'
-	$(PY) tools/build_interfaces.py
+	$(PY) -m runtime.build_interfaces --build-dir build/interfaces
 	@touch $(STAMP)
 
 # Optional LeRobot extra (torch CPU + lerobot 0.4.4); see requirements/lerobot.txt for why the order
@@ -29,11 +29,11 @@ LEROBOT_PIP := $(PY) -m pip install --quiet -c requirements/lerobot-constraints.
 
 lerobot: $(LEROBOT_STAMP)
 
-$(LEROBOT_STAMP): $(STAMP) requirements/lerobot.txt requirements/lerobot-constraints.txt sim/policy/lerobot_compat.py
+$(LEROBOT_STAMP): $(STAMP) requirements/lerobot.txt requirements/lerobot-constraints.txt policy/lerobot_compat.py
 	$(LEROBOT_PIP) torch==2.13.0
 	$(LEROBOT_PIP) --no-deps torchvision==0.28.0 lerobot==0.4.4
 	set -o pipefail; $(LEROBOT_PIP) -r requirements/lerobot.txt 2>&1 | { grep -v "is ignored: it is neither" || true; }
-	HF_HUB_OFFLINE=1 $(PY) -c "from sim.policy.lerobot_compat import ensure_torchvision; print('torchvision ops:', ensure_torchvision()); import lerobot.policies.smolvla.modeling_smolvla"
+	HF_HUB_OFFLINE=1 $(PY) -c "from policy.lerobot_compat import ensure_torchvision; print('torchvision ops:', ensure_torchvision()); import lerobot.policies.smolvla.modeling_smolvla"
 	@touch $@
 
 # The demo's tiny SmolVLA: records oracle demonstrations (build/demos/stack_cubes, reused when

@@ -26,7 +26,7 @@ from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 from behaviors.execute_policy.chunk import read_chunk
 from behaviors.execute_policy.shaping import densify, fit_chunk, join_at_seam, runout_duration
 from behaviors.safety import make_safety
-from sim.baselines import TaskPolicy, benchmark_task
+from benchmarks.baselines import TaskPolicy, benchmark_task
 from sim.layouts import layout
 from sim.planning import CUBE_SIZE, make_cell_scene
 from sim.robot_model import ARM_JOINTS, GRIPPER_DRIVER_JOINT, load_waypoints

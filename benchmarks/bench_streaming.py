@@ -1,17 +1,17 @@
 """Streaming quality under latency: ExecutePolicy against two baselines, on the sim clock.
 
-Same policy (``sim.baselines.TaskPolicy``: a 10 s smooth task path with per-chunk phase and
+Same policy (``benchmarks.baselines.TaskPolicy``: a 10 s smooth task path with per-chunk phase and
 position disagreement and per-step jitter, seeded by call index), same latency traces (call
 ``i`` takes ``trace[i]``; fixed, and heavy-tailed lognormal with sd = mean), three executors:
 
 - ``ours``: ExecutePolicy on the ``kinematic`` world (real behavior, controllers, planning-scene
   checks); its commanded stream is recorded at the 500 Hz control loop and read at the policy
   ticks. The warmup call takes the trace's mean latency.
-- ``sync`` and ``lerobot_aggregate``: ``sim.baselines`` (pure simulations of the commanded
+- ``sync`` and ``lerobot_aggregate``: ``benchmarks.baselines`` (pure simulations of the commanded
   stream at the policy ticks).
 
 Every executor plays ``total_action_steps`` = 110 policy steps (dt 0.1 s, committed window 20
-steps = 2 s; chunks of 50 steps). Metrics (``sim.baselines.stream_metrics``) are computed on the
+steps = 2 s; chunks of 50 steps). Metrics (``benchmarks.baselines.stream_metrics``) are computed on the
 setpoints at the policy ticks, t = 0 at the first real request. Rows are medians over the
 seeds whose run succeeded (``ok_runs`` of ``runs``; ``failures`` lists why the others failed);
 ``reached_goal`` counts the successful runs that ended within 0.02 rad of the task's goal.
@@ -35,7 +35,7 @@ from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 from runtime.loader import load_tree
 from runtime.registry import Registry
 from runtime.runner import RunOptions, make_context, run_tree
-from sim.baselines import (
+from benchmarks.baselines import (
     Stream,
     TaskPolicy,
     TraceLatency,

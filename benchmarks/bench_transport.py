@@ -6,8 +6,8 @@ The policy does nothing (a fixed 50 x 7 chunk), so only the transport is measure
 - ``ros``: real ROS 2 on loopback: two ``runtime.ros.RosBus`` nodes in this process (Fast DDS,
   ``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST``), client polling the future as the runner does;
 - ``http``: the HTTP adapter hop: an in-process GetActionChunk call served by
-  ``PolicyAdapter(HttpBackend)`` (``sim/policy/node.py``), which converts the messages and posts
-  them as JSON to the inference server (``sim/policy/server.py``) on 127.0.0.1;
+  ``PolicyAdapter(HttpBackend)`` (``policy/node.py``), which converts the messages and posts
+  them as JSON to the inference server (``policy/server.py``) on 127.0.0.1;
 - ``ros_http``: both hops, as the guide's deployment has them (ROS 2 call -> adapter -> HTTP).
 
 Wall-clock milliseconds, p50 and p95 over the repeats (after warmup calls).
@@ -31,8 +31,8 @@ from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
 from runtime.bus import FixedLatency, InProcessBus
 from runtime.clock import WallClock
-from sim.policy.backend import PolicyResponse
-from sim.policy.images import rgb_to_image
+from policy.backend import PolicyResponse
+from policy.images import rgb_to_image
 
 JOINTS = ["shoulder_pan_joint", "shoulder_lift_joint", "elbow_joint", "wrist_1_joint", "wrist_2_joint", "wrist_3_joint",
           "robotiq_85_left_knuckle_joint"]
@@ -127,8 +127,8 @@ def ros_path(request: Any, handler: Callable[[Any], Any], closers: list[Callable
 def http_adapter(closers: list[Callable[[], None]]) -> Any:
     """``PolicyAdapter(HttpBackend)`` in front of a started inference server; None when missing."""
     try:
-        from sim.policy.node import AdapterConfig, http_adapter as make_adapter
-        from sim.policy.server import InferenceServer, ServerConfig, WarmupSpec
+        from policy.node import AdapterConfig, http_adapter as make_adapter
+        from policy.server import InferenceServer, ServerConfig, WarmupSpec
     except ImportError:
         return None
     key = uuid.uuid4().hex
@@ -160,7 +160,7 @@ def main() -> None:
         measure("ros", ros_path(request, fixed_response, closers))
         adapter = http_adapter(closers)
         if adapter is None:
-            why = "sim/policy/server.py and sim/policy/node.py are not importable"
+            why = "policy/server.py and policy/node.py are not importable"
             measure("http", None, why)
             measure("ros_http", None, why)
         else:

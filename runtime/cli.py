@@ -4,8 +4,10 @@ Exit codes: 0 SUCCESS (or SKIPPED: the root's children were all skipped), 1 FAIL
 node and its reason on stderr), 2 bad input or an error while running, such as a failing script
 (the error, ``file:line: Node: what``, on stderr; never a traceback; ``ERROR`` in ``--json``).
 
-The CLI is the composition root: behaviors come from the ``objective.behaviors`` entry points
-and worlds from ``objective.worlds``, so the runtime imports neither.
+The CLI is the composition root: behaviors come from the ``objective.behaviors`` entry points,
+worlds from ``objective.worlds`` (the default one from ``objective.default_world``) and the
+commands beyond the engine's own (``serve``, ``adapter``, ``record-demos``, ...) from
+``objective.commands``, so the runtime imports none of them.
 """
 from __future__ import annotations
 
@@ -14,15 +16,15 @@ import contextlib
 import json
 import logging
 import sys
+from importlib.metadata import entry_points
 from pathlib import Path
 from typing import Any, Sequence
 from xml.sax.saxutils import escape, quoteattr
 
+from .command import COMMAND_GROUP, EXIT_BAD_INPUT, EXIT_FAILURE, EXIT_SUCCESS, Command
 from .errors import ObjectiveError
 from .ports import PortType
 from .registry import Registry
-
-EXIT_SUCCESS, EXIT_FAILURE, EXIT_BAD_INPUT = 0, 1, 2
 
 # Nodes BehaviorTree.CPP (and so Groot2) already knows; `objective models` leaves them out.
 BTCPP_BUILTINS = frozenset({
@@ -49,7 +51,7 @@ def _port(text: str) -> int:
     return int(text)
 
 
-def _positive_float(text: str) -> float:
+def positive_float(text: str) -> float:
     try:
         value = float(text)
     except ValueError:
@@ -85,8 +87,8 @@ def build_parser() -> argparse.ArgumentParser:
                           "controllers and cameras are served on ROS 2 and the policy comes from an adapter "
                           "(--policy none unless given)")
     run.add_argument("--json", action="store_true", help="print a JSON summary as the last line of stdout")
-    run.add_argument("--world", metavar="NAME", help="world for trees that need one (default: vla_sim)")
-    run.add_argument("--max-seconds", type=_positive_float, metavar="S", help="fail after S seconds of clock time")
+    run.add_argument("--world", metavar="NAME", help="world for trees that need one (default: the installation's, vla_sim here)")
+    run.add_argument("--max-seconds", type=positive_float, metavar="S", help="fail after S seconds of clock time")
     run.add_argument("--policy-latency", metavar="SPEC",
                      help="policy call latency: 'measured' (default), seconds (e.g. 0.3) or lognormal:MEAN,SD")
     run.add_argument("--policy", metavar="SPEC",
@@ -97,7 +99,7 @@ def build_parser() -> argparse.ArgumentParser:
                      help="record the run into DIR: run.mcap, events.jsonl, plots, camera video, tree.svg, report.html")
     run.add_argument("--live", type=_port, nargs="?", const=8765, metavar="PORT",
                      help="serve the run's topics to Foxglove on ws://127.0.0.1:PORT while it runs (default 8765; 0 = any free port)")
-    run.add_argument("--tick-hz", type=_positive_float, default=100.0, help=argparse.SUPPRESS)
+    run.add_argument("--tick-hz", type=positive_float, default=100.0, help=argparse.SUPPRESS)
     add_paths(run)
 
     val = sub.add_parser("validate", help="load Objectives and report every error (nothing runs)")
@@ -117,81 +119,36 @@ def build_parser() -> argparse.ArgumentParser:
     models.add_argument("--all", action="store_true", help="include the nodes BehaviorTree.CPP has built in")
     report = sub.add_parser("report", help="render the plots, video, tree and page of a recording again")
     report.add_argument("dir", type=Path, help="a directory written by `objective run --record DIR`")
-    _add_policy_commands(sub)
-    _add_demo_commands(sub)
+    _add_plugin_commands(sub)
     return parser
-
-
-def _add_demo_commands(sub: Any) -> None:
-    """``record-demos``: oracle demonstrations as a LeRobot dataset (sim.demos, needs `make lerobot`)."""
-    demos = sub.add_parser("record-demos", help="record oracle demonstrations in the cell as a local LeRobot dataset")
-    demos.add_argument("out", type=Path, help="dataset folder to create")
-    demos.add_argument("--episodes", type=int, default=10, help="episodes to record (default 10)")
-    demos.add_argument("--seed", type=int, default=0, help="seed of the first episode's layout; episode i uses seed+i")
-    demos.add_argument("--world", metavar="NAME", help="world to record in (default: vla_sim if installed, else kinematic)")
-    demos.add_argument("--image-size", type=int, default=128, metavar="PX", help="camera frames, square (default 128)")
-    demos.add_argument("--steps", type=int, default=250, help="policy steps (0.1 s) recorded per episode (default 250)")
-    demos.add_argument("--prompt", default="stack the blue cube on the green cube", help="the task, as the oracle reads it")
-    demos.add_argument("--keep-failed", action="store_true", help="keep episodes whose stack check failed")
-    demos.add_argument("--overwrite", action="store_true", help="replace OUT if it exists")
-
-
-def _add_policy_commands(sub: Any) -> None:
-    """``serve``, ``adapter``, ``smoke-test``: the policy side (sim.policy, imported lazily)."""
-    serve = sub.add_parser("serve", help="run the HTTP inference server (GET /health, POST /infer)")
-    serve.add_argument("--backend", required=True, help="oracle, replay or lerobot")
-    serve.add_argument("--checkpoint", type=Path, metavar="DIR", help="LeRobot checkpoint folder (--backend lerobot)")
-    serve.add_argument("--replay-file", type=Path, metavar="FILE", help="chunks as JSON lines (--backend replay)")
-    serve.add_argument("--host", default="127.0.0.1", help="address to bind (default 127.0.0.1: loopback only)")
-    serve.add_argument("--port", type=int, default=0, help="port (default 0: pick a free one, printed at start)")
-    serve.add_argument("--insecure-no-key", action="store_true",
-                       help="serve /infer without a bearer key when POLICY_SERVER_KEY is unset")
-    serve.add_argument("--max-body-bytes", type=int, default=32 * 1024 * 1024, metavar="N",
-                       help="refuse larger requests with 413 (default 32 MiB)")
-    serve.add_argument("--warmup-joints", metavar="A;B;...", help="joint names of the warmup request (default: the cell's 7)")
-    serve.add_argument("--warmup-images", metavar="NAME=HxW;...", default="scene=224x224",
-                       help="camera frames of the warmup request (default scene=224x224)")
-    serve.add_argument("--warmup-prompt", default="stack the red cube on the blue cube", help="prompt of the warmup request")
-    serve.add_argument("--default-guidance", type=int, default=0, metavar="STEPS",
-                       help="RTC guidance width used when a request's guidance_horizon is 0")
-    serve.add_argument("--tls-cert", type=Path, metavar="FILE", help="serve HTTPS with this certificate (PEM)")
-    serve.add_argument("--tls-key", type=Path, metavar="FILE", help="private key of --tls-cert (PEM)")
-    serve.add_argument("--tls-client-ca", type=Path, metavar="FILE", help="require client certificates signed by this CA")
-
-    adapter = sub.add_parser("adapter", help="serve GetActionChunk on ROS 2, forwarding to an inference server")
-    adapter.add_argument("--infer-url", required=True, metavar="URL",
-                         help="the server: http:// on loopback only, or https:// (certificate verified)")
-    adapter.add_argument("--service-name", default="/get_action_chunk", help="service to serve (default /get_action_chunk)")
-    adapter.add_argument("--timeout", type=_positive_float, default=2.5, metavar="S",
-                         help="HTTP deadline per call; keep it below policy_call_timeout (default 2.5)")
-    adapter.add_argument("--ca-file", type=Path, metavar="FILE", help="CA bundle to verify an https:// server with")
-    adapter.add_argument("--client-cert", type=Path, metavar="FILE", help="client certificate (PEM) for mutual TLS")
-    adapter.add_argument("--client-key", type=Path, metavar="FILE", help="private key of --client-cert")
-    adapter.add_argument("--log-every", type=int, default=1, metavar="N", help="log the served-chunk count every N chunks")
-
-    smoke = sub.add_parser("smoke-test", help="call a GetActionChunk service once, as ExecutePolicy will, and judge it")
-    smoke.add_argument("service", help="the service, e.g. /get_action_chunk")
-    smoke.add_argument("--joint-group", required=True, help="SRDF joint group, e.g. manipulator")
-    smoke.add_argument("--gripper-joint", help="gripper joint appended last, e.g. robotiq_85_left_knuckle_joint")
-    smoke.add_argument("--image-topics", metavar="T1;T2", help="camera topics, ';'-separated")
-    smoke.add_argument("--image-names", metavar="N1;N2", help="camera names, index-aligned with --image-topics")
-    smoke.add_argument("--prompt", default="", help="task instruction sent with the call")
-    smoke.add_argument("--rtc", action="store_true", help="require policy_action_chunk (real-time chunking on)")
-    smoke.add_argument("--expected-steps", type=int, metavar="N", help="the chunk must have exactly N steps")
-    smoke.add_argument("--timeout", type=_positive_float, default=3.0, metavar="S",
-                       help="bound on the call (ExecutePolicy's policy_call_timeout, default 3)")
-    smoke.add_argument("--wait", type=_positive_float, default=5.0, metavar="S",
-                       help="bound on each wait for the service, joint states and frames (default 5)")
-    smoke.add_argument("--joint-states-topic", default="/joint_states")
-    smoke.add_argument("--synthetic-images", action="store_true", help="send a gray 224x224 frame per --image-names")
-    smoke.add_argument("--synthetic-joints", action="store_true", help="send zeros instead of waiting for joint states")
-    smoke.add_argument("--urdf", type=Path, metavar="FILE", help="robot model (with --srdf; default: the simulated cell)")
-    smoke.add_argument("--srdf", type=Path, metavar="FILE")
 
 
 # ------------------------------------------------------------------------------------------------
 # Commands
 # ------------------------------------------------------------------------------------------------
+def _add_plugin_commands(sub: Any) -> None:
+    """The commands installed packages declare in ``objective.commands``, in name order.
+
+    A command that fails to load, or takes a name already in use, is left out with a warning on
+    stderr: the engine's own commands keep working."""
+    for ep in sorted(entry_points(group=COMMAND_GROUP), key=lambda e: e.name):
+        try:
+            command = ep.load()
+        except Exception as err:  # a broken plug-in must not take the whole CLI down
+            print(f"warning: command '{ep.name}' ({ep.value}) failed to load: {type(err).__name__}: {err}",
+                  file=sys.stderr)
+            continue
+        if not isinstance(command, Command):
+            print(f"warning: command '{ep.name}' ({ep.value}) is not a runtime.command.Command", file=sys.stderr)
+            continue
+        if ep.name in sub.choices:
+            print(f"warning: command '{ep.name}' ({ep.value}) is defined twice; keeping the first", file=sys.stderr)
+            continue
+        parser = sub.add_parser(ep.name, help=command.help)
+        command.add_arguments(parser)
+        parser.set_defaults(plugin_command=command)
+
+
 def cmd_run(args: argparse.Namespace, registry: Registry) -> int:
     from .display import ProgressLine
     from .recording.live import LiveOptions
@@ -351,98 +308,6 @@ def cmd_models(args: argparse.Namespace, registry: Registry) -> int:
     return EXIT_SUCCESS
 
 
-def _policy_logging() -> None:
-    """The policy processes log to stderr (one line per request, served-chunk counts)."""
-    _log_to_stderr("sim.policy", "[%(levelname)s] %(name)s: %(message)s")
-
-
-def cmd_serve(args: argparse.Namespace, registry: Registry) -> int:
-    import threading
-
-    from sim.policy.server import (
-        BackendOptions, InferenceServer, ServerConfig, WarmupSpec, key_from_env, make_backend,
-        parse_warmup_images, serve_forever, stop_on_signals,
-    )
-
-    _policy_logging()
-    try:
-        warmup = WarmupSpec(images=parse_warmup_images(args.warmup_images), prompt=args.warmup_prompt)
-        if args.warmup_joints:
-            warmup = WarmupSpec(tuple(j.strip() for j in args.warmup_joints.split(";") if j.strip()),
-                                warmup.images, warmup.prompt)
-        config = ServerConfig(
-            host=args.host, port=args.port, key=key_from_env(), insecure_no_key=args.insecure_no_key,
-            max_body_bytes=args.max_body_bytes, warmup=warmup,
-            tls_cert=args.tls_cert, tls_key=args.tls_key, tls_client_ca=args.tls_client_ca,
-        )
-        backend = make_backend(args.backend, BackendOptions(args.replay_file, args.default_guidance, args.checkpoint))
-        server = InferenceServer(backend, config)
-        stop = threading.Event()
-        restore = stop_on_signals(stop)
-        try:
-            serve_forever(server, stop)
-        finally:
-            restore()
-    except (ValueError, OSError) as err:
-        print(f"error: {err}", file=sys.stderr)
-        return EXIT_BAD_INPUT
-    return EXIT_SUCCESS
-
-
-def cmd_adapter(args: argparse.Namespace, registry: Registry) -> int:
-    from sim.policy.node import AdapterConfig, run_adapter_node
-    from sim.policy.server import key_from_env
-
-    _policy_logging()
-    try:
-        config = AdapterConfig(
-            infer_url=args.infer_url, service_name=args.service_name, timeout=args.timeout, key=key_from_env(),
-            ca_file=args.ca_file, client_cert=args.client_cert, client_key=args.client_key, log_every=args.log_every,
-        )
-        return run_adapter_node(config)
-    except ValueError as err:
-        print(f"error: {err}", file=sys.stderr)
-        return EXIT_BAD_INPUT
-
-
-def cmd_smoke_test(args: argparse.Namespace, registry: Registry) -> int:
-    from sim.policy.smoke import SmokeConfig, run_smoke_test, split_list
-
-    try:
-        config = SmokeConfig(
-            service_name=args.service, joint_group=args.joint_group, gripper_joint=args.gripper_joint or None,
-            image_topics=split_list(args.image_topics), image_names=split_list(args.image_names),
-            prompt=args.prompt, rtc=args.rtc, expected_steps=args.expected_steps, timeout=args.timeout,
-            wait=args.wait, joint_states_topic=args.joint_states_topic, synthetic_images=args.synthetic_images,
-            synthetic_joints=args.synthetic_joints, urdf=args.urdf, srdf=args.srdf,
-        )
-        report = run_smoke_test(config)
-    except ValueError as err:
-        print(f"error: {err}", file=sys.stderr)
-        return EXIT_BAD_INPUT
-    print(report.table())
-    return EXIT_SUCCESS if report.passed else EXIT_FAILURE
-
-
-def cmd_record_demos(args: argparse.Namespace, registry: Registry) -> int:
-    from sim.demos import DemoOptions, record_demos
-
-    try:
-        summary = record_demos(DemoOptions(
-            episodes=args.episodes, seed=args.seed, out=args.out, world=args.world, image_size=args.image_size,
-            total_steps=args.steps, prompt=args.prompt, keep_failed=args.keep_failed, overwrite=args.overwrite,
-        ))
-    except ValueError as err:
-        print(f"error: {err}", file=sys.stderr)
-        return EXIT_BAD_INPUT
-    except RuntimeError as err:
-        print(f"error: {err}", file=sys.stderr)
-        return EXIT_FAILURE
-    dropped = f", dropped seeds {summary.episodes_dropped}" if summary.episodes_dropped else ""
-    print(f"{summary.out}: {summary.episodes_kept} episodes, {summary.frames} frames from world '{summary.world}'{dropped}")
-    return EXIT_SUCCESS
-
-
 COMMANDS = {
     "run": cmd_run,
     "validate": cmd_validate,
@@ -450,10 +315,6 @@ COMMANDS = {
     "show": cmd_show,
     "models": cmd_models,
     "report": cmd_report,
-    "serve": cmd_serve,
-    "adapter": cmd_adapter,
-    "smoke-test": cmd_smoke_test,
-    "record-demos": cmd_record_demos,
 }
 
 
@@ -466,7 +327,8 @@ def main(argv: Sequence[str] | None = None, registry: Registry | None = None) ->
     _setup_logging()
     try:
         registry = registry if registry is not None else Registry.from_entry_points()
-        code = COMMANDS[args.command](args, registry)
+        plugin = getattr(args, "plugin_command", None)
+        code = plugin.run(args, registry) if plugin is not None else COMMANDS[args.command](args, registry)
     except BrokenPipeError:
         _quiet_stdout()
         return EXIT_SUCCESS
@@ -499,10 +361,11 @@ class _StderrHandler(logging.StreamHandler):  # type: ignore[type-arg]
 
 def _setup_logging() -> None:
     """Runtime messages (LogMessage, warnings) go to stderr, once per process."""
-    _log_to_stderr("objective", "[%(levelname)s] %(message)s")
+    log_to_stderr("objective", "[%(levelname)s] %(message)s")
 
 
-def _log_to_stderr(name: str, fmt: str) -> None:
+def log_to_stderr(name: str, fmt: str) -> None:
+    """Send the logger ``name`` (and its children) to stderr at INFO, once per process."""
     logger = logging.getLogger(name)
     if not logger.handlers:
         handler = _StderrHandler()

@@ -14,6 +14,9 @@ from .behavior import NodeKind, NodeMixin
 
 BEHAVIOR_GROUP = "objective.behaviors"
 WORLD_GROUP = "objective.worlds"
+DEFAULT_WORLD_GROUP = "objective.default_world"
+"""One entry, named after a world of ``objective.worlds``: the world a run starts when none is
+named. The installation chooses it (this project's pyproject names ``vla_sim``), not the engine."""
 
 
 @dataclass(frozen=True)
@@ -62,3 +65,17 @@ class Registry:
             register: Callable[[Registry], None] = ep.load()
             register(registry)
         return registry
+
+
+def default_world_name() -> str:
+    """The world named in ``objective.default_world``; ObjectiveError when none or several are."""
+    from .errors import ObjectiveError
+
+    names = sorted({ep.name for ep in entry_points(group=DEFAULT_WORLD_GROUP)})
+    if len(names) == 1:
+        return names[0]
+    known = ", ".join(sorted({ep.name for ep in entry_points(group=WORLD_GROUP)})) or "none installed"
+    if not names:
+        raise ObjectiveError(f"this tree needs a world and none is named: pass --world NAME (worlds: {known})")
+    raise ObjectiveError(f"installed packages name {len(names)} default worlds ({', '.join(names)}): "
+                         f"pass --world NAME (worlds: {known})")

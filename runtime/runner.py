@@ -35,9 +35,7 @@ if TYPE_CHECKING:
     from .recording.live import LiveOptions
 from .events import EventLog
 from .loader import LoadedTree, load_tree
-from .registry import WORLD_GROUP, Registry
-
-DEFAULT_WORLD = "vla_sim"
+from .registry import WORLD_GROUP, Registry, default_world_name
 
 Progress = Callable[[float, int, str], None]
 """Called after every tick with (clock seconds, ticks so far, name of the running node)."""
@@ -51,7 +49,8 @@ class RunOptions:
     max_seconds: float | None = None
     """Stop (FAILURE) after this much clock time; None runs until the tree finishes."""
     world: str | None = None
-    """World to start when the tree needs one; None means the default, ``vla_sim``."""
+    """World to start when the tree needs one; None means the installation's default
+    (the one entry of the ``objective.default_world`` entry-point group)."""
     sets: dict[str, str] = field(default_factory=dict)
     """Root blackboard entries set before the first tick (``--set name=value``), as strings."""
     policy_latency: str | None = None
@@ -296,7 +295,7 @@ def run_tree(
         }
         if options.ros:  # the policy comes from the ROS graph (an adapter), not from the world
             world_options.setdefault("policy", "none")
-        world = create_world(options.world or DEFAULT_WORLD, world_options)
+        world = create_world(options.world or default_world_name(), world_options)
     period = 1.0 / options.tick_hz
     clock, bus = context.clock, context.bus
     ticks = 0

@@ -37,7 +37,7 @@ from typing import Any
 
 import numpy as np
 
-from sim.policy.backend import PolicyRequest, PolicyResponse
+from policy.backend import PolicyRequest, PolicyResponse
 
 LOG = logging.getLogger("objective.demos")
 
@@ -108,8 +108,8 @@ class _RecordingWorld:
     def start(self, context: Any) -> None:
         from sensor_msgs.msg import Image, JointState
 
-        from sim.policy.adapter import DEFAULT_SERVICE_NAME, PolicyAdapter
-        from sim.policy.oracle import oracle_for_cell
+        from policy.adapter import DEFAULT_SERVICE_NAME, PolicyAdapter
+        from sim.oracle import oracle_for_cell
 
         self.inner.start(context)
         self.oracle = oracle_for_cell(self.inner.cell)
@@ -130,7 +130,7 @@ class _RecordingWorld:
             self.frames.append(self._sample(now))
 
     def _sample(self, now: float) -> DemoFrame:
-        from sim.policy.images import image_to_rgb
+        from policy.images import image_to_rgb
 
         joints = self.joint_sub.latest
         names = list(joints.name)
@@ -216,7 +216,7 @@ def dataset_features(joint_names: list[str], image_size: int, cameras: tuple[str
 
 def record_demos(options: DemoOptions) -> DemoSummary:
     """Record ``options.episodes`` oracle episodes into a LeRobotDataset at ``options.out``."""
-    from sim.policy.lerobot_compat import ensure_torchvision
+    from policy.lerobot_compat import ensure_torchvision
 
     ensure_torchvision()
     import datasets
@@ -227,7 +227,7 @@ def record_demos(options: DemoOptions) -> DemoSummary:
     from runtime.loader import load_tree
     from runtime.registry import Registry
     from runtime.runner import RunOptions, create_world, make_context, run_tree
-    from sim.policy.oracle import parse_prompt
+    from sim.oracle import parse_prompt
 
     if options.episodes < 1:
         raise ValueError(f"--episodes must be >= 1, got {options.episodes}")

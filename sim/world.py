@@ -16,16 +16,16 @@ import numpy as np
 from geometry_msgs.msg import TransformStamped
 from sensor_msgs.msg import Image, JointState
 
+from policy.images import rgb_to_image
 from runtime.behavior import RunContext
 from runtime.timestamps import time_msg
 
 from .cell_model import CAMERA_NAMES, CUBE_COLORS, CellOptions
 from .controllers import make_controllers
+from .embedded_policy import serve_embedded_policy
 from .hardware import Hardware
 from .planning import make_cell_scene, sync_cubes
-from .policy.embedded import serve_embedded_policy
-from .policy.images import rgb_to_image
-from .policy.oracle_remote import CUBE_POSE_TOPIC, cube_pose_msg
+from .oracle_remote import CUBE_POSE_TOPIC, cube_pose_msg
 from .robot_model import ARM_JOINTS, GRIPPER_DRIVER_JOINT, load_waypoints
 
 CONTROL_PERIOD = 0.002

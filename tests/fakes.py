@@ -4,7 +4,7 @@ from __future__ import annotations
 import threading
 from typing import Any
 
-from sim.policy.backend import PolicyRequest
+from policy.backend import PolicyRequest
 
 
 class FakeBackend:

@@ -10,7 +10,7 @@ from sensor_msgs.msg import Image
 
 from runtime.bus import InProcessBus
 from runtime.clock import SimClock
-from sim.policy.adapter import (
+from policy.adapter import (
     PolicyAdapter,
     array_to_multiarray,
     multiarray_to_array,
@@ -18,8 +18,8 @@ from sim.policy.adapter import (
     request_to_msg,
     response_from_msg,
 )
-from sim.policy.backend import PolicyRequest, PolicyResponse, PolicyStatus
-from sim.policy.images import ImageError, image_to_rgb, rgb_to_image
+from policy.backend import PolicyRequest, PolicyResponse, PolicyStatus
+from policy.images import ImageError, image_to_rgb, rgb_to_image
 
 from .fakes import FakeBackend
 
@@ -213,7 +213,7 @@ def test_rtc_chunk_is_sent_steps_first():
 
 def test_log_line_every_n_chunks(caplog):
     adapter = PolicyAdapter(FakeBackend(echo_chunk()), log_every=2)
-    with caplog.at_level(logging.INFO, logger="sim.policy.adapter"):
+    with caplog.at_level(logging.INFO, logger="policy.adapter"):
         for _ in range(4):
             adapter.handle(request_msg())
     assert [r.getMessage() for r in caplog.records] == ["served 2 chunks", "served 4 chunks"]

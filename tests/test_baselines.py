@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from sim.baselines import Stream, TaskPath, stream_metrics
+from benchmarks.baselines import Stream, TaskPath, stream_metrics
 
 PATH = TaskPath(start=np.zeros(1), amplitudes=np.array([[0.5]]), duration=2.0)  # 0 -> 1 rad in 2 s
 

@@ -213,3 +213,54 @@ def test_console_script_exit_codes(tmp_path):
     assert results["fail"][0] == 1 and results["fail"][1]["failing_node"] == "b"
     assert results["bad"][0] == 2 and "DOCTYPE and entity declarations are not allowed" in results["bad"][2]
     assert "Traceback" not in results["bad"][2]
+
+
+# --------------------------------------------------------------------------------------------
+# Commands and the default world come from entry points (the composition root's configuration)
+# --------------------------------------------------------------------------------------------
+def fake_entry_points(monkeypatch, module, groups: dict[str, list[tuple[str, str]]]):
+    from importlib.metadata import EntryPoint
+
+    def entry_points(group: str):
+        return [EntryPoint(name, value, group) for name, value in groups.get(group, [])]
+
+    monkeypatch.setattr(module, "entry_points", entry_points)
+
+
+def test_installed_commands_come_from_the_entry_point_group(cli):
+    code, out, _ = cli("serve", "--backend", "no-such-backend")
+    assert code == 2
+    code, _, err = cli("serve", "--backend", "no-such-backend", "--insecure-no-key")
+    assert code == 2 and "error: unknown backend 'no-such-backend' (known: lerobot, oracle, replay)" in err
+
+
+def test_a_broken_or_clashing_command_is_left_out_with_a_warning(monkeypatch, cli):
+    import runtime.cli
+
+    fake_entry_points(monkeypatch, runtime.cli, {"objective.commands": [
+        ("broken", "no_such_module_xyz:COMMAND"), ("run", "policy.commands:SERVE"),
+        ("not-a-command", "runtime.cli:main"), ("smoke", "policy.commands:SMOKE_TEST"),
+    ]})
+    code, _, err = cli("smoke", "/s", "--joints", "a;a")
+    assert code == 2 and "error: --joints names a joint twice: a;a" in err
+    assert "warning: command 'broken' (no_such_module_xyz:COMMAND) failed to load: ModuleNotFoundError" in err
+    assert "warning: command 'run' (policy.commands:SERVE) is defined twice; keeping the first" in err
+    assert "warning: command 'not-a-command' (runtime.cli:main) is not a runtime.command.Command" in err
+
+
+@pytest.mark.parametrize("defaults, message", [
+    ([], "this tree needs a world and none is named: pass --world NAME (worlds: kinematic, vla_sim)"),
+    ([("kinematic", "sim.world:create_kinematic"), ("vla_sim", "sim.world:create_vla_sim")],
+     "installed packages name 2 default worlds (kinematic, vla_sim): pass --world NAME (worlds: kinematic, vla_sim)"),
+])
+def test_the_default_world_is_the_installation_s_choice(monkeypatch, cli, tmp_path, defaults, message):
+    import runtime.registry
+
+    fake_entry_points(monkeypatch, runtime.registry, {
+        "objective.default_world": defaults,
+        "objective.worlds": [("vla_sim", "sim.world:create_vla_sim"), ("kinematic", "sim.world:create_kinematic")],
+    })
+    code, _, err = cli("run", str(tree_file(tmp_path, "<Robot/>")))
+    assert code == 2 and err.strip() == f"error: {message}"
+    fake_entry_points(monkeypatch, runtime.registry, {"objective.default_world": [("vla_sim", "sim.world:create_vla_sim")]})
+    assert runtime.registry.default_world_name() == "vla_sim"

@@ -182,7 +182,24 @@ def test_missing_service_fails_after_five_seconds_naming_it(registry):
 def test_silent_camera_fails_naming_the_topic(registry):
     ports = f'{BASE} image_topics="/scene_camera/color;/thermal_camera/color" image_names="scene;thermal"'
     run = run_policy(registry, ports, ScriptedPolicy(hold()))
-    assert run.result.reason == "not available after 5 s: a frame on camera topic '/thermal_camera/color'"
+    assert run.result.reason == ("not available after 5 s: a frame on camera topic '/thermal_camera/color' (subscribed "
+                                 "best-effort, so a reliable or a best-effort publisher matches; is the camera driver "
+                                 "publishing there?)")
+
+
+def test_a_best_effort_camera_is_observed(registry):
+    """Most ROS 2 camera drivers publish best-effort (sensor-data QoS); the cameras still match."""
+    from policy.images import rgb_to_image
+    from sensor_msgs.msg import Image
+
+    def thermal_camera(context, world):
+        frame = rgb_to_image(np.full((4, 6, 3), 200, np.uint8))
+        context.bus.create_lazy_publisher("/thermal_camera/color", Image, lambda: frame, reliable=False)
+
+    ports = f'{BASE} image_topics="/scene_camera/color;/thermal_camera/color" image_names="scene;thermal"'
+    run = run_policy(registry, ports, ScriptedPolicy(hold()), before=thermal_camera)
+    assert run.result.status == "SUCCESS", run.result.reason
+    assert [(i.width, i.height) for i in run.policy.requests[1].images][1] == (6, 4)
 
 
 def test_best_effort_joint_states_never_connect(registry):

@@ -18,14 +18,14 @@ from moveit_pro_ml_msgs.srv import GetActionChunk
 
 from runtime.bus import InProcessBus
 from runtime.clock import SimClock
-from sim.policy.adapter import request_to_msg
-from sim.policy.backend import PolicyRequest, PolicyResponse
-from sim.policy.http_client import ClientConfig, HttpBackend, InferUrlError, check_infer_url
-from sim.policy.images import rgb_to_image
-from sim.policy.node import AdapterConfig, http_adapter
-from sim.policy.replay import RecordedChunk, write_replay
-from sim.policy.server import CELL_JOINTS, KEY_ENV, InferenceServer, ServerConfig
-from sim.policy.replay import ReplayBackend
+from policy.adapter import request_to_msg
+from policy.backend import PolicyRequest, PolicyResponse
+from policy.http_client import ClientConfig, HttpBackend, InferUrlError, check_infer_url, redact_url
+from policy.images import rgb_to_image
+from policy.node import AdapterConfig, http_adapter
+from policy.replay import RecordedChunk, write_replay
+from policy.server import CELL_JOINTS, KEY_ENV, InferenceServer, ServerConfig
+from policy.replay import ReplayBackend
 
 from .fakes import FakeBackend
 
@@ -257,6 +257,29 @@ def test_accepted_infer_urls(url, expected):
 def test_refused_infer_urls(url, reason):
     with pytest.raises(InferUrlError, match=reason.replace("(", r"\(").replace(")", r"\)").replace(".", r"\.")):
         check_infer_url(url)
+
+
+@pytest.mark.parametrize("url, shown", [
+    ("http://user:s3cret@127.0.0.1:8000", "http://***@127.0.0.1:8000"),
+    ("https://user:p@ss:w/rd@gpu.example.com/infer", "https://***@gpu.example.com/infer"),
+    ("user:s3cret@127.0.0.1:8000", "***@127.0.0.1:8000"),
+    ("http://127.0.0.1:8000/infer?token=s3cret#s3cret", "http://127.0.0.1:8000/infer?***"),
+    ("http://127.0.0.1:8000/infer", "http://127.0.0.1:8000/infer"),
+])
+def test_urls_are_printed_without_their_secrets(url, shown):
+    assert redact_url(url) == shown
+
+
+@pytest.mark.parametrize("url", [
+    "http://user:s3cret@127.0.0.1:8000", "http://user:s3cret@10.0.0.5:8000", "ftp://user:s3cret@127.0.0.1",
+    "user:s3cret@127.0.0.1:8000", "http://user:s3cret@127.0.0.1:99999", "https://127.0.0.1/infer?key=s3cret",
+])
+def test_the_adapter_never_echoes_a_password_from_its_url(url, capsys):
+    from runtime.cli import main
+
+    assert main(["adapter", "--infer-url", url]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error: ") and "s3cret" not in err, err
 
 
 def test_tls_files_need_https(tmp_path):

@@ -8,8 +8,8 @@ import logging
 import numpy as np
 import pytest
 
-from sim.policy.backend import PolicyRequest, PolicyStatus
-from sim.policy.lerobot_backend import (
+from policy.backend import PolicyRequest, PolicyStatus
+from policy.lerobot_backend import (
     CameraMappingError,
     LatencyMonitor,
     execution_horizon,
@@ -138,7 +138,7 @@ ACTION_STD = np.full(7, 2.0)
 @pytest.fixture(scope="module")
 def checkpoint(tmp_path_factory):
     """A random-weight tiny SmolVLA saved in LeRobot's format with known action statistics."""
-    from sim.policy.tiny_smolvla import TinySmolVLASpec, build_tiny_smolvla, save_checkpoint
+    from policy.tiny_smolvla import TinySmolVLASpec, build_tiny_smolvla, save_checkpoint
 
     folder = tmp_path_factory.mktemp("tiny_smolvla")
     spec = TinySmolVLASpec(image_size=64, num_steps=4)
@@ -249,8 +249,8 @@ def test_warmup_on_load_and_the_latency_warning(checkpoint, caplog):
 
 @needs_lerobot
 def test_objective_serve_backend_lerobot_answers_over_http_with_the_rtc_echo(checkpoint):
-    from sim.policy.http_client import ClientConfig, HttpBackend
-    from sim.policy.server import BackendOptions, InferenceServer, ServerConfig, make_backend
+    from policy.http_client import ClientConfig, HttpBackend
+    from policy.server import BackendOptions, InferenceServer, ServerConfig, make_backend
 
     with pytest.raises(ValueError, match="--backend lerobot needs --checkpoint DIR"):
         make_backend("lerobot", BackendOptions())
@@ -275,7 +275,7 @@ def test_objective_serve_backend_lerobot_answers_over_http_with_the_rtc_echo(che
 def calm_checkpoint(tmp_path_factory):
     """A random-weight tiny SmolVLA whose denormalized actions stay within a milliradian of Home,
     so ExecutePolicy executes its chunks (no limit rejections) and the RTC loop can be watched."""
-    from sim.policy.tiny_smolvla import TinySmolVLASpec, build_tiny_smolvla, save_checkpoint
+    from policy.tiny_smolvla import TinySmolVLASpec, build_tiny_smolvla, save_checkpoint
     from sim.robot_model import ARM_JOINTS, load_waypoints
 
     folder = tmp_path_factory.mktemp("calm_smolvla")
@@ -299,7 +299,7 @@ def test_stack_cubes_lerobot_objective_carries_the_rtc_tail_into_predict_action_
     import json
 
     from runtime.cli import main
-    from sim.policy.lerobot_backend import LeRobotBackend
+    from policy.lerobot_backend import LeRobotBackend
 
     calls: list[dict] = []
     original_load = LeRobotBackend.load
@@ -347,7 +347,7 @@ def test_stack_cubes_lerobot_objective_carries_the_rtc_tail_into_predict_action_
 
 @needs_lerobot
 def test_record_demos_writes_a_lerobot_dataset_of_oracle_steps(tmp_path, capsys):
-    from sim.policy.lerobot_compat import ensure_torchvision
+    from policy.lerobot_compat import ensure_torchvision
 
     ensure_torchvision()  # before anything imports lerobot
     from lerobot.datasets.lerobot_dataset import LeRobotDataset

@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 import yaml
 
-from sim.policy.backend import PolicyRequest, PolicyStatus
-from sim.policy.oracle import (
+from policy.backend import PolicyRequest, PolicyStatus
+from sim.oracle import (
     MIN_JERK_PEAK_ACCELERATION,
     MIN_JERK_PEAK_VELOCITY,
     OracleBackend,

@@ -239,8 +239,8 @@ def test_malformed_answer_stops_the_arm_with_the_reason(registry, fault, status,
 
 
 # -- the HTTP inference server behind the adapter --------------------------------------------
-server_mod = pytest.importorskip("sim.policy.server", reason="the HTTP inference server (sim/policy/server.py) is not there yet")
-node_mod = pytest.importorskip("sim.policy.node", reason="the HTTP adapter (sim/policy/node.py) is not there yet")
+server_mod = pytest.importorskip("policy.server", reason="the HTTP inference server (policy/server.py) is not there yet")
+node_mod = pytest.importorskip("policy.node", reason="the HTTP adapter (policy/node.py) is not there yet")
 
 
 class ChunkBackend:
@@ -259,7 +259,7 @@ class ChunkBackend:
         pass
 
     def infer(self, request: Any) -> Any:
-        from sim.policy.backend import PolicyResponse
+        from policy.backend import PolicyResponse
 
         rate = np.append(MOVE, np.zeros(len(request.joint_positions) - len(MOVE)))
         return PolicyResponse.chunk(request.joint_positions + np.outer(np.arange(50) * 0.1, rate), 0.1)

@@ -5,9 +5,9 @@ import numpy as np
 import pytest
 from moveit_pro_ml_msgs.srv import GetActionChunk
 
-from sim.policy.adapter import PolicyAdapter, request_to_msg
-from sim.policy.backend import PolicyRequest, PolicyResponse, PolicyStatus
-from sim.policy.replay import (
+from policy.adapter import PolicyAdapter, request_to_msg
+from policy.backend import PolicyRequest, PolicyResponse, PolicyStatus
+from policy.replay import (
     RecordedChunk,
     RecordingBackend,
     ReplayBackend,

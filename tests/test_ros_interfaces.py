@@ -1,8 +1,6 @@
 """The project's generated ROS 2 interfaces: constants, fields, and a CDR round trip."""
 from __future__ import annotations
 
-import functools
-import importlib.util
 import sys
 from pathlib import Path
 
@@ -12,7 +10,6 @@ pytestmark = [pytest.mark.ros, pytest.mark.timeout(60)]
 
 from rclpy.serialization import deserialize_message, serialize_message  # noqa: E402
 
-ROOT = Path(__file__).resolve().parent.parent
 
 
 def round_trip(msg):
@@ -162,15 +159,12 @@ def test_controller_manager_interfaces_match_upstream_jazzy():
 
 
 # --------------------------------------------------------------------------------------------
-# tools/build_interfaces.py
+# runtime/build_interfaces.py (`objective build-interfaces`)
 # --------------------------------------------------------------------------------------------
-@functools.cache
 def _load_build_tool():
-    spec = importlib.util.spec_from_file_location("build_interfaces", ROOT / "tools" / "build_interfaces.py")
-    module = importlib.util.module_from_spec(spec)
-    sys.modules["build_interfaces"] = module  # dataclasses look their module up there
-    spec.loader.exec_module(module)
-    return module
+    import runtime.build_interfaces
+
+    return runtime.build_interfaces
 
 
 def test_wheel_include_paths_are_rewritten_and_the_rewrite_is_idempotent():

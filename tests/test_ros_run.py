@@ -163,6 +163,26 @@ def test_policy_latency_is_refused_with_ros(ros_env):
 
 
 # -- ExecutePolicy against a policy served by another node -----------------------------------
+def run_policy_over_ros(policy: Callable[[Any], Any], ports: str) -> Any:
+    """Run ExecutePolicy (after switching to the trajectory controller) with ``--ros`` on the
+    kinematic cell, against ``policy`` served by a node of its own, as an adapter would."""
+    server = RosBus(WallClock(), node_name="scripted_policy")  # answers on its own threads, like an adapter
+    server.create_service("/get_action_chunk", GetActionChunk, policy)
+    options = RunOptions(ros=True, world="kinematic", max_seconds=20.0)
+    context = make_context(options)
+    xml = (
+        '<root BTCPP_format="4"><BehaviorTree ID="T"><Sequence>'
+        '<SwitchController activate_controllers="joint_trajectory_admittance_controller" deactivate_controllers="velocity_force_controller"/>'
+        '<ExecutePolicy policy_service_name="/get_action_chunk" joint_group_name="manipulator" '
+        f'dt="0.1" committed_action_steps="20" goal_path_tolerance="0.3" policy_call_timeout="3.0" {ports}/>'
+        "</Sequence></BehaviorTree></root>"
+    )
+    try:
+        return run_tree(load_tree(xml, Registry.from_entry_points(), context), context, options)
+    finally:
+        server.close()
+
+
 def test_execute_policy_over_ros_calls_a_policy_served_by_another_node(ros_env):
     requests: list[Any] = []
 
@@ -183,25 +203,10 @@ def test_execute_policy_over_ros_calls_a_policy_served_by_another_node(ros_env):
         response.chunk = JointTrajectory(joint_names=names, points=[JointTrajectoryPoint(positions=position) for _ in range(30)])
         return response
 
-    server = RosBus(WallClock(), node_name="scripted_policy")  # answers on its own threads, like an adapter
-    server.create_service("/get_action_chunk", GetActionChunk, policy)
-    options = RunOptions(ros=True, world="kinematic", max_seconds=20.0)
-    context = make_context(options)
-    xml = (
-        '<root BTCPP_format="4"><BehaviorTree ID="T"><Sequence>'
-        '<SwitchController activate_controllers="joint_trajectory_admittance_controller" deactivate_controllers="velocity_force_controller"/>'
-        '<ExecutePolicy policy_service_name="/get_action_chunk" joint_group_name="manipulator" total_action_steps="40" '
-        'dt="0.1" committed_action_steps="20" goal_path_tolerance="0.3" policy_call_timeout="3.0" '
-        'image_topics="/scene_camera/color;/wrist_camera/color" image_names="scene;wrist" '
+    result = run_policy_over_ros(policy, (
+        'total_action_steps="40" image_topics="/scene_camera/color;/wrist_camera/color" image_names="scene;wrist" '
         f'gripper_command_action_name="/robotiq_gripper_controller/gripper_cmd" gripper_joint_name="{GRIPPER}" '
-        'steps_executed="{steps}" chunks_received="{chunks}" status_message="{message}"/>'
-        "</Sequence></BehaviorTree></root>"
-    )
-    try:
-        loaded = load_tree(xml, Registry.from_entry_points(), context)
-        result = run_tree(loaded, context, options)
-    finally:
-        server.close()
+        'steps_executed="{steps}" chunks_received="{chunks}" status_message="{message}"'))
     assert result.status == "SUCCESS", result.reason
     assert result.blackboard["message"] == "executed 40 steps" and result.blackboard["steps"] == 40
     assert [r.new_episode for r in requests[:2]] == [True, True] and not any(r.new_episode for r in requests[2:])
@@ -212,3 +217,39 @@ def test_execute_policy_over_ros_calls_a_policy_served_by_another_node(ros_env):
     latency = result.extra["execute_policy"]
     assert 0.0 < latency["latency_p50_s"] < 0.3  # a real round trip over DDS, measured on the wall clock
     assert latency["stall_seconds"] == 0.0 and result.wall_seconds < 20.0
+
+
+def test_a_failing_execute_policy_s_cancel_reaches_the_hosted_controller(ros_env, monkeypatch, capfd):
+    """ExecutePolicy fails (not halted) while its trajectory goal runs: it cancels the goal, and
+    the cancel is served by the hosted controller before the node leaves the graph."""
+    from sim.controllers.admittance import JointTrajectoryAdmittanceController
+
+    served: list[bool] = []
+    on_cancel = JointTrajectoryAdmittanceController._on_cancel
+
+    def recording(self, handle):
+        served.append(on_cancel(self, handle))
+        return served[-1]
+
+    monkeypatch.setattr(JointTrajectoryAdmittanceController, "_on_cancel", recording)
+    requests: list[Any] = []
+
+    def policy(request: Any) -> Any:
+        requests.append(request)
+        if len(requests) == 1:
+            time.sleep(0.3)  # seeds the latency estimate, as in the test above
+        if len(requests) == 3:
+            return R(status=R.ERROR, message="model lost its weights")
+        response = R(status=R.CHUNK_PRODUCED, native_control_period=0.1)
+        position = [float(v) for v in request.robot_state.position]
+        response.chunk = JointTrajectory(joint_names=list(request.robot_state.name),
+                                         points=[JointTrajectoryPoint(positions=position) for _ in range(30)])
+        return response
+
+    started = time.monotonic()
+    result = run_policy_over_ros(policy, 'total_action_steps="60"')
+    assert result.status == "FAILURE"
+    assert result.reason == "the policy answered ERROR for the chunk 2: model lost its weights"
+    assert served == [True]
+    assert "BusClosed" not in capfd.readouterr().err
+    assert time.monotonic() - started < 15.0

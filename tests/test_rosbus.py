@@ -295,6 +295,43 @@ def test_serve_in_spin_once_runs_server_callbacks_on_the_owner_thread(buses, nam
     assert owner_threads == [threading.main_thread()]
 
 
+def test_a_cancel_sent_just_before_close_is_served_by_the_node_s_own_server(buses, names):
+    """A behavior cancels the goal of a controller hosted on the same node (served in
+    spin_once), and the owner closes at once: the cancel is served before the node leaves."""
+    bus = buses("runner", serve_in_spin_once=True)
+    gripper = Gripper()
+    bus.create_action_server(names("gripper_cmd"), GripperCommand, gripper.on_goal, gripper.on_cancel)
+    client = bus.create_action_client(names("gripper_cmd"), GripperCommand)
+    wait_for(client.server_is_ready, bus, what="the action server")
+    sent = client.send_goal_async(GripperCommand.Goal(command=Command(position=0.0, max_effort=10.0)))
+    wait_for(sent.done, bus, what="the goal response")
+    wait_for(lambda: gripper.goals and gripper.goals[0].goal_id, bus, what="the goal bound")
+    cancel = sent.result().cancel_goal_async()
+    assert bus.cancels_in_flight() == 1
+    start = time.monotonic()
+    bus.close()
+    assert gripper.cancel_requests == 1 and gripper.goals[0].is_cancel_requested
+    assert cancel.done() and cancel.result() is True
+    assert time.monotonic() - start < 1.0
+
+
+def test_close_waits_for_an_unanswered_cancel_only_so_long(buses, names, monkeypatch):
+    """A server that never serves the cancel (its owner stopped spinning) delays close() by at
+    most CANCEL_DELIVERY_S."""
+    import runtime.ros.bus as ros_bus
+
+    monkeypatch.setattr(ros_bus, "CANCEL_DELIVERY_S", 0.5)
+    server_bus, client_bus, gripper, client = _gripper_pair(buses, names, serve_in_spin_once=True)
+    sent = client.send_goal_async(GripperCommand.Goal(command=Command(position=0.0, max_effort=10.0)))
+    wait_for(sent.done, server_bus, client_bus, what="the goal response")
+    cancel = sent.result().cancel_goal_async()
+    start = time.monotonic()
+    client_bus.close()  # server_bus's owner never spins again: the cancel is not served
+    elapsed = time.monotonic() - start
+    assert not cancel.done() and gripper.cancel_requests == 0
+    assert 0.5 <= elapsed < 1.5
+
+
 def test_close_is_idempotent_and_releases_waiting_goals(buses, names):
     server_bus, client_bus, gripper, client = _gripper_pair(buses, names)
     sent = client.send_goal_async(GripperCommand.Goal(command=Command(position=0.0, max_effort=10.0)))

@@ -6,7 +6,9 @@ import base64
 import http.client
 import json
 import os
+import random
 import signal
+import socket
 import subprocess
 import sys
 import threading
@@ -16,18 +18,19 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sim.policy.backend import PolicyRequest, PolicyResponse, PolicyStatus
-from sim.policy.replay import RecordedChunk, write_replay
-from sim.policy.server import (
+from policy.backend import PolicyRequest, PolicyResponse, PolicyStatus
+from policy.replay import RecordedChunk, write_replay
+from policy.server import (
     CELL_JOINTS,
     KEY_ENV,
     InferenceServer,
     ServerConfig,
     WarmupSpec,
     execution_horizon,
+    exposure_warnings,
     parse_warmup_images,
 )
-from sim.policy.wire import (
+from policy.wire import (
     WireError,
     decode_request,
     decode_response,
@@ -351,14 +354,160 @@ def test_response_round_trip_and_strictness():
 def test_nothing_on_the_wire_is_pickle():
     import re
 
-    for name in ("wire.py", "server.py", "http_client.py", "node.py", "oracle_remote.py"):
-        source = (ROOT / "sim" / "policy" / name).read_text()
+    for name in ("policy/wire.py", "policy/server.py", "policy/http_client.py", "policy/node.py", "sim/oracle_remote.py"):
+        source = (ROOT / name).read_text()
         assert not re.search(r"import\s+(c?pickle|dill|marshal)|(pickle|marshal)\.loads?\(|allow_pickle\s*=\s*True", source), name
 
 
 @pytest.mark.parametrize("frozen, guidance, default, expected", [(5, 0, 10, 15), (5, 3, 10, 8), (0, 0, 10, 10), (7, 20, 0, 27)])
 def test_guidance_horizon_converts_to_execution_horizon(frozen, guidance, default, expected):
     assert execution_horizon(frozen, guidance, default) == expected
+
+
+# --------------------------------------------------------------------------------------------
+# Malformed requests over raw sockets: every one gets a 4xx, and nothing unauthenticated is read
+# --------------------------------------------------------------------------------------------
+def raw(server: InferenceServer, data: bytes, timeout_s: float = 5.0) -> tuple[int, str]:
+    """Send ``data`` as is; (status code, error reason or "") of the answer, (0, "") when none came."""
+    with socket.create_connection(("127.0.0.1", server.port), timeout=timeout_s) as sock:
+        sock.sendall(data)
+        sock.shutdown(socket.SHUT_WR)  # all of it is sent: a body shorter than declared ends here
+        answer = b""
+        try:
+            while b"\r\n\r\n" not in answer or len(answer.partition(b"\r\n\r\n")[2]) < _declared(answer):
+                piece = sock.recv(65536)
+                if not piece:
+                    break
+                answer += piece
+        except (ConnectionResetError, socket.timeout):
+            pass
+    if not answer.startswith(b"HTTP/1."):
+        return 0, ""
+    head, _, body = answer.partition(b"\r\n\r\n")
+    code = int(head.split()[1])
+    try:
+        return code, json.loads(body).get("error", "")
+    except ValueError:
+        return code, ""
+
+
+def _declared(answer: bytes) -> int:
+    for line in answer.partition(b"\r\n\r\n")[0].split(b"\r\n"):
+        if line.lower().startswith(b"content-length:"):
+            return int(line.split(b":", 1)[1])
+    return 0
+
+
+def post(headers: list[bytes], body: bytes = b"", key: str | None = KEY) -> bytes:
+    auth = [f"Authorization: Bearer {key}".encode()] if key else []
+    return b"\r\n".join([b"POST /infer HTTP/1.1", b"Host: 127.0.0.1", *auth, *headers]) + b"\r\n\r\n" + body
+
+
+NESTED = b"[" * 200_000 + b"]" * 200_000
+
+
+@pytest.mark.parametrize("request_bytes, code, reason", [
+    (post([b"Content-Length: \xb2"]), 400, "Content-Length must be a number of bytes, got '\xb2'"),
+    (post([b"Content-Length: \xd9\xa3"]), 400, "Content-Length must be a number of bytes, got '\xd9\xa3'"),
+    (post([b"Content-Length: -5"]), 400, "Content-Length must be a number of bytes, got '-5'"),
+    (post([b"Content-Length: 1e3"]), 400, "Content-Length must be a number of bytes, got '1e3'"),
+    (post([b"Content-Length: 99999999999999999999999"]), 400,
+     "Content-Length must be a number of bytes, got '99999999999999999999999'"),
+    (post([b"Content-Length: 4", b"Content-Length: 5"], b"null"), 400,
+     "Content-Length is given 2 times with different values"),
+    (post([b"Transfer-Encoding: chunked"], b"4\r\nnull\r\n0\r\n\r\n"), 411, "a Content-Length header is required"),
+    (post([f"Content-Length: {len(NESTED)}".encode()], NESTED), 400,
+     "bad request: request body nests JSON arrays or objects too deeply"),
+    (post([b"Content-Length: \xb2"], key=None), 401, "unauthorized: send Authorization: Bearer <key>"),
+    (post([f"Content-Length: {len(NESTED)}".encode()], NESTED, key="wrong"), 401,
+     "unauthorized: send Authorization: Bearer <key>"),
+    (b"GARBAGE\r\n\r\n", 400, ""),
+    (b"POST /infer HTTP/1.1\r\nContent-Length 12\r\n\r\n", 401, "unauthorized: send Authorization: Bearer <key>"),
+], ids=["superscript-two", "arabic-digit", "negative", "float", "huge", "two-lengths", "chunked", "nested-json",
+        "bad-length-no-key", "nested-json-wrong-key", "garbage-line", "header-without-colon"])
+def test_every_malformed_request_gets_a_4xx_with_the_reason(serve, request_bytes, code, reason):
+    backend = FakeBackend(chunk_answer)
+    server = serve(backend)
+    assert raw(server, request_bytes) == (code, reason)
+    assert backend.requests == []
+    assert call(server, "GET", "/health")[0] == 200  # the server is still up
+
+
+def test_nothing_past_the_headers_is_read_before_the_key_matches(serve):
+    """An unauthenticated request declaring a large body that never comes is answered at once."""
+    server = serve(FakeBackend(chunk_answer))
+    started = time.monotonic()
+    with socket.create_connection(("127.0.0.1", server.port), timeout=5) as sock:
+        sock.sendall(post([b"Content-Length: 1000000"], key=None))
+        answer = sock.recv(4096)
+    assert answer.startswith(b"HTTP/1.1 401 ") and time.monotonic() - started < 1.0
+
+
+def test_seeded_fuzz_of_headers_and_bodies_never_goes_unanswered(serve):
+    """300 requests mixing random header values and bodies (seeded, bounded): each gets a 4xx,
+    unless it happens to be a valid request."""
+    backend = FakeBackend(chunk_answer)
+    server = serve(backend, max_body_bytes=4096)
+    rng = random.Random(7)
+    valid = encode_request(observation())
+    alphabet = [b"0", b"7", b"-", b" ", b"\xb2", b"\xbd", b"x", b"\t", b"+", b"e", b"\xff", b"9" * 30]
+    for case in range(300):
+        length = b"".join(rng.choice(alphabet) for _ in range(rng.randint(0, 4)))
+        body = bytes(rng.getrandbits(8) for _ in range(rng.randint(0, 64)))
+        if case % 3 == 0:  # a valid request with one byte flipped
+            index = rng.randrange(len(valid))
+            body = valid[:index] + bytes([valid[index] ^ 0x20]) + valid[index + 1:]
+        exact, key = case % 5 == 0, KEY if case % 7 else "nope"
+        headers = [f"Content-Length: {len(body)}".encode()] if exact else [b"Content-Length: " + length]
+        code, _ = raw(server, post(headers, body, key=key), timeout_s=3.0)
+        if code == 200:  # a flipped letter inside the prompt still makes a valid request
+            assert exact and key == KEY and decode_request(body), (case, body[:40])
+        else:
+            assert 400 <= code < 500, (case, length, body[:40], code)
+    assert call(server, "GET", "/health")[0] == 200
+
+
+# --------------------------------------------------------------------------------------------
+# Keyless servers stay on loopback; every warning is true of the configuration
+# --------------------------------------------------------------------------------------------
+@pytest.mark.parametrize("host", ["0.0.0.0", "::", "192.168.1.20", "robot-pc.local"])
+def test_a_keyless_server_is_refused_off_loopback(host):
+    with pytest.raises(ValueError, match=f"refusing to serve /infer without a bearer key on {host}, which is not a "
+                                         "loopback address"):
+        ServerConfig(host=host, key=None, insecure_no_key=True)
+
+
+@pytest.mark.parametrize("config, warnings", [
+    (ServerConfig(key=KEY), []),
+    (ServerConfig(host="::1", key=KEY), []),
+    (ServerConfig(host="127.0.0.2", key=None, insecure_no_key=True),
+     ["serving /infer without a bearer key (--insecure-no-key): any process on this machine can call the policy"]),
+    (ServerConfig(host="0.0.0.0", key=KEY),
+     ["serving plain HTTP on 0.0.0.0: the bearer key and every observation travel in cleartext; "
+      "use TLS (--tls-cert/--tls-key) or a private network"]),
+    (ServerConfig(host="0.0.0.0", key=KEY, tls_cert=Path("c.pem"), tls_key=Path("k.pem")), []),
+    (ServerConfig(host="0.0.0.0", key=None, insecure_no_key=True, tls_cert=Path("c.pem"), tls_key=Path("k.pem"),
+                  tls_client_ca=Path("ca.pem")),
+     ["serving /infer without a bearer key (--insecure-no-key): any client with a certificate from "
+      "--tls-client-ca can call the policy"]),
+])
+def test_start_warnings_match_the_configuration(config, warnings):
+    assert exposure_warnings(config) == warnings
+
+
+def test_serve_refuses_a_keyless_server_on_all_interfaces(tmp_path):
+    env = {k: v for k, v in os.environ.items() if k != KEY_ENV}
+    replay = tmp_path / "r.jsonl"
+    write_replay(replay, [RecordedChunk(list(CELL_JOINTS), np.zeros((3, 7)), 0.1)])
+    proc = _objective("serve", "--backend", "replay", "--replay-file", str(replay), "--insecure-no-key",
+                      "--host", "0.0.0.0", env=env)
+    try:
+        out, err = proc.communicate(timeout=30)
+    finally:
+        proc.kill()
+    assert proc.returncode == 2
+    assert "error: refusing to serve /infer without a bearer key on 0.0.0.0" in err
+    assert "listening" not in out and "cleartext" not in err
 
 
 # --------------------------------------------------------------------------------------------
@@ -426,8 +575,8 @@ def test_remote_oracle_answers_what_the_embedded_oracle_answers():
     from geometry_msgs.msg import TransformStamped
     from sim.layouts import layout
     from sim.planning import CUBE_SIZE
-    from sim.policy.oracle import OracleBackend, SceneKinematics
-    from sim.policy.oracle_remote import CUBE_POSE_TOPIC, RemoteOracleBackend, cube_pose_msg
+    from sim.oracle import OracleBackend, SceneKinematics
+    from sim.oracle_remote import CUBE_POSE_TOPIC, RemoteOracleBackend, cube_pose_msg
     from sim.robot_model import ARM_JOINTS, load_waypoints, planning_robot_model
 
     cubes = {c: (np.array([x, y, CUBE_SIZE / 2]), np.array([np.cos(yaw / 2), 0, 0, np.sin(yaw / 2)]))
@@ -464,7 +613,7 @@ def test_remote_oracle_answers_what_the_embedded_oracle_answers():
 
 @pytest.mark.ros
 def test_remote_oracle_without_cube_poses_answers_error_naming_the_topics():
-    from sim.policy.oracle_remote import RemoteOracleBackend
+    from sim.oracle_remote import RemoteOracleBackend
     from sim.robot_model import planning_robot_model
 
     remote = RemoteOracleBackend(robot=planning_robot_model(), wait_s=0.2, node_name="lonely_oracle")
@@ -486,7 +635,7 @@ def test_kinematic_world_publishes_cube_poses_for_the_remote_oracle():
     from runtime.events import EventLog
     from geometry_msgs.msg import TransformStamped
     from sim.kinematic import KinematicWorld
-    from sim.policy.oracle_remote import pose_from_msg
+    from sim.oracle_remote import pose_from_msg
 
     clock = SimClock()
     bus = InProcessBus(clock)

@@ -4,6 +4,7 @@ from __future__ import annotations
 import os
 import subprocess
 import sys
+import threading
 import uuid
 from pathlib import Path
 
@@ -14,10 +15,12 @@ from sensor_msgs.msg import Image, JointState
 from trajectory_msgs.msg import JointTrajectoryPoint
 
 from runtime.cli import main
-from sim.policy.adapter import PolicyAdapter, array_to_multiarray
-from sim.policy.backend import PolicyResponse
-from sim.policy.images import rgb_to_image
-from sim.policy.smoke import FAIL, PASS, SmokeConfig, SmokeReport, judge_response, observed_state, run_smoke_test
+from policy.adapter import PolicyAdapter, array_to_multiarray
+from policy.backend import PolicyResponse
+from policy.images import rgb_to_image
+from policy.smoke import (
+    FAIL, PASS, SmokeConfig, SmokeReport, group_joints, judge_response, observed_state, run_smoke_test,
+)
 
 from .fakes import FakeBackend
 
@@ -117,15 +120,33 @@ def test_robot_state_is_the_group_then_the_gripper():
     (dict(image_topics=("/a", "/b"), image_names=("a",)), "2 image topics but 1 image names"),
     (dict(synthetic_images=True), "--synthetic-images needs --image-names"),
     (dict(expected_steps=0), "--expected-steps must be at least 1"),
-    (dict(urdf=Path("robot.urdf")), "--urdf and --srdf go together"),
+    (dict(srdf=None), "--urdf and --srdf go together"),
+    (dict(joint_group=None, urdf=None, srdf=None, joints=()), "name the joints the policy commands, base to tip"),
+    (dict(joints=tuple(ARM)), "--joints names the joints itself"),
+    (dict(joint_group=None, urdf=None, srdf=None, joints=("a", "b", "a")), "--joints names a joint twice: a;b;a"),
 ])
 def test_bad_options_are_refused(fields, reason):
+    values = {"joint_group": "manipulator", "urdf": Path("robot.urdf"), "srdf": Path("robot.srdf"), **fields}
     with pytest.raises(ValueError, match=reason):
-        SmokeConfig("/get_action_chunk", "manipulator", **fields)
+        SmokeConfig("/get_action_chunk", **values)
+
+
+def test_the_group_comes_from_the_robot_description(tmp_path):
+    """No robot model of its own: the group's joints are read from --urdf/--srdf, base to tip."""
+    from .test_scene import SRDF, URDF
+
+    (tmp_path / "robot.urdf").write_text(URDF)
+    (tmp_path / "robot.srdf").write_text(SRDF)
+    described = SmokeConfig("/s", "arm", urdf=tmp_path / "robot.urdf", srdf=tmp_path / "robot.srdf")
+    assert group_joints(described) == ("j1",)
+    with pytest.raises(ValueError, match="gripper joint 'j1' is in the group 'arm'"):
+        group_joints(SmokeConfig("/s", "arm", urdf=tmp_path / "robot.urdf", srdf=tmp_path / "robot.srdf",
+                                 gripper_joint="j1"))
+    assert group_joints(SmokeConfig("/s", joints=("a", "b"), gripper_joint="g")) == ("a", "b")
 
 
 def test_cli_bad_input_exits_2(capsys):
-    code = main(["smoke-test", "/get_action_chunk", "--joint-group", "manipulator",
+    code = main(["smoke-test", "/get_action_chunk", "--joints", ";".join(ARM),
                  "--image-topics", "/scene_camera/color;/wrist_camera/color", "--image-names", "scene"])
     assert code == 2
     assert "error: 2 image topics but 1 image names" in capsys.readouterr().err
@@ -165,7 +186,7 @@ def config(tag: str, **fields) -> SmokeConfig:
                   prompt="stack the red cube on the blue cube", expected_steps=50, wait=5.0,
                   joint_states_topic=f"{tag}/joint_states")
     values.update(fields)
-    return SmokeConfig(f"{tag}/get_action_chunk", "manipulator", **values)
+    return SmokeConfig(f"{tag}/get_action_chunk", joints=tuple(ARM), **values)
 
 
 @pytest.mark.ros
@@ -180,6 +201,45 @@ def test_smoke_test_passes_against_a_working_adapter(cell):
     assert request.joint_names == NAMES and request.new_episode and request.stamp == 7.0
     assert np.allclose(request.joint_positions, [0.1, -1.2, 1.3, -1.6, -1.5, 0.2, 0.0])
     assert request.images["scene"].shape == (48, 64, 3)
+
+
+@pytest.mark.ros
+def test_a_camera_driver_publishing_best_effort_is_observed(cell):
+    """A plain rclpy publisher with the sensor-data QoS (best-effort), as camera drivers use."""
+    import rclpy
+    from rclpy.qos import qos_profile_sensor_data
+
+    tag, _ = cell
+    context = rclpy.Context()
+    rclpy.init(context=context)
+    node = rclpy.create_node("best_effort_camera", context=context)
+    publisher = node.create_publisher(Image, f"{tag}/ir_camera/image_raw", qos_profile_sensor_data)
+    frame = rgb_to_image(np.full((30, 40, 3), 50, np.uint8), "rgb8")
+    timer = node.create_timer(0.02, lambda: publisher.publish(frame))
+    executor = rclpy.executors.SingleThreadedExecutor(context=context)
+    executor.add_node(node)
+    spinning = threading.Thread(target=lambda: executor.spin(), daemon=True)
+    spinning.start()
+    try:
+        report = run_smoke_test(config(tag, image_topics=(f"{tag}/ir_camera/image_raw",), image_names=("ir",)))
+    finally:
+        node.destroy_timer(timer)
+        executor.shutdown(timeout_sec=2)
+        node.destroy_node()
+        rclpy.try_shutdown(context=context)
+        spinning.join(timeout=5)
+    checks = {c.name: c for c in report.checks}
+    assert checks["camera ir"].result == PASS and checks["camera ir"].detail == f"{tag}/ir_camera/image_raw: 40x30 rgb8"
+    assert report.passed, report.table()
+
+
+@pytest.mark.ros
+def test_a_silent_camera_fails_naming_the_qos(cell):
+    tag, _ = cell
+    report = run_smoke_test(config(tag, image_topics=(f"{tag}/nothing/image_raw",), image_names=("none",), wait=0.5))
+    assert [(c.name, c.result, c.detail) for c in report.checks][-1] == (
+        "camera none", FAIL, f"no frame on {tag}/nothing/image_raw within 0.5 s (subscribed best-effort, so a reliable "
+        "or best-effort publisher matches: is the driver publishing?)")
 
 
 @pytest.mark.ros
@@ -202,7 +262,7 @@ def test_smoke_test_fails_when_the_service_is_missing():
 def test_smoke_test_command_prints_the_verdict_and_exits_0(cell):
     tag, _ = cell
     proc = subprocess.run(
-        [sys.executable, "-m", "runtime.cli", "smoke-test", f"{tag}/get_action_chunk", "--joint-group", "manipulator",
+        [sys.executable, "-m", "runtime.cli", "smoke-test", f"{tag}/get_action_chunk", "--joints", ";".join(ARM),
          "--gripper-joint", GRIPPER, "--image-names", "scene;wrist", "--synthetic-images", "--expected-steps", "50",
          "--joint-states-topic", f"{tag}/joint_states"],
         cwd=ROOT, env={**os.environ, "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"}, capture_output=True, text=True,

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from runtime.cli import main
-from sim.policy.replay import RecordedChunk, write_replay
+from policy.replay import RecordedChunk, write_replay
 from sim.robot_model import ARM_JOINTS, GRIPPER_DRIVER_JOINT, load_waypoints
 
 

@@ -8,7 +8,7 @@
 2. Opens it with LeRobot's ``LeRobotDataset`` and reads it into memory once (``DemoTensors``:
    each frame with the next ``chunk`` actions of its episode, as ``delta_timestamps`` would give),
    normalization stats from the dataset's metadata.
-3. Builds the tiny SmolVLA from config (``sim.policy.tiny_smolvla``: no hub, random weights,
+3. Builds the tiny SmolVLA from config (``policy.tiny_smolvla``: no hub, random weights,
    everything trainable), trains it with AdamW and a cosine schedule on LeRobot's preprocessor
    output (normalized state and actions, tokenized prompt), for ``--steps`` steps or
    ``--minutes``, whichever ends first.
@@ -31,7 +31,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from sim.policy.lerobot_compat import ensure_torchvision  # noqa: E402
+from policy.lerobot_compat import ensure_torchvision  # noqa: E402
 
 ensure_torchvision()
 
@@ -117,7 +117,7 @@ def main(argv: list[str] | None = None) -> int:
     import numpy as np
     import torch
 
-    from sim.policy.tiny_smolvla import TinySmolVLASpec, build_tiny_smolvla, save_checkpoint
+    from policy.tiny_smolvla import TinySmolVLASpec, build_tiny_smolvla, save_checkpoint
 
     torch.manual_seed(args.seed)
     np.random.seed(args.seed)

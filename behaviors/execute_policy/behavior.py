@@ -162,7 +162,8 @@ class ExecutePolicy(Behavior):
         self.controller = bus.create_action_client(c.controller_action_name, FollowTrajectory)
         self.gripper = bus.create_action_client(c.gripper_command_action_name, GripperCommand) if c.has_gripper else None
         self.joint_states = bus.create_subscription(c.joint_states_topic, JointState, reliable=True)
-        self.cameras = [bus.create_subscription(t, Image, reliable=True) for t in c.image_topics]
+        # Best-effort matches both kinds of camera driver (most publish best-effort sensor-data QoS).
+        self.cameras = [bus.create_subscription(t, Image, reliable=False) for t in c.image_topics]
 
     def update(self) -> Status:
         if self.error is not None:
@@ -204,7 +205,8 @@ class ExecutePolicy(Behavior):
             missing.append(f"joint states on '{c.joint_states_topic}' (the publisher must use reliable QoS)")
         for topic, sub in zip(c.image_topics, self.cameras):
             if sub.latest is None:
-                missing.append(f"a frame on camera topic '{topic}'")
+                missing.append(f"a frame on camera topic '{topic}' (subscribed best-effort, so a reliable or a "
+                               "best-effort publisher matches; is the camera driver publishing there?)")
         if missing:
             if now - self.started_at >= STARTUP_WAIT_S:
                 return self._finish(Status.FAILURE, f"not available after {STARTUP_WAIT_S:.0f} s: " + "; ".join(missing))

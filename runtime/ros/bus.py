@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import collections
 import threading
+import time
 from dataclasses import dataclass, field
 from typing import Any, Callable
 
@@ -56,6 +57,8 @@ from runtime.clock import Clock
 
 _SPIN_PERIOD_S = 0.1  # how often the spin thread looks at its stop flag when the graph is idle
 _QUEUE_DEPTH = 10
+CANCEL_DELIVERY_S = 2.0
+"""Bound on how long ``close()`` waits for the cancels in flight to be served and answered."""
 
 
 class BusClosed(RuntimeError):
@@ -403,7 +406,7 @@ class _RosActionServer:
             accepted = True
         else:
             try:
-                accepted = bool(self.bus._serve(self.on_cancel, handle))
+                accepted = bool(self.bus._serve(self.on_cancel, handle, cancel=True))
             except Exception as exc:
                 self.bus.node.get_logger().error(f"action '{self.name}': on_cancel raised {exc!r}; rejecting")
                 accepted = False
@@ -480,6 +483,7 @@ class RosClientGoalHandle:
             lambda response: response.return_code == CancelGoal.Response.ERROR_NONE
             and len(response.goals_canceling) > 0,
         )
+        self._client.bus._sent_cancels.append(future)
         return future
 
 
@@ -540,6 +544,10 @@ class RosBus:
         self.clock = clock
         self.serve_in_spin_once = serve_in_spin_once
         self._queue: collections.deque[Callable[[], None]] = collections.deque()
+        self._cancel_calls: collections.deque[Callable[[], None]] = collections.deque()
+        """Cancel requests to this node's action servers, waiting for the owner (``_serve``)."""
+        self._sent_cancels: list[RosFuture] = []
+        """Cancel requests this node's action clients sent; ``close()`` waits for their answers."""
         self._closing = threading.Event()
         self._closed = False
         self.context = rclpy.Context()
@@ -578,12 +586,14 @@ class RosBus:
         """Run ``fn(*args)`` in the next ``spin_once()`` on the owner's thread."""
         self._queue.append(lambda: fn(*args))
 
-    def _serve(self, fn: Callable[..., Any], *args: Any) -> Any:
-        """Run a server callback: here, or on the owner's thread when ``serve_in_spin_once``."""
+    def _serve(self, fn: Callable[..., Any], *args: Any, cancel: bool = False) -> Any:
+        """Run a server callback: here, or on the owner's thread when ``serve_in_spin_once``.
+
+        ``cancel``: a cancel request, which ``close()`` still serves (nothing else is)."""
         if not self.serve_in_spin_once:
             return fn(*args)
         call = _OwnerCall(fn, args)
-        self._queue.append(call.run)
+        (self._cancel_calls if cancel else self._queue).append(call.run)
         while not call.event.wait(_SPIN_PERIOD_S):
             if self._closing.is_set():
                 raise BusClosed("the bus closed before its owner served the request")
@@ -698,11 +708,47 @@ class RosBus:
         """Run the callbacks that arrived since the last call (and waiting server callbacks)."""
         for _ in range(len(self._queue)):
             self._queue.popleft()()
+        self._serve_cancels()
+
+    def _serve_cancels(self) -> None:
+        for _ in range(len(self._cancel_calls)):
+            self._cancel_calls.popleft()()
+
+    def cancels_in_flight(self) -> int:
+        """Cancel requests sent and not yet answered, plus received ones not yet served."""
+        self._sent_cancels = [f for f in self._sent_cancels if not f.done()]
+        return len(self._sent_cancels) + len(self._cancel_calls)
+
+    def deliver_cancels(self, timeout_s: float | None = None) -> bool:
+        """Serve and wait until no cancel is in flight, at most ``timeout_s`` (default
+        ``CANCEL_DELIVERY_S``); False if some
+        still were (the graph went away, or a remote server never answered).
+
+        Call it on the owner's thread: with ``serve_in_spin_once`` it serves this node's own
+        action servers' cancel callbacks (a hosted controller cancelled by a behavior of the same
+        node), and only those: everything else waiting for the owner stays unserved.
+        """
+        deadline = time.monotonic() + (CANCEL_DELIVERY_S if timeout_s is None else timeout_s)
+        while self.context.ok():
+            self._serve_cancels()
+            if not self.cancels_in_flight():
+                return True
+            if time.monotonic() >= deadline:
+                break
+            time.sleep(0.005)
+        self.node.get_logger().warning(f"{self.cancels_in_flight()} cancel request(s) still in flight on leaving the graph")
+        return False
 
     def close(self) -> None:
-        """Stop the executor thread, destroy the node and shut the context down. Idempotent."""
+        """Deliver the cancels in flight (``deliver_cancels``), stop the executor thread, destroy
+        the node and shut the context down. Idempotent.
+
+        However the owner's work ended (a behavior that failed after cancelling its goal, a
+        halted tree, an exception), a cancel it sent reaches its action server, and a cancel its
+        own servers received is served, before the node leaves the graph."""
         if self._closed:
             return
+        self.deliver_cancels()
         self._closed = True
         self._closing.set()  # releases execute callbacks and requests waiting for spin_once
         self._thread.join()  # nothing new is handed to the worker pool after this
@@ -725,6 +771,7 @@ class RosBus:
         self.node.destroy_node()
         rclpy.try_shutdown(context=self.context)
         self._queue.clear()
+        self._cancel_calls.clear()
 
     def __enter__(self) -> RosBus:
         return self

@@ -16,7 +16,7 @@ The tokenizer is word-level on purpose: the prompts are short and drawn from a s
 ("stack the blue cube on the green cube"), so words are the meaningful units and an unknown word
 maps to ``[UNK]`` rather than to noise.
 
-Import :mod:`sim.policy.lerobot_compat` first (done here), so torchvision imports next to the CPU torch.
+Import :mod:`policy.lerobot_compat` first (done here), so torchvision imports next to the CPU torch.
 """
 from __future__ import annotations
 
@@ -142,7 +142,7 @@ def write_tiny_vlm(folder: str | Path, spec: TinySmolVLASpec = TinySmolVLASpec()
     processor.save_pretrained(folder)
     (folder / "README.txt").write_text(
         "Tiny SmolVLM backbone description for a SmolVLA built from config (random weights, no hub).\n"
-        "Written by sim/policy/tiny_smolvla.py:write_tiny_vlm.\n",
+        "Written by policy/tiny_smolvla.py:write_tiny_vlm.\n",
         encoding="utf-8",
     )
     return folder

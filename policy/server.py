@@ -1,8 +1,8 @@
 """The HTTP inference server: one ``PolicyBackend`` behind ``GET /health`` and ``POST /infer``.
 
-Run it as ``objective serve --backend oracle|replay [--replay-file F] [--host H] [--port N]``.
-The adapter node (``sim/policy/node.py``) forwards each GetActionChunk call here; the body is
-the JSON of ``sim/policy/wire.py`` (no pickle anywhere).
+Run it as ``objective serve --backend NAME [--replay-file F] [--host H] [--port N]``.
+The adapter node (``policy/node.py``) forwards each GetActionChunk call here; the body is
+the JSON of ``policy/wire.py`` (no pickle anywhere).
 
 Endpoints:
 
@@ -12,16 +12,19 @@ Endpoints:
   caller's own warmup call (which seeds ExecutePolicy's latency estimate, an estimate that only
   grows) never pays for model compilation or cache setup.
 - ``POST /infer`` with ``Authorization: Bearer <key>``. Answers, in the order they are checked:
-  ``401`` no or wrong key (the answer says nothing about the key); ``411`` no Content-Length;
-  ``413`` body above ``max_body_bytes`` (refused before it is read); ``503`` still loading, or
+  ``401`` no or wrong key (the answer says nothing about the key; nothing past the headers is
+  read, let alone parsed, before the key matches); ``411`` no Content-Length; ``400`` a
+  Content-Length that is not ASCII digits, or several that disagree; ``413`` body above ``max_body_bytes`` (refused before it is read); ``503`` still loading, or
   loading failed (with the reason); ``400`` a body that is not a valid request (with the reason);
   ``500`` the backend raised (with its message); ``200`` the backend's answer, which may itself
   be ``status: error`` when the policy understood the problem (a prompt it cannot read).
 
 Security: the key comes from ``POLICY_SERVER_KEY`` and is compared with ``hmac.compare_digest``
-(constant time). The server refuses to start without one unless told ``--insecure-no-key``.
-It binds ``127.0.0.1`` by default: over plain HTTP the key travels in cleartext, which is only
-acceptable on loopback. ``--tls-cert/--tls-key`` serve HTTPS instead (``--tls-client-ca``
+(constant time). The server refuses to start without one unless told ``--insecure-no-key``, and
+even then only on a loopback address (or with ``--tls-client-ca``, where certificates
+authenticate the clients). It binds ``127.0.0.1`` by default: over plain HTTP the key travels in
+cleartext, which is only acceptable on loopback; ``exposure_warnings`` says at start what the
+configuration exposes. ``--tls-cert/--tls-key`` serve HTTPS instead (``--tls-client-ca``
 also requires client certificates) for a server on another machine.
 
 One inference at a time (a lock): backends keep per-episode state and are not thread-safe.
@@ -37,9 +40,11 @@ import os
 import signal
 import socket
 import ssl
+import sys
 import threading
 import time
 from dataclasses import dataclass, field
+from importlib.metadata import entry_points
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
 from typing import Any, Callable
@@ -47,6 +52,7 @@ from typing import Any, Callable
 import numpy as np
 
 from .backend import PolicyBackend, PolicyRequest
+from .http_client import is_loopback
 from .wire import CONTENT_TYPE, DEFAULT_MAX_BODY_BYTES, WireError, decode_request, encode_response, error_body
 
 KEY_ENV = "POLICY_SERVER_KEY"
@@ -60,7 +66,7 @@ SOCKET_TIMEOUT_S = 30.0
 """A client that stops sending mid-body is dropped after this, so it cannot hold a thread forever."""
 DRAIN_S = 2.0
 
-log = logging.getLogger("sim.policy.server")
+log = logging.getLogger("policy.server")
 
 
 def execution_horizon(frozen_prefix_steps: int, guidance_horizon: int, default_guidance: int) -> int:
@@ -133,7 +139,13 @@ class ServerConfig:
         if not self.key and not self.insecure_no_key:
             raise ValueError(
                 f"no bearer key: set {KEY_ENV} (the adapter sends the same key), or pass "
-                "--insecure-no-key to serve /infer to anyone who can reach the port"
+                "--insecure-no-key to serve /infer to any process on this machine"
+            )
+        if not self.key and not is_loopback(self.host) and self.tls_client_ca is None:
+            raise ValueError(
+                f"refusing to serve /infer without a bearer key on {self.host}, which is not a loopback address: "
+                f"anyone who can reach the port could drive the robot; set {KEY_ENV}, or require client "
+                "certificates (--tls-client-ca), or bind 127.0.0.1"
             )
         if self.max_body_bytes <= 0:
             raise ValueError(f"max_body_bytes must be positive, got {self.max_body_bytes}")
@@ -141,6 +153,18 @@ class ServerConfig:
             raise ValueError("--tls-cert and --tls-key go together")
         if self.tls_client_ca is not None and self.tls_cert is None:
             raise ValueError("--tls-client-ca needs --tls-cert and --tls-key")
+
+
+def exposure_warnings(config: ServerConfig) -> list[str]:
+    """What ``objective serve`` warns about at start, each true of ``config`` as given."""
+    warnings = []
+    if not config.key:
+        who = "any process on this machine" if is_loopback(config.host) else "any client with a certificate from --tls-client-ca"
+        warnings.append(f"serving /infer without a bearer key (--insecure-no-key): {who} can call the policy")
+    if not is_loopback(config.host) and config.tls_cert is None:
+        warnings.append(f"serving plain HTTP on {config.host}: the bearer key and every observation travel in "
+                        "cleartext; use TLS (--tls-cert/--tls-key) or a private network")
+    return warnings
 
 
 # --------------------------------------------------------------------------------------------
@@ -260,12 +284,29 @@ class InferenceServer:
             return _error(500, f"policy backend '{self.backend_name}' returned an invalid answer: {exc}")
 
 
+def content_length(values: list[str]) -> int | str | None:
+    """The body length the ``Content-Length`` header(s) declare: an int, None when absent, or the
+    reason it is malformed (not ASCII digits, or several headers that disagree)."""
+    if not values:
+        return None
+    texts = {value.strip() for value in values}
+    if len(texts) > 1:
+        return f"Content-Length is given {len(values)} times with different values"
+    [text] = texts
+    if not (text.isascii() and text.isdigit()) or len(text) > 18:
+        return f"Content-Length must be a number of bytes, got {text[:40]!r}"
+    return int(text)
+
+
 def _error(code: int, reason: str) -> Reply:
     return Reply(code, error_body(reason), reason)
 
 
 class _Handler(BaseHTTPRequestHandler):
     protocol_version = "HTTP/1.1"
+    default_request_version = "HTTP/1.0"
+    """A request line too broken to name a version is answered with a status line (HTTP/0.9
+    answers have none, so the client would see a bare page instead of a 400)."""
     timeout = SOCKET_TIMEOUT_S
     server_version = "objective-inference/1"
     app: InferenceServer  # set on the per-server subclass
@@ -280,16 +321,18 @@ class _Handler(BaseHTTPRequestHandler):
 
     def do_POST(self) -> None:  # noqa: N802
         started = time.monotonic()
-        length_text = self.headers.get("Content-Length")
-        length = int(length_text) if length_text is not None and length_text.strip().isdigit() else None
+        length = content_length(self.headers.get_all("Content-Length") or [])
+        drain = length if isinstance(length, int) else None
         limit = self.app.config.max_body_bytes
         if self.path.split("?", 1)[0] != "/infer":
-            return self._refuse(_error(404, f"no such endpoint {self.path!r} (GET /health, POST /infer)"), started, length)
+            return self._refuse(_error(404, f"no such endpoint {self.path!r} (GET /health, POST /infer)"), started, drain)
         if not self.app.authorized(self.headers.get("Authorization")):
-            return self._refuse(_error(401, "unauthorized: send Authorization: Bearer <key>"), started, length,
+            return self._refuse(_error(401, "unauthorized: send Authorization: Bearer <key>"), started, drain,
                                 authenticate=True)
         if length is None:
             return self._refuse(_error(411, "a Content-Length header is required"), started, None)
+        if isinstance(length, str):
+            return self._refuse(_error(400, length), started, None)
         if length > limit:
             reason = f"request body of {length} bytes exceeds the limit of {limit} bytes"
             return self._refuse(_error(413, reason), started, length)
@@ -297,7 +340,12 @@ class _Handler(BaseHTTPRequestHandler):
         if len(body) != length:
             self.close_connection = True
             return self._send(_error(400, f"request body ended after {len(body)} of {length} bytes"), started)
-        self._send(self.app.infer(body), started)
+        try:
+            reply = self.app.infer(body)
+        except Exception as exc:  # a bug here must still answer, never drop the connection
+            log.exception("POST /infer failed")
+            reply = _error(500, f"policy server failed: {type(exc).__name__}: {exc}")
+        self._send(reply, started)
 
     def _refuse(self, reply: Reply, started: float, length: int | None, authenticate: bool = False) -> None:
         """Answer without using the body, then close the connection.
@@ -352,6 +400,11 @@ def _make_httpd(app: InferenceServer) -> ThreadingHTTPServer:
         daemon_threads = True
         allow_reuse_address = True
 
+        def handle_error(self, request: Any, client_address: Any) -> None:
+            """One log line, not socketserver's traceback on stderr (a client that hung up)."""
+            exc = sys.exc_info()[1]
+            log.warning("%s: connection ended: %s: %s", client_address[0], type(exc).__name__, exc)
+
     httpd = Server((config.host, config.port), handler)
     if config.tls_cert is not None:
         context = ssl.create_default_context(ssl.Purpose.CLIENT_AUTH)
@@ -377,7 +430,8 @@ class BackendOptions:
     """A LeRobot checkpoint directory (``--backend lerobot``)."""
 
 
-def _replay(options: BackendOptions) -> PolicyBackend:
+def replay_backend(options: BackendOptions) -> PolicyBackend:
+    """``--backend replay``: the chunks of ``--replay-file``, in order."""
     from .replay import ReplayBackend
 
     if options.replay_file is None:
@@ -387,13 +441,8 @@ def _replay(options: BackendOptions) -> PolicyBackend:
     return ReplayBackend(options.replay_file)
 
 
-def _oracle(options: BackendOptions) -> PolicyBackend:
-    from .oracle_remote import RemoteOracleBackend
-
-    return RemoteOracleBackend()
-
-
-def _lerobot(options: BackendOptions) -> PolicyBackend:
+def lerobot_backend(options: BackendOptions) -> PolicyBackend:
+    """``--backend lerobot``: the LeRobot checkpoint in ``--checkpoint`` (needs `make lerobot`)."""
     from .lerobot_backend import make_lerobot_backend
 
     if options.checkpoint is None:
@@ -403,16 +452,22 @@ def _lerobot(options: BackendOptions) -> PolicyBackend:
     return make_lerobot_backend(options.checkpoint, guidance_horizon=options.default_guidance or None)
 
 
-BACKENDS: dict[str, Callable[[BackendOptions], PolicyBackend]] = {"oracle": _oracle, "replay": _replay, "lerobot": _lerobot}
-"""``--backend`` name -> factory. A new backend (LeRobot) adds itself here: one class with
-``load`` / ``warmup`` / ``infer``, nothing else about the server changes."""
+BACKEND_GROUP = "objective.policy_backends"
+"""Entry-point group naming the ``--backend`` choices: name -> ``factory(BackendOptions)``. This
+package declares ``replay`` and ``lerobot``; the simulated cell declares ``oracle``; a new backend
+is one class with ``load`` / ``warmup`` / ``infer`` and one entry point, nothing else changes."""
+
+
+def backend_names() -> list[str]:
+    return sorted({ep.name for ep in entry_points(group=BACKEND_GROUP)})
 
 
 def make_backend(name: str, options: BackendOptions) -> PolicyBackend:
     """The backend ``name`` built from ``options``; ValueError naming the known ones."""
-    factory = BACKENDS.get(name)
-    if factory is None:
-        raise ValueError(f"unknown backend {name!r} (known: {', '.join(sorted(BACKENDS))})")
+    found = [ep for ep in entry_points(group=BACKEND_GROUP) if ep.name == name]
+    if not found:
+        raise ValueError(f"unknown backend {name!r} (known: {', '.join(backend_names()) or 'none installed'})")
+    factory: Callable[[BackendOptions], PolicyBackend] = found[0].load()
     return factory(options)
 
 
@@ -445,9 +500,8 @@ def serve_forever(server: InferenceServer, stop: threading.Event) -> None:
     """Run ``server`` until ``stop`` is set (the CLI sets it on SIGINT/SIGTERM), then stop it."""
     server.start()
     print(f"listening on {server.url}", flush=True)
-    if server.config.host not in ("127.0.0.1", "localhost", "::1") and not server.config.tls_cert:
-        log.warning("serving plain HTTP on %s: the bearer key travels in cleartext; use TLS or a private network",
-                    server.config.host)
+    for warning in exposure_warnings(server.config):
+        log.warning("%s", warning)
     try:
         while not stop.wait(0.2):
             pass

@@ -2,7 +2,7 @@
 
 ``oracle`` (default): the scripted cube-stacking oracle, peeking at the cell.
 ``replay:FILE``: the chunks recorded in FILE (JSON lines), then NO_MORE_ACTIONS.
-``lerobot:DIR``: the LeRobot checkpoint in DIR (``sim.policy.lerobot_backend``; needs ``make lerobot``),
+``lerobot:DIR``: the LeRobot checkpoint in DIR (``policy.lerobot_backend``; needs ``make lerobot``),
 warmed up with a synthetic full-size observation when loaded.
 ``none``: serve nothing (a policy comes from elsewhere, or a test serves its own).
 """
@@ -11,9 +11,8 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
+from policy.adapter import DEFAULT_SERVICE_NAME, PolicyAdapter
 from runtime.bus import parse_latency
-
-from .adapter import DEFAULT_SERVICE_NAME, PolicyAdapter
 
 POLICY_SPECS = "oracle, replay:FILE or none"
 
@@ -28,14 +27,14 @@ def make_backend(spec: str | None, cell: Any) -> Any:
 
         return oracle_for_cell(cell)
     if spec.startswith("replay:"):
-        from .replay import ReplayBackend
+        from policy.replay import ReplayBackend
 
         path = Path(spec.split(":", 1)[1])
         if not path.is_file():
             raise ValueError(f"policy 'replay:{path}': no such file")
         return ReplayBackend(path)
     if spec.startswith("lerobot:"):
-        from .lerobot_backend import make_lerobot_backend
+        from policy.lerobot_backend import make_lerobot_backend
 
         path = Path(spec.split(":", 1)[1])
         if not path.is_dir():

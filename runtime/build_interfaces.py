@@ -1,7 +1,10 @@
 """Build the project's ROS 2 interface packages (runtime/ros/interfaces/*) into the venv.
 
-Run with the venv's python (``make setup`` does): ``.venv/bin/python tools/build_interfaces.py``.
-Stdlib only, idempotent, and quick when nothing changed.
+Run with the venv's python: ``objective build-interfaces`` (or ``python -m
+runtime.build_interfaces``; ``make setup`` does it). The sources ship with the package, so an
+installed wheel builds them as a checkout does; it needs cmake, a C compiler and the build-time
+wheels of the ``ros-build`` extra (``pip install 'objective-runtime[ros-build]'``). Stdlib only,
+idempotent, and quick when nothing changed.
 
 Why plain cmake into the venv prefix: the ROS 2 Jazzy wheels put their libraries in
 ``<venv>/lib`` and a start-up hook adds that directory to the library path, so packages
@@ -14,7 +17,7 @@ Two steps:
    CMake refuses imported targets whose include directories do not exist. We point them at this
    interpreter's headers and this venv's numpy headers.
 2. For each package, in dependency order: configure, build and install with cmake (build
-   directory ``build/interfaces/<pkg>``), unless its sources are unchanged since the last
+   directory ``<build-dir>/<pkg>``, by default ``<venv>/build/objective-interfaces``), unless its sources are unchanged since the last
    successful build (hash stamp) and its Python types still load (the venv may have been
    recreated since).
 """
@@ -33,9 +36,9 @@ import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parent.parent
-INTERFACES_DIR = ROOT / "runtime" / "ros" / "interfaces"
-BUILD_DIR = ROOT / "build" / "interfaces"
+from .command import Command
+
+INTERFACES_DIR = Path(__file__).resolve().parent / "ros" / "interfaces"
 STAMP_NAME = "source-hash.stamp"
 MAX_JOBS = 2  # the machines are small and shared; never more than two compile jobs
 TAIL_LINES = 60
@@ -163,7 +166,7 @@ def types_load(pkg: Package, env: dict[str, str]) -> bool:
 
 
 def run_step(pkg: Package, step: str, cmd: list[str], env: dict[str, str], log: Path) -> None:
-    proc = subprocess.run(cmd, env=env, cwd=ROOT, capture_output=True, text=True)
+    proc = subprocess.run(cmd, env=env, cwd=log.parent, capture_output=True, text=True)
     with log.open("a") as fh:
         fh.write(f"$ {' '.join(cmd)}\n{proc.stdout}{proc.stderr}\n")
     if proc.returncode != 0:
@@ -173,8 +176,8 @@ def run_step(pkg: Package, step: str, cmd: list[str], env: dict[str, str], log: 
         )
 
 
-def build_package(pkg: Package, prefix: Path, env: dict[str, str]) -> None:
-    build = BUILD_DIR / pkg.name
+def build_package(pkg: Package, prefix: Path, env: dict[str, str], build_dir: Path) -> None:
+    build = build_dir / pkg.name
     # A clean configure every time the sources change: cheap next to the compile, and immune to
     # stale caches after the venv was recreated.
     if build.exists():
@@ -204,12 +207,21 @@ def build_env(prefix: Path) -> dict[str, str]:
     return env
 
 
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--force", action="store_true", help="rebuild every package even if unchanged")
+    parser.add_argument("--build-dir", type=Path, metavar="DIR",
+                        help="cmake build directories and stamps (default: <venv>/build/objective-interfaces)")
+    parser.add_argument("packages", nargs="*", help="only these packages (default: all)")
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--force", action="store_true", help="rebuild every package even if unchanged")
-    parser.add_argument("packages", nargs="*", help="only these packages (default: all)")
-    args = parser.parse_args(argv)
+    add_arguments(parser)
+    return build(parser.parse_args(argv))
 
+
+def build(args: argparse.Namespace, registry: object = None) -> int:
+    """Build what ``args`` asks for (the options of ``add_arguments``); the exit code."""
     if sys.prefix == sys.base_prefix:
         print(f"build_interfaces: run me with the venv's python (e.g. .venv/bin/python), not {sys.executable}",
               file=sys.stderr)
@@ -218,6 +230,7 @@ def main(argv: list[str] | None = None) -> int:
         print("build_interfaces: cmake is not on PATH (apt-get install cmake)", file=sys.stderr)
         return 2
     prefix = Path(sys.prefix)
+    build_dir = (args.build_dir or prefix / "build" / "objective-interfaces").resolve()
 
     try:
         fixed = fix_cmake_exports(prefix)
@@ -238,11 +251,11 @@ def main(argv: list[str] | None = None) -> int:
                 continue
             start = time.monotonic()
             digest = source_hash(pkg, toolchain)
-            stamp = BUILD_DIR / pkg.name / STAMP_NAME
+            stamp = build_dir / pkg.name / STAMP_NAME
             if not args.force and stamp.is_file() and stamp.read_text().strip() == digest and types_load(pkg, env):
                 print(f"{pkg.name}: up to date ({time.monotonic() - start:.1f} s)", flush=True)
                 continue
-            build_package(pkg, prefix, env)
+            build_package(pkg, prefix, env, build_dir)
             if not types_load(pkg, env):
                 raise BuildError(f"interface package '{pkg.name}': built and installed into {prefix}, "
                                  f"but its Python types do not load (try: {sys.executable} -c "
@@ -254,6 +267,9 @@ def main(argv: list[str] | None = None) -> int:
         return 1
     return 0
 
+
+COMMAND = Command("build the ROS 2 interface packages shipped in runtime/ros/interfaces into this venv",
+                  add_arguments, build)
 
 if __name__ == "__main__":
     sys.exit(main())

@@ -2,7 +2,7 @@
 
 The oracle is a cheat by design: it plans from where the cubes really are, which no learned
 policy could know. In the headless runtime it reads them straight from the simulated cell
-(``sim.policy.oracle.CellPeek``). Behind the HTTP server it lives in another process, so its
+(``sim.oracle.CellPeek``). Behind the HTTP server it lives in another process, so its
 privileged view comes over ROS 2 instead:
 
 - **Cube poses**: the world publishes one ``geometry_msgs/TransformStamped`` per cube on
@@ -26,16 +26,16 @@ from typing import Any, Sequence
 import numpy as np
 from geometry_msgs.msg import TransformStamped
 
+from policy.backend import PolicyRequest, PolicyResponse
 from runtime.timestamps import time_msg
 
-from .backend import PolicyRequest, PolicyResponse
 from .oracle import COLORS, ArmKinematics, OracleBackend, OracleConfig
 
 CUBE_POSE_TOPIC = "/cube_poses/cube_{color}"
 CUBE_POSE_WAIT_S = 2.0
 """How long a request waits for the first pose of a cube it needs before answering ERROR."""
 
-log = logging.getLogger("sim.policy.oracle_remote")
+log = logging.getLogger("objective.oracle_remote")
 
 
 def cube_pose_msg(color: str, position: Sequence[float], quat_wxyz: Sequence[float], stamp: float) -> TransformStamped:
@@ -142,3 +142,9 @@ class RemoteOracleBackend:
         if self._bus is not None:
             self._bus.close()
             self._bus = None
+
+
+def serve_backend(options: Any) -> RemoteOracleBackend:
+    """``objective serve --backend oracle`` (the ``objective.policy_backends`` entry point); it
+    takes none of the server's backend options."""
+    return RemoteOracleBackend()

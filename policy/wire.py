@@ -32,7 +32,7 @@ Any other answer (``4xx``/``5xx``) carries ``{"error": "<reason>"}``.
 Decoding is strict: an unknown or missing field, a wrong type, an array whose bytes do not
 match its shape, a non-finite number: ``WireError`` naming the field and what is wrong, which the
 server answers as ``400`` and the adapter as ERROR. Contract checks that need the request
-(one column per observed joint) stay in the adapter (``sim.policy.adapter.validate_response``).
+(one column per observed joint) stay in the adapter (``policy.adapter.validate_response``).
 This module imports no ROS, so an inference environment without rclpy can use it.
 """
 from __future__ import annotations
@@ -249,7 +249,7 @@ def read_error(body: bytes) -> str:
     """The reason in an error body, or a readable excerpt of whatever the server sent."""
     try:
         obj = json.loads(body)
-    except (ValueError, UnicodeDecodeError):
+    except (ValueError, UnicodeDecodeError, RecursionError):
         obj = None
     if isinstance(obj, dict) and isinstance(obj.get("error"), str):
         return obj["error"]
@@ -271,6 +271,8 @@ def _load_object(body: bytes, what: str, fields: set[str]) -> dict[str, Any]:
         raise WireError(f"{what} body is not UTF-8 text") from None
     except ValueError as exc:
         raise WireError(f"{what} body is not valid JSON ({exc})") from None
+    except RecursionError:  # the decoder recurses once per nesting level: [[[[...]]]] exhausts the stack
+        raise WireError(f"{what} body nests JSON arrays or objects too deeply") from None
     if not isinstance(obj, dict):
         raise WireError(f"{what} body must be a JSON object")
     if obj.get("version") != WIRE_VERSION:

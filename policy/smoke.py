@@ -3,8 +3,9 @@
 The guide's bring-up step 3: a throwaway client that catches nearly every wiring mistake in
 seconds, before anything moves. It
 
-1. resolves the joint group from the robot model (the simulated cell's by default, or
-   ``--urdf``/``--srdf``) and appends the gripper joint last when one is given;
+1. takes the joints the policy commands, base to tip, from ``--joints`` or from the robot
+   description (``--joint-group`` of ``--urdf``/``--srdf``), and appends the gripper joint last
+   when one is given. It knows no robot of its own: it runs beside yours;
 2. takes the positions from ``/joint_states`` (waits up to ``wait`` seconds, as ExecutePolicy
    does; a missing gripper joint there is a failure, as it is for ExecutePolicy). Decision: joint
    states are required, because a policy answering for a robot state nobody publishes proves
@@ -35,7 +36,9 @@ SYNTHETIC_SIZE = 224
 @dataclass(frozen=True)
 class SmokeConfig:
     service_name: str
-    joint_group: str
+    joint_group: str | None = None
+    """An SRDF group of ``urdf``/``srdf`` (base to tip); or name the joints in ``joints``."""
+    joints: tuple[str, ...] = ()
     gripper_joint: str | None = None
     image_topics: tuple[str, ...] = ()
     image_names: tuple[str, ...] = ()
@@ -70,7 +73,14 @@ class SmokeConfig:
         if not self.timeout > 0 or not self.wait > 0:
             raise ValueError("--timeout and --wait must be positive")
         if (self.urdf is None) != (self.srdf is None):
-            raise ValueError("--urdf and --srdf go together (without them the simulated cell's model is used)")
+            raise ValueError("--urdf and --srdf go together (the robot description --joint-group is read from)")
+        if self.joints and (self.joint_group or self.urdf):
+            raise ValueError("--joints names the joints itself: leave out --joint-group, --urdf and --srdf")
+        if not self.joints and not (self.joint_group and self.urdf):
+            raise ValueError("name the joints the policy commands, base to tip: --joints 'a;b;...', "
+                             "or --joint-group NAME with the robot description --urdf FILE --srdf FILE")
+        if len(set(self.joints)) != len(self.joints):
+            raise ValueError(f"--joints names a joint twice: {';'.join(self.joints)}")
 
 
 @dataclass
@@ -187,21 +197,19 @@ def judge_response(report: SmokeReport, response: Any, names: Sequence[str], rtc
 # The run (ROS 2)
 # --------------------------------------------------------------------------------------------
 def group_joints(config: SmokeConfig) -> tuple[str, ...]:
-    """The joint group's joints, base to tip; ValueError naming the groups for an unknown one."""
-    from runtime.scene import GroupError, RobotModel
+    """The joints the policy commands, base to tip: ``--joints``, or the group of the robot
+    description; ValueError naming the groups for an unknown one."""
+    joints = config.joints
+    if not joints:
+        from runtime.scene import GroupError, RobotModel
 
-    if config.urdf is not None:
-        robot = RobotModel.from_urdf(config.urdf, config.srdf)
-    else:
-        from sim.robot_model import planning_robot_model
-
-        robot = planning_robot_model()
-    try:
-        joints = tuple(robot.group(config.joint_group).joints)
-    except GroupError as exc:
-        raise ValueError(str(exc)) from None
+        try:
+            joints = tuple(RobotModel.from_urdf(config.urdf, config.srdf).group(config.joint_group).joints)
+        except GroupError as exc:
+            raise ValueError(str(exc)) from None
     if config.gripper_joint and config.gripper_joint in joints:
-        raise ValueError(f"gripper joint '{config.gripper_joint}' is in the group '{config.joint_group}': it must be outside it")
+        where = f"the group '{config.joint_group}'" if config.joint_group else "--joints"
+        raise ValueError(f"gripper joint '{config.gripper_joint}' is in {where}: it must be outside it")
     return joints
 
 
@@ -232,8 +240,11 @@ def run_smoke_test(config: SmokeConfig, bus: Any = None) -> SmokeReport:
         bus = RosBus(WallClock(), node_name="policy_smoke_test")
     try:
         client = bus.create_client(config.service_name, GetActionChunk)
-        joint_sub = None if config.synthetic_joints else bus.create_subscription(config.joint_states_topic, JointState)
-        image_subs = [] if config.synthetic_images else [bus.create_subscription(t, Image) for t in config.image_topics]
+        joint_sub = None if config.synthetic_joints else bus.create_subscription(config.joint_states_topic, JointState, reliable=True)
+        # Joint states reliable, as ExecutePolicy subscribes them; cameras best-effort, which matches
+        # drivers publishing either (most use the best-effort sensor-data QoS).
+        image_subs = [] if config.synthetic_images else [
+            bus.create_subscription(t, Image, reliable=False) for t in config.image_topics]
 
         if _wait(client.service_is_ready, config.wait):
             report.add("service", PASS, f"{config.service_name} is available")
@@ -267,7 +278,8 @@ def run_smoke_test(config: SmokeConfig, bus: Any = None) -> SmokeReport:
         else:
             for name, topic, sub in zip(config.image_names, config.image_topics, image_subs):
                 if not _wait(lambda: sub.latest is not None, config.wait):
-                    report.add(f"camera {name}", FAIL, f"no frame on {topic} within {config.wait:g} s")
+                    report.add(f"camera {name}", FAIL, f"no frame on {topic} within {config.wait:g} s (subscribed "
+                               "best-effort, so a reliable or best-effort publisher matches: is the driver publishing?)")
                     return report
                 frame = sub.latest
                 frames.append(frame)

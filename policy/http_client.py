@@ -28,6 +28,7 @@ import http.client
 import ipaddress
 import json
 import logging
+import re
 import ssl
 import time
 from dataclasses import dataclass
@@ -44,7 +45,7 @@ rather than its own timeout."""
 MAX_RESPONSE_BYTES = 64 * 1024 * 1024
 _SEND_PIECE = 1 << 20
 
-log = logging.getLogger("sim.policy.http_client")
+log = logging.getLogger("policy.http_client")
 
 
 class InferUrlError(ValueError):
@@ -72,13 +73,26 @@ class Endpoint:
 
 
 def is_loopback(host: str) -> bool:
-    """``localhost``, an address in 127.0.0.0/8, or ``::1``."""
+    """``localhost``, an address in 127.0.0.0/8, or ``::1`` (brackets and spaces ignored)."""
+    host = host.strip().strip("[]")
     if host.lower() == "localhost":
         return True
     try:
         return ipaddress.ip_address(host).is_loopback
     except ValueError:
-        return False
+        return False  # a host name: it may resolve to anything
+
+
+def redact_url(url: str) -> str:
+    """``url`` fit to print: user name and password (everything before the last ``@``), query and
+    fragment replaced by ``***``, so an error message or log line never repeats a secret."""
+    scheme, sep, rest = url.partition("://")
+    if not sep:
+        scheme, rest = "", url
+    rest = re.sub(r"[?#].*", "?***", rest, flags=re.DOTALL)
+    if "@" in rest:
+        rest = "***@" + rest.rpartition("@")[2]
+    return f"{scheme}{sep}{rest}"
 
 
 def check_infer_url(url: str, tls_files: bool = False) -> Endpoint:
@@ -92,17 +106,18 @@ def check_infer_url(url: str, tls_files: bool = False) -> Endpoint:
         parts = urlsplit(url.strip())
         port = parts.port
     except ValueError as exc:
-        raise InferUrlError(f"infer_url {url!r} is not a valid URL ({exc})") from None
+        raise InferUrlError(f"infer_url {redact_url(url)!r} is not a valid URL ({exc})") from None
+    shown = redact_url(url)
     scheme = parts.scheme.lower()
     if scheme not in ("http", "https"):
-        raise InferUrlError(f"infer_url {url!r} must start with http:// (loopback only) or https://")
+        raise InferUrlError(f"infer_url {shown!r} must start with http:// (loopback only) or https://")
     host = parts.hostname or ""
     if not host:
-        raise InferUrlError(f"infer_url {url!r} has no host")
+        raise InferUrlError(f"infer_url {shown!r} has no host")
     if parts.username or parts.password:
-        raise InferUrlError(f"infer_url {url!r} must not carry credentials: the key comes from POLICY_SERVER_KEY")
+        raise InferUrlError(f"infer_url {shown!r} must not carry credentials: the key comes from POLICY_SERVER_KEY")
     if parts.query or parts.fragment:
-        raise InferUrlError(f"infer_url {url!r} must not have a query or fragment")
+        raise InferUrlError(f"infer_url {shown!r} must not have a query or fragment")
     if scheme == "http" and not is_loopback(host):
         raise InferUrlError(
             f"refusing plain http to {host}, which is not a loopback address: the bearer key and the camera "

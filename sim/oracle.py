@@ -52,7 +52,7 @@ from typing import Callable, Protocol, Sequence
 import numpy as np
 from scipy.interpolate import CubicSpline
 
-from .backend import PolicyRequest, PolicyResponse
+from policy.backend import PolicyRequest, PolicyResponse
 
 COLORS = ("red", "green", "blue")
 

@@ -282,7 +282,7 @@ class PolicyAdapter:
             raise ValueError(f"log_every must be positive, got {log_every}")
         self.backend = backend
         self.log_every = log_every
-        self.log = logger or logging.getLogger("sim.policy.adapter")
+        self.log = logger or logging.getLogger("policy.adapter")
         self.served_chunks = 0
         """CHUNK_PRODUCED answers so far."""
         self.errors = 0

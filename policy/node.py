@@ -33,7 +33,7 @@ from .http_client import DEFAULT_TIMEOUT_S, ClientConfig, HttpBackend
 from .server import stop_on_signals
 
 NODE_NAME = "get_action_chunk_adapter"
-log = logging.getLogger("sim.policy.node")
+log = logging.getLogger("policy.node")
 
 
 @dataclass(frozen=True)
@@ -62,7 +62,7 @@ def http_adapter(config: AdapterConfig) -> PolicyAdapter:
         client_cert=config.client_cert,
         client_key=config.client_key,
     ))
-    return PolicyAdapter(backend, log_every=config.log_every, logger=logging.getLogger("sim.policy.adapter"))
+    return PolicyAdapter(backend, log_every=config.log_every, logger=logging.getLogger("policy.adapter"))
 
 
 def run_adapter_node(config: AdapterConfig, stop: threading.Event | None = None) -> int:

@@ -1,7 +1,7 @@
 """What a policy backend is: plain request/response dataclasses and the ``PolicyBackend`` protocol.
 
 A backend turns one observation into one chunk of absolute joint positions. It knows nothing about
-ROS or HTTP: the in-process adapter (``sim/policy/adapter.py``), the ROS 2 adapter node and the
+ROS or HTTP: the in-process adapter (``policy/adapter.py``), the ROS 2 adapter node and the
 HTTP inference server all convert their wire format into a ``PolicyRequest`` and a
 ``PolicyResponse`` back, so one backend class serves every transport.
 

@@ -1,0 +1,27 @@
+"""A subcommand of ``objective`` that a package adds, and the exit codes every command uses."""
+from __future__ import annotations
+
+import argparse
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Callable
+
+if TYPE_CHECKING:  # stdlib only at run time: runtime.build_interfaces runs before anything else works
+    from .registry import Registry
+
+EXIT_SUCCESS, EXIT_FAILURE, EXIT_BAD_INPUT = 0, 1, 2
+COMMAND_GROUP = "objective.commands"
+
+
+@dataclass(frozen=True)
+class Command:
+    """A subcommand a package adds by naming it in the ``objective.commands`` entry-point group
+    (the entry point's name is the command's name).
+
+    ``add_arguments`` fills the command's parser; ``run(args, registry)`` returns the exit code
+    (0 success, 1 failure, 2 bad input). Keep the module that defines it light: every
+    ``objective`` invocation loads it to build ``--help``; import heavy things inside ``run``.
+    """
+
+    help: str
+    add_arguments: Callable[[argparse.ArgumentParser], None]
+    run: Callable[[argparse.Namespace, "Registry"], int]

@@ -1,0 +1,47 @@
+"""The simulated cell's command: ``record-demos`` (oracle demonstrations as a LeRobot dataset).
+
+Registered in the ``objective.commands`` entry-point group (see ``runtime.command.Command``).
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from runtime.command import EXIT_BAD_INPUT, EXIT_FAILURE, EXIT_SUCCESS, Command
+from runtime.registry import Registry
+
+
+def _arguments(demos: argparse.ArgumentParser) -> None:
+    demos.add_argument("out", type=Path, help="dataset folder to create")
+    demos.add_argument("--episodes", type=int, default=10, help="episodes to record (default 10)")
+    demos.add_argument("--seed", type=int, default=0, help="seed of the first episode's layout; episode i uses seed+i")
+    demos.add_argument("--world", metavar="NAME", help="world to record in (default: vla_sim if installed, else kinematic)")
+    demos.add_argument("--image-size", type=int, default=128, metavar="PX", help="camera frames, square (default 128)")
+    demos.add_argument("--steps", type=int, default=250, help="policy steps (0.1 s) recorded per episode (default 250)")
+    demos.add_argument("--prompt", default="stack the blue cube on the green cube", help="the task, as the oracle reads it")
+    demos.add_argument("--keep-failed", action="store_true", help="keep episodes whose stack check failed")
+    demos.add_argument("--overwrite", action="store_true", help="replace OUT if it exists")
+
+
+def _record_demos(args: argparse.Namespace, registry: Registry) -> int:
+    from .demos import DemoOptions, record_demos
+
+    try:
+        summary = record_demos(DemoOptions(
+            episodes=args.episodes, seed=args.seed, out=args.out, world=args.world, image_size=args.image_size,
+            total_steps=args.steps, prompt=args.prompt, keep_failed=args.keep_failed, overwrite=args.overwrite,
+        ))
+    except ValueError as err:
+        print(f"error: {err}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except RuntimeError as err:
+        print(f"error: {err}", file=sys.stderr)
+        return EXIT_FAILURE
+    dropped = f", dropped seeds {summary.episodes_dropped}" if summary.episodes_dropped else ""
+    print(f"{summary.out}: {summary.episodes_kept} episodes, {summary.frames} frames from world '{summary.world}'{dropped}")
+    return EXIT_SUCCESS
+
+
+RECORD_DEMOS = Command("record oracle demonstrations in the cell as a local LeRobot dataset (needs `make lerobot`)",
+                       _arguments, _record_demos)
