@@ -1,8 +1,21 @@
-"""SwitchController: activate and deactivate ros2_control controllers through the controller manager."""
+"""SwitchController: activate and deactivate ros2_control controllers through the controller manager.
+
+Besides the lists given, the node can work out what else the switch needs from the controller
+manager's ListControllers answer (``plan_switch``, a pure function): with
+``automatic_deactivation`` the active controllers that hold a command interface a controller to
+activate needs are deactivated in the same switch, and with ``automatic_activation`` the inactive
+controllers that a controller to activate is chained to (its ``chain_connections``: it writes
+their reference interfaces) are activated with it. MoveIt Pro's Objectives set both, with an
+empty ``deactivate_controllers``, to take the arm over from whichever controller holds it.
+"""
 from __future__ import annotations
 
 import enum
+import math
+from dataclasses import dataclass
+from typing import Sequence
 
+from controller_manager_msgs.msg import ControllerState
 from controller_manager_msgs.srv import ListControllers, SwitchController as SwitchSrv
 
 from runtime.behavior import Behavior, Status
@@ -19,6 +32,54 @@ class Phase(enum.Enum):
 
 
 STRICTNESS = {"BEST_EFFORT": SwitchSrv.Request.BEST_EFFORT, "STRICT": SwitchSrv.Request.STRICT, "1": 1, "2": 2}
+ACTIVE = "active"
+
+
+@dataclass(frozen=True)
+class SwitchPlan:
+    """The switch to request, once the controllers' states are known."""
+
+    activate: tuple[str, ...]
+    deactivate: tuple[str, ...]
+    auto_activated: tuple[str, ...]
+    """Added by ``automatic_activation``: controllers the requested ones are chained to."""
+    auto_deactivated: tuple[str, ...]
+    """Added by ``automatic_deactivation``: active controllers holding a command interface needed."""
+
+    @property
+    def empty(self) -> bool:
+        return not self.activate and not self.deactivate
+
+
+def plan_switch(
+    states: Sequence[ControllerState],
+    activate: Sequence[str],
+    deactivate: Sequence[str],
+    automatic_activation: bool = False,
+    automatic_deactivation: bool = False,
+) -> SwitchPlan:
+    """The request for ListControllers' ``states``. Controllers already in the requested state are
+    left out, so the same switch run twice succeeds twice; unknown names stay in ``activate`` for
+    the controller manager to refuse (STRICT) or skip (BEST_EFFORT)."""
+    by_name = {c.name: c for c in states}
+    wanted = list(dict.fromkeys(activate))
+    chained: list[str] = []
+    if automatic_activation:
+        queue = list(wanted)
+        while queue:
+            state = by_name.get(queue.pop(0))
+            for link in state.chain_connections if state is not None else []:
+                if link.name not in wanted and link.name not in chained:
+                    chained.append(link.name)
+                    queue.append(link.name)
+    turning_on = [c for c in wanted + chained if c not in by_name or by_name[c].state != ACTIVE]
+    conflicting: list[str] = []
+    if automatic_deactivation:
+        needed = {i for c in turning_on if c in by_name for i in by_name[c].required_command_interfaces}
+        keep = set(wanted) | set(chained) | set(deactivate)
+        conflicting = [c.name for c in states if c.state == ACTIVE and c.name not in keep and needed.intersection(c.claimed_interfaces)]
+    turning_off = [c for c in dict.fromkeys([*deactivate, *conflicting]) if c in by_name and by_name[c].state == ACTIVE]
+    return SwitchPlan(tuple(turning_on), tuple(turning_off), tuple(c for c in chained if c in turning_on), tuple(conflicting))
 
 
 class SwitchController(Behavior):
@@ -30,8 +91,11 @@ class SwitchController(Behavior):
     ports = (
         InputPort("activate_controllers", PortType.STRING_LIST, "", "Controllers to activate, ';'-separated."),
         InputPort("deactivate_controllers", PortType.STRING_LIST, "", "Controllers to deactivate, ';'-separated."),
-        InputPort("strictness", PortType.STRING, "STRICT", "STRICT: all or nothing; BEST_EFFORT: switch what can be switched."),
-        InputPort("timeout", PortType.FLOAT, 3.0, "Seconds to wait for the controller manager and the switch."),
+        InputPort("strictness", PortType.STRING, "STRICT", "STRICT (2): all or nothing; BEST_EFFORT (1): switch what can be switched."),
+        InputPort("timeout", PortType.FLOAT, 3.0, "Seconds to wait for the controller manager and the switch; 0 or negative: no limit (MoveIt Pro writes -1)."),
+        InputPort("activate_asap", PortType.BOOL, False, "Passed to the controller manager: activate as soon as the hardware interfaces are ready."),
+        InputPort("automatic_activation", PortType.BOOL, False, "Also activate the controllers the ones to activate are chained to."),
+        InputPort("automatic_deactivation", PortType.BOOL, False, "Also deactivate the active controllers that hold a command interface the ones to activate need."),
         InputPort("controller_list_action_name", PortType.STRING, "/controller_manager/list_controllers", "ListControllers service."),
         InputPort("controller_switch_action_name", PortType.STRING, "/controller_manager/switch_controller", "SwitchController service."),
     )
@@ -42,7 +106,7 @@ class SwitchController(Behavior):
         self.deactivate = [c for c in self.get_input("deactivate_controllers") if c]
         strictness = self.get_input("strictness").strip().upper()
         if strictness not in STRICTNESS:
-            self.error = f"strictness must be STRICT or BEST_EFFORT, got '{strictness}'"
+            self.error = f"strictness must be STRICT (2) or BEST_EFFORT (1), got '{strictness}'"
             return
         self.strictness = STRICTNESS[strictness]
         overlap = sorted(set(self.activate) & set(self.deactivate))
@@ -52,10 +116,17 @@ class SwitchController(Behavior):
         if not self.activate and not self.deactivate:
             self.error = "nothing to switch: activate_controllers and deactivate_controllers are both empty"
             return
+        timeout = self.get_input("timeout")
+        if math.isnan(timeout):
+            self.error = "timeout must be a number of seconds, got nan"
+            return
+        self.limited = 0 < timeout < math.inf
+        self.activate_asap = self.get_input("activate_asap")
+        self.automatic = (self.get_input("automatic_activation"), self.get_input("automatic_deactivation"))
         bus = self.context.bus
         self.lister = bus.create_client(self.get_input("controller_list_action_name"), ListControllers)
         self.switcher = bus.create_client(self.get_input("controller_switch_action_name"), SwitchSrv)
-        self.deadline = Deadline(self, self.get_input("timeout"))
+        self.deadline = Deadline(self, timeout if self.limited else math.inf)
         self.phase, self.future = Phase.WAIT, None
 
     def update(self) -> Status:
@@ -71,19 +142,23 @@ class SwitchController(Behavior):
         if self.phase is Phase.LIST:
             if not self.future.done():
                 return self._waiting("listing controllers")
-            states = {c.name: c.state for c in self.future.result().controller}
-            unknown = [c for c in self.activate + self.deactivate if c not in states]
+            states = list(self.future.result().controller)
+            known = {c.name for c in states}
+            unknown = [c for c in self.activate + self.deactivate if c not in known]
             if unknown and self.strictness == SwitchSrv.Request.STRICT:
-                return self.fail(f"unknown controllers: {', '.join(unknown)} (known: {', '.join(sorted(states))})")
-            request = SwitchSrv.Request()
-            request.activate_controllers = [c for c in self.activate if states.get(c) != "active"]
-            request.deactivate_controllers = [c for c in self.deactivate if states.get(c) == "active"]
-            if not request.activate_controllers and not request.deactivate_controllers:
+                return self.fail(f"unknown controllers: {', '.join(unknown)} (known: {', '.join(sorted(known))})")
+            plan = plan_switch(states, self.activate, self.deactivate, *self.automatic)
+            if plan.empty:
                 self.feedback_message = "controllers already in the requested state"
                 return Status.SUCCESS
+            request = SwitchSrv.Request()
+            request.activate_controllers = list(plan.activate)
+            request.deactivate_controllers = list(plan.deactivate)
             request.strictness = self.strictness
-            remaining = max(0.0, self.deadline.until - self.context.clock.now())
-            request.timeout = duration_msg(remaining)
+            request.activate_asap = self.activate_asap
+            # The service's timeout: what is left of ours, or zero (ros2_control: no limit).
+            request.timeout = duration_msg(max(0.0, self.deadline.until - self.context.clock.now()) if self.limited else 0.0)
+            self.plan = plan
             self.future = self.switcher.call_async(request)
             self.phase = Phase.SWITCH
         if not self.future.done():
@@ -91,7 +166,9 @@ class SwitchController(Behavior):
         response = self.future.result()
         if not response.ok:
             return self.fail(f"the controller manager refused the switch: {response.message or 'no reason given'}")
-        self.feedback_message = response.message
+        extra = [f"{label}: {', '.join(names)}" for label, names in
+                 (("chained, activated too", self.plan.auto_activated), ("conflicting, deactivated", self.plan.auto_deactivated)) if names]
+        self.feedback_message = "; ".join([response.message, *extra]) if extra else response.message
         return Status.SUCCESS
 
     def _waiting(self, what: str) -> Status:

@@ -189,9 +189,13 @@ class MoveToWaypoint(_MoveToJoints):
     """Move the joint group to a named waypoint of the cell (e.g. ``Home``)."""
 
     description = "Move a joint group to a named waypoint (e.g. Home) from the cell's waypoints file."
-    ports = (InputPort("waypoint_name", PortType.STRING, description="Name of the waypoint, e.g. Home."),) + _MoveToJoints.common_ports
+    ports = (
+        InputPort("waypoint_name", PortType.STRING, description="Name of the waypoint, e.g. Home."),
+        InputPort("seed", PortType.INT, 0, "MoveIt Pro's planner seed (an integer). The motion here is planned without sampling, so every seed gives the same motion."),
+    ) + _MoveToJoints.common_ports
 
     def target(self, joints: tuple[str, ...]) -> np.ndarray:
+        self.get_input("seed")  # read so that a seed that is not an integer fails here, naming the port
         waypoints = self.context.resources.get("waypoints") or {}
         name = self.get_input("waypoint_name")
         if name not in waypoints:

@@ -22,17 +22,21 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from geometry_msgs.msg import Pose, PoseStamped
+from geometry_msgs.msg import Point, Pose, PoseStamped
 from scipy.spatial.transform import Rotation
 from sensor_msgs.msg import JointState
+from std_msgs.msg import ColorRGBA
+from visualization_msgs.msg import Marker, MarkerArray
 
 from runtime.behavior import Behavior, Condition, Status
-from runtime.timestamps import time_msg
+from runtime.timestamps import duration_msg, time_msg
 from runtime.ports import InputPort, OutputPort, PortType
 
 WORLD_FRAME = "world"
 WORLD_ALIASES = (WORLD_FRAME, "universe")
 JOINT_STATES_TOPIC = "/joint_states"
+MARKER_TOPIC = "/visual_markers"
+AXIS_COLORS = ((1.0, 0.0, 0.0), (0.0, 0.8, 0.0), (0.0, 0.0, 1.0))  # x, y, z
 
 
 # -- pure math -------------------------------------------------------------------------------
@@ -131,6 +135,37 @@ def stack_check(
 
 
 # -- the robot's current state and where frames are ---------------------------------------------
+def pose_markers(pose: PoseStamped, namespace: str, text: str, size_m: float, lifetime_s: float) -> MarkerArray:
+    """A pose drawn as three arrows (x red, y green, z blue) of length ``size_m`` from its origin,
+    plus ``text`` above it when not empty; ``lifetime_s`` 0 keeps them until they are replaced
+    (same ``namespace`` and ids)."""
+    if not size_m > 0:
+        raise ValueError(f"marker_size must be a positive length in metres, got {size_m}")
+    if not lifetime_s >= 0:
+        raise ValueError(f"marker_lifetime must be 0 (forever) or a positive number of seconds, got {lifetime_s}")
+    matrix = pose_to_matrix(pose.pose)
+    origin = matrix[:3, 3]
+    markers = []
+    for axis, rgb in enumerate(AXIS_COLORS):
+        tip = origin + matrix[:3, axis] * size_m
+        arrow = Marker(ns=namespace, id=axis, type=Marker.ARROW, action=Marker.ADD)
+        arrow.points = [Point(x=float(origin[0]), y=float(origin[1]), z=float(origin[2])), Point(x=float(tip[0]), y=float(tip[1]), z=float(tip[2]))]
+        arrow.scale.x, arrow.scale.y, arrow.scale.z = size_m * 0.1, size_m * 0.2, size_m * 0.3  # shaft and head diameters, head length
+        arrow.color = ColorRGBA(r=rgb[0], g=rgb[1], b=rgb[2], a=1.0)
+        markers.append(arrow)
+    if text:
+        label = Marker(ns=namespace, id=len(AXIS_COLORS), type=Marker.TEXT_VIEW_FACING, action=Marker.ADD, text=text)
+        label.pose.position = Point(x=float(origin[0]), y=float(origin[1]), z=float(origin[2] + size_m * 1.2))
+        label.pose.orientation.w = 1.0
+        label.scale.z = size_m * 0.4  # text height
+        label.color = ColorRGBA(r=1.0, g=1.0, b=1.0, a=1.0)
+        markers.append(label)
+    for marker in markers:
+        marker.header = pose.header
+        marker.lifetime = duration_msg(lifetime_s)
+    return MarkerArray(markers=markers)
+
+
 class FrameError(LookupError):
     """A frame or object that the scene does not know, or a state that is not available yet."""
 
@@ -298,8 +333,13 @@ class TransformPose(SceneBehavior):
         InputPort("target_frame_id", PortType.STRING, WORLD_FRAME, "Frame to express the result in."),
         InputPort("translation_xyz", PortType.FLOAT_LIST, "0;0;0", "Offset x;y;z (m) in the input pose's own axes."),
         InputPort("quaternion_xyzw", PortType.FLOAT_LIST, "0;0;0;1", "Rotation offset x;y;z;w in the input pose's own axes."),
+        InputPort("visualize_pose", PortType.BOOL, False, f"Also draw the result on {MARKER_TOPIC} (visualization_msgs/MarkerArray: axes x red, y green, z blue)."),
+        InputPort("marker_text", PortType.STRING, "", "Label drawn above the pose (empty: none)."),
+        InputPort("marker_size", PortType.FLOAT, 0.1, "Length of the drawn axes (m)."),
+        InputPort("marker_lifetime", PortType.FLOAT, 0.0, "Seconds the drawing stays; 0: until the node draws again."),
         OutputPort("output_pose", PortType.ANY, "The transformed pose (geometry_msgs/PoseStamped)."),
     )
+    marker_publisher = None
 
     def update(self) -> Status:
         scene = self.context.scene
@@ -311,10 +351,21 @@ class TransformPose(SceneBehavior):
             offset = offset_matrix(self.get_input("translation_xyz"), self.get_input("quaternion_xyzw"))
             in_world = pose_in_world(scene, pose, self.state()) @ offset
             result = np.linalg.inv(frame_in_world(scene, target, self.state())) @ in_world
+            output = matrix_to_pose(target, result, self.now())
+            markers = self._markers(output)
         except (ValueError, FrameError) as err:
             return self.fail(str(err))
-        self.set_output("output_pose", matrix_to_pose(target, result, self.now()))
+        if markers is not None:
+            if self.marker_publisher is None:
+                self.marker_publisher = self.context.bus.create_publisher(MARKER_TOPIC, MarkerArray)
+            self.marker_publisher.publish(markers)
+        self.set_output("output_pose", output)
         return Status.SUCCESS
+
+    def _markers(self, pose: PoseStamped) -> MarkerArray | None:
+        if not self.get_input("visualize_pose"):
+            return None
+        return pose_markers(pose, self.name, self.get_input("marker_text"), self.get_input("marker_size"), self.get_input("marker_lifetime"))
 
 
 class IsPoseNearIdentity(Condition):

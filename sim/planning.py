@@ -1,7 +1,17 @@
 """The cell's planning scene: the robot model the simulator uses, its limits, the table and the
-cubes as world objects. Shared by every world that hosts the cell (MuJoCo or kinematic)."""
+cubes as world objects. Shared by every world that hosts the cell (MuJoCo or kinematic).
+
+The cubes are there to be grasped, so by default the gripper (the SRDF group ``gripper``: palm
+and fingers; a held cube sits within a centimetre of the palm) may touch them
+(``CubeContact.GRIPPER``): a policy's grasp is not a collision, while the arm's links keep
+``link_padding`` from the cubes, every link keeps it from the table, and an object that appears
+in the scene is an obstacle to every link. MoveIt Pro's own vla_sim goes
+further and leaves the cubes out of its planning scene; ``CubeContact.NONE`` goes the other way:
+the cubes are obstacles to every link until an Objective allows contact (``SetCollisionRule``).
+"""
 from __future__ import annotations
 
+import enum
 from typing import Mapping
 
 import numpy as np
@@ -12,6 +22,23 @@ from .cell_model import CUBE_COLORS, TABLE_CENTER_XY, TABLE_HALF_SIZE, TABLE_TOP
 from .robot_model import ARM_JOINTS, GRIPPER_DRIVER_JOINT, JOINT_LIMITS_PATH, planning_robot_model
 
 CUBE_SIZE = 0.03
+GRIPPER_GROUP = "gripper"
+
+
+class CubeContact(enum.Enum):
+    """Which robot links may touch the cubes before any Objective says so (``--world-option cube_contact=``)."""
+
+    GRIPPER = "gripper"
+    NONE = "none"
+
+    @classmethod
+    def parse(cls, value: object) -> CubeContact:
+        if isinstance(value, cls):
+            return value
+        try:
+            return cls(str(value).strip().lower())
+        except ValueError:
+            raise ValueError(f"cube_contact must be {' or '.join(m.value for m in cls)}, got '{value}'") from None
 
 
 def cube_object(color: str) -> str:
@@ -29,10 +56,15 @@ def quat_to_matrix(quat_wxyz: np.ndarray) -> np.ndarray:
     )
 
 
-def make_cell_scene(cube_poses: Mapping[str, tuple[np.ndarray, np.ndarray]], cube_size: float = CUBE_SIZE) -> PlanningScene:
+def make_cell_scene(
+    cube_poses: Mapping[str, tuple[np.ndarray, np.ndarray]],
+    cube_size: float = CUBE_SIZE,
+    cube_contact: CubeContact = CubeContact.GRIPPER,
+) -> PlanningScene:
     """Robot (group ``manipulator`` + the gripper joint), limits, table and cubes.
 
-    The robot stands on the table, so the table is allowed against its base and shoulder.
+    The robot stands on the table, so the table is allowed against its base and shoulder; the
+    gripper is allowed against the cubes unless ``cube_contact`` is ``NONE``.
     """
     robot = planning_robot_model()
     joints = list(ARM_JOINTS) + [GRIPPER_DRIVER_JOINT]
@@ -45,6 +77,8 @@ def make_cell_scene(cube_poses: Mapping[str, tuple[np.ndarray, np.ndarray]], cub
     for color in CUBE_COLORS:
         pos, quat = cube_poses[color]
         scene.add_object(cube_object(color), Box((cube_size,) * 3), pose_matrix(pos, quat_to_matrix(quat)))
+        if cube_contact is CubeContact.GRIPPER:
+            scene.allow(cube_object(color), GRIPPER_GROUP)
     return scene
 
 

@@ -24,7 +24,7 @@ from .cell_model import CAMERA_NAMES, CUBE_COLORS, CellOptions
 from .controllers import make_controllers
 from .embedded_policy import serve_embedded_policy
 from .hardware import Hardware
-from .planning import make_cell_scene, sync_cubes
+from .planning import CubeContact, make_cell_scene, sync_cubes
 from .oracle_remote import CUBE_POSE_TOPIC, cube_pose_msg
 from .robot_model import ARM_JOINTS, GRIPPER_DRIVER_JOINT, load_waypoints
 
@@ -49,7 +49,7 @@ class Cell(Hardware, Protocol):
 
 
 COMMON_OPTIONS = ("seed", "realtime", "policy_latency", "record_dir", "policy", "start", "joint_states_reliable",
-                  "image_size", "encoding", "camera_rate_hz")
+                  "image_size", "encoding", "camera_rate_hz", "cube_contact")
 
 
 class CellWorld:
@@ -70,6 +70,7 @@ class CellWorld:
         if start not in self.waypoints:
             raise ValueError(f"unknown start waypoint '{start}' (waypoints: {', '.join(self.waypoints)})")
         self.start_arm = np.array([self.waypoints[start][j] for j in ARM_JOINTS])
+        self.cube_contact = CubeContact.parse(options.get("cube_contact") or CubeContact.GRIPPER)
         self.cell = make_cell(self.start_arm, self.seed)
 
     # -- World -------------------------------------------------------------------------------
@@ -86,7 +87,7 @@ class CellWorld:
             bus.create_lazy_publisher(
                 CUBE_POSE_TOPIC.format(color=color), TransformStamped, functools.partial(self._cube_pose, color), rate_hz=50.0
             )
-        context.scene = make_cell_scene(self.cell.cube_poses())
+        context.scene = make_cell_scene(self.cell.cube_poses(), cube_contact=self.cube_contact)
         self.synced_cubes = sync_cubes(context.scene, self.cell.cube_poses())
         context.resources["waypoints"] = self.waypoints
         context.world = self
