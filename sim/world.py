@@ -20,7 +20,7 @@ from runtime.behavior import RunContext
 from runtime.timestamps import time_msg
 
 from .cell_model import CAMERA_NAMES, CUBE_COLORS, CellOptions
-from .controllers import make_controllers
+from .controllers import TRAJECTORY_CONTROLLER, make_controllers
 from .hardware import Hardware
 from .planning import make_cell_scene, sync_cubes
 from .policy.embedded import serve_embedded_policy
@@ -108,11 +108,16 @@ class CellWorld:
         self._publish()
 
     def summary(self) -> dict[str, Any]:
-        return {
+        summary: dict[str, Any] = {
             "seed": self.seed,
             "cubes": {c: [round(float(v), 4) for v in self.cell.cube_pose(c)[0]] for c in CUBE_COLORS},
             "gripper": round(self.cell.gripper_position(), 4),
         }
+        controllers = getattr(self, "controllers", None)  # absent when the world never started
+        if controllers is not None:  # what the F/T thresholds were compared with
+            summary["peak_force_n"] = round(controllers[TRAJECTORY_CONTROLLER].peak_force_n, 2)
+            summary["peak_torque_nm"] = round(controllers[TRAJECTORY_CONTROLLER].peak_torque_nm, 3)
+        return summary
 
     def close(self) -> None:
         self.cell.close()
