@@ -27,6 +27,7 @@ from .policy.embedded import serve_embedded_policy
 from .policy.images import rgb_to_image
 from .policy.oracle_remote import CUBE_POSE_TOPIC, cube_pose_msg
 from .robot_model import ARM_JOINTS, GRIPPER_DRIVER_JOINT, load_waypoints
+from .sim_boxes import PlacedBoxes
 
 CONTROL_PERIOD = 0.002
 CAMERA_TOPICS = {name: f"/{name}_camera/color" for name in CAMERA_NAMES}
@@ -44,6 +45,10 @@ class Cell(Hardware, Protocol):
     def reset(self, seed: int, arm: np.ndarray) -> None: ...
 
     def render(self, camera: str) -> np.ndarray: ...
+
+    def place_box(self, name: str, size_m: np.ndarray, position_m: np.ndarray, quat_wxyz: np.ndarray) -> None: ...
+
+    def remove_box(self, name: str) -> None: ...
 
     def close(self) -> None: ...
 
@@ -71,6 +76,7 @@ class CellWorld:
             raise ValueError(f"unknown start waypoint '{start}' (waypoints: {', '.join(self.waypoints)})")
         self.start_arm = np.array([self.waypoints[start][j] for j in ARM_JOINTS])
         self.cell = make_cell(self.start_arm, self.seed)
+        self.boxes = PlacedBoxes()
 
     # -- World -------------------------------------------------------------------------------
     def start(self, context: RunContext) -> None:
@@ -103,9 +109,18 @@ class CellWorld:
     def reset(self, seed: int) -> None:
         self.seed = seed
         self.cell.reset(seed, self.start_arm)
+        self.boxes.forget(self.context.scene)
         self.controllers.reset()
         self.synced_cubes = sync_cubes(self.context.scene, self.cell.cube_poses())
         self._publish()
+
+    def place_box(self, name: str, size_m: Any, pose: Any, mirror: bool = True) -> None:
+        """Make a fixed box appear in the cell at ``pose`` (4x4, world frame), or move it there,
+        mirrored into the planning scene unless ``mirror`` is False. ValueError says why not."""
+        self.boxes.place(self.cell, self.context.scene, name, size_m, pose, mirror)
+
+    def remove_box(self, name: str) -> None:
+        self.boxes.remove(self.cell, self.context.scene, name)
 
     def summary(self) -> dict[str, Any]:
         summary: dict[str, Any] = {
@@ -113,6 +128,8 @@ class CellWorld:
             "cubes": {c: [round(float(v), 4) for v in self.cell.cube_pose(c)[0]] for c in CUBE_COLORS},
             "gripper": round(self.cell.gripper_position(), 4),
         }
+        if self.boxes.boxes:
+            summary["boxes"] = self.boxes.summary()
         controllers = getattr(self, "controllers", None)  # absent when the world never started
         if controllers is not None:  # what the F/T thresholds were compared with
             summary["peak_force_n"] = round(controllers[TRAJECTORY_CONTROLLER].peak_force_n, 2)
