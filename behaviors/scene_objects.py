@@ -122,52 +122,51 @@ def world_object(scene: Any, name: str) -> str | None:
     return None
 
 
-class MoveCollisionObject(ChecksPorts, SceneBehavior):
+class EditsWorldObject(ChecksPorts, SceneBehavior):
+    """An edit of one existing world object, named by ``object_id``: ``edit`` does it and says what it did."""
+
+    checked = {"object_id": object_id}
+
+    def update(self) -> Status:
+        scene = self.context.scene
+        if scene is None:
+            return self.fail(NO_SCENE)
+        try:
+            name = self.checked_input("object_id")
+            problem = world_object(scene, name)
+            if problem is not None:
+                return self.fail(problem)
+            self.feedback_message = self.edit(scene, name)
+        except (ValueError, FrameError) as err:
+            return self.fail(str(err))
+        return Status.SUCCESS
+
+    def edit(self, scene: Any, name: str) -> str:
+        raise NotImplementedError
+
+
+class MoveCollisionObject(EditsWorldObject):
     """Give a world object of the planning scene a new pose (its shape stays)."""
 
     description = "Move a collision object of the planning scene to a new pose."
     ports = (OBJECT_ID, POSE)
-    checked = {"object_id": object_id}
 
-    def update(self) -> Status:
-        scene = self.context.scene
-        if scene is None:
-            return self.fail(NO_SCENE)
-        try:
-            name = self.checked_input("object_id")
-            matrix = pose_in_world(scene, as_pose_stamped(self.get_input("pose"), "pose"), self.state())
-        except (ValueError, FrameError) as err:
-            return self.fail(str(err))
-        problem = world_object(scene, name)
-        if problem is not None:
-            return self.fail(problem)
+    def edit(self, scene: Any, name: str) -> str:
+        matrix = pose_in_world(scene, as_pose_stamped(self.get_input("pose"), "pose"), self.state())
         scene.move_object(name, matrix)
         x, y, z = matrix[:3, 3]
-        self.feedback_message = f"moved '{name}' to ({x:.3f}, {y:.3f}, {z:.3f}) in world"
-        return Status.SUCCESS
+        return f"moved '{name}' to ({x:.3f}, {y:.3f}, {z:.3f}) in world"
 
 
-class RemoveCollisionObject(ChecksPorts, SceneBehavior):
+class RemoveCollisionObject(EditsWorldObject):
     """Take a world object out of the planning scene."""
 
     description = "Remove a collision object from the planning scene."
     ports = (OBJECT_ID,)
-    checked = {"object_id": object_id}
 
-    def update(self) -> Status:
-        scene = self.context.scene
-        if scene is None:
-            return self.fail(NO_SCENE)
-        try:
-            name = self.checked_input("object_id")
-        except ValueError as err:
-            return self.fail(str(err))
-        problem = world_object(scene, name)
-        if problem is not None:
-            return self.fail(problem)
+    def edit(self, scene: Any, name: str) -> str:
         scene.remove_object(name)
-        self.feedback_message = f"removed '{name}' from the planning scene"
-        return Status.SUCCESS
+        return f"removed '{name}' from the planning scene"
 
 
 NODES = (AddCollisionBox, MoveCollisionObject, RemoveCollisionObject)
