@@ -50,14 +50,24 @@ def box_dimensions(values: Any) -> tuple[float, float, float]:
 
 class ChecksPorts:
     """Checks the ports listed in ``checked`` (port -> pure check) on literals at load time and
-    on every value when the node runs."""
+    on every value when the node runs; ports in ``from_blackboard`` (messages) must not be literal."""
 
     checked: dict[str, Callable[[Any], Any]] = {}
+    from_blackboard: tuple[str, ...] = ()
     bindings: dict
     location: Any
     xml_id: str
 
     def check_literals(self) -> None:
+        for port in self.from_blackboard:
+            binding = self.bindings[port]
+            if binding.key is None and isinstance(binding.literal, str):
+                raise PortError(
+                    f"port '{port}' needs a geometry_msgs/PoseStamped from the blackboard, e.g. {{{port}}} written by "
+                    f"GetLatestTransform or TransformPose; got the text {binding.literal!r}",
+                    self.location,
+                    self.xml_id,
+                )
         for port, check in self.checked.items():
             binding = self.bindings[port]
             if binding.key is None and binding.literal is not None:
@@ -93,6 +103,7 @@ class AddCollisionBox(ChecksPorts, SceneBehavior):
         InputPort("overwrite", PortType.BOOL, False, "true: replace an object with the same id; false: fail if one exists."),
     )
     checked = {"object_id": object_id, "dimensions": box_dimensions}
+    from_blackboard = ("pose",)
 
     def update(self) -> Status:
         scene = self.context.scene
@@ -150,6 +161,7 @@ class MoveCollisionObject(EditsWorldObject):
 
     description = "Move a collision object of the planning scene to a new pose."
     ports = (OBJECT_ID, POSE)
+    from_blackboard = ("pose",)
 
     def edit(self, scene: Any, name: str) -> str:
         matrix = pose_in_world(scene, as_pose_stamped(self.get_input("pose"), "pose"), self.state())

@@ -200,7 +200,7 @@ class MujocoCell:
     def reset(self, seed: int, arm: np.ndarray) -> None:
         """Arm at ``arm``, gripper open, cubes at the layout of ``seed``, settled at rest."""
         mujoco.mj_resetData(self.model, self.data)
-        for name in list(getattr(self, "_boxes", {})):  # placed boxes go with the run that placed them
+        for name in list(self._boxes):  # placed boxes go with the run that placed them
             self._park_box(self._boxes.pop(name))
         self.data.qpos[self._arm_qpos] = arm
         self.data.ctrl[self._arm_ctrl] = arm

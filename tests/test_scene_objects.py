@@ -105,6 +105,7 @@ def test_bad_input_at_run_time_fails_the_node_with_a_reason(capsys, tmp_path, no
         ('<AddCollisionBox object_id="box" dimensions="0.1;0;0.1" pose="{p}"/>', "AddCollisionBox: port 'dimensions': dimensions y must be a positive number of metres, got 0.0"),
         ('<AddCollisionBox object_id="" dimensions="0.1;0.1;0.1" pose="{p}"/>', "AddCollisionBox: port 'object_id': object_id must name one object, got ''"),
         ('<RemoveCollisionObject object_id="*"/>', "RemoveCollisionObject: port 'object_id': object_id must name one object, got '*'"),
+        ('<MoveCollisionObject object_id="box" pose="0;0;1"/>', "MoveCollisionObject: port 'pose' needs a geometry_msgs/PoseStamped from the blackboard, e.g. {pose} written by GetLatestTransform or TransformPose; got the text '0;0;1'"),
         ('<PlaceSimBox object_id="b" dimensions="0.1;0.1;0.1" position_xyz="0;nan;0.2"/>', "PlaceSimBox: port 'position_xyz': values must be finite metres, got 0;nan;0.2"),
         ('<PlaceSimBox object_id="b" dimensions="0.1;0.1;0.1" position_xyz="0;0.5;0.2" orientation_xyzw="0;0;0;0"/>', "PlaceSimBox: port 'orientation_xyzw': 0;0;0;0 is not a rotation (zero length)"),
         ('<PlaceSimBox object_id="b" dimensions="0.1;inf;0.1" position_xyz="0;0.5;0.2"/>', "PlaceSimBox: port 'dimensions': dimensions y must be a positive number of metres, got inf"),
