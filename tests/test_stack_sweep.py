@@ -20,6 +20,6 @@ def test_oracle_stacks_at_least_19_of_20_seeded_layouts(capsys):
         results[seed] = (code, summary["reason"])
         peaks[seed] = (summary["world"]["peak_force_n"], summary["world"]["peak_torque_nm"])
     failures = {s: r for s, (c, r) in results.items() if c != 0}
-    print("peak |F| N, |T| N m per seed:", peaks)
+    print("failures:", failures, "peak |F| N, |T| N m per seed:", peaks)
     assert len(failures) <= 1, failures
     assert not [r for r in failures.values() if "force-torque" in r], failures
