@@ -143,7 +143,7 @@ class MujocoCell:
             if not free:
                 raise ValueError(f"all {SIM_BOX_SLOTS} box slots of the cell are taken ({', '.join(sorted(self._boxes))}): remove one first")
             slot = free[0]
-        mocap, geom = self._box_slots[slot]
+        geom = self._box_slots[slot][1]
         before = self._box_state(slot)
         half = np.asarray(size_m, dtype=float) / 2.0
         self._set_box(slot, half, np.asarray(position_m, dtype=float), np.asarray(quat_wxyz, dtype=float), shown=True)
@@ -177,6 +177,7 @@ class MujocoCell:
         d.mocap_pos[mocap] = position
         d.mocap_quat[mocap] = quat
         mujoco.mj_forward(m, d)  # place it now: contacts, cameras and sensors see it at once
+        self._frames.clear()
 
     def _deepest_contact(self, geom: int) -> tuple[str, float] | None:
         """The body the geom penetrates most and the signed distance (m), or None."""

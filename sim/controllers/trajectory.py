@@ -218,10 +218,10 @@ def blend_duration(deviation: TrajectoryState, max_acceleration: float, min_dura
     duration = max(min_duration, float(np.sqrt(6.0 * d / max_acceleration)), 3.0 * v / max_acceleration, 1e-3)
     zeros = np.zeros((1, deviation.position.size))
     for _ in range(60):
-        coefficients = _offset_coefficients(deviation, duration, zeros)
-        taus = np.linspace(0.0, duration, 65)
-        peak = max(float(np.max(np.abs((quintic_powers(tau) @ coefficients)[2]))) for tau in taus)
-        if peak <= limit:
+        c = _offset_coefficients(deviation, duration, zeros)
+        tau = np.linspace(0.0, duration, 65)[:, None]
+        acceleration = 2.0 * c[2] + tau * (6.0 * c[3] + tau * (12.0 * c[4] + tau * 20.0 * c[5]))
+        if np.abs(acceleration).max() <= limit:
             break
         duration *= 1.2
     return duration
