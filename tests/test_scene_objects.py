@@ -169,9 +169,19 @@ def test_a_box_cannot_appear_inside_the_robot_or_a_cube():
 
 
 # -- an object appears in the path of a running policy ------------------------------------------
-def run_example_then_wait(registry: Registry, world) -> tuple[object, object]:
-    """The shipped example under ForceSuccess, then a 1 s Wait, so the stop can be seen."""
+PLACE_SIM_BOX = """<PlaceSimBox object_id="obstacle" dimensions="0.3;0.3;0.06"
+                       reference_frame="tcp" position_xyz="0;0;0.08"/>"""
+ADD_COLLISION_BOX = (TCP_POSE + '<TransformPose input_pose="{tcp}" translation_xyz="0;0;0.08" output_pose="{where}"/>'
+                     '<AddCollisionBox object_id="obstacle" dimensions="0.3;0.3;0.06" pose="{where}"/>')
+
+
+def run_example_then_wait(registry: Registry, world, planning_scene_only: bool = False) -> tuple[object, object]:
+    """The shipped example under ForceSuccess, then a 1 s Wait, so the stop can be seen
+    (``planning_scene_only``: the box added with AddCollisionBox instead of PlaceSimBox)."""
     text = EXAMPLE.read_text()
+    assert PLACE_SIM_BOX in text
+    if planning_scene_only:
+        text = text.replace(PLACE_SIM_BOX, ADD_COLLISION_BOX)
     wrapper = ('<BehaviorTree ID="Wrapper"><Sequence><ForceSuccess><SubTree ID="Obstacle Appears During the Policy"/>'
                '</ForceSuccess><Wait seconds="1.0"/></Sequence></BehaviorTree></root>')
     text = text.replace('main_tree_to_execute="Obstacle Appears During the Policy"', 'main_tree_to_execute="Wrapper"').replace("</root>", wrapper)
@@ -181,7 +191,7 @@ def run_example_then_wait(registry: Registry, world) -> tuple[object, object]:
     return run_tree(loaded, context, options, world=world), context
 
 
-def assert_stopped_for_the_obstacle(result, context, world) -> None:
+def assert_stopped_for_the_obstacle(result, context, world, in_the_cell: bool = True) -> None:
     assert result.status == "SUCCESS", result.reason  # the Wait after ForceSuccess ran
     finished = context.events.of_kind("policy_finished")
     assert [e.data["status"] for e in finished] == ["FAILURE"]
@@ -189,7 +199,10 @@ def assert_stopped_for_the_obstacle(result, context, world) -> None:
     assert message.startswith("the planning scene changed: step ")
     assert "vs obstacle" in message and message.endswith("in the remaining path; robot stopped")
     assert not world.controllers["joint_trajectory_admittance_controller"].executing
-    assert result.extra["world"]["boxes"]["obstacle"]["in_planning_scene"] is True
+    if in_the_cell:
+        assert result.extra["world"]["boxes"]["obstacle"]["in_planning_scene"] is True
+    else:
+        assert "boxes" not in result.extra["world"] and "obstacle" in context.scene.objects
 
 
 def test_example_an_object_appears_and_the_robot_stops_kinematic(registry, capsys):
@@ -201,6 +214,13 @@ def test_example_an_object_appears_and_the_robot_stops_kinematic(registry, capsy
     world = KinematicWorld({"seed": 0, "policy_latency": "0.05"})
     result, context = run_example_then_wait(registry, world)
     assert_stopped_for_the_obstacle(result, context, world)
+    assert np.allclose(world.cell.arm_velocity_now, 0.0, atol=1e-9)
+
+
+def test_a_box_added_to_the_planning_scene_mid_run_stops_the_robot(registry):
+    world = KinematicWorld({"seed": 0, "policy_latency": "0.05"})
+    result, context = run_example_then_wait(registry, world, planning_scene_only=True)
+    assert_stopped_for_the_obstacle(result, context, world, in_the_cell=False)
     assert np.allclose(world.cell.arm_velocity_now, 0.0, atol=1e-9)
 
 
