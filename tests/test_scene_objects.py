@@ -165,6 +165,11 @@ def test_a_box_cannot_appear_inside_the_robot_or_a_cube():
     for _ in range(5):
         cell.step(0.002)
     assert np.abs(cell.cube_pose("blue")[0] - blue).max() < 1e-4  # nothing was pushed
+    for k, x in enumerate((-0.5, -0.4, -0.3)):
+        cell.place_box(f"c{k}", np.full(3, 0.05), np.array([x, 0.0, 0.025]), np.array([1.0, 0, 0, 0]))
+    with pytest.raises(ValueError, match=r"^all 4 box slots of the cell are taken \(b, c0, c1, c2\): remove one first$"):
+        cell.place_box("d", np.full(3, 0.05), np.array([0.5, 0.0, 0.025]), np.array([1.0, 0, 0, 0]))
+    cell.place_box("b", np.full(3, 0.05), np.array([0.5, 0.0, 0.025]), np.array([1.0, 0, 0, 0]))  # moving one is fine
     cell.close()
 
 
