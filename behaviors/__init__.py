@@ -9,8 +9,8 @@ from runtime.registry import Registry
 
 
 def register(registry: Registry) -> None:
-    from . import controllers, gripper, motion, motion_pose, poses, scene, sim_control
+    from . import controllers, gripper, motion, motion_pose, poses, scene, scene_objects, sim_control
     from .execute_policy import behavior as execute_policy
 
-    for module in (controllers, gripper, motion, motion_pose, scene, poses, sim_control, execute_policy):
+    for module in (controllers, gripper, motion, motion_pose, scene, scene_objects, poses, sim_control, execute_policy):
         registry.register_all(module.NODES)

@@ -8,6 +8,8 @@ It adds what only the simulation needs:
   the origin (world frame = robot base frame, so cube poses need no extra transform);
 - three 30 mm cubes (``cube_red``, ``cube_green``, ``cube_blue``) on free joints, 40 g each, with
   enough friction for the 2F-85 pads to hold one by friction alone;
+- ``SIM_BOX_SLOTS`` fixed (mocap) boxes, parked out of sight and without contacts until a run
+  places one (``MujocoCell.place_box``: an object that appears in the cell mid-run);
 - cheap lighting (no shadows, no reflections, no multisampling: a frame set costs tens of ms on
   CPU instead of most of a second) and three cameras: ``scene`` (in front of the table, looking
   back at the robot), ``overview`` (straight down on the workspace) and ``wrist`` (on the
@@ -107,6 +109,8 @@ def build_cell_spec(options: CellOptions | None = None) -> mujoco.MjSpec:
     _add_table(spec)
     for color, rgba in CUBE_COLORS.items():
         _add_cube(spec, color, rgba, options)
+    for slot in range(SIM_BOX_SLOTS):
+        _add_box_slot(spec, slot)
     _add_cameras(spec)
     _add_ft_sensor(spec)
     if options.visual_mesh_detail < 1.0:
@@ -217,6 +221,31 @@ def _add_cube(spec: mujoco.MjSpec, color: str, rgba: tuple[float, ...], options:
     geom.friction = [options.cube_friction, 0.01, 0.0001]
     geom.solref = [0.004, 1.0]
     geom.solimp = [0.95, 0.99, 0.001, 0.5, 2.0]
+
+
+SIM_BOX_SLOTS = 4
+"""How many boxes a run can place in the MuJoCo cell at once."""
+SIM_BOX_PARKED_Z = -5.0
+"""Metres: where an unused box slot waits (below the floor, without contacts, transparent)."""
+SIM_BOX_RGBA = (0.95, 0.55, 0.1, 1.0)
+
+
+def box_slot_name(slot: int) -> str:
+    return f"sim_box_{slot}"
+
+
+def _add_box_slot(spec: mujoco.MjSpec, slot: int) -> None:
+    body = spec.worldbody.add_body()
+    body.name = box_slot_name(slot)
+    body.mocap = True  # fixed in the world, moved only by the run: it pushes, nothing pushes it
+    body.pos = [0.0, 0.0, SIM_BOX_PARKED_Z]
+    geom = body.add_geom()
+    geom.name = body.name
+    geom.type = mujoco.mjtGeom.mjGEOM_BOX
+    geom.size = [0.01, 0.01, 0.01]
+    geom.rgba = [*SIM_BOX_RGBA[:3], 0.0]
+    geom.contype = 0
+    geom.conaffinity = 0
 
 
 def look_at_quat(pos: np.ndarray, target: np.ndarray, up: np.ndarray = np.array([0.0, 0.0, 1.0])) -> np.ndarray:

@@ -65,7 +65,6 @@ RECORD_XML = """<?xml version="1.0" encoding="UTF-8"?>
           image_topics="/scene_camera/color;/wrist_camera/color;/overview_camera/color"
           image_names="scene;wrist;overview"
           joint_states_topic="/joint_states"
-          absolute_force_torque_threshold="250;250;250;80;80;80"
           gripper_command_action_name="/robotiq_gripper_controller/gripper_cmd"
           gripper_joint_name="robotiq_85_left_knuckle_joint"/>
       <SubTree ID="Check if One Cube Is on Another" top_color="{top}" bottom_color="{bottom}"/>

@@ -50,6 +50,7 @@ class KinematicCell:
         self.gripper_rate = 0.0
         self.carried: str | None = None
         self.grasp_offset = np.eye(4)
+        self.boxes: dict[str, tuple[np.ndarray, np.ndarray]] = {}
         self._robot = planning_robot_model()
         self._full = self._robot.neutral().copy()
         self.frame = np.full((self.image_size, self.image_size, 3), 128, dtype=np.uint8)
@@ -103,6 +104,14 @@ class KinematicCell:
         self.arm_velocity_now = np.zeros(6)
         self.gripper = self.gripper_target = self.gripper_rate = 0.0
         self.carried = None
+        self.boxes = {}
+
+    def place_box(self, name: str, size_m: np.ndarray, position_m: np.ndarray, quat_wxyz: np.ndarray) -> None:
+        """A placed box is only recorded: without physics nothing can run into it."""
+        self.boxes[name] = (np.asarray(size_m, dtype=float).copy(), np.asarray(position_m, dtype=float).copy())
+
+    def remove_box(self, name: str) -> None:
+        del self.boxes[name]
 
     def render(self, camera: str) -> np.ndarray:
         return self.frame

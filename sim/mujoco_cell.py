@@ -13,13 +13,25 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 import mujoco  # noqa: E402
 import numpy as np  # noqa: E402
 
-from .cell_model import CAMERA_NAMES, CUBE_COLORS, FT_FORCE_SENSOR, FT_TORQUE_SENSOR, CellOptions, build_cell_spec, cube_body_name  # noqa: E402
+from .cell_model import (  # noqa: E402
+    CAMERA_NAMES,
+    CUBE_COLORS,
+    FT_FORCE_SENSOR,
+    FT_TORQUE_SENSOR,
+    SIM_BOX_PARKED_Z,
+    SIM_BOX_SLOTS,
+    CellOptions,
+    box_slot_name,
+    build_cell_spec,
+    cube_body_name,
+)
 from .layouts import layout  # noqa: E402
 from .robot_model import ARM_JOINTS, FT_SITE, GRIPPER_DRIVER_JOINT  # noqa: E402
 
 GRIPPER_ACTUATOR = "gripper_fingers_actuator"
 GRIPPER_CTRL_PER_RAD = 255.0 / 0.8  # the Menagerie 2F-85 maps ctrl 0..255 onto the driver's 0..0.8 rad
 SETTLE_SECONDS = 0.2  # after a reset: cubes come to rest on the table before time starts
+BOX_OVERLAP_TOLERANCE = 0.001  # metres a placed box may sink into what it touches (resting on the table)
 
 
 def _yaw_quat(yaw: float) -> np.ndarray:
@@ -49,6 +61,8 @@ class MujocoCell:
         self._gripper_ctrl = m.actuator(GRIPPER_ACTUATOR).id
         self._cube_body = {c: m.body(cube_body_name(c)).id for c in CUBE_COLORS}
         self._cube_qpos = {c: m.joint(f"{cube_body_name(c)}_joint").qposadr[0] for c in CUBE_COLORS}
+        self._box_slots = [(m.body(box_slot_name(k)).mocapid[0], m.geom(box_slot_name(k)).id) for k in range(SIM_BOX_SLOTS)]
+        self._boxes: dict[str, int] = {}  # placed box name -> slot
         self._ft_site = m.site(FT_SITE).id
         self._ft_body = m.site_bodyid[self._ft_site]
         self._force_adr = m.sensor(FT_FORCE_SENSOR).adr[0]
@@ -115,6 +129,69 @@ class MujocoCell:
     def cube_poses(self) -> dict[str, tuple[np.ndarray, np.ndarray]]:
         return {c: self.cube_pose(c) for c in CUBE_COLORS}
 
+    def place_box(self, name: str, size_m: np.ndarray, position_m: np.ndarray, quat_wxyz: np.ndarray) -> None:
+        """Make a fixed box appear (or move one placed before) at a world pose.
+
+        It collides with the robot and the cubes from the next physics step and shows in the
+        cameras. Raises ValueError, leaving the cell as it was, when every slot is taken or when
+        the box would overlap something (the robot, a cube, the table) by more than 1 mm: an
+        object cannot appear inside another.
+        """
+        slot = self._boxes.get(name)
+        if slot is None:
+            free = [k for k in range(SIM_BOX_SLOTS) if k not in self._boxes.values()]
+            if not free:
+                raise ValueError(f"all {SIM_BOX_SLOTS} box slots of the cell are taken ({', '.join(sorted(self._boxes))}): remove one first")
+            slot = free[0]
+        geom = self._box_slots[slot][1]
+        before = self._box_state(slot)
+        half = np.asarray(size_m, dtype=float) / 2.0
+        self._set_box(slot, half, np.asarray(position_m, dtype=float), np.asarray(quat_wxyz, dtype=float), shown=True)
+        overlap = self._deepest_contact(geom)
+        if overlap is not None and overlap[1] < -BOX_OVERLAP_TOLERANCE:
+            self._set_box(slot, *before)
+            raise ValueError(f"box '{name}' would overlap '{overlap[0]}' by {-overlap[1] * 1000:.1f} mm: place it where nothing is")
+        self._boxes[name] = slot
+
+    def remove_box(self, name: str) -> None:
+        slot = self._boxes.pop(name)  # the world checks the name first
+        self._park_box(slot)
+
+    def _park_box(self, slot: int) -> None:
+        self._set_box(slot, np.full(3, 0.01), np.array([0.0, 0.0, SIM_BOX_PARKED_Z]), np.array([1.0, 0.0, 0.0, 0.0]), shown=False)
+
+    def _box_state(self, slot: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, bool]:
+        mocap, geom = self._box_slots[slot]
+        d, m = self.data, self.model
+        return m.geom_size[geom].copy(), d.mocap_pos[mocap].copy(), d.mocap_quat[mocap].copy(), bool(m.geom_contype[geom])
+
+    def _set_box(self, slot: int, half: np.ndarray, position: np.ndarray, quat: np.ndarray, shown: bool) -> None:
+        mocap, geom = self._box_slots[slot]
+        m, d = self.model, self.data
+        m.geom_size[geom] = half
+        m.geom_rbound[geom] = float(np.linalg.norm(half))  # the broadphase's bounding sphere
+        m.geom_aabb[geom] = [0.0, 0.0, 0.0, *half]
+        body = m.geom_bodyid[geom]  # the broadphase filters bodies first, by their compiled flags
+        m.geom_contype[geom] = m.geom_conaffinity[geom] = m.body_contype[body] = m.body_conaffinity[body] = 1 if shown else 0
+        m.geom_rgba[geom][3] = 1.0 if shown else 0.0
+        d.mocap_pos[mocap] = position
+        d.mocap_quat[mocap] = quat
+        mujoco.mj_forward(m, d)  # place it now: contacts, cameras and sensors see it at once
+        self._frames.clear()
+
+    def _deepest_contact(self, geom: int) -> tuple[str, float] | None:
+        """The body the geom penetrates most and the signed distance (m), or None."""
+        d, m = self.data, self.model
+        deepest: tuple[str, float] | None = None
+        for i in range(d.ncon):
+            contact = d.contact[i]
+            if geom not in (contact.geom1, contact.geom2):
+                continue
+            other = contact.geom2 if contact.geom1 == geom else contact.geom1
+            if deepest is None or contact.dist < deepest[1]:
+                deepest = (m.body(m.geom_bodyid[other]).name, float(contact.dist))
+        return deepest
+
     def step(self, dt: float) -> None:
         self._apply_external_wrench()
         for _ in range(max(1, int(round(dt / self.model.opt.timestep)))):
@@ -124,6 +201,8 @@ class MujocoCell:
     def reset(self, seed: int, arm: np.ndarray) -> None:
         """Arm at ``arm``, gripper open, cubes at the layout of ``seed``, settled at rest."""
         mujoco.mj_resetData(self.model, self.data)
+        for name in list(self._boxes):  # placed boxes go with the run that placed them
+            self._park_box(self._boxes.pop(name))
         self.data.qpos[self._arm_qpos] = arm
         self.data.ctrl[self._arm_ctrl] = arm
         self.data.ctrl[self._gripper_ctrl] = 0.0

@@ -21,12 +21,13 @@ from runtime.behavior import RunContext
 from runtime.timestamps import time_msg
 
 from .cell_model import CAMERA_NAMES, CUBE_COLORS, CellOptions
-from .controllers import make_controllers
+from .controllers import TRAJECTORY_CONTROLLER, make_controllers
 from .embedded_policy import serve_embedded_policy
 from .hardware import Hardware
 from .planning import CubeContact, make_cell_scene, sync_cubes
 from .oracle_remote import CUBE_POSE_TOPIC, cube_pose_msg
 from .robot_model import ARM_JOINTS, GRIPPER_DRIVER_JOINT, load_waypoints
+from .sim_boxes import PlacedBoxes
 
 CONTROL_PERIOD = 0.002
 CAMERA_TOPICS = {name: f"/{name}_camera/color" for name in CAMERA_NAMES}
@@ -44,6 +45,10 @@ class Cell(Hardware, Protocol):
     def reset(self, seed: int, arm: np.ndarray) -> None: ...
 
     def render(self, camera: str) -> np.ndarray: ...
+
+    def place_box(self, name: str, size_m: np.ndarray, position_m: np.ndarray, quat_wxyz: np.ndarray) -> None: ...
+
+    def remove_box(self, name: str) -> None: ...
 
     def close(self) -> None: ...
 
@@ -72,6 +77,7 @@ class CellWorld:
         self.start_arm = np.array([self.waypoints[start][j] for j in ARM_JOINTS])
         self.cube_contact = CubeContact.parse(options.get("cube_contact") or CubeContact.GRIPPER)
         self.cell = make_cell(self.start_arm, self.seed)
+        self.boxes = PlacedBoxes()
 
     # -- World -------------------------------------------------------------------------------
     def start(self, context: RunContext) -> None:
@@ -104,16 +110,32 @@ class CellWorld:
     def reset(self, seed: int) -> None:
         self.seed = seed
         self.cell.reset(seed, self.start_arm)
+        self.boxes.forget(self.context.scene)
         self.controllers.reset()
         self.synced_cubes = sync_cubes(self.context.scene, self.cell.cube_poses())
         self._publish()
 
+    def place_box(self, name: str, size_m: Any, pose: Any, mirror: bool = True) -> None:
+        """Make a fixed box appear in the cell at ``pose`` (4x4, world frame), or move it there,
+        mirrored into the planning scene unless ``mirror`` is False. ValueError says why not."""
+        self.boxes.place(self.cell, self.context.scene, name, size_m, pose, mirror)
+
+    def remove_box(self, name: str) -> None:
+        self.boxes.remove(self.cell, self.context.scene, name)
+
     def summary(self) -> dict[str, Any]:
-        return {
+        summary: dict[str, Any] = {
             "seed": self.seed,
             "cubes": {c: [round(float(v), 4) for v in self.cell.cube_pose(c)[0]] for c in CUBE_COLORS},
             "gripper": round(self.cell.gripper_position(), 4),
         }
+        if self.boxes.boxes:
+            summary["boxes"] = self.boxes.summary()
+        controllers = getattr(self, "controllers", None)  # absent when the world never started
+        if controllers is not None:  # what the F/T thresholds were compared with
+            summary["peak_force_n"] = round(controllers[TRAJECTORY_CONTROLLER].peak_force_n, 2)
+            summary["peak_torque_nm"] = round(controllers[TRAJECTORY_CONTROLLER].peak_torque_nm, 3)
+        return summary
 
     def close(self) -> None:
         self.cell.close()

@@ -38,6 +38,7 @@ from sim.controllers import (
     stitch,
     stop_trajectory,
 )
+from sim.controllers.trajectory import blend_duration
 from runtime.timestamps import time_msg
 
 Action = FollowJointTrajectoryWithAdmittance
@@ -304,6 +305,35 @@ def test_stitch_rejects_position_and_velocity_deviation_at_the_seam():
     stitch(current, fast, 1.0, path_tolerance=0.0)
 
 
+def test_a_first_point_off_the_held_reference_fades_in_instead_of_jumping():
+    # The servos sag a few mrad under the gripper's weight, so a first chunk planned from the
+    # measured position starts that far from the reference the controller holds. Closing 3 mrad
+    # in the chunk's first 10 ms interval asked ~150 rad/s^2 (and a jolt on the wrist sensor).
+    held = Trajectory.hold(0.0, np.zeros(2))
+    times = 1.0 + np.arange(41) * 0.01
+    start = np.array([0.003, -0.002])
+    new = Trajectory(times, start + np.outer(times - 1.0, [0.05, 0.0]), np.tile([0.05, 0.0], (41, 1)), np.zeros((41, 2)))
+    result = stitch(held, new, 1.0, path_tolerance=0.3, allow_after_end=True, blend_acceleration=1.0, min_blend_time=0.05)
+    at_seam = result.sample(1.0)
+    np.testing.assert_allclose(at_seam.position, 0.0, atol=1e-12)
+    np.testing.assert_allclose(at_seam.velocity, 0.0, atol=1e-12)
+    accelerations = np.array([result.sample(t).acceleration for t in np.arange(1.0, 1.4, 0.0005)])
+    assert np.abs(accelerations).max() <= 1.0 + 1e-6
+    deviation = TrajectoryState(-start, np.array([-0.05, 0.0]), np.zeros(2))
+    duration = blend_duration(deviation, 1.0, 0.05)
+    assert 0.05 < duration < 0.5
+    for t in (1.0 + duration, 1.0 + duration + 0.05, 1.4):  # after the fade: the goal's own trajectory, exactly
+        np.testing.assert_allclose(result.sample(t).position, new.sample(t).position, atol=1e-12)
+        np.testing.assert_allclose(result.sample(t).velocity, new.sample(t).velocity, atol=1e-12)
+
+
+def test_an_exact_seam_point_is_joined_without_any_fade():
+    current = _line(0.0, 2.0, 0.0, 1.0)
+    new = _line(1.0, 3.0, 0.5, 1.5)
+    result = stitch(current, new, 1.0, path_tolerance=0.1)
+    np.testing.assert_array_equal(result.times, np.concatenate([current.times[current.times < 1.0], new.times]))
+
+
 def test_stop_trajectory_decelerates_to_rest_without_a_jump():
     stop = stop_trajectory(TrajectoryState(np.array([0.2]), np.array([1.0]), np.array([0.0])), 3.0, 0.2)
     velocities = np.array([stop.sample(t).velocity[0] for t in np.linspace(3.0, 3.2, 41)])
@@ -456,6 +486,20 @@ def test_new_goal_is_stitched_at_the_seam_without_stopping(cell):
     cell.run(0.9)
     assert second.status == STATUS_SUCCEEDED
     np.testing.assert_allclose(cell.hw.q, positions[-1], atol=1e-6)
+
+
+def test_idle_goal_starting_a_few_mrad_off_is_faded_in_within_the_blend_acceleration(cell):
+    cell.activate_trajectory_controller()
+    cell.run(0.1)
+    start = HOME + np.array([0.0, 0.003, -0.003, 0.002, 0.0, 0.0])  # where a sagging arm is measured
+    times = np.arange(21) * 0.01
+    watch = cell.send(goal(times, np.tile(start, (21, 1)), np.zeros((21, 6)), path_tolerance=0.05))
+    cell.run(0.5)
+    assert watch.status == STATUS_SUCCEEDED
+    commanded = np.array([entry[1] for entry in cell.hw.log])
+    acceleration = np.diff(commanded, n=2, axis=0) / DT**2
+    assert np.abs(acceleration).max() < 1.1  # seam_blend_acceleration, sampled at 2 ms
+    np.testing.assert_allclose(cell.hw.q, start, atol=1e-9)
 
 
 def test_late_seam_is_rejected_and_the_running_goal_continues(cell):

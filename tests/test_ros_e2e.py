@@ -164,8 +164,7 @@ ONE_CHUNK = """<root BTCPP_format="4" main_tree_to_execute="One Chunk">
           policy_call_timeout="10.0"
           image_topics="/scene_camera/color;/wrist_camera/color;/overview_camera/color" image_names="scene;wrist;overview"
           gripper_command_action_name="/robotiq_gripper_controller/gripper_cmd"
-          gripper_joint_name="robotiq_85_left_knuckle_joint"
-          absolute_force_torque_threshold="250;250;250;80;80;80"/>
+          gripper_joint_name="robotiq_85_left_knuckle_joint"/>
     </Sequence>
   </BehaviorTree>
 </root>

@@ -33,6 +33,9 @@ While executing, every control step checks, in this order:
 Every abort and a cancel bring the arm to rest smoothly (``stop_trajectory``: zero velocity within
 ``ControllersConfig.stop_time``, position/velocity/acceleration continuous), never a jump.
 
+The controller keeps the largest force and torque (vector norms) it read while executing a goal
+(``peak_force_n``, ``peak_torque_nm``; the world reports them in its run summary).
+
 Admittance (see ``compliance``) runs on every control step while the controller is active, with
 the stiffness/damping of the latest accepted goal (empty = the configured defaults).
 """
@@ -198,6 +201,10 @@ class JointTrajectoryAdmittanceController(Controller):
         self._pseudo_inverse: np.ndarray | None = None
         self._pseudo_inverse_time = -math.inf
         self._last_feedback = -math.inf
+        self.peak_force_n = 0.0
+        """Largest |force| (N, vector norm) read from the wrist sensor while executing a goal."""
+        self.peak_torque_nm = 0.0
+        """Largest |torque| (N m, vector norm) read from the wrist sensor while executing a goal."""
         bus.create_action_server(self.action_name, Action, self._on_goal, self._on_cancel)
 
     # -- ros2_control lifecycle ---
@@ -289,6 +296,8 @@ class JointTrajectoryAdmittanceController(Controller):
                 self.joint_names,
                 allow_after_end=not executing,
                 check_velocity=goal.velocities_given,
+                blend_acceleration=self.config.seam_blend_acceleration,
+                min_blend_time=self.config.min_seam_blend_time,
             )
         except SeamError as exc:
             raise GoalError(Result.INVALID_GOAL, str(exc)) from None
@@ -342,6 +351,9 @@ class JointTrajectoryAdmittanceController(Controller):
         parsed = goal.goal
         actual = np.asarray(self.hardware.arm_position(), dtype=float)
         self._publish_feedback(t, goal, command, desired_velocity, actual, wrench)
+        fx, fy, fz, tx, ty, tz = wrench.tolist()
+        self.peak_force_n = max(self.peak_force_n, math.hypot(fx, fy, fz))
+        self.peak_torque_nm = max(self.peak_torque_nm, math.hypot(tx, ty, tz))
 
         ft = wrench_violation(wrench, parsed.force_torque_threshold)
         if ft is not None:

@@ -29,6 +29,12 @@ class ControllersConfig:
     path_tolerance when that is tighter)."""
     default_goal_time_tolerance: float = 1.0
     """Seconds allowed to settle after the last point when a goal's goal_time_tolerance is 0."""
+    seam_blend_acceleration: float = 1.0
+    """rad/s^2: a goal whose point at its seam differs from the reference there (within its
+    path_tolerance) has the difference faded out with at most this acceleration, not closed in
+    its first interval (see ``trajectory.stitch``)."""
+    min_seam_blend_time: float = 0.05
+    """Seconds: the shortest such fade."""
     admittance: AdmittanceParams = field(default_factory=AdmittanceParams)
     jacobian_refresh_period: float = 0.01
     """Seconds for which the admittance reuses the damped pseudo-inverse of the wrist Jacobian

@@ -198,6 +198,70 @@ def _joint_label(joint_names: tuple[str, ...] | None, j: int) -> str:
     return joint_names[j] if joint_names is not None else f"joint {j}"
 
 
+DEVIATION_EPS = 1e-9
+"""Radians (and rad/s, rad/s^2) below which a seam's deviation is nothing to absorb."""
+
+
+def blend_duration(deviation: TrajectoryState, max_acceleration: float, min_duration: float) -> float:
+    """Seconds over which the quintic offset starting at ``deviation`` (position, velocity and
+    acceleration differences) decays to zero with at most ``max_acceleration`` rad/s^2 on any joint.
+
+    Starts from the closed forms (a pure position offset d peaks at 5.77 d / T^2, a pure velocity
+    offset v needs T of about 3 v / a) and lengthens T until the sampled peak fits; an initial
+    acceleration difference larger than the budget is the floor (no T lowers it).
+    """
+    if max_acceleration <= 0:
+        raise ValueError(f"max_acceleration must be > 0, got {max_acceleration}")
+    d = float(np.max(np.abs(deviation.position)))
+    v = float(np.max(np.abs(deviation.velocity)))
+    limit = max(max_acceleration, float(np.max(np.abs(deviation.acceleration)))) * (1.0 + 1e-6)
+    duration = max(min_duration, float(np.sqrt(6.0 * d / max_acceleration)), 3.0 * v / max_acceleration, 1e-3)
+    zeros = np.zeros((1, deviation.position.size))
+    for _ in range(60):
+        c = _offset_coefficients(deviation, duration, zeros)
+        tau = np.linspace(0.0, duration, 65)[:, None]
+        acceleration = 2.0 * c[2] + tau * (6.0 * c[3] + tau * (12.0 * c[4] + tau * 20.0 * c[5]))
+        if np.abs(acceleration).max() <= limit:
+            break
+        duration *= 1.2
+    return duration
+
+
+def _offset_coefficients(deviation: TrajectoryState, duration: float, zeros: np.ndarray) -> np.ndarray:
+    return quintic_coefficients(
+        np.array([duration]), deviation.position[None, :], deviation.velocity[None, :], deviation.acceleration[None, :], zeros, zeros, zeros
+    )[0]
+
+
+def absorb_deviation(new: Trajectory, start: float, deviation: TrajectoryState, duration: float) -> Trajectory:
+    """``new`` plus an offset that equals ``deviation`` at ``start`` and fades to zero (with its
+    velocity and acceleration) at ``start + duration``, after which ``new`` is unchanged.
+
+    The offset is one quintic; a knot is added at its end (``new``'s own state there), so every
+    piece inside the window is a quintic plus a quintic and the Hermite pieces reproduce the sum
+    exactly. A window reaching past ``new``'s end is cut there.
+    """
+    end = min(start + duration, new.end_time)
+    if end <= start + TIME_EPS:
+        return new
+    times, positions, velocities, accelerations = new.times, new.positions, new.velocities, new.accelerations
+    if not np.any(np.abs(times - end) <= TIME_EPS):
+        k = int(np.searchsorted(times, end))
+        state = new.sample(end)
+        times = np.insert(times, k, end)
+        positions = np.insert(positions, k, state.position, axis=0)
+        velocities = np.insert(velocities, k, state.velocity, axis=0)
+        accelerations = np.insert(accelerations, k, state.acceleration, axis=0)
+    positions, velocities, accelerations = positions.copy(), velocities.copy(), accelerations.copy()
+    coefficients = _offset_coefficients(deviation, duration, np.zeros((1, new.num_joints)))
+    for k in np.flatnonzero((times >= start - TIME_EPS) & (times < end - TIME_EPS)):
+        offset = quintic_powers(max(float(times[k]) - start, 0.0)) @ coefficients
+        positions[k] += offset[0]
+        velocities[k] += offset[1]
+        accelerations[k] += offset[2]
+    return Trajectory(times, positions, velocities, accelerations)
+
+
 def stitch(
     current: Trajectory,
     new: Trajectory,
@@ -206,6 +270,8 @@ def stitch(
     joint_names: tuple[str, ...] | None = None,
     allow_after_end: bool = False,
     check_velocity: bool = True,
+    blend_acceleration: float = 1.0,
+    min_blend_time: float = 0.05,
 ) -> Trajectory:
     """Follow ``current`` until ``seam_time`` and ``new`` after it, continuous at the seam.
 
@@ -219,11 +285,15 @@ def stitch(
       were estimated by finite differences, not stated by its sender).
 
     The knot at the seam is ``current``'s own state there (position, velocity, acceleration), so
-    the result is continuous up to acceleration and identical to ``current`` before the seam; a
-    point of ``new`` at the seam itself is represented by that state (they agree within the
-    tolerance just checked). When ``new`` starts after the seam, the piece between the seam and
-    its first point bridges from ``current``'s state, as ros2_control's JTC does from the state at
-    the goal's stamp.
+    the result is continuous up to acceleration and identical to ``current`` before the seam.
+    When ``new`` has a point at the seam that differs from that state (within the tolerance just
+    checked), the difference is not closed in ``new``'s first interval (a 3 mrad gap over a 10 ms
+    interval asks 150 rad/s^2) but fades out as an offset on ``new`` with at most
+    ``blend_acceleration`` rad/s^2 (``blend_duration``, at least ``min_blend_time``): the typical
+    case is a first goal that starts from the measured position while the controller holds its
+    reference a few mrad away (the servos sag under the gripper's weight). When ``new`` starts
+    after the seam, the piece between the seam and its first point bridges from ``current``'s
+    state, as ros2_control's JTC does from the state at the goal's stamp.
     """
     if new.num_joints != current.num_joints:
         raise SeamError(f"the new trajectory has {new.num_joints} joints, the current one {current.num_joints}")
@@ -251,6 +321,13 @@ def stitch(
                     f"exceeds the path tolerance {path_tolerance:.4f} (seam t={seam_time:.4f} s; "
                     f"current {ours[j]:.4f}, new {theirs[j]:.4f})"
                 )
+    if new_starts_at_seam:
+        deviation = TrajectoryState(
+            at_seam.position - new.positions[0], at_seam.velocity - new.velocities[0], at_seam.acceleration - new.accelerations[0]
+        )
+        if max(np.max(np.abs(deviation.position)), np.max(np.abs(deviation.velocity)), np.max(np.abs(deviation.acceleration))) > DEVIATION_EPS:
+            duration = blend_duration(deviation, blend_acceleration, min_blend_time)
+            new = absorb_deviation(new, new.start_time, deviation, duration)
     before = current.times < seam_time - TIME_EPS
     after = new.times > seam_time + TIME_EPS
     return Trajectory(
