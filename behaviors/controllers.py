@@ -6,7 +6,7 @@ import enum
 from controller_manager_msgs.srv import ListControllers, SwitchController as SwitchSrv
 
 from runtime.behavior import Behavior, Status
-from runtime.ports import InputPort, PortType
+from runtime.ports import InputPort, PortType, Range
 from runtime.timestamps import duration_msg
 
 from .waiting import Deadline, when_ready
@@ -31,7 +31,7 @@ class SwitchController(Behavior):
         InputPort("activate_controllers", PortType.STRING_LIST, "", "Controllers to activate, ';'-separated."),
         InputPort("deactivate_controllers", PortType.STRING_LIST, "", "Controllers to deactivate, ';'-separated."),
         InputPort("strictness", PortType.STRING, "STRICT", "STRICT: all or nothing; BEST_EFFORT: switch what can be switched."),
-        InputPort("timeout", PortType.FLOAT, 3.0, "Seconds to wait for the controller manager and the switch."),
+        InputPort("timeout", PortType.FLOAT, 3.0, "Seconds to wait for the controller manager and the switch.", valid=Range(0.0, 3600.0, "s", min_open=True)),
         InputPort("controller_list_action_name", PortType.STRING, "/controller_manager/list_controllers", "ListControllers service."),
         InputPort("controller_switch_action_name", PortType.STRING, "/controller_manager/switch_controller", "SwitchController service."),
     )

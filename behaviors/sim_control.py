@@ -7,7 +7,7 @@ with a reason instead of pretending.
 from __future__ import annotations
 
 from runtime.behavior import Behavior, Status
-from runtime.ports import InputPort, PortType
+from runtime.ports import UINT32_MAX, InputPort, PortType, Range
 
 
 class ResetSim(Behavior):
@@ -20,7 +20,7 @@ class ResetSim(Behavior):
 
     needs_world = True
     description = "Reset the simulated world (robot at its start, cubes in the layout drawn from seed)."
-    ports = (InputPort("seed", PortType.UINT, 0, "Seed of the new cube layout."),)
+    ports = (InputPort("seed", PortType.UINT, 0, "Seed of the new cube layout.", valid=Range(0, UINT32_MAX)),)
 
     def initialise(self) -> None:
         self.reset_done = False

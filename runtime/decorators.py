@@ -12,7 +12,7 @@ from typing import ClassVar
 
 from .behavior import Status
 from .controls import COMPLETED, SKIPPED, DecoratorNode, TickGenerator, halt_child
-from .ports import InputPort, PortType
+from .ports import INT32_MAX, UINT32_MAX, InputPort, PortType, Range
 
 # SimClock time is a float sum of tick periods (0.01 * 10 == 0.09999999999999999), so a
 # deadline compares with a tolerance far below any period a runner uses.
@@ -96,7 +96,7 @@ class RetryUntilSuccessful(DecoratorNode):
         "SUCCESS as soon as the child succeeds, FAILURE when the attempts are used up."
     )
     ports = (
-        InputPort("num_attempts", PortType.INT, description="Attempts in all; -1 retries forever."),
+        InputPort("num_attempts", PortType.INT, description="Attempts in all; -1 retries forever.", valid=Range(-1, INT32_MAX)),
     )
 
     def __init__(self, name: str) -> None:
@@ -142,7 +142,7 @@ class Repeat(DecoratorNode):
         "FAILURE as soon as the child fails, SUCCESS after the last cycle."
     )
     ports = (
-        InputPort("num_cycles", PortType.INT, description="Successful cycles in all; -1 repeats forever."),
+        InputPort("num_cycles", PortType.INT, description="Successful cycles in all; -1 repeats forever.", valid=Range(-1, INT32_MAX)),
     )
 
     def __init__(self, name: str) -> None:
@@ -216,7 +216,7 @@ class Timeout(DecoratorNode):
         "(of run-clock time) after the Timeout started; otherwise returns what the child returns."
     )
     ports = (
-        InputPort("msec", PortType.UINT, description="Time limit in milliseconds (0: no limit)."),
+        InputPort("msec", PortType.UINT, description="Time limit in milliseconds (0: no limit).", valid=Range(0, UINT32_MAX, "ms")),
     )
 
     def __init__(self, name: str) -> None:
@@ -254,7 +254,7 @@ class Delay(DecoratorNode):
         "returns what it returns."
     )
     ports = (
-        InputPort("delay_msec", PortType.UINT, description="Wait before ticking the child, in milliseconds."),
+        InputPort("delay_msec", PortType.UINT, description="Wait before ticking the child, in milliseconds.", valid=Range(0, UINT32_MAX, "ms")),
     )
 
     def __init__(self, name: str) -> None:
