@@ -6,6 +6,11 @@
   then every event of the run's ``EventLog`` as it happens (node status changes, chunk
   requests, seams, rejections, warnings...), then the joint limits and the run's summary.
 
+Whatever ends the run (success, failure, an error, SIGINT/SIGTERM), the summary is written and
+says how (``status``). A process killed outright (SIGKILL) leaves a partial recording: every
+event up to the kill (the file is line-buffered) and every flushed MCAP chunk
+(``McapRos2Writer``); ``objective report`` renders what there is and says it is partial.
+
 The report (plots, video, tree, page) is rendered from these two files alone
 (``runtime.report``), so ``objective report DIR`` can redo it after the run.
 """
@@ -83,7 +88,8 @@ class Recorder:
             self.writer = McapRos2Writer(self.directory / MCAP_FILE)
         except OSError as err:
             raise ObjectiveError(f"--record {self.directory}: cannot write there ({err.strerror})") from None
-        self._events: TextIO | None = open(self.directory / EVENTS_FILE, "w", encoding="utf-8")
+        # Line-buffered: every event is in the file as soon as it happens, whatever ends the process.
+        self._events: TextIO | None = open(self.directory / EVENTS_FILE, "w", encoding="utf-8", buffering=1)
         self.context = context
         self.bus = RecordingBus(context.bus, self.writer, joint_states_hz)
         context.bus = self.bus
