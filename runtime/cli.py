@@ -1,7 +1,9 @@
 """``objective``: run, validate, show and describe BehaviorTree.CPP v4 Objectives.
 
-Exit codes: 0 SUCCESS, 1 FAILURE (the failing node and its reason on stderr), 2 bad input
-(the error, ``file:line: Node: what``, on stderr; never a traceback).
+Exit codes: 0 SUCCESS, 1 FAILURE (the failing node and its reason on stderr), 2 bad input or
+an unexpected error (the error, ``file:line: Node: what``, on stderr; never a traceback: that goes
+to a log file the message names), 130/143 when SIGINT/SIGTERM interrupted a run. Every piece of
+Objective-supplied text is printed through ``runtime.terminal.printable``.
 
 The CLI is the composition root: behaviors come from the ``objective.behaviors`` entry points
 and worlds from ``objective.worlds``, so the runtime imports neither.
@@ -9,17 +11,18 @@ and worlds from ``objective.worlds``, so the runtime imports neither.
 from __future__ import annotations
 
 import argparse
-import contextlib
 import json
 import logging
+import signal
 import sys
 from pathlib import Path
 from typing import Any, Sequence
 from xml.sax.saxutils import escape, quoteattr
 
 from .errors import ObjectiveError
-from .ports import Direction, PortType
+from .ports import FINITE, NUMERIC_TYPES, Direction, PortInfo, PortType
 from .registry import Registry
+from .terminal import printable
 
 EXIT_SUCCESS, EXIT_FAILURE, EXIT_BAD_INPUT = 0, 1, 2
 
@@ -56,7 +59,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="objective",
         description="Run BehaviorTree.CPP v4 Objectives headless.",
-        epilog="Exit codes: 0 SUCCESS, 1 FAILURE, 2 bad input.",
+        epilog="Exit codes: 0 SUCCESS, 1 FAILURE, 2 bad input or error, 130/143 interrupted (SIGINT/SIGTERM).",
     )
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
@@ -185,6 +188,7 @@ def _add_policy_commands(sub: Any) -> None:
 # ------------------------------------------------------------------------------------------------
 def cmd_run(args: argparse.Namespace, registry: Registry) -> int:
     from .display import ProgressLine
+    from .interrupt import StopRequest, stop_on_signals
     from .runner import RunOptions, run_file
 
     options = RunOptions(
@@ -203,31 +207,38 @@ def cmd_run(args: argparse.Namespace, registry: Registry) -> int:
     if progress is not None:
         for handler in logging.getLogger("objective").handlers:
             handler.addFilter(lambda record: progress.clear() or True)  # log lines replace the progress line
-    interrupts: Any = contextlib.nullcontext()
     if args.ros:
-        from .ros.run import graph_description, sigterm_as_interrupt
+        from .ros.run import graph_description
 
         options.check()
         logging.getLogger("objective").info("running %s", graph_description(options.ros_node_name))
-        interrupts = sigterm_as_interrupt()  # a stopped runner halts the tree and leaves the graph cleanly
     try:
-        with interrupts:
-            result = run_file(args.file, registry, options, args.tree, args.path, args.objectives_dir, progress)
+        # SIGINT and SIGTERM stop the run at the next tick: halted, recorded, summarised (runtime.interrupt)
+        with stop_on_signals(StopRequest()) as stop:
+            result = run_file(args.file, registry, options, args.tree, args.path, args.objectives_dir, progress, stop)
     finally:
         if progress is not None:
             progress.clear()
-    if result.status == "SUCCESS":
-        print(f"SUCCESS after {result.sim_seconds:.2f} s ({result.ticks} ticks)", file=sys.stderr)
-    else:
-        where = f" ({result.failing_location})" if result.failing_location else ""
-        node = f"'{result.failing_node}'{where}" if result.failing_node else "the root"
-        print(f"FAILURE after {result.sim_seconds:.2f} s: {node} failed: {result.reason or 'no reason given'}",
-              file=sys.stderr)
+    print(run_outcome_line(result), file=sys.stderr)
     if args.record is not None:
         print(f"recorded to {args.record}/ (open {args.record / 'report.html'})", file=sys.stderr)
     if args.json:
         print(json.dumps(result.to_json(), default=str))
     return result.exit_code
+
+
+def run_outcome_line(result: Any) -> str:
+    """The line ``objective run`` ends with on stderr: how the run ended, and where."""
+    if result.status == "SUCCESS":
+        return f"SUCCESS after {result.sim_seconds:.2f} s ({result.ticks} ticks)"
+    if result.status == "INTERRUPTED":
+        return f"INTERRUPTED after {result.sim_seconds:.2f} s ({result.ticks} ticks): {printable(result.reason)}"
+    if result.status == "ERROR":
+        return f"error: {printable(result.reason)}"
+    where = f" ({printable(result.failing_location)})" if result.failing_location else ""
+    node = f"'{printable(result.failing_node)}'{where}" if result.failing_node else "the root"
+    return (f"FAILURE after {result.sim_seconds:.2f} s: {node} failed: "
+            f"{printable(result.reason) or 'no reason given'}")
 
 
 def cmd_validate(args: argparse.Namespace, registry: Registry) -> int:
@@ -239,10 +250,10 @@ def cmd_validate(args: argparse.Namespace, registry: Registry) -> int:
             trees = validate(file, registry, args.tree, args.path, args.objectives_dir)
         except ObjectiveError as err:
             failed += 1
-            print(f"error: {err}", file=sys.stderr)
+            print(f"error: {printable(err)}", file=sys.stderr)
             continue
         summary = ", ".join(f"{t.tree_id} ({len(t.nodes)} nodes)" for t in trees)
-        print(f"ok: {file}: {summary}")
+        print(printable(f"ok: {file}: {summary}"))
     return EXIT_BAD_INPUT if failed else EXIT_SUCCESS
 
 
@@ -262,11 +273,20 @@ def behaviors_data(registry: Registry) -> list[dict[str, Any]]:
                     "default": None if p.required or p.direction is Direction.OUTPUT else p.describe_default(),
                     "required": p.required,
                     "description": p.description,
+                    "valid": port_range(p),
                 }
                 for p in spec.cls.ports
             ],
         })
     return out
+
+
+def port_range(port: PortInfo) -> str | None:
+    """The values a numeric input port accepts, as ``objective behaviors`` and ``models`` show them."""
+    if port.type not in NUMERIC_TYPES or port.direction is Direction.OUTPUT:
+        return None
+    valid = str(port.valid or FINITE)
+    return valid + (" each" if port.type in (PortType.FLOAT_LIST, PortType.INT_LIST) else "")
 
 
 def cmd_behaviors(args: argparse.Namespace, registry: Registry) -> int:
@@ -285,7 +305,8 @@ def cmd_behaviors(args: argparse.Namespace, registry: Registry) -> int:
                 default = "optional"
             else:
                 default = f"default {port['default']!r}"
-            text = f"      {port['direction']:<6} {port['name']} ({port['type']}, {default})"
+            valid = f", valid {port['valid']}" if port["valid"] else ""
+            text = f"      {port['direction']:<6} {port['name']} ({port['type']}, {default}{valid})"
             print(text + (f": {port['description']}" if port["description"] else ""))
     return EXIT_SUCCESS
 
@@ -295,7 +316,7 @@ def cmd_show(args: argparse.Namespace, registry: Registry) -> int:
     from .loader import throwaway_context, load_tree
 
     tree = load_tree(args.file, registry, throwaway_context(), args.tree, args.path, args.objectives_dir)
-    print(tree_text(tree))
+    print("\n".join(printable(line) for line in tree_text(tree).splitlines()))
     return EXIT_SUCCESS
 
 
@@ -311,7 +332,9 @@ def models_xml(registry: Registry, include_builtins: bool = False) -> str:
             attrs = f"name={quoteattr(port.name)} type={quoteattr(_MODEL_TYPES.get(port.type, port.type.value))}"
             if not port.required and port.direction is not Direction.OUTPUT:
                 attrs += f" default={quoteattr(port.describe_default())}"
-            lines.append(f"      <{port.direction.value} {attrs}>{escape(port.description)}</{port.direction.value}>")
+            valid = port_range(port)
+            text = f"{port.description} (valid: {valid})" if valid else port.description
+            lines.append(f"      <{port.direction.value} {attrs}>{escape(text)}</{port.direction.value}>")
         if spec.cls.description:
             lines.append("      <MetadataFields>")
             lines.append(f"        <Metadata description={quoteattr(spec.cls.description)}/>")
@@ -328,7 +351,9 @@ def cmd_report(args: argparse.Namespace, registry: Registry) -> int:
     for name, path in report.files.items():
         print(path)
     for name, error in report.errors.items():
-        print(f"error: {name}: {error}", file=sys.stderr)
+        print(f"error: {name}: {printable(error)}", file=sys.stderr)
+    for reason in report.partial:
+        print(f"partial recording: {printable(reason)}", file=sys.stderr)
     return EXIT_FAILURE if report.errors else EXIT_SUCCESS
 
 
@@ -457,13 +482,20 @@ def main(argv: Sequence[str] | None = None, registry: Registry | None = None) ->
         _quiet_stdout()
         return EXIT_SUCCESS
     except ObjectiveError as err:
-        print(f"error: {err}", file=sys.stderr)
+        return _error_exit(args, str(err))
+    except KeyboardInterrupt as err:  # a second signal, or one outside a run
+        from .interrupt import exit_code_for
+
+        signum = getattr(err, "signum", signal.SIGINT)
+        print(f"interrupted ({signal.Signals(signum).name})", file=sys.stderr)
         if getattr(args, "json", False) and args.command == "run":
-            print(json.dumps({"status": "ERROR", "reason": str(err)}))
-        return EXIT_BAD_INPUT
-    except KeyboardInterrupt:
-        print("interrupted", file=sys.stderr)
-        return 130
+            print(json.dumps({"status": "INTERRUPTED", "reason": f"{signal.Signals(signum).name} before the run could stop"}))
+        return exit_code_for(signum)
+    except Exception as err:  # a bug: one paragraph here, the traceback in a file
+        from .crash import describe_crash, write_traceback
+
+        stopped = f"`objective {args.command}` stopped"
+        return _error_exit(args, str(describe_crash(err, None, write_traceback(err, None), consequence=stopped)))
     try:
         sys.stdout.flush()
     except BrokenPipeError:
@@ -471,8 +503,18 @@ def main(argv: Sequence[str] | None = None, registry: Registry | None = None) ->
     return code
 
 
+def _error_exit(args: argparse.Namespace, message: str) -> int:
+    print(f"error: {printable(message)}", file=sys.stderr)
+    if getattr(args, "json", False) and args.command == "run":
+        print(json.dumps({"status": "ERROR", "reason": message}))
+    return EXIT_BAD_INPUT
+
+
 class _StderrHandler(logging.StreamHandler):  # type: ignore[type-arg]
-    """Writes to whatever ``sys.stderr`` is now (tests and wrappers replace it)."""
+    """Writes to whatever ``sys.stderr`` is now (tests and wrappers replace it), made printable."""
+
+    def format(self, record: logging.LogRecord) -> str:
+        return printable(super().format(record))
 
     @property  # type: ignore[override]
     def stream(self) -> Any:

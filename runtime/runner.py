@@ -10,13 +10,20 @@ until the root returns SUCCESS or FAILURE (or ``max_seconds`` of clock time pass
 (RUNNING nodes get ``terminate(INVALID)``, so a moving robot is stopped) and the world and the
 bus are closed.
 
+How the run ended is a ``RunEnd``: SUCCESS, FAILURE, INTERRUPTED (SIGINT/SIGTERM, see
+``runtime.interrupt``: the tree is halted as a preemption) or ERROR (bad input found while
+running, or an unexpected exception, told in one paragraph by ``runtime.crash`` with its
+traceback in a log file). Each has its exit code (``RunResult.exit_code``).
+
 A world (the simulated cell) is started only when some node of the tree has
 ``needs_world = True``; worlds are found by name in the ``objective.worlds`` entry-point group.
 """
 from __future__ import annotations
 
+import enum
 import json
 import math
+import signal
 import time
 from dataclasses import dataclass, field
 from importlib.metadata import entry_points
@@ -29,8 +36,10 @@ from .behavior import RunContext, Status
 from .bus import InProcessBus, parse_latency
 from .clock import SimClock, WallClock
 from .controls import COMPLETED, SKIPPED, consume_wake_up, is_skipped, reset_status
+from .crash import CRASH_LOG, culprit, describe_crash, write_traceback
 from .errors import ObjectiveError
 from .events import EventLog
+from .interrupt import StopRequest, exit_code_for, signal_name
 from .loader import LoadedTree, load_tree
 from .registry import WORLD_GROUP, Registry
 
@@ -59,6 +68,9 @@ class RunOptions:
     """Run on real ROS 2 (``runtime.ros.run``): a RosBus node, paced by a WallClock (implies
     ``realtime``); the world serves no policy of its own unless ``world_options`` names one."""
     ros_node_name: str = "objective_runtime"
+    log_dir: Path | None = None
+    """Where the traceback of an unexpected exception goes: the recording directory when
+    recording, else this (None: ``build/logs/`` under the working directory)."""
 
     @property
     def paced(self) -> bool:
@@ -85,10 +97,21 @@ class RunOptions:
             )
 
 
+class RunEnd(enum.Enum):
+    """How a run ended."""
+
+    SUCCESS = "SUCCESS"
+    FAILURE = "FAILURE"
+    INTERRUPTED = "INTERRUPTED"
+    """SIGINT or SIGTERM: the tree was halted as a preemption (goals cancelled, robot stopped)."""
+    ERROR = "ERROR"
+    """Bad input found while running (e.g. a port value out of range) or an unexpected exception."""
+
+
 @dataclass
 class RunResult:
     status: str
-    """"SUCCESS" or "FAILURE"."""
+    """A ``RunEnd`` value: "SUCCESS", "FAILURE", "INTERRUPTED" or "ERROR"."""
     failing_node: str | None
     reason: str
     sim_seconds: float
@@ -97,10 +120,19 @@ class RunResult:
     blackboard: dict[str, Any]
     extra: dict[str, Any] = field(default_factory=dict)
     failing_location: str | None = None
+    signum: int | None = None
+    """The signal that interrupted the run (INTERRUPTED only)."""
+    running_nodes: list[str] = field(default_factory=list)
+    """Leaves that were RUNNING when the run was interrupted or broke off, halted since."""
+    log_file: str | None = None
+    """The full traceback of an unexpected exception (ERROR only)."""
 
     @property
     def exit_code(self) -> int:
-        return 0 if self.status == "SUCCESS" else 1
+        """0 SUCCESS, 1 FAILURE, 2 ERROR, 128 + the signal's number when INTERRUPTED (130, 143)."""
+        if self.status == RunEnd.INTERRUPTED.value:
+            return exit_code_for(self.signum or signal.SIGINT)
+        return {RunEnd.SUCCESS.value: 0, RunEnd.FAILURE.value: 1}.get(self.status, 2)
 
     def to_json(self) -> dict[str, Any]:
         """The summary object ``objective run --json`` prints (extras merged at the top level)."""
@@ -113,6 +145,12 @@ class RunResult:
             "ticks": self.ticks,
             "blackboard": self.blackboard,
         }
+        if self.status == RunEnd.INTERRUPTED.value:
+            summary["signal"] = signal_name(self.signum or signal.SIGINT)
+        if self.status in (RunEnd.INTERRUPTED.value, RunEnd.ERROR.value):
+            summary["running_nodes"] = list(self.running_nodes)
+        if self.log_file is not None:
+            summary["log_file"] = self.log_file
         for key, value in self.extra.items():
             summary.setdefault(key, value)
         return summary
@@ -274,18 +312,41 @@ class Pacing:
         return {"late_ticks": self.late_ticks, "worst_tick_s": round(self.worst_tick_s, 4), "period_s": self.period}
 
 
+@dataclass
+class Breakoff:
+    """Why the tick loop stopped before the tree finished: a signal or an exception."""
+
+    signum: int | None = None
+    error: BaseException | None = None
+
+    @property
+    def end(self) -> RunEnd:
+        return RunEnd.INTERRUPTED if self.signum is not None else RunEnd.ERROR
+
+
+def running_leaves(root: py_trees.behaviour.Behaviour) -> list[py_trees.behaviour.Behaviour]:
+    """The RUNNING nodes with no RUNNING child: what the tree was doing."""
+    return [
+        node for node in root.iterate()
+        if node.status is Status.RUNNING and not any(c.status is Status.RUNNING for c in node.children)
+    ]
+
+
 def run_tree(
     loaded: LoadedTree,
     context: RunContext,
     options: RunOptions,
     progress: Progress | None = None,
     world: Any = None,
+    stop: StopRequest | None = None,
 ) -> RunResult:
     """Tick ``loaded`` (bound to ``context``) to completion and summarise the run.
 
     Starts the world named by ``options.world`` when the tree needs one (unless ``world`` is
-    given). Raises ObjectiveError for bad input found while running (e.g. a port reading a
-    blackboard entry nobody wrote); the tree is halted and everything closed either way.
+    given). Before every tick it looks at ``stop`` (set by ``runtime.interrupt`` on SIGINT or
+    SIGTERM). Bad input found while running (e.g. a port reading a blackboard entry nobody
+    wrote), an unexpected exception or an interruption ends the run as ERROR or INTERRUPTED;
+    the tree is halted and everything closed either way.
     """
     options.check()
     root = loaded.root
@@ -309,48 +370,60 @@ def run_tree(
     blame: tuple[py_trees.behaviour.Behaviour, str] | None = None
     status = Status.INVALID
     timed_out = False
+    breakoff: Breakoff | None = None
+    running: list[py_trees.behaviour.Behaviour] = []
     statuses = StatusEvents(context.events, nodes)
     if callable(getattr(progress, "attach", None)):
         progress.attach(root)  # type: ignore[union-attr]
     pacing = Pacing(period) if options.paced else None
     wall_start = time.monotonic()
     try:
-        if world is not None:
-            context.world = world
-            try:
-                world.start(context)
-            except ValueError as err:
-                raise ObjectiveError(f"world '{getattr(world, 'name', '?')}': {err}") from None
-        for node in nodes:
-            node.setup()
-        context.events.emit("run_started", loaded.tree_id, seed=options.seed)
-        while True:
-            if options.max_seconds is not None and clock.now() + period > options.max_seconds + 1e-9:
-                timed_out = True
-                break
-            clock.advance(period)
-            tick_start = time.monotonic()
+        try:
             if world is not None:
-                world.step_to(clock.now())
-            bus.spin_once()
-            status, visited = tick_once(root, context)
-            statuses.update(visited)
-            ticks += 1
-            if pacing is not None:
-                pacing.record(time.monotonic() - tick_start)
-            if progress is not None:
-                tip = root.tip()
-                progress(clock.now(), ticks, tip.name if tip is not None else "")
-            if status is not Status.RUNNING:
-                if status is Status.FAILURE:
-                    blame = _failing(root, visited)
-                break
+                context.world = world
+                try:
+                    world.start(context)
+                except ValueError as err:
+                    raise ObjectiveError(f"world '{getattr(world, 'name', '?')}': {err}") from None
+            for node in nodes:
+                node.setup()
+            context.events.emit("run_started", loaded.tree_id, seed=options.seed)
+            while True:
+                if stop is not None and stop.signum is not None:
+                    breakoff = Breakoff(signum=stop.signum)
+                    break
+                if options.max_seconds is not None and clock.now() + period > options.max_seconds + 1e-9:
+                    timed_out = True
+                    break
+                clock.advance(period)
+                tick_start = time.monotonic()
+                if world is not None:
+                    world.step_to(clock.now())
+                bus.spin_once()
+                ticks += 1  # counted before it runs: a tick that raised was still ticked
+                status, visited = tick_once(root, context)
+                statuses.update(visited)
+                if pacing is not None:
+                    pacing.record(time.monotonic() - tick_start)
+                if progress is not None:
+                    tip = root.tip()
+                    progress(clock.now(), ticks, tip.name if tip is not None else "")
+                if status is not Status.RUNNING:
+                    if status is Status.FAILURE:
+                        blame = _failing(root, visited)
+                    break
+        except KeyboardInterrupt as err:  # a second signal, or Ctrl-C where no handler was installed
+            breakoff = Breakoff(signum=getattr(err, "signum", signal.SIGINT))
+        except Exception as err:  # ObjectiveError (bad input) or a bug: the run ends as ERROR
+            breakoff = Breakoff(error=err)
+        running = running_leaves(root)
         if timed_out:
             tip = root.tip()
-            running = f" while '{tip.name}' was RUNNING" if tip is not None else ""
-            reason = f"stopped after --max-seconds {options.max_seconds:g} s of clock time{running}"
+            where = f" while '{tip.name}' was RUNNING" if tip is not None else ""
+            reason = f"stopped after --max-seconds {options.max_seconds:g} s of clock time{where}"
             blame = (tip if tip is not None else root, reason)
-        context.events.emit("run_finished", loaded.tree_id, status=str(status.value))
+        end = breakoff.end.value if breakoff is not None else str(status.value)
+        context.events.emit("run_finished", loaded.tree_id, status=end)
     finally:
         summary_world = None
         try:
@@ -358,6 +431,8 @@ def run_tree(
                 from .ros.run import deliver_pending
 
                 deliver_pending(bus)  # let the cancels of a halted run reach the graph
+        except Exception as err:  # a node's terminate() broke: still close the world and the bus
+            breakoff = breakoff or Breakoff(error=err)
         finally:
             try:
                 statuses.halted()
@@ -380,24 +455,56 @@ def run_tree(
     if pacing is not None:
         extra["pacing"] = pacing.as_dict()
 
-    failing_node = reason = location = None
-    if blame is not None:
-        node, reason = blame
-        failing_node = node.name
-        info = loaded.info(node)
-        location = str(info.location) if info is not None else None
-    return RunResult(
+    result = RunResult(
         # A root skipped by its _skipIf did nothing and failed nothing: that counts as SUCCESS.
-        status="FAILURE" if status is Status.FAILURE or timed_out else "SUCCESS",
-        failing_node=failing_node,
-        reason=reason or "",
+        status=RunEnd.FAILURE.value if status is Status.FAILURE or timed_out else RunEnd.SUCCESS.value,
+        failing_node=None,
+        reason="",
         sim_seconds=clock.now(),
         wall_seconds=wall_seconds,
         ticks=ticks,
         blackboard=json_entries(loaded.blackboard.items()),
         extra=extra,
-        failing_location=location,
+        running_nodes=[node.name for node in running],
     )
+    if breakoff is not None:
+        _describe_breakoff(result, breakoff, running, loaded, nodes, options)
+    elif blame is not None:
+        node, reason = blame
+        info = loaded.info(node)
+        result.failing_node, result.reason = node.name, reason or ""
+        result.failing_location = str(info.location) if info is not None else None
+    return result
+
+
+def _describe_breakoff(result: RunResult, breakoff: Breakoff, running: list[py_trees.behaviour.Behaviour],
+                       loaded: LoadedTree, nodes: list[py_trees.behaviour.Behaviour], options: RunOptions) -> None:
+    """Fill ``result`` for a run a signal or an exception ended (status, node, reason, log file)."""
+    result.status = breakoff.end.value
+    where = ", ".join(f"'{n.name}'" + _at(loaded, n) for n in running)
+    if breakoff.signum is not None:
+        result.signum = int(breakoff.signum)
+        halted = f"; halted {where} (RUNNING)" if where else ""
+        result.reason = f"interrupted by {signal_name(breakoff.signum)} at {result.sim_seconds:.2f} s{halted}"
+        return
+    error, culprit_name = breakoff.error, None
+    assert error is not None
+    if not isinstance(error, ObjectiveError):
+        node = culprit(error, nodes)
+        culprit_name = node.name if node is not None else None
+        directory = options.record_dir or options.log_dir
+        log_file = write_traceback(error, directory, CRASH_LOG if options.record_dir is not None else None)
+        result.log_file = str(log_file) if log_file is not None else None
+        info = loaded.info(node) if node is not None else None
+        error = describe_crash(error, node, log_file, info.location if info is not None else None)
+    result.reason = str(error)
+    result.failing_node = culprit_name or error.node
+    result.failing_location = str(error.location) if error.location else None
+
+
+def _at(loaded: LoadedTree, node: py_trees.behaviour.Behaviour) -> str:
+    info = loaded.info(node)
+    return f" ({info.location})" if info is not None else ""
 
 
 def run_file(
@@ -408,18 +515,24 @@ def run_file(
     search_paths: Iterable[Path] = (),
     objectives_dir: Path | None = None,
     progress: Progress | None = None,
+    stop: StopRequest | None = None,
 ) -> RunResult:
-    """Load ``source`` and run it: what ``objective run`` does."""
+    """Load ``source`` and run it: what ``objective run`` does (``stop``: see ``runtime.interrupt``)."""
     options.check()
     context = make_context(options)
     loaded = load_tree(source, registry, context, tree_id, search_paths, objectives_dir)
     if options.record_dir is None:
-        return run_tree(loaded, context, options, progress)
-    return _run_recorded(loaded, context, options, progress)
+        return run_tree(loaded, context, options, progress, stop=stop)
+    return _run_recorded(loaded, context, options, progress, stop)
 
 
-def _run_recorded(loaded: LoadedTree, context: RunContext, options: RunOptions, progress: Progress | None) -> RunResult:
-    """``run_tree`` with a ``Recorder`` on the bus, then the report rendered into ``options.record_dir``."""
+def _run_recorded(loaded: LoadedTree, context: RunContext, options: RunOptions, progress: Progress | None,
+                  stop: StopRequest | None) -> RunResult:
+    """``run_tree`` with a ``Recorder`` on the bus, then the report rendered into ``options.record_dir``.
+
+    The recording is finished whatever ended the run (its summary says how). A signal while the
+    report renders stops the rendering; ``objective report DIR`` renders it later.
+    """
     from .recording import Recorder
     from .report.worker import ReportWorker
 
@@ -428,14 +541,22 @@ def _run_recorded(loaded: LoadedTree, context: RunContext, options: RunOptions, 
     worker = ReportWorker()
     worker.start()  # imports the report's libraries while the run goes on
     try:
-        result = run_tree(loaded, context, options, progress)
-    except BaseException:
-        recorder.close()
-        worker.close()
+        result = run_tree(loaded, context, options, progress, stop=stop)
+    except BaseException as err:  # the run did not start (e.g. no such world): say so in the recording
+        end = RunEnd.INTERRUPTED if isinstance(err, KeyboardInterrupt) else RunEnd.ERROR
+        try:
+            recorder.finish({"status": end.value, "reason": str(err) or type(err).__name__})
+        finally:
+            worker.close()
         raise
     recorder.finish(result.to_json())
+    if stop is not None:
+        stop.urgent = True  # the run is over: a signal now stops the rendering at once
     try:
         worker.render(options.record_dir, context.logger)
+    except KeyboardInterrupt:
+        context.logger.warning("recording %s: the report was not rendered (interrupted); "
+                               "`objective report %s` renders it", options.record_dir, options.record_dir)
     except Exception as err:  # the run itself is over and recorded: its result stands
         context.logger.warning("recording %s: the report could not be rendered: %s", options.record_dir, err)
     finally:
