@@ -484,13 +484,13 @@ def main(argv: Sequence[str] | None = None, registry: Registry | None = None) ->
     except ObjectiveError as err:
         return _error_exit(args, str(err))
     except KeyboardInterrupt as err:  # a second signal, or one outside a run
-        from .interrupt import exit_code_for
+        from .interrupt import exit_code_for, signal_name
 
-        signum = getattr(err, "signum", signal.SIGINT)
-        print(f"interrupted ({signal.Signals(signum).name})", file=sys.stderr)
+        name = signal_name(getattr(err, "signum", signal.SIGINT))
+        print(f"interrupted ({name})", file=sys.stderr)
         if getattr(args, "json", False) and args.command == "run":
-            print(json.dumps({"status": "INTERRUPTED", "reason": f"{signal.Signals(signum).name} before the run could stop"}))
-        return exit_code_for(signum)
+            print(json.dumps({"status": "INTERRUPTED", "reason": f"{name} before the run could stop"}))
+        return exit_code_for(getattr(err, "signum", signal.SIGINT))
     except Exception as err:  # a bug: one paragraph here, the traceback in a file
         from .crash import describe_crash, write_traceback
 

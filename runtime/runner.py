@@ -39,7 +39,7 @@ from .controls import COMPLETED, SKIPPED, consume_wake_up, is_skipped, reset_sta
 from .crash import CRASH_LOG, culprit, describe_crash, write_traceback
 from .errors import ObjectiveError
 from .events import EventLog
-from .interrupt import StopRequest, exit_code_for, signal_name
+from .interrupt import Interrupted, StopRequest, exit_code_for, signal_name
 from .loader import LoadedTree, load_tree
 from .registry import WORLD_GROUP, Registry
 
@@ -412,8 +412,8 @@ def run_tree(
                     if status is Status.FAILURE:
                         blame = _failing(root, visited)
                     break
-        except KeyboardInterrupt as err:  # a second signal, or Ctrl-C where no handler was installed
-            breakoff = Breakoff(signum=getattr(err, "signum", signal.SIGINT))
+        except Interrupted as err:  # a second signal: stop now, still halting and summarising
+            breakoff = Breakoff(signum=err.signum)
         except Exception as err:  # ObjectiveError (bad input) or a bug: the run ends as ERROR
             breakoff = Breakoff(error=err)
         running = running_leaves(root)

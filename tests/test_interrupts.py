@@ -18,6 +18,8 @@ from pathlib import Path
 
 import pytest
 
+from tests.test_ros_run import finish  # communicate within a bound, or kill and fail
+
 REPO = Path(__file__).resolve().parent.parent
 EXE = Path(sys.executable).parent / "objective"
 GRIPPER = 'gripper_command_action_name="/robotiq_gripper_controller/gripper_cmd"'
@@ -65,16 +67,6 @@ def wait_for_line(proc: subprocess.Popen, needle: str, timeout: float = BOUND_S)
     return seen
 
 
-def finish(proc: subprocess.Popen, timeout: float = BOUND_S) -> tuple[int, str, str]:
-    try:
-        out, err = proc.communicate(timeout=timeout)
-    except subprocess.TimeoutExpired:
-        proc.kill()
-        out, err = proc.communicate()
-        raise AssertionError(f"the run did not stop within {timeout} s; stderr:\n{err}")
-    return proc.returncode, out, err
-
-
 def report(directory: Path) -> tuple[int, str]:
     proc = subprocess.run([str(EXE), "report", str(directory)], cwd=REPO, env=env(), capture_output=True,
                           text=True, timeout=BOUND_S)
@@ -92,7 +84,7 @@ def test_sigterm_of_a_recorded_headless_run_halts_records_and_summarises(tmp_pat
     proc = start(str(close_then_wait(tmp_path)), "--world", "kinematic", "--json", "--record", str(record))
     before = wait_for_line(proc, "[INFO] holding")
     proc.send_signal(signal.SIGTERM)
-    code, out, err = finish(proc)
+    code, out, err = finish(proc, timeout=BOUND_S)
     err = before + err
     assert code == 143, err
     summary = json.loads(out.strip().splitlines()[-1])
@@ -119,7 +111,7 @@ def test_ctrl_c_of_a_recorded_realtime_run_reaches_only_the_run_not_its_report_w
                  new_session=True)
     before = wait_for_line(proc, "[INFO] holding")
     os.killpg(proc.pid, signal.SIGINT)
-    code, out, err = finish(proc)
+    code, out, err = finish(proc, timeout=BOUND_S)
     err = before + err
     assert code == 130, err
     assert "Traceback" not in err and "KeyboardInterrupt" not in err
@@ -158,7 +150,7 @@ def test_sigint_of_a_headless_run_without_a_recording_prints_the_summary(tmp_pat
     proc = start(str(close_then_wait(tmp_path)), "--world", "kinematic", "--json")
     before = wait_for_line(proc, "[INFO] holding")
     proc.send_signal(signal.SIGINT)
-    code, out, err = finish(proc)
+    code, out, err = finish(proc, timeout=BOUND_S)
     assert code == 130, before + err
     summary = json.loads(out.strip().splitlines()[-1])
     assert (summary["status"], summary["running_nodes"]) == ("INTERRUPTED", ["hold"])

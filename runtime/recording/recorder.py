@@ -21,6 +21,7 @@ import math
 from pathlib import Path
 from typing import Any, Iterable, TextIO
 
+from ..crash import CRASH_LOG
 from ..errors import ObjectiveError
 from ..events import Event
 from .bus import JOINT_STATES_HZ, RecordingBus
@@ -83,7 +84,7 @@ class Recorder:
             raise ObjectiveError(f"--record {self.directory}: exists and is not a directory")
         try:
             self.directory.mkdir(parents=True, exist_ok=True)
-            for name in REPORT_FILES:  # a previous run's video must not pass for this run's
+            for name in (*REPORT_FILES, CRASH_LOG):  # a previous run's video must not pass for this run's
                 (self.directory / name).unlink(missing_ok=True)
             self.writer = McapRos2Writer(self.directory / MCAP_FILE)
         except OSError as err:
