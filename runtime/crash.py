@@ -64,16 +64,20 @@ def write_traceback(error: BaseException, directory: Path | None, name: str | No
 
 
 RUN_STOPPED = "The run was stopped and its running nodes halted"
+LOAD_STOPPED = "Loading stopped there; nothing was run"
 
 
 def describe_crash(error: BaseException, node: Any | None, log_file: Path | None,
-                   location: SourceLocation | None = None, consequence: str = RUN_STOPPED) -> ObjectiveError:
-    """The one-paragraph message, shaped like every Objective error: ``file:line: Node 'name': what``."""
+                   location: SourceLocation | None = None, consequence: str = RUN_STOPPED,
+                   label: str | None = None) -> ObjectiveError:
+    """The one-paragraph message, shaped like every Objective error: ``file:line: Node 'name': what``.
+
+    ``label`` names the node when there is no node object yet (a constructor that raised).
+    """
     where = f"an unexpected {type(error).__name__} in {raised_at(error)}"
     detail = str(error).strip().replace("\n", " ")
     log = f"the full traceback is in {log_file}" if log_file is not None else "the traceback could not be written to a file"
     what = f"{where}: {detail or 'no message'}. {consequence}; {log}"
-    label = None
     if node is not None:
         xml_id = getattr(node, "xml_id", type(node).__name__)
         label = xml_id if node.name == xml_id else f"{xml_id} '{node.name}'"

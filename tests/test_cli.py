@@ -238,6 +238,16 @@ def test_run_ends_as_error_with_one_paragraph_and_the_traceback_in_a_log_file(cl
     assert summary["reason"].endswith(f"sensor exploded. The run was stopped and its running nodes halted; the full traceback is in {log}")
 
 
+def test_a_bug_while_loading_names_the_node_and_exits_2(cli, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    path = tree_file(tmp_path, "<Sequence>\n<BrokenAtLoad/>\n</Sequence>")
+    code, out, err = cli("validate", str(path))
+    assert (code, out) == (2, "")
+    assert err.startswith(f"error: t.xml:4: BrokenAtLoad: an unexpected KeyError in {REPO / 'tests/data/nodes.py'}:")
+    assert "'calibration'. Loading stopped there; nothing was run; the full traceback is in build/logs/objective-" in err
+    assert "Traceback" not in err and len(list((tmp_path / "build" / "logs").glob("objective-*.log"))) == 1
+
+
 def test_run_blackboard_value_outside_a_port_range_is_exit_2(cli, tmp_path):
     path = tree_file(tmp_path, '<Wait seconds="{s}"/>')
     code, out, err = cli("run", str(path), "--json", "--set", "s=nan")

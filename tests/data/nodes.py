@@ -97,7 +97,17 @@ class Crash(Behavior):
         return Status.RUNNING
 
 
-TEST_NODES = (Typed, Copy, FailWith, Forever, Robot, Check, Crash)
+class BrokenAtLoad(Behavior):
+    """A bug in a node's own load-time check."""
+
+    def check_literals(self) -> None:
+        raise KeyError("calibration")
+
+    def update(self) -> Status:
+        return Status.SUCCESS
+
+
+TEST_NODES = (Typed, Copy, FailWith, Forever, Robot, Check, Crash, BrokenAtLoad)
 
 
 def make_registry() -> Registry:
