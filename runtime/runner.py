@@ -481,9 +481,9 @@ def _describe_breakoff(result: RunResult, breakoff: Breakoff, running: list[py_t
                        loaded: LoadedTree, nodes: list[py_trees.behaviour.Behaviour], options: RunOptions) -> None:
     """Fill ``result`` for a run a signal or an exception ended (status, node, reason, log file)."""
     result.status = breakoff.end.value
-    where = ", ".join(f"'{n.name}'" + _at(loaded, n) for n in running)
     if breakoff.signum is not None:
         result.signum = int(breakoff.signum)
+        where = ", ".join(f"'{n.name}'" + _at(loaded, n) for n in running)
         halted = f"; halted {where} (RUNNING)" if where else ""
         result.reason = f"interrupted by {signal_name(breakoff.signum)} at {result.sim_seconds:.2f} s{halted}"
         return

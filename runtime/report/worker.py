@@ -9,8 +9,9 @@ plot in a forked process beside the rest) and answers one JSON line with the fil
 the artifacts that failed.
 
 Signals are the run's business: the worker runs in a process group of its own, so Ctrl-C at the
-terminal reaches only the run (which stops the worker if it must), and it ignores SIGINT itself
-in case one is sent to it directly; it never prints a traceback.
+terminal reaches only the run (which stops the worker if it must), and it starts with SIGINT
+blocked (and then ignored), so one sent to it directly does nothing either; it never prints a
+traceback.
 
 Nothing is lost if the worker cannot help: if it died, answers garbage or takes longer than
 ``timeout``, ``render`` stops it and the report is rendered in this process as before. If this
@@ -18,6 +19,7 @@ process dies, the worker reads end-of-file and exits without rendering anything.
 """
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
 import os
@@ -25,13 +27,23 @@ import signal
 import subprocess
 import sys
 from pathlib import Path
-from typing import Any
+from typing import Any, Iterator
 
 from ..errors import ObjectiveError
 from . import Report, log_errors, render_report
 
 RENDER_TIMEOUT = 600.0
 """Seconds the worker may take to render a report (a long run's video is the slow part)."""
+
+
+@contextlib.contextmanager
+def _sigint_blocked() -> Iterator[None]:
+    """Block SIGINT in this thread while inside: one arriving meanwhile is delivered on the way out."""
+    previous = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, previous)
 
 
 class ReportWorker:
@@ -42,11 +54,12 @@ class ReportWorker:
 
     def start(self) -> None:
         try:
-            self.process = subprocess.Popen(
-                [sys.executable, "-m", "runtime.report.worker"],
-                stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True,
-                process_group=0,  # the terminal's Ctrl-C goes to the run, not to its worker
-            )
+            with _sigint_blocked():  # the worker inherits the mask: deaf to SIGINT from its first instruction
+                self.process = subprocess.Popen(
+                    [sys.executable, "-m", "runtime.report.worker"],
+                    stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True,
+                    process_group=0,  # the terminal's Ctrl-C goes to the run, not to its worker
+                )
         except OSError:
             self.process = None  # rendered in process instead
 
