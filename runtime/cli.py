@@ -11,6 +11,7 @@ and worlds from ``objective.worlds``, so the runtime imports neither.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import logging
 import signal
@@ -20,6 +21,7 @@ from typing import Any, Sequence
 from xml.sax.saxutils import escape, quoteattr
 
 from .errors import ObjectiveError
+from .interrupt import StopRequest, exit_code_for, signal_name, stop_on_signals
 from .ports import FINITE, NUMERIC_TYPES, Direction, PortInfo, PortType
 from .registry import Registry
 from .terminal import printable
@@ -186,9 +188,9 @@ def _add_policy_commands(sub: Any) -> None:
 # ------------------------------------------------------------------------------------------------
 # Commands
 # ------------------------------------------------------------------------------------------------
-def cmd_run(args: argparse.Namespace, registry: Registry) -> int:
+def cmd_run(args: argparse.Namespace, registry: Registry, stop: StopRequest | None = None) -> int:
+    """``objective run``; ``stop`` is where ``main``'s SIGINT/SIGTERM handlers ask the run to stop."""
     from .display import ProgressLine
-    from .interrupt import StopRequest, stop_on_signals
     from .runner import RunOptions, run_file
 
     options = RunOptions(
@@ -213,9 +215,7 @@ def cmd_run(args: argparse.Namespace, registry: Registry) -> int:
         options.check()
         logging.getLogger("objective").info("running %s", graph_description(options.ros_node_name))
     try:
-        # SIGINT and SIGTERM stop the run at the next tick: halted, recorded, summarised (runtime.interrupt)
-        with stop_on_signals(StopRequest()) as stop:
-            result = run_file(args.file, registry, options, args.tree, args.path, args.objectives_dir, progress, stop)
+        result = run_file(args.file, registry, options, args.tree, args.path, args.objectives_dir, progress, stop)
     finally:
         if progress is not None:
             progress.clear()
@@ -475,17 +475,23 @@ def main(argv: Sequence[str] | None = None, registry: Registry | None = None) ->
     """
     args = build_parser().parse_args(argv)
     _setup_logging()
+    stop = StopRequest()
+    # For `run`, SIGINT and SIGTERM stop the run at the next tick (halted, recorded, summarised),
+    # from now on: a signal while the behaviors load still gets the INTERRUPTED summary.
+    signals = stop_on_signals(stop) if args.command == "run" else contextlib.nullcontext()
     try:
-        registry = registry if registry is not None else Registry.from_entry_points()
-        code = COMMANDS[args.command](args, registry)
+        with signals:
+            registry = registry if registry is not None else Registry.from_entry_points()
+            if args.command == "run":
+                code = cmd_run(args, registry, stop)
+            else:
+                code = COMMANDS[args.command](args, registry)
     except BrokenPipeError:
         _quiet_stdout()
         return EXIT_SUCCESS
     except ObjectiveError as err:
         return _error_exit(args, str(err))
     except KeyboardInterrupt as err:  # a second signal, or one outside a run
-        from .interrupt import exit_code_for, signal_name
-
         name = signal_name(getattr(err, "signum", signal.SIGINT))
         print(f"interrupted ({name})", file=sys.stderr)
         if getattr(args, "json", False) and args.command == "run":

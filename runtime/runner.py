@@ -353,7 +353,8 @@ def run_tree(
     nodes = list(root.iterate())
     for key, value in options.sets.items():
         loaded.blackboard.set(key, value)
-    if world is None and any(getattr(type(n), "needs_world", False) for n in nodes):
+    stopping = stop is not None and stop.requested  # a signal while loading: no world to start and close
+    if world is None and not stopping and any(getattr(type(n), "needs_world", False) for n in nodes):
         world_options = {
             "seed": options.seed,
             "realtime": options.paced,

@@ -255,3 +255,11 @@ def test_shipped_pure_logic_examples_succeed(registry, tmp_path, name, blackboar
     path = Path(__file__).resolve().parent.parent / "objectives" / "examples" / name
     result = run_file(path, registry, RunOptions(), objectives_dir=tmp_path)
     assert (result.status, result.blackboard) == ("SUCCESS", blackboard)
+
+
+def test_a_signal_while_loading_ends_the_run_before_any_world_starts(run):
+    stop = StopRequest()
+    stop.on_signal(signal.SIGTERM)
+    result, _, context = run("<Robot/>", RunOptions(world="no-such-world"), stop=stop)  # the world is never created
+    assert (result.status, result.exit_code, result.ticks, result.running_nodes) == ("INTERRUPTED", 143, 0, [])
+    assert result.reason == "interrupted by SIGTERM at 0.00 s" and context.world is None
