@@ -19,7 +19,7 @@ from controller_manager_msgs.msg import ControllerState
 from controller_manager_msgs.srv import ListControllers, SwitchController as SwitchSrv
 
 from runtime.behavior import Behavior, Status
-from runtime.ports import InputPort, PortType
+from runtime.ports import InputPort, PortType, Range
 from runtime.timestamps import duration_msg
 
 from .waiting import Deadline, when_ready
@@ -92,7 +92,8 @@ class SwitchController(Behavior):
         InputPort("activate_controllers", PortType.STRING_LIST, "", "Controllers to activate, ';'-separated."),
         InputPort("deactivate_controllers", PortType.STRING_LIST, "", "Controllers to deactivate, ';'-separated."),
         InputPort("strictness", PortType.STRING, "STRICT", "STRICT (2): all or nothing; BEST_EFFORT (1): switch what can be switched."),
-        InputPort("timeout", PortType.FLOAT, 3.0, "Seconds to wait for the controller manager and the switch; 0 or negative: no limit (MoveIt Pro writes -1)."),
+        InputPort("timeout", PortType.FLOAT, 3.0, "Seconds to wait for the controller manager and the switch; 0 or negative: no limit (MoveIt Pro writes -1).",
+                  valid=Range(-3600.0, 3600.0, "s")),
         InputPort("activate_asap", PortType.BOOL, False, "Passed to the controller manager: activate as soon as the hardware interfaces are ready."),
         InputPort("automatic_activation", PortType.BOOL, False, "Also activate the controllers the ones to activate are chained to."),
         InputPort("automatic_deactivation", PortType.BOOL, False, "Also deactivate the active controllers that hold a command interface the ones to activate need."),

@@ -6,6 +6,8 @@ controller as one trajectory goal.
 """
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from moveit_pro_controllers_msgs.action import FollowJointTrajectoryWithAdmittance as FollowTrajectory
 from ruckig import InputParameter, Result, Ruckig, Trajectory
@@ -14,7 +16,7 @@ from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
 from runtime.behavior import Behavior, Status
 from runtime.bus import STATUS_SUCCEEDED
-from runtime.ports import InputPort, PortType
+from runtime.ports import InputPort, PortType, Range
 from runtime.timestamps import duration_msg
 
 from runtime.scene import JointLimits
@@ -86,13 +88,13 @@ class _MoveToJoints(Behavior):
     needs_world = True
     common_ports = (
         InputPort("joint_group_name", PortType.STRING, "manipulator", "SRDF joint group to move."),
-        InputPort("velocity_scaling_factor", PortType.FLOAT, 0.5, "Fraction of the joint velocity limits, in (0, 1]."),
-        InputPort("acceleration_scaling_factor", PortType.FLOAT, 0.5, "Fraction of the joint acceleration limits, in (0, 1]."),
-        InputPort("link_padding", PortType.FLOAT, 0.01, "Meters of clearance required from world objects."),
-        InputPort("path_tolerance", PortType.FLOAT, 0.1, "Radians of tracking error before the controller aborts."),
+        InputPort("velocity_scaling_factor", PortType.FLOAT, 0.5, "Fraction of the joint velocity limits, in (0, 1].", valid=Range(0.0, 1.0, min_open=True)),
+        InputPort("acceleration_scaling_factor", PortType.FLOAT, 0.5, "Fraction of the joint acceleration limits, in (0, 1].", valid=Range(0.0, 1.0, min_open=True)),
+        InputPort("link_padding", PortType.FLOAT, 0.01, "Meters of clearance required from world objects.", valid=Range(0.0, 0.5, "m")),
+        InputPort("path_tolerance", PortType.FLOAT, 0.1, "Radians of tracking error before the controller aborts.", valid=Range(0.0, math.pi, "rad", min_open=True)),
         InputPort("controller_action_name", PortType.STRING, DEFAULT_CONTROLLER, "FollowJointTrajectoryWithAdmittance action."),
         InputPort("joint_states_topic", PortType.STRING, "/joint_states", "Where the start state is read."),
-        InputPort("timeout", PortType.FLOAT, 5.0, "Seconds to wait for the controller and the joint states."),
+        InputPort("timeout", PortType.FLOAT, 5.0, "Seconds to wait for the controller and the joint states.", valid=Range(0.0, 3600.0, "s", min_open=True)),
     )
 
     def target(self, joints: tuple[str, ...]) -> np.ndarray:
@@ -176,7 +178,7 @@ class MoveToJointState(_MoveToJoints):
     """Move the joint group to explicit joint positions, time-optimally within the limits."""
 
     description = "Move a joint group to the given joint positions (collision-checked, within the limits)."
-    ports = (InputPort("joint_positions", PortType.FLOAT_LIST, description="Target positions in the group's joint order (rad)."),) + _MoveToJoints.common_ports
+    ports = (InputPort("joint_positions", PortType.FLOAT_LIST, description="Target positions in the group's joint order (rad).", valid=Range(-4 * math.pi, 4 * math.pi, "rad")),) + _MoveToJoints.common_ports
 
     def target(self, joints: tuple[str, ...]) -> np.ndarray:
         values = np.asarray(self.get_input("joint_positions"), dtype=float)

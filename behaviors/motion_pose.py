@@ -8,9 +8,11 @@ straight in joint space, not in Cartesian space: keep approach moves short (a fe
 """
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
-from runtime.ports import InputPort, PortType
+from runtime.ports import InputPort, PortType, Range
 from runtime.scene.kinematics import solve_ik
 
 from .motion import PlanningError, _MoveToJoints
@@ -24,8 +26,8 @@ class MoveToPose(_MoveToJoints):
     ports = (
         InputPort("target_pose", PortType.ANY, description="Where tip_frame should go (geometry_msgs/PoseStamped), e.g. {grasp_pose}."),
         InputPort("tip_frame", PortType.STRING, "tcp", "Robot frame placed at the target (a link or a site such as tcp)."),
-        InputPort("position_tolerance", PortType.FLOAT, 0.0005, "Largest IK position error accepted (m)."),
-        InputPort("orientation_tolerance", PortType.FLOAT, 0.005, "Largest IK orientation error accepted (rad)."),
+        InputPort("position_tolerance", PortType.FLOAT, 0.0005, "Largest IK position error accepted (m).", valid=Range(0.0, 1.0, "m", min_open=True)),
+        InputPort("orientation_tolerance", PortType.FLOAT, 0.005, "Largest IK orientation error accepted (rad).", valid=Range(0.0, math.pi, "rad", min_open=True)),
     ) + _MoveToJoints.common_ports
 
     def target(self, joints: tuple[str, ...]) -> np.ndarray:

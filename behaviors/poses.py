@@ -30,7 +30,7 @@ from visualization_msgs.msg import Marker, MarkerArray
 
 from runtime.behavior import Behavior, Condition, Status
 from runtime.timestamps import duration_msg, time_msg
-from runtime.ports import InputPort, OutputPort, PortType
+from runtime.ports import InputPort, OutputPort, PortType, Range
 
 WORLD_FRAME = "world"
 WORLD_ALIASES = (WORLD_FRAME, "universe")
@@ -331,12 +331,12 @@ class TransformPose(SceneBehavior):
     ports = (
         InputPort("input_pose", PortType.ANY, description="The pose to transform (geometry_msgs/PoseStamped), e.g. {cube_pose}."),
         InputPort("target_frame_id", PortType.STRING, WORLD_FRAME, "Frame to express the result in."),
-        InputPort("translation_xyz", PortType.FLOAT_LIST, "0;0;0", "Offset x;y;z (m) in the input pose's own axes."),
-        InputPort("quaternion_xyzw", PortType.FLOAT_LIST, "0;0;0;1", "Rotation offset x;y;z;w in the input pose's own axes."),
+        InputPort("translation_xyz", PortType.FLOAT_LIST, "0;0;0", "Offset x;y;z (m) in the input pose's own axes.", valid=Range(-100.0, 100.0, "m")),
+        InputPort("quaternion_xyzw", PortType.FLOAT_LIST, "0;0;0;1", "Rotation offset x;y;z;w in the input pose's own axes.", valid=Range(-1.0, 1.0)),
         InputPort("visualize_pose", PortType.BOOL, False, f"Also draw the result on {MARKER_TOPIC} (visualization_msgs/MarkerArray: axes x red, y green, z blue)."),
         InputPort("marker_text", PortType.STRING, "", "Label drawn above the pose (empty: none)."),
-        InputPort("marker_size", PortType.FLOAT, 0.1, "Length of the drawn axes (m)."),
-        InputPort("marker_lifetime", PortType.FLOAT, 0.0, "Seconds the drawing stays; 0: until the node draws again."),
+        InputPort("marker_size", PortType.FLOAT, 0.1, "Length of the drawn axes (m).", valid=Range(0.0, 10.0, "m")),
+        InputPort("marker_lifetime", PortType.FLOAT, 0.0, "Seconds the drawing stays; 0: until the node draws again.", valid=Range(0.0, 86400.0, "s")),
         OutputPort("output_pose", PortType.ANY, "The transformed pose (geometry_msgs/PoseStamped)."),
     )
     marker_publisher = None
@@ -375,8 +375,8 @@ class IsPoseNearIdentity(Condition):
     description = "SUCCESS when a PoseStamped is within the position and rotation tolerances of the identity."
     ports = (
         InputPort("pose", PortType.ANY, description="The pose to test (geometry_msgs/PoseStamped), e.g. {transform}."),
-        InputPort("position_tolerance", PortType.FLOAT, 0.01, "Largest distance from the origin (m)."),
-        InputPort("rotation_tolerance", PortType.FLOAT, 0.01, "Largest rotation angle (rad)."),
+        InputPort("position_tolerance", PortType.FLOAT, 0.01, "Largest distance from the origin (m).", valid=Range(0.0, 100.0, "m")),
+        InputPort("rotation_tolerance", PortType.FLOAT, 0.01, "Largest rotation angle (rad).", valid=Range(0.0, math.pi, "rad")),
     )
 
     def update(self) -> Status:
@@ -410,10 +410,10 @@ class CheckObjectStacked(ReadsRobotState, Condition):
     ports = (
         InputPort("top_object_name", PortType.STRING, description="Object that should be on top, e.g. cube_blue."),
         InputPort("bottom_object_name", PortType.STRING, description="Object it should rest on, e.g. cube_green."),
-        InputPort("stack_height", PortType.FLOAT, 0.03, "Centre-to-centre height of a stack (m): the bottom object's height for cubes."),
-        InputPort("position_tolerance", PortType.FLOAT, 0.015, "Largest distance (m) of the top centre from its stacked position."),
+        InputPort("stack_height", PortType.FLOAT, 0.03, "Centre-to-centre height of a stack (m): the bottom object's height for cubes.", valid=Range(0.0, 10.0, "m")),
+        InputPort("position_tolerance", PortType.FLOAT, 0.015, "Largest distance (m) of the top centre from its stacked position.", valid=Range(0.0, 10.0, "m")),
         InputPort("gripper_frame", PortType.STRING, "tcp", "Robot frame that must be away from the top object (the tool centre point)."),
-        InputPort("min_gripper_distance", PortType.FLOAT, 0.05, "Smallest distance (m) between gripper_frame and the top object's centre."),
+        InputPort("min_gripper_distance", PortType.FLOAT, 0.05, "Smallest distance (m) between gripper_frame and the top object's centre.", valid=Range(0.0, 10.0, "m")),
     )
 
     def update(self) -> Status:

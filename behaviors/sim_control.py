@@ -12,7 +12,7 @@ from typing import Any
 import numpy as np
 
 from runtime.behavior import Behavior, Status
-from runtime.ports import InputPort, PortType
+from runtime.ports import UINT32_MAX, InputPort, PortType, Range
 
 from .poses import FrameError, ReadsRobotState, frame_in_world, offset_matrix
 from .scene_objects import ChecksPorts, box_dimensions, object_id
@@ -28,7 +28,7 @@ class ResetSim(Behavior):
 
     needs_world = True
     description = "Reset the simulated world (robot at its start, cubes in the layout drawn from seed)."
-    ports = (InputPort("seed", PortType.UINT, 0, "Seed of the new cube layout."),)
+    ports = (InputPort("seed", PortType.UINT, 0, "Seed of the new cube layout.", valid=Range(0, UINT32_MAX)),)
 
     def initialise(self) -> None:
         self.reset_done = False

@@ -16,7 +16,7 @@ import py_trees
 
 from .blackboard import Blackboard
 from .errors import PortError, SourceLocation
-from .ports import ConversionError, Direction, PortInfo, convert, parse_reference
+from .ports import ConversionError, Direction, PortInfo, convert, parse_reference, range_problem
 
 if TYPE_CHECKING:
     from .bus import Bus
@@ -115,7 +115,8 @@ class NodeMixin:
     def get_input(self, name: str) -> Any:
         """The port's value now: a literal, or the referenced blackboard entry converted.
 
-        Raises PortError when a referenced entry is missing or does not convert.
+        Raises PortError when a referenced entry is missing, does not convert or is outside the
+        port's valid range.
         """
         binding = self.bindings[name]
         if binding.key is None:
@@ -128,9 +129,13 @@ class NodeMixin:
             )
         raw = self.blackboard.get(binding.key)
         try:
-            return convert(raw, binding.info.type)
+            value = convert(raw, binding.info.type)
         except ConversionError as err:
             raise PortError(f"port '{name}' (from '{{{binding.key}}}') {err}", self.location, self.xml_id) from None
+        problem = range_problem(binding.info, value)
+        if problem is not None:
+            raise PortError(f"port '{name}' (from '{{{binding.key}}}') {problem}", self.location, self.xml_id)
+        return value
 
     def set_output(self, name: str, value: Any) -> None:
         """Write an output port; does nothing when the XML left the port unconnected."""
@@ -182,9 +187,13 @@ def make_bindings(
                 xml_id,
             )
         try:
-            bindings[name] = PortBinding(info, literal=convert(raw, info.type))
+            literal = convert(raw, info.type)
         except ConversionError as err:
             raise PortError(f"port '{name}' {err}", location, xml_id) from None
+        problem = range_problem(info, literal)
+        if problem is not None:
+            raise PortError(f"port '{name}' {problem}", location, xml_id)
+        bindings[name] = PortBinding(info, literal=literal)
     return bindings
 
 

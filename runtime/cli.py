@@ -1,8 +1,10 @@
 """``objective``: run, validate, show and describe BehaviorTree.CPP v4 Objectives.
 
 Exit codes: 0 SUCCESS (or SKIPPED: the root's children were all skipped), 1 FAILURE (the failing
-node and its reason on stderr), 2 bad input or an error while running, such as a failing script
-(the error, ``file:line: Node: what``, on stderr; never a traceback; ``ERROR`` in ``--json``).
+node and its reason on stderr), 2 bad input or an error while running, such as a failing script or
+an unexpected error (the error, ``file:line: Node: what``, on stderr; never a traceback: that goes
+to a log file the message names; ``ERROR`` in ``--json``), 130/143 when SIGINT/SIGTERM interrupted
+a run. Every piece of Objective-supplied text is printed through ``runtime.terminal.printable``.
 
 The CLI is the composition root: behaviors come from the ``objective.behaviors`` entry points,
 worlds from ``objective.worlds`` (the default one from ``objective.default_world``) and the
@@ -15,6 +17,7 @@ import argparse
 import contextlib
 import json
 import logging
+import signal
 import sys
 from importlib.metadata import entry_points
 from pathlib import Path
@@ -23,8 +26,10 @@ from xml.sax.saxutils import escape, quoteattr
 
 from .command import COMMAND_GROUP, EXIT_BAD_INPUT, EXIT_FAILURE, EXIT_SUCCESS, Command
 from .errors import ObjectiveError
-from .ports import PortType
+from .interrupt import StopRequest, exit_code_for, signal_name, stop_on_signals
+from .ports import FINITE, NUMERIC_TYPES, Direction, PortInfo, PortType
 from .registry import Registry
+from .terminal import printable
 
 # Nodes BehaviorTree.CPP (and so Groot2) already knows; `objective models` leaves them out.
 BTCPP_BUILTINS = frozenset({
@@ -65,7 +70,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="objective",
         description="Run BehaviorTree.CPP v4 Objectives headless.",
-        epilog="Exit codes: 0 SUCCESS (or SKIPPED), 1 FAILURE, 2 bad input or a run-time error (ERROR).",
+        epilog="Exit codes: 0 SUCCESS (or SKIPPED), 1 FAILURE, 2 bad input or a run-time error (ERROR), "
+               "130/143 interrupted (SIGINT/SIGTERM).",
     )
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
@@ -149,7 +155,8 @@ def _add_plugin_commands(sub: Any) -> None:
         parser.set_defaults(plugin_command=command)
 
 
-def cmd_run(args: argparse.Namespace, registry: Registry) -> int:
+def cmd_run(args: argparse.Namespace, registry: Registry, stop: StopRequest | None = None) -> int:
+    """``objective run``; ``stop`` is where ``main``'s SIGINT/SIGTERM handlers ask the run to stop."""
     from .display import ProgressLine
     from .recording.live import LiveOptions
     from .runner import RunOptions, run_file
@@ -171,34 +178,38 @@ def cmd_run(args: argparse.Namespace, registry: Registry) -> int:
     if progress is not None:
         for handler in logging.getLogger("objective").handlers:
             handler.addFilter(lambda record: progress.clear() or True)  # log lines replace the progress line
-    interrupts: Any = contextlib.nullcontext()
     if args.ros:
-        from .ros.run import graph_description, sigterm_as_interrupt
+        from .ros.run import graph_description
 
         options.check()
         logging.getLogger("objective").info("running %s", graph_description(options.ros_node_name))
-        interrupts = sigterm_as_interrupt()  # a stopped runner halts the tree and leaves the graph cleanly
     try:
-        with interrupts:
-            result = run_file(args.file, registry, options, args.tree, args.path, args.objectives_dir, progress)
+        result = run_file(args.file, registry, options, args.tree, args.path, args.objectives_dir, progress, stop)
     finally:
         if progress is not None:
             progress.clear()
-    if result.status == "SUCCESS":
-        print(f"SUCCESS after {result.sim_seconds:.2f} s ({result.ticks} ticks)", file=sys.stderr)
-    elif result.status == "SKIPPED":
-        print(f"SKIPPED after {result.sim_seconds:.2f} s: every child of the root was skipped, nothing ran",
-              file=sys.stderr)
-    else:
-        where = f" ({result.failing_location})" if result.failing_location else ""
-        node = f"'{result.failing_node}'{where}" if result.failing_node else "the root"
-        print(f"FAILURE after {result.sim_seconds:.2f} s: {node} failed: {result.reason or 'no reason given'}",
-              file=sys.stderr)
+    print(run_outcome_line(result), file=sys.stderr)
     if args.record is not None:
         print(f"recorded to {args.record}/ (open {args.record / 'report.html'})", file=sys.stderr)
     if args.json:
         print(json.dumps(result.to_json(), default=str))
     return result.exit_code
+
+
+def run_outcome_line(result: Any) -> str:
+    """The line ``objective run`` ends with on stderr: how the run ended, and where."""
+    if result.status == "SUCCESS":
+        return f"SUCCESS after {result.sim_seconds:.2f} s ({result.ticks} ticks)"
+    if result.status == "SKIPPED":
+        return f"SKIPPED after {result.sim_seconds:.2f} s: every child of the root was skipped, nothing ran"
+    if result.status == "INTERRUPTED":
+        return f"INTERRUPTED after {result.sim_seconds:.2f} s ({result.ticks} ticks): {printable(result.reason)}"
+    if result.status == "ERROR":
+        return f"error: {printable(result.reason)}"
+    where = f" ({printable(result.failing_location)})" if result.failing_location else ""
+    node = f"'{printable(result.failing_node)}'{where}" if result.failing_node else "the root"
+    return (f"FAILURE after {result.sim_seconds:.2f} s: {node} failed: "
+            f"{printable(result.reason) or 'no reason given'}")
 
 
 def cmd_validate(args: argparse.Namespace, registry: Registry) -> int:
@@ -210,10 +221,10 @@ def cmd_validate(args: argparse.Namespace, registry: Registry) -> int:
             trees = validate(file, registry, args.tree, args.path, args.objectives_dir)
         except ObjectiveError as err:
             failed += 1
-            print(f"error: {err}", file=sys.stderr)
+            print(f"error: {printable(err)}", file=sys.stderr)
             continue
         summary = ", ".join(f"{t.tree_id} ({len(t.nodes)} nodes)" for t in trees)
-        print(f"ok: {file}: {summary}")
+        print(printable(f"ok: {file}: {summary}"))
     return EXIT_BAD_INPUT if failed else EXIT_SUCCESS
 
 
@@ -233,11 +244,20 @@ def behaviors_data(registry: Registry) -> list[dict[str, Any]]:
                     "default": p.describe_default() if p.has_default else None,
                     "required": p.required,
                     "description": p.description,
+                    "valid": port_range(p),
                 }
                 for p in spec.cls.ports
             ],
         })
     return out
+
+
+def port_range(port: PortInfo) -> str | None:
+    """The values a numeric input port accepts, as ``objective behaviors`` and ``models`` show them."""
+    if port.type not in NUMERIC_TYPES or port.direction is Direction.OUTPUT:
+        return None
+    valid = str(port.valid or FINITE)
+    return valid + (" each" if port.type in (PortType.FLOAT_LIST, PortType.INT_LIST) else "")
 
 
 def cmd_behaviors(args: argparse.Namespace, registry: Registry) -> int:
@@ -256,7 +276,8 @@ def cmd_behaviors(args: argparse.Namespace, registry: Registry) -> int:
                 default = "optional"
             else:
                 default = f"default {port['default']!r}"
-            text = f"      {port['direction']:<6} {port['name']} ({port['type']}, {default})"
+            valid = f", valid {port['valid']}" if port["valid"] else ""
+            text = f"      {port['direction']:<6} {port['name']} ({port['type']}, {default}{valid})"
             print(text + (f": {port['description']}" if port["description"] else ""))
     return EXIT_SUCCESS
 
@@ -266,7 +287,7 @@ def cmd_show(args: argparse.Namespace, registry: Registry) -> int:
     from .loader import throwaway_context, load_tree
 
     tree = load_tree(args.file, registry, throwaway_context(), args.tree, args.path, args.objectives_dir)
-    print(tree_text(tree))
+    print("\n".join(printable(line) for line in tree_text(tree).splitlines()))
     return EXIT_SUCCESS
 
 
@@ -282,7 +303,9 @@ def models_xml(registry: Registry, include_builtins: bool = False) -> str:
             attrs = f"name={quoteattr(port.name)} type={quoteattr(_MODEL_TYPES.get(port.type, port.type.value))}"
             if port.has_default:
                 attrs += f" default={quoteattr(port.describe_default())}"
-            lines.append(f"      <{port.direction.value} {attrs}>{escape(port.description)}</{port.direction.value}>")
+            valid = port_range(port)
+            text = f"{port.description} (valid: {valid})" if valid else port.description
+            lines.append(f"      <{port.direction.value} {attrs}>{escape(text)}</{port.direction.value}>")
         if spec.cls.description:
             lines.append("      <MetadataFields>")
             lines.append(f"        <Metadata description={quoteattr(spec.cls.description)}/>")
@@ -299,7 +322,9 @@ def cmd_report(args: argparse.Namespace, registry: Registry) -> int:
     for name, path in report.files.items():
         print(path)
     for name, error in report.errors.items():
-        print(f"error: {name}: {error}", file=sys.stderr)
+        print(f"error: {name}: {printable(error)}", file=sys.stderr)
+    for reason in report.partial:
+        print(f"partial recording: {printable(reason)}", file=sys.stderr)
     return EXIT_FAILURE if report.errors else EXIT_SUCCESS
 
 
@@ -325,21 +350,36 @@ def main(argv: Sequence[str] | None = None, registry: Registry | None = None) ->
     """
     args = build_parser().parse_args(argv)
     _setup_logging()
+    stop = StopRequest()
+    # For `run`, SIGINT and SIGTERM stop the run at the next tick (halted, recorded, summarised),
+    # from now on: a signal while the behaviors load still gets the INTERRUPTED summary.
+    signals = stop_on_signals(stop) if args.command == "run" else contextlib.nullcontext()
     try:
-        registry = registry if registry is not None else Registry.from_entry_points()
-        plugin = getattr(args, "plugin_command", None)
-        code = plugin.run(args, registry) if plugin is not None else COMMANDS[args.command](args, registry)
+        with signals:
+            registry = registry if registry is not None else Registry.from_entry_points()
+            plugin = getattr(args, "plugin_command", None)
+            if plugin is not None:
+                code = plugin.run(args, registry)
+            elif args.command == "run":
+                code = cmd_run(args, registry, stop)
+            else:
+                code = COMMANDS[args.command](args, registry)
     except BrokenPipeError:
         _quiet_stdout()
         return EXIT_SUCCESS
     except ObjectiveError as err:
-        print(f"error: {err}", file=sys.stderr)
+        return _error_exit(args, str(err))
+    except KeyboardInterrupt as err:  # a second signal, or one outside a run
+        name = signal_name(getattr(err, "signum", signal.SIGINT))
+        print(f"interrupted ({name})", file=sys.stderr)
         if getattr(args, "json", False) and args.command == "run":
-            print(json.dumps({"status": "ERROR", "reason": str(err)}))
-        return EXIT_BAD_INPUT
-    except KeyboardInterrupt:
-        print("interrupted", file=sys.stderr)
-        return 130
+            print(json.dumps({"status": "INTERRUPTED", "reason": f"{name} before the run could stop"}))
+        return exit_code_for(getattr(err, "signum", signal.SIGINT))
+    except Exception as err:  # a bug: one paragraph here, the traceback in a file
+        from .crash import describe_crash, write_traceback
+
+        stopped = f"`objective {args.command}` stopped"
+        return _error_exit(args, str(describe_crash(err, None, write_traceback(err, None), consequence=stopped)))
     try:
         sys.stdout.flush()
     except BrokenPipeError:
@@ -347,8 +387,18 @@ def main(argv: Sequence[str] | None = None, registry: Registry | None = None) ->
     return code
 
 
+def _error_exit(args: argparse.Namespace, message: str) -> int:
+    print(f"error: {printable(message)}", file=sys.stderr)
+    if getattr(args, "json", False) and args.command == "run":
+        print(json.dumps({"status": "ERROR", "reason": message}))
+    return EXIT_BAD_INPUT
+
+
 class _StderrHandler(logging.StreamHandler):  # type: ignore[type-arg]
-    """Writes to whatever ``sys.stderr`` is now (tests and wrappers replace it)."""
+    """Writes to whatever ``sys.stderr`` is now (tests and wrappers replace it), made printable."""
+
+    def format(self, record: logging.LogRecord) -> str:
+        return printable(super().format(record))
 
     @property  # type: ignore[override]
     def stream(self) -> Any:

@@ -43,7 +43,7 @@ import py_trees
 
 from .behavior import NodeKind, NodeMixin, Status
 from .errors import ObjectiveError
-from .ports import InputPort, PortType
+from .ports import INT32_MAX, INT32_MIN, InputPort, PortType, Range
 
 Behaviour = py_trees.behaviour.Behaviour
 TickGenerator = Generator[Behaviour, None, Status]
@@ -443,8 +443,8 @@ class Parallel(ControlNode):
         "impossible; then halts the rest. Negative counts mean 'all but N-1' (-1 = all)."
     )
     ports = (
-        InputPort("success_count", PortType.INT, -1, "Children that must succeed (-1: all of them)."),
-        InputPort("failure_count", PortType.INT, 1, "Children whose failure fails the Parallel (-1: all)."),
+        InputPort("success_count", PortType.INT, -1, "Children that must succeed (-1: all of them).", valid=Range(INT32_MIN, INT32_MAX)),
+        InputPort("failure_count", PortType.INT, 1, "Children whose failure fails the Parallel (-1: all).", valid=Range(INT32_MIN, INT32_MAX)),
     )
 
     def __init__(self, name: str) -> None:
@@ -510,7 +510,7 @@ class ParallelAll(ControlNode):
         "of them failed, else SUCCESS."
     )
     ports = (
-        InputPort("max_failures", PortType.INT, 1, "Failures that make it fail (-1: all children)."),
+        InputPort("max_failures", PortType.INT, 1, "Failures that make it fail (-1: all children).", valid=Range(INT32_MIN, INT32_MAX)),
     )
 
     def __init__(self, name: str) -> None:

@@ -14,7 +14,7 @@ from . import script as scripting
 from .behavior import Status
 from .controls import COMPLETED, SKIPPED, DecoratorNode, TickGenerator, halt_child
 from .errors import LoadError, ScriptRunError
-from .ports import InputPort, PortType
+from .ports import INT32_MAX, UINT32_MAX, InputPort, PortType, Range
 
 STATUS_BY_NAME = {"SUCCESS": Status.SUCCESS, "FAILURE": Status.FAILURE, "RUNNING": Status.RUNNING, "SKIPPED": SKIPPED}
 """A NodeStatus port's value (its name) as the tick result it stands for."""
@@ -101,7 +101,7 @@ class RetryUntilSuccessful(DecoratorNode):
         "SUCCESS as soon as the child succeeds, FAILURE when the attempts are used up."
     )
     ports = (
-        InputPort("num_attempts", PortType.INT, description="Attempts in all; -1 retries forever."),
+        InputPort("num_attempts", PortType.INT, description="Attempts in all; -1 retries forever.", valid=Range(-1, INT32_MAX)),
     )
 
     def __init__(self, name: str) -> None:
@@ -146,7 +146,7 @@ class Repeat(DecoratorNode):
         "FAILURE as soon as the child fails, SUCCESS after the last cycle."
     )
     ports = (
-        InputPort("num_cycles", PortType.INT, description="Successful cycles in all; -1 repeats forever."),
+        InputPort("num_cycles", PortType.INT, description="Successful cycles in all; -1 repeats forever.", valid=Range(-1, INT32_MAX)),
     )
 
     def __init__(self, name: str) -> None:
@@ -219,7 +219,7 @@ class Timeout(DecoratorNode):
         "(of run-clock time) after the Timeout started; otherwise returns what the child returns."
     )
     ports = (
-        InputPort("msec", PortType.UINT, description="Time limit in milliseconds (0: no limit)."),
+        InputPort("msec", PortType.UINT, description="Time limit in milliseconds (0: no limit).", valid=Range(0, UINT32_MAX, "ms")),
     )
 
     def __init__(self, name: str) -> None:
@@ -257,7 +257,7 @@ class Delay(DecoratorNode):
         "returns what it returns."
     )
     ports = (
-        InputPort("delay_msec", PortType.UINT, description="Wait before ticking the child, in milliseconds."),
+        InputPort("delay_msec", PortType.UINT, description="Wait before ticking the child, in milliseconds.", valid=Range(0, UINT32_MAX, "ms")),
     )
 
     def __init__(self, name: str) -> None:

@@ -9,6 +9,7 @@ import py_trees
 from .behavior import NodeMixin
 from .loader import CONDITION_ATTRIBUTES, LoadedTree
 from .subtree import SubTree
+from .terminal import printable
 
 
 def _quote(value: str) -> str:
@@ -94,7 +95,7 @@ class ProgressLine:
             return
         self._last = now
         policy = self.policy_text()
-        text = f"t={sim_seconds:8.2f}s  ticks={ticks:7d}  " + (f"{policy}  " if policy else "") + f"running: {running}"
+        text = f"t={sim_seconds:8.2f}s  ticks={ticks:7d}  " + (f"{policy}  " if policy else "") + f"running: {printable(running)}"
         text = text[:160]
         self.stream.write("\r" + text.ljust(self._width))
         self.stream.flush()

@@ -41,6 +41,7 @@ from lxml import etree
 
 from .behavior import NodeKind, NodeMixin, RunContext
 from .blackboard import Blackboard
+from .crash import LOAD_STOPPED, describe_crash, write_traceback
 from .errors import LoadError, ObjectiveError, PortError, SourceLocation
 from .ports import ConversionError, convert, parse_reference
 from .registry import Registry
@@ -500,8 +501,13 @@ class _Builder:
         if model is not None:
             self._apply_model_defaults(cls, model, values, node_id)
 
-        node = cls(name)
-        node.bind(self.context, blackboard, values, loc, node_id)
+        try:
+            node = cls(name)
+            node.bind(self.context, blackboard, values, loc, node_id)
+        except ObjectiveError:
+            raise
+        except Exception as err:  # a bug in the node's class: one paragraph, the traceback in a file
+            raise describe_crash(err, None, write_traceback(err, None), loc, LOAD_STOPPED, node_id) from None
         record = LoadedNode(node, node_id, cls.kind, loc, dict(element.attrib))
         self.nodes.append(record)
 

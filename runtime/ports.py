@@ -45,6 +45,49 @@ class PortType(enum.Enum):
     ANY = "AnyTypeAllowed"
 
 
+NUMERIC_TYPES = frozenset({PortType.FLOAT, PortType.INT, PortType.UINT, PortType.FLOAT_LIST, PortType.INT_LIST})
+INT32_MIN, INT32_MAX, UINT32_MAX = -(2**31), 2**31 - 1, 2**32 - 1
+"""BehaviorTree.CPP's ``int`` and ``unsigned int``: the widest an integer port can be."""
+
+
+def _number(value: float) -> str:
+    """A bound as people write it: 10, 0.001, 3.14159, 1e+06 only when it must."""
+    if isinstance(value, int) or (float(value).is_integer() and abs(value) < 1e16):
+        return str(int(value))
+    return f"{value:.10g}"
+
+
+@dataclass(frozen=True)
+class Range:
+    """The values a numeric port accepts: ``[min, max]``, either end open (``min_open``/``max_open``)
+    or absent (None). ``unit`` is shown after the range (``(0, 600] s``)."""
+
+    min: float | None = None
+    max: float | None = None
+    unit: str = ""
+    min_open: bool = False
+    max_open: bool = False
+    finite: bool = True
+    """False: +-infinity is accepted at an end with no bound (e.g. ``Range(0, None, finite=False)``)."""
+
+    def __str__(self) -> str:
+        low = "-inf" if self.min is None else _number(self.min)
+        high = "inf" if self.max is None else _number(self.max)
+        text = f"{'(' if self.min_open or self.min is None else '['}{low}, {high}{')' if self.max_open or self.max is None else ']'}"
+        return f"{text} {self.unit}" if self.unit else text
+
+    def accepts(self, value: float) -> bool:
+        if isinstance(value, float) and (math.isnan(value) or (math.isinf(value) and self.finite)):
+            return False
+        if self.min is not None and (value < self.min or (self.min_open and value == self.min)):
+            return False
+        return not (self.max is not None and (value > self.max or (self.max_open and value == self.max)))
+
+
+FINITE = Range(finite=True)
+"""What a float port with no declared range accepts: any finite number."""
+
+
 @dataclass(frozen=True)
 class PortInfo:
     name: str
@@ -52,6 +95,8 @@ class PortInfo:
     default: Any = REQUIRED
     description: str = ""
     direction: Direction = Direction.INPUT
+    valid: Range | None = None
+    """The values a numeric port accepts (see ``Range``); checked at load time and when read."""
 
     @property
     def required(self) -> bool:
@@ -66,16 +111,40 @@ class PortInfo:
         return to_xml_string(self.default) if self.has_default else ""
 
 
-def InputPort(name: str, type: PortType = PortType.STRING, default: Any = REQUIRED, description: str = "") -> PortInfo:
-    return PortInfo(name, type, default, description, Direction.INPUT)
+def InputPort(name: str, type: PortType = PortType.STRING, default: Any = REQUIRED, description: str = "",
+              valid: Range | None = None) -> PortInfo:
+    return PortInfo(name, type, default, description, Direction.INPUT, valid)
 
 
 def OutputPort(name: str, type: PortType = PortType.ANY, description: str = "") -> PortInfo:
     return PortInfo(name, type, REQUIRED, description, Direction.OUTPUT)
 
 
-def InOutPort(name: str, type: PortType = PortType.ANY, default: Any = REQUIRED, description: str = "") -> PortInfo:
-    return PortInfo(name, type, default, description, Direction.INOUT)
+def InOutPort(name: str, type: PortType = PortType.ANY, default: Any = REQUIRED, description: str = "",
+              valid: Range | None = None) -> PortInfo:
+    return PortInfo(name, type, default, description, Direction.INOUT, valid)
+
+
+def range_problem(info: PortInfo, value: Any) -> str | None:
+    """Why a converted ``value`` is outside ``info.valid`` ("must be in (0, 10] s, got inf"), or None.
+
+    Lists are checked item by item ("item 3 must be in ..."). Only numeric ports are checked.
+    """
+    if info.type not in NUMERIC_TYPES or info.direction is Direction.OUTPUT:
+        return None
+    valid = info.valid or FINITE
+    items = list(value) if isinstance(value, (list, tuple)) else [value]
+    for index, item in enumerate(items, 1):
+        if isinstance(item, (int, float)) and not isinstance(item, bool) and not valid.accepts(item):
+            which = f"item {index} " if isinstance(value, (list, tuple)) else ""
+            wanted = "a finite number" if valid.min is None and valid.max is None else f"in {valid}"
+            return f"{which}must be {wanted}, got {_shown(item)}"
+    return None
+
+
+def _shown(value: int | float) -> str:
+    text = to_xml_string(value)
+    return text if len(text) <= 24 else f"{text[:12]}... ({len(text.lstrip('-'))} digits)"
 
 
 _REFERENCE = re.compile(r"^\{\s*([@A-Za-z_=][\w.@/:-]*)?\s*\}$")

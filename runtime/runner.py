@@ -10,13 +10,20 @@ until the root returns SUCCESS or FAILURE (or ``max_seconds`` of clock time pass
 (RUNNING nodes get ``terminate(INVALID)``, so a moving robot is stopped) and the world and the
 bus are closed.
 
+How the run ended is a ``RunEnd``: SUCCESS, FAILURE, INTERRUPTED (SIGINT/SIGTERM, see
+``runtime.interrupt``: the tree is halted as a preemption) or ERROR (bad input found while
+running, or an unexpected exception, told in one paragraph by ``runtime.crash`` with its
+traceback in a log file). Each has its exit code (``RunResult.exit_code``).
+
 A world (the simulated cell) is started only when some node of the tree has
 ``needs_world = True``; worlds are found by name in the ``objective.worlds`` entry-point group.
 """
 from __future__ import annotations
 
+import enum
 import json
 import math
+import signal
 import time
 from dataclasses import dataclass, field
 from importlib.metadata import entry_points
@@ -29,11 +36,13 @@ from .behavior import RunContext, Status
 from .bus import InProcessBus, parse_latency
 from .clock import SimClock, WallClock
 from .controls import SKIPPED, Visit, is_skipped, tick_tree
+from .crash import CRASH_LOG, culprit, describe_crash, write_traceback
 from .errors import ObjectiveError
 
 if TYPE_CHECKING:
     from .recording.live import LiveOptions
 from .events import EventLog
+from .interrupt import Interrupted, StopRequest, exit_code_for, signal_name
 from .loader import LoadedTree, load_tree
 from .registry import WORLD_GROUP, Registry, default_world_name
 
@@ -63,6 +72,9 @@ class RunOptions:
     """Run on real ROS 2 (``runtime.ros.run``): a RosBus node, paced by a WallClock (implies
     ``realtime``); the world serves no policy of its own unless ``world_options`` names one."""
     ros_node_name: str = "objective_runtime"
+    log_dir: Path | None = None
+    """Where the traceback of an unexpected exception goes: the recording directory when
+    recording, else this (None: ``build/logs/`` under the working directory)."""
 
     @property
     def paced(self) -> bool:
@@ -89,10 +101,24 @@ class RunOptions:
             )
 
 
+class RunEnd(enum.Enum):
+    """How a run ended."""
+
+    SUCCESS = "SUCCESS"
+    FAILURE = "FAILURE"
+    SKIPPED = "SKIPPED"
+    """Every child of the root was skipped: nothing ran, nothing failed (exit 0, as BT.CPP's SKIPPED)."""
+    INTERRUPTED = "INTERRUPTED"
+    """SIGINT or SIGTERM: the tree was halted as a preemption (goals cancelled, robot stopped)."""
+    ERROR = "ERROR"
+    """Bad input found while running (e.g. a port value out of range) or an unexpected exception."""
+
+
 @dataclass
 class RunResult:
     status: str
-    """"SUCCESS", "FAILURE" or "SKIPPED" (every child of the root was skipped: nothing ran)."""
+    """A ``RunEnd`` value: "SUCCESS", "FAILURE", "SKIPPED" (every child of the root was skipped:
+    nothing ran), "INTERRUPTED" or "ERROR"."""
     failing_node: str | None
     reason: str
     sim_seconds: float
@@ -101,11 +127,20 @@ class RunResult:
     blackboard: dict[str, Any]
     extra: dict[str, Any] = field(default_factory=dict)
     failing_location: str | None = None
+    signum: int | None = None
+    """The signal that interrupted the run (INTERRUPTED only)."""
+    running_nodes: list[str] = field(default_factory=list)
+    """Leaves that were RUNNING when the run was interrupted or broke off, halted since."""
+    log_file: str | None = None
+    """The full traceback of an unexpected exception (ERROR only)."""
 
     @property
     def exit_code(self) -> int:
-        """0 for SUCCESS and SKIPPED (nothing failed), 1 for FAILURE."""
-        return 1 if self.status == "FAILURE" else 0
+        """0 SUCCESS and SKIPPED (nothing failed), 1 FAILURE, 2 ERROR, 128 + the signal's number
+        when INTERRUPTED (130, 143)."""
+        if self.status == RunEnd.INTERRUPTED.value:
+            return exit_code_for(self.signum or signal.SIGINT)
+        return {RunEnd.SUCCESS.value: 0, RunEnd.SKIPPED.value: 0, RunEnd.FAILURE.value: 1}.get(self.status, 2)
 
     def to_json(self) -> dict[str, Any]:
         """The summary object ``objective run --json`` prints (extras merged at the top level)."""
@@ -118,6 +153,12 @@ class RunResult:
             "ticks": self.ticks,
             "blackboard": self.blackboard,
         }
+        if self.status == RunEnd.INTERRUPTED.value:
+            summary["signal"] = signal_name(self.signum or signal.SIGINT)
+        if self.status in (RunEnd.INTERRUPTED.value, RunEnd.ERROR.value):
+            summary["running_nodes"] = list(self.running_nodes)
+        if self.log_file is not None:
+            summary["log_file"] = self.log_file
         for key, value in self.extra.items():
             summary.setdefault(key, value)
         return summary
@@ -260,11 +301,31 @@ class Pacing:
         return {"late_ticks": self.late_ticks, "worst_tick_s": round(self.worst_tick_s, 4), "period_s": self.period}
 
 
-def outcome(status: Status, timed_out: bool) -> str:
-    """How a run ended, from the root's last result: SUCCESS, FAILURE or SKIPPED (as in BT.CPP)."""
+def outcome(status: Status, timed_out: bool) -> RunEnd:
+    """How a finished run ended, from the root's last result: SUCCESS, FAILURE or SKIPPED (as in BT.CPP)."""
     if status is Status.FAILURE or timed_out:
-        return "FAILURE"
-    return "SKIPPED" if status is SKIPPED else "SUCCESS"
+        return RunEnd.FAILURE
+    return RunEnd.SKIPPED if status is SKIPPED else RunEnd.SUCCESS
+
+
+@dataclass
+class Breakoff:
+    """Why the tick loop stopped before the tree finished: a signal or an exception."""
+
+    signum: int | None = None
+    error: BaseException | None = None
+
+    @property
+    def end(self) -> RunEnd:
+        return RunEnd.INTERRUPTED if self.signum is not None else RunEnd.ERROR
+
+
+def running_leaves(root: py_trees.behaviour.Behaviour) -> list[py_trees.behaviour.Behaviour]:
+    """The RUNNING nodes with no RUNNING child: what the tree was doing."""
+    return [
+        node for node in root.iterate()
+        if node.status is Status.RUNNING and not any(c.status is Status.RUNNING for c in node.children)
+    ]
 
 
 def run_tree(
@@ -273,19 +334,23 @@ def run_tree(
     options: RunOptions,
     progress: Progress | None = None,
     world: Any = None,
+    stop: StopRequest | None = None,
 ) -> RunResult:
     """Tick ``loaded`` (bound to ``context``) to completion and summarise the run.
 
     Starts the world named by ``options.world`` when the tree needs one (unless ``world`` is
-    given). Raises ObjectiveError for bad input found while running (e.g. a port reading a
-    blackboard entry nobody wrote); the tree is halted and everything closed either way.
+    given). Before every tick it looks at ``stop`` (set by ``runtime.interrupt`` on SIGINT or
+    SIGTERM). Bad input found while running (e.g. a port reading a blackboard entry nobody
+    wrote), an unexpected exception or an interruption ends the run as ERROR or INTERRUPTED;
+    the tree is halted and everything closed either way.
     """
     options.check()
     root = loaded.root
     nodes = list(root.iterate())
     for key, value in options.sets.items():
         loaded.blackboard.set(key, value)
-    if world is None and any(getattr(type(n), "needs_world", False) for n in nodes):
+    stopping = stop is not None and stop.requested  # a signal while loading: no world to start and close
+    if world is None and not stopping and any(getattr(type(n), "needs_world", False) for n in nodes):
         world_options = {
             "seed": options.seed,
             "realtime": options.paced,
@@ -302,49 +367,61 @@ def run_tree(
     blame: tuple[py_trees.behaviour.Behaviour, str] | None = None
     status = Status.INVALID
     timed_out = False
+    breakoff: Breakoff | None = None
+    running: list[py_trees.behaviour.Behaviour] = []
     statuses = StatusEvents(context.events, nodes)
     if callable(getattr(progress, "attach", None)):
         progress.attach(root)  # type: ignore[union-attr]
     pacing = Pacing(period) if options.paced else None
     wall_start = time.monotonic()
     try:
-        if world is not None:
-            context.world = world
-            try:
-                world.start(context)
-            except ValueError as err:
-                raise ObjectiveError(f"world '{getattr(world, 'name', '?')}': {err}") from None
-        for node in nodes:
-            node.setup()
-        context.events.emit("run_started", loaded.tree_id, seed=options.seed)
-        while True:
-            if options.max_seconds is not None and clock.now() + period > options.max_seconds + 1e-9:
-                timed_out = True
-                break
-            clock.advance(period)
-            tick_start = time.monotonic()
+        try:
             if world is not None:
-                world.step_to(clock.now())
-            bus.spin_once()
-            tick = tick_tree(root)
-            status, visited = tick.status, tick.visited
-            statuses.update(visited)
-            ticks += 1
-            if pacing is not None:
-                pacing.record(time.monotonic() - tick_start)
-            if progress is not None:
-                tip = root.tip()
-                progress(clock.now(), ticks, tip.name if tip is not None else "")
-            if status is not Status.RUNNING:
-                if status is Status.FAILURE:
-                    blame = _failing(root, visited)
-                break
+                context.world = world
+                try:
+                    world.start(context)
+                except ValueError as err:
+                    raise ObjectiveError(f"world '{getattr(world, 'name', '?')}': {err}") from None
+            for node in nodes:
+                node.setup()
+            context.events.emit("run_started", loaded.tree_id, seed=options.seed)
+            while True:
+                if stop is not None and stop.signum is not None:
+                    breakoff = Breakoff(signum=stop.signum)
+                    break
+                if options.max_seconds is not None and clock.now() + period > options.max_seconds + 1e-9:
+                    timed_out = True
+                    break
+                clock.advance(period)
+                tick_start = time.monotonic()
+                if world is not None:
+                    world.step_to(clock.now())
+                bus.spin_once()
+                ticks += 1  # counted before it runs: a tick that raised was still ticked
+                tick = tick_tree(root)
+                status, visited = tick.status, tick.visited
+                statuses.update(visited)
+                if pacing is not None:
+                    pacing.record(time.monotonic() - tick_start)
+                if progress is not None:
+                    tip = root.tip()
+                    progress(clock.now(), ticks, tip.name if tip is not None else "")
+                if status is not Status.RUNNING:
+                    if status is Status.FAILURE:
+                        blame = _failing(root, visited)
+                    break
+        except Interrupted as err:  # a second signal: stop now, still halting and summarising
+            breakoff = Breakoff(signum=err.signum)
+        except Exception as err:  # ObjectiveError (bad input) or a bug: the run ends as ERROR
+            breakoff = Breakoff(error=err)
+        running = running_leaves(root)
         if timed_out:
             tip = root.tip()
-            running = f" while '{tip.name}' was RUNNING" if tip is not None else ""
-            reason = f"stopped after --max-seconds {options.max_seconds:g} s of clock time{running}"
+            where = f" while '{tip.name}' was RUNNING" if tip is not None else ""
+            reason = f"stopped after --max-seconds {options.max_seconds:g} s of clock time{where}"
             blame = (tip if tip is not None else root, reason)
-        context.events.emit("run_finished", loaded.tree_id, status=outcome(status, timed_out))
+        end = breakoff.end.value if breakoff is not None else outcome(status, timed_out).value
+        context.events.emit("run_finished", loaded.tree_id, status=end)
     finally:
         summary_world = None
         try:
@@ -352,6 +429,8 @@ def run_tree(
                 from .ros.run import deliver_pending
 
                 deliver_pending(bus)  # let the cancels of a halted run reach the graph
+        except Exception as err:  # a node's terminate() broke: still close the world and the bus
+            breakoff = breakoff or Breakoff(error=err)
         finally:
             try:
                 statuses.halted()
@@ -374,23 +453,55 @@ def run_tree(
     if pacing is not None:
         extra["pacing"] = pacing.as_dict()
 
-    failing_node = reason = location = None
-    if blame is not None:
-        node, reason = blame
-        failing_node = node.name
-        info = loaded.info(node)
-        location = str(info.location) if info is not None else None
-    return RunResult(
-        status=outcome(status, timed_out),
-        failing_node=failing_node,
-        reason=reason or "",
+    result = RunResult(
+        status=outcome(status, timed_out).value,
+        failing_node=None,
+        reason="",
         sim_seconds=clock.now(),
         wall_seconds=wall_seconds,
         ticks=ticks,
         blackboard=json_entries(loaded.blackboard.items()),
         extra=extra,
-        failing_location=location,
+        running_nodes=[node.name for node in running],
     )
+    if breakoff is not None:
+        _describe_breakoff(result, breakoff, running, loaded, nodes, options)
+    elif blame is not None:
+        node, reason = blame
+        info = loaded.info(node)
+        result.failing_node, result.reason = node.name, reason or ""
+        result.failing_location = str(info.location) if info is not None else None
+    return result
+
+
+def _describe_breakoff(result: RunResult, breakoff: Breakoff, running: list[py_trees.behaviour.Behaviour],
+                       loaded: LoadedTree, nodes: list[py_trees.behaviour.Behaviour], options: RunOptions) -> None:
+    """Fill ``result`` for a run a signal or an exception ended (status, node, reason, log file)."""
+    result.status = breakoff.end.value
+    if breakoff.signum is not None:
+        result.signum = int(breakoff.signum)
+        where = ", ".join(f"'{n.name}'" + _at(loaded, n) for n in running)
+        halted = f"; halted {where} (RUNNING)" if where else ""
+        result.reason = f"interrupted by {signal_name(breakoff.signum)} at {result.sim_seconds:.2f} s{halted}"
+        return
+    error, culprit_name = breakoff.error, None
+    assert error is not None
+    if not isinstance(error, ObjectiveError):
+        node = culprit(error, nodes)
+        culprit_name = node.name if node is not None else None
+        directory = options.record_dir or options.log_dir
+        log_file = write_traceback(error, directory, CRASH_LOG if options.record_dir is not None else None)
+        result.log_file = str(log_file) if log_file is not None else None
+        info = loaded.info(node) if node is not None else None
+        error = describe_crash(error, node, log_file, info.location if info is not None else None)
+    result.reason = str(error)
+    result.failing_node = culprit_name or error.node
+    result.failing_location = str(error.location) if error.location else None
+
+
+def _at(loaded: LoadedTree, node: py_trees.behaviour.Behaviour) -> str:
+    info = loaded.info(node)
+    return f" ({info.location})" if info is not None else ""
 
 
 def run_file(
@@ -401,19 +512,25 @@ def run_file(
     search_paths: Iterable[Path] = (),
     objectives_dir: Path | None = None,
     progress: Progress | None = None,
+    stop: StopRequest | None = None,
 ) -> RunResult:
-    """Load ``source`` and run it: what ``objective run`` does."""
+    """Load ``source`` and run it: what ``objective run`` does (``stop``: see ``runtime.interrupt``)."""
     options.check()
     context = make_context(options)
     loaded = load_tree(source, registry, context, tree_id, search_paths, objectives_dir)
     if options.record_dir is None and options.live is None:
-        return run_tree(loaded, context, options, progress)
-    return _run_recorded(loaded, context, options, progress)
+        return run_tree(loaded, context, options, progress, stop=stop)
+    return _run_recorded(loaded, context, options, progress, stop)
 
 
-def _run_recorded(loaded: LoadedTree, context: RunContext, options: RunOptions, progress: Progress | None) -> RunResult:
+def _run_recorded(loaded: LoadedTree, context: RunContext, options: RunOptions, progress: Progress | None,
+                  stop: StopRequest | None) -> RunResult:
     """``run_tree`` with a ``Recorder`` on the bus (into ``options.record_dir`` and/or served live),
-    then the report rendered into ``options.record_dir``."""
+    then the report rendered into ``options.record_dir``.
+
+    The recording is finished whatever ended the run (its summary says how). A signal while the
+    report renders stops the rendering; ``objective report DIR`` renders it later.
+    """
     from .recording import Recorder
     from .report.worker import ReportWorker
 
@@ -422,20 +539,28 @@ def _run_recorded(loaded: LoadedTree, context: RunContext, options: RunOptions, 
         context.logger.info("live view: in Foxglove, open a Foxglove WebSocket connection to %s", recorder.live.url)
     if options.record_dir is None:
         try:
-            return run_tree(loaded, context, options, progress)
+            return run_tree(loaded, context, options, progress, stop=stop)
         finally:
             recorder.close()
     worker = ReportWorker()
     worker.start()  # imports the report's libraries while the run goes on
     try:
-        result = run_tree(loaded, context, options, progress)
-    except BaseException:
-        recorder.close()
-        worker.close()
+        result = run_tree(loaded, context, options, progress, stop=stop)
+    except BaseException as err:  # the run did not start (e.g. no such world): say so in the recording
+        end = RunEnd.INTERRUPTED if isinstance(err, KeyboardInterrupt) else RunEnd.ERROR
+        try:
+            recorder.finish({"status": end.value, "reason": str(err) or type(err).__name__})
+        finally:
+            worker.close()
         raise
     recorder.finish(result.to_json())
+    if stop is not None:
+        stop.urgent = True  # the run is over: a signal now stops the rendering at once
     try:
         worker.render(options.record_dir, context.logger)
+    except KeyboardInterrupt:
+        context.logger.warning("recording %s: the report was not rendered (interrupted); "
+                               "`objective report %s` renders it", options.record_dir, options.record_dir)
     except Exception as err:  # the run itself is over and recorded: its result stands
         context.logger.warning("recording %s: the report could not be rendered: %s", options.record_dir, err)
     finally:

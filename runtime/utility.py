@@ -11,7 +11,7 @@ from typing import ClassVar
 from .behavior import Behavior, Status
 from .decorators import elapsed
 from .errors import PortError
-from .ports import InputPort, PortType
+from .ports import UINT32_MAX, InputPort, PortType, Range
 
 
 class AlwaysSuccess(Behavior):
@@ -50,7 +50,7 @@ class Sleep(_TimedWait):
     """BT.CPP ``SleepNode`` (src/actions/sleep_node.cpp), on the run's clock."""
 
     description: ClassVar[str] = "Returns RUNNING for msec milliseconds of run-clock time, then SUCCESS."
-    ports = (InputPort("msec", PortType.UINT, description="How long to sleep, in milliseconds."),)
+    ports = (InputPort("msec", PortType.UINT, description="How long to sleep, in milliseconds.", valid=Range(0, UINT32_MAX, "ms")),)
 
     def wait_ms(self) -> float:
         return float(self.get_input("msec"))
@@ -60,20 +60,10 @@ class Wait(_TimedWait):
     description: ClassVar[str] = (
         "Returns RUNNING until the run's clock has advanced by 'seconds' since it started, then SUCCESS."
     )
-    ports = (InputPort("seconds", PortType.FLOAT, description="How long to wait, in seconds."),)
-
-    def check_literals(self) -> None:
-        seconds = self.bindings["seconds"]
-        if seconds.key is None:
-            self._check(seconds.literal)  # a negative literal is a load-time error
-
-    def _check(self, seconds: float) -> float:
-        if seconds < 0:
-            raise PortError(f"port 'seconds' must not be negative, got {seconds}", self.location, self.xml_id)
-        return seconds
+    ports = (InputPort("seconds", PortType.FLOAT, description="How long to wait, in seconds.", valid=Range(0.0, UINT32_MAX / 1000, "s")),)
 
     def wait_ms(self) -> float:
-        return self._check(self.get_input("seconds")) * 1000.0
+        return self.get_input("seconds") * 1000.0
 
 
 LOG_LEVELS = {

@@ -254,6 +254,8 @@ def record_demos(options: DemoOptions) -> DemoSummary:
         context = make_context(run_options)
         loaded = load_tree(RECORD_XML, registry, context, objectives_dir=objectives)
         result = run_tree(loaded, context, run_options, world=world)
+        if result.status == "ERROR":  # bad input or a bug: every episode would end the same way
+            raise RuntimeError(f"episode {episode} (seed {seed}): {result.reason}")
         episode_frames = world.frames
         if result.status != "SUCCESS" and not options.keep_failed:
             LOG.warning("episode %d (seed %d) dropped: %s", episode, seed, result.reason)

@@ -146,15 +146,22 @@ def test_behaviors_json_lists_ports_with_types_defaults_and_descriptions(cli):
     assert nodes["Typed"]["kind"] == "Action"
     assert nodes["Typed"]["description"] == "Writes x * n to out."
     assert nodes["Typed"]["ports"] == [
-        {"name": "x", "direction": "input", "type": "double", "default": None, "required": True, "description": "A number."},
-        {"name": "n", "direction": "input", "type": "int", "default": "3", "required": False, "description": "How many times."},
-        {"name": "flag", "direction": "input", "type": "bool", "default": "false", "required": False, "description": "A switch."},
-        {"name": "out", "direction": "output", "type": "double", "default": None, "required": False, "description": "x * n."},
+        {"name": "x", "direction": "input", "type": "double", "default": None, "required": True, "description": "A number.",
+         "valid": "[-1000000, 1000000]"},
+        {"name": "n", "direction": "input", "type": "int", "default": "3", "required": False, "description": "How many times.",
+         "valid": "[0, 100]"},
+        {"name": "flag", "direction": "input", "type": "bool", "default": "false", "required": False, "description": "A switch.",
+         "valid": None},
+        {"name": "out", "direction": "output", "type": "double", "default": None, "required": False, "description": "x * n.",
+         "valid": None},
     ]
     assert nodes["Sequence"]["kind"] == "Control" and nodes["Inverter"]["kind"] == "Decorator"
+    wait = {p["name"]: p for p in nodes["Wait"]["ports"]}
+    assert wait["seconds"]["valid"] == "[0, 4294967.295] s"
     code, out, _ = cli("behaviors")
     assert "Typed  [Action]" in out
-    assert "      input  n (int, default '3'): How many times." in out
+    assert "      input  n (int, default '3', valid [0, 100]): How many times." in out
+    assert "      input  seconds (double, required, valid [0, 4294967.295] s): How long to wait, in seconds." in out
 
 
 def test_show_prints_the_tree_with_kinds_and_ports(cli):
@@ -179,8 +186,8 @@ def test_models_is_tree_nodes_model_xml(cli):
     typed = root.find("TreeNodesModel/Action[@ID='Typed']")
     ports = [(p.tag, p.get("name"), p.get("type"), p.get("default"), p.text) for p in typed if p.tag.endswith("_port")]
     assert ports == [
-        ("input_port", "x", "double", None, "A number."),
-        ("input_port", "n", "int", "3", "How many times."),
+        ("input_port", "x", "double", None, "A number. (valid: [-1000000, 1000000])"),
+        ("input_port", "n", "int", "3", "How many times. (valid: [0, 100])"),
         ("input_port", "flag", "bool", "false", "A switch."),
         ("output_port", "out", "double", None, "x * n."),
     ]
@@ -264,3 +271,75 @@ def test_the_default_world_is_the_installation_s_choice(monkeypatch, cli, tmp_pa
     assert code == 2 and err.strip() == f"error: {message}"
     fake_entry_points(monkeypatch, runtime.registry, {"objective.default_world": [("vla_sim", "sim.world:create_vla_sim")]})
     assert runtime.registry.default_world_name() == "vla_sim"
+
+
+# -- ends of a run other than SUCCESS/FAILURE, and what reaches the terminal ------------------
+def test_run_ends_as_error_with_one_paragraph_and_the_traceback_in_a_log_file(cli, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)  # the log goes to build/logs/ under the working directory
+    path = tree_file(tmp_path, '<Parallel>\n<Wait seconds="10"/>\n<Crash name="probe" after="4"/>\n</Parallel>')
+    code, out, err = cli("run", str(path), "--json")
+    assert code == 2
+    assert "Traceback" not in err and len(err.strip().splitlines()) == 1
+    summary = json.loads(out.strip().splitlines()[-1])
+    assert (summary["status"], summary["failing_node"], summary["ticks"], summary["running_nodes"]) == ("ERROR", "probe", 5, ["Wait", "probe"])
+    log = Path(summary["log_file"])
+    assert log.parent == Path("build/logs") and "RuntimeError: sensor exploded" in (tmp_path / log).read_text()
+    assert err == f"error: {summary['reason']}\n"
+    assert summary["reason"].startswith("t.xml:5: Crash 'probe': an unexpected RuntimeError in ")
+    assert summary["reason"].endswith(f"sensor exploded. The run was stopped and its running nodes halted; the full traceback is in {log}")
+
+
+def test_a_bug_while_loading_names_the_node_and_exits_2(cli, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    path = tree_file(tmp_path, "<Sequence>\n<BrokenAtLoad/>\n</Sequence>")
+    code, out, err = cli("validate", str(path))
+    assert (code, out) == (2, "")
+    assert err.startswith(f"error: t.xml:4: BrokenAtLoad: an unexpected KeyError in {REPO / 'tests/data/nodes.py'}:")
+    assert "'calibration'. Loading stopped there; nothing was run; the full traceback is in build/logs/objective-" in err
+    assert "Traceback" not in err and len(list((tmp_path / "build" / "logs").glob("objective-*.log"))) == 1
+
+
+def test_run_blackboard_value_outside_a_port_range_is_exit_2(cli, tmp_path):
+    path = tree_file(tmp_path, '<Wait seconds="{s}"/>')
+    code, out, err = cli("run", str(path), "--json", "--set", "s=nan")
+    assert code == 2
+    message = f"{path}:3: Wait: port 'seconds' (from '{{s}}') must be in [0, 4294967.295] s, got nan"
+    assert err == f"error: {message}\n"
+    assert json.loads(out.strip().splitlines()[-1])["reason"] == message
+
+
+def test_validate_names_the_port_and_range_of_an_absurd_literal(cli, tmp_path):
+    path = tree_file(tmp_path, '<Sequence>\n<Typed x="1e309"/>\n</Sequence>')
+    code, out, err = cli("validate", str(path))
+    assert (code, out) == (2, "")
+    assert err == f"error: {path}:4: Typed: port 'x' must be in [-1000000, 1000000], got inf\n"
+
+
+BIDI, ESC = "\u202e", "\x1b"
+
+
+def test_control_and_bidi_characters_from_an_objective_are_escaped_everywhere(cli, tmp_path):
+    """XML 1.0 allows U+202E, C1 controls (\\x9b is CSI on some terminals), CR and LF; --set allows ESC."""
+    name = f"evil{BIDI}gpj.exe"
+    path = tree_file(tmp_path, f'<Sequence name="{name}"><LogMessage message="{{m}}"/><LogMessage message="a&#13;b"/>'
+                               f'<FailWith name="{name}" reason="csi\x9b2J&#10;next"/></Sequence>', f"t{BIDI}.xml")
+    code, out, err = cli("run", str(path), "--set", f"m={ESC}[31mred")
+    assert code == 1
+    assert BIDI not in err and ESC not in err and "\x9b" not in err and "\r" not in err
+    assert "[INFO] \\x1b[31mred\n" in err and "[INFO] a\\rb\n" in err
+    assert f"FAILURE after 0.01 s: 'evil\\u202egpj.exe' (" in err and "failed: csi\\x9b2J\\nnext" in err
+    code, out, err = cli("validate", str(path))
+    assert code == 0 and BIDI not in out and "t\\u202e.xml" in out
+    code, out, err = cli("show", str(path))
+    assert code == 0 and BIDI not in out and '"evil\\u202egpj.exe"' in out
+    bad = tree_file(tmp_path, f'<Sequence name="{name}"><Typed x="nope"/></Sequence>', f"bad{BIDI}.xml")
+    code, out, err = cli("run", str(bad), "--json")
+    assert code == 2 and BIDI not in err and "bad\\u202e.xml:3: Typed: port 'x' expects a number" in err
+    assert BIDI not in out  # JSON escapes it: \u202e
+
+
+def test_printable_escapes_only_what_a_terminal_would_act_on():
+    from runtime.terminal import printable
+
+    assert printable("Pick 'cube' ü → 機器人 🤖") == "Pick 'cube' ü → 機器人 🤖"
+    assert printable(f"a{BIDI}b\u2066c\u200bd\r\n\te{ESC}\x85\u2028") == "a\\u202eb\\u2066c\\u200bd\\r\\n\\te\\x1b\\x85\\u2028"

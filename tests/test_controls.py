@@ -263,7 +263,7 @@ def test_wait_runs_until_the_clock_passes(make, clock) -> None:
 
 
 def test_wait_rejects_negative_seconds_at_load(make) -> None:
-    with pytest.raises(PortError, match="test.xml:7: Wait: port 'seconds' must not be negative, got -1.0"):
+    with pytest.raises(PortError, match=r"test.xml:7: Wait: port 'seconds' must be in \[0, 4294967.295\] s, got -1.0"):
         make(utility.Wait, seconds=-1)
 
 

@@ -90,3 +90,30 @@ def test_an_unreadable_recording_is_one_clear_error_not_a_traceback(tmp_path, ca
     with pytest.raises(ObjectiveError, match="run.mcap: cannot read the recording"):
         worker.render(target)
     assert "Traceback" not in capfd.readouterr().err
+
+
+def test_sigint_sent_to_the_worker_itself_is_ignored_from_its_start(recording, tmp_path, capfd, monkeypatch):
+    """Ctrl-C never reaches it (its own process group); a SIGINT sent to its pid does nothing either."""
+    import signal
+    import time
+
+    from runtime.report import worker as worker_module
+
+    def fallback(*args, **kwargs):
+        raise AssertionError("the worker died: the report was rendered in process")
+
+    monkeypatch.setattr(worker_module, "render_report", fallback)
+    target = fresh_copy(recording, tmp_path)
+    worker = ReportWorker()
+    worker.start()
+    assert worker.process is not None and os.getpgid(worker.process.pid) == worker.process.pid
+    for _ in range(10):  # during its interpreter start and its imports
+        worker.process.send_signal(signal.SIGINT)
+        time.sleep(0.05)
+    pid = worker.process.pid
+    report = worker.render(target)
+    assert report.errors == {} and set(report.files) == set(ARTIFACTS)
+    err = capfd.readouterr().err
+    assert "Traceback" not in err and "KeyboardInterrupt" not in err
+    with pytest.raises(ProcessLookupError):
+        os.kill(pid, 0)  # it answered and left

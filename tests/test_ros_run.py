@@ -138,15 +138,24 @@ def test_the_hosted_cell_is_on_ros_while_the_run_lasts(ros_env, observer, tmp_pa
 
 def test_sigterm_halts_the_run_and_the_node_leaves_the_graph(ros_env, observer, tmp_path):
     joint_states = observer.create_subscription("/joint_states", JointState)
-    runner = objective("run", str(close_wait_open(tmp_path, 60.0)), "--ros", "--world", "kinematic", env=ros_env)
+    record = tmp_path / "rec"
+    runner = objective("run", str(close_wait_open(tmp_path, 60.0)), "--ros", "--world", "kinematic", "--json",
+                       "--record", str(record), env=ros_env)
     try:
-        wait_for(lambda: joint_states.count >= 1, observer, what="/joint_states from the runner")
+        # the recording's report worker starts beside the runner: on a loaded machine that takes a while
+        wait_for(lambda: joint_states.count >= 1, observer, timeout=30.0, what="/joint_states from the runner")
         runner.send_signal(signal.SIGTERM)
-        code, _, err = finish(runner, timeout=10.0)
+        code, out, err = finish(runner, timeout=10.0)
     finally:
         if runner.poll() is None:
             runner.kill()
-    assert code == 130 and err.rstrip().endswith("interrupted")
+    assert code == 143, err
+    assert "INTERRUPTED after" in err and "interrupted by SIGTERM" in err and "Traceback" not in err
+    summary = json.loads(out.strip().splitlines()[-1])
+    assert summary["status"] == "INTERRUPTED" and summary["signal"] == "SIGTERM" and summary["running_nodes"]
+    last = json.loads((record / "events.jsonl").read_text().splitlines()[-1])
+    assert last["kind"] == "run_summary" and last["data"]["status"] == "INTERRUPTED"
+    assert (record / "report.html").exists()
     wait_for(lambda: "objective_runtime" not in observer.node.get_node_names(), observer,
              what="the runner's node to leave the graph")
 

@@ -1,6 +1,7 @@
 """The runner: ticks on the clock, statuses, the failing node, halting, worlds and summaries."""
 from __future__ import annotations
 
+import signal
 from pathlib import Path
 from typing import Any
 
@@ -8,6 +9,7 @@ import pytest
 
 from runtime.behavior import Status
 from runtime.errors import ObjectiveError
+from runtime.interrupt import StopRequest
 from runtime.loader import load_tree
 from runtime.runner import RunOptions, json_entries, make_context, run_file, run_tree
 from tests.data.nodes import Forever, make_registry
@@ -112,10 +114,67 @@ def test_json_entries_keeps_what_json_can_carry():
     assert entries == {"a": 1, "b": [1.0, 2.0], "e": "s"}
 
 
-def test_runtime_port_errors_propagate_after_halting(run):
-    with pytest.raises(ObjectiveError) as info:
-        run('<Typed x="{missing}"/>')
-    assert str(info.value).endswith("Typed: port 'x' reads blackboard entry 'missing', which is not set")
+def test_runtime_port_errors_end_the_run_as_error_after_halting(run):
+    result, loaded, _ = run('<Parallel><Forever/><Sequence><Wait seconds="0.02"/><Typed x="{missing}"/></Sequence></Parallel>')
+    assert (result.status, result.exit_code, result.ticks) == ("ERROR", 2, 3)
+    assert result.reason.endswith("Typed: port 'x' reads blackboard entry 'missing', which is not set")
+    assert result.running_nodes == ["Forever", "Sequence"]  # the Sequence was ticking Typed
+    forever = next(n for n in loaded.root.iterate() if n.name == "Forever")
+    assert forever.terminated == [Status.INVALID]
+    assert result.to_json()["status"] == "ERROR" and result.log_file is None
+
+
+def test_blackboard_values_outside_a_port_range_are_an_error_when_read(run):
+    result, _, _ = run('<Wait seconds="{s}"/>', RunOptions(sets={"s": "inf"}))
+    assert result.status == "ERROR"
+    assert result.reason.endswith("Wait: port 'seconds' (from '{s}') must be in [0, 4294967.295] s, got inf")
+
+
+def test_an_unexpected_exception_names_the_node_and_logs_the_traceback(run, tmp_path):
+    result, loaded, _ = run('<Parallel><Forever/><Crash name="probe" after="2"/></Parallel>',
+                            RunOptions(log_dir=tmp_path / "logs"))
+    assert (result.status, result.exit_code, result.ticks, result.failing_node) == ("ERROR", 2, 3, "probe")
+    assert result.failing_location == f"{tmp_path / 'tree.xml'}:3"
+    log = Path(result.log_file)
+    assert log.parent == tmp_path / "logs" and "RuntimeError: sensor exploded" in log.read_text()
+    assert "Traceback" in log.read_text()
+    assert result.reason.startswith(f"{tmp_path / 'tree.xml'}:3: Crash 'probe': an unexpected RuntimeError in tests/data/nodes.py:")
+    assert result.reason.endswith(f": sensor exploded. The run was stopped and its running nodes halted; "
+                                  f"the full traceback is in {log}")
+    forever = next(n for n in loaded.root.iterate() if n.name == "Forever")
+    assert forever.terminated == [Status.INVALID]
+
+
+def test_a_stop_request_halts_the_tree_as_a_preemption(run):
+    stop = StopRequest()
+
+    def progress(now: float, ticks: int, tip: str) -> None:
+        if ticks == 5:
+            stop.on_signal(signal.SIGTERM)
+
+    result, loaded, context = run('<Sequence><Forever name="hold"/></Sequence>', progress=progress, stop=stop)
+    assert (result.status, result.exit_code, result.ticks, result.signum) == ("INTERRUPTED", 143, 5, signal.SIGTERM)
+    assert result.running_nodes == ["hold"]
+    assert result.reason == f"interrupted by SIGTERM at 0.05 s; halted 'hold' ({loaded.info(loaded.root.children[0]).location}) (RUNNING)"
+    assert loaded.root.children[0].terminated == [Status.INVALID]
+    summary = result.to_json()
+    assert (summary["status"], summary["signal"], summary["running_nodes"]) == ("INTERRUPTED", "SIGTERM", ["hold"])
+    halted = [e.data for e in context.events.of_kind("node_status") if e.source == "hold"]
+    assert (halted[-1]["status"], halted[-1]["message"]) == ("INVALID", "halted")
+    assert context.events.of_kind("run_finished")[-1].data == {"status": "INTERRUPTED"}
+
+
+def test_a_second_signal_raises_at_once_and_the_run_still_ends_interrupted(run):
+    stop = StopRequest()
+
+    def progress(now: float, ticks: int, tip: str) -> None:
+        if ticks == 2:
+            stop.on_signal(signal.SIGINT)
+            stop.on_signal(signal.SIGINT)  # raises Interrupted here, in the middle of the loop
+
+    result, loaded, _ = run('<Forever name="hold"/>', progress=progress, stop=stop)
+    assert (result.status, result.exit_code, result.ticks) == ("INTERRUPTED", 130, 2)
+    assert loaded.root.terminated == [Status.INVALID]
 
 
 class FakeWorld:
@@ -164,9 +223,8 @@ def test_trees_that_need_no_world_start_none(run):
 
 def test_world_is_closed_when_a_tick_raises(run):
     world = FakeWorld()
-    with pytest.raises(ObjectiveError):
-        run('<Sequence><Robot/><Typed x="{missing}"/></Sequence>', world=world)
-    assert world.calls[-1] == "close"
+    result, _, _ = run('<Sequence><Robot/><Typed x="{missing}"/></Sequence>', world=world)
+    assert result.status == "ERROR" and world.calls[-1] == "close"
 
 
 def test_bad_options_are_objective_errors():
@@ -197,3 +255,11 @@ def test_shipped_pure_logic_examples_succeed(registry, tmp_path, name, blackboar
     path = Path(__file__).resolve().parent.parent / "objectives" / "examples" / name
     result = run_file(path, registry, RunOptions(), objectives_dir=tmp_path)
     assert (result.status, result.blackboard) == ("SUCCESS", blackboard)
+
+
+def test_a_signal_while_loading_ends_the_run_before_any_world_starts(run):
+    stop = StopRequest()
+    stop.on_signal(signal.SIGTERM)
+    result, _, context = run("<Robot/>", RunOptions(world="no-such-world"), stop=stop)  # the world is never created
+    assert (result.status, result.exit_code, result.ticks, result.running_nodes) == ("INTERRUPTED", 143, 0, [])
+    assert result.reason == "interrupted by SIGTERM at 0.00 s" and context.world is None

@@ -4,7 +4,9 @@ traceback), never a hang, never a file read it was not asked to read.
 
 Inputs: the shipped Objectives mutated at random (deleted, duplicated and inserted spans,
 XML-ish tokens, control characters, invalid UTF-8, truncation), deep nesting, huge attributes and
-files, entity bombs, external entities, XInclude, and a DOCTYPE hidden after a BOM.
+files, entity bombs, external entities, XInclude, a DOCTYPE hidden after a BOM, and absurd
+numbers (inf, nan, 1e309, 1e-300, a billion, a 5000-digit integer) in every numeric port of every
+registered node.
 """
 from __future__ import annotations
 
@@ -19,9 +21,11 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from runtime.behavior import NodeKind
 from runtime.errors import ObjectiveError
 from runtime.loader import load_tree
-from runtime.registry import Registry
+from runtime.ports import NUMERIC_TYPES, Direction, PortInfo, PortType, Range, convert, range_problem
+from runtime.registry import NodeSpec, Registry
 from runtime.runner import RunOptions, make_context
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -251,3 +255,97 @@ def test_cli_exits_2_without_a_traceback_on_hostile_files(tmp_path):
     assert "Traceback" not in proc.stderr and "Traceback" not in proc.stdout
     for f in files:
         assert Path(f).name in proc.stderr, f"no error reported for {f}:\n{proc.stderr}"
+
+
+# -- absurd numbers in every numeric port of every registered node ----------------------------
+# Generated from the registry (the installed behaviors included), so a new behavior is covered
+# the day it is registered: `objective validate` accepts each value, or exits 2 naming the port.
+ABSURD = [
+    "inf", "-inf", "nan", "NaN", "1e309", "-1e309", "1e-300", "-1e-300", "1e300", "-1e300", "-1", "0", "-0",
+    "1000000000", "99999999999999999999999999", "1" + "0" * 5000, "0x7fffffffffffffff", "4.5", "1e-3",
+    "nan;1;1;1;1;1", "1;1;1;1;1;inf", "1e309;45;45;10;10;10", "-1;-1;-1;-1;-1;-1", "1e300;1e300;1e300;1e300;1e300;1e300",
+]
+NON_FINITE = {"inf", "-inf", "nan", "NaN", "1e309", "-1e309"}
+
+
+def _registered() -> Registry:
+    return Registry.from_entry_points()
+
+
+def _numeric_ports() -> list[tuple[str, str]]:
+    return [
+        (spec.id, port.name)
+        for spec in _registered().specs()
+        if spec.kind is not NodeKind.SUBTREE
+        for port in spec.cls.ports
+        if port.type in NUMERIC_TYPES and port.direction is not Direction.OUTPUT
+    ]
+
+
+def _in_range(port: PortInfo) -> str:
+    """A value the port accepts, for the ports a case leaves alone."""
+    if port.type not in NUMERIC_TYPES:
+        return {PortType.BOOL: "false", PortType.ANY: "{anything}", PortType.STRING_LIST: "a"}.get(port.type, "x")
+    valid = port.valid or Range()
+    low, high = valid.min, valid.max
+    middle = 0.0 if low is None and high is None else (low if high is None else high if low is None else (low + high) / 2)
+    value = str(int(middle)) if port.type in (PortType.INT, PortType.UINT, PortType.INT_LIST) else repr(float(middle))
+    return ";".join([value] * 6) if port.type in (PortType.FLOAT_LIST, PortType.INT_LIST) else value
+
+
+def _one_node_tree(spec: NodeSpec, values: dict[str, str]) -> str:
+    attrs = " ".join(f'{name}="{value}"' for name, value in values.items())
+    children = {NodeKind.CONTROL: "<AlwaysSuccess/><AlwaysSuccess/>", NodeKind.DECORATOR: "<AlwaysSuccess/>"}.get(spec.kind, "")
+    node = f"<{spec.id} {attrs}>{children}</{spec.id}>"
+    return f'<root BTCPP_format="4">\n<BehaviorTree ID="T">\n{node}\n</BehaviorTree>\n</root>\n'
+
+
+@pytest.fixture(scope="module")
+def validate_cli(registry):
+    from runtime.cli import main
+
+    def run(path: Path, capsys) -> tuple[int, str, str]:
+        code = main(["validate", str(path)], registry=registry)
+        out, err = capsys.readouterr()
+        return code, out, err
+
+    return run
+
+
+@pytest.mark.timeout(BOUND_S)
+@pytest.mark.parametrize("node_id,port_name", _numeric_ports())
+def test_absurd_numbers_in_every_numeric_port_are_accepted_or_refused_by_name(registry, validate_cli, tmp_path,
+                                                                              capsys, node_id, port_name):
+    spec = registry.get(node_id)
+    port = spec.cls.port_info()[port_name]
+    required = {p.name: _in_range(p) for p in spec.cls.ports if p.required}
+    path = tmp_path / "t.xml"
+    path.write_text(_one_node_tree(spec, required))
+    code, _, err = validate_cli(path, capsys)
+    assert code == 0, f"the case's baseline does not load: {err}"
+    for value in ABSURD:
+        path.write_text(_one_node_tree(spec, {**required, port_name: value}))
+        code, out, err = validate_cli(path, capsys)
+        assert "Traceback" not in err + out
+        assert code in (0, 2), (value, err)
+        if code == 2:
+            assert f"{path}:3: {node_id}: port '{port_name}' " in err, (value, err)
+        else:  # accepted: then it is a value the port's declared range allows
+            assert range_problem(port, convert(value, port.type)) is None, value
+        if port.type in (PortType.FLOAT, PortType.FLOAT_LIST) and any(v in NON_FINITE for v in value.split(";")):
+            assert code == 2, f"{node_id}.{port_name} accepted {value!r}"
+
+
+def test_every_numeric_port_declares_its_range_and_its_default_is_in_it():
+    """Shown by `objective behaviors` and `objective models`; a new behavior must declare its own."""
+    for spec in _registered().specs():
+        for port in spec.cls.ports:
+            if port.type not in NUMERIC_TYPES or port.direction is Direction.OUTPUT:
+                continue
+            assert port.valid is not None, (
+                f"{spec.id}.{port.name} ({port.type.value}) declares no valid range: "
+                "give it InputPort(..., valid=Range(min, max, unit)) (see docs/extending.md)"
+            )
+            if not port.required:
+                default = convert(port.default, port.type) if isinstance(port.default, str) else port.default
+                assert range_problem(port, default) is None, f"{spec.id}.{port.name}: default {port.default!r} is outside {port.valid}"

@@ -1,30 +1,31 @@
 """ExecutePolicy's ports (the guide's table, with its defaults) and their validation."""
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
-from runtime.ports import InputPort, OutputPort, PortType
+from runtime.ports import InputPort, OutputPort, PortType, Range
 
 DEFAULT_CONTROLLER_ACTION = "/joint_trajectory_admittance_controller/follow_joint_trajectory"
 
 PORTS = (
     InputPort("policy_service_name", PortType.STRING, description="GetActionChunk service that serves the policy."),
     InputPort("joint_group_name", PortType.STRING, description="SRDF joint group the policy commands; must resolve to one tip."),
-    InputPort("total_action_steps", PortType.UINT, description="Run length in policy steps; the motion lasts total_action_steps * dt seconds."),
+    InputPort("total_action_steps", PortType.UINT, description="Run length in policy steps; the motion lasts total_action_steps * dt seconds.", valid=Range(1, 1_000_000)),
     InputPort("prompt", PortType.STRING, "", "Task instruction passed to the policy."),
-    InputPort("dt", PortType.FLOAT, 0.05, "Seconds per policy step: 1 / the rate the policy was trained at."),
-    InputPort("committed_action_steps", PortType.UINT, 32, "Steps executed from each chunk before the next takes over; (committed - 1) * dt should cover twice the latency."),
-    InputPort("num_interpolation_points", PortType.UINT, 100, "Densified points per chunk: the sampling density of the limit and collision checks."),
-    InputPort("link_padding", PortType.FLOAT, 0.01, "Meters of padding around the robot for the world collision check (self-collision is unpadded)."),
-    InputPort("policy_tracking_weight", PortType.FLOAT, 300.0, "How closely the smoothing spline follows the chunk: lower if the motion oscillates, higher if it lags."),
+    InputPort("dt", PortType.FLOAT, 0.05, "Seconds per policy step: 1 / the rate the policy was trained at.", valid=Range(0.001, 10.0, "s")),
+    InputPort("committed_action_steps", PortType.UINT, 32, "Steps executed from each chunk before the next takes over; (committed - 1) * dt should cover twice the latency.", valid=Range(1, 10_000)),
+    InputPort("num_interpolation_points", PortType.UINT, 100, "Densified points per chunk: the sampling density of the limit and collision checks.", valid=Range(2, 10_000)),
+    InputPort("link_padding", PortType.FLOAT, 0.01, "Meters of padding around the robot for the world collision check (self-collision is unpadded).", valid=Range(0.0, 0.5, "m")),
+    InputPort("policy_tracking_weight", PortType.FLOAT, 300.0, "How closely the smoothing spline follows the chunk: lower if the motion oscillates, higher if it lags.", valid=Range(0.0, 1e6, min_open=True)),
     InputPort("policy_uses_real_time_chunking", PortType.BOOL, False, "Send the unexecuted tail of the previous policy_action_chunk for RTC guidance."),
-    InputPort("policy_call_timeout", PortType.FLOAT, 3.0, "Seconds allowed for one service round trip, warmup included."),
-    InputPort("goal_path_tolerance", PortType.FLOAT, 0.01, "Radians of deviation the controller accepts along the path and where chunks join."),
-    InputPort("absolute_force_torque_threshold", PortType.FLOAT_LIST, "45;45;45;10;10;10", "Per-axis abort limits Fx;Fy;Fz;Tx;Ty;Tz (N, Nm)."),
+    InputPort("policy_call_timeout", PortType.FLOAT, 3.0, "Seconds allowed for one service round trip, warmup included.", valid=Range(0.0, 600.0, "s", min_open=True)),
+    InputPort("goal_path_tolerance", PortType.FLOAT, 0.01, "Radians of deviation the controller accepts along the path and where chunks join.", valid=Range(0.0, math.pi, "rad")),
+    InputPort("absolute_force_torque_threshold", PortType.FLOAT_LIST, "45;45;45;10;10;10", "Per-axis abort limits Fx;Fy;Fz;Tx;Ty;Tz (N, Nm).", valid=Range(0.0, 100_000.0, "N or Nm", min_open=True)),
     InputPort("controller_action_name", PortType.STRING, DEFAULT_CONTROLLER_ACTION, "The admittance controller's FollowJointTrajectoryWithAdmittance action."),
     InputPort("gripper_command_action_name", PortType.STRING, "", "GripperCommand action; set together with gripper_joint_name."),
     InputPort("gripper_joint_name", PortType.STRING, "", "Single-DOF gripper joint appended to the observation and streamed from the chunk."),
-    InputPort("guidance_horizon", PortType.UINT, 0, "RTC: steps past the frozen prefix kept close to the previous chunk; 0 = the server's setting."),
+    InputPort("guidance_horizon", PortType.UINT, 0, "RTC: steps past the frozen prefix kept close to the previous chunk; 0 = the server's setting.", valid=Range(0, 10_000)),
     InputPort("image_topics", PortType.STRING_LIST, "", "Camera topics (sensor_msgs/Image), ';'-separated."),
     InputPort("image_names", PortType.STRING_LIST, "", "Names the policy knows the cameras by, index-aligned with image_topics."),
     InputPort("joint_states_topic", PortType.STRING, "/joint_states", "sensor_msgs/JointState topic (reliable QoS)."),
@@ -82,21 +83,8 @@ def validate(config: PolicyRunConfig) -> None:
         )
     if len(set(config.image_names)) != len(config.image_names):
         raise ConfigError(f"image_names repeats a name: {';'.join(config.image_names)}")
-    positive = {
-        "dt": config.dt,
-        "total_action_steps": config.total_action_steps,
-        "committed_action_steps": config.committed_action_steps,
-        "policy_tracking_weight": config.policy_tracking_weight,
-        "policy_call_timeout": config.policy_call_timeout,
-    }
-    for name, value in positive.items():
-        if not value > 0:
-            raise ConfigError(f"{name} must be greater than 0, got {value}")
-    if config.num_interpolation_points < 2:
-        raise ConfigError(f"num_interpolation_points must be at least 2, got {config.num_interpolation_points}")
-    if config.link_padding < 0 or config.goal_path_tolerance < 0:
-        raise ConfigError("link_padding and goal_path_tolerance must not be negative")
-    if len(config.absolute_force_torque_threshold) != 6 or any(v <= 0 for v in config.absolute_force_torque_threshold):
+    # Each numeric port's own range (PORTS, valid=...) was checked when it was read.
+    if len(config.absolute_force_torque_threshold) != 6:
         raise ConfigError(
             "absolute_force_torque_threshold needs 6 positive values Fx;Fy;Fz;Tx;Ty;Tz, "
             f"got {';'.join(str(v) for v in config.absolute_force_torque_threshold)}"

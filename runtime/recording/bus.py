@@ -177,6 +177,10 @@ class RecordingBus:
     def __getattr__(self, name: str) -> Any:
         return getattr(self.inner, name)
 
+    def spin_once(self) -> None:
+        self.inner.spin_once()
+        self.writer.flush_if_due()
+
     # -- topics ---
     def record_topic(self, name: str, msg_type: type, max_hz: float | None = None) -> None:
         """Record every message on ``name`` (at most ``max_hz`` per second of clock time)."""

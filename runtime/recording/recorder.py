@@ -9,6 +9,11 @@
   then every event of the run's ``EventLog`` as it happens (node status changes, chunk
   requests, seams, rejections, warnings...), then the joint limits and the run's summary.
 
+Whatever ends the run (success, failure, an error, SIGINT/SIGTERM), the summary is written and
+says how (``status``). A process killed outright (SIGKILL) leaves a partial recording: every
+event up to the kill (the file is line-buffered) and every flushed MCAP chunk
+(``McapRos2Writer``); ``objective report`` renders what there is and says it is partial.
+
 The report (plots, video, tree, page) is rendered from these two files alone
 (``runtime.report``), so ``objective report DIR`` can redo it after the run.
 """
@@ -19,6 +24,7 @@ import math
 from pathlib import Path
 from typing import Any, Iterable, TextIO
 
+from ..crash import CRASH_LOG
 from ..errors import ObjectiveError
 from ..events import Event
 from .bag_metadata import BAG_METADATA_FILE, bag_metadata_yaml
@@ -84,6 +90,12 @@ class Tee:
         for sink in sinks:
             sink.qos = self.qos
 
+    def flush_if_due(self) -> None:
+        for sink in self.sinks:
+            flush = getattr(sink, "flush_if_due", None)
+            if flush is not None:
+                flush()
+
     def write(self, topic: str, msg: Any, seconds: float) -> None:
         for sink in self.sinks:
             sink.write(topic, msg, seconds)
@@ -110,7 +122,8 @@ class Recorder:
         if self.directory is not None:
             self.writer = self._open(self.directory)
             sinks.insert(0, self.writer)
-            self._events = open(self.directory / EVENTS_FILE, "w", encoding="utf-8")
+            # Line-buffered: every event is in the file as soon as it happens, whatever ends the process.
+            self._events = open(self.directory / EVENTS_FILE, "w", encoding="utf-8", buffering=1)
         self.sink = Tee(sinks)
         self.sink.qos.update({topic: LATCHED_QOS for topic in (TF_STATIC_TOPIC, ROBOT_MARKERS_TOPIC, SCENE_MARKERS_TOPIC)})
         self.context = context
@@ -131,7 +144,7 @@ class Recorder:
             raise ObjectiveError(f"--record {directory}: exists and is not a directory")
         try:
             directory.mkdir(parents=True, exist_ok=True)
-            for name in (*REPORT_FILES, BAG_METADATA_FILE):  # a previous run's files must not pass for this run's
+            for name in (*REPORT_FILES, BAG_METADATA_FILE, CRASH_LOG):  # a previous run's files must not pass for this run's
                 (directory / name).unlink(missing_ok=True)
             return McapRos2Writer(directory / MCAP_FILE, self.clock_origin_ns)
         except OSError as err:

@@ -26,6 +26,8 @@ class Report:
     files: dict[str, Path] = field(default_factory=dict)
     """joints, latency, video, tree, html -> the file written."""
     errors: dict[str, str] = field(default_factory=dict)
+    partial: list[str] = field(default_factory=list)
+    """Why the recording is incomplete (``Recording.partial``); empty when it is whole."""
 
 
 def render_report(directory: Path | str, logger: logging.Logger | None = None, parallel: bool = False) -> Report:
@@ -42,8 +44,8 @@ def render_report(directory: Path | str, logger: logging.Logger | None = None, p
 
     directory = Path(directory)
     recording = load_recording(directory)
-    report = Report(directory)
-    status = (recording.summary or {}).get("status", "unfinished")
+    report = Report(directory, partial=list(recording.partial))
+    status = (recording.summary or {}).get("status", "unfinished (partial)")
     steps = [
         ("joints", lambda: joints_plot(recording, directory / JOINTS_FILE)),
         ("latency", lambda: latency_plot(recording, directory / LATENCY_FILE)),

@@ -14,7 +14,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from mcap.reader import make_reader
+from mcap.exceptions import EndOfFile
+from mcap.reader import NonSeekingReader
 from mcap.records import Chunk, Message, Metadata
 from mcap.stream_reader import StreamReader
 from rclpy.serialization import deserialize_message
@@ -82,6 +83,8 @@ class Recording:
     requests: list[dict[str, Any]] = field(default_factory=list)
     responses: list[dict[str, Any]] = field(default_factory=list)
     frames: list[CameraFrame] = field(default_factory=list)
+    partial: list[str] = field(default_factory=list)
+    """Why the recording is incomplete (empty when it is whole): the run did not finish it."""
 
     def of_kind(self, kind: str) -> list[dict[str, Any]]:
         return [e for e in self.events if e["kind"] == kind]
@@ -115,24 +118,28 @@ def _seconds(t: Any) -> float:
 
 
 def read_events(path: Path, recording: Recording) -> None:
-    with open(path, encoding="utf-8") as stream:
-        for number, line in enumerate(stream, 1):
-            if not line.strip():
-                continue
-            try:
-                record = json.loads(line)
-            except json.JSONDecodeError as err:
-                raise ObjectiveError(f"{path}:{number}: not a JSON event ({err.msg})") from None
-            kind = record.get("kind")
-            if kind == "tree":
-                recording.tree_id = record.get("source", "")
-                recording.nodes = record["data"]["nodes"]
-            elif kind == "joint_limits":
-                recording.limits = {j["name"]: j for j in record["data"]["joints"]}
-            elif kind == "run_summary":
-                recording.summary = record["data"]
-            else:
-                recording.events.append(record)
+    with open(path, encoding="utf-8", errors="replace") as stream:
+        lines = stream.readlines()
+    for number, line in enumerate(lines, 1):
+        if not line.strip():
+            continue
+        try:
+            record = json.loads(line)
+        except json.JSONDecodeError as err:
+            if number == len(lines) and not line.endswith("\n"):  # the process died writing it
+                recording.partial.append(f"{path.name} ends in the middle of line {number}")
+                break
+            raise ObjectiveError(f"{path}:{number}: not a JSON event ({err.msg})") from None
+        kind = record.get("kind")
+        if kind == "tree":
+            recording.tree_id = record.get("source", "")
+            recording.nodes = record["data"]["nodes"]
+        elif kind == "joint_limits":
+            recording.limits = {j["name"]: j for j in record["data"]["joints"]}
+        elif kind == "run_summary":
+            recording.summary = record["data"]
+        else:
+            recording.events.append(record)
 
 
 def _joint_series(messages: list[tuple[float, Any]]) -> JointSeries:
@@ -187,47 +194,66 @@ def clock_origin_ns(path: Path) -> int:
     return 0
 
 
+@dataclass
+class _McapContents:
+    """What ``read_mcap`` keeps of each message while it reads the file."""
+
+    recording: Recording
+    origin_ns: int = 0
+    """Wall-clock log time of the runtime clock's zero (``clock_origin_ns``)."""
+    classes: dict[str, type] = field(default_factory=dict)
+    joint_messages: list[tuple[float, Any]] = field(default_factory=list)
+    images: dict[tuple[str, int], Any] = field(default_factory=dict)
+    counts: dict[str, list[Any]] = field(default_factory=lambda: defaultdict(lambda: ["", 0]))
+
+    def add(self, schema: Any, channel: Any, message: Any) -> None:
+        recording = self.recording
+        topic, type_name = channel.topic, schema.name if schema is not None else ""
+        self.counts[topic][0] = type_name
+        self.counts[topic][1] += 1
+        if type_name == "sensor_msgs/msg/Image":
+            self.images[(topic, message.log_time - self.origin_ns)] = message.data  # decoded only if a request shows it
+            return
+        if not _wanted(topic, type_name):
+            return
+        cls = self.classes.get(type_name)
+        if cls is None:
+            cls = self.classes[type_name] = message_class(type_name)
+        t = (message.log_time - self.origin_ns) * 1e-9
+        msg = deserialize_message(message.data, cls)
+        if topic == JOINT_STATES_TOPIC:
+            self.joint_messages.append((t, msg))
+        elif type_name == "trajectory_msgs/msg/JointTrajectory" and topic.endswith("/joint_trajectory"):
+            recording.goals.append(_goal(topic, t, msg))
+        elif type_name.endswith("GripperCommand_Goal"):
+            recording.gripper_commands.append((t, float(msg.command.position)))
+        elif topic.endswith("/request"):
+            recording.requests.append(json.loads(msg.data))
+        elif topic.endswith("/response"):
+            recording.responses.append(json.loads(msg.data))
+
+
 def read_mcap(path: Path, recording: Recording) -> None:
-    origin_ns = clock_origin_ns(path)
-    classes: dict[str, type] = {}
-    joint_messages: list[tuple[float, Any]] = []
-    images: dict[tuple[str, int], Any] = {}
-    counts: dict[str, list[Any]] = defaultdict(lambda: ["", 0])
+    contents = _McapContents(recording, clock_origin_ns(path))
     with open(path, "rb") as stream:
-        reader = make_reader(stream)
-        # File order is recording order, which is clock order (the recorder writes as time passes).
-        for schema, channel, message in reader.iter_messages(log_time_order=False):
-            topic, type_name = channel.topic, schema.name if schema is not None else ""
-            counts[topic][0] = type_name
-            counts[topic][1] += 1
-            if type_name == "sensor_msgs/msg/Image":
-                images[(topic, message.log_time - origin_ns)] = message.data  # decoded only if a request shows it
-                continue
-            if not _wanted(topic, type_name):
-                continue
-            cls = classes.get(type_name)
-            if cls is None:
-                cls = classes[type_name] = message_class(type_name)
-            t = (message.log_time - origin_ns) * 1e-9
-            msg = deserialize_message(message.data, cls)
-            if topic == JOINT_STATES_TOPIC:
-                joint_messages.append((t, msg))
-            elif type_name == "trajectory_msgs/msg/JointTrajectory" and topic.endswith("/joint_trajectory"):
-                recording.goals.append(_goal(topic, t, msg))
-            elif type_name.endswith("GripperCommand_Goal"):
-                recording.gripper_commands.append((t, float(msg.command.position)))
-            elif topic.endswith("/request"):
-                recording.requests.append(json.loads(msg.data))
-            elif topic.endswith("/response"):
-                recording.responses.append(json.loads(msg.data))
-    recording.topics = {topic: (name, count) for topic, (name, count) in counts.items()}
-    if joint_messages:
-        recording.joints = _joint_series(joint_messages)
+        # Read front to back, as a stream: file order is recording order, which is clock order
+        # (the recorder writes as time passes), and a file whose writer was killed (no summary
+        # section, maybe half a chunk) still gives every complete chunk.
+        try:
+            for schema, channel, message in NonSeekingReader(stream).iter_messages(log_time_order=False):
+                contents.add(schema, channel, message)
+        except EndOfFile:
+            joints = contents.joint_messages
+            end = f" at {joints[-1][0]:.2f} s" if joints else ""
+            recording.partial.append(f"{path.name} ends early{end}: the recorder did not close it")
+    recording.topics = {topic: (name, count) for topic, (name, count) in contents.counts.items()}
+    if contents.joint_messages:
+        recording.joints = _joint_series(contents.joint_messages)
     image_class = message_class("sensor_msgs/msg/Image")
     for request in recording.requests:
         views = []
         for view in request.get("images", []):
-            data = images.get((view["topic"], int(round(request["time"] * 1e9))))
+            data = contents.images.get((view["topic"], int(round(request["time"] * 1e9))))
             if data is not None:
                 views.append((view["name"], image_rgb(deserialize_message(data, image_class))))
         if views:
@@ -247,6 +273,8 @@ def load_recording(directory: Path | str) -> Recording:
         read_mcap(mcap, recording)
     except ObjectiveError:
         raise
-    except Exception as err:  # a truncated file (the run was killed) or not MCAP at all
+    except Exception as err:  # not MCAP at all, or damaged (a truncated end is read as partial)
         raise ObjectiveError(f"{mcap}: cannot read the recording: {err}") from None
+    if recording.summary is None:
+        recording.partial.insert(0, f"{EVENTS_FILE} has no run summary: the run was killed before it finished")
     return recording

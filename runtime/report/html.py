@@ -18,7 +18,8 @@ from .data import Recording
 CSS = """
 body { font-family: sans-serif; margin: 1.5em; color: #222; max-width: 1500px; }
 h1 { font-size: 1.4em; } h2 { font-size: 1.15em; margin-top: 1.6em; border-bottom: 1px solid #ddd; }
-.SUCCESS { color: #2e7d32; } .FAILURE { color: #c62828; }
+.SUCCESS { color: #2e7d32; } .FAILURE, .ERROR { color: #c62828; } .INTERRUPTED { color: #ef6c00; }
+.partial { background: #fff3e0; padding: 0.5em; }
 table { border-collapse: collapse; font-size: 0.9em; }
 td, th { border: 1px solid #ddd; padding: 3px 8px; text-align: left; vertical-align: top; }
 th { background: #f5f5f5; }
@@ -102,6 +103,14 @@ def _topics(recording: Recording) -> str:
     return f"<table><tr><th>topic</th><th>type</th><th>messages</th></tr>{rows}</table>"
 
 
+def _partial_note(recording: Recording) -> str:
+    """A warning above everything when the recording is incomplete (the run was killed)."""
+    if not recording.partial:
+        return ""
+    items = "".join(f"<li>{_e(reason)}</li>" for reason in recording.partial)
+    return f'<p class="partial"><strong>Partial recording</strong>: this shows the run up to where it stopped.</p><ul>{items}</ul>\n'
+
+
 def report_html(recording: Recording, files: dict[str, Path]) -> str:
     """The page; ``files`` maps artifact names (joints, latency, tree, video) to the files written."""
     status = (recording.summary or {}).get("status", "")
@@ -123,7 +132,7 @@ def report_html(recording: Recording, files: dict[str, Path]) -> str:
 <html lang="en"><head><meta charset="utf-8"><title>{_e(title)}</title><style>{CSS}</style></head>
 <body>
 <h1>{_e(recording.tree_id or 'run')}: <span class="{_e(status)}">{_e(status or 'unfinished')}</span></h1>
-{_summary_table(recording)}
+{_partial_note(recording)}{_summary_table(recording)}
 {_extras(recording)}
 <p>Files: {links} · <a href="run.mcap">run.mcap</a> (Foxglove, <code>ros2 bag</code>) · <a href="events.jsonl">events.jsonl</a></p>
 <h2>Joints: commanded versus measured</h2>

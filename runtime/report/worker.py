@@ -8,25 +8,42 @@ the directory, the worker renders the report (``render_report(..., parallel=True
 plot in a forked process beside the rest) and answers one JSON line with the files written and
 the artifacts that failed.
 
+Signals are the run's business: the worker runs in a process group of its own, so Ctrl-C at the
+terminal reaches only the run (which stops the worker if it must), and it starts with SIGINT
+blocked (and then ignored), so one sent to it directly does nothing either; it never prints a
+traceback.
+
 Nothing is lost if the worker cannot help: if it died, answers garbage or takes longer than
 ``timeout``, ``render`` stops it and the report is rendered in this process as before. If this
 process dies, the worker reads end-of-file and exits without rendering anything.
 """
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
 import os
+import signal
 import subprocess
 import sys
 from pathlib import Path
-from typing import Any
+from typing import Any, Iterator
 
 from ..errors import ObjectiveError
 from . import Report, log_errors, render_report
 
 RENDER_TIMEOUT = 600.0
 """Seconds the worker may take to render a report (a long run's video is the slow part)."""
+
+
+@contextlib.contextmanager
+def _sigint_blocked() -> Iterator[None]:
+    """Block SIGINT in this thread while inside: one arriving meanwhile is delivered on the way out."""
+    previous = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, previous)
 
 
 class ReportWorker:
@@ -37,10 +54,12 @@ class ReportWorker:
 
     def start(self) -> None:
         try:
-            self.process = subprocess.Popen(
-                [sys.executable, "-m", "runtime.report.worker"],
-                stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True,
-            )
+            with _sigint_blocked():  # the worker inherits the mask: deaf to SIGINT from its first instruction
+                self.process = subprocess.Popen(
+                    [sys.executable, "-m", "runtime.report.worker"],
+                    stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True,
+                    process_group=0,  # the terminal's Ctrl-C goes to the run, not to its worker
+                )
         except OSError:
             self.process = None  # rendered in process instead
 
@@ -52,7 +71,8 @@ class ReportWorker:
             return render_report(directory, logger)
         if "failed" in answer:  # the recording itself cannot be read: rendering here would fail alike
             raise ObjectiveError(str(answer["failed"]))
-        report = Report(directory, {k: Path(v) for k, v in answer["files"].items()}, dict(answer["errors"]))
+        report = Report(directory, {k: Path(v) for k, v in answer["files"].items()}, dict(answer["errors"]),
+                        [str(reason) for reason in answer.get("partial", [])])
         log_errors(report, logger)
         return report
 
@@ -74,6 +94,10 @@ class ReportWorker:
             process.kill()
             process.communicate()
             return None
+        except BaseException:  # interrupted while waiting: the worker has nobody to answer
+            process.kill()
+            process.wait()
+            raise
         if isinstance(answer, dict) and "failed" in answer:
             return answer
         if not isinstance(answer, dict) or not isinstance(answer.get("files"), dict) or not isinstance(answer.get("errors"), dict):
@@ -82,6 +106,7 @@ class ReportWorker:
 
 
 def main() -> int | None:
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # the run decides when the worker stops
     try:  # everything the report imports, before the directory arrives
         from . import html, plots, tree_svg, video  # noqa: F401
 
@@ -96,10 +121,13 @@ def main() -> int | None:
         return 0  # the run ended without a report (or its process died)
     try:
         report = render_report(json.loads(line)["directory"], parallel=True)
-        answer = {"files": {k: str(v) for k, v in report.files.items()}, "errors": report.errors}
+        answer = {"files": {k: str(v) for k, v in report.files.items()}, "errors": report.errors, "partial": report.partial}
     except Exception as err:
         answer = {"failed": str(err) if isinstance(err, ObjectiveError) else f"{type(err).__name__}: {err}"}
-    print(json.dumps(answer), flush=True)
+    try:
+        print(json.dumps(answer), flush=True)
+    except OSError:  # the run stopped listening (it was interrupted): nothing to tell
+        pass
     os._exit(0)  # every file is closed; skip the interpreter's teardown, which the run waits for
 
 

@@ -14,18 +14,16 @@ Why these choices:
   manager, camera frames) share state with the world, which the runner steps on its own thread
   (and MuJoCo renders on the thread that owns its GL context). Their callbacks therefore wait
   for the runner's ``bus.spin_once()`` once per tick instead of running on rclpy's threads.
-- SIGTERM is turned into ``KeyboardInterrupt`` while the run lasts, so a process manager (or a
-  test) that stops the runner gets the same clean end as Ctrl-C: the tree is halted (goals
-  cancelled, the robot stopped), the world closed and the node destroyed.
+- SIGTERM and SIGINT stop the run at the next tick in every mode (``runtime.interrupt``), so a
+  process manager (or a test) that stops the runner gets a clean end: the tree is halted (goals
+  cancelled, the robot stopped; the cancels are delivered for ``HALT_GRACE_S``), the world
+  closed and the node destroyed. The bus's rclpy context installs no signal handlers of its own.
 """
 from __future__ import annotations
 
-import contextlib
 import os
-import signal
-import threading
 import time
-from typing import Any, Iterator
+from typing import Any
 
 from runtime.clock import WallClock
 
@@ -61,23 +59,3 @@ def deliver_pending(bus: Any, seconds: float = HALT_GRACE_S) -> None:
         if time.monotonic() >= deadline:
             return
         time.sleep(0.01)
-
-
-@contextlib.contextmanager
-def sigterm_as_interrupt() -> Iterator[None]:
-    """While inside, SIGTERM raises ``KeyboardInterrupt`` in the main thread (as SIGINT does).
-
-    Outside the main thread Python cannot install signal handlers; then nothing changes.
-    """
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-
-    def interrupt(signum: int, frame: Any) -> None:
-        raise KeyboardInterrupt(f"signal {signum}")
-
-    previous = signal.signal(signal.SIGTERM, interrupt)
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGTERM, previous)

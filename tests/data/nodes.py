@@ -4,7 +4,7 @@ from __future__ import annotations
 from typing import Any, ClassVar
 
 from runtime.behavior import Behavior, NodeKind, Status
-from runtime.ports import InputPort, OutputPort, PortType
+from runtime.ports import InputPort, OutputPort, PortType, Range
 from runtime.registry import Registry
 
 
@@ -13,8 +13,8 @@ class Typed(Behavior):
 
     description: ClassVar[str] = "Writes x * n to out."
     ports = (
-        InputPort("x", PortType.FLOAT, description="A number."),
-        InputPort("n", PortType.INT, 3, "How many times."),
+        InputPort("x", PortType.FLOAT, description="A number.", valid=Range(-1e6, 1e6)),
+        InputPort("n", PortType.INT, 3, "How many times.", valid=Range(0, 100)),
         InputPort("flag", PortType.BOOL, False, "A switch."),
         OutputPort("out", PortType.FLOAT, "x * n."),
     )
@@ -81,7 +81,33 @@ class Check(Behavior):
         return Status.SUCCESS if self.get_input("value") else self.fail("value is false")
 
 
-TEST_NODES = (Typed, Copy, FailWith, Forever, Robot, Check)
+class Crash(Behavior):
+    """A bug: RUNNING for 'after' ticks, then an exception nobody expected."""
+
+    ports = (InputPort("after", PortType.INT, 0, "Ticks before it raises.", valid=Range(0, 1000)),)
+
+    def __init__(self, name: str) -> None:
+        super().__init__(name)
+        self.ticks = 0
+
+    def update(self) -> Status:
+        self.ticks += 1
+        if self.ticks > self.get_input("after"):
+            raise RuntimeError("sensor exploded")
+        return Status.RUNNING
+
+
+class BrokenAtLoad(Behavior):
+    """A bug in a node's own load-time check."""
+
+    def check_literals(self) -> None:
+        raise KeyError("calibration")
+
+    def update(self) -> Status:
+        return Status.SUCCESS
+
+
+TEST_NODES = (Typed, Copy, FailWith, Forever, Robot, Check, Crash, BrokenAtLoad)
 
 
 def make_registry() -> Registry:

@@ -1,0 +1,76 @@
+"""SIGINT and SIGTERM during a run: stop at the next tick, as a preemption.
+
+``stop_on_signals`` installs handlers for both signals while a run lasts. The first signal only
+sets ``StopRequest.signum``; the runner looks at it before every tick, halts the tree (RUNNING
+nodes get ``terminate(INVALID)``: goals cancelled, the robot stopped), finishes the recording
+and reports ``INTERRUPTED``. A signal that arrives when waiting would be pointless raises
+``Interrupted`` at once instead: a second signal (the first one is not being honoured fast
+enough), or any signal once ``StopRequest.urgent`` is set (the tick loop is over).
+
+The exit code of an interrupted run is the shell's: 128 + the signal number (130 for SIGINT,
+143 for SIGTERM).
+"""
+from __future__ import annotations
+
+import contextlib
+import signal
+import threading
+from dataclasses import dataclass
+from typing import Any, Iterator
+
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
+
+class Interrupted(KeyboardInterrupt):
+    """Raised by the handler when a signal must stop whatever runs now."""
+
+    def __init__(self, signum: int) -> None:
+        super().__init__(signal_name(signum))
+        self.signum = signum
+
+
+def signal_name(signum: int) -> str:
+    try:
+        return signal.Signals(signum).name
+    except ValueError:
+        return f"signal {signum}"
+
+
+def exit_code_for(signum: int) -> int:
+    """The exit status a shell reports for a process the signal ended: 128 + its number."""
+    return 128 + int(signum)
+
+
+@dataclass
+class StopRequest:
+    """What the signal handlers tell the runner (see the module doc)."""
+
+    signum: int | None = None
+    urgent: bool = False
+
+    @property
+    def requested(self) -> bool:
+        return self.signum is not None
+
+    def on_signal(self, signum: int, frame: Any = None) -> None:
+        if self.urgent or self.signum is not None:
+            self.signum = self.signum or signum
+            raise Interrupted(signum)
+        self.signum = signum
+
+
+@contextlib.contextmanager
+def stop_on_signals(stop: StopRequest) -> Iterator[StopRequest]:
+    """While inside, SIGINT and SIGTERM go to ``stop.on_signal``; the previous handlers come back after.
+
+    Outside the main thread Python cannot install signal handlers; then nothing changes.
+    """
+    if threading.current_thread() is not threading.main_thread():
+        yield stop
+        return
+    previous = {signum: signal.signal(signum, stop.on_signal) for signum in STOP_SIGNALS}
+    try:
+        yield stop
+    finally:
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
