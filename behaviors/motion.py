@@ -193,7 +193,8 @@ class MoveToWaypoint(_MoveToJoints):
     description = "Move a joint group to a named waypoint (e.g. Home) from the cell's waypoints file."
     ports = (
         InputPort("waypoint_name", PortType.STRING, description="Name of the waypoint, e.g. Home."),
-        InputPort("seed", PortType.INT, 0, "MoveIt Pro's planner seed (an integer). The motion here is planned without sampling, so every seed gives the same motion."),
+        InputPort("seed", PortType.INT, 0, "MoveIt Pro's planner seed (an integer). The motion here is planned without sampling, so every seed gives the same motion.",
+                  valid=Range(-(2**31), 2**31 - 1)),
     ) + _MoveToJoints.common_ports
 
     def target(self, joints: tuple[str, ...]) -> np.ndarray:

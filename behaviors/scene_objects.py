@@ -22,7 +22,7 @@ from typing import Any, Callable
 
 from runtime.behavior import Status
 from runtime.errors import PortError
-from runtime.ports import InputPort, PortType
+from runtime.ports import InputPort, PortType, Range
 from runtime.scene import Box
 
 from .poses import NO_SCENE, FrameError, SceneBehavior, as_pose_stamped, pose_in_world
@@ -98,7 +98,8 @@ class AddCollisionBox(ChecksPorts, SceneBehavior):
     description = "Add a box collision object (object_id, full dimensions x;y;z in m, pose) to the planning scene."
     ports = (
         OBJECT_ID,
-        InputPort("dimensions", PortType.FLOAT_LIST, description="Full edge lengths x;y;z in metres, along the pose's axes."),
+        InputPort("dimensions", PortType.FLOAT_LIST, description="Full edge lengths x;y;z in metres, along the pose's axes.",
+                  valid=Range(0.0, 100.0, "m", min_open=True), length=3),
         POSE,
         InputPort("overwrite", PortType.BOOL, False, "true: replace an object with the same id; false: fail if one exists."),
     )

@@ -85,9 +85,12 @@ class PlaceSimBox(ChecksPorts, ReadsRobotState, Behavior):
     )
     ports = (
         InputPort("object_id", PortType.STRING, description="Name of the box (also its planning-scene id), e.g. tray."),
-        InputPort("dimensions", PortType.FLOAT_LIST, description="Full edge lengths x;y;z in metres."),
-        InputPort("position_xyz", PortType.FLOAT_LIST, description="Centre x;y;z in metres, in reference_frame."),
-        InputPort("orientation_xyzw", PortType.FLOAT_LIST, "0;0;0;1", "Orientation quaternion x;y;z;w in reference_frame."),
+        InputPort("dimensions", PortType.FLOAT_LIST, description="Full edge lengths x;y;z in metres.",
+                  valid=Range(0.0, 100.0, "m", min_open=True), length=3),
+        InputPort("position_xyz", PortType.FLOAT_LIST, description="Centre x;y;z in metres, in reference_frame.",
+                  valid=Range(-100.0, 100.0, "m"), length=3),
+        InputPort("orientation_xyzw", PortType.FLOAT_LIST, "0;0;0;1", "Orientation quaternion x;y;z;w in reference_frame.",
+                  valid=Range(-1.0, 1.0), length=4),
         InputPort("reference_frame", PortType.STRING, "world", "world, a robot frame (e.g. tcp) or a planning-scene object."),
         InputPort("add_to_planning_scene", PortType.BOOL, True, "true: the planning scene gets it too (as the cubes); false: only the physics knows it."),
     )

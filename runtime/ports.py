@@ -97,6 +97,8 @@ class PortInfo:
     direction: Direction = Direction.INPUT
     valid: Range | None = None
     """The values a numeric port accepts (see ``Range``); checked at load time and when read."""
+    length: int | None = None
+    """How many items a list port takes (``3`` for x;y;z); None: any number."""
 
     @property
     def required(self) -> bool:
@@ -112,8 +114,8 @@ class PortInfo:
 
 
 def InputPort(name: str, type: PortType = PortType.STRING, default: Any = REQUIRED, description: str = "",
-              valid: Range | None = None) -> PortInfo:
-    return PortInfo(name, type, default, description, Direction.INPUT, valid)
+              valid: Range | None = None, length: int | None = None) -> PortInfo:
+    return PortInfo(name, type, default, description, Direction.INPUT, valid, length)
 
 
 def OutputPort(name: str, type: PortType = PortType.ANY, description: str = "") -> PortInfo:
@@ -128,12 +130,15 @@ def InOutPort(name: str, type: PortType = PortType.ANY, default: Any = REQUIRED,
 def range_problem(info: PortInfo, value: Any) -> str | None:
     """Why a converted ``value`` is outside ``info.valid`` ("must be in (0, 10] s, got inf"), or None.
 
-    Lists are checked item by item ("item 3 must be in ..."). Only numeric ports are checked.
+    Lists are checked for their ``info.length``, then item by item ("item 3 must be in ...").
+    Only numeric ports are checked.
     """
     if info.type not in NUMERIC_TYPES or info.direction is Direction.OUTPUT:
         return None
     valid = info.valid or FINITE
     items = list(value) if isinstance(value, (list, tuple)) else [value]
+    if info.length is not None and isinstance(value, (list, tuple)) and len(items) != info.length:
+        return f"needs {info.length} values, got {len(items)}"
     for index, item in enumerate(items, 1):
         if isinstance(item, (int, float)) and not isinstance(item, bool) and not valid.accepts(item):
             which = f"item {index} " if isinstance(value, (list, tuple)) else ""

@@ -175,12 +175,19 @@ def test_move_to_waypoint_takes_moveit_pro_s_ports_and_its_scale_factors_set_the
         ('controller_names="no_such_controller"', "unknown controllers: no_such_controller (known: "),
         ('controller_action_server="/nowhere/follow_joint_trajectory"', "controller action '/nowhere/follow_joint_trajectory' is not available"),
         ('joint_group_name="gripper_arm"', "gripper_arm"),
-        ('velocity_scale_factor="1.5"', "velocity_scaling must be in (0, 1], got 1.5"),
     ],
 )
 def test_move_to_waypoint_bad_ports_fail_naming_them(registry, tmp_path, ports, reason):
     result = run_tree(registry, tmp_path, f'<SubTree ID="Move to Waypoint" {ports}/>')
     assert result.status == "FAILURE" and reason in result.reason
+
+
+def test_move_to_waypoint_scale_outside_its_range_is_an_error_of_the_objective(registry, tmp_path):
+    """A SubTree port is a string until the node inside reads it: then it is checked against the
+    port's range like a literal, and the run ends as ERROR naming the port."""
+    result = run_tree(registry, tmp_path, '<SubTree ID="Move to Waypoint" velocity_scale_factor="1.5"/>')
+    assert result.status == "ERROR" and "port 'velocity_scaling_factor'" in result.reason
+    assert "must be in (0, 1], got 1.5" in result.reason
 
 
 def test_move_to_waypoint_link_padding_reaches_the_collision_check(registry, tmp_path):

@@ -84,31 +84,46 @@ def test_an_existing_id_needs_overwrite(capsys, tmp_path):
     [
         ('<RemoveCollisionObject object_id="ghost"/>', "no collision object 'ghost' in the planning scene (objects: "),
         ('<MoveCollisionObject object_id="ghost" pose="{tcp}"/>', "no collision object 'ghost' in the planning scene (objects: "),
-        ('<AddCollisionBox object_id="box" dimensions="{dims}" pose="{tcp}"/>', "port 'dimensions': dimensions y must be a positive number of metres, got -0.1"),
-        ('<AddCollisionBox object_id="box" dimensions="0.1;0.1;0.1" pose="{nan_pose}"/>', "pose position is not finite"),
         ('<AddCollisionBox object_id="box" dimensions="0.1;0.1;0.1" pose="{dims}"/>', "port 'pose' expects a geometry_msgs/PoseStamped, got str"),
         ('<AttachObject object_name="cube_red"/><RemoveCollisionObject object_id="cube_red"/>', "'cube_red' is attached to the robot: detach it (DetachObject) first"),
     ],
 )
 def test_bad_input_at_run_time_fails_the_node_with_a_reason(capsys, tmp_path, node, reason):
-    nan_pose = ('<TransformPose input_pose="{tcp}" translation_xyz="{nan}" output_pose="{nan_pose}"/>'
-                if "nan_pose" in node else "")
-    code, summary = run_xml(capsys, tmp_path, TCP_POSE + nan_pose + node, "--set", "dims=0.1;-0.1;0.1", "--set", "nan=0;nan;0")
+    code, summary = run_xml(capsys, tmp_path, TCP_POSE + node, "--set", "dims=0.1;-0.1;0.1")
     assert code == 1, summary
     assert summary["reason"].startswith(reason), summary["reason"]
 
 
 @pytest.mark.parametrize(
+    "node, reason",
+    [
+        ('<AddCollisionBox object_id="box" dimensions="{dims}" pose="{tcp}"/>',
+         "AddCollisionBox: port 'dimensions' (from '{dims}') item 2 must be in (0, 100] m, got -0.1"),
+        ('<TransformPose input_pose="{tcp}" translation_xyz="{nan}" output_pose="{nan_pose}"/>'
+         '<AddCollisionBox object_id="box" dimensions="0.1;0.1;0.1" pose="{nan_pose}"/>',
+         "TransformPose: port 'translation_xyz' (from '{nan}') item 2 must be in [-100, 100] m, got nan"),
+    ],
+)
+def test_out_of_range_values_from_the_blackboard_end_the_run_as_an_error(capsys, tmp_path, node, reason):
+    """A value read at run time is checked against the port's range like a literal: the run stops
+    (ERROR, exit 2) naming the port, before a box with a negative size or a NaN pose is made."""
+    code, summary = run_xml(capsys, tmp_path, TCP_POSE + node, "--set", "dims=0.1;-0.1;0.1", "--set", "nan=0;nan;0")
+    assert (code, summary["status"]) == (2, "ERROR"), summary
+    assert reason in summary["reason"] and "Traceback" not in summary["reason"], summary["reason"]
+    assert "box" not in summary.get("world", {}).get("boxes", {})
+
+
+@pytest.mark.parametrize(
     "node, message",
     [
-        ('<AddCollisionBox object_id="box" dimensions="0.1;0.1" pose="{p}"/>', "AddCollisionBox: port 'dimensions': dimensions needs 3 values (x;y;z in metres), got 2"),
-        ('<AddCollisionBox object_id="box" dimensions="0.1;0;0.1" pose="{p}"/>', "AddCollisionBox: port 'dimensions': dimensions y must be a positive number of metres, got 0.0"),
+        ('<AddCollisionBox object_id="box" dimensions="0.1;0.1" pose="{p}"/>', "AddCollisionBox: port 'dimensions' needs 3 values, got 2"),
+        ('<AddCollisionBox object_id="box" dimensions="0.1;0;0.1" pose="{p}"/>', "AddCollisionBox: port 'dimensions' item 2 must be in (0, 100] m, got 0.0"),
         ('<AddCollisionBox object_id="" dimensions="0.1;0.1;0.1" pose="{p}"/>', "AddCollisionBox: port 'object_id': object_id must name one object, got ''"),
         ('<RemoveCollisionObject object_id="*"/>', "RemoveCollisionObject: port 'object_id': object_id must name one object, got '*'"),
         ('<MoveCollisionObject object_id="box" pose="0;0;1"/>', "MoveCollisionObject: port 'pose' needs a geometry_msgs/PoseStamped from the blackboard, e.g. {pose} written by GetLatestTransform or TransformPose; got the text '0;0;1'"),
-        ('<PlaceSimBox object_id="b" dimensions="0.1;0.1;0.1" position_xyz="0;nan;0.2"/>', "PlaceSimBox: port 'position_xyz': values must be finite metres, got 0;nan;0.2"),
+        ('<PlaceSimBox object_id="b" dimensions="0.1;0.1;0.1" position_xyz="0;nan;0.2"/>', "PlaceSimBox: port 'position_xyz' item 2 must be in [-100, 100] m, got nan"),
         ('<PlaceSimBox object_id="b" dimensions="0.1;0.1;0.1" position_xyz="0;0.5;0.2" orientation_xyzw="0;0;0;0"/>', "PlaceSimBox: port 'orientation_xyzw': 0;0;0;0 is not a rotation (zero length)"),
-        ('<PlaceSimBox object_id="b" dimensions="0.1;inf;0.1" position_xyz="0;0.5;0.2"/>', "PlaceSimBox: port 'dimensions': dimensions y must be a positive number of metres, got inf"),
+        ('<PlaceSimBox object_id="b" dimensions="0.1;inf;0.1" position_xyz="0;0.5;0.2"/>', "PlaceSimBox: port 'dimensions' item 2 must be in (0, 100] m, got inf"),
     ],
 )
 def test_bad_literals_are_load_time_errors(capsys, tmp_path, node, message):

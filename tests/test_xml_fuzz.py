@@ -290,7 +290,7 @@ def _in_range(port: PortInfo) -> str:
     low, high = valid.min, valid.max
     middle = 0.0 if low is None and high is None else (low if high is None else high if low is None else (low + high) / 2)
     value = str(int(middle)) if port.type in (PortType.INT, PortType.UINT, PortType.INT_LIST) else repr(float(middle))
-    return ";".join([value] * 6) if port.type in (PortType.FLOAT_LIST, PortType.INT_LIST) else value
+    return ";".join([value] * (port.length or 6)) if port.type in (PortType.FLOAT_LIST, PortType.INT_LIST) else value
 
 
 def _one_node_tree(spec: NodeSpec, values: dict[str, str]) -> str:

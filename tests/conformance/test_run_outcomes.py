@@ -17,7 +17,6 @@ import pytest
 
 from runtime.behavior import Status
 from runtime.cli import main
-from runtime.errors import ScriptRunError
 from runtime.loader import load_tree
 from runtime.runner import RunOptions, make_context, run_tree
 from tests.data.nodes import Forever, make_registry
@@ -124,9 +123,8 @@ def test_a_script_error_stops_the_run_halting_what_runs(registry, tmp_path, fail
     options = RunOptions()
     context = make_context(options)
     loaded = load_tree(path, registry, context, objectives_dir=lib)
-    with pytest.raises(ScriptRunError) as info:
-        run_tree(loaded, context, options)
-    assert str(info.value) == f"{path}:3: {message}"
+    result = run_tree(loaded, context, options)  # an error of the Objective: the run ends as ERROR
+    assert (result.status, result.reason, result.exit_code) == ("ERROR", f"{path}:3: {message}", 2)
     motion = next(n.node for n in loaded.nodes if isinstance(n.node, Forever))
     assert motion.terminated == [Status.INVALID] and motion.status is Status.INVALID
     assert not loaded.blackboard.has("fallback")
