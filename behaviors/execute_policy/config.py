@@ -101,3 +101,12 @@ def validate(config: PolicyRunConfig) -> None:
             "absolute_force_torque_threshold needs 6 positive values Fx;Fy;Fz;Tx;Ty;Tz, "
             f"got {';'.join(str(v) for v in config.absolute_force_torque_threshold)}"
         )
+
+
+def committed_window_problem(committed_steps: int, chunk_steps: int) -> str | None:
+    """The guide's rule for the first chunk: ``committed_action_steps`` must be smaller than the
+    policy's chunk size, or no next chunk can take over before this one runs out."""
+    if committed_steps < chunk_steps:
+        return None
+    return (f"committed_action_steps ({committed_steps}) must be smaller than the policy's chunk size "
+            f"({chunk_steps} steps): set committed_action_steps to at most {max(1, chunk_steps - 1)}")
