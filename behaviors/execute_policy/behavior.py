@@ -85,6 +85,8 @@ class RunMetrics:
     stall_seconds: float = 0.0
     rejections: int = 0
     latencies: list[float] = field(default_factory=list)
+    latency_estimate_s: float = 0.0
+    """What the last request was timed for (``timing.LatencyEstimate``)."""
     warnings: list[str] = field(default_factory=list)
 
     def as_dict(self) -> dict[str, Any]:
@@ -97,6 +99,7 @@ class RunMetrics:
             "latency_p50_s": round(float(np.percentile(lat, 50)), 4),
             "latency_p95_s": round(float(np.percentile(lat, 95)), 4),
             "latency_max_s": round(float(lat.max()), 4),
+            "latency_estimate_s": round(self.latency_estimate_s, 4),
             "warnings": list(self.warnings),
         }
 
@@ -282,7 +285,7 @@ class ExecutePolicy(Behavior):
 
     # -- requests and responses --------------------------------------------------------------
     def _frozen(self) -> int:
-        est = self.latency.seconds
+        est = self.metrics.latency_estimate_s = self.latency.seconds
         return frozen_prefix_steps(est, self.config.dt, prefetch_margin(est, TICK_PERIOD) + 2 * self.goal_latency_s)
 
     def _maybe_request(self, now: float) -> None:

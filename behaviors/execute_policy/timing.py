@@ -34,9 +34,9 @@ class LatencyEstimate:
 
     The estimate is the 90th percentile (nearest rank) of the last 20 round trips. While fewer
     than 10 have been seen it is the slowest of them, so an early slow call (a warmup that paid
-    for compilation, a spike) is covered at once; it stops counting once it is one in ten, or
-    when it leaves the window, so the estimate comes back down after an outlier. Latencies that
-    recur (two or more of the last 20 at that level) keep it up.
+    for compilation, a spike) is covered at once; it stops counting once it is less than one in
+    ten, and for good when it leaves the window, so the estimate comes back down after an outlier.
+    Latencies that recur (more than one in ten of the recent round trips) keep it up.
     """
 
     def __init__(self, window_calls: int = LATENCY_WINDOW_CALLS, quantile: float = LATENCY_QUANTILE) -> None:
