@@ -284,6 +284,6 @@ def test_gripper_results_a_stalled_grasp_is_normal_an_abort_short_of_the_target_
     assert result_problem(action, 0.8, STATUS_ABORTED, _Result(0.45, stalled=True)) is None  # allow_stalling off
     assert result_problem(action, 0.8, STATUS_CANCELED, _Result(0.3)) is None  # preempted by the next goal
     assert result_problem(action, 0.8, STATUS_ABORTED, _Result(0.0)) == (
-        "the gripper controller '/robotiq_gripper_controller/gripper_cmd' aborted the goal to 0.8000 rad: "
-        "the fingers are at 0.0000 rad, short of it, and did not stall on an object"
+        "the gripper controller '/robotiq_gripper_controller/gripper_cmd' aborted the goal to 0.8000 rad "
+        "with the fingers at 0.0000 rad, not stalled on an object"
     )

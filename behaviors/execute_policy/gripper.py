@@ -33,8 +33,8 @@ def result_problem(action_name: str, target: float, status: int, result: Any) ->
     if status in (STATUS_SUCCEEDED, STATUS_CANCELED) or (status == STATUS_ABORTED and result.stalled):
         return None
     how = "aborted" if status == STATUS_ABORTED else f"ended (status {status})"
-    return (f"the gripper controller '{action_name}' {how} the goal to {target:.4f} rad: the fingers are at "
-            f"{result.position:.4f} rad, short of it, and did not stall on an object")
+    return (f"the gripper controller '{action_name}' {how} the goal to {target:.4f} rad with the fingers at "
+            f"{result.position:.4f} rad, not stalled on an object")
 
 
 def follow_goals(goals: list[GripperGoal], action_name: str) -> str | None:
