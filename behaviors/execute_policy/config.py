@@ -13,7 +13,7 @@ PORTS = (
     InputPort("total_action_steps", PortType.UINT, description="Run length in policy steps; the motion lasts total_action_steps * dt seconds."),
     InputPort("prompt", PortType.STRING, "", "Task instruction passed to the policy."),
     InputPort("dt", PortType.FLOAT, 0.05, "Seconds per policy step: 1 / the rate the policy was trained at."),
-    InputPort("committed_action_steps", PortType.UINT, 32, "Steps executed from each chunk before the next takes over; (committed - 1) * dt should cover twice the latency."),
+    InputPort("committed_action_steps", PortType.UINT, 32, "Steps executed from each chunk before the next takes over; smaller than the policy's chunk size, and (committed - 1) * dt should cover twice the latency."),
     InputPort("num_interpolation_points", PortType.UINT, 100, "Densified points per chunk: the sampling density of the limit and collision checks."),
     InputPort("link_padding", PortType.FLOAT, 0.01, "Meters of padding around the robot for the world collision check (self-collision is unpadded)."),
     InputPort("policy_tracking_weight", PortType.FLOAT, 300.0, "How closely the smoothing spline follows the chunk: lower if the motion oscillates, higher if it lags."),
