@@ -537,7 +537,7 @@ def test_heavy_tailed_latency_warns_once_during_the_run_with_the_figures(registr
     run = run_policy(registry, BASE, ScriptedPolicy(hold()), latency=TraceLatency([0.2, 0.2, 1.2, 1.3, 0.2]))
     assert run.result.status == "SUCCESS", run.result.reason
     assert [w for w in run.summary["warnings"] if "below twice" in w] == [
-        "(committed_action_steps - 1) * dt = 1.900 s is below twice the latency estimate 1.200 s (the 90% quantile "
+        "(committed_action_steps - 1) * dt = 1.900 s is below twice the latency estimate 1.200 s (the 90th percentile "
         "of the last 3 round trips): expect pauses at chunk boundaries (committed_action_steps = 25 would cover it)"
     ]
 

@@ -212,8 +212,8 @@ def test_latency_estimate_keeps_up_with_latency_that_recurs_and_forgets_what_lef
 
 def test_sizing_warning_names_the_figures():
     assert sizing_warning(20, 0.1, 0.95, "measured latency") is None
-    assert sizing_warning(20, 0.1, 1.2, "latency estimate", " (the 90% quantile of the last 4 round trips)") == (
-        "(committed_action_steps - 1) * dt = 1.900 s is below twice the latency estimate 1.200 s (the 90% quantile "
+    assert sizing_warning(20, 0.1, 1.2, "latency estimate", " (the 90th percentile of the last 4 round trips)") == (
+        "(committed_action_steps - 1) * dt = 1.900 s is below twice the latency estimate 1.200 s (the 90th percentile "
         "of the last 4 round trips): expect pauses at chunk boundaries (committed_action_steps = 25 would cover it)"
     )
 

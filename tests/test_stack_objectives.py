@@ -47,7 +47,7 @@ def test_one_slow_inference_pauses_the_stack_once_and_the_estimate_recovers(caps
     assert policy["stall_seconds"] == pytest.approx(3.0, abs=0.011)  # asked 0.1 s before the drain, answered 3 s later
     sizing = [w for w in policy["warnings"] if "below twice" in w]
     assert sizing == [
-        "(committed_action_steps - 1) * dt = 1.900 s is below twice the latency estimate 3.000 s (the 90% quantile "
+        "(committed_action_steps - 1) * dt = 1.900 s is below twice the latency estimate 3.000 s (the 90th percentile "
         "of the last 3 round trips): expect pauses at chunk boundaries (committed_action_steps = 61 would cover it)"
     ]
     assert summary["stack_check"]["stacked"] is True

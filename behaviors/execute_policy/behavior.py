@@ -332,7 +332,7 @@ class ExecutePolicy(Behavior):
             return self._stop(Status.FAILURE, f"calling the policy service '{c.policy_service_name}' failed: {exc}")
         self.latency.update(now - flight.sent_at)
         self.metrics.latencies.append(now - flight.sent_at)
-        self._check_sizing("latency estimate", f" (the {self.latency.quantile:.0%} quantile of the last {len(self.latency.recent)} round trips)")
+        self._check_sizing("latency estimate", f" (the {self.latency.quantile * 100:.0f}th percentile of the last {len(self.latency.recent)} round trips)")
         if response.status == GetActionChunk.Response.NO_MORE_ACTIONS:
             return self._stop(Status.SUCCESS, f"the policy has no more actions: {response.message}".rstrip(": "))
         if response.status != GetActionChunk.Response.CHUNK_PRODUCED:
