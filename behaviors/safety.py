@@ -7,7 +7,7 @@ from typing import Any
 
 import numpy as np
 
-from runtime.scene import ConfigurationMap, GroupError, JointLimits, PlanningScene, SceneSnapshot
+from runtime.scene import ConfigurationMap, GroupError, JointLimit, JointLimits, LimitViolation, PlanningScene, SceneSnapshot
 
 from .execute_policy.shaping import Samples
 
@@ -25,6 +25,8 @@ class MotionSafety:
     limits: JointLimits
     layout: ConfigurationMap
     gripper_joint: str | None
+    chunk_limits: JointLimits
+    """The limits of the group's joints, then of the gripper joint when there is one."""
 
     def snapshot(self) -> SceneSnapshot:
         """Collision rules and attachments now; checks with it ignore later rule changes."""
@@ -33,6 +35,13 @@ class MotionSafety:
     def first_limit_violation(self, samples: Samples) -> str | None:
         hit = self.limits.check(samples.positions, samples.velocities, samples.accelerations, samples.times)
         return None if hit is None else str(hit)
+
+    def first_value_out_of_limits(self, arm: np.ndarray, gripper: np.ndarray | None) -> LimitViolation | None:
+        """The first step of a chunk, as the policy sent it, with a value outside its joint's
+        position limits: the arm columns against the group's joints, the gripper column
+        (when there is one) against the gripper joint's."""
+        rows = arm if gripper is None or self.gripper_joint is None else np.column_stack([arm, gripper])
+        return self.chunk_limits.check(rows)
 
     def first_collision(
         self, snapshot: SceneSnapshot, samples: Samples, padding: float, gripper_position: float | None = None
@@ -74,7 +83,19 @@ def make_safety(scene: Any, group: str, gripper_joint: str | None) -> MotionSafe
         raise SafetyError("the planning scene has no joint limits (joint_limits.yaml)")
     try:
         limits = scene.limits.subset(joints)
+        chunk_limits = JointLimits(limits.joints + ((_gripper_limit(scene, gripper_joint),) if gripper_joint is not None else ()))
         layout = scene.layout(group, gripper_joint)
     except (KeyError, GroupError, ValueError) as err:
         raise SafetyError(str(err).strip('"')) from None
-    return MotionSafety(scene, group, joints, tip, limits, layout, gripper_joint)
+    return MotionSafety(scene, group, joints, tip, limits, layout, gripper_joint, chunk_limits)
+
+
+def _gripper_limit(scene: PlanningScene, joint: str) -> JointLimit:
+    """The gripper joint's limits from joint_limits.yaml, or its position range in the robot
+    model when the file has no entry for it."""
+    try:
+        return scene.limits[joint]
+    except KeyError:
+        model = scene.robot.model
+        q = model.joints[model.getJointId(joint)].idx_q
+        return JointLimit(joint, float(model.lowerPositionLimit[q]), float(model.upperPositionLimit[q]))

@@ -291,17 +291,3 @@ def latency_trace(kind: str, seconds: float, calls: int, seed: int) -> list[floa
         mu = math.log(seconds) - sigma2 / 2.0
         return np.random.default_rng(seed).lognormal(mu, math.sqrt(sigma2), calls).tolist()
     raise ValueError(f"latency trace kind must be 'fixed' or 'lognormal', got {kind!r}")
-
-
-class TraceLatency:
-    """A ``runtime.bus`` latency model replaying ``trace``: the first call (ExecutePolicy's
-    warmup) takes ``warmup`` seconds, call ``i`` after it takes ``trace[i]``."""
-
-    def __init__(self, trace: list[float], warmup: float) -> None:
-        self.trace, self.warmup, self.calls = list(trace), float(warmup), 0
-
-    def delay(self, measured_wall_s: float) -> float:
-        self.calls += 1
-        if self.calls == 1:
-            return self.warmup
-        return self.trace[(self.calls - 2) % len(self.trace)]

@@ -32,13 +32,13 @@ import numpy as np
 from moveit_pro_ml_msgs.srv import GetActionChunk
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
+from runtime.bus import TraceLatency
 from runtime.loader import load_tree
 from runtime.registry import Registry
 from runtime.runner import RunOptions, make_context, run_tree
 from benchmarks.baselines import (
     Stream,
     TaskPolicy,
-    TraceLatency,
     benchmark_task,
     latency_trace,
     run_lerobot_aggregate,
@@ -83,7 +83,7 @@ def run_ours(registry: Registry, policy: TaskPolicy, trace: list[float]) -> tupl
         return response
 
     context.bus.create_service(SERVICE, GetActionChunk, serve)
-    context.bus.set_latency(SERVICE, TraceLatency(trace, warmup=float(np.mean(trace))))
+    context.bus.set_latency(SERVICE, TraceLatency([float(np.mean(trace))] + trace))  # the warmup takes the mean
     log_t: list[float] = []
     log_q: list[np.ndarray] = []
     command = world.cell.command_arm

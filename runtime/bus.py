@@ -12,6 +12,7 @@ slow policy is exercised deterministically while the robot keeps moving.
 from __future__ import annotations
 
 import itertools
+import math
 import random
 import time
 import uuid
@@ -233,10 +234,8 @@ class LognormalLatency:
     """Heavy-tailed latency with the given mean and standard deviation (seconds), seeded."""
 
     def __init__(self, mean: float, sd: float, seed: int = 0) -> None:
-        if mean <= 0 or sd < 0:
+        if not (0 < mean < math.inf and 0 <= sd < math.inf):
             raise ValueError(f"lognormal latency needs mean > 0 and sd >= 0, got mean={mean}, sd={sd}")
-        import math
-
         self.mean, self.sd = mean, sd
         sigma2 = math.log(1.0 + (sd / mean) ** 2)
         self._mu = math.log(mean) - sigma2 / 2.0
@@ -250,8 +249,53 @@ class LognormalLatency:
         return f"lognormal:{self.mean},{self.sd}"
 
 
+class TraceLatency:
+    """Latencies replayed from a trace: call ``i`` (the warmup is call 0) takes ``seconds[i]``,
+    and every call after the last takes the last value."""
+
+    def __init__(self, seconds: list[float], source: str = "trace") -> None:
+        if not seconds:
+            raise ValueError(f"{source}: the trace has no latencies")
+        self.seconds, self.source, self.calls = list(seconds), source, 0
+
+    def delay(self, measured_wall_s: float) -> float:
+        index, self.calls = min(self.calls, len(self.seconds) - 1), self.calls + 1
+        return self.seconds[index]
+
+    def __repr__(self) -> str:
+        return f"trace:{self.source}"
+
+
+def read_latency_trace(path: str) -> TraceLatency:
+    """A trace file: one latency in seconds per line (finite, not negative); blank lines and
+    ``#`` comments are skipped. Raises ValueError naming ``file:line`` and what is wrong."""
+    try:
+        with open(path, encoding="utf-8") as f:
+            lines = f.read().splitlines()
+    except (OSError, UnicodeDecodeError) as err:
+        reason = err.strerror if isinstance(err, OSError) and err.strerror else str(err)
+        raise ValueError(f"latency trace '{path}' cannot be read: {reason}") from None
+    seconds = []
+    for number, line in enumerate(lines, 1):
+        text = line.split("#", 1)[0].strip()
+        if not text:
+            continue
+        try:
+            value = float(text)
+        except ValueError:
+            raise ValueError(f"{path}:{number}: '{text}' is not a number of seconds") from None
+        if not math.isfinite(value) or value < 0:
+            raise ValueError(f"{path}:{number}: a latency must be a finite number of seconds >= 0, got '{text}'")
+        seconds.append(value)
+    if not seconds:
+        raise ValueError(f"latency trace '{path}' is empty: it needs one latency in seconds per line")
+    return TraceLatency(seconds, path)
+
+
 def parse_latency(spec: str, seed: int = 0) -> LatencyModel:
-    """``measured``, ``0.3`` (fixed seconds) or ``lognormal:MEAN,SD``."""
+    """``measured``, ``0.3`` (fixed seconds), ``lognormal:MEAN,SD`` or ``trace:FILE``."""
+    if spec.strip().lower().startswith("trace:"):
+        return read_latency_trace(spec.strip()[len("trace:"):])
     text = spec.strip().lower()
     if text == "measured":
         return MeasuredLatency()
@@ -264,9 +308,9 @@ def parse_latency(spec: str, seed: int = 0) -> LatencyModel:
     try:
         seconds = float(text)
     except ValueError:
-        raise ValueError(f"latency '{spec}': expected seconds (e.g. 0.3), 'measured' or lognormal:MEAN,SD") from None
-    if seconds < 0:
-        raise ValueError(f"latency '{spec}': must not be negative")
+        raise ValueError(f"latency '{spec}': expected seconds (e.g. 0.3), 'measured', lognormal:MEAN,SD or trace:FILE") from None
+    if not seconds >= 0:
+        raise ValueError(f"latency '{spec}': must be a number of seconds >= 0")
     return FixedLatency(seconds)
 
 

@@ -96,7 +96,8 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--world", metavar="NAME", help="world for trees that need one (default: the installation's, vla_sim here)")
     run.add_argument("--max-seconds", type=positive_float, metavar="S", help="fail after S seconds of clock time")
     run.add_argument("--policy-latency", metavar="SPEC",
-                     help="policy call latency: 'measured' (default), seconds (e.g. 0.3) or lognormal:MEAN,SD")
+                     help="policy call latency: 'measured' (default), seconds (e.g. 0.3), lognormal:MEAN,SD or "
+                          "trace:FILE (one latency per line, per call, the last repeating)")
     run.add_argument("--policy", metavar="SPEC",
                      help="policy the world serves on /get_action_chunk in headless runs: oracle (default), replay:FILE or none")
     run.add_argument("--world-option", action="append", type=_parse_set, default=[], metavar="KEY=VALUE",

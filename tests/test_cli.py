@@ -89,6 +89,43 @@ def test_run_bad_input_exit_2_without_traceback(cli, tmp_path):
     }
 
 
+def test_policy_latency_trace_replays_each_call_and_repeats_the_last(tmp_path):
+    """Pins ``--policy-latency trace:FILE``: call i takes line i (the warmup is the first call),
+    blank lines and # comments are skipped, and the last value repeats."""
+    from runtime.bus import parse_latency
+
+    trace = tmp_path / "robot latencies.txt"
+    trace.write_text("# measured on the robot\n0.4\n\n0.05  # a fast one\n3\n0.1\n")
+    model = parse_latency(f"trace:{trace}")
+    assert [model.delay(0.0) for _ in range(6)] == [0.4, 0.05, 3.0, 0.1, 0.1, 0.1]
+    assert repr(model) == f"trace:{trace}"
+
+
+@pytest.mark.parametrize(
+    "content, problem",
+    [
+        (None, "cannot be read: No such file or directory"),
+        ("", "is empty: it needs one latency in seconds per line"),
+        ("# only a comment\n\n", "is empty: it needs one latency in seconds per line"),
+        ("0.1\nfast\n", ":2: 'fast' is not a number of seconds"),
+        ("0.1\n0.2\n-0.3\n", ":3: a latency must be a finite number of seconds >= 0, got '-0.3'"),
+        ("nan\n", ":1: a latency must be a finite number of seconds >= 0, got 'nan'"),
+        ("0.1\ninf\n", ":2: a latency must be a finite number of seconds >= 0, got 'inf'"),
+    ],
+    ids=["missing", "empty", "comments-only", "non-numeric", "negative", "nan", "inf"],
+)
+def test_a_bad_latency_trace_is_bad_input_before_anything_runs(cli, tmp_path, content, problem):
+    trace = tmp_path / "trace.txt"
+    if content is not None:
+        trace.write_text(content)
+    path = tree_file(tmp_path, "<AlwaysSuccess/>")
+    code, out, err = cli("run", str(path), "--policy-latency", f"trace:{trace}", "--json")
+    assert code == 2
+    assert "--policy-latency: " in err and problem in err and "Traceback" not in err
+    assert str(trace) in err
+    assert json.loads(out.strip().splitlines()[-1])["status"] == "ERROR"
+
+
 def test_run_missing_file_and_bad_options_exit_2(cli, tmp_path):
     code, _, err = cli("run", str(tmp_path / "nope.xml"))
     assert code == 2 and "nope.xml: cannot read file: No such file or directory" in err

@@ -296,6 +296,106 @@ def test_missing_gripper_joint_in_joint_states_fails_at_the_first_observation(re
     )
 
 
+# -- the gripper column and the gripper's answers (issue 13, item 5) --------------------------
+def with_gripper(value: float, velocity: np.ndarray | None = None) -> Callable[[int, Any], Any]:
+    """``hold`` chunks whose gripper column is ``value`` at every step."""
+
+    def answer(index: int, request: Any) -> Any:
+        response = hold(velocity=velocity)(index, request)
+        column = list(response.chunk.joint_names).index(GRIPPER)
+        for point in response.chunk.points:
+            point.positions[column] = value
+        return response
+
+    return answer
+
+
+def record_gripper_goals(goals: list[float]) -> Callable[[Any, KinematicWorld], None]:
+    """A ``before`` hook: every GripperCommand goal the gripper controller receives is recorded."""
+    import sim.controllers.gripper as gripper_module
+
+    original = gripper_module.GripperActionController._on_goal
+
+    def recording(self, handle):
+        goals.append(float(handle.request.command.position))
+        return original(self, handle)
+
+    def hook(context: Any, world: KinematicWorld) -> None:
+        gripper_module.GripperActionController._on_goal = recording
+
+    hook.restore = lambda: setattr(gripper_module.GripperActionController, "_on_goal", original)  # type: ignore[attr-defined]
+    return hook
+
+
+def test_a_gripper_column_100_times_too_large_is_rejected_like_an_arm_joint(registry):
+    """On main a policy whose gripper values were 100x too large ran to the end with no
+    rejection. The column is checked against the gripper joint's limits (0..0.8 rad) before
+    anything is sent, and the chunk is rejected naming the step, the joint and the value."""
+    goals: list[float] = []
+    hook = record_gripper_goals(goals)
+    try:
+        run = run_policy(registry, f"{BASE} {GRIPPER_PORTS}", ScriptedPolicy(with_gripper(0.6 * 100)), before=hook)
+    finally:
+        hook.restore()
+    assert run.result.status == "FAILURE"
+    assert run.result.reason == (
+        f"chunk 1 rejected: step 0: joint {GRIPPER} position 60.0000 rad exceeds the limit 0.8000 rad (policy step 1 of the run)"
+    )
+    assert run.result.blackboard["rejection"] == run.result.reason and run.summary["rejections"] == 1
+    assert goals == [] and run.world.cell.gripper == 0.0  # nothing reached the gripper
+
+
+def test_a_gripper_goal_the_controller_refuses_fails_the_run_with_the_reason(registry, monkeypatch):
+    """A controller whose range is narrower than the model's refuses 0.7 rad: on main the
+    refusal was never read and the run went on."""
+    import sim.controllers.gripper as gripper_module
+
+    original = gripper_module.GripperActionController._on_goal
+    monkeypatch.setattr(gripper_module.GripperActionController, "_on_goal",
+                        lambda self, handle: False if handle.request.command.position > 0.5 else original(self, handle))
+    run = run_policy(registry, f"{BASE} {GRIPPER_PORTS}", ScriptedPolicy(with_gripper(0.7, velocity=np.array([0.1, 0, 0, 0, 0, 0]))))
+    assert run.result.status == "FAILURE"
+    assert run.result.reason == "the gripper controller '/robotiq_gripper_controller/gripper_cmd' refused the goal to 0.7000 rad"
+    assert run.result.sim_seconds < 1.5  # at the first gripper goal, not at the end of the run
+
+
+def test_a_gripper_goal_aborted_by_an_inactive_controller_fails_the_run(registry):
+    """The gripper controller was switched off before the run: it accepts and aborts every goal
+    without moving. On main that went unnoticed."""
+    switch = ('<SwitchController activate_controllers="joint_trajectory_admittance_controller" '
+              'deactivate_controllers="velocity_force_controller;robotiq_gripper_controller"/>{node}')
+    run = run_policy(registry, f"{BASE} {GRIPPER_PORTS}", ScriptedPolicy(with_gripper(0.4)), prepare=False, wrap=switch)
+    assert run.result.status == "FAILURE"
+    assert run.result.reason == (
+        "the gripper controller '/robotiq_gripper_controller/gripper_cmd' aborted the goal to 0.4000 rad "
+        "with the fingers at 0.0000 rad, not stalled on an object"
+    )
+
+
+def test_a_grasp_that_stalls_on_a_cube_is_normal(registry, monkeypatch):
+    """The oracle closes the gripper on the cube: that goal ends stalled, short of its target,
+    and the run goes on to the stack (every gripper result is read; a stall fails nothing)."""
+    import sim.controllers.gripper as gripper_module
+
+    original = gripper_module.GripperActionController._result
+    stalled: list[float] = []
+
+    def result(self, reached=False, stalled_now=False, effort=0.0, **kw):
+        value = original(self, reached, kw.get("stalled", stalled_now), effort)
+        if value.stalled:
+            stalled.append(value.position)
+        return value
+
+    monkeypatch.setattr(gripper_module.GripperActionController, "_result", result)
+    ports = (f'total_action_steps="300" dt="0.1" committed_action_steps="20" goal_path_tolerance="0.3" '
+             f'policy_call_timeout="3.0" prompt="stack the blue cube on the green cube" {GRIPPER_PORTS}')
+    allow = '<SetCollisionRule object_name="*" link_names="gripper" allow="true"/>{node}'
+    run = run_policy(registry, ports, None, seed=3, wrap=allow)
+    assert run.result.status == "SUCCESS", run.result.reason
+    assert run.summary["steps_executed"] == 300
+    assert len(stalled) == 1 and 0.1 < stalled[0] < 0.8  # closed on the cube, short of 0.8 rad
+
+
 # -- safety --------------------------------------------------------------------------------
 def test_dt_mismatch_doubles_velocity_and_the_chunk_is_rejected_before_moving(registry):
     fast = np.array([0.0, 0.0, 0.0, 0.0, 0.0, 1.8])  # rad/s at the policy's 10 Hz
@@ -442,6 +542,35 @@ def test_latency_beyond_the_window_pauses_between_chunks_and_warns(registry):
     # Each chunk can only be asked for once the previous one arrived: two 0.5 s gaps in 60 steps.
     assert run.summary["stall_seconds"] == pytest.approx(1.0, abs=0.05)
     assert any("is below twice the measured latency 2.500 s" in w for w in run.summary["warnings"])
+
+
+def test_heavy_tailed_latency_warns_once_during_the_run_with_the_figures(registry):
+    """The warmup is fast (0.2 s) and so is the first chunk; then the policy slows to 1.2-1.3 s,
+    more than half the committed window (1.9 s). On main the sizing rule was only checked at the
+    warmup, so heavy-tailed latency never warned; now it is checked at every answer and warns
+    once, naming the estimate and how it was made."""
+    from runtime.bus import TraceLatency
+
+    run = run_policy(registry, BASE, ScriptedPolicy(hold()), latency=TraceLatency([0.2, 0.2, 1.2, 1.3, 0.2]))
+    assert run.result.status == "SUCCESS", run.result.reason
+    assert [w for w in run.summary["warnings"] if "below twice" in w] == [
+        "(committed_action_steps - 1) * dt = 1.900 s is below twice the latency estimate 1.200 s (the 90th percentile "
+        "of the last 3 round trips): expect pauses at chunk boundaries (committed_action_steps = 25 would cover it)"
+    ]
+
+
+def test_committed_window_not_smaller_than_the_chunk_fails_at_the_first_chunk(registry):
+    """The guide: committed_action_steps must be smaller than the policy's chunk size. On main
+    this only warned and ran on."""
+    run = run_policy(registry, BASE, ScriptedPolicy(hold(steps=20, velocity=np.array([0.1, 0, 0, 0, 0, 0]))))
+    assert run.result.status == "FAILURE"
+    assert run.result.reason == (
+        "chunk 1 rejected: committed_action_steps (20) must be smaller than the policy's chunk size (20 steps): "
+        "set committed_action_steps to at most 19"
+    )
+    assert run.summary["rejections"] == 1 and run.summary["chunks"] == 1
+    start = np.array([run.world.waypoints["Ready"][j] for j in ARM_JOINTS])
+    assert np.allclose(run.world.cell.arm, start, atol=1e-9)  # nothing moved
 
 
 class SpikeAt:

@@ -5,9 +5,26 @@ from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
 from behaviors.execute_policy.chunk import ChunkError, read_chunk, read_policy_chunk
-from behaviors.execute_policy.shaping import densify, fit_chunk, join_at_seam, runout_duration
-from behaviors.execute_policy.stream import runout_progress
-from behaviors.execute_policy.timing import LatencyEstimate, frozen_prefix_steps, window_covers_latency
+from behaviors.execute_policy.config import committed_window_problem
+from behaviors.execute_policy.gripper import result_problem
+from behaviors.execute_policy.shaping import (
+    POSITION_BLEND_PEAK,
+    VELOCITY_BLEND_PEAK,
+    blend_duration_within,
+    densify,
+    fit_chunk,
+    join_at_seam,
+    runout_duration,
+)
+from behaviors.execute_policy.stream import drained_seconds, runout_progress
+from behaviors.execute_policy.timing import (
+    LatencyEstimate,
+    frozen_prefix_steps,
+    nearest_rank_quantile,
+    sizing_warning,
+    window_covers_latency,
+)
+from runtime.bus import STATUS_ABORTED, STATUS_CANCELED, STATUS_SUCCEEDED
 
 GROUP = ["j1", "j2"]
 
@@ -154,3 +171,119 @@ def test_a_chunk_that_finds_the_arm_at_rest_plays_from_the_arms_step():
     late = grid.plan_window(2, request_step=22, frozen=3, chunk_steps=50, earliest_seam=31)
     # Drained at step 25 (chunk step 3 of the new chunk); joins at 31, played from chunk step 3.
     assert (late.seam_step, late.first_chunk_step, late.request_step) == (31, 3, 28)
+
+
+# -- the latency estimate (issue 13, item 2) -------------------------------------------------
+def test_nearest_rank_quantile_is_the_largest_until_one_in_ten_can_be_left_out():
+    assert nearest_rank_quantile([], 0.9) == 0.0
+    assert nearest_rank_quantile([0.1] * 8 + [3.0], 0.9) == 3.0  # 9 values: too few to leave one out
+    assert nearest_rank_quantile([0.1] * 9 + [3.0], 0.9) == 0.1  # 10: the slowest is the top tenth
+    assert nearest_rank_quantile([0.1] * 18 + [2.0, 3.0], 0.9) == 0.1
+    assert nearest_rank_quantile([0.1] * 17 + [1.0, 2.0, 3.0], 0.9) == 1.0
+
+
+def test_latency_estimate_covers_a_spike_at_once_and_recovers_after_it():
+    """Pins the estimate that replaced the grow-only maximum: a 3 s call as the second streamed
+    request (the warmup and one call before it) is covered at once, and once ten round trips
+    have been seen the spike is the slowest tenth and the estimate is back at the usual 0.05 s
+    (on main it stayed 3 s for the rest of the run: a 34-step frozen prefix)."""
+    est = LatencyEstimate()
+    history = []
+    for seconds in [0.05, 0.05, 3.0] + [0.05] * 25:
+        est.update(seconds)
+        history.append(est.seconds)
+    assert history[:2] == [0.05, 0.05]
+    assert history[2:9] == [3.0] * 7  # 3 to 9 round trips seen
+    assert history[9:] == [0.05] * 19  # from the 10th on
+    assert frozen_prefix_steps(est.seconds, 0.1, 0.02 + 0.1 * est.seconds) == 1
+
+
+def test_latency_estimate_keeps_up_with_latency_that_recurs_and_forgets_what_left_the_window():
+    """Heavy-tailed latency: slow calls that are more than one in ten of the last 20 keep the
+    estimate at the slow level; once 20 fast calls followed, nothing slow is left to count."""
+    est = LatencyEstimate()
+    for seconds in [0.2, 0.2, 1.5, 0.2, 0.2, 1.3, 0.2, 1.4, 0.2, 0.2] + [0.2] * 10:
+        est.update(seconds)
+    assert est.seconds == 1.3  # 3 of 20: the 18th smallest is the least slow of them
+    for _ in range(20):
+        est.update(0.2)
+    assert est.seconds == 0.2
+
+
+def test_sizing_warning_names_the_figures():
+    assert sizing_warning(20, 0.1, 0.95, "measured latency") is None
+    assert sizing_warning(20, 0.1, 1.2, "latency estimate", " (the 90th percentile of the last 4 round trips)") == (
+        "(committed_action_steps - 1) * dt = 1.900 s is below twice the latency estimate 1.200 s (the 90th percentile "
+        "of the last 4 round trips): expect pauses at chunk boundaries (committed_action_steps = 25 would cover it)"
+    )
+
+
+# -- joining a chunk that starts away from the arm (issue 13, item 2) -------------------------
+def _offset_join(max_acceleration):
+    """The issue's chunk 6: the policy re-planned, so its chunk is 0.55 rad away from where the
+    committed motion is at the seam (and 0.23 rad/s slower); the window is 15 steps of 0.1 s."""
+    chunk = np.linspace([0.0, 0.0], [0.3, -0.1], 50)
+    spline = fit_chunk(chunk, 300.0)
+    k = 34.0
+    start_p = spline(k) + np.array([0.55, 0.0])
+    start_v = spline(k, nu=1) / 0.1 + np.array([0.23, 0.0])
+    return join_at_seam(spline, 0.1, 0.0, 3.4, 4.9, start_p, start_v, 0.75, max_acceleration=max_acceleration)
+
+
+def test_a_chunk_that_starts_away_from_the_arm_is_joined_within_the_acceleration_limit():
+    """Pins the cause of 'chunk 6 rejected: ... acceleration 5.0-6.3 rad/s^2 exceeds the limit'
+    after a slow inference: the seam blend was always half the window (0.75 s here), so a
+    0.55 rad offset was planned at 5.6 rad/s^2. The blend is now as long as the acceleration
+    the chunk leaves free requires, and the join stays continuous at the seam."""
+    limit = np.array([5.0, 5.0])
+    fixed = _offset_join(None)
+    _, _, a_fixed = fixed.evaluate(np.linspace(3.4, 4.9, 301))
+    assert np.abs(a_fixed).max() > limit[0]  # what main planned
+    joined = _offset_join(limit)
+    assert joined.blend_duration > 0.75
+    t = np.linspace(3.4, 3.4 + joined.blend_duration, 601)
+    p, v, a = joined.evaluate(t)
+    assert np.abs(a).max() <= 0.5 * limit[0] + 1e-9  # the chunk alone does not accelerate: the blend gets half
+    assert np.allclose(p[0], joined.offset_position + joined.spline(34.0), atol=1e-12)
+
+
+def test_blend_duration_is_the_nominal_one_unless_the_offset_needs_longer():
+    headroom = np.array([5.0, 5.0])
+    assert blend_duration_within(np.array([0.001, 0.0]), np.zeros(2), headroom, 1.0) == 1.0
+    # A position offset d over T adds at most d * 10/sqrt(3) / T^2; half the headroom is used.
+    assert blend_duration_within(np.array([1.0, 0.0]), np.zeros(2), headroom, 0.5) == pytest.approx(np.sqrt(POSITION_BLEND_PEAK / 2.5))
+    assert blend_duration_within(np.zeros(2), np.array([0.0, 2.0]), headroom, 0.5) == pytest.approx(2.0 * VELOCITY_BLEND_PEAK / 2.5)
+    # No headroom (the chunk alone is at its limit): nothing to gain, the check rejects the chunk.
+    assert blend_duration_within(np.array([1.0, 0.0]), np.zeros(2), np.array([0.0, 5.0]), 0.5) == 0.5
+
+
+# -- the rest of issue 13's ExecutePolicy items ------------------------------------------------
+def test_committed_window_must_be_smaller_than_the_chunk():
+    assert committed_window_problem(19, 20) is None
+    assert committed_window_problem(20, 20) == (
+        "committed_action_steps (20) must be smaller than the policy's chunk size (20 steps): "
+        "set committed_action_steps to at most 19"
+    )
+
+
+def test_drained_time_counts_from_the_end_of_the_committed_motion():
+    assert drained_seconds(None, 5.0) == 0.0  # no chunk yet: nothing was drained
+    assert drained_seconds(4.0, 3.5) == 0.0
+    assert drained_seconds(4.0, 7.25) == 3.25
+
+
+class _Result:
+    def __init__(self, position, stalled=False, reached=False):
+        self.position, self.stalled, self.reached_goal = position, stalled, reached
+
+
+def test_gripper_results_a_stalled_grasp_is_normal_an_abort_short_of_the_target_is_not():
+    action = "/robotiq_gripper_controller/gripper_cmd"
+    assert result_problem(action, 0.8, STATUS_SUCCEEDED, _Result(0.8, reached=True)) is None
+    assert result_problem(action, 0.8, STATUS_SUCCEEDED, _Result(0.45, stalled=True)) is None
+    assert result_problem(action, 0.8, STATUS_ABORTED, _Result(0.45, stalled=True)) is None  # allow_stalling off
+    assert result_problem(action, 0.8, STATUS_CANCELED, _Result(0.3)) is None  # preempted by the next goal
+    assert result_problem(action, 0.8, STATUS_ABORTED, _Result(0.0)) == (
+        "the gripper controller '/robotiq_gripper_controller/gripper_cmd' aborted the goal to 0.8000 rad "
+        "with the fingers at 0.0000 rad, not stalled on an object"
+    )

@@ -82,6 +82,8 @@ class Outcome:
     requested_at: list[float]
     world: KinematicWorld
     summary: dict[str, Any] = field(default_factory=dict)
+    first_window_end: float = 0.0
+    """Clock time at which the first executed chunk's window ends."""
 
     def assert_stopped_cleanly(self) -> None:
         controller = self.world.controllers["joint_trajectory_admittance_controller"]
@@ -118,6 +120,7 @@ def run_with_faults(registry: Registry, handler: Callable[[Any], Any] | None, la
         requested_at=[e.time for e in context.events.of_kind("chunk_requested")],
         world=world,
         summary=result.extra.get("execute_policy", {}),
+        first_window_end=next((e.data["seam_time"] + e.data["steps"] * 0.1 for e in context.events.of_kind("chunk_executed")), 0.0),
     )
 
 
@@ -129,6 +132,11 @@ def test_dropped_response_fails_at_policy_call_timeout_and_stops(registry):
     assert out.message == f"the policy service '{SERVICE}' did not answer within policy_call_timeout = {TIMEOUT:g} s"
     assert out.finished_at - out.requested_at[2] == pytest.approx(TIMEOUT, abs=2 * TICK)
     out.assert_stopped_cleanly()
+    # The arm drained chunk 1's window at its end and waited for chunk 2 until the timeout: a
+    # stall (on main stall_seconds stayed 0 when the wait ended in a failure).
+    drained_at = out.first_window_end
+    assert out.summary["stall_seconds"] == pytest.approx(out.finished_at - drained_at, abs=1e-6)
+    assert out.summary["stall_seconds"] > 2.5
 
 
 def test_warmup_that_never_answers_fails_at_policy_call_timeout(registry):
@@ -235,6 +243,26 @@ def test_malformed_answer_stops_the_arm_with_the_reason(registry, fault, status,
     assert out.message.startswith(message), out.message
     # Decided when the answer lands, one tick after it is due.
     assert out.finished_at - out.requested_at[2] == pytest.approx(0.1, abs=2 * TICK)
+    out.assert_stopped_cleanly()
+
+
+def test_a_chunk_a_million_radians_away_is_reported_by_the_value_the_policy_sent(registry):
+    """On main the rejection quoted the first densified point (a value the blend made up, far
+    from what was sent); it now names the policy's own value, its step and joint, before
+    anything is shaped or sent."""
+    sent: list[float] = []
+
+    def far(request):
+        response = moving_chunk(request)
+        for point in response.chunk.points:
+            point.positions = [p + 1e6 for p in point.positions]
+        sent.append(response.chunk.points[0].positions[0])
+        return response
+
+    out = run_with_faults(registry, Policy(fault_at=2, fault=far), FixedLatency(0.1))
+    assert out.status == "FAILURE"
+    assert out.message == (f"chunk 2 rejected: step 0: joint shoulder_pan_joint position {sent[0]:.4f} rad exceeds the "
+                           "limit 6.2832 rad (policy step 20 of the run)")
     out.assert_stopped_cleanly()
 
 

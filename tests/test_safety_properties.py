@@ -5,6 +5,8 @@ duplicated names, huge steps, motions into the table, arms starting next to a li
 the real ExecutePolicy (loaded from XML, ticked by the real runner) on an in-process bus, against
 a recording controller. Checked on every run:
 
+- every gripper goal that reached the gripper controller is within the gripper joint's position
+  limits (runs with a gripper configured carry a gripper column: in range, beyond it, non-finite);
 - every point of every goal that reached the controller is within the position limits and its
   stated velocity and acceleration are within the velocity and acceleration limits (the motion
   *between* densified points is not checked, which is why samples are never more than 10 ms
@@ -25,6 +27,7 @@ import numpy as np
 import pytest
 from hypothesis import HealthCheck, event, given, settings
 from hypothesis import strategies as st
+from control_msgs.action import GripperCommand
 from moveit_pro_controllers_msgs.action import FollowJointTrajectoryWithAdmittance as FollowTrajectory
 from moveit_pro_ml_msgs.srv import GetActionChunk
 from sensor_msgs.msg import JointState
@@ -44,6 +47,7 @@ from sim.robot_model import ARM_JOINTS, GRIPPER_DRIVER_JOINT, load_waypoints
 R = GetActionChunk.Response
 SERVICE = "/get_action_chunk"
 CONTROLLER = "/joint_trajectory_admittance_controller/follow_joint_trajectory"
+GRIPPER_ACTION = "/robotiq_gripper_controller/gripper_cmd"
 PADDING = 0.01
 READY = np.array([load_waypoints()["Ready"][j] for j in ARM_JOINTS])
 CUBES = {c: (np.array([x, y, CUBE_SIZE / 2]), np.array([np.cos(yaw / 2), 0, 0, np.sin(yaw / 2)])) for c, (x, y, yaw) in layout(0).items()}
@@ -77,6 +81,7 @@ class RecordingWorld:
     initial: np.ndarray
     name: str = "recording"
     goals: list[Goal] = field(default_factory=list)
+    gripper_goals: list[float] = field(default_factory=list)
 
     def start(self, context: Any) -> None:
         self.context = context
@@ -85,6 +90,7 @@ class RecordingWorld:
         self.active_end = 0.0
         bus = context.bus
         bus.create_action_server(CONTROLLER, FollowTrajectory, self._on_goal, lambda goal: True)
+        bus.create_action_server(GRIPPER_ACTION, GripperCommand, self._on_gripper_goal, lambda goal: True)
         self.joint_states = bus.create_publisher("/joint_states", JointState)
         self._publish(0.0)
 
@@ -104,6 +110,12 @@ class RecordingWorld:
         if self.active is not None and self.active.is_active:
             self.active.canceled(FollowTrajectory.Result(error_code=FollowTrajectory.Result.SUPERSEDED, error_string="superseded"))
         self.active, self.active_end = handle, float(seam + offsets[-1]) if len(offsets) else seam
+        return True
+
+    def _on_gripper_goal(self, handle: Any) -> bool:
+        position = float(handle.request.command.position)
+        self.gripper_goals.append(position)
+        handle.succeed(GripperCommand.Result(position=position, reached_goal=True))
         return True
 
     def position_at(self, t: float) -> np.ndarray:
@@ -154,10 +166,25 @@ def chunk_spec(draw: Any) -> dict[str, Any]:
         "names": draw(st.sampled_from(["permuted", "renamed", "duplicated", "missing", "extra", "gripper"])),
         "width": draw(st.sampled_from([0, 5, 7, 12])),
         "seed": draw(st.integers(0, 2**16)),
+        "gripper": draw(st.one_of(st.floats(0.0, 0.8), st.floats(-1.0, 2.0),
+                                  st.sampled_from([80.0, 50.0, 1.2, 0.8 + 1e-6, -1e-6, -0.5, float("nan"), float("inf")]))),
+        "gripper_ramp": draw(st.booleans()),
     }
 
 
-def build_chunk(spec: dict[str, Any], observed: np.ndarray, dt: float) -> tuple[list[str], list[list[float]]]:
+def build_chunk(spec: dict[str, Any], observed: np.ndarray, dt: float, gripper: bool = False) -> tuple[list[str], list[list[float]]]:
+    """The chunk's names and rows; with ``gripper`` the arm part plus a gripper column that holds
+    ``spec["gripper"]`` (or ramps to it from open)."""
+    names, rows = _arm_chunk(spec, observed[:6], dt)
+    if not gripper or not rows:
+        return names, rows
+    steps = len(rows)
+    value = spec.get("gripper", 0.0)
+    column = np.linspace(0.0, value, steps) if spec.get("gripper_ramp") and np.isfinite(value) else np.full(steps, value)
+    return names + [GRIPPER_DRIVER_JOINT], [list(r) + [float(g)] for r, g in zip(rows, column)]
+
+
+def _arm_chunk(spec: dict[str, Any], observed: np.ndarray, dt: float) -> tuple[list[str], list[list[float]]]:
     names = list(ARM_JOINTS)
     steps, j = spec["steps"], spec["joint"]
     at = min(int(spec["at"] * steps), max(steps - 1, 0))
@@ -217,11 +244,14 @@ class Outcome:
     rejection: str
     goals: list[Goal]
     snapshot_scene: Any
+    gripper_goals: list[float] = field(default_factory=list)
 
 
-def run_chunks(specs: list[dict[str, Any]], start: np.ndarray, dt: float, points: int) -> Outcome:
+def run_chunks(specs: list[dict[str, Any]], start: np.ndarray, dt: float, points: int, gripper: bool = False) -> Outcome:
     ports = (f'total_action_steps="20" dt="{dt}" committed_action_steps="10" num_interpolation_points="{points}" '
              f'link_padding="{PADDING}" goal_path_tolerance="0.3" policy_call_timeout="2.0"')
+    if gripper:
+        ports += f' gripper_command_action_name="{GRIPPER_ACTION}" gripper_joint_name="{GRIPPER_DRIVER_JOINT}"'
     xml = (f'<root BTCPP_format="4"><BehaviorTree ID="T"><ExecutePolicy policy_service_name="{SERVICE}" '
            f'joint_group_name="manipulator" {ports} rejection_reason="{{rejection}}"/></BehaviorTree></root>')
     options = RunOptions(seed=0, max_seconds=20.0)
@@ -234,7 +264,7 @@ def run_chunks(specs: list[dict[str, Any]], start: np.ndarray, dt: float, points
         index, calls["n"] = calls["n"], calls["n"] + 1
         observed = np.array(request.robot_state.position)
         spec = specs[min(index - 1, len(specs) - 1)] if index > 0 else {**specs[0], "kind": "smooth", "steps": 30}
-        names, rows = build_chunk(spec, observed, dt)
+        names, rows = build_chunk(spec, observed, dt, gripper)
         response = R(status=R.CHUNK_PRODUCED, native_control_period=dt)
         response.chunk = JointTrajectory(joint_names=names, points=[JointTrajectoryPoint(positions=[float(v) for v in r]) for r in rows])
         return response
@@ -242,7 +272,8 @@ def run_chunks(specs: list[dict[str, Any]], start: np.ndarray, dt: float, points
     context.bus.create_service(SERVICE, GetActionChunk, serve)
     context.bus.set_latency(SERVICE, FixedLatency(0.05))
     result = run_tree(loaded, context, options, world=world)
-    return Outcome(result.status, result.reason, result.blackboard.get("rejection", ""), world.goals, context.scene)
+    return Outcome(result.status, result.reason, result.blackboard.get("rejection", ""), world.goals, context.scene,
+                   world.gripper_goals)
 
 
 def assert_nothing_unsafe_reached_the_controller(out: Outcome) -> None:
@@ -260,6 +291,9 @@ def assert_nothing_unsafe_reached_the_controller(out: Outcome) -> None:
         samples = Samples(g.times, g.positions, g.velocities, g.accelerations)
         hit = safety.first_collision(snapshot, samples, PADDING, 0.0)
         assert hit is None, f"a point in collision reached the controller: {hit}"
+    gripper = out.snapshot_scene.limits[GRIPPER_DRIVER_JOINT]
+    for position in out.gripper_goals:
+        assert gripper.lower - tol <= position <= gripper.upper + tol, f"gripper goal {position} reached the gripper controller"
     assert out.status in ("SUCCESS", "FAILURE")
     if out.status == "FAILURE" and "rejected" in out.reason:
         assert out.rejection == out.reason and len(out.rejection) > len("chunk 1 rejected: ")
@@ -273,22 +307,25 @@ starts = st.one_of(
 )
 # Half the examples start with a well-behaved chunk, so the random one arrives while the arm is
 # moving and has to be blended into the committed motion at a seam.
-smooth_first = st.tuples(
-    chunk_spec().map(lambda d: {**d, "kind": "smooth", "steps": max(d["steps"], 30)}), chunk_spec()
-).map(list)
+smooth_chunk = chunk_spec().map(lambda d: {**d, "kind": "smooth", "steps": max(d["steps"], 30)})
+smooth_first = st.tuples(smooth_chunk, chunk_spec()).map(list)
+# And some where the arm is well-behaved throughout, so that the gripper column (with a
+# gripper configured) is what the run has to get right.
+smooth_arm = st.lists(smooth_chunk, min_size=1, max_size=2)
 examples = dict(
-    specs=st.one_of(st.lists(chunk_spec(), min_size=1, max_size=2), smooth_first),
+    specs=st.one_of(st.lists(chunk_spec(), min_size=1, max_size=2), smooth_first, smooth_arm),
     start=starts,
     dt=st.sampled_from([0.05, 0.1]),
     points=st.sampled_from([2, 10, 50, 100]),
+    gripper=st.booleans(),
 )
 common = dict(deadline=None, database=None, suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
 
 
 @settings(max_examples=30, **common)
 @given(**examples)
-def test_no_unsafe_point_reaches_the_controller(specs, start, dt, points):
-    assert_nothing_unsafe_reached_the_controller(run_chunks(specs, start, dt, points))
+def test_no_unsafe_point_reaches_the_controller(specs, start, dt, points, gripper):
+    assert_nothing_unsafe_reached_the_controller(run_chunks(specs, start, dt, points, gripper))
 
 
 def _classify(out: Outcome) -> None:
@@ -302,8 +339,8 @@ def _classify(out: Outcome) -> None:
 @pytest.mark.timeout(3600)
 @settings(max_examples=2000, **common)
 @given(**examples)
-def test_no_unsafe_point_reaches_the_controller_2000_examples(specs, start, dt, points):
-    out = run_chunks(specs, start, dt, points)
+def test_no_unsafe_point_reaches_the_controller_2000_examples(specs, start, dt, points, gripper):
+    out = run_chunks(specs, start, dt, points, gripper)
     _classify(out)
     assert_nothing_unsafe_reached_the_controller(out)
 
@@ -339,3 +376,19 @@ def test_motion_between_sparse_densified_points_stays_within_the_velocity_limit(
     for g in out.goals:
         speed = np.abs(np.diff(g.positions, axis=0)) / np.diff(g.times)[:, None]
         assert (speed <= LIMITS.max_velocity + 1e-6).all(), f"{speed.max():.2f} rad/s between consecutive points"
+
+
+def test_a_gripper_column_out_of_range_never_reaches_the_gripper_controller():
+    """The property's gripper half can fail: an in-range column does reach the gripper, and one
+    100 times too large is rejected with the gripper joint named (on main it was streamed)."""
+    smooth = {"kind": "smooth", "steps": 40, "velocity": [0.2] * 6, "joint": 0, "at": 0.5, "size": 0.0,
+              "bad": float("nan"), "names": "permuted", "width": 0, "seed": 0, "gripper": 0.5, "gripper_ramp": True}
+    out = run_chunks([smooth], READY, 0.1, 50, gripper=True)
+    assert out.status == "SUCCESS", out.reason
+    assert out.gripper_goals and max(out.gripper_goals) <= 0.5 + 1e-9
+    assert_nothing_unsafe_reached_the_controller(out)
+    out = run_chunks([{**smooth, "gripper": 50.0}], READY, 0.1, 50, gripper=True)
+    assert out.status == "FAILURE" and out.gripper_goals == [] and out.goals == []
+    # The column ramps from open to 50 rad: its step 1 (1.2821 rad) is the first beyond 0.8 rad.
+    assert out.rejection == (f"chunk 1 rejected: step 1: joint {GRIPPER_DRIVER_JOINT} position 1.2821 rad exceeds "
+                             "the limit 0.8000 rad (policy step 2 of the run)")

@@ -30,9 +30,10 @@ from . import config as cfg
 from .chunk import ChunkError, read_chunk, read_policy_chunk
 from .observation import ObservationError, policy_tail, robot_state
 from ..safety import MotionSafety, SafetyError, make_safety
+from .gripper import GripperGoal, follow_goals
 from .shaping import ChunkMotion, Samples, densify, fit_chunk, join_at_seam, runout_duration
-from .stream import StepGrid, Window, WindowError
-from .timing import LatencyEstimate, frozen_prefix_steps, prefetch_margin, window_covers_latency
+from .stream import StepGrid, Window, WindowError, drained_seconds
+from .timing import LatencyEstimate, frozen_prefix_steps, prefetch_margin, sizing_warning
 
 STARTUP_WAIT_S = 5.0
 GRIPPER_MAX_EFFORT = 60.0  # N; the 2F-85 holds a 30 mm cube well below its 235 N maximum
@@ -84,6 +85,8 @@ class RunMetrics:
     stall_seconds: float = 0.0
     rejections: int = 0
     latencies: list[float] = field(default_factory=list)
+    latency_estimate_s: float = 0.0
+    """What the last request was timed for (``timing.LatencyEstimate``)."""
     warnings: list[str] = field(default_factory=list)
 
     def as_dict(self) -> dict[str, Any]:
@@ -96,6 +99,7 @@ class RunMetrics:
             "latency_p50_s": round(float(np.percentile(lat, 50)), 4),
             "latency_p95_s": round(float(np.percentile(lat, 95)), 4),
             "latency_max_s": round(float(lat.max()), 4),
+            "latency_estimate_s": round(self.latency_estimate_s, 4),
             "warnings": list(self.warnings),
         }
 
@@ -138,8 +142,9 @@ class ExecutePolicy(Behavior):
         self.samples: Samples | None = None
         self.grid: StepGrid | None = None
         self.latency = LatencyEstimate()
-        self.goal_latency = LatencyEstimate()
-        """Send -> accepted of controller goals: zero in process, a tick or more over ROS."""
+        self.goal_latency_s = 0.0
+        """The slowest send -> accepted of a controller goal so far: zero in process, a tick or
+        more over ROS."""
         self.late_retries = 0  # of the chunk being sent
         self.result_future: Any = None
         self.next_scene_check = 0.0
@@ -148,8 +153,9 @@ class ExecutePolicy(Behavior):
         self.policy_chunk_request_step = 0
         self.gripper_schedule: list[tuple[float, float]] = []
         self.gripper_sent: float | None = None
-        self.gripper_goal: Any = None
+        self.gripper_goals: list[GripperGoal] = []
         self.warned_period = False
+        self.warned_sizing = False
         try:
             self.config = self._read_config()
             cfg.validate(self.config)
@@ -238,11 +244,7 @@ class ExecutePolicy(Behavior):
         if response.status == GetActionChunk.Response.ERROR or response.status == GetActionChunk.Response.UNKNOWN:
             return self._finish(Status.FAILURE, self._status_reason(response, "warmup"))
         self.latency.update(now - flight.sent_at)
-        if not window_covers_latency(c.committed_action_steps, c.dt, self.latency.seconds):
-            self._warn(
-                f"(committed_action_steps - 1) * dt = {(c.committed_action_steps - 1) * c.dt:.3f} s is below twice the "
-                f"measured latency {self.latency.seconds:.3f} s: expect pauses at chunk boundaries"
-            )
+        self._check_sizing("measured latency")
         self.grid = StepGrid(now, c.dt, c.committed_action_steps, c.total_action_steps)
         self.phase = Phase.STREAM
         self._send_request(new_episode=True, request_step=0, frozen=self._frozen())
@@ -255,6 +257,9 @@ class ExecutePolicy(Behavior):
         if status is not None:
             return status
         self._stream_gripper(now)
+        problem = follow_goals(self.gripper_goals, self.config.gripper_command_action_name)
+        if problem is not None:
+            return self._stop(Status.FAILURE, problem)
         self._track_progress(now)
         if self.waiting_chunk is not None:
             chunk, response, flight = self.waiting_chunk
@@ -282,8 +287,8 @@ class ExecutePolicy(Behavior):
 
     # -- requests and responses --------------------------------------------------------------
     def _frozen(self) -> int:
-        est = self.latency.seconds
-        return frozen_prefix_steps(est, self.config.dt, prefetch_margin(est, TICK_PERIOD) + 2 * self.goal_latency.seconds)
+        est = self.metrics.latency_estimate_s = self.latency.seconds
+        return frozen_prefix_steps(est, self.config.dt, prefetch_margin(est, TICK_PERIOD) + 2 * self.goal_latency_s)
 
     def _maybe_request(self, now: float) -> None:
         grid = self.grid
@@ -329,6 +334,7 @@ class ExecutePolicy(Behavior):
             return self._stop(Status.FAILURE, f"calling the policy service '{c.policy_service_name}' failed: {exc}")
         self.latency.update(now - flight.sent_at)
         self.metrics.latencies.append(now - flight.sent_at)
+        self._check_sizing("latency estimate", f" (the {self.latency.quantile * 100:.0f}th percentile of the last {len(self.latency.recent)} round trips)")
         if response.status == GetActionChunk.Response.NO_MORE_ACTIONS:
             return self._stop(Status.SUCCESS, f"the policy has no more actions: {response.message}".rstrip(": "))
         if response.status != GetActionChunk.Response.CHUNK_PRODUCED:
@@ -339,6 +345,9 @@ class ExecutePolicy(Behavior):
             chunk = read_chunk(response.chunk, self.safety.group_joints, c.gripper_joint_name or None)
         except ChunkError as err:
             return self._reject(f"chunk {self.metrics.chunks} rejected: {err}")
+        problem = cfg.committed_window_problem(c.committed_action_steps, chunk.steps) if self.metrics.chunks == 1 else None
+        if problem is not None:
+            return self._reject(f"chunk 1 rejected: {problem}")
         self.late_retries = 0
         return self._execute(chunk, response, flight, now)
 
@@ -351,15 +360,18 @@ class ExecutePolicy(Behavior):
             self.waiting_chunk = (chunk, response, flight)
             return None
         index = self.metrics.chunks
-        if chunk.steps <= c.committed_action_steps and index == 1:
-            self._warn(f"committed_action_steps ({c.committed_action_steps}) should be smaller than the chunk size ({chunk.steps})")
         # The goal must reach the controller before its seam: one tick, plus twice the goal
         # delivery time seen so far (zero in process; over ROS, transport and the next spin).
-        earliest = grid.step_at_or_after(now + TICK_PERIOD + 2 * self.goal_latency.seconds)
+        earliest = grid.step_at_or_after(now + TICK_PERIOD + 2 * self.goal_latency_s)
         try:
             window = grid.plan_window(index, flight.request_step, flight.frozen, chunk.steps, earliest)
         except WindowError as err:
             return self._reject(f"chunk {index} rejected: {err}")
+        # The values the window is built from, as the policy sent them (the gripper column too).
+        last = window.end_step - window.request_step + 1
+        outside = self.safety.first_value_out_of_limits(chunk.arm[:last], None if chunk.gripper is None else chunk.gripper[:last])
+        if outside is not None:
+            return self._reject(f"chunk {index} rejected: {outside} (policy step {window.request_step + outside.step} of the run)")
         seam_time = grid.time(window.seam_step)
         if self.motion is not None and seam_time > self.motion.rest_time + 1e-9 and self.goal_result is None:
             # Too late to join the motion the controller is still playing (its runout included): a
@@ -379,28 +391,32 @@ class ExecutePolicy(Behavior):
             start_p,
             start_v,
             blend_duration=max(c.dt, 0.5 * window.steps * c.dt),
+            max_acceleration=self.safety.limits.max_acceleration,
         )
         if window.end_step >= grid.total_steps:
             motion = motion.at_rest_at_end()
         else:
             motion = motion.with_runout(self._runout(motion, chunk, window))
+        # A chunk over the limits on its own is the policy's; the join is planned within them.
+        reason = self._limit_violation(densify(motion.chunk_alone(), c.num_interpolation_points), window)
+        if reason is not None:
+            return self._reject(f"chunk {index} rejected: {reason}")
         samples = densify(motion, c.num_interpolation_points)
         scene_state = self._scene_state()
-        reason = self._check(samples, chunk, window)
+        reason = self._check(samples, window)
         if reason is not None and motion.runout > 0:
             # The runout only makes a late next chunk a gentle pause: when the chunk's path beyond
             # its window is unsafe but the window is not, the window ends without one.
             bare = motion.with_runout(0.0)
             bare_samples = densify(bare, c.num_interpolation_points)
-            if self._check(bare_samples, chunk, window) is None:
+            if self._check(bare_samples, window) is None:
                 motion, samples, reason = bare, bare_samples, None
         if reason is not None:
             return self._reject(f"chunk {index} rejected: {reason}")
         goal_future = self.controller.send_goal_async(self._goal(samples, seam_time))
         self.pending_goal, self.goal_sent_at = goal_future, now
-        if self.motion is not None and seam_time > self.motion.end:
-            # Drained until the seam: in the runout (slowing down), then at rest.
-            self.metrics.stall_seconds += seam_time - self.motion.end
+        # Drained until the seam: in the runout (slowing down), then at rest.
+        self.metrics.stall_seconds += drained_seconds(None if self.motion is None else self.motion.end, seam_time)
         # Kept until the controller accepts the seam: a goal refused only for arriving late is
         # planned again from the same chunk (see _retry_late_goal).
         self.last_sent = _SentChunk(chunk, response, flight, grid.committed_end, grid.executed_until, grid.runout_steps,
@@ -427,15 +443,21 @@ class ExecutePolicy(Behavior):
         )
         return None
 
-    def _check(self, samples: Samples, chunk: Any, window: Window) -> str | None:
+    def _check(self, samples: Samples, window: Window) -> str | None:
+        violation = self._limit_violation(samples, window)
+        if violation is not None:
+            return violation
+        collision = self.safety.first_collision(self.rules, samples, self.config.link_padding, self._gripper_now())
+        return None if collision is None else f"densified {collision}"
+
+    def _limit_violation(self, samples: Samples, window: Window) -> str | None:
         grid = self.grid
         assert grid is not None
         violation = self.safety.limits.check(samples.positions, samples.velocities, samples.accelerations, samples.times)
-        if violation is not None:
-            step = window.request_step + int(np.floor((violation.time - grid.time(window.request_step)) / self.config.dt + 1e-9))
-            return f"densified {violation} (policy step {step} of the run)"
-        collision = self.safety.first_collision(self.rules, samples, self.config.link_padding, self._gripper_now())
-        return None if collision is None else f"densified {collision}"
+        if violation is None:
+            return None
+        step = window.request_step + int(np.floor((violation.time - grid.time(window.request_step)) / self.config.dt + 1e-9))
+        return f"densified {violation} (policy step {step} of the run)"
 
     def _state_at(self, t: float) -> tuple[np.ndarray, np.ndarray]:
         """Position and velocity of the committed motion at ``t`` (at rest after it ends)."""
@@ -479,7 +501,7 @@ class ExecutePolicy(Behavior):
                                               f"a goal within {GOAL_ACK_TIMEOUT:g} s")
         if pending is not None and pending.done():
             self.pending_goal = None
-            self.goal_latency.update(max(0.0, pending.ready_at - self.goal_sent_at))  # arrival, not when we looked
+            self.goal_latency_s = max(self.goal_latency_s, pending.ready_at - self.goal_sent_at)  # arrival, not when we looked
             handle = pending.result()
             if not handle.accepted:
                 return self._stop(Status.FAILURE, f"the controller '{self.config.controller_action_name}' rejected the goal")
@@ -544,7 +566,7 @@ class ExecutePolicy(Behavior):
         goal = GripperCommand.Goal()
         goal.command.position = target
         goal.command.max_effort = GRIPPER_MAX_EFFORT
-        self.gripper_goal = self.gripper.send_goal_async(goal)
+        self.gripper_goals.append(GripperGoal(target, self.gripper.send_goal_async(goal)))
         self.gripper_sent = target
 
     def _track_progress(self, now: float) -> None:
@@ -569,6 +591,10 @@ class ExecutePolicy(Behavior):
         return self._stop(Status.FAILURE, reason)
 
     def _stop(self, status: Status, message: str) -> Status:
+        grid = self.grid
+        if grid is not None and grid.remaining > 0 and self.motion is not None:
+            # The run ends while the arm waits for a chunk: the wait so far is a stall too.
+            self.metrics.stall_seconds += drained_seconds(self.motion.end, self.context.clock.now())
         self._cancel_goals()
         return self._finish(status, message)
 
@@ -637,6 +663,14 @@ class ExecutePolicy(Behavior):
         status = names.get(response.status, f"status {response.status}")
         detail = response.message or ("the policy left the status unset" if response.status == 0 else "no message")
         return f"the policy answered {status} for the {what}: {detail}"
+
+    def _check_sizing(self, what: str, detail: str = "") -> None:
+        """Warn once per run, with the figures, when the latency outgrows the committed window."""
+        c = self.config
+        text = sizing_warning(c.committed_action_steps, c.dt, self.latency.seconds, what, detail)
+        if text is not None and not self.warned_sizing:
+            self.warned_sizing = True
+            self._warn(text)
 
     def _check_period(self, period: float) -> None:
         if self.warned_period or period <= 0:

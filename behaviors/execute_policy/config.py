@@ -14,7 +14,7 @@ PORTS = (
     InputPort("total_action_steps", PortType.UINT, description="Run length in policy steps; the motion lasts total_action_steps * dt seconds.", valid=Range(1, 1_000_000)),
     InputPort("prompt", PortType.STRING, "", "Task instruction passed to the policy."),
     InputPort("dt", PortType.FLOAT, 0.05, "Seconds per policy step: 1 / the rate the policy was trained at.", valid=Range(0.001, 10.0, "s")),
-    InputPort("committed_action_steps", PortType.UINT, 32, "Steps executed from each chunk before the next takes over; (committed - 1) * dt should cover twice the latency.", valid=Range(1, 10_000)),
+    InputPort("committed_action_steps", PortType.UINT, 32, "Steps executed from each chunk before the next takes over; smaller than the policy's chunk size, and (committed - 1) * dt should cover twice the latency.", valid=Range(1, 10_000)),
     InputPort("num_interpolation_points", PortType.UINT, 100, "Densified points per chunk: the sampling density of the limit and collision checks.", valid=Range(2, 10_000)),
     InputPort("link_padding", PortType.FLOAT, 0.01, "Meters of padding around the robot for the world collision check (self-collision is unpadded).", valid=Range(0.0, 0.5, "m")),
     InputPort("policy_tracking_weight", PortType.FLOAT, 300.0, "How closely the smoothing spline follows the chunk: lower if the motion oscillates, higher if it lags.", valid=Range(0.0, 1e6, min_open=True)),
@@ -89,3 +89,12 @@ def validate(config: PolicyRunConfig) -> None:
             "absolute_force_torque_threshold needs 6 positive values Fx;Fy;Fz;Tx;Ty;Tz, "
             f"got {';'.join(str(v) for v in config.absolute_force_torque_threshold)}"
         )
+
+
+def committed_window_problem(committed_steps: int, chunk_steps: int) -> str | None:
+    """The guide's rule for the first chunk: ``committed_action_steps`` must be smaller than the
+    policy's chunk size, or no next chunk can take over before this one runs out."""
+    if committed_steps < chunk_steps:
+        return None
+    return (f"committed_action_steps ({committed_steps}) must be smaller than the policy's chunk size "
+            f"({chunk_steps} steps): set committed_action_steps to at most {max(1, chunk_steps - 1)}")

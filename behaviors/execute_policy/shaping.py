@@ -87,6 +87,8 @@ class ChunkMotion:
     end_velocity: np.ndarray | None = None
     """When set (the run's last window), a mirrored blend cancels this velocity at ``end`` so
     the motion comes to rest exactly at the chunk's final position."""
+    end_blend_duration: float = 0.0
+    """Length of that mirrored blend: never longer than the window, so it leaves the seam alone."""
     runout: float = 0.0
     """Seconds after ``end`` in which the motion, unless the next chunk takes over at ``end``,
     goes on along the chunk's own path while slowing to rest (see ``runout_warp``): a stream
@@ -124,6 +126,7 @@ class ChunkMotion:
         a = a + np.where(inside, dp * hp2 / (T * T) + dv * hv2 / T, 0.0)
         if self.end_velocity is not None:
             # g(t) = c T h(s), s = (end - t) / T: g(end) = 0, g'(end) = -c, g''(end) = 0.
+            T = self.end_blend_duration
             s = np.clip((self.end - times) / T, 0.0, 1.0)[:, None]
             near_end = ((times <= self.end) & (times >= self.end - T))[:, None]
             hs, hs1, hs2 = _h_velocity(s)
@@ -136,7 +139,14 @@ class ChunkMotion:
     def at_rest_at_end(self) -> ChunkMotion:
         """The same motion, decelerated so that it ends at rest (for the run's last window)."""
         _, v_end, _ = replace(self, end_velocity=None, runout=0.0).evaluate(np.array([self.end]))
-        return replace(self, end_velocity=v_end[0], runout=0.0)
+        return replace(self, end_velocity=v_end[0], runout=0.0,
+                       end_blend_duration=max(1e-6, min(self.blend_duration, self.end - self.seam)))
+
+    def chunk_alone(self) -> ChunkMotion:
+        """The smoothed chunk over the same window, without the blend into the committed motion
+        (nor a stop or runout at the end): what the policy asked for."""
+        zero = np.zeros_like(self.offset_position)
+        return replace(self, offset_position=zero, offset_velocity=zero, end_velocity=None, runout=0.0)
 
     def with_runout(self, seconds: float) -> ChunkMotion:
         return replace(self, runout=max(0.0, float(seconds)), end_velocity=None)
@@ -171,6 +181,45 @@ def runout_duration(end_velocity: np.ndarray, max_acceleration: np.ndarray, dt: 
     return 2 * dt * steps
 
 
+POSITION_BLEND_PEAK = 10.0 / math.sqrt(3.0)
+"""max |h''| of the position blend on [0, 1] (at tau = 1/2 -+ sqrt(3)/6): a position offset ``d``
+blended over ``T`` seconds adds at most ``d * POSITION_BLEND_PEAK / T^2`` of acceleration."""
+VELOCITY_BLEND_PEAK = float(np.abs(_h_velocity(np.array([(192.0 - math.sqrt(10944.0)) / 360.0]))[2][0]))
+"""max |h''| of the velocity blend on [0, 1] (about 3.94, where its derivative
+``-36 + 192 tau - 180 tau^2`` vanishes): a velocity offset ``w`` blended over ``T`` seconds adds
+at most ``w * VELOCITY_BLEND_PEAK / T`` of acceleration."""
+BLEND_SHARE = 0.5
+"""The blend may use this share of the acceleration the chunk's own motion leaves free (half,
+as the runout brakes with half the limit): a long way to join is covered gently."""
+
+
+def blend_duration_within(
+    offset_position: np.ndarray,
+    offset_velocity: np.ndarray,
+    headroom_acceleration: np.ndarray,
+    nominal: float,
+) -> float:
+    """The seam blend's length: ``nominal`` seconds, or longer where blending these offsets that
+    fast would add more acceleration to a joint than ``BLEND_SHARE`` of its headroom (its limit
+    less what the chunk's own motion uses). Solves ``a / T^2 + b / T <= h`` per joint. A joint
+    with no headroom cannot be helped (the chunk alone is at its limit; the check rejects it)."""
+    a = np.abs(np.asarray(offset_position, dtype=float)) * POSITION_BLEND_PEAK
+    b = np.abs(np.asarray(offset_velocity, dtype=float)) * VELOCITY_BLEND_PEAK
+    h = BLEND_SHARE * np.asarray(headroom_acceleration, dtype=float)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        needed = np.where((h > 0) & np.isfinite(h), (b + np.sqrt(b * b + 4.0 * h * a)) / (2.0 * h), 0.0)
+    return max(nominal, float(np.max(needed, initial=0.0)))
+
+
+def chunk_acceleration_peak(spline: BSpline, dt: float, from_step: float) -> np.ndarray:
+    """Per joint, the largest acceleration (rad/s^2) of the smoothed chunk from ``from_step`` to
+    its last step. Its second derivative is piecewise linear between the integer steps (the
+    knots), so the steps and ``from_step`` are where it peaks."""
+    last = float(spline.t[-1])
+    steps = np.unique(np.concatenate([[min(from_step, last)], np.arange(math.ceil(from_step), math.floor(last) + 1)]))
+    return np.abs(np.atleast_2d(spline(steps, nu=2))).max(axis=0) / (dt * dt)
+
+
 def join_at_seam(
     spline: BSpline,
     dt: float,
@@ -180,14 +229,24 @@ def join_at_seam(
     committed_position: np.ndarray,
     committed_velocity: np.ndarray,
     blend_duration: float,
+    max_acceleration: np.ndarray | None = None,
 ) -> ChunkMotion:
     """The chunk's motion from ``seam`` to ``end``, continuous in position and velocity with
-    the committed motion's state (``committed_position``, ``committed_velocity``) at the seam."""
+    the committed motion's state (``committed_position``, ``committed_velocity``) at the seam.
+
+    The offset between the two is blended out over ``blend_duration`` seconds; with
+    ``max_acceleration`` (per joint) over longer where that would take more acceleration than
+    the chunk leaves free (``blend_duration_within``): a chunk that starts away from where the
+    arm is (a policy that re-planned, or ran ahead of an arm that paused) joins more slowly
+    instead of being planned over the limits."""
     if not end > seam:
         raise ValueError(f"empty window: seam t={seam:.3f} s, end t={end:.3f} s")
     k = (seam - chunk_start) / dt
     offset_p = np.asarray(committed_position, dtype=float) - spline(k)
     offset_v = np.asarray(committed_velocity, dtype=float) - spline(k, nu=1) / dt
+    if max_acceleration is not None:
+        headroom = np.asarray(max_acceleration, dtype=float) - chunk_acceleration_peak(spline, dt, k)
+        blend_duration = blend_duration_within(offset_p, offset_v, headroom, blend_duration)
     return ChunkMotion(spline, dt, chunk_start, seam, end, offset_p, offset_v, max(blend_duration, 1e-6))
 
 

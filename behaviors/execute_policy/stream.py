@@ -45,6 +45,12 @@ def runout_progress(steps_since_end: int, runout_steps: int) -> int:
     return int(round(float(covered[0])))
 
 
+def drained_seconds(motion_end: float | None, until: float) -> float:
+    """Seconds by ``until`` that the committed motion (ending at ``motion_end``; None before the
+    first chunk) has been drained: the arm in the runout, then at rest, waiting for a chunk."""
+    return 0.0 if motion_end is None else max(0.0, until - motion_end)
+
+
 class WindowError(ValueError):
     pass
 

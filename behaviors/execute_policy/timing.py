@@ -7,18 +7,46 @@ in flight are its frozen prefix, and the chunk takes over at the seam ``r + froz
 from __future__ import annotations
 
 import math
+from collections import deque
+from typing import Sequence
+
+LATENCY_WINDOW_CALLS = 20
+"""Round trips the latency estimate looks back over (the warmup's included while it is among them)."""
+LATENCY_QUANTILE = 0.9
+"""The estimate is this quantile (nearest rank) of the recent round trips."""
+
+
+def nearest_rank_quantile(values: Sequence[float], quantile: float) -> float:
+    """The smallest of ``values`` that at least ``quantile`` of them do not exceed (0.0 for none).
+
+    With fewer than ``1 / (1 - quantile)`` values that is the largest one: too few calls have been
+    seen to call any of them an outlier.
+    """
+    if not values:
+        return 0.0
+    ordered = sorted(values)
+    rank = max(1, math.ceil(round(quantile * len(ordered), 9)))
+    return ordered[min(rank, len(ordered)) - 1]
 
 
 class LatencyEstimate:
-    """The largest round trip seen so far: it only ever grows (one slow call is remembered)."""
+    """A high quantile of the recent policy round trips: what the next request is timed for.
 
-    def __init__(self) -> None:
+    The estimate is the 90th percentile (nearest rank) of the last 20 round trips. While fewer
+    than 10 have been seen it is the slowest of them, so an early slow call (a warmup that paid
+    for compilation, a spike) is covered at once; it stops counting once it is less than one in
+    ten, and for good when it leaves the window, so the estimate comes back down after an outlier.
+    Latencies that recur (more than one in ten of the recent round trips) keep it up.
+    """
+
+    def __init__(self, window_calls: int = LATENCY_WINDOW_CALLS, quantile: float = LATENCY_QUANTILE) -> None:
+        self.quantile = quantile
+        self.recent: deque[float] = deque(maxlen=window_calls)
         self.seconds = 0.0
-        self.samples: list[float] = []
 
     def update(self, seconds: float) -> None:
-        self.samples.append(seconds)
-        self.seconds = max(self.seconds, seconds)
+        self.recent.append(seconds)
+        self.seconds = nearest_rank_quantile(self.recent, self.quantile)
 
 
 def frozen_prefix_steps(latency_s: float, dt: float, margin_s: float) -> int:
@@ -34,3 +62,15 @@ def prefetch_margin(latency_s: float, tick_period: float) -> float:
 def window_covers_latency(committed_steps: int, dt: float, latency_s: float) -> bool:
     """The guide's sizing rule: ``(committed_action_steps - 1) * dt >= 2 * latency``."""
     return (committed_steps - 1) * dt >= 2.0 * latency_s
+
+
+def sizing_warning(committed_steps: int, dt: float, latency_s: float, what: str, detail: str = "") -> str | None:
+    """The sizing warning, with the figures, when ``latency_s`` (``what``: where the figure comes
+    from, ``detail``: how it was made) is more than the committed window covers; else None."""
+    if window_covers_latency(committed_steps, dt, latency_s):
+        return None
+    needed = math.ceil(2.0 * latency_s / dt - 1e-9) + 1
+    return (
+        f"(committed_action_steps - 1) * dt = {(committed_steps - 1) * dt:.3f} s is below twice the {what} "
+        f"{latency_s:.3f} s{detail}: expect pauses at chunk boundaries (committed_action_steps = {needed} would cover it)"
+    )

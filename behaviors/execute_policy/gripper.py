@@ -1,0 +1,57 @@
+"""The gripper column's goals and what their answers mean. Decisions are pure functions.
+
+The chunk's gripper column is streamed to a ``control_msgs/GripperCommand`` action, one goal
+per change of target. Every goal is followed until it ends: a goal the controller refuses, or
+one it aborts short of its target without having stalled, ends the run. A goal that ends with
+``stalled`` (the fingers stopped on an object: a grasp) is normal, whether the controller
+reports it as succeeded or, like ros2_controllers' GripperActionController without
+``allow_stalling``, as aborted. A goal preempted by the next one ends CANCELED: normal too.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+from runtime.bus import STATUS_ABORTED, STATUS_CANCELED, STATUS_SUCCEEDED
+
+
+@dataclass
+class GripperGoal:
+    """A goal sent to the gripper action: its target, and the futures of its answers."""
+
+    target: float
+    handle_future: Any
+    result_future: Any = None
+
+
+def refused(action_name: str, target: float) -> str:
+    return f"the gripper controller '{action_name}' refused the goal to {target:.4f} rad"
+
+
+def result_problem(action_name: str, target: float, status: int, result: Any) -> str | None:
+    """Why a finished gripper goal ends the run, or None when it ended normally."""
+    if status in (STATUS_SUCCEEDED, STATUS_CANCELED) or (status == STATUS_ABORTED and result.stalled):
+        return None
+    how = "aborted" if status == STATUS_ABORTED else f"ended (status {status})"
+    return (f"the gripper controller '{action_name}' {how} the goal to {target:.4f} rad with the fingers at "
+            f"{result.position:.4f} rad, not stalled on an object")
+
+
+def follow_goals(goals: list[GripperGoal], action_name: str) -> str | None:
+    """Read the answers that have come in (and drop the goals that are over); return the first
+    problem, or None. Goals still waiting for an answer stay in ``goals``."""
+    for goal in list(goals):
+        if goal.result_future is None:
+            if not goal.handle_future.done():
+                continue
+            handle = goal.handle_future.result()
+            if not handle.accepted:
+                return refused(action_name, goal.target)
+            goal.result_future = handle.get_result_async()
+        if goal.result_future.done():
+            goals.remove(goal)
+            outcome = goal.result_future.result()
+            problem = result_problem(action_name, goal.target, outcome.status, outcome.result)
+            if problem is not None:
+                return problem
+    return None
