@@ -507,7 +507,7 @@ def test_late_seam_is_rejected_and_the_running_goal_continues(cell):
     first = cell.send(ramp_goal(HOME, np.full(6, 0.2), 1.0))
     cell.run(0.5)
     late = cell.send(goal([0.0, 0.5], [HOME + 0.2, HOME + 0.3], stamp=1.25))
-    assert late.status == STATUS_ABORTED and late.result.error_code == Result.INVALID_GOAL
+    assert late.status == STATUS_ABORTED and late.result.error_code == Result.SEAM_AFTER_TRAJECTORY_END
     assert late.result.error_string == (
         "seam time exceeds the end of the current trajectory (seam t=1.2500 s, trajectory ends at t=1.0000 s)"
     )

@@ -674,6 +674,40 @@ def test_a_goal_that_reaches_the_controller_after_its_seam_while_moving_is_plann
     assert np.max(np.abs(np.diff(v))) < 0.002  # rad/s per control step: no dead stop, no jump
 
 
+def refuse_third_goal_with(monkeypatch, code: int, text: str) -> None:
+    """The controller refuses its third trajectory goal with ``code`` and ``text`` (a real
+    controller words its refusals its own way), then behaves normally."""
+    import sim.controllers.admittance as admittance
+
+    take_over, goals = admittance.TrajectoryAdmittanceController._take_over, []
+
+    def refuse(self, goal, now):
+        goals.append(now)
+        if len(goals) == 3:
+            raise admittance.GoalError(code, text)
+        return take_over(self, goal, now)
+
+    monkeypatch.setattr(admittance.TrajectoryAdmittanceController, "_take_over", refuse)
+
+
+def test_a_late_goal_is_recognised_by_its_result_code_not_its_wording(registry, monkeypatch):
+    from moveit_pro_controllers_msgs.action import FollowJointTrajectoryWithAdmittance as Action
+
+    refuse_third_goal_with(monkeypatch, Action.Result.SEAM_AFTER_TRAJECTORY_END, "trajectory already finished")
+    run = run_policy(registry, BASE, ScriptedPolicy(hold(velocity=np.array([0.1, 0, 0, 0, 0, 0]))), latency=0.05)
+    assert run.result.status == "SUCCESS", run.result.reason  # planned again, as for our own controller's words
+    assert run.summary["steps_executed"] == 60
+
+
+def test_a_refusal_worded_like_a_late_goal_but_coded_otherwise_fails_the_run(registry, monkeypatch):
+    from moveit_pro_controllers_msgs.action import FollowJointTrajectoryWithAdmittance as Action
+
+    refuse_third_goal_with(monkeypatch, Action.Result.INVALID_GOAL, "seam time exceeds the end of the current trajectory")
+    run = run_policy(registry, BASE, ScriptedPolicy(hold(velocity=np.array([0.1, 0, 0, 0, 0, 0]))), latency=0.05)
+    assert run.result.status == "FAILURE"
+    assert "seam time exceeds the end of the current trajectory" in run.result.reason
+
+
 def test_a_goal_answered_only_after_the_next_chunk_arrived_is_waited_for(registry, monkeypatch):
     # Chunk 1's goal reaches the controller after its seam and is refused, and the answer takes
     # 0.6 s to come back (a first goal over a new ROS connection), longer than the 0.5 s window:

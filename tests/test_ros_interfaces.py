@@ -94,8 +94,9 @@ def test_admittance_action_constants_and_fields():
 
     R = A.Result
     codes = [R.SUCCESSFUL, R.INVALID_GOAL, R.INVALID_JOINTS, R.OLD_HEADER_TIMESTAMP, R.PATH_TOLERANCE_VIOLATED,
-             R.GOAL_TOLERANCE_VIOLATED, R.FORCE_TORQUE_THRESHOLD_EXCEEDED, R.CANCELED, R.SUPERSEDED]
-    assert codes == [0, -1, -2, -3, -4, -5, -6, -7, -8]
+             R.GOAL_TOLERANCE_VIOLATED, R.FORCE_TORQUE_THRESHOLD_EXCEEDED, R.CANCELED, R.SUPERSEDED,
+             R.SEAM_AFTER_TRAJECTORY_END]
+    assert codes == [0, -1, -2, -3, -4, -5, -6, -7, -8, -9]
     assert R.get_fields_and_field_types() == {"error_code": "int32", "error_string": "string"}
 
     goal = A.Goal(path_tolerance=0.05, goal_time_tolerance=0.5, absolute_force_torque_threshold=[30.0] * 3 + [3.0] * 3,

@@ -40,6 +40,8 @@ GRIPPER_MAX_EFFORT = 60.0  # N; the 2F-85 holds a 30 mm cube well below its 235 
 GRIPPER_DEADBAND = 0.01  # rad of the driver joint: smaller changes are not re-sent
 TICK_PERIOD = 0.01
 MAX_LATE_RETRIES = 3
+LATE_GOAL_CODES = (FollowTrajectory.Result.OLD_HEADER_TIMESTAMP, FollowTrajectory.Result.SEAM_AFTER_TRAJECTORY_END)
+"""The controller's answers to a goal that reached it after its seam (decided by code, not text)."""
 GOAL_ACK_TIMEOUT = 5.0  # s: a controller that does not acknowledge a goal by then is gone
 SCENE_WATCH_PERIOD = 0.05  # s: how often the rest of the committed motion is checked against the live scene
 
@@ -528,7 +530,7 @@ class ExecutePolicy(Behavior):
         from there, now with the measured delivery time: it joins the runout, or starts from
         rest. At most ``MAX_LATE_RETRIES`` times per chunk."""
         sent = self.last_sent
-        late = result.error_code == FollowTrajectory.Result.OLD_HEADER_TIMESTAMP or "seam time exceeds the end" in result.error_string
+        late = result.error_code in LATE_GOAL_CODES
         if not late or sent is None or self.late_retries >= MAX_LATE_RETRIES:
             return False
         self.late_retries += 1

@@ -281,7 +281,7 @@ class JointTrajectoryAdmittanceController(Controller):
         past_end = seam > current.end_time + TIME_EPS
         if past_end and (executing or seam < now - TIME_EPS):
             raise GoalError(
-                Result.INVALID_GOAL,
+                Result.SEAM_AFTER_TRAJECTORY_END,
                 "seam time exceeds the end of the current trajectory "
                 f"(seam t={seam:.4f} s, trajectory ends at t={current.end_time:.4f} s)",
             )
