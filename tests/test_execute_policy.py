@@ -679,7 +679,7 @@ def refuse_third_goal_with(monkeypatch, code: int, text: str) -> None:
     controller words its refusals its own way), then behaves normally."""
     import sim.controllers.admittance as admittance
 
-    take_over, goals = admittance.TrajectoryAdmittanceController._take_over, []
+    take_over, goals = admittance.JointTrajectoryAdmittanceController._take_over, []
 
     def refuse(self, goal, now):
         goals.append(now)
@@ -687,7 +687,7 @@ def refuse_third_goal_with(monkeypatch, code: int, text: str) -> None:
             raise admittance.GoalError(code, text)
         return take_over(self, goal, now)
 
-    monkeypatch.setattr(admittance.TrajectoryAdmittanceController, "_take_over", refuse)
+    monkeypatch.setattr(admittance.JointTrajectoryAdmittanceController, "_take_over", refuse)
 
 
 def test_a_late_goal_is_recognised_by_its_result_code_not_its_wording(registry, monkeypatch):
