@@ -13,7 +13,7 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 import mujoco  # noqa: E402
 import numpy as np  # noqa: E402
 
-from .cell_model import CAMERA_NAMES, CUBE_COLORS, FT_FORCE_SENSOR, FT_TORQUE_SENSOR, CellOptions, build_cell_spec, cube_body_name  # noqa: E402
+from .cell_model import CAMERA_NAMES, CUBE_COLORS, FT_FORCE_SENSOR, FT_TORQUE_SENSOR, CellOptions, compile_cell, cube_body_name  # noqa: E402
 from .layouts import layout  # noqa: E402
 from .robot_model import ARM_JOINTS, FT_SITE, GRIPPER_DRIVER_JOINT  # noqa: E402
 
@@ -35,7 +35,7 @@ class MujocoCell:
 
     def __init__(self, options: CellOptions | None = None, arm: np.ndarray | None = None, seed: int = 0) -> None:
         self.options = options or CellOptions()
-        self.model = build_cell_spec(self.options).compile()
+        self.model = compile_cell(self.options)
         self.data = mujoco.MjData(self.model)
         m = self.model
         self._arm_qpos = np.array([m.joint(j).qposadr[0] for j in ARM_JOINTS])
