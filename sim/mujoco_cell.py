@@ -13,8 +13,9 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 import mujoco  # noqa: E402
 import numpy as np  # noqa: E402
 
-from .cell_model import CAMERA_NAMES, CUBE_COLORS, FT_FORCE_SENSOR, FT_TORQUE_SENSOR, CellOptions, compile_cell, cube_body_name  # noqa: E402
+from .cell_model import CAMERA_NAMES, CUBE_COLORS, FT_FORCE_SENSOR, FT_TORQUE_SENSOR, CellOptions, build_cell_spec, cube_body_name  # noqa: E402
 from .layouts import layout  # noqa: E402
+from .cell_model import compile_cell  # noqa: E402  (build_cell_spec(...).compile(), disk-cached)
 from .robot_model import ARM_JOINTS, FT_SITE, GRIPPER_DRIVER_JOINT  # noqa: E402
 
 GRIPPER_ACTUATOR = "gripper_fingers_actuator"
