@@ -139,3 +139,17 @@ def test_window_ends_stop_where_a_joint_leaves_its_budget():
     Q = np.array([[0.0, 0.0], [0.004, 0.0], [0.004, -0.009], [0.0, -0.02], [0.0, 0.0]])
     assert swept.window_ends(Q, 0, np.array([0.005, 0.01, 0.02, 0.04])).tolist() == [2, 3, 5, 5]
     assert swept.window_ends(Q, 3, np.array([0.005, 0.04])).tolist() == [4, 5]
+
+
+def test_moved_objects_are_seen_by_the_early_out():
+    """A cube moved onto the path between two checks is hit where it was put, either way."""
+    scene = make_cell_scene(CUBES)
+    Q = make_path({"start": 0, "offset": [0.0] * 6, "delta": [0.0, 0.5, 0.3, 0.0, 0.0, 0.0], "wiggle": [0.0] * 6,
+                   "frequency": 0.0, "points": 200, "gripper": 0.0})
+    for step in (20, 60, 100):
+        scene.move_object("cube_red", pose_matrix(scene.link_pose(Q[step], "wrist_2_link")[:3, 3]))
+        fast, plain = scene.check_path(Q, stop_at_first=False), scene.check_path(Q, stop_at_first=False, early_out=False)
+        assert [key(h) for h in fast] == [key(h) for h in plain]
+        assert step in {h.step for h in plain} and any(h.second == "cube_red" for h in plain)
+        scene.move_object("cube_red", pose_matrix([0.0, 0.0, -1.0]))  # away, under the table
+        assert step not in {h.step for h in scene.check_path(Q, stop_at_first=False)}
