@@ -9,6 +9,12 @@ padding 0.01 m), at ``num_interpolation_points`` 100, 200 and 400, as a fraction
 window ``committed_action_steps * dt`` = 20 * 0.1 s = 2 s. The chunk is collision-free, so every
 point is checked (the worst case; a colliding chunk stops at its first hit).
 
+Two rows per point count, alternating repeat by repeat so both see the same machine load:
+``early_out`` (what ExecutePolicy runs: ``check_path`` settles proven-free runs of points with one
+check, ``runtime/scene/swept.py``) and ``per_point`` (every point checked on its own, the same
+answers); ``speedup`` is per_point's median over early_out's, for the whole pipeline and for the
+collision stage.
+
     .venv/bin/python benchmarks/bench_pipeline.py [--repeats N]
 """
 from __future__ import annotations
@@ -52,7 +58,15 @@ def make_inputs() -> tuple[Any, Any, Any]:
     return scene, safety, msg
 
 
-def pipeline(safety: Any, snapshot: Any, msg: Any, points: int, clock: Callable[[], float] | None = None) -> dict[str, float]:
+def per_point_collision(safety: Any, snapshot: Any, samples: Any) -> str | None:
+    """``safety.first_collision`` with every point checked on its own (no early-out)."""
+    rows = np.hstack([samples.positions, np.zeros((len(samples), 1))])
+    hit = safety.scene.check_path(rows, samples.times, PADDING, snapshot=snapshot, layout=safety.layout, early_out=False)
+    return None if hit is None else str(hit)
+
+
+def pipeline(safety: Any, snapshot: Any, msg: Any, points: int, clock: Callable[[], float] | None = None,
+             early_out: bool = True) -> dict[str, float]:
     """One chunk through every stage; with ``clock``, the seconds each stage took."""
     marks = [clock()] if clock else []
 
@@ -76,7 +90,10 @@ def pipeline(safety: Any, snapshot: Any, msg: Any, points: int, clock: Callable[
     mark()
     violation = safety.limits.check(samples.positions, samples.velocities, samples.accelerations, samples.times)
     mark()
-    collision = safety.first_collision(snapshot, samples, PADDING, 0.0)
+    if early_out:
+        collision = safety.first_collision(snapshot, samples, PADDING, 0.0)
+    else:
+        collision = per_point_collision(safety, snapshot, samples)
     mark()
     if violation is not None or collision is not None:
         raise SystemExit(f"the benchmark chunk must pass every check, got: {violation or collision}")
@@ -90,32 +107,44 @@ def main() -> None:
     scene, safety, msg = make_inputs()
     snapshot = safety.snapshot()
     rows = []
+    methods = {"early_out": True, "per_point": False}
     for points in (100, 200, 400):
-        for _ in range(5):
-            pipeline(safety, snapshot, msg, points)  # warm caches (collision checker, scipy)
-        totals, stages = [], {s: [] for s in STAGES}
+        totals = {m: [] for m in methods}
+        stages = {m: {s: [] for s in STAGES} for m in methods}
+        for method, early_out in methods.items():
+            for _ in range(5):
+                pipeline(safety, snapshot, msg, points, early_out=early_out)  # warm caches (checker, scipy)
         for _ in range(args.repeats):
-            start = time.perf_counter()
-            split = pipeline(safety, snapshot, msg, points, time.perf_counter)
-            totals.append((time.perf_counter() - start) * 1000.0)
-            for name, seconds in split.items():
-                stages[name].append(seconds * 1000.0)
-        p50 = percentile(totals, 50)
-        row = {
-            "bench": "pipeline",
-            "points": points,
-            "p50_ms": rounded(p50, 3),
-            "p95_ms": rounded(percentile(totals, 95), 3),
-            "window_fraction": rounded(p50 / WINDOW_MS, 5),
-            "repeats": args.repeats,
-        }
-        row.update({f"{name}_ms": rounded(percentile(values, 50), 3) for name, values in stages.items()})
-        rows.append(row)
-    columns = ["points", "p50_ms", "p95_ms", "window_fraction", *(f"{s}_ms" for s in STAGES)]
+            for method, early_out in methods.items():
+                start = time.perf_counter()
+                split = pipeline(safety, snapshot, msg, points, time.perf_counter, early_out)
+                totals[method].append((time.perf_counter() - start) * 1000.0)
+                for name, seconds in split.items():
+                    stages[method][name].append(seconds * 1000.0)
+        for method in methods:
+            p50 = percentile(totals[method], 50)
+            row = {
+                "bench": "pipeline",
+                "points": points,
+                "collision_method": method,
+                "p50_ms": rounded(p50, 3),
+                "p95_ms": rounded(percentile(totals[method], 95), 3),
+                "window_fraction": rounded(p50 / WINDOW_MS, 5),
+                "repeats": args.repeats,
+            }
+            row.update({f"{name}_ms": rounded(percentile(values, 50), 3) for name, values in stages[method].items()})
+            rows.append(row)
+        fast, slow = rows[-2], rows[-1]
+        for row in (fast, slow):
+            row["speedup"] = rounded(slow["p50_ms"] / row["p50_ms"], 2)
+            row["collision_speedup"] = rounded(slow["collision_ms"] / row["collision_ms"], 2)
+    columns = ["points", "collision_method", "p50_ms", "p95_ms", "window_fraction", *(f"{s}_ms" for s in STAGES),
+               "speedup", "collision_speedup"]
     notes = [
         f"one 50-step chunk (6 arm joints + gripper), committed window {COMMITTED} x {DT} s = {WINDOW_MS:g} ms; "
-        f"{args.repeats} repeats, medians (stage columns are each stage's own median)",
-        "target: window_fraction < 0.01 at 200 points (< 20 ms), aim < 5 ms",
+        f"{args.repeats} repeats per method, alternating; medians (stage columns are each stage's own median)",
+        "early_out: check_path's proven early-out (ExecutePolicy's); per_point: every point checked on its own",
+        "target: window_fraction < 0.01 at 200 points (< 20 ms); issue 15: <= 1.5 ms p50 at 200 points",
     ]
     report("bench_pipeline: one chunk, validate to collision check", rows, columns, notes)
 

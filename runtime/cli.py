@@ -159,9 +159,13 @@ def _add_plugin_commands(sub: Any) -> None:
 def cmd_run(args: argparse.Namespace, registry: Registry, stop: StopRequest | None = None) -> int:
     """``objective run``; ``stop`` is where ``main``'s SIGINT/SIGTERM handlers ask the run to stop."""
     from .display import ProgressLine
-    from .recording.live import LiveOptions
     from .runner import RunOptions, run_file
 
+    live = None
+    if args.live is not None:  # the recording package (mcap, schemas) only when it serves
+        from .recording.live import LiveOptions
+
+        live = LiveOptions(port=args.live)
     options = RunOptions(
         seed=args.seed,
         realtime=args.realtime or args.ros,
@@ -172,7 +176,7 @@ def cmd_run(args: argparse.Namespace, registry: Registry, stop: StopRequest | No
         sets=dict(args.set),
         policy_latency=args.policy_latency,
         record_dir=args.record,
-        live=LiveOptions(port=args.live) if args.live is not None else None,
+        live=live,
         world_options={**dict(args.world_option), **({"policy": args.policy} if args.policy else {})},
     )
     progress = ProgressLine(sys.stderr) if sys.stderr.isatty() else None

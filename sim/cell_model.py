@@ -25,12 +25,15 @@ the gripper over the table, and ``sim.layouts`` places cubes in front of it.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from importlib.metadata import version
+from pathlib import Path
 
 import mujoco
 import numpy as np
 
+from runtime.disk_cache import cached, content_key
 from sim.render_meshes import simplify_visual_meshes
-from sim.robot_model import FT_SITE, GRIPPER_PREFIX, build_robot_spec
+from sim.robot_model import FT_SITE, GRIPPER_PREFIX, build_robot_spec, mesh_files, robot_xml
 
 CUBE_COLORS: dict[str, tuple[float, float, float, float]] = {
     "red": (0.85, 0.1, 0.1, 1.0),
@@ -120,6 +123,28 @@ def build_cell_spec(options: CellOptions | None = None) -> mujoco.MjSpec:
             tolerance=lambda mesh: GRIPPER_WELD_TOLERANCE if mesh.startswith(GRIPPER_PREFIX) else ARM_WELD_TOLERANCE,
         )
     return spec
+
+
+def compile_cell(options: CellOptions | None = None) -> mujoco.MjModel:
+    """``build_cell_spec(options).compile()``, from the on-disk cache (a MuJoCo binary model)
+    when the robot's MJCF, its mesh files, ``options``, the sim package's source and the
+    libraries' versions are what they were: compiling processes every mesh (~1-2 s)."""
+    options = options or CellOptions()
+    xml = robot_xml()
+    sources = sorted(Path(__file__).resolve().parent.glob("*.py"))
+    key = content_key(xml, repr(options), mujoco.__version__, version("fast-simplification"), np.__version__,
+                      *(str(p) for p in mesh_files(xml)), *mesh_files(xml), *sources)
+    return cached("cell_mjb", key, lambda: _to_mjb(build_cell_spec(options).compile()), _from_mjb)
+
+
+def _to_mjb(model: mujoco.MjModel) -> bytes:
+    buffer = np.zeros(mujoco.mj_sizeModel(model), dtype=np.uint8)
+    mujoco.mj_saveModel(model, None, buffer)
+    return buffer.tobytes()
+
+
+def _from_mjb(data: bytes) -> mujoco.MjModel:
+    return mujoco.MjModel.from_binary_path("cell.mjb", {"cell.mjb": data})
 
 
 def _visual_mesh_keep(mesh: str, detail: float) -> float:

@@ -26,6 +26,7 @@ from .cell_model import (  # noqa: E402
     cube_body_name,
 )
 from .layouts import layout  # noqa: E402
+from .cell_model import compile_cell  # noqa: E402  (build_cell_spec(...).compile(), disk-cached)
 from .robot_model import ARM_JOINTS, FT_SITE, GRIPPER_DRIVER_JOINT  # noqa: E402
 
 GRIPPER_ACTUATOR = "gripper_fingers_actuator"
@@ -47,7 +48,7 @@ class MujocoCell:
 
     def __init__(self, options: CellOptions | None = None, arm: np.ndarray | None = None, seed: int = 0) -> None:
         self.options = options or CellOptions()
-        self.model = build_cell_spec(self.options).compile()
+        self.model = compile_cell(self.options)
         self.data = mujoco.MjData(self.model)
         m = self.model
         self._arm_qpos = np.array([m.joint(j).qposadr[0] for j in ARM_JOINTS])

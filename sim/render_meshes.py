@@ -17,17 +17,23 @@ drawing only:
 
 Dynamics cannot change: every collision geom keeps its mesh, and every body its mass and
 inertia (see ``simplify_visual_meshes`` for how shared and mass-giving meshes are handled).
-Simplifying all the cell's meshes takes about 0.25 s of CPU, once per process.
+Simplifying all the cell's meshes takes about 0.25 s of CPU, once per machine: the results are
+kept in the on-disk cache (``simplified_mesh``).
 """
 from __future__ import annotations
 
 import functools
+import io
 from dataclasses import dataclass
+from importlib.metadata import version
+from pathlib import Path
 from typing import Callable
 
 import fast_simplification
 import mujoco
 import numpy as np
+
+from runtime.disk_cache import cached, content_key
 
 VISUAL_SUFFIX = "_visual"
 """Name suffix of the simplified copy of a mesh that collision geoms also use."""
@@ -127,17 +133,40 @@ class SimplifiedMesh:
 
 @functools.lru_cache(maxsize=None)
 def simplified_mesh(path: str, scale: tuple[float, float, float], keep: float, tolerance: float) -> SimplifiedMesh:
-    """``decimate(weld(load_mesh_file(path, scale), tolerance), keep)``, once per process.
+    """``decimate(weld(load_mesh_file(path, scale), tolerance), keep)``, once per process, and
+    from the on-disk cache (``runtime.disk_cache``) when the mesh file's bytes, the settings,
+    the libraries' versions and this module are what they were.
 
     The arrays are read-only: every cell built in this process shares them.
     """
     if not 0 < keep <= 1:
         raise ValueError(f"keep {keep}: must be a fraction of triangles in (0, 1]")
+    key = content_key(Path(path), repr((tuple(scale), keep, tolerance)), mujoco.__version__,
+                      version("fast-simplification"), np.__version__, Path(__file__))
+    return cached("visual_mesh", key, lambda: _npz(_simplify(path, scale, keep, tolerance)), _from_npz)
+
+
+def _simplify(path: str, scale: tuple[float, float, float], keep: float, tolerance: float) -> SimplifiedMesh:
     original = load_mesh_file(path, scale)
     original_faces = len(original[1])
     vertices, faces = decimate(*weld(*original, tolerance), round(keep * original_faces))
     if len(faces) < 4:  # a part smaller than the tolerance: keep it as it is
         vertices, faces = original
+    return SimplifiedMesh(vertices, faces, original_faces)
+
+
+def _npz(mesh: SimplifiedMesh) -> bytes:
+    buffer = io.BytesIO()
+    np.savez(buffer, vertices=mesh.vertices, faces=mesh.faces, original_faces=np.array(mesh.original_faces))
+    return buffer.getvalue()
+
+
+def _from_npz(data: bytes) -> SimplifiedMesh:
+    with np.load(io.BytesIO(data), allow_pickle=False) as arrays:
+        vertices, faces = np.array(arrays["vertices"], dtype=float), np.array(arrays["faces"])
+        original_faces = int(arrays["original_faces"])
+    if vertices.ndim != 2 or vertices.shape[1] != 3 or faces.ndim != 2 or faces.shape[1] != 3:
+        raise ValueError("a simplified mesh needs (n, 3) vertices and (m, 3) faces")
     vertices.setflags(write=False)
     faces.setflags(write=False)
     return SimplifiedMesh(vertices, faces, original_faces)

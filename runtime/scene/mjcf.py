@@ -22,15 +22,18 @@ bodies without joints are placed relative to the wrong frame by pinocchio (the M
 """
 from __future__ import annotations
 
+import json
 import os
 import tempfile
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import mujoco
 import numpy as np
 import pinocchio as pin
 from lxml import etree
+
+from runtime.disk_cache import cached, content_key
 
 
 @dataclass(frozen=True)
@@ -207,18 +210,24 @@ def _exact_xml(xml: str, compiled: mujoco.MjModel, root_name: str) -> str:
     return etree.tostring(root, encoding="unicode")
 
 
-def _add_sites(model: pin.Model, compiled: mujoco.MjModel) -> None:
+def _site_frames(compiled: mujoco.MjModel) -> list[tuple[str, str, list[float], list[float]]]:
+    """``(site, body, pos, quat wxyz)`` of every site, from MuJoCo's compiled values."""
+    return [(compiled.site(i).name, compiled.body(int(compiled.site_bodyid[i])).name,
+             [float(v) for v in compiled.site_pos[i]], [float(v) for v in compiled.site_quat[i]])
+            for i in range(compiled.nsite)]
+
+
+def _add_sites(model: pin.Model, sites: list[tuple[str, str, list[float], list[float]]]) -> None:
     """Sites as OP_FRAMEs on their body's frame.
 
     pinocchio's own parser places a site on a body without joints (merged into its parent as a
     fixed frame) relative to the wrong frame: the Menagerie ``pinch`` site lands 26 cm off.
     """
-    for i in range(compiled.nsite):
-        body = compiled.body(int(compiled.site_bodyid[i])).name
+    for name, body, pos, quat in sites:
         parent = model.getFrameId(body, pin.FrameType.BODY)
         frame = model.frames[parent]
-        placement = frame.placement * _se3(compiled.site_pos[i], compiled.site_quat[i])
-        model.addFrame(pin.Frame(compiled.site(i).name, frame.parentJoint, parent, placement, pin.FrameType.OP_FRAME))
+        placement = frame.placement * _se3(np.array(pos), np.array(quat))
+        model.addFrame(pin.Frame(name, frame.parentJoint, parent, placement, pin.FrameType.OP_FRAME))
 
 
 def _se3(pos: np.ndarray, quat_wxyz: np.ndarray) -> pin.SE3:
@@ -226,13 +235,67 @@ def _se3(pos: np.ndarray, quat_wxyz: np.ndarray) -> pin.SE3:
     return pin.SE3(pin.Quaternion(w, x, y, z).normalized().toRotationMatrix(), np.asarray(pos, float))
 
 
+@dataclass(frozen=True)
+class _MujocoFacts:
+    """What loading needs from MuJoCo's compiler (JSON-able, so the disk cache can keep it)."""
+
+    xml: str
+    """The robot alone, defaults flattened, placements exact (what pinocchio parses)."""
+    root_pos: list[float]
+    root_quat: list[float]
+    body_parents: dict[str, str]
+    renamed: dict[str, str]
+    sites: list[tuple[str, str, list[float], list[float]]]
+
+
 def load_mjcf(source: str | os.PathLike | mujoco.MjSpec, root_body: str | None = None) -> MjcfRobot:
     """Load the robot rooted at ``root_body`` (default: the only top-level body) of an MJCF.
 
     ``source`` is an ``MjSpec`` (copied, never modified), an MJCF file path or an XML string.
+    MuJoCo's part (a compile: ~1 s with meshes) comes from the on-disk cache
+    (``runtime.disk_cache``) when the MJCF text, its mesh files, ``root_body``, this module and
+    MuJoCo's version are what they were; an ``MjSpec`` or an MJCF with ``<include>`` is always
+    compiled.
     """
     spec = spec_from_source(source)
     _absolute_mesh_paths(spec)
+    key = _facts_key(source, spec, root_body)
+    if key is None:
+        facts = _compile_facts(spec, root_body)
+    else:
+        facts = cached("mjcf_facts", key, lambda: json.dumps(asdict(_compile_facts(spec, root_body))).encode(),
+                       lambda data: _MujocoFacts(**json.loads(data)))
+    with tempfile.TemporaryDirectory(prefix="mjcf_") as tmp:
+        path = os.path.join(tmp, "robot.xml")
+        with open(path, "w") as f:
+            f.write(facts.xml)
+        robot = pin.buildModelFromMJCF(path)
+        geometry = pin.buildGeomFromMJCF(robot, path, pin.COLLISION)
+
+    world = pin.Model()
+    root_placement = _se3(np.array(facts.root_pos), np.array(facts.root_quat))
+    model, collision_model = pin.appendModel(world, robot, pin.GeometryModel(), geometry, 0, root_placement)
+    model.name = robot.name
+    _add_sites(model, facts.sites)
+    return MjcfRobot(model=model, collision_model=collision_model, body_parents=facts.body_parents, renamed=facts.renamed)
+
+
+def _facts_key(source: str | os.PathLike | mujoco.MjSpec, spec: mujoco.MjSpec, root_body: str | None) -> str | None:
+    if isinstance(source, mujoco.MjSpec):
+        return None
+    text = str(source)
+    if not text.lstrip().startswith("<"):
+        text = f"{Path(text).resolve()}\n{Path(text).read_text()}"
+    if "<include" in text:
+        return None
+    meshes = sorted({mesh.file for mesh in spec.meshes if mesh.file})
+    try:
+        return content_key(text, repr(root_body), mujoco.__version__, Path(__file__), *meshes, *map(Path, meshes))
+    except OSError:  # a missing mesh: let MuJoCo's compiler say so
+        return None
+
+
+def _compile_facts(spec: mujoco.MjSpec, root_body: str | None) -> _MujocoFacts:
     root = _keep_only_robot(spec, root_body)
     root_name = root.name
     renamed = _unique_frame_names(spec)
@@ -241,22 +304,15 @@ def load_mjcf(source: str | os.PathLike | mujoco.MjSpec, root_body: str | None =
 
     compiled = spec.compile()
     root_id = mujoco.mj_name2id(compiled, mujoco.mjtObj.mjOBJ_BODY, root_name)
-    root_placement = _se3(compiled.body_pos[root_id], compiled.body_quat[root_id])
     body_parents = {
         compiled.body(i).name: ("universe" if compiled.body_parentid[i] == 0 else compiled.body(int(compiled.body_parentid[i])).name)
         for i in range(1, compiled.nbody)
     }
-
-    xml = _exact_xml(spec.to_xml(), compiled, root_name)
-    with tempfile.TemporaryDirectory(prefix="mjcf_") as tmp:
-        path = os.path.join(tmp, "robot.xml")
-        with open(path, "w") as f:
-            f.write(xml)
-        robot = pin.buildModelFromMJCF(path)
-        geometry = pin.buildGeomFromMJCF(robot, path, pin.COLLISION)
-
-    world = pin.Model()
-    model, collision_model = pin.appendModel(world, robot, pin.GeometryModel(), geometry, 0, root_placement)
-    model.name = robot.name
-    _add_sites(model, compiled)
-    return MjcfRobot(model=model, collision_model=collision_model, body_parents=body_parents, renamed=renamed)
+    return _MujocoFacts(
+        xml=_exact_xml(spec.to_xml(), compiled, root_name),
+        root_pos=[float(v) for v in compiled.body_pos[root_id]],
+        root_quat=[float(v) for v in compiled.body_quat[root_id]],
+        body_parents=body_parents,
+        renamed=renamed,
+        sites=_site_frames(compiled),
+    )

@@ -174,7 +174,7 @@ class RobotModel:
 
         loaded = load_mjcf(source, root_body=root_body)
         return cls(loaded.model, loaded.collision_model, _srdf(srdf), _couplings(couplings),
-                   source=str(source) if not hasattr(source, "compile") else "<MjSpec>")
+                   source=_describe_source(source))
 
     @classmethod
     def from_urdf(
@@ -419,3 +419,10 @@ def _with_convex_hulls(geometry: pin.GeometryModel) -> pin.GeometryModel:
             go = pin.GeometryObject(go.name, go.parentJoint, go.parentFrame, go.placement, hull)
         out.addGeometryObject(go)
     return out
+
+
+def _describe_source(source: object) -> str:
+    if hasattr(source, "compile"):
+        return "<MjSpec>"
+    text = str(source)
+    return "<MJCF text>" if text.lstrip().startswith("<") else text

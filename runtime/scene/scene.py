@@ -305,14 +305,17 @@ class PlanningScene:
         stop_at_first: bool = True,
         snapshot: SceneSnapshot | None = None,
         layout: ConfigurationMap | None = None,
+        early_out: bool = True,
     ) -> CollisionResult | None | list[CollisionResult]:
         """Check every row of ``Q`` (N, dof). ``stop_at_first``: the first hit or None;
-        otherwise a list with the first colliding pair of every colliding step."""
+        otherwise a list with the first colliding pair of every colliding step. The answer for
+        every row is the one ``check_state`` gives; ``early_out=False`` checks each row on its
+        own instead of settling proven-free runs of rows at once (for comparisons)."""
         full = self._rows(Q, layout)
         if times is not None and len(times) != len(full):
             raise ValueError(f"times has {len(times)} entries for {len(full)} path points")
         with self._lock:
-            hits = self._checker(padding, snapshot).check_many(full, times, stop_at_first)
+            hits = self._checker(padding, snapshot).check_many(full, times, stop_at_first, early_out)
         if stop_at_first:
             return hits[0] if hits else None
         return hits
