@@ -22,11 +22,10 @@ from .cell_model import (  # noqa: E402
     SIM_BOX_SLOTS,
     CellOptions,
     box_slot_name,
-    build_cell_spec,
+    compile_cell,
     cube_body_name,
 )
 from .layouts import layout  # noqa: E402
-from .cell_model import compile_cell  # noqa: E402  (build_cell_spec(...).compile(), disk-cached)
 from .robot_model import ARM_JOINTS, FT_SITE, GRIPPER_DRIVER_JOINT  # noqa: E402
 
 GRIPPER_ACTUATOR = "gripper_fingers_actuator"
