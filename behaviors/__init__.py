@@ -10,7 +10,11 @@ from runtime.registry import Registry
 
 def register(registry: Registry) -> None:
     from . import controllers, gripper, motion, motion_pose, poses, scene, sim_control
+    from . import cameras, frames, messages, robot_state, trajectories, vectors, visualization, yaml_files
     from .execute_policy import behavior as execute_policy
 
     for module in (controllers, gripper, motion, motion_pose, scene, poses, sim_control, execute_policy):
+        registry.register_all(module.NODES)
+    # MoveIt Pro's everyday behaviors (docs/moveit-pro-behaviors.md)
+    for module in (vectors, frames, yaml_files, trajectories, robot_state, messages, cameras, visualization):
         registry.register_all(module.NODES)
