@@ -288,7 +288,7 @@ class PlanCartesianPath(ReadsRobotState, Behavior):
         InputPort("trajectory_timing", PortType.STRING, "[{mode: time_optimal}]", "Timing (YAML): mode time_optimal, optional velocity/acceleration_scale_factor."),
         InputPort("max_optimizer_iterations", PortType.UINT, 1, "Accepted for compatibility (no post-optimisation here)."),
         InputPort("link_padding", PortType.FLOAT, 0.01, "Clearance (m) required from world objects."),
-        OutputPort("joint_trajectory_msg", PortType.JOINT_TRAJECTORY, "The planned trajectory."),
+        OutputPort("joint_trajectory_msg", PortType.JOINT_TRAJECTORY, "The planned trajectory.", default="{joint_trajectory_msg}"),
         OutputPort("debug_solution", PortType.POSE_STAMPED_LIST, "The tip poses the IK solved (world frame), for VisualizePath."),
     )
 
@@ -347,7 +347,7 @@ class ValidateTrajectory(Behavior):
         "FAILURE naming the first problem."
     )
     ports = (
-        InputPort("joint_trajectory_msg", PortType.JOINT_TRAJECTORY, description="The trajectory to check."),
+        InputPort("joint_trajectory_msg", PortType.JOINT_TRAJECTORY, "{joint_trajectory_msg}", "The trajectory to check."),
         InputPort("planning_group_name", PortType.STRING, "manipulator", "SRDF joint group the trajectory moves."),
         InputPort("planning_scene_msg", PortType.ANY, "", "Accepted for compatibility; the run's current planning scene is used."),
         InputPort("cartesian_space_step", PortType.FLOAT, 0.02, "Accepted for compatibility (checks are spaced by joint_space_step)."),
@@ -388,7 +388,7 @@ class ExecuteTrajectory(ReadsRobotState, Behavior):
         "within the limits and collision-free; fails when the controller aborts. Only execution_pipeline 'jtac' exists in this cell."
     )
     ports = (
-        InputPort("joint_trajectory_msg", PortType.JOINT_TRAJECTORY, description="The trajectory, e.g. from PlanCartesianPath."),
+        InputPort("joint_trajectory_msg", PortType.JOINT_TRAJECTORY, "{joint_trajectory_msg}", "The trajectory, e.g. from PlanCartesianPath."),
         InputPort("execution_pipeline", PortType.STRING, "jtac", "jtac: FollowJointTrajectoryWithAdmittance (jtc is not in this cell)."),
         InputPort("controller_action_name", PortType.STRING, DEFAULT_CONTROLLER, "The controller's action."),
         InputPort("planning_group_name", PortType.STRING, "manipulator", "SRDF joint group the trajectory moves (for the checks)."),

@@ -151,8 +151,8 @@ class ForEach(DecoratorNode):
 
     Before each run of the child, ``out`` is set to the next element and ``index`` to its
     position. The vector is read when the loop starts, so the child may rebuild it. A child
-    that finishes within the tick it started in lets the loop go on at the next tick (as
-    BT.CPP's Repeat does), so one element is handled per tick at most.
+    that finishes in the tick it started in hands over to the next element through a wake-up,
+    as BT.CPP's Repeat does; a RUNNING child keeps its element until it finishes.
     """
 
     description: ClassVar[str] = (
