@@ -491,6 +491,7 @@ class RetrieveWaypoint(Behavior):
         InputPort("waypoint_name", PortType.STRING, description="Name of the waypoint, e.g. Home."),
         InputPort("joint_group_name", PortType.STRING, "manipulator", "SRDF joint group whose joints are written."),
         OutputPort("waypoint_joint_state", PortType.JOINT_STATE, "The waypoint's positions for the group's joints."),
+        OutputPort("joint_positions", PortType.FLOAT_LIST, "The same positions as a vector of numbers (not in MoveIt Pro)."),
     )
     needs_world = True
 
@@ -509,6 +510,7 @@ class RetrieveWaypoint(Behavior):
         msg = JointState(name=list(joints), position=[float(waypoints[name][j]) for j in joints])
         msg.header.stamp = time_msg(self.context.clock.now())
         self.set_output("waypoint_joint_state", msg)
+        self.set_output("joint_positions", list(msg.position))
         return Status.SUCCESS
 
 
