@@ -59,29 +59,27 @@ def interpolate_line(start: np.ndarray, goal: np.ndarray, step_m: float, step_ra
     return out
 
 
-def time_path(path: np.ndarray, stops: set[int], limits: JointLimits, velocity_scale: float, acceleration_scale: float) -> np.ndarray:
-    """Times (s) of the points of a joint path (N, J) that follows it as fast as the scaled
-    velocity and acceleration limits allow, at rest at the first, the last and every ``stops`` index.
+@dataclass(frozen=True)
+class PathTiming:
+    """When each point of a joint path is reached (s) and the path speed there (joint-space m/s-like units)."""
+
+    times: np.ndarray
+    speeds: np.ndarray
+
+
+def time_path(path: np.ndarray, stops: set[int], limits: JointLimits, velocity_scale: float, acceleration_scale: float) -> PathTiming:
+    """Timing of a joint path (N, J) followed as fast as the scaled velocity and acceleration
+    limits allow, at rest at the first, the last and every ``stops`` index.
 
     The path is piecewise linear; along each piece the speed is bounded by the joint velocity
-    limits and changed at most at the rate the acceleration limits allow (a forward and a
-    backward pass over the squared path speed).
+    limits and changes at a constant rate no larger than the acceleration limits allow (a
+    forward and a backward pass over the squared path speed).
     """
     n = len(path)
     if n < 2:
-        return np.zeros(n)
-    deltas = np.diff(path, axis=0)
-    lengths = np.linalg.norm(deltas, axis=1)
-    directions = np.divide(np.abs(deltas), lengths[:, None], out=np.zeros_like(deltas), where=lengths[:, None] > 0)
-    v_max = limits.max_velocity * velocity_scale
-    a_max = limits.max_acceleration * acceleration_scale
-    with np.errstate(divide="ignore"):
-        speed_cap = np.min(np.where(directions > 0, v_max / directions, np.inf), axis=1)
-        accel_cap = np.min(np.where(directions > 0, a_max / directions, np.inf), axis=1)
-    speed_cap = np.where(np.isfinite(speed_cap), speed_cap, 0.0)
-    accel_cap = np.where(np.isfinite(accel_cap), accel_cap, 0.0)
-    # squared path speed at each point: capped by the pieces on either side, zero at stops
-    v2 = np.empty(n)
+        return PathTiming(np.zeros(n), np.zeros(n))
+    lengths, speed_cap, accel_cap = _piece_caps(path, limits, velocity_scale, acceleration_scale)
+    v2 = np.empty(n)  # squared path speed at each point: capped by the pieces on either side
     v2[0], v2[-1] = 0.0, 0.0
     v2[1:-1] = np.minimum(speed_cap[:-1], speed_cap[1:]) ** 2
     for i in stops:
@@ -94,16 +92,38 @@ def time_path(path: np.ndarray, stops: set[int], limits: JointLimits, velocity_s
     speeds = np.sqrt(np.maximum(v2, 0.0))
     mean = (speeds[:-1] + speeds[1:]) / 2.0
     dt = np.divide(lengths, mean, out=np.zeros_like(lengths), where=mean > 0)
-    return np.concatenate([[0.0], np.cumsum(dt)])
+    return PathTiming(np.concatenate([[0.0], np.cumsum(dt)]), speeds)
 
 
-def resample(times: np.ndarray, path: np.ndarray, rate_hz: float) -> Samples:
-    """The timed path at ``rate_hz`` (positions interpolated), with finite-difference
-    velocities and accelerations (zero at both ends)."""
+def _piece_caps(path: np.ndarray, limits: JointLimits, velocity_scale: float, acceleration_scale: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Each piece's length and the largest path speed and acceleration its joint limits allow."""
+    deltas = np.diff(path, axis=0)
+    lengths = np.linalg.norm(deltas, axis=1)
+    directions = np.divide(np.abs(deltas), lengths[:, None], out=np.zeros_like(deltas), where=lengths[:, None] > 0)
+    caps = []
+    for limit in (limits.max_velocity * velocity_scale, limits.max_acceleration * acceleration_scale):
+        with np.errstate(divide="ignore"):
+            cap = np.min(np.where(directions > 0, limit / np.where(directions > 0, directions, 1.0), np.inf), axis=1)
+        caps.append(np.where(np.isfinite(cap), cap, 0.0))
+    return lengths, caps[0], caps[1]
+
+
+def resample(timing: PathTiming, path: np.ndarray, rate_hz: float) -> Samples:
+    """The timed path at ``rate_hz``: along each piece the speed changes at a constant rate, so
+    the position there follows ``s = v0 t + a t^2 / 2``; velocities and accelerations are
+    finite differences (zero at both ends)."""
+    times, speeds = timing.times, timing.speeds
     duration = float(times[-1])
     count = max(2, int(np.ceil(duration * rate_hz)) + 1)
     t = np.linspace(0.0, duration, count)
-    positions = np.stack([np.interp(t, times, path[:, j]) for j in range(path.shape[1])], axis=1)
+    piece = np.clip(np.searchsorted(times, t, side="right") - 1, 0, len(path) - 2)
+    tau = t - times[piece]
+    dt = times[piece + 1] - times[piece]
+    accel = np.divide(speeds[piece + 1] - speeds[piece], dt, out=np.zeros_like(dt), where=dt > 0)
+    travelled = speeds[piece] * tau + 0.5 * accel * tau ** 2
+    length = np.linalg.norm(path[piece + 1] - path[piece], axis=1)
+    fraction = np.clip(np.divide(travelled, length, out=np.ones_like(length), where=length > 0), 0.0, 1.0)
+    positions = path[piece] + fraction[:, None] * (path[piece + 1] - path[piece])
     velocities = np.gradient(positions, t, axis=0) if duration > 0 else np.zeros_like(positions)
     velocities[0] = velocities[-1] = 0.0
     accelerations = np.gradient(velocities, t, axis=0) if duration > 0 else np.zeros_like(positions)
@@ -260,8 +280,8 @@ def plan_cartesian(
         current = target
         stops.add(len(rows) - 1)
     path = np.array(rows)
-    times = time_path(path, stops, safety.limits, velocity_scale, acceleration_scale)
-    return CartesianPlan(resample(times, path, rate_hz), tip_poses)
+    timing = time_path(path, stops, safety.limits, velocity_scale, acceleration_scale)
+    return CartesianPlan(resample(timing, path, rate_hz), tip_poses)
 
 
 # -- nodes -------------------------------------------------------------------------------------
