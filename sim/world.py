@@ -14,7 +14,7 @@ import math
 from typing import Any, Callable, Protocol
 
 import numpy as np
-from geometry_msgs.msg import TransformStamped
+from geometry_msgs.msg import TransformStamped, WrenchStamped
 from sensor_msgs.msg import CameraInfo, Image, JointState
 
 from runtime.behavior import RunContext
@@ -32,6 +32,7 @@ from .robot_model import ARM_JOINTS, GRIPPER_DRIVER_JOINT, load_waypoints
 CONTROL_PERIOD = 0.002
 CAMERA_TOPICS = {name: f"/{name}_camera/color" for name in CAMERA_NAMES}
 CAMERA_INFO_TOPICS = {name: f"/{name}_camera/camera_info" for name in CAMERA_NAMES}
+WRENCH_TOPIC = "/force_torque_sensor_broadcaster/wrench"
 
 
 def pinhole_camera_info(frame_id: str, width: int, height: int, fovy_deg: float) -> CameraInfo:
@@ -99,6 +100,7 @@ class CellWorld:
         for name, topic in CAMERA_TOPICS.items():
             bus.create_lazy_publisher(topic, Image, functools.partial(self._camera_frame, name), rate_hz=rate)
             bus.create_lazy_publisher(CAMERA_INFO_TOPICS[name], CameraInfo, functools.partial(self._camera_info, name), rate_hz=rate)
+        bus.create_lazy_publisher(WRENCH_TOPIC, WrenchStamped, self._wrench, rate_hz=100.0)
         for color in CUBE_COLORS:  # the remote oracle's privileged view
             bus.create_lazy_publisher(
                 CUBE_POSE_TOPIC.format(color=color), TransformStamped, functools.partial(self._cube_pose, color), rate_hz=50.0
@@ -146,6 +148,17 @@ class CellWorld:
     def _cube_pose(self, color: str) -> TransformStamped:
         position, quat = self.cell.cube_pose(color)
         return cube_pose_msg(color, position, quat, self.cell.t)
+
+    def _wrench(self) -> WrenchStamped:
+        """The wrist sensor's reading: the wrench the environment applies to the tool, about the
+        sensor, in world axes (hence frame ``world``), the gripper's weight removed."""
+        fx, fy, fz, tx, ty, tz = (float(v) for v in self.cell.wrench())
+        msg = WrenchStamped()
+        msg.header.frame_id = "world"
+        msg.header.stamp = time_msg(self.cell.t)
+        msg.wrench.force.x, msg.wrench.force.y, msg.wrench.force.z = fx, fy, fz
+        msg.wrench.torque.x, msg.wrench.torque.y, msg.wrench.torque.z = tx, ty, tz
+        return msg
 
     def _camera_info(self, camera: str) -> CameraInfo:
         if camera not in self._frame_shapes:  # the size of the frames the cell renders
