@@ -49,9 +49,9 @@ def objective_files(root: Path) -> list[Path]:
     return sorted(p for p in root.rglob("*.xml") if p.parent.name == "objectives")
 
 
-def check(file: Path, registry: Registry) -> Outcome:
+def check(file: Path, registry: Registry, objectives_dir: Path | None = None) -> Outcome:
     try:
-        validate(file, registry, search_paths=[file.parent])
+        validate(file, registry, search_paths=[file.parent], objectives_dir=objectives_dir)
     except ObjectiveError as err:
         return Outcome(file, str(err))
     except Exception as err:  # a loader bug must not hide the other files' answers
@@ -64,12 +64,14 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("root", type=Path, help="directory searched for objectives/*.xml")
     parser.add_argument("--list", action="store_true", help="print each file's outcome")
     parser.add_argument("--json", action="store_true", help="print a JSON summary instead of text")
+    parser.add_argument("--objectives-dir", type=Path, default=None, metavar="DIR",
+                        help="the SubTree library searched first (default: this project's objectives/)")
     args = parser.parse_args(argv)
     if not args.root.is_dir():
         print(f"error: {args.root} is not a directory", file=sys.stderr)
         return 2
     registry = Registry.from_entry_points()
-    outcomes = [check(f, registry) for f in objective_files(args.root)]
+    outcomes = [check(f, registry, args.objectives_dir) for f in objective_files(args.root)]
     loaded = sum(o.loads for o in outcomes)
     blockers = collections.Counter(o.blocker for o in outcomes if not o.loads)
     if args.json:
