@@ -15,7 +15,7 @@ from sensor_msgs.msg import CameraInfo, Image
 from runtime.behavior import Behavior, Status
 from runtime.ports import InputPort, OutputPort, PortType
 
-from .waiting import Deadline
+from .waiting import Deadline, release_subscription
 
 
 class Wait(enum.Enum):
@@ -61,11 +61,7 @@ class _GetMessage(Behavior):
         return Status.SUCCESS
 
     def terminate(self, new_status: Status) -> None:
-        sub = getattr(self, "subscription", None)
-        destroy = getattr(self.context.bus, "destroy_subscription", None) if hasattr(self, "context") else None
-        if sub is not None and destroy is not None:
-            destroy(sub)
-            self.subscription = None
+        release_subscription(self)
 
 
 class GetImage(_GetMessage):

@@ -24,9 +24,46 @@ def vector3(values: list[float], port: str) -> Vector3:
     return Vector3(x=float(values[0]), y=float(values[1]), z=float(values[2]))
 
 
-class CreateTwistStamped(Behavior):
+class _CreateStamped(Behavior):
+    """Build ``msg_type`` (a ...Stamped message): ``body`` gets one Vector3 per ``parts`` port."""
+
+    msg_type: ClassVar[type]
+    body: ClassVar[str]
+    parts: ClassVar[tuple[tuple[str, str], ...]]
+    """(port, field of the body) pairs."""
+    output: ClassVar[str]
+
+    def update(self) -> Status:
+        msg = self.msg_type()
+        msg.header.frame_id = self.get_input("reference_frame")
+        msg.header.stamp = time_msg(self.context.clock.now())
+        try:
+            for port, field in self.parts:
+                setattr(getattr(msg, self.body), field, vector3(self.get_input(port), port))
+        except ValueError as err:
+            return self.fail(str(err))
+        self.set_output(self.output, msg)
+        return Status.SUCCESS
+
+
+class _Unpack(Behavior):
+    """Write a ...Stamped message's header and body to two ports."""
+
+    stamped: ClassVar[str]
+    body: ClassVar[str]
+
+    def update(self) -> Status:
+        msg = self.get_input(self.stamped)
+        self.set_output("header", msg.header)
+        self.set_output(self.body, getattr(msg, self.body))
+        return Status.SUCCESS
+
+
+class CreateTwistStamped(_CreateStamped):
     """MoveIt Pro's CreateTwistStamped."""
 
+    msg_type, body, output = TwistStamped, "twist", "twist_stamped"
+    parts = (("linear_velocity_xyz", "linear"), ("angular_velocity_xyz", "angular"))
     description: ClassVar[str] = "Create a geometry_msgs/TwistStamped from a frame, a linear and an angular velocity."
     ports = (
         InputPort("reference_frame", PortType.STRING, "world", "Frame the twist is expressed in."),
@@ -35,22 +72,11 @@ class CreateTwistStamped(Behavior):
         OutputPort("twist_stamped", PortType.TWIST_STAMPED, "The twist."),
     )
 
-    def update(self) -> Status:
-        msg = TwistStamped()
-        msg.header.frame_id = self.get_input("reference_frame")
-        msg.header.stamp = time_msg(self.context.clock.now())
-        try:
-            msg.twist.linear = vector3(self.get_input("linear_velocity_xyz"), "linear_velocity_xyz")
-            msg.twist.angular = vector3(self.get_input("angular_velocity_xyz"), "angular_velocity_xyz")
-        except ValueError as err:
-            return self.fail(str(err))
-        self.set_output("twist_stamped", msg)
-        return Status.SUCCESS
 
-
-class UnpackTwistStampedMessage(Behavior):
+class UnpackTwistStampedMessage(_Unpack):
     """MoveIt Pro's UnpackTwistStampedMessage."""
 
+    stamped, body = "twist_stamped", "twist"
     description: ClassVar[str] = "Split a TwistStamped into its header and its twist."
     ports = (
         InputPort("twist_stamped", PortType.TWIST_STAMPED, description="The twist to unpack."),
@@ -58,16 +84,12 @@ class UnpackTwistStampedMessage(Behavior):
         OutputPort("twist", PortType.TWIST, "Its geometry_msgs/Twist."),
     )
 
-    def update(self) -> Status:
-        msg = self.get_input("twist_stamped")
-        self.set_output("header", msg.header)
-        self.set_output("twist", msg.twist)
-        return Status.SUCCESS
 
-
-class CreateWrenchStamped(Behavior):
+class CreateWrenchStamped(_CreateStamped):
     """MoveIt Pro's CreateWrenchStamped."""
 
+    msg_type, body, output = WrenchStamped, "wrench", "wrench_stamped"
+    parts = (("force_xyz", "force"), ("torque_xyz", "torque"))
     description: ClassVar[str] = "Create a geometry_msgs/WrenchStamped from a frame, a force and a torque."
     ports = (
         InputPort("reference_frame", PortType.STRING, "world", "Frame the wrench is expressed in."),
@@ -76,34 +98,17 @@ class CreateWrenchStamped(Behavior):
         OutputPort("wrench_stamped", PortType.WRENCH_STAMPED, "The wrench."),
     )
 
-    def update(self) -> Status:
-        msg = WrenchStamped()
-        msg.header.frame_id = self.get_input("reference_frame")
-        msg.header.stamp = time_msg(self.context.clock.now())
-        try:
-            msg.wrench.force = vector3(self.get_input("force_xyz"), "force_xyz")
-            msg.wrench.torque = vector3(self.get_input("torque_xyz"), "torque_xyz")
-        except ValueError as err:
-            return self.fail(str(err))
-        self.set_output("wrench_stamped", msg)
-        return Status.SUCCESS
 
-
-class UnpackWrenchStampedMessage(Behavior):
+class UnpackWrenchStampedMessage(_Unpack):
     """MoveIt Pro's UnpackWrenchStampedMessage."""
 
+    stamped, body = "wrench_stamped", "wrench"
     description: ClassVar[str] = "Split a WrenchStamped into its header and its wrench."
     ports = (
         InputPort("wrench_stamped", PortType.WRENCH_STAMPED, description="The wrench to unpack."),
         OutputPort("header", PortType.HEADER, "Its std_msgs/Header."),
         OutputPort("wrench", PortType.WRENCH, "Its geometry_msgs/Wrench."),
     )
-
-    def update(self) -> Status:
-        msg = self.get_input("wrench_stamped")
-        self.set_output("header", msg.header)
-        self.set_output("wrench", msg.wrench)
-        return Status.SUCCESS
 
 
 class PublishEmpty(Behavior):

@@ -24,7 +24,7 @@ from runtime.scene.kinematics import frame_jacobian, frame_pose
 
 from .poses import FrameError, ReadsRobotState
 from .safety import SafetyError, make_safety
-from .waiting import Deadline
+from .waiting import Deadline, release_subscription
 
 DAMPING = 1e-4
 """Damping of the pseudo-inverse (keeps joint speeds bounded near singularities)."""
@@ -171,11 +171,7 @@ class ForceExceedsThreshold(Behavior):
         return Status.RUNNING
 
     def terminate(self, new_status: Status) -> None:
-        sub = getattr(self, "subscription", None)
-        destroy = getattr(self.context.bus, "destroy_subscription", None) if hasattr(self, "context") else None
-        if sub is not None and destroy is not None:
-            destroy(sub)
-            self.subscription = None
+        release_subscription(self)
 
 
 NODES = (PublishVelocityForceCommand, ForceExceedsThreshold)
