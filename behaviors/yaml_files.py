@@ -56,8 +56,13 @@ def pose_from_dict(data: Any, where: str) -> PoseStamped:
         raise YamlFileError(f"{where}.header is not a mapping")
     msg.header.frame_id = str(header.get("frame_id") or "world")
     stamp = header.get("stamp") or {}
-    msg.header.stamp.sec = int(stamp.get("sec", 0)) if isinstance(stamp, dict) else 0
-    msg.header.stamp.nanosec = int(stamp.get("nanosec", 0)) if isinstance(stamp, dict) else 0
+    if not isinstance(stamp, dict):
+        raise YamlFileError(f"{where}.header.stamp is not a mapping of sec and nanosec")
+    try:
+        msg.header.stamp.sec = int(stamp.get("sec", 0))
+        msg.header.stamp.nanosec = int(stamp.get("nanosec", 0))
+    except (TypeError, ValueError, AssertionError) as err:
+        raise YamlFileError(f"{where}.header.stamp is not a valid time: {err}") from None
     pose = data["pose"]
     position, orientation = (pose or {}).get("position"), (pose or {}).get("orientation")
     p, o = msg.pose.position, msg.pose.orientation
@@ -81,17 +86,23 @@ def joint_state_to_dict(msg: JointState) -> dict[str, Any]:
 
 # -- files -------------------------------------------------------------------------------------
 def resolve(node: Behavior, name: str, suffix: str = "") -> Path:
-    """``name`` (plus ``suffix`` when it has none) relative to the Objective's directory."""
+    """``name`` (plus ``suffix`` when it has none) relative to the Objective's directory.
+
+    Objectives may come from anywhere, so the file must lie inside the Objective's directory
+    or the current working directory: a YamlFileError says so otherwise.
+    """
     if not name.strip():
         raise YamlFileError("the file name is empty")
     path = Path(name)
     if suffix and not path.suffix:
         path = path.with_suffix(suffix)
-    if path.is_absolute():
-        return path
     location = getattr(node, "location", None)
     base = Path(location.file).parent if location is not None and location.file and not location.file.startswith("<") else Path.cwd()
-    return base / path
+    resolved = (base / path).resolve()
+    allowed = (base.resolve(), Path.cwd().resolve())
+    if not any(resolved.is_relative_to(root) for root in allowed):
+        raise YamlFileError(f"{name} is outside the Objective's directory ({allowed[0]}) and the working directory ({allowed[1]})")
+    return resolved
 
 
 def read_documents(path: Path) -> list[Any]:

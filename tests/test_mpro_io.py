@@ -174,6 +174,20 @@ def test_load_poses_fails_on_a_missing_or_broken_file(tmp_path):
     assert broken.feedback_message.startswith(f"{tmp_path / 'bad.yaml'} is not valid YAML:")
 
 
+def test_files_outside_the_objectives_and_working_directories_are_refused(tmp_path):
+    outside = "/etc/objective_runtime_test.yaml"
+    node = file_node(SavePoseStampedToYaml, tmp_path / "sub", message="{pose}", yaml_filename=outside)
+    node.blackboard.set("pose", PoseStamped())
+    assert tick(node) is Status.FAILURE
+    assert node.feedback_message.startswith(f"{outside} is outside the Objective's directory ({tmp_path / 'sub'})")
+    assert not Path(outside).exists()
+
+
+def test_a_bad_stamp_is_named():
+    with pytest.raises(YamlFileError, match=r"p.header.stamp is not a valid time"):
+        pose_from_dict({"header": {"stamp": {"sec": "soon"}}, "pose": {}}, "p")
+
+
 def test_moveit_pro_pose_files_load(tmp_path):
     # The layout MoveIt Pro's example workspace stores (header.stamp sec/nanosec, frame_id, pose).
     (tmp_path / "place.yaml").write_text("""---
