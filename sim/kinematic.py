@@ -53,6 +53,7 @@ class KinematicCell:
         self._robot = planning_robot_model()
         self._full = self._robot.neutral().copy()
         self.frame = np.full((self.image_size, self.image_size, 3), 128, dtype=np.uint8)
+        self.wrench_tare = np.zeros(6)
 
     # -- Hardware ---
     def time(self) -> float:
@@ -78,7 +79,10 @@ class KinematicCell:
         self.gripper_target = float(np.clip(position, 0.0, 0.8))
 
     def wrench(self) -> np.ndarray:
-        return self.external_wrench.copy()
+        return self.external_wrench - self.wrench_tare
+
+    def tare_wrench(self) -> None:
+        self.wrench_tare = self.external_wrench.copy()
 
     def wrist_jacobian(self) -> np.ndarray:
         robot = self._robot
@@ -103,6 +107,7 @@ class KinematicCell:
         self.arm_velocity_now = np.zeros(6)
         self.gripper = self.gripper_target = self.gripper_rate = 0.0
         self.carried = None
+        self.wrench_tare = np.zeros(6)
 
     def render(self, camera: str) -> np.ndarray:
         return self.frame

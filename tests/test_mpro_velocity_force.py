@@ -107,3 +107,34 @@ def test_push_until_contact_stops_on_the_table_and_returns_home():
     assert (result.status, result.reason) == ("SUCCESS", "")
     # Home is 30 cm up; at 5 cm/s the fingertips reach the table in well under 8 s
     assert 4.0 < result.sim_seconds < 12.0
+
+
+def test_zero_fts_tares_the_wrist_sensor_through_call_trigger_service():
+    from behaviors.messages import CallTriggerService
+    from runtime.behavior import RunContext
+    from runtime.bus import InProcessBus
+    from runtime.clock import SimClock
+    from runtime.events import EventLog
+    from sim.world import WRENCH_TOPIC, create_kinematic
+
+    clock = SimClock()
+    context = RunContext(clock=clock, bus=InProcessBus(clock), events=EventLog(clock))
+    world = create_kinematic({"policy": "none"})
+    world.start(context)
+    try:
+        readings = context.bus.create_subscription(WRENCH_TOPIC, WrenchStamped, reliable=False)
+        world.cell.external_wrench = np.array([0.0, 0.0, -12.0, 0.1, 0.0, 0.0])
+        assert readings.latest.wrench.force.z == -12.0
+        node = make_node(CallTriggerService, context, service_name="/velocity_force_controller/zero_fts")
+        status = tick(node)
+        while status is Status.RUNNING:
+            clock.advance(0.01)
+            world.step_to(clock.now())
+            context.bus.spin_once()
+            status = tick(node)
+        assert (status, node.feedback_message) == (Status.SUCCESS, "force-torque sensor zeroed")
+        assert readings.latest.wrench.force.z == 0.0
+        world.cell.external_wrench = np.array([0.0, 0.0, -20.0, 0.1, 0.0, 0.0])
+        assert readings.latest.wrench.force.z == -8.0  # later readings are relative to the zero
+    finally:
+        world.close()
