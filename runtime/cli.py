@@ -18,7 +18,7 @@ from typing import Any, Sequence
 from xml.sax.saxutils import escape, quoteattr
 
 from .errors import ObjectiveError
-from .ports import REQUIRED, PortType
+from .ports import Direction, PortType
 from .registry import Registry
 
 EXIT_SUCCESS, EXIT_FAILURE, EXIT_BAD_INPUT = 0, 1, 2
@@ -259,7 +259,7 @@ def behaviors_data(registry: Registry) -> list[dict[str, Any]]:
                     "name": p.name,
                     "direction": p.direction.value.removesuffix("_port"),
                     "type": p.type.value,
-                    "default": None if p.required or p.default is REQUIRED else p.describe_default(),
+                    "default": None if p.required or p.direction is Direction.OUTPUT else p.describe_default(),
                     "required": p.required,
                     "description": p.description,
                 }
@@ -309,7 +309,7 @@ def models_xml(registry: Registry, include_builtins: bool = False) -> str:
         lines.append(f"    <{tag} ID={quoteattr(spec.id)}>")
         for port in spec.cls.ports:
             attrs = f"name={quoteattr(port.name)} type={quoteattr(_MODEL_TYPES.get(port.type, port.type.value))}"
-            if not port.required and port.default is not REQUIRED:
+            if not port.required and port.direction is not Direction.OUTPUT:
                 attrs += f" default={quoteattr(port.describe_default())}"
             lines.append(f"      <{port.direction.value} {attrs}>{escape(port.description)}</{port.direction.value}>")
         if spec.cls.description:

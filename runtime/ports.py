@@ -33,14 +33,6 @@ REQUIRED: Any = _Required()
 # Port types, named as they appear in `objective behaviors` and in TreeNodesModel XML.
 class PortType(enum.Enum):
     STRING = "string"
-    FLOAT = "double"
-    INT = "int"
-    UINT = "unsigned int"
-    BOOL = "bool"
-    FLOAT_LIST = "std::vector<double>"
-    INT_LIST = "std::vector<int>"
-    STRING_LIST = "std::vector<std::string>"
-    ANY = "AnyTypeAllowed"
     # ROS 2 messages held on the blackboard (never literals: ports of these types take a {key}).
     POSE_STAMPED = "geometry_msgs::msg::PoseStamped"
     POSE_STAMPED_LIST = "std::vector<geometry_msgs::msg::PoseStamped>"
@@ -55,34 +47,15 @@ class PortType(enum.Enum):
     CAMERA_INFO = "sensor_msgs::msg::CameraInfo"
     ANY_LIST = "std::vector<BT::Any>"
     """A vector of any element type (MoveIt Pro's templated vector nodes)."""
-
-
-MESSAGE_CLASSES: dict[PortType, tuple[str, str]] = {
-    PortType.POSE_STAMPED: ("geometry_msgs.msg", "PoseStamped"),
-    PortType.JOINT_STATE: ("sensor_msgs.msg", "JointState"),
-    PortType.JOINT_TRAJECTORY: ("trajectory_msgs.msg", "JointTrajectory"),
-    PortType.TWIST_STAMPED: ("geometry_msgs.msg", "TwistStamped"),
-    PortType.TWIST: ("geometry_msgs.msg", "Twist"),
-    PortType.WRENCH_STAMPED: ("geometry_msgs.msg", "WrenchStamped"),
-    PortType.WRENCH: ("geometry_msgs.msg", "Wrench"),
-    PortType.HEADER: ("std_msgs.msg", "Header"),
-    PortType.IMAGE: ("sensor_msgs.msg", "Image"),
-    PortType.CAMERA_INFO: ("sensor_msgs.msg", "CameraInfo"),
-}
-"""Port types that hold one ROS 2 message: the module and class a value must be an instance of."""
-
-
-def message_class(port_type: PortType) -> type:
-    """The ROS 2 message class of a message port type (imported on first use)."""
-    import importlib
-
-    module, name = MESSAGE_CLASSES[port_type]
-    return getattr(importlib.import_module(module), name)
-
-
-def ros_name(port_type: PortType) -> str:
-    """``geometry_msgs/PoseStamped`` for ``geometry_msgs::msg::PoseStamped``."""
-    return port_type.value.replace("::msg::", "/")
+    # numbers, booleans, lists of them, anything
+    FLOAT = "double"
+    INT = "int"
+    UINT = "unsigned int"
+    BOOL = "bool"
+    FLOAT_LIST = "std::vector<double>"
+    INT_LIST = "std::vector<int>"
+    STRING_LIST = "std::vector<std::string>"
+    ANY = "AnyTypeAllowed"
 
 
 @dataclass(frozen=True)
@@ -114,6 +87,42 @@ def InOutPort(name: str, type: PortType = PortType.ANY, default: Any = REQUIRED,
     return PortInfo(name, type, default, description, Direction.INOUT)
 
 
+MESSAGE_CLASSES: dict[PortType, tuple[str, str]] = {
+    PortType.POSE_STAMPED: ("geometry_msgs.msg", "PoseStamped"),
+    PortType.JOINT_STATE: ("sensor_msgs.msg", "JointState"),
+    PortType.JOINT_TRAJECTORY: ("trajectory_msgs.msg", "JointTrajectory"),
+    PortType.TWIST_STAMPED: ("geometry_msgs.msg", "TwistStamped"),
+    PortType.TWIST: ("geometry_msgs.msg", "Twist"),
+    PortType.WRENCH_STAMPED: ("geometry_msgs.msg", "WrenchStamped"),
+    PortType.WRENCH: ("geometry_msgs.msg", "Wrench"),
+    PortType.HEADER: ("std_msgs.msg", "Header"),
+    PortType.IMAGE: ("sensor_msgs.msg", "Image"),
+    PortType.CAMERA_INFO: ("sensor_msgs.msg", "CameraInfo"),
+}
+"""Port types that hold one ROS 2 message: the module and class a value must be an instance of."""
+
+
+def message_class(port_type: PortType) -> type:
+    """The ROS 2 message class of a message port type (imported on first use)."""
+    import importlib
+
+    module, name = MESSAGE_CLASSES[port_type]
+    return getattr(importlib.import_module(module), name)
+
+
+def ros_name(port_type: PortType) -> str:
+    """``geometry_msgs/PoseStamped`` for ``geometry_msgs::msg::PoseStamped``."""
+    return port_type.value.replace("::msg::", "/")
+
+
+EXPECTS_FROM_BLACKBOARD: dict[PortType, str] = {
+    PortType.POSE_STAMPED_LIST: "a list of geometry_msgs/PoseStamped from the blackboard",
+    PortType.ANY_LIST: "a list from the blackboard",
+    **{t: f"a {ros_name(t)} from the blackboard" for t in MESSAGE_CLASSES},
+}
+"""What a conversion error says a message or vector port expects."""
+
+
 _REFERENCE = re.compile(r"^\{\s*([@A-Za-z_=][\w.@/:-]*)?\s*\}$")
 
 
@@ -136,9 +145,6 @@ _EXPECTS = {
     PortType.FLOAT_LIST: "a ';'-separated list of numbers",
     PortType.INT_LIST: "a ';'-separated list of integers",
     PortType.STRING_LIST: "a ';'-separated list of strings",
-    PortType.POSE_STAMPED_LIST: "a list of geometry_msgs/PoseStamped from the blackboard",
-    PortType.ANY_LIST: "a list from the blackboard",
-    **{t: f"a {ros_name(t)} from the blackboard" for t in MESSAGE_CLASSES},
 }
 
 
@@ -251,7 +257,8 @@ def convert(value: Any, port_type: PortType) -> Any:
         pass
     is_message = hasattr(value, "get_fields_and_field_types")  # a ROS message: its repr is pages long
     got = f"a {type(value).__module__.split('.')[0]}/{type(value).__name__}" if is_message else repr(value)
-    raise ConversionError(f"expects {_EXPECTS.get(port_type, port_type.value)}, got {got}")
+    expected = _EXPECTS.get(port_type) or EXPECTS_FROM_BLACKBOARD.get(port_type, port_type.value)
+    raise ConversionError(f"expects {expected}, got {got}")
 
 
 def to_xml_string(value: Any) -> str:
