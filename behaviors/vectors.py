@@ -151,7 +151,7 @@ class ForEach(DecoratorNode):
 
     Before each run of the child, ``out`` is set to the next element and ``index`` to its
     position. The vector is read when the loop starts, so the child may rebuild it. A child
-    that finishes in the tick it started in hands over to the next element through a wake-up,
+    that finishes in the tick it started in hands over to the next element at the next tick,
     as BT.CPP's Repeat does; a RUNNING child keeps its element until it finishes.
     """
 
@@ -189,8 +189,7 @@ class ForEach(DecoratorNode):
                 return Status.FAILURE
             self.position += 1
             if was_idle and self.position < len(self.items) and result in COMPLETED:
-                self.wake_up()
-                return Status.RUNNING
+                return Status.RUNNING  # one element per tick: the loop stays interruptible
         self.items = None
         return Status.SUCCESS
 

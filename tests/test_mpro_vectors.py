@@ -142,6 +142,7 @@ def test_for_each_visits_every_element_with_its_index(registry, tmp_path):
     assert result.blackboard["total"] == 10 * 1 + 20 * 2 + 30 * 3
     assert result.blackboard["visits"] == 3
     assert (result.blackboard["x"], result.blackboard["i"]) == (30, 2)  # the last element stays set
+    assert result.ticks == 3  # one element per tick
 
 
 def test_for_each_over_an_empty_vector_succeeds_without_ticking_the_child(registry, tmp_path):
