@@ -16,7 +16,7 @@ import py_trees
 
 from .blackboard import Blackboard
 from .errors import PortError, SourceLocation
-from .ports import REQUIRED, ConversionError, Direction, PortInfo, convert, parse_reference
+from .ports import ConversionError, Direction, PortInfo, convert, parse_reference
 
 if TYPE_CHECKING:
     from .bus import Bus
@@ -161,7 +161,8 @@ def make_bindings(
         elif info.required:
             raise PortError(f"missing required port '{name}'", location, xml_id)
         else:
-            raw = None if info.default is REQUIRED else info.default
+            # an output's default, if any, is the "{key}" it writes when the XML leaves it unset
+            raw = info.default if info.direction is not Direction.OUTPUT or isinstance(info.default, str) else None
         if raw is None:
             bindings[name] = PortBinding(info)
             continue

@@ -104,10 +104,10 @@ class KinematicCell:
     def reset(self, seed: int, arm: np.ndarray) -> None:
         self.cubes = {c: (np.array([x, y, CUBE_SIZE / 2]), _yaw_quat(yaw)) for c, (x, y, yaw) in layout(seed).items()}
         self.arm = np.asarray(arm, dtype=float).copy()
+        self.wrench_tare = np.zeros(6)
         self.arm_velocity_now = np.zeros(6)
         self.gripper = self.gripper_target = self.gripper_rate = 0.0
         self.carried = None
-        self.wrench_tare = np.zeros(6)
 
     def render(self, camera: str) -> np.ndarray:
         return self.frame

@@ -10,17 +10,16 @@ differ only in the cell behind them: a ``MujocoCell`` or a ``KinematicCell``.
 from __future__ import annotations
 
 import functools
-import math
 from typing import Any, Callable, Protocol
 
 import numpy as np
-from geometry_msgs.msg import TransformStamped, WrenchStamped
-from sensor_msgs.msg import CameraInfo, Image, JointState
+from geometry_msgs.msg import TransformStamped
+from sensor_msgs.msg import Image, JointState
 
 from runtime.behavior import RunContext
 from runtime.timestamps import time_msg
 
-from .cell_model import CAMERA_FOVY_DEG, CAMERA_NAMES, CUBE_COLORS, CellOptions
+from .cell_model import CAMERA_NAMES, CUBE_COLORS, CellOptions
 from .controllers import make_controllers
 from .hardware import Hardware
 from .planning import make_cell_scene, sync_cubes
@@ -31,21 +30,6 @@ from .robot_model import ARM_JOINTS, GRIPPER_DRIVER_JOINT, load_waypoints
 
 CONTROL_PERIOD = 0.002
 CAMERA_TOPICS = {name: f"/{name}_camera/color" for name in CAMERA_NAMES}
-CAMERA_INFO_TOPICS = {name: f"/{name}_camera/camera_info" for name in CAMERA_NAMES}
-WRENCH_TOPIC = "/force_torque_sensor_broadcaster/wrench"
-
-
-def pinhole_camera_info(frame_id: str, width: int, height: int, fovy_deg: float) -> CameraInfo:
-    """CameraInfo of an ideal pinhole camera (MuJoCo's: square pixels, no distortion, centred)."""
-    f = (height / 2.0) / math.tan(math.radians(fovy_deg) / 2.0)
-    cx, cy = (width - 1) / 2.0, (height - 1) / 2.0
-    info = CameraInfo(width=width, height=height, distortion_model="plumb_bob")
-    info.header.frame_id = frame_id
-    info.d = [0.0] * 5
-    info.k = [f, 0.0, cx, 0.0, f, cy, 0.0, 0.0, 1.0]
-    info.r = [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0]
-    info.p = [f, 0.0, cx, 0.0, 0.0, f, cy, 0.0, 0.0, 0.0, 1.0, 0.0]
-    return info
 
 
 class Cell(Hardware, Protocol):
@@ -87,7 +71,6 @@ class CellWorld:
             raise ValueError(f"unknown start waypoint '{start}' (waypoints: {', '.join(self.waypoints)})")
         self.start_arm = np.array([self.waypoints[start][j] for j in ARM_JOINTS])
         self.cell = make_cell(self.start_arm, self.seed)
-        self._frame_shapes: dict[str, tuple[int, int]] = {}
 
     # -- World -------------------------------------------------------------------------------
     def start(self, context: RunContext) -> None:
@@ -99,8 +82,9 @@ class CellWorld:
         rate = float(self.options.get("camera_rate_hz") or 10.0)  # used on real ROS only
         for name, topic in CAMERA_TOPICS.items():
             bus.create_lazy_publisher(topic, Image, functools.partial(self._camera_frame, name), rate_hz=rate)
-            bus.create_lazy_publisher(CAMERA_INFO_TOPICS[name], CameraInfo, functools.partial(self._camera_info, name), rate_hz=rate)
-        bus.create_lazy_publisher(WRENCH_TOPIC, WrenchStamped, self._wrench, rate_hz=100.0)
+        from .sensor_topics import SensorTopics  # camera infos and the wrist wrench
+
+        self.sensor_topics = SensorTopics(bus, self.cell, rate)
         for color in CUBE_COLORS:  # the remote oracle's privileged view
             bus.create_lazy_publisher(
                 CUBE_POSE_TOPIC.format(color=color), TransformStamped, functools.partial(self._cube_pose, color), rate_hz=50.0
@@ -148,25 +132,6 @@ class CellWorld:
     def _cube_pose(self, color: str) -> TransformStamped:
         position, quat = self.cell.cube_pose(color)
         return cube_pose_msg(color, position, quat, self.cell.t)
-
-    def _wrench(self) -> WrenchStamped:
-        """The wrist sensor's reading: the wrench the environment applies to the tool, about the
-        sensor, in world axes (hence frame ``world``), the gripper's weight removed."""
-        fx, fy, fz, tx, ty, tz = (float(v) for v in self.cell.wrench())
-        msg = WrenchStamped()
-        msg.header.frame_id = "world"
-        msg.header.stamp = time_msg(self.cell.t)
-        msg.wrench.force.x, msg.wrench.force.y, msg.wrench.force.z = fx, fy, fz
-        msg.wrench.torque.x, msg.wrench.torque.y, msg.wrench.torque.z = tx, ty, tz
-        return msg
-
-    def _camera_info(self, camera: str) -> CameraInfo:
-        if camera not in self._frame_shapes:  # the size of the frames the cell renders
-            self._frame_shapes[camera] = self.cell.render(camera).shape[:2]
-        height, width = self._frame_shapes[camera]
-        info = pinhole_camera_info(f"{camera}_camera", width, height, CAMERA_FOVY_DEG[camera])
-        info.header.stamp = time_msg(self.cell.t)
-        return info
 
     def _camera_frame(self, camera: str) -> Image:
         pixels = self.cell.render(camera)

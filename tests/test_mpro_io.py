@@ -27,7 +27,7 @@ from runtime.blackboard import Blackboard
 from runtime.errors import SourceLocation
 from runtime.registry import Registry
 from runtime.runner import RunOptions, run_file
-from sim.world import pinhole_camera_info
+from sim.sensor_topics import pinhole_camera_info
 from tests.test_scene_behaviors import make_context, make_node, tick
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -242,7 +242,8 @@ def test_get_image_and_camera_info_from_the_cell(registry, tmp_path):
 def test_the_cell_publishes_camera_info_for_each_camera():
     from runtime.bus import InProcessBus
     from runtime.clock import SimClock
-    from sim.world import CAMERA_INFO_TOPICS, create_kinematic
+    from sim.sensor_topics import CAMERA_INFO_TOPICS
+    from sim.world import create_kinematic
 
     from runtime.behavior import RunContext
     from runtime.events import EventLog
