@@ -10,11 +10,16 @@ from runtime.registry import Registry
 
 def register(registry: Registry) -> None:
     from . import controllers, gripper, motion, motion_pose, poses, scene, sim_control
-    from . import cameras, frames, messages, robot_state, trajectories, vectors, velocity_force, visualization, yaml_files
     from .execute_policy import behavior as execute_policy
 
     for module in (controllers, gripper, motion, motion_pose, scene, poses, sim_control, execute_policy):
         registry.register_all(module.NODES)
-    # MoveIt Pro's everyday behaviors (docs/moveit-pro-behaviors.md)
+    register_moveit_pro(registry)
+
+
+def register_moveit_pro(registry: Registry) -> None:
+    """MoveIt Pro's everyday behaviors (docs/moveit-pro-behaviors.md)."""
+    from . import cameras, frames, messages, robot_state, trajectories, vectors, velocity_force, visualization, yaml_files
+
     for module in (vectors, frames, yaml_files, trajectories, robot_state, messages, velocity_force, cameras, visualization):
         registry.register_all(module.NODES)
