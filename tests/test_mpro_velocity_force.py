@@ -103,7 +103,7 @@ def test_force_exceeds_threshold_fails_without_a_publisher():
 
 
 def test_push_until_contact_stops_on_the_table_and_returns_home():
-    result = run_file(OBJECTIVES / "examples" / "push_until_contact.xml", Registry.from_entry_points(), RunOptions(max_seconds=30.0))
+    result = run_file(OBJECTIVES / "examples" / "push_until_contact.xml", Registry.from_entry_points(), RunOptions(world="vla_sim", max_seconds=30.0))
     assert (result.status, result.reason) == ("SUCCESS", "")
     # Home is 30 cm up; at 5 cm/s the fingertips reach the table in well under 8 s
     assert 4.0 < result.sim_seconds < 12.0
