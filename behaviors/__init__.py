@@ -14,3 +14,12 @@ def register(registry: Registry) -> None:
 
     for module in (controllers, gripper, motion, motion_pose, scene, scene_objects, poses, sim_control, execute_policy):
         registry.register_all(module.NODES)
+    register_moveit_pro(registry)
+
+
+def register_moveit_pro(registry: Registry) -> None:
+    """MoveIt Pro's everyday behaviors (docs/moveit-pro-behaviors.md)."""
+    from . import cameras, frames, messages, robot_state, trajectories, vectors, velocity_force, visualization, yaml_files
+
+    for module in (vectors, frames, yaml_files, trajectories, robot_state, messages, velocity_force, cameras, visualization):
+        registry.register_all(module.NODES)

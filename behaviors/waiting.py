@@ -30,3 +30,13 @@ def when_ready(is_ready: Callable[[], bool], deadline: Deadline, what: str) -> b
 
 def result_or_none(future: Any) -> Any:
     return future.result() if future is not None and future.done() else None
+
+
+def release_subscription(node: Behavior, attribute: str = "subscription") -> None:
+    """Destroy the subscription a node keeps in ``attribute`` (if the bus can), once."""
+    sub = getattr(node, attribute, None)
+    context = getattr(node, "context", None)
+    destroy = getattr(context.bus, "destroy_subscription", None) if context is not None else None
+    if sub is not None and destroy is not None:
+        destroy(sub)
+        setattr(node, attribute, None)

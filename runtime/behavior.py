@@ -169,7 +169,8 @@ def make_bindings(
         elif info.required:
             raise PortError(f"missing required port '{name}'", location, xml_id)
         else:
-            raw = info.default if info.direction is not Direction.OUTPUT else None
+            # an output's default, if any, is the "{key}" it writes when the XML leaves it unset
+            raw = info.default if info.direction is not Direction.OUTPUT or isinstance(info.default, str) else None
         if raw is None:
             bindings[name] = PortBinding(info)
             continue

@@ -33,6 +33,21 @@ REQUIRED: Any = _Required()
 # Port types, named as they appear in `objective behaviors` and in TreeNodesModel XML.
 class PortType(enum.Enum):
     STRING = "string"
+    # ROS 2 messages held on the blackboard (never literals: ports of these types take a {key}).
+    POSE_STAMPED = "geometry_msgs::msg::PoseStamped"
+    POSE_STAMPED_LIST = "std::vector<geometry_msgs::msg::PoseStamped>"
+    JOINT_STATE = "sensor_msgs::msg::JointState"
+    JOINT_TRAJECTORY = "trajectory_msgs::msg::JointTrajectory"
+    TWIST_STAMPED = "geometry_msgs::msg::TwistStamped"
+    TWIST = "geometry_msgs::msg::Twist"
+    WRENCH_STAMPED = "geometry_msgs::msg::WrenchStamped"
+    WRENCH = "geometry_msgs::msg::Wrench"
+    HEADER = "std_msgs::msg::Header"
+    IMAGE = "sensor_msgs::msg::Image"
+    CAMERA_INFO = "sensor_msgs::msg::CameraInfo"
+    ANY_LIST = "std::vector<BT::Any>"
+    """A vector of any element type (MoveIt Pro's templated vector nodes)."""
+    # numbers, booleans, lists of them, anything
     FLOAT = "double"
     INT = "int"
     UINT = "unsigned int"
@@ -118,8 +133,9 @@ def InputPort(name: str, type: PortType = PortType.STRING, default: Any = REQUIR
     return PortInfo(name, type, default, description, Direction.INPUT, valid, length)
 
 
-def OutputPort(name: str, type: PortType = PortType.ANY, description: str = "") -> PortInfo:
-    return PortInfo(name, type, REQUIRED, description, Direction.OUTPUT)
+def OutputPort(name: str, type: PortType = PortType.ANY, description: str = "", default: Any = REQUIRED) -> PortInfo:
+    """An output port; ``default`` ("{key}") names the entry written when the XML leaves it unset."""
+    return PortInfo(name, type, default, description, Direction.OUTPUT)
 
 
 def InOutPort(name: str, type: PortType = PortType.ANY, default: Any = REQUIRED, description: str = "",
@@ -150,6 +166,42 @@ def range_problem(info: PortInfo, value: Any) -> str | None:
 def _shown(value: int | float) -> str:
     text = to_xml_string(value)
     return text if len(text) <= 24 else f"{text[:12]}... ({len(text.lstrip('-'))} digits)"
+
+
+MESSAGE_CLASSES: dict[PortType, tuple[str, str]] = {
+    PortType.POSE_STAMPED: ("geometry_msgs.msg", "PoseStamped"),
+    PortType.JOINT_STATE: ("sensor_msgs.msg", "JointState"),
+    PortType.JOINT_TRAJECTORY: ("trajectory_msgs.msg", "JointTrajectory"),
+    PortType.TWIST_STAMPED: ("geometry_msgs.msg", "TwistStamped"),
+    PortType.TWIST: ("geometry_msgs.msg", "Twist"),
+    PortType.WRENCH_STAMPED: ("geometry_msgs.msg", "WrenchStamped"),
+    PortType.WRENCH: ("geometry_msgs.msg", "Wrench"),
+    PortType.HEADER: ("std_msgs.msg", "Header"),
+    PortType.IMAGE: ("sensor_msgs.msg", "Image"),
+    PortType.CAMERA_INFO: ("sensor_msgs.msg", "CameraInfo"),
+}
+"""Port types that hold one ROS 2 message: the module and class a value must be an instance of."""
+
+
+def message_class(port_type: PortType) -> type:
+    """The ROS 2 message class of a message port type (imported on first use)."""
+    import importlib
+
+    module, name = MESSAGE_CLASSES[port_type]
+    return getattr(importlib.import_module(module), name)
+
+
+def ros_name(port_type: PortType) -> str:
+    """``geometry_msgs/PoseStamped`` for ``geometry_msgs::msg::PoseStamped``."""
+    return port_type.value.replace("::msg::", "/")
+
+
+EXPECTS_FROM_BLACKBOARD: dict[PortType, str] = {
+    PortType.POSE_STAMPED_LIST: "a list of geometry_msgs/PoseStamped from the blackboard",
+    PortType.ANY_LIST: "a list from the blackboard",
+    **{t: f"a {ros_name(t)} from the blackboard" for t in MESSAGE_CLASSES},
+}
+"""What a conversion error says a message or vector port expects."""
 
 
 _REFERENCE = re.compile(r"^\{\s*([@A-Za-z_=][\w.@/:-]*)?\s*\}$")
@@ -215,6 +267,22 @@ def _split(text: str) -> list[str]:
     return [part.strip() for part in text.split(";")]
 
 
+def _message_list(value: Any, port_type: PortType) -> list:
+    """A vector port's value: a list (copied, so the blackboard's list is never changed in place).
+
+    An empty literal is the empty vector; a PoseStamped vector accepts only PoseStamped elements.
+    """
+    if isinstance(value, str) and not value.strip():
+        return []
+    if not isinstance(value, (list, tuple)):
+        raise ValueError(value)
+    if port_type is PortType.POSE_STAMPED_LIST:
+        pose_cls = message_class(PortType.POSE_STAMPED)
+        if not all(isinstance(v, pose_cls) for v in value):
+            raise ValueError(value)
+    return list(value)
+
+
 def convert(value: Any, port_type: PortType) -> Any:
     """Convert a string (or an already typed blackboard value) to ``port_type``.
 
@@ -225,6 +293,12 @@ def convert(value: Any, port_type: PortType) -> Any:
             return value
         if port_type is PortType.STRING:
             return value if isinstance(value, str) else to_xml_string(value)
+        if port_type in MESSAGE_CLASSES:
+            if isinstance(value, message_class(port_type)):
+                return value
+            raise ValueError(value)
+        if port_type in (PortType.POSE_STAMPED_LIST, PortType.ANY_LIST):
+            return _message_list(value, port_type)
         if isinstance(value, str):
             if port_type is PortType.FLOAT:
                 return _float(value)
@@ -266,7 +340,10 @@ def convert(value: Any, port_type: PortType) -> Any:
             return convert(value.tolist(), port_type)
     except (ValueError, TypeError, OverflowError):
         pass
-    raise ConversionError(f"expects {_EXPECTS.get(port_type, port_type.value)}, got {value!r}")
+    is_message = hasattr(value, "get_fields_and_field_types")  # a ROS message: its repr is pages long
+    got = f"a {type(value).__module__.split('.')[0]}/{type(value).__name__}" if is_message else repr(value)
+    expected = _EXPECTS.get(port_type) or EXPECTS_FROM_BLACKBOARD.get(port_type, port_type.value)
+    raise ConversionError(f"expects {expected}, got {got}")
 
 
 def to_xml_string(value: Any) -> str:

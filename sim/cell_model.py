@@ -43,6 +43,8 @@ CUBE_COLORS: dict[str, tuple[float, float, float, float]] = {
 """The cubes, in a fixed order (layouts and published topics follow it)."""
 
 CAMERA_NAMES: tuple[str, ...] = ("scene", "wrist", "overview")
+CAMERA_FOVY_DEG: dict[str, float] = {"scene": 50.0, "wrist": 70.0, "overview": 55.0}
+"""Vertical field of view of each camera (degrees), as MuJoCo's ``fovy``."""
 
 TABLE_TOP_Z = 0.0
 TABLE_HALF_SIZE = (0.6, 0.55, 0.02)
@@ -298,13 +300,13 @@ def _add_cameras(spec: mujoco.MjSpec) -> None:
     scene.name = "scene"
     scene.pos = [0.0, 1.35, 0.55]
     scene.quat = look_at_quat(np.array(scene.pos), workspace + [0.0, -0.05, 0.05])
-    scene.fovy = 50.0
+    scene.fovy = CAMERA_FOVY_DEG["scene"]
 
     overview = spec.worldbody.add_camera()
     overview.name = "overview"
     overview.pos = [0.0, 0.42, 1.25]
     overview.quat = look_at_quat(np.array(overview.pos), [0.0, 0.42, 0.0], up=np.array([0.0, 1.0, 0.0]))
-    overview.fovy = 55.0
+    overview.fovy = CAMERA_FOVY_DEG["overview"]
 
     # On the gripper body (z along the fingers, fingers opening along y): offset sideways along x
     # and tilted toward the fingertips, like a camera on a wrist bracket.
@@ -313,4 +315,4 @@ def _add_cameras(spec: mujoco.MjSpec) -> None:
     wrist.name = "wrist"
     wrist.pos = [0.075, 0.0, 0.02]
     wrist.quat = look_at_quat(np.array([0.075, 0.0, 0.02]), np.array([0.0, 0.0, 0.2]), up=np.array([1.0, 0.0, 0.0]))
-    wrist.fovy = 70.0
+    wrist.fovy = CAMERA_FOVY_DEG["wrist"]

@@ -48,6 +48,10 @@ class Hardware(Protocol):
         """
         ...
 
+    def tare_wrench(self) -> None:
+        """Zero the F/T sensor at its current reading, as a driver's zero service does."""
+        ...
+
     def wrist_jacobian(self) -> np.ndarray:
         """6 x 6 Jacobian of the F/T frame (linear; angular) with respect to the arm joints,
         in the world/base frame (``mujoco.mj_jacSite``), the frame ``wrench`` is expressed in."""

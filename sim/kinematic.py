@@ -54,6 +54,7 @@ class KinematicCell:
         self._robot = planning_robot_model()
         self._full = self._robot.neutral().copy()
         self.frame = np.full((self.image_size, self.image_size, 3), 128, dtype=np.uint8)
+        self.wrench_tare = np.zeros(6)
 
     # -- Hardware ---
     def time(self) -> float:
@@ -79,7 +80,10 @@ class KinematicCell:
         self.gripper_target = float(np.clip(position, 0.0, 0.8))
 
     def wrench(self) -> np.ndarray:
-        return self.external_wrench.copy()
+        return self.external_wrench - self.wrench_tare
+
+    def tare_wrench(self) -> None:
+        self.wrench_tare = self.external_wrench.copy()
 
     def wrist_jacobian(self) -> np.ndarray:
         robot = self._robot
@@ -101,6 +105,7 @@ class KinematicCell:
     def reset(self, seed: int, arm: np.ndarray) -> None:
         self.cubes = {c: (np.array([x, y, CUBE_SIZE / 2]), _yaw_quat(yaw)) for c, (x, y, yaw) in layout(seed).items()}
         self.arm = np.asarray(arm, dtype=float).copy()
+        self.wrench_tare = np.zeros(6)
         self.arm_velocity_now = np.zeros(6)
         self.gripper = self.gripper_target = self.gripper_rate = 0.0
         self.carried = None

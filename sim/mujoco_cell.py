@@ -116,6 +116,9 @@ class MujocoCell:
     def wrench(self) -> np.ndarray:
         return self._raw_wrench() - self._tare
 
+    def tare_wrench(self) -> None:
+        self._tare = self._raw_wrench()
+
     def wrist_jacobian(self) -> np.ndarray:
         jacobian = self._site_jacobian
         mujoco.mj_jacSite(self.model, self.data, jacobian[:3], jacobian[3:], self._ft_site)

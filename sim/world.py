@@ -89,6 +89,9 @@ class CellWorld:
         rate = float(self.options.get("camera_rate_hz") or 10.0)  # used on real ROS only
         for name, topic in CAMERA_TOPICS.items():
             bus.create_lazy_publisher(topic, Image, functools.partial(self._camera_frame, name), rate_hz=rate)
+        from .sensor_topics import SensorTopics  # camera infos and the wrist wrench
+
+        self.sensor_topics = SensorTopics(bus, self.cell, rate)
         for color in CUBE_COLORS:  # the remote oracle's privileged view
             bus.create_lazy_publisher(
                 CUBE_POSE_TOPIC.format(color=color), TransformStamped, functools.partial(self._cube_pose, color), rate_hz=50.0

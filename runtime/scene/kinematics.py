@@ -33,6 +33,18 @@ def frame_poses(robot: RobotModel, q_full: np.ndarray, frames: Sequence[str]) ->
     return out
 
 
+def frame_jacobian(robot: RobotModel, q_full: np.ndarray, frame: str, joints: Sequence[str]) -> np.ndarray:
+    """6 x len(joints) Jacobian of ``frame`` at ``q_full``: linear then angular velocity, in
+    world axes at the frame's origin (pinocchio's LOCAL_WORLD_ALIGNED), columns in ``joints`` order."""
+    model = robot.model
+    data = model.createData()
+    q = np.asarray(q_full, dtype=float)
+    pin.computeJointJacobians(model, data, q)
+    pin.updateFramePlacements(model, data)
+    jacobian = pin.getFrameJacobian(model, data, robot.frame_id(frame), pin.ReferenceFrame.LOCAL_WORLD_ALIGNED)
+    return np.asarray(jacobian[:, [int(model.idx_vs[model.getJointId(j)]) for j in joints]])
+
+
 @dataclass(frozen=True)
 class IkResult:
     success: bool

@@ -6,6 +6,8 @@ into the position target and sends both to the hardware. A command older than
 ``ControllersConfig.velocity_command_timeout`` counts as zero, so the arm stops when its commander
 goes quiet. Velocities are clipped to ``max_joint_velocity``. Commands that arrive while the
 controller is inactive, or are malformed, are ignored and the reason is kept in ``last_error``.
+``/<name>/zero_fts`` (``std_srvs/Trigger``) zeroes the wrist force-torque sensor at its current
+reading, as MoveIt Pro's velocity-force controller does.
 """
 from __future__ import annotations
 
@@ -13,6 +15,7 @@ import math
 
 import numpy as np
 from std_msgs.msg import Float64MultiArray
+from std_srvs.srv import Trigger
 
 from runtime.bus import Bus
 from runtime.clock import Clock
@@ -32,6 +35,11 @@ class VelocityForceController(Controller):
         self._command_time = -math.inf
         self._target = np.asarray(hardware.arm_position(), dtype=float).copy()
         self._subscription = bus.create_subscription(self.topic, Float64MultiArray, self._on_command)
+        bus.create_service(f"/{name}/zero_fts", Trigger, self._zero_fts)
+
+    def _zero_fts(self, request: Trigger.Request) -> Trigger.Response:
+        self.hardware.tare_wrench()
+        return Trigger.Response(success=True, message="force-torque sensor zeroed")
 
     @property
     def command_interfaces(self) -> tuple[str, ...]:
