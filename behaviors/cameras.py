@@ -13,7 +13,7 @@ from typing import Any, ClassVar
 from sensor_msgs.msg import CameraInfo, Image
 
 from runtime.behavior import Behavior, Status
-from runtime.ports import InputPort, OutputPort, PortType
+from runtime.ports import InputPort, OutputPort, PortType, Range
 
 from .waiting import Deadline, release_subscription
 
@@ -33,8 +33,8 @@ class _GetMessage(Behavior):
     def make_ports(cls, port_type: PortType, example: str) -> tuple:
         return (
             InputPort("topic_name", PortType.STRING, description=f"The topic, e.g. {example}."),
-            InputPort("message_timeout_sec", PortType.FLOAT, 5.0, "Seconds to wait for a message once the topic has a publisher."),
-            InputPort("publisher_timeout_sec", PortType.FLOAT, 5.0, "Seconds to wait for the topic to have a publisher."),
+            InputPort("message_timeout_sec", PortType.FLOAT, 5.0, "Seconds to wait for a message once the topic has a publisher.", valid=Range(0, 3600, "s")),
+            InputPort("publisher_timeout_sec", PortType.FLOAT, 5.0, "Seconds to wait for the topic to have a publisher.", valid=Range(0, 3600, "s")),
             OutputPort("message_out", port_type, "The message."),
         )
 

@@ -11,7 +11,7 @@ from std_srvs.srv import Trigger
 
 from runtime.behavior import Behavior, Status
 from runtime.decorators import elapsed
-from runtime.ports import InputPort, OutputPort, PortType
+from runtime.ports import InputPort, OutputPort, PortType, Range
 from runtime.timestamps import time_msg
 
 from .waiting import Deadline, when_ready
@@ -67,8 +67,8 @@ class CreateTwistStamped(_CreateStamped):
     description: ClassVar[str] = "Create a geometry_msgs/TwistStamped from a frame, a linear and an angular velocity."
     ports = (
         InputPort("reference_frame", PortType.STRING, "world", "Frame the twist is expressed in."),
-        InputPort("linear_velocity_xyz", PortType.FLOAT_LIST, "0;0;0", "Linear velocity x;y;z (m/s)."),
-        InputPort("angular_velocity_xyz", PortType.FLOAT_LIST, "0;0;0", "Angular velocity x;y;z (rad/s)."),
+        InputPort("linear_velocity_xyz", PortType.FLOAT_LIST, "0;0;0", "Linear velocity x;y;z (m/s).", valid=Range(-10, 10, "m/s")),
+        InputPort("angular_velocity_xyz", PortType.FLOAT_LIST, "0;0;0", "Angular velocity x;y;z (rad/s).", valid=Range(-10, 10, "rad/s")),
         OutputPort("twist_stamped", PortType.TWIST_STAMPED, "The twist."),
     )
 
@@ -93,8 +93,8 @@ class CreateWrenchStamped(_CreateStamped):
     description: ClassVar[str] = "Create a geometry_msgs/WrenchStamped from a frame, a force and a torque."
     ports = (
         InputPort("reference_frame", PortType.STRING, "world", "Frame the wrench is expressed in."),
-        InputPort("force_xyz", PortType.FLOAT_LIST, "0;0;0", "Force x;y;z (N)."),
-        InputPort("torque_xyz", PortType.FLOAT_LIST, "0;0;0", "Torque x;y;z (N m)."),
+        InputPort("force_xyz", PortType.FLOAT_LIST, "0;0;0", "Force x;y;z (N).", valid=Range(-10000, 10000, "N")),
+        InputPort("torque_xyz", PortType.FLOAT_LIST, "0;0;0", "Torque x;y;z (N m).", valid=Range(-1000, 1000, "N m")),
         OutputPort("wrench_stamped", PortType.WRENCH_STAMPED, "The wrench."),
     )
 
@@ -117,7 +117,7 @@ class PublishEmpty(Behavior):
     description: ClassVar[str] = "Publish one std_msgs/Empty message on a topic."
     ports = (
         InputPort("topic", PortType.STRING, description="Topic to publish on."),
-        InputPort("queue_size", PortType.UINT, 1, "Publisher queue depth (kept for compatibility; messages are not queued here)."),
+        InputPort("queue_size", PortType.UINT, 1, "Publisher queue depth (kept for compatibility; messages are not queued here).", valid=Range(1, 1000)),
         InputPort("use_best_effort", PortType.BOOL, False, "Best-effort QoS instead of reliable."),
     )
 
@@ -145,8 +145,8 @@ class CallTriggerService(Behavior):
     )
     ports = (
         InputPort("service_name", PortType.STRING, description="The Trigger service."),
-        InputPort("wait_for_server_available_timeout", PortType.FLOAT, 3.0, "Seconds to wait for the service to be available."),
-        InputPort("response_timeout", PortType.FLOAT, 3.0, "Seconds to wait for the answer."),
+        InputPort("wait_for_server_available_timeout", PortType.FLOAT, 3.0, "Seconds to wait for the service to be available.", valid=Range(0, 3600, "s")),
+        InputPort("response_timeout", PortType.FLOAT, 3.0, "Seconds to wait for the answer.", valid=Range(0, 3600, "s")),
     )
 
     def initialise(self) -> None:
@@ -183,7 +183,7 @@ class WaitForDuration(Behavior):
     """MoveIt Pro's WaitForDuration, on the run's clock."""
 
     description: ClassVar[str] = "RUNNING for delay_duration seconds of run-clock time, then SUCCESS."
-    ports = (InputPort("delay_duration", PortType.FLOAT, description="Seconds to wait (>= 0)."),)
+    ports = (InputPort("delay_duration", PortType.FLOAT, description="Seconds to wait (>= 0).", valid=Range(0, 86400, "s")),)
 
     def initialise(self) -> None:
         self.started_s = self.context.clock.now()

@@ -23,7 +23,7 @@ from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
 from runtime.behavior import Behavior, Status
 from runtime.bus import STATUS_SUCCEEDED
-from runtime.ports import InputPort, OutputPort, PortType
+from runtime.ports import InputPort, OutputPort, PortType, Range
 from runtime.scene import JointLimits
 from runtime.scene.kinematics import frame_pose, solve_ik
 from runtime.timestamps import duration_msg, time_msg
@@ -297,17 +297,17 @@ class PlanCartesianPath(ReadsRobotState, Behavior):
         InputPort("path", PortType.POSE_STAMPED_LIST, description="Waypoints for the tip (PoseStamped, any known frame)."),
         InputPort("planning_group_name", PortType.STRING, "manipulator", "SRDF joint group to move."),
         InputPort("tip_links", PortType.STRING_LIST, "tcp", "Robot frame that follows the path (one)."),
-        InputPort("tip_offset", PortType.FLOAT_LIST, "0;0;0;0;0;0", "Offset x;y;z;roll;pitch;yaw (m, rad) of the followed point in the tip frame."),
+        InputPort("tip_offset", PortType.FLOAT_LIST, "0;0;0;0;0;0", "Offset x;y;z;roll;pitch;yaw (m, rad) of the followed point in the tip frame.", valid=Range(-10, 10, "m, rad")),
         InputPort("position_only", PortType.BOOL, False, "Follow positions only; the orientation is free."),
-        InputPort("blending_radius", PortType.FLOAT, 0.02, "Accepted for compatibility; the path stops at each waypoint (no blending)."),
-        InputPort("ik_cartesian_space_density", PortType.FLOAT, 0.01, "Distance (m) between IK points along the lines."),
-        InputPort("ik_joint_space_density", PortType.FLOAT, 0.1, "Largest joint step (rad) between IK points; more is a jump."),
-        InputPort("trajectory_sampling_rate", PortType.UINT, 100, "Points per second of the output trajectory (Hz)."),
-        InputPort("velocity_scale_factor", PortType.FLOAT, 1.0, "Fraction of the joint velocity limits, in (0, 1]."),
-        InputPort("acceleration_scale_factor", PortType.FLOAT, 1.0, "Fraction of the joint acceleration limits, in (0, 1]."),
+        InputPort("blending_radius", PortType.FLOAT, 0.02, "Accepted for compatibility; the path stops at each waypoint (no blending).", valid=Range(0, 1, "m")),
+        InputPort("ik_cartesian_space_density", PortType.FLOAT, 0.01, "Distance (m) between IK points along the lines.", valid=Range(0.0001, 1, "m")),
+        InputPort("ik_joint_space_density", PortType.FLOAT, 0.1, "Largest joint step (rad) between IK points; more is a jump.", valid=Range(0.001, 3.15, "rad")),
+        InputPort("trajectory_sampling_rate", PortType.UINT, 100, "Points per second of the output trajectory (Hz).", valid=Range(1, 10000, "Hz")),
+        InputPort("velocity_scale_factor", PortType.FLOAT, 1.0, "Fraction of the joint velocity limits, in (0, 1].", valid=Range(0, 1, min_open=True)),
+        InputPort("acceleration_scale_factor", PortType.FLOAT, 1.0, "Fraction of the joint acceleration limits, in (0, 1].", valid=Range(0, 1, min_open=True)),
         InputPort("trajectory_timing", PortType.STRING, "[{mode: time_optimal}]", "Timing (YAML): mode time_optimal, optional velocity/acceleration_scale_factor."),
-        InputPort("max_optimizer_iterations", PortType.UINT, 1, "Accepted for compatibility (no post-optimisation here)."),
-        InputPort("link_padding", PortType.FLOAT, 0.01, "Clearance (m) required from world objects."),
+        InputPort("max_optimizer_iterations", PortType.UINT, 1, "Accepted for compatibility (no post-optimisation here).", valid=Range(0, 100000)),
+        InputPort("link_padding", PortType.FLOAT, 0.01, "Clearance (m) required from world objects.", valid=Range(0, 0.5, "m")),
         OutputPort("joint_trajectory_msg", PortType.JOINT_TRAJECTORY, "The planned trajectory.", default="{joint_trajectory_msg}"),
         OutputPort("debug_solution", PortType.POSE_STAMPED_LIST, "The tip poses the IK solved (world frame), for VisualizePath."),
     )
@@ -370,9 +370,9 @@ class ValidateTrajectory(Behavior):
         InputPort("joint_trajectory_msg", PortType.JOINT_TRAJECTORY, "{joint_trajectory_msg}", "The trajectory to check."),
         InputPort("planning_group_name", PortType.STRING, "manipulator", "SRDF joint group the trajectory moves."),
         InputPort("planning_scene_msg", PortType.ANY, "", "Accepted for compatibility; the run's current planning scene is used."),
-        InputPort("cartesian_space_step", PortType.FLOAT, 0.02, "Accepted for compatibility (checks are spaced by joint_space_step)."),
-        InputPort("joint_space_step", PortType.FLOAT, 0.05, "Largest joint step (rad) between checked states."),
-        InputPort("link_padding", PortType.FLOAT, 0.0, "Clearance (m) required from world objects."),
+        InputPort("cartesian_space_step", PortType.FLOAT, 0.02, "Accepted for compatibility (checks are spaced by joint_space_step).", valid=Range(0.0001, 1, "m")),
+        InputPort("joint_space_step", PortType.FLOAT, 0.05, "Largest joint step (rad) between checked states.", valid=Range(0.001, 3.15, "rad")),
+        InputPort("link_padding", PortType.FLOAT, 0.0, "Clearance (m) required from world objects.", valid=Range(0, 0.5, "m")),
         OutputPort("debug_solution", PortType.ANY, "The problem found (a sentence), or empty."),
     )
 
@@ -412,13 +412,13 @@ class ExecuteTrajectory(ReadsRobotState, Behavior):
         InputPort("execution_pipeline", PortType.STRING, "jtac", "jtac: FollowJointTrajectoryWithAdmittance (jtc is not in this cell)."),
         InputPort("controller_action_name", PortType.STRING, DEFAULT_CONTROLLER, "The controller's action."),
         InputPort("planning_group_name", PortType.STRING, "manipulator", "SRDF joint group the trajectory moves (for the checks)."),
-        InputPort("path_position_tolerance", PortType.FLOAT_LIST, "0.1", "Tracking error (rad) before the controller aborts (one value, or one per joint: the smallest is used)."),
-        InputPort("goal_position_tolerance", PortType.FLOAT_LIST, "0.01", "Accepted for compatibility (the controller checks path_position_tolerance)."),
-        InputPort("goal_duration_tolerance", PortType.FLOAT, -1.0, "Seconds the goal may run late (-1: the controller's default of 1 s)."),
-        InputPort("absolute_force_torque_threshold", PortType.FLOAT_LIST, "", "Fx;Fy;Fz;Tx;Ty;Tz (N, Nm) that abort the motion (empty: none)."),
+        InputPort("path_position_tolerance", PortType.FLOAT_LIST, "0.1", "Tracking error (rad) before the controller aborts (one value, or one per joint: the smallest is used).", valid=Range(0, 10, "rad", min_open=True)),
+        InputPort("goal_position_tolerance", PortType.FLOAT_LIST, "0.01", "Accepted for compatibility (the controller checks path_position_tolerance).", valid=Range(0, 10, "rad")),
+        InputPort("goal_duration_tolerance", PortType.FLOAT, -1.0, "Seconds the goal may run late (-1: the controller's default of 1 s).", valid=Range(-1, 3600, "s")),
+        InputPort("absolute_force_torque_threshold", PortType.FLOAT_LIST, "", "Fx;Fy;Fz;Tx;Ty;Tz (N, Nm) that abort the motion (empty: none).", valid=Range(0, 100000, "N, N m", min_open=True)),
         InputPort("admittance_parameters_msg", PortType.ANY, "", "Not supported here: the controller keeps its own admittance parameters."),
-        InputPort("link_padding", PortType.FLOAT, 0.0, "Clearance (m) required from world objects for the pre-check."),
-        InputPort("timeout", PortType.FLOAT, 5.0, "Seconds to wait for the controller and the joint states."),
+        InputPort("link_padding", PortType.FLOAT, 0.0, "Clearance (m) required from world objects for the pre-check.", valid=Range(0, 0.5, "m")),
+        InputPort("timeout", PortType.FLOAT, 5.0, "Seconds to wait for the controller and the joint states.", valid=Range(0, 3600, "s", min_open=True)),
     )
 
     def initialise(self) -> None:

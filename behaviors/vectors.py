@@ -14,7 +14,7 @@ from geometry_msgs.msg import PoseStamped
 
 from runtime.behavior import Behavior, Status
 from runtime.controls import COMPLETED, DecoratorNode, TickGenerator, halt_child
-from runtime.ports import InputPort, OutputPort, PortType
+from runtime.ports import InputPort, OutputPort, PortType, Range
 from runtime.timestamps import time_msg
 
 
@@ -45,8 +45,8 @@ class CreatePoseStamped(Behavior):
     description: ClassVar[str] = "Create a geometry_msgs/PoseStamped from a frame name, a position and a quaternion."
     ports = (
         InputPort("reference_frame", PortType.STRING, "world", "Frame the pose is expressed in."),
-        InputPort("position_xyz", PortType.FLOAT_LIST, "0;0;0", "Position x;y;z (m)."),
-        InputPort("orientation_xyzw", PortType.FLOAT_LIST, "0;0;0;1", "Orientation quaternion x;y;z;w (normalised)."),
+        InputPort("position_xyz", PortType.FLOAT_LIST, "0;0;0", "Position x;y;z (m).", valid=Range(-100, 100, "m")),
+        InputPort("orientation_xyzw", PortType.FLOAT_LIST, "0;0;0;1", "Orientation quaternion x;y;z;w (normalised).", valid=Range(-1000, 1000)),
         OutputPort("pose_stamped", PortType.POSE_STAMPED, "The pose.", default="{pose_stamped}"),
     )
 
@@ -119,7 +119,7 @@ class GetElementOfVector(Behavior):
     description: ClassVar[str] = "Write the element at index (from 0) of vector_in; fails when the index is outside it."
     ports = (
         InputPort("vector_in", PortType.ANY_LIST, description="The vector to read."),
-        InputPort("index", PortType.UINT, 0, "Index of the element, from 0."),
+        InputPort("index", PortType.UINT, 0, "Index of the element, from 0.", valid=Range(0, 1_000_000)),
         OutputPort("element", PortType.ANY, "The element."),
     )
 

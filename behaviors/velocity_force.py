@@ -19,7 +19,7 @@ from std_msgs.msg import Float64MultiArray
 
 from runtime.behavior import Behavior, Status
 from runtime.decorators import elapsed
-from runtime.ports import InputPort, PortType
+from runtime.ports import InputPort, PortType, Range
 from runtime.scene.kinematics import frame_jacobian, frame_pose
 
 from .poses import FrameError, ReadsRobotState
@@ -77,10 +77,10 @@ class PublishVelocityForceCommand(ReadsRobotState, Behavior):
     ports = (
         InputPort("twist", PortType.TWIST, description="Velocity of the tip, in its own axes (e.g. from UnpackTwistStampedMessage)."),
         InputPort("wrench", PortType.WRENCH, description="Wrench to apply; must be accompanied by force_controlled_axes 0 here."),
-        InputPort("velocity_controlled_axes", PortType.INT_LIST, "1;1;1;1;1;1", "Twist components used (x;y;z;rx;ry;rz, 1 = used)."),
-        InputPort("force_controlled_axes", PortType.INT_LIST, "0;0;0;0;0;0", "Force-controlled axes; any 1 fails: not on this cell."),
-        InputPort("wrench_gain", PortType.FLOAT, 0.0, "Accepted for compatibility (no force control here)."),
-        InputPort("publish_rate", PortType.UINT, 50, "Commands per second of run-clock time (Hz)."),
+        InputPort("velocity_controlled_axes", PortType.INT_LIST, "1;1;1;1;1;1", "Twist components used (x;y;z;rx;ry;rz, 1 = used).", valid=Range(0, 1)),
+        InputPort("force_controlled_axes", PortType.INT_LIST, "0;0;0;0;0;0", "Force-controlled axes; any 1 fails: not on this cell.", valid=Range(0, 1)),
+        InputPort("wrench_gain", PortType.FLOAT, 0.0, "Accepted for compatibility (no force control here).", valid=Range(0, 1000)),
+        InputPort("publish_rate", PortType.UINT, 50, "Commands per second of run-clock time (Hz).", valid=Range(1, 1000, "Hz")),
         InputPort("velocity_force_controller_command_topic", PortType.STRING, "/velocity_force_controller/command",
                   "The controller's command topic; joint velocities go to its namespace's /commands."),
         InputPort("planning_group_name", PortType.STRING, "manipulator", "SRDF joint group the controller moves."),
@@ -140,8 +140,8 @@ class ForceExceedsThreshold(Behavior):
     )
     ports = (
         InputPort("wrench_topic_name", PortType.STRING, "/force_torque_sensor_broadcaster/wrench", "The force-torque topic."),
-        InputPort("force_threshold", PortType.FLOAT, description="Force magnitude (N) to exceed."),
-        InputPort("minimum_consecutive_wrench_values", PortType.UINT, 1, "Readings in a row above the threshold."),
+        InputPort("force_threshold", PortType.FLOAT, description="Force magnitude (N) to exceed.", valid=Range(0, 100000, "N")),
+        InputPort("minimum_consecutive_wrench_values", PortType.UINT, 1, "Readings in a row above the threshold.", valid=Range(0, 100000)),
         InputPort("hand_frame_name", PortType.STRING, "tcp", "Accepted for compatibility: a force's magnitude is the same in every frame."),
         InputPort("wrench_frame_name", PortType.STRING, "world", "Accepted for compatibility (see hand_frame_name)."),
     )

@@ -18,7 +18,7 @@ from visualization_msgs.msg import Marker, MarkerArray
 
 from runtime.behavior import Behavior, Status
 from runtime.decorators import elapsed
-from runtime.ports import InputPort, PortType
+from runtime.ports import InputPort, PortType, Range
 from runtime.timestamps import duration_msg, time_msg
 
 MARKER_TOPIC = "/visualization_marker_array"
@@ -119,8 +119,8 @@ class VisualizePose(_Publishes):
     ports = (
         InputPort("pose", PortType.POSE_STAMPED, description="The pose to show."),
         InputPort("marker_name", PortType.STRING, "pose", "Marker namespace: a new marker with the same name replaces the old one."),
-        InputPort("marker_size", PortType.FLOAT, 0.1, "Arrow length (m)."),
-        InputPort("marker_lifetime", PortType.FLOAT, 0.0, "Seconds the marker stays (0: until replaced)."),
+        InputPort("marker_size", PortType.FLOAT, 0.1, "Arrow length (m).", valid=Range(0, 10, "m", min_open=True)),
+        InputPort("marker_lifetime", PortType.FLOAT, 0.0, "Seconds the marker stays (0: until replaced).", valid=Range(0, 86400, "s")),
         InputPort("marker_text", PortType.STRING, "", "Label drawn above the pose (empty: none)."),
     )
 
@@ -147,9 +147,9 @@ class VisualizePath(_Publishes):
     ports = (
         InputPort("path", PortType.POSE_STAMPED_LIST, description="The poses, e.g. PlanCartesianPath's path."),
         InputPort("marker_name", PortType.STRING, "path", "Marker namespace."),
-        InputPort("marker_lifetime", PortType.FLOAT, 0.0, "Seconds the markers stay (0: until replaced)."),
+        InputPort("marker_lifetime", PortType.FLOAT, 0.0, "Seconds the markers stay (0: until replaced).", valid=Range(0, 86400, "s")),
         InputPort("show_poses", PortType.BOOL, False, "Also draw each pose's axes."),
-        InputPort("pose_marker_size", PortType.FLOAT, 0.05, "Arrow length (m) of the pose axes."),
+        InputPort("pose_marker_size", PortType.FLOAT, 0.05, "Arrow length (m) of the pose axes.", valid=Range(0, 10, "m", min_open=True)),
     )
 
     def update(self) -> Status:
@@ -183,7 +183,7 @@ class PublishTF(_Publishes):
     ports = (
         InputPort("pose", PortType.POSE_STAMPED, description="Where child_frame_id is, in the pose's frame."),
         InputPort("child_frame_id", PortType.STRING, description="Name of the published frame."),
-        InputPort("publish_rate", PortType.UINT, 50, "Publications per second of run-clock time (Hz)."),
+        InputPort("publish_rate", PortType.UINT, 50, "Publications per second of run-clock time (Hz).", valid=Range(1, 1000, "Hz")),
     )
 
     def initialise(self) -> None:

@@ -24,7 +24,7 @@ from hypothesis import strategies as st
 from runtime.behavior import NodeKind
 from runtime.errors import ObjectiveError
 from runtime.loader import load_tree
-from runtime.ports import NUMERIC_TYPES, Direction, PortInfo, PortType, Range, convert, range_problem
+from runtime.ports import MESSAGE_CLASSES, NUMERIC_TYPES, Direction, PortInfo, PortType, Range, convert, range_problem
 from runtime.registry import NodeSpec, Registry
 from runtime.runner import RunOptions, make_context
 
@@ -285,7 +285,9 @@ def _numeric_ports() -> list[tuple[str, str]]:
 def _in_range(port: PortInfo) -> str:
     """A value the port accepts, for the ports a case leaves alone."""
     if port.type not in NUMERIC_TYPES:
-        return {PortType.BOOL: "false", PortType.ANY: "{anything}", PortType.STRING_LIST: "a"}.get(port.type, "x")
+        literal = {PortType.BOOL: "false", PortType.ANY: "{anything}", PortType.STRING_LIST: "a"}.get(port.type, "x")
+        # message and vector ports take blackboard entries only
+        return "{anything}" if port.type in MESSAGE_CLASSES or port.type in (PortType.POSE_STAMPED_LIST, PortType.ANY_LIST) else literal
     valid = port.valid or Range()
     low, high = valid.min, valid.max
     middle = 0.0 if low is None and high is None else (low if high is None else high if low is None else (low + high) / 2)
