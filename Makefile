@@ -11,7 +11,7 @@ export ROS_DOMAIN_ID ?= 42
 export MUJOCO_GL ?= egl
 export ROS_LOG_DIR ?= $(CURDIR)/build/ros_log
 
-.PHONY: setup demo test test-all bench clean lerobot lerobot-policy
+.PHONY: setup demo test test-all bench clean lerobot lerobot-policy ray
 
 setup: $(STAMP)
 
@@ -40,6 +40,19 @@ $(LEROBOT_STAMP): $(STAMP) requirements/lerobot.txt requirements/lerobot-constra
 # present), trains on CPU for a few minutes (seeded), saves build/policies/tiny_smolvla.
 lerobot-policy: lerobot
 	HF_HUB_OFFLINE=1 $(PY) tools/train_tiny_smolvla.py --episodes 12 --seed 0 --steps 1500 --minutes 8
+
+# Optional Ray extra for `objective eval --executor ray` (ray==2.60.0, pure pip wheels). The
+# installed numpy, torch and torchvision are pinned while it installs: Ray must never move them.
+RAY_STAMP := $(VENV)/.ray-stamp
+
+ray: $(RAY_STAMP)
+
+$(RAY_STAMP): $(STAMP) pyproject.toml
+	@mkdir -p build
+	$(PY) -m pip freeze | grep -E '^(numpy|torch|torchvision)==' > build/ray-constraints.txt || true
+	$(PY) -m pip install --quiet -c build/ray-constraints.txt -e '.[ray]'
+	$(PY) -c "import ray, numpy; print('ray', ray.__version__, 'numpy', numpy.__version__)"
+	@touch $@
 
 demo: setup
 	$(VENV)/bin/objective run objectives/stack_cubes.xml

@@ -110,6 +110,9 @@ def build_parser() -> argparse.ArgumentParser:
     report.add_argument("dir", type=Path, help="a directory written by `objective run --record DIR`")
     _add_policy_commands(sub)
     _add_demo_commands(sub)
+    from evaluation.cli import add_eval_command  # `objective eval` (the evaluation package)
+
+    add_eval_command(sub, _parse_set, _positive_float)
     return parser
 
 
@@ -429,6 +432,12 @@ def cmd_record_demos(args: argparse.Namespace, registry: Registry) -> int:
     return EXIT_SUCCESS
 
 
+def cmd_eval(args: argparse.Namespace, registry: Registry) -> int:
+    from evaluation.cli import cmd_eval as evaluate
+
+    return evaluate(args, registry)
+
+
 COMMANDS = {
     "run": cmd_run,
     "validate": cmd_validate,
@@ -440,6 +449,7 @@ COMMANDS = {
     "adapter": cmd_adapter,
     "smoke-test": cmd_smoke_test,
     "record-demos": cmd_record_demos,
+    "eval": cmd_eval,
 }
 
 
@@ -458,7 +468,7 @@ def main(argv: Sequence[str] | None = None, registry: Registry | None = None) ->
         return EXIT_SUCCESS
     except ObjectiveError as err:
         print(f"error: {err}", file=sys.stderr)
-        if getattr(args, "json", False) and args.command == "run":
+        if getattr(args, "json", False) and args.command in ("run", "eval"):
             print(json.dumps({"status": "ERROR", "reason": str(err)}))
         return EXIT_BAD_INPUT
     except KeyboardInterrupt:

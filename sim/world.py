@@ -107,6 +107,15 @@ class CellWorld:
         self.synced_cubes = sync_cubes(self.context.scene, self.cell.cube_poses())
         self._publish()
 
+    def begin_episode(self, seed: int) -> None:
+        """Before ``start`` with a new run's context: the cell as a newly created world with
+        ``seed`` would have it (layout of ``seed``, arm at the start waypoint, time 0). Lets an
+        evaluation keep one world (its compiled model and renderer) for many episodes."""
+        self.seed = seed
+        self.options = {**self.options, "seed": seed}
+        self.cell.reset(seed, self.start_arm)
+        self.cell.t = 0.0
+
     def summary(self) -> dict[str, Any]:
         return {
             "seed": self.seed,
