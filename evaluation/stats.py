@@ -41,7 +41,9 @@ def wilson_interval(successes: int, trials: int, z: float = Z_95) -> tuple[float
     z2 = z * z
     centre = (p + z2 / (2 * trials)) / (1 + z2 / trials)
     half = z * math.sqrt(p * (1 - p) / trials + z2 / (4 * trials * trials)) / (1 + z2 / trials)
-    return max(0.0, centre - half), min(1.0, centre + half)
+    low = 0.0 if successes == 0 else max(0.0, centre - half)
+    high = 1.0 if successes == trials else min(1.0, centre + half)
+    return low, high
 
 
 def normalise_reason(reason: str) -> str:
@@ -103,7 +105,8 @@ def metric_percentiles(records: list[EpisodeRecord]) -> dict[str, dict[str, floa
         if record.status is EpisodeStatus.ERROR:
             continue
         for path, value in record.numbers().items():
-            values.setdefault(path, []).append(value)
+            if not path.endswith(".seed"):  # the world echoes the seed: not a measurement
+                values.setdefault(path, []).append(value)
     return {path: stats for path, stats in ((p, percentiles(v)) for p, v in sorted(values.items())) if stats}
 
 
