@@ -18,6 +18,8 @@ from __future__ import annotations
 
 import dataclasses
 import io
+import logging
+import os
 import shutil
 import tarfile
 import tempfile
@@ -54,6 +56,11 @@ def pack_inputs(spec: WorkerSpec) -> dict[str, Any]:
         "paths": [{p.name: p.read_bytes() for p in sorted(d.glob("*.xml"))} for d in spec.search_paths],
         "objectives_dir": {p.name: p.read_bytes() for p in sorted(spec.objectives_dir.glob("*.xml"))} if spec.objectives_dir else None,
         "policy": None,
+        "shown_as": {
+            "objective": _shown(objective_dir),
+            "paths": [_shown(d) for d in spec.search_paths],
+            "library": _shown(spec.objectives_dir) if spec.objectives_dir else None,
+        },
     }
     inputs["objective"][spec.objective.name] = spec.objective.read_bytes()
     path = spec.policy.path
@@ -65,6 +72,21 @@ def pack_inputs(spec: WorkerSpec) -> dict[str, Any]:
                                  "workers; serve it with `objective serve` and use --policy http(s)://...")
         inputs["policy"] = {str(f.relative_to(path) if f != path else f.name): f.read_bytes() for f in files}
     return inputs
+
+
+def _shown(folder: Path) -> str:
+    """How the loader names files in ``folder`` in this process (relative to the working directory when under it)."""
+    return os.path.relpath(folder) if folder.resolve().is_relative_to(Path.cwd()) else str(folder)
+
+
+def relocate(text: str | None, folders: list[tuple[Path, str | None]]) -> str | None:
+    """``text`` with each unpacked folder's path replaced by the driver's name for it."""
+    if not text:
+        return text
+    for local, shown in folders:
+        if shown is not None:
+            text = text.replace(f"{local}/", "" if shown == "." else f"{shown}/")
+    return text
 
 
 def unpack_inputs(spec: WorkerSpec, inputs: dict[str, Any], root: Path) -> WorkerSpec:
@@ -109,6 +131,10 @@ class EpisodeActor:
 
         self.scratch = Path(tempfile.mkdtemp(prefix="objective-eval-"))
         local = unpack_inputs(spec, inputs, self.scratch / "inputs")
+        shown = inputs["shown_as"]
+        self.folders = [(local.objective.parent, shown["objective"]), *zip(local.search_paths, shown["paths"])]
+        if local.objectives_dir is not None:
+            self.folders.append((local.objectives_dir, shown["library"]))
         recordings = self.scratch / "recordings" if spec.record.value != "none" else None
         self.worker = EpisodeWorker(local, name, recordings)
 
@@ -119,6 +145,8 @@ class EpisodeActor:
 
     def run(self, seed: int) -> tuple[dict[str, Any], bytes | None]:
         record = self.worker.run(seed)
+        record.failing_location = relocate(record.failing_location, self.folders)
+        record.reason = relocate(record.reason, self.folders) or ""
         archive = None
         if record.recording:
             folder = self.scratch / record.recording
@@ -154,10 +182,11 @@ class RayExecutor:
         self.ray, self.spec, self.workers, self.out, self.episode_timeout_s = ray, spec, workers, out, episode_timeout_s
         self.owns_ray = False
         if not ray.is_initialized():
+            quiet = {"log_to_driver": False, "logging_level": logging.WARNING}
             if address:
-                ray.init(address=address, log_to_driver=False)
+                ray.init(address=address, **quiet)
             else:
-                ray.init(num_cpus=workers, include_dashboard=False, _node_ip_address="127.0.0.1", log_to_driver=False)
+                ray.init(num_cpus=workers, include_dashboard=False, _node_ip_address="127.0.0.1", **quiet)
             self.owns_ray = True
         self.inputs = ray.put(pack_inputs(spec))
         self.actor_class = ray.remote(num_cpus=1, max_restarts=0, max_task_retries=0)(EpisodeActor)

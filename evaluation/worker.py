@@ -18,6 +18,7 @@ import traceback
 from pathlib import Path
 from typing import Any
 
+from runtime.bus import FixedLatency
 from runtime.errors import ObjectiveError
 from runtime.loader import load_tree
 from runtime.registry import Registry
@@ -120,6 +121,11 @@ class EpisodeWorker:
         assert self.registry is not None, "warm_up() first"
         options = self._options(seed)
         context = make_context(options)
+        if self.spec.policy_latency.strip().lower() != "measured" and hasattr(context.bus, "default_latency"):
+            # Every other service (switching controllers, ...) answers on the next tick, as it does
+            # on an idle machine, instead of after the measured wall time: that would make the
+            # episode depend on the machine's load.
+            context.bus.default_latency = FixedLatency(0.0)
         loaded = load_tree(self.spec.objective, self.registry, context, self.spec.tree,
                            self.spec.search_paths, self.spec.objectives_dir)
         world: Any = None
