@@ -166,3 +166,32 @@ def test_bad_input_is_refused_before_any_worker_starts(tmp_path, capsys):
     assert code == 2 and "--episodes must be at least 1, got 0" in capsys.readouterr().err
     code = main(["eval", str(STACK), "--episodes", "1", "--out", str(tmp_path / "d"), "--policy-latency", "soon"])
     assert code == 2 and "--policy-latency: latency 'soon'" in capsys.readouterr().err
+
+
+def test_a_running_inference_server_serves_every_worker_with_its_key_from_the_environment(tmp_path, capsys, monkeypatch):
+    """--policy http://...: the workers call the server (a replay holding the arm at Home, then
+    NO_MORE_ACTIONS); the stack check then fails, as it should with a policy that does nothing."""
+    import numpy as np
+
+    from sim.policy.replay import RecordedChunk, ReplayBackend, write_replay
+    from sim.policy.server import InferenceServer, ServerConfig
+    from sim.robot_model import ARM_JOINTS, GRIPPER_DRIVER_JOINT, load_waypoints
+
+    home = load_waypoints()["Home"]
+    names = list(ARM_JOINTS) + [GRIPPER_DRIVER_JOINT]
+    hold = np.array([[home[j] for j in ARM_JOINTS] + [0.0]] * 30)
+    write_replay(tmp_path / "hold.jsonl", [RecordedChunk(names, hold, 0.1)] * 2)
+    key = "eval-test-key-" + "k" * 20
+    server = InferenceServer(ReplayBackend(tmp_path / "hold.jsonl"), ServerConfig(key=key)).start()
+    try:
+        assert server.ready.wait(10)
+        monkeypatch.setenv("POLICY_SERVER_KEY", key)
+        code, summary, err = eval_cli(capsys, STACK, "--episodes", 1, "--world", "kinematic", "--policy", server.url,
+                                      "--record", "none", "--out", tmp_path / "eval")
+    finally:
+        server.stop()
+    assert code == 0, err
+    assert summary["failures"] == 1 and not summary["deterministic"]
+    line = episodes(tmp_path / "eval")[0]
+    assert line["run"]["execute_policy"]["chunks"] == 2
+    assert line["failing_node"] == "top cube on bottom cube"
