@@ -30,6 +30,8 @@ def add_eval_command(sub: Any, parse_set: Any, positive_float: Any) -> None:
     p.add_argument("--world", metavar="NAME", help="world for trees that need one (default: vla_sim)")
     p.add_argument("--set", action="append", type=parse_set, default=[], metavar="NAME=VALUE",
                    help="set a root blackboard entry before the first tick of every episode; repeatable")
+    p.add_argument("--world-option", action="append", type=parse_set, default=[], metavar="KEY=VALUE",
+                   help="an option of the world, e.g. image_size=128 (repeatable)")
     p.add_argument("--record", choices=("failures", "all", "none"), default="failures",
                    help="keep a recording (with its report) of the failed episodes (default), of all, or none")
     p.add_argument("--tree", metavar="ID", help="the BehaviorTree to run (default: main_tree_to_execute)")
@@ -55,7 +57,7 @@ def config_from_args(args: argparse.Namespace) -> Any:
         objective=args.file.resolve(), tree=args.tree, search_paths=tuple(p.resolve() for p in args.path),
         objectives_dir=args.objectives_dir.resolve() if args.objectives_dir else None, world=args.world,
         policy=parse_policy(args.policy), policy_latency=args.policy_latency or DEFAULT_POLICY_LATENCY,
-        sets=tuple(args.set), max_seconds=args.max_seconds, record=RecordMode(args.record),
+        sets=tuple(args.set), world_options=tuple(args.world_option), max_seconds=args.max_seconds, record=RecordMode(args.record),
     )
     return EvalConfig(
         spec=spec, out=args.out, episodes=args.episodes, seed_start=args.seed_start, workers=args.workers,

@@ -45,6 +45,8 @@ class WorkerSpec:
     policy: PolicySpec = field(default_factory=lambda: parse_policy(None))
     policy_latency: str = DEFAULT_POLICY_LATENCY
     sets: tuple[tuple[str, str], ...] = ()
+    world_options: tuple[tuple[str, str], ...] = ()
+    """``--world-option KEY=VALUE`` (e.g. ``image_size=128``), as ``objective run`` takes them."""
     max_seconds: float | None = None
     record: RecordMode = RecordMode.FAILURES
 
@@ -96,6 +98,7 @@ def identity(spec: WorkerSpec) -> dict[str, Any]:
         "policy_latency": spec.policy_latency,
         "world": spec.world,
         "sets": dict(spec.sets),
+        "world_options": dict(spec.world_options),
         "max_seconds": spec.max_seconds,
     }
 
@@ -107,7 +110,7 @@ def identity_mismatch(stored: dict[str, Any], current: dict[str, Any]) -> str | 
         "policy": "a different policy",
         "policy_sha256": "a different policy (the checkpoint or replay file's content differs)",
     }
-    for key in ("objective_sha256", "tree", "policy", "policy_sha256", "policy_latency", "world", "sets", "max_seconds"):
+    for key in ("objective_sha256", "tree", "policy", "policy_sha256", "policy_latency", "world", "world_options", "sets", "max_seconds"):
         if stored.get(key) != current.get(key):
             what = labels.get(key, f"a different {key.replace('_', ' ')}")
             if key == "objective_sha256":

@@ -18,7 +18,7 @@ from __future__ import annotations
 import enum
 import hashlib
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -42,6 +42,9 @@ class PolicySpec:
     kind: PolicyKind
     text: str
     path: Path | None = None
+    key: str | None = field(default=None, repr=False, compare=False)
+    """An inference server's bearer key, read from ``POLICY_SERVER_KEY`` where the evaluation
+    starts and carried to every worker with the spec (a Ray node has no such variable)."""
 
     @property
     def deterministic(self) -> bool:
@@ -56,12 +59,13 @@ def parse_policy(text: str | None) -> PolicySpec:
         return PolicySpec(PolicyKind(lowered), lowered)
     if lowered.startswith(("http://", "https://")):
         from sim.policy.http_client import InferUrlError, check_infer_url
+        from sim.policy.server import key_from_env
 
         try:
             check_infer_url(text)
         except InferUrlError as err:
             raise ObjectiveError(f"--policy: {err}") from None
-        return PolicySpec(PolicyKind.HTTP, text)
+        return PolicySpec(PolicyKind.HTTP, text, key=key_from_env(dict(os.environ)))
     kind, sep, rest = text.partition(":")
     if sep and kind in ("replay", "lerobot") and rest:
         path = Path(rest).expanduser()
@@ -127,9 +131,8 @@ def _make_backend(spec: PolicySpec, cell: Any) -> Any:
         return None
     if spec.kind is PolicyKind.HTTP:
         from sim.policy.http_client import ClientConfig, HttpBackend
-        from sim.policy.server import key_from_env
 
-        return HttpBackend(ClientConfig(spec.text, timeout=HTTP_TIMEOUT_S, key=key_from_env(dict(os.environ))))
+        return HttpBackend(ClientConfig(spec.text, timeout=HTTP_TIMEOUT_S, key=spec.key))
     from sim.policy.embedded import make_backend
 
     try:

@@ -171,9 +171,9 @@ class EpisodeWorker:
     def _options(self, seed: int) -> RunOptions:
         return RunOptions(
             seed=seed, world=self.spec.world, sets=dict(self.spec.sets), policy_latency=self.spec.policy_latency,
-            max_seconds=self.spec.max_seconds, world_options={"policy": self.spec.policy.text},
+            max_seconds=self.spec.max_seconds, world_options={**dict(self.spec.world_options), "policy": self.spec.policy.text},
         )
 
     def _world_options(self, seed: int, policy: str) -> dict[str, Any]:
         return {"seed": seed, "realtime": False, "policy_latency": self.spec.policy_latency, "record_dir": None,
-                "policy": policy}
+                **dict(self.spec.world_options), "policy": policy}
