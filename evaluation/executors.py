@@ -66,6 +66,17 @@ class Executor(Protocol):
     def close(self) -> None: ...
 
 
+def hung_event(seed: int | None, timeout_s: float, worker: str) -> Event:
+    """The event of an episode that gave no result in time (its worker has been replaced)."""
+    return Event(EventKind.TIMED_OUT, seed, reason=(
+        f"no result within {timeout_s:g} s of wall time (--episode-timeout): the episode hung; "
+        "its worker was stopped and replaced"), wall_seconds=timeout_s, worker=worker)
+
+
+def load_timeout_event(worker: str) -> Event:
+    return Event(EventKind.LOAD_FAILED, reason=f"{worker} did not finish loading within {LOAD_TIMEOUT_S:g} s", worker=worker)
+
+
 def describe_exit(code: int | None) -> str:
     """``exit code 3`` or ``signal SIGABRT`` for a process's exit status."""
     if code is None:
@@ -241,11 +252,8 @@ class LocalExecutor:
         seed, state = slot.seed, slot.state
         self._replace(slot)
         if state is SlotState.LOADING:
-            return Event(EventKind.LOAD_FAILED, reason=f"{slot.name} did not finish loading within {LOAD_TIMEOUT_S:g} s",
-                         worker=slot.name)
-        return Event(EventKind.TIMED_OUT, seed, reason=(
-            f"no result within {self.episode_timeout_s:g} s of wall time (--episode-timeout): the episode hung; "
-            "its worker was stopped and replaced"), wall_seconds=self.episode_timeout_s, worker=slot.name)
+            return load_timeout_event(slot.name)
+        return hung_event(seed, self.episode_timeout_s, slot.name)
 
     def close(self) -> None:
         for slot in self.slots:

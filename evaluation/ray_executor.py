@@ -31,7 +31,7 @@ from runtime.errors import ObjectiveError
 
 from .config import WorkerSpec
 from .episode import EpisodeRecord
-from .executors import LOAD_TIMEOUT_S, Event, EventKind, SlotState
+from .executors import LOAD_TIMEOUT_S, Event, EventKind, SlotState, hung_event, load_timeout_event
 from .policies import PolicyKind, parse_policy
 
 INPUT_LIMIT_BYTES = 2 << 30
@@ -275,11 +275,8 @@ class RayExecutor:
         state, seed = slot.state, slot.seed
         self._replace(slot)
         if state is SlotState.LOADING:
-            return Event(EventKind.LOAD_FAILED, reason=f"{slot.name} did not finish loading within {LOAD_TIMEOUT_S:g} s",
-                         worker=slot.name)
-        return Event(EventKind.TIMED_OUT, seed, reason=(
-            f"no result within {self.episode_timeout_s:g} s of wall time (--episode-timeout): the episode hung; "
-            "its worker was stopped and replaced"), wall_seconds=self.episode_timeout_s, worker=slot.name)
+            return load_timeout_event(slot.name)
+        return hung_event(seed, self.episode_timeout_s, slot.name)
 
     def close(self) -> None:
         for slot in self.slots:

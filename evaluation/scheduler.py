@@ -15,7 +15,7 @@ from typing import Callable
 from runtime.errors import ObjectiveError
 
 from .config import EvalConfig
-from .episode import EpisodeRecord, EpisodeStatus
+from .episode import EpisodeRecord
 from .executors import Event, EventKind, Executor
 from .store import EvalStore
 
@@ -86,5 +86,3 @@ def wait_for_workers(executor: Executor, timeout_s: float, clock: Callable[[], f
             if event.kind is EventKind.LOAD_FAILED:
                 raise ObjectiveError(f"a worker could not start: {event.reason}")
 
-
-__all__ = ["EpisodeStatus", "LoopResult", "run_episodes", "wait_for_workers"]

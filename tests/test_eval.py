@@ -14,7 +14,6 @@ from pathlib import Path
 import pytest
 
 from evaluation.config import WorkerSpec
-from evaluation.episode import EpisodeStatus
 from evaluation.policies import parse_policy
 from evaluation.worker import EpisodeWorker
 from runtime.cli import main
