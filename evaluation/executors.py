@@ -155,7 +155,45 @@ def _log_to(path: str) -> None:
         logger.propagate = False
 
 
-class LocalExecutor:
+class SlotPool:
+    """What both executors share: slots in named states, and what a slot past its deadline means.
+
+    Subclasses keep ``slots`` (objects with ``index``, ``name``, ``state``, ``since``, ``seed``) and
+    ``episode_timeout_s``, and implement ``_replace(slot)`` (stop its worker, start a fresh one)."""
+
+    slots: list[Any]
+    episode_timeout_s: float
+
+    def idle_slots(self) -> int:
+        return sum(1 for s in self.slots if s.state is SlotState.IDLE)
+
+    def running(self) -> int:
+        return sum(1 for s in self.slots if s.state is SlotState.RUNNING)
+
+    def _take_idle(self, seed: int) -> Any:
+        slot = next(s for s in self.slots if s.state is SlotState.IDLE)
+        slot.state, slot.seed, slot.since = SlotState.RUNNING, seed, time.monotonic()
+        return slot
+
+    def _deadline(self, slot: Any) -> float:
+        if slot.state is SlotState.RUNNING:
+            return slot.since + self.episode_timeout_s
+        if slot.state is SlotState.LOADING:
+            return slot.since + LOAD_TIMEOUT_S
+        return float("inf")
+
+    def _replace(self, slot: Any) -> None:
+        raise NotImplementedError
+
+    def _timed_out(self, slot: Any) -> Event:
+        state, seed = slot.state, slot.seed
+        self._replace(slot)
+        if state is SlotState.LOADING:
+            return load_timeout_event(slot.name)
+        return hung_event(seed, self.episode_timeout_s, slot.name)
+
+
+class LocalExecutor(SlotPool):
     """``workers`` local processes, each keeping its loaded world; see the module doc."""
 
     def __init__(self, spec: WorkerSpec, workers: int, out: Path, episode_timeout_s: float) -> None:
@@ -189,16 +227,8 @@ class LocalExecutor:
         slot.conn.close()
 
     # -- Executor ---
-    def idle_slots(self) -> int:
-        return sum(1 for s in self.slots if s.state is SlotState.IDLE)
-
-    def running(self) -> int:
-        return sum(1 for s in self.slots if s.state is SlotState.RUNNING)
-
     def submit(self, seed: int) -> None:
-        slot = next(s for s in self.slots if s.state is SlotState.IDLE)
-        slot.conn.send(("run", seed))
-        slot.state, slot.seed, slot.since = SlotState.RUNNING, seed, time.monotonic()
+        self._take_idle(seed).conn.send(("run", seed))
 
     def wait(self, timeout_s: float) -> list[Event]:
         """Events of the slots that answered, died or ran out of time, within ``timeout_s``."""
@@ -215,13 +245,6 @@ class LocalExecutor:
             elif time.monotonic() >= self._deadline(slot):
                 events.append(self._timed_out(slot))
         return events
-
-    def _deadline(self, slot: _Slot) -> float:
-        if slot.state is SlotState.RUNNING:
-            return slot.since + self.episode_timeout_s
-        if slot.state is SlotState.LOADING:
-            return slot.since + LOAD_TIMEOUT_S
-        return float("inf")
 
     def _receive(self, slot: _Slot) -> list[Event]:
         try:
@@ -247,13 +270,6 @@ class LocalExecutor:
         if state is SlotState.LOADING:
             return Event(EventKind.LOAD_FAILED, reason=f"{slot.name} died while loading ({how}; see {log})", worker=slot.name)
         return Event(EventKind.LOST, seed, reason=f"its worker died ({how}; see {log})", wall_seconds=elapsed, worker=slot.name)
-
-    def _timed_out(self, slot: _Slot) -> Event:
-        seed, state = slot.seed, slot.state
-        self._replace(slot)
-        if state is SlotState.LOADING:
-            return load_timeout_event(slot.name)
-        return hung_event(seed, self.episode_timeout_s, slot.name)
 
     def close(self) -> None:
         for slot in self.slots:

@@ -31,7 +31,7 @@ from runtime.errors import ObjectiveError
 
 from .config import WorkerSpec
 from .episode import EpisodeRecord
-from .executors import LOAD_TIMEOUT_S, Event, EventKind, SlotState, hung_event, load_timeout_event
+from .executors import Event, EventKind, SlotPool, SlotState
 from .policies import PolicyKind, parse_policy
 
 INPUT_LIMIT_BYTES = 2 << 30
@@ -174,7 +174,7 @@ class _ActorSlot:
         return f"ray-worker-{self.index}.{self.generation}"
 
 
-class RayExecutor:
+class RayExecutor(SlotPool):
     """``workers`` Ray actors; implements ``evaluation.executors.Executor``."""
 
     def __init__(self, spec: WorkerSpec, workers: int, out: Path, episode_timeout_s: float, address: str | None = None) -> None:
@@ -201,16 +201,9 @@ class RayExecutor:
         self.slots[slot.index] = self._spawn(slot.index, slot.generation + 1)
 
     # -- Executor ---
-    def idle_slots(self) -> int:
-        return sum(1 for s in self.slots if s.state is SlotState.IDLE)
-
-    def running(self) -> int:
-        return sum(1 for s in self.slots if s.state is SlotState.RUNNING)
-
     def submit(self, seed: int) -> None:
-        slot = next(s for s in self.slots if s.state is SlotState.IDLE)
+        slot = self._take_idle(seed)
         slot.ref = slot.actor.run.remote(seed)
-        slot.state, slot.seed, slot.since = SlotState.RUNNING, seed, time.monotonic()
 
     def wait(self, timeout_s: float) -> list[Event]:
         now = time.monotonic()
@@ -229,13 +222,6 @@ class RayExecutor:
             elif time.monotonic() >= self._deadline(slot):
                 events.append(self._timed_out(slot))
         return events
-
-    def _deadline(self, slot: _ActorSlot) -> float:
-        if slot.state is SlotState.RUNNING:
-            return slot.since + self.episode_timeout_s
-        if slot.state is SlotState.LOADING:
-            return slot.since + LOAD_TIMEOUT_S
-        return float("inf")
 
     def _receive(self, slot: _ActorSlot) -> list[Event]:
         ray = self.ray
@@ -270,13 +256,6 @@ class RayExecutor:
             return Event(EventKind.LOAD_FAILED, reason=f"{slot.name} died while loading: {first_line}", worker=slot.name)
         return Event(EventKind.LOST, seed, reason=f"its Ray worker {slot.name} was lost ({first_line})",
                      wall_seconds=elapsed, worker=slot.name)
-
-    def _timed_out(self, slot: _ActorSlot) -> Event:
-        state, seed = slot.state, slot.seed
-        self._replace(slot)
-        if state is SlotState.LOADING:
-            return load_timeout_event(slot.name)
-        return hung_event(seed, self.episode_timeout_s, slot.name)
 
     def close(self) -> None:
         for slot in self.slots:
