@@ -104,6 +104,23 @@ def test_a_seed_gives_the_same_episode_in_any_worker_and_order():
     assert red[:2] != pytest.approx(layout_xy(4)["red"], abs=1e-3)
 
 
+@pytest.mark.slow
+def test_a_kept_physics_world_runs_a_seed_as_a_fresh_one():
+    """The MuJoCo cell put back to a seed (model, data and renderer kept) runs the same episode."""
+    spec = WorkerSpec(objective=STACK, world="vla_sim", policy=parse_policy("oracle"), max_seconds=9.0)
+    kept = EpisodeWorker(spec, "kept")
+    kept.warm_up()
+    kept.run(1)
+    a = kept.run(0)
+    kept.close()
+    fresh = EpisodeWorker(spec, "fresh")
+    fresh.warm_up()
+    b = fresh.run(0)
+    fresh.close()
+    assert a.run["execute_policy"]["chunks"] >= 3
+    assert a.seeded_view() == b.seeded_view()
+
+
 def layout_xy(seed: int) -> dict:
     from sim.layouts import layout
 
