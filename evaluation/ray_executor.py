@@ -38,7 +38,20 @@ INPUT_LIMIT_BYTES = 2 << 30
 """Inputs larger than this are refused (put the checkpoint behind an inference server instead)."""
 
 
-def ray_module() -> Any:
+LOOPBACK_ONLY_ENV = "RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER"
+"""Set to 0 before Ray is imported, Ray takes 127.0.0.1 as this node's address (by default it
+resolves 127.0.0.1 to the machine's outward address): a local instance stays on loopback."""
+
+
+WORKER_NICENESS_ENV = "RAY_worker_niceness"
+"""Ray starts its workers at niceness 15 by default: on a machine shared with other work they then
+get a fraction of a core. A local instance starts them at 0, like the local executor's."""
+
+
+def ray_module(local: bool) -> Any:
+    if local:
+        os.environ.setdefault(LOOPBACK_ONLY_ENV, "0")
+        os.environ.setdefault(WORKER_NICENESS_ENV, "0")
     try:
         import ray
     except ImportError:
@@ -178,7 +191,7 @@ class RayExecutor(SlotPool):
     """``workers`` Ray actors; implements ``evaluation.executors.Executor``."""
 
     def __init__(self, spec: WorkerSpec, workers: int, out: Path, episode_timeout_s: float, address: str | None = None) -> None:
-        ray = ray_module()
+        ray = ray_module(local=not address)
         self.ray, self.spec, self.workers, self.out, self.episode_timeout_s = ray, spec, workers, out, episode_timeout_s
         self.owns_ray = False
         if not ray.is_initialized():

@@ -10,6 +10,7 @@ import os
 
 import pytest
 
+os.environ.setdefault("RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER", "0")  # node address 127.0.0.1 (see evaluation.ray_executor)
 ray = pytest.importorskip("ray", reason="Ray is an optional extra: make ray")
 
 from evaluation.config import RecordMode, WorkerSpec  # noqa: E402
@@ -32,6 +33,7 @@ def local_ray():
         ray.init(num_cpus=2, include_dashboard=False, _node_ip_address="127.0.0.1", log_to_driver=False,
                  object_store_memory=128 * 1024 * 1024)
         try:
+            assert ray.util.get_node_ip_address() == "127.0.0.1"
             yield
         finally:
             ray.shutdown()
