@@ -96,21 +96,28 @@ def test_stacking_over_three_seeds_on_two_workers(tmp_path, capsys):
         assert line["blackboard"]["steps_executed"] == 300
 
 
+def kept_and_fresh(spec: WorkerSpec, before: int, seed: int) -> tuple:
+    """``seed``'s episode in a worker that ran ``before`` first, and in a fresh worker."""
+    records = []
+    for first in (before, None):
+        worker = EpisodeWorker(spec, "kept" if first is not None else "fresh")
+        worker.warm_up()
+        try:
+            if first is not None:
+                worker.run(first)
+            records.append(worker.run(seed))
+        finally:
+            worker.close()
+    return records[0], records[1]
+
+
 def test_a_seed_gives_the_same_episode_in_any_worker_and_order():
     """A kept world put back to a seed runs the episode a fresh worker runs, random latency included.
 
     Cut at 9 s of the 31 s episode (mid-stream: the arm carrying the cube) to keep the test short."""
     spec = WorkerSpec(objective=STACK, world="kinematic", policy=parse_policy("oracle"),
                       policy_latency="lognormal:0.3,0.15", max_seconds=9.0)
-    first = EpisodeWorker(spec, "first")
-    first.warm_up()
-    first.run(4)
-    a3 = first.run(3)
-    first.close()
-    fresh = EpisodeWorker(spec, "fresh")
-    fresh.warm_up()
-    b3 = fresh.run(3)
-    fresh.close()
+    a3, b3 = kept_and_fresh(spec, before=4, seed=3)
     assert a3.reason == "stopped after --max-seconds 9 s of clock time while 'ExecutePolicy' was RUNNING"
     policy = a3.run["execute_policy"]
     assert policy["chunks"] >= 3 and policy["latency_max_s"] > policy["latency_p50_s"]  # random, seeded
@@ -124,15 +131,7 @@ def test_a_seed_gives_the_same_episode_in_any_worker_and_order():
 def test_a_kept_physics_world_runs_a_seed_as_a_fresh_one():
     """The MuJoCo cell put back to a seed (model, data and renderer kept) runs the same episode."""
     spec = WorkerSpec(objective=STACK, world="vla_sim", policy=parse_policy("oracle"), max_seconds=9.0)
-    kept = EpisodeWorker(spec, "kept")
-    kept.warm_up()
-    kept.run(1)
-    a = kept.run(0)
-    kept.close()
-    fresh = EpisodeWorker(spec, "fresh")
-    fresh.warm_up()
-    b = fresh.run(0)
-    fresh.close()
+    a, b = kept_and_fresh(spec, before=1, seed=0)
     assert a.run["execute_policy"]["chunks"] >= 3
     assert a.seeded_view() == b.seeded_view()
 
