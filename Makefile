@@ -11,7 +11,7 @@ export ROS_DOMAIN_ID ?= 42
 export MUJOCO_GL ?= egl
 export ROS_LOG_DIR ?= $(CURDIR)/build/ros_log
 
-.PHONY: setup demo test test-all bench clean lerobot lerobot-policy chromium
+.PHONY: setup demo test test-all bench clean lerobot lerobot-policy chromium ray
 
 setup: $(STAMP)
 
@@ -45,6 +45,19 @@ lerobot-policy: lerobot
 chromium:
 	@command -v chromium >/dev/null || { apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium >/dev/null; }
 	@chromium --version 2>/dev/null
+
+# Optional Ray extra for `objective eval --executor ray` (ray==2.60.0, pure pip wheels). The
+# installed numpy, torch and torchvision are pinned while it installs: Ray must never move them.
+RAY_STAMP := $(VENV)/.ray-stamp
+
+ray: $(RAY_STAMP)
+
+$(RAY_STAMP): $(STAMP) pyproject.toml
+	@mkdir -p build
+	$(PY) -m pip freeze | grep -E '^(numpy|torch|torchvision)==' > build/ray-constraints.txt || true
+	$(PY) -m pip install --quiet -c build/ray-constraints.txt -e '.[ray]'
+	$(PY) -c "import ray, numpy; print('ray', ray.__version__, 'numpy', numpy.__version__)"
+	@touch $@
 
 demo: setup
 	$(VENV)/bin/objective run objectives/stack_cubes.xml

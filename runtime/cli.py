@@ -394,7 +394,7 @@ def main(argv: Sequence[str] | None = None, registry: Registry | None = None) ->
 
 def _error_exit(args: argparse.Namespace, message: str) -> int:
     print(f"error: {printable(message)}", file=sys.stderr)
-    if getattr(args, "json", False) and args.command == "run":
+    if getattr(args, "json", False) and args.command in ("run", "eval"):
         print(json.dumps({"status": "ERROR", "reason": message}))
     return EXIT_BAD_INPUT
 

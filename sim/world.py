@@ -126,6 +126,16 @@ class CellWorld:
     def remove_box(self, name: str) -> None:
         self.boxes.remove(self.cell, self.context.scene, name)
 
+    def begin_episode(self, seed: int) -> None:
+        """Before ``start`` with a new run's context: the cell as a newly created world with
+        ``seed`` would have it (layout of ``seed``, arm at the start waypoint, time 0). Lets an
+        evaluation keep one world (its compiled model and renderer) for many episodes."""
+        self.seed = seed
+        self.options = {**self.options, "seed": seed}
+        self.cell.reset(seed, self.start_arm)
+        self.cell.t = 0.0
+        self.boxes = PlacedBoxes()  # the cell's reset parked every placed box
+
     def summary(self) -> dict[str, Any]:
         summary: dict[str, Any] = {
             "seed": self.seed,

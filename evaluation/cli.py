@@ -1,0 +1,111 @@
+"""``objective eval``: its arguments and the command, added to ``objective`` through the
+``objective.commands`` entry-point group (``COMMAND``). Loaded whenever ``objective`` builds its
+parser, so only argparse and the CLI's argument types are imported at module level."""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+from typing import Any
+
+from runtime.cli import _parse_set as parse_set
+from runtime.cli import positive_float
+from runtime.command import Command
+
+HELP = "run an Objective over many seeded episodes and report its success rate"
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.description = (HELP + ". Episodes are `objective run --seed S+i`; DIR gets episodes.jsonl (appended as "
+                     "episodes finish), summary.json and report.html; running the same command again resumes.")
+    p.add_argument("file", type=Path)
+    p.add_argument("--episodes", type=int, required=True, metavar="N", help="episodes to run: seeds S .. S+N-1")
+    p.add_argument("--seed-start", type=int, default=0, metavar="S", help="seed of the first episode (default 0)")
+    p.add_argument("--out", type=Path, required=True, metavar="DIR", help="where the results go (resumed if it holds some)")
+    p.add_argument("--workers", type=int, default=1, metavar="K", help="episodes run in parallel (default 1)")
+    p.add_argument("--executor", choices=("local", "ray"), default="local",
+                   help="local processes (default) or Ray tasks (`make ray`); see docs/evaluation.md")
+    p.add_argument("--ray-address", metavar="ADDR", help="join this Ray cluster (default: start a local one sized to --workers)")
+    p.add_argument("--policy", metavar="SPEC",
+                   help="oracle (default), replay:FILE, lerobot:DIR, http(s)://HOST:PORT (key from POLICY_SERVER_KEY) or none")
+    p.add_argument("--policy-latency", default=None, metavar="SPEC",
+                   help="simulated policy latency: seconds (default 0.1), lognormal:MEAN,SD, or measured (not deterministic)")
+    p.add_argument("--world", metavar="NAME", help="world for trees that need one (default: vla_sim)")
+    p.add_argument("--set", action="append", type=parse_set, default=[], metavar="NAME=VALUE",
+                   help="set a root blackboard entry before the first tick of every episode; repeatable")
+    p.add_argument("--world-option", action="append", type=parse_set, default=[], metavar="KEY=VALUE",
+                   help="an option of the world, e.g. image_size=128 (repeatable)")
+    p.add_argument("--record", choices=("failures", "all", "none"), default="failures",
+                   help="keep a recording (with its report) of the failed episodes (default), of all, or none")
+    p.add_argument("--tree", metavar="ID", help="the BehaviorTree to run (default: main_tree_to_execute)")
+    p.add_argument("--max-seconds", type=positive_float, metavar="S", help="an episode fails after S seconds of clock time")
+    p.add_argument("--episode-timeout", type=positive_float, default=None, metavar="S",
+                   help="wall-clock seconds before a hung episode's worker is stopped (default 600)")
+    p.add_argument("--retries", type=int, default=None, metavar="N",
+                   help="times an episode whose worker died is run again on a fresh worker (default 1)")
+    p.add_argument("--json", action="store_true", help="print summary.json as the last line of stdout")
+    p.add_argument("--path", action="append", type=Path, default=[], metavar="DIR",
+                   help="another directory of *.xml to find SubTrees in (after objectives/); repeatable")
+    p.add_argument("--objectives-dir", type=Path, default=None, metavar="DIR",
+                   help="the library searched first for SubTrees (default: the project's objectives/)")
+
+
+def config_from_args(args: argparse.Namespace) -> Any:
+    from .config import (
+        DEFAULT_EPISODE_TIMEOUT_S, DEFAULT_POLICY_LATENCY, DEFAULT_RETRIES, EvalConfig, ExecutorKind, RecordMode, WorkerSpec,
+    )
+    from .policies import parse_policy
+
+    spec = WorkerSpec(
+        objective=args.file.resolve(), tree=args.tree, search_paths=tuple(p.resolve() for p in args.path),
+        objectives_dir=args.objectives_dir.resolve() if args.objectives_dir else None, world=args.world,
+        policy=parse_policy(args.policy), policy_latency=args.policy_latency or DEFAULT_POLICY_LATENCY,
+        sets=tuple(args.set), world_options=tuple(args.world_option), max_seconds=args.max_seconds, record=RecordMode(args.record),
+    )
+    return EvalConfig(
+        spec=spec, out=args.out, episodes=args.episodes, seed_start=args.seed_start, workers=args.workers,
+        executor=ExecutorKind(args.executor), ray_address=args.ray_address,
+        episode_timeout_s=args.episode_timeout or DEFAULT_EPISODE_TIMEOUT_S,
+        retries=DEFAULT_RETRIES if args.retries is None else args.retries,
+    )
+
+
+def summary_lines(summary: dict[str, Any], out: Path) -> list[str]:
+    """What a person reads on stderr when the evaluation ends."""
+    rate = summary["success_rate"]
+    low, high = summary["success_rate_ci95"]
+    rate_text = "n/a" if rate is None else f"{100 * rate:.1f} %, 95 % interval {100 * low:.1f}-{100 * high:.1f} %"
+    done = f"{summary['episodes']} episodes" + ("" if summary["complete"] else f" of {summary['requested']} (incomplete: run again to resume)")
+    lines = [f"{done}: {summary['successes']} successes ({rate_text}), {summary['failures']} failures, {summary['errors']} errors"]
+    for group in summary["failure_groups"][:5]:
+        node = f"'{group['failing_node']}': " if group["failing_node"] else ""
+        lines.append(f"  {group['count']:>4} x {group['status']} {node}{group['reason']}")
+    lines.append(f"results in {out}/ (episodes.jsonl, summary.json, report.html)")
+    return lines
+
+
+def cmd_eval(args: argparse.Namespace, registry: Any) -> int:
+    from .evaluate import evaluate
+    from .progress import ProgressBar
+
+    config = config_from_args(args)
+    bar: list[ProgressBar] = []
+
+    def progress(resumed: list[Any]) -> ProgressBar:
+        bar.append(ProgressBar(sys.stderr, config.episodes, resumed))
+        return bar[0]
+
+    try:
+        outcome = evaluate(config, registry, progress if sys.stderr.isatty() else None)
+    finally:
+        if bar:
+            bar[0].clear()
+    for line in summary_lines(outcome.summary, config.out):
+        print(line, file=sys.stderr)
+    if args.json:
+        print(json.dumps(outcome.summary, default=str))
+    return outcome.exit_code
+
+
+COMMAND = Command(HELP, add_arguments, cmd_eval)

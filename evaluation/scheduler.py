@@ -1,0 +1,88 @@
+"""The evaluation loop: seeds to idle workers, records into ``episodes.jsonl`` as they finish.
+
+Each seed is in at most one worker at a time and is written once (``EvalStore.add`` refuses a
+seed already there), so an episode retried after a lost worker is never counted twice. A seed
+whose worker died is run again on a fresh worker up to ``retries`` times, then recorded as an
+ERROR; a hung episode is recorded as an ERROR at once (running it again would hang again).
+"""
+from __future__ import annotations
+
+import time
+from collections import deque
+from dataclasses import dataclass
+from typing import Callable
+
+from runtime.errors import ObjectiveError
+
+from .config import EvalConfig
+from .episode import EpisodeRecord
+from .executors import Event, EventKind, Executor
+from .store import EvalStore
+
+Progress = Callable[[EpisodeRecord], None]
+
+
+@dataclass
+class LoopResult:
+    finished: int
+    """Episodes recorded by this run (not those resumed from the file)."""
+    interrupted: bool = False
+
+
+def run_episodes(config: EvalConfig, executor: Executor, store: EvalStore, progress: Progress | None = None) -> LoopResult:
+    """Run every seed of ``config`` not yet in ``store``; ObjectiveError when workers cannot load."""
+    pending = deque(seed for seed in config.seeds if seed not in store.records)
+    attempts: dict[int, int] = {}
+    finished = 0
+
+    def record(item: EpisodeRecord) -> None:
+        nonlocal finished
+        item.attempts = attempts.get(item.seed, 1)
+        if store.add(item):
+            finished += 1
+            if progress is not None:
+                progress(item)
+
+    try:
+        while pending or executor.running():
+            while pending and executor.idle_slots():
+                seed = pending.popleft()
+                attempts[seed] = attempts.get(seed, 0) + 1
+                executor.submit(seed)
+            for event in executor.wait(timeout_s=1.0):
+                _handle(event, config, pending, attempts, record)
+    except KeyboardInterrupt:
+        return LoopResult(finished, interrupted=True)
+    return LoopResult(finished)
+
+
+def _handle(event: Event, config: EvalConfig, pending: deque[int], attempts: dict[int, int],
+            record: Callable[[EpisodeRecord], None]) -> None:
+    if event.kind is EventKind.LOAD_FAILED:
+        raise ObjectiveError(f"a worker could not start: {event.reason}")
+    if event.seed is None:
+        return  # a worker died between episodes: it was replaced, nothing was lost
+    if event.kind is EventKind.DONE and event.record is not None:
+        record(event.record)
+    elif event.kind is EventKind.TIMED_OUT:
+        record(EpisodeRecord.error(event.seed, event.reason, event.wall_seconds, worker=event.worker))
+    elif event.kind is EventKind.LOST:
+        if attempts[event.seed] <= config.retries:
+            pending.appendleft(event.seed)
+        else:
+            tries = attempts[event.seed]
+            reason = f"{event.reason}; {tries} attempt{'s' if tries > 1 else ''}, each lost its worker"
+            record(EpisodeRecord.error(event.seed, reason, event.wall_seconds, worker=event.worker))
+
+
+def wait_for_workers(executor: Executor, timeout_s: float, clock: Callable[[], float] = time.monotonic) -> None:
+    """Block until every worker has loaded (or raise as ``run_episodes`` would): for benchmarks
+    that time episodes without the load."""
+    deadline = clock() + timeout_s
+    while executor.idle_slots() < executor.workers:
+        if clock() > deadline:
+            raise ObjectiveError(f"workers did not load within {timeout_s:g} s")
+        for event in executor.wait(timeout_s=0.5):
+            if event.kind is EventKind.LOAD_FAILED:
+                raise ObjectiveError(f"a worker could not start: {event.reason}")
+
