@@ -22,7 +22,8 @@ from runtime.bus import FixedLatency
 from runtime.errors import ObjectiveError
 from runtime.loader import load_tree
 from runtime.registry import Registry
-from runtime.runner import DEFAULT_WORLD, RunOptions, RunResult, create_world, make_context, run_tree
+from runtime.registry import default_world_name
+from runtime.runner import RunOptions, RunResult, create_world, make_context, run_tree
 
 from .config import WorkerSpec
 from .episode import EpisodeRecord
@@ -82,7 +83,7 @@ class EpisodeWorker:
                            self.spec.search_paths, self.spec.objectives_dir)
         self.needs_world = any(getattr(type(n), "needs_world", False) for n in loaded.root.iterate())
         if self.needs_world:
-            world = create_world(self.spec.world or DEFAULT_WORLD, self._world_options(0, "none"))
+            world = create_world(self.spec.world or default_world_name(), self._world_options(0, "none"))
             if callable(getattr(world, "begin_episode", None)):
                 self.world = world
                 try:
@@ -133,7 +134,7 @@ class EpisodeWorker:
             if self.world is not None and self.policy is not None:
                 world = KeptWorld(self.world, self.policy, seed, self.spec.policy_latency)
             else:
-                world = create_world(self.spec.world or DEFAULT_WORLD, self._world_options(seed, self.spec.policy.text))
+                world = create_world(self.spec.world or default_world_name(), self._world_options(seed, self.spec.policy.text))
         if self.recordings is None or self.spec.record.value == "none":
             return EpisodeRecord.from_result(seed, run_tree(loaded, context, options, world=world))
         return self._run_recorded(seed, loaded, context, options, world)

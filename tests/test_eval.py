@@ -155,7 +155,9 @@ def test_crashed_hung_and_raising_episodes_are_errors_and_the_evaluation_goes_on
     assert "its worker died (signal SIGABRT; see logs/worker-" in crash["reason"]
     assert crash["reason"].endswith("2 attempts, each lost its worker") and crash["attempts"] == 2
     assert by_seed[2]["reason"].startswith("no result within 5 s of wall time (--episode-timeout): the episode hung")
-    assert by_seed[3]["reason"].startswith("RuntimeError: fault injected for seed 3 (at eval_faults.py:")
+    # An exception in a behavior ends the episode as the runner ends any run: ERROR, one paragraph.
+    assert "FaultBySeed: an unexpected RuntimeError in " in by_seed[3]["reason"]
+    assert "eval_faults.py:" in by_seed[3]["reason"] and "fault injected for seed 3" in by_seed[3]["reason"]
     assert by_seed[4]["failing_node"] == "FaultBySeed" and by_seed[4]["reason"] == "check missed by 0.043 m on seed 4"
     assert (summary["successes"], summary["failures"], summary["errors"]) == (2, 1, 3)
     assert summary["success_rate"] == pytest.approx(2 / 6, abs=1e-6)
