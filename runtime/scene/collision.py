@@ -300,10 +300,6 @@ class CollisionChecker:
                              "DynamicAABBTreeCollisionManager)") from None
         self._manager = manager_class(model, gm, self.geometry_data)
 
-    @property
-    def pair_count(self) -> int:
-        return len(self._pairs)
-
     def pairs(self) -> list[tuple[str, str, str]]:
         """``(kind, first, second)`` of every checked pair of geometries."""
         return [(p.kind, p.first, p.second) for p in self._pairs]
