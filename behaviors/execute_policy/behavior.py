@@ -382,15 +382,15 @@ class ExecutePolicy(Behavior):
             latency=self.metrics.latencies[-1],
         )
 
-    def _goal(self, samples: Samples, seam_time: float) -> Any:
+    def _goal(self, samples: Samples, seam_time_s: float) -> Any:
         c = self.config
         goal = FollowTrajectory.Goal()
         trajectory = JointTrajectory()
-        trajectory.header.stamp = time_msg(seam_time)
+        trajectory.header.stamp = time_msg(seam_time_s)
         trajectory.joint_names = list(self.safety.group_joints)
         for t, p, v, a in zip(samples.times, samples.positions, samples.velocities, samples.accelerations):
             trajectory.points.append(
-                JointTrajectoryPoint(positions=p.tolist(), velocities=v.tolist(), accelerations=a.tolist(), time_from_start=duration_msg(t - seam_time))
+                JointTrajectoryPoint(positions=p.tolist(), velocities=v.tolist(), accelerations=a.tolist(), time_from_start=duration_msg(t - seam_time_s))
             )
         goal.joint_trajectory = trajectory
         goal.path_tolerance = c.goal_path_tolerance

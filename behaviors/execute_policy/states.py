@@ -30,8 +30,9 @@ class Phase(enum.Enum):
 class StreamState(enum.Enum):
     SCHEDULING = "scheduling"  # nothing in flight or held: request when the next request step comes
     AWAITING_CHUNK = "awaiting_chunk"  # a request is in flight
-    HOLDING = "holding"  # a received chunk waits to be planned (its goal's predecessor is unanswered,
-    # or the motion still playing ends before the chunk could join it)
+    HOLDING = "holding"
+    """A received chunk waits to be planned: the previous goal is unanswered, or the motion still
+    playing ends before the chunk could join it."""
 
 
 class GoalState(enum.Enum):

@@ -1,6 +1,6 @@
 """Bookkeeping of one run's step grid: requests, seams and committed windows. Pure state.
 
-Step ``n`` of the run happens at ``origin + n * dt`` (origin = the first real request). A chunk
+Step ``n`` of the run happens at ``origin_s + n * dt`` (origin_s = the first real request). A chunk
 requested at step ``r`` covers steps ``r, r+1, ...``; it takes over at its seam step and
 contributes a committed window of at most ``committed_action_steps`` steps; the next chunk
 takes over where that window ends. Nothing here talks to the bus or the clock.
@@ -61,7 +61,7 @@ class StepGrid:
     """The run's step grid and what is committed on it. Immutable: ``commit`` returns the grid
     after a window, so the grid from before it is what a rollback goes back to."""
 
-    origin: float
+    origin_s: float
     dt: float
     committed_steps: int
     total_steps: int
@@ -70,13 +70,13 @@ class StepGrid:
     runout_steps: int = 0  # chunk steps the arm covers after committed_end when no chunk follows
 
     def time(self, step: int) -> float:
-        return self.origin + step * self.dt
+        return self.origin_s + step * self.dt
 
     def step_at_or_after(self, t: float) -> int:
-        return max(0, math.ceil((t - self.origin) / self.dt - 1e-9))
+        return max(0, math.ceil((t - self.origin_s) / self.dt - 1e-9))
 
     def step_at_or_before(self, t: float) -> int:
-        return max(0, math.floor((t - self.origin) / self.dt + 1e-9))
+        return max(0, math.floor((t - self.origin_s) / self.dt + 1e-9))
 
     @property
     def remaining(self) -> int:
