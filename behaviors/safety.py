@@ -32,10 +32,6 @@ class MotionSafety:
         """Collision rules and attachments now; checks with it ignore later rule changes."""
         return self.scene.snapshot()
 
-    def first_limit_violation(self, samples: Samples) -> str | None:
-        hit = self.limits.check(samples.positions, samples.velocities, samples.accelerations, samples.times)
-        return None if hit is None else str(hit)
-
     def first_value_out_of_limits(self, arm: np.ndarray, gripper: np.ndarray | None) -> LimitViolation | None:
         """The first step of a chunk, as the policy sent it, with a value outside its joint's
         position limits: the arm columns against the group's joints, the gripper column

@@ -1,7 +1,7 @@
 """Small shared pieces for behaviors that call services and actions without blocking."""
 from __future__ import annotations
 
-from typing import Any, Callable
+from typing import Callable
 
 from runtime.behavior import Behavior
 
@@ -26,10 +26,6 @@ def when_ready(is_ready: Callable[[], bool], deadline: Deadline, what: str) -> b
     if deadline.expired:
         return f"{what} is not available after {deadline.seconds:g} s"
     return False
-
-
-def result_or_none(future: Any) -> Any:
-    return future.result() if future is not None and future.done() else None
 
 
 def release_subscription(node: Behavior, attribute: str = "subscription") -> None:

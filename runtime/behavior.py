@@ -41,7 +41,8 @@ class RunContext:
     ``scene`` is the planning scene (None for trees that never move a robot); ``world`` is the
     simulated world when the run hosts one (behaviors must not reach into it: it exists for
     world-level nodes such as ResetSim and for the runner). ``resources`` holds per-run objects
-    that plug-ins share, keyed by name (e.g. the cell's waypoints).
+    that plug-ins share, keyed by name (e.g. the cell's waypoints). ``tick_period_s`` is the clock
+    time between two ticks of the tree (the runner's ``1 / tick_hz``).
     """
 
     clock: Clock
@@ -50,6 +51,7 @@ class RunContext:
     scene: Any = None
     world: Any = None
     seed: int = 0
+    tick_period_s: float = 0.01
     resources: dict[str, Any] = field(default_factory=dict)
     logger: logging.Logger = field(default_factory=lambda: logging.getLogger("objective"))
 

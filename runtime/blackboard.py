@@ -65,9 +65,6 @@ class Blackboard:
             raise KeyError(key)
         return board._entries[mapped]
 
-    def get_or(self, key: str, default: Any = None) -> Any:
-        return self.get(key) if self.has(key) else default
-
     def _owner(self, key: str) -> tuple[Blackboard, str]:
         """The blackboard that stores ``key``, and the key's name there."""
         board, mapped = self, key

@@ -406,9 +406,6 @@ class LoadedTree:
     file: Path | None
     nodes: list[LoadedNode]
 
-    def behaviours(self) -> list[py_trees.behaviour.Behaviour]:
-        return [n.node for n in self.nodes]
-
     def __post_init__(self) -> None:
         self._index = {id(loaded.node): loaded for loaded in self.nodes}
 

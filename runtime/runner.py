@@ -361,7 +361,7 @@ def run_tree(
         if options.ros:  # the policy comes from the ROS graph (an adapter), not from the world
             world_options.setdefault("policy", "none")
         world = create_world(options.world or default_world_name(), world_options)
-    period = 1.0 / options.tick_hz
+    period = context.tick_period_s = 1.0 / options.tick_hz  # the run's nodes read it from the context
     clock, bus = context.clock, context.bus
     ticks = 0
     blame: tuple[py_trees.behaviour.Behaviour, str] | None = None

@@ -739,8 +739,18 @@ def test_chunk_arriving_early_after_a_spike_joins_at_the_end_of_the_committed_mo
     # for at once with a large frozen prefix but arrives in 0.1 s, and joins without a pause.
     run = run_policy(registry, BASE, ScriptedPolicy(hold(velocity=np.array([0.1, 0, 0, 0, 0, 0]))), latency=SpikeAt(0.1, 2, 2.8))
     assert run.result.status == "SUCCESS", run.result.reason
-    seams = [round(e.data["seam_time"], 3) for e in run.context.events.of_kind("chunk_executed")]
-    assert len(seams) == 3 and run.summary["steps_executed"] == 60
+    executed = [e.data for e in run.context.events.of_kind("chunk_executed")]
+    requested = [e.data for e in run.context.events.of_kind("chunk_requested")][1:]  # the warmup's left out
+    assert len(executed) == 3 and run.summary["steps_executed"] == 60
+    first, spiked, early = executed
+    # Chunk 3's frozen prefix would put its seam 31 steps after its request; it takes over where
+    # chunk 2's window ends instead, ten steps sooner.
+    assert requested[2]["frozen_prefix_steps"] == 31
+    assert early["seam_step"] == spiked["seam_step"] + spiked["steps"] < requested[2]["request_step"] + 31
+    # The only pause of the run is the spike's, before chunk 2: none before chunk 3.
+    pause_before_chunk_2 = spiked["seam_time"] - (first["seam_time"] + first["steps"] * 0.1)
+    assert pause_before_chunk_2 == pytest.approx(2.7)
+    assert run.summary["stall_seconds"] == pytest.approx(pause_before_chunk_2, abs=1e-4)
 
 
 def test_halt_cancels_the_goal_and_the_robot_stops(registry):

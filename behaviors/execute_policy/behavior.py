@@ -1,16 +1,16 @@
-"""The ExecutePolicy behavior: one policy run as a state machine ticked by the tree.
+"""The ExecutePolicy behavior: wires the bus to the executor's states and its pure planner.
 
-Phases: STARTUP (wait for the service, the controller and gripper actions, every camera and the
-joint states; 5 s), WARMUP (one discarded request, ``new_episode=true``, that seeds the latency
-estimate), STREAM (request, shape, check, stitch, watch), then the run ends. Every chunk is
-smoothed, densified and blended into the committed motion (``shaping``), checked point by point
-against limits and the planning scene (``safety``), and only then sent to the admittance
-controller as a goal that takes over at the seam. Halting the node cancels the controller goal:
-the controller brings the arm to a smooth stop.
+Phases (``states.Phase``): STARTUP (wait for the service, the controller and gripper actions,
+every camera and the joint states; 5 s), WARMUP (one discarded request, ``new_episode=true``,
+that seeds the latency estimate), STREAM, then DONE. In STREAM each tick watches the controller
+goal (``states.GoalState``), streams the gripper column, then does what ``states.StreamState``
+says: send the next request when it is due, read an answered one, or plan a held chunk again.
+``planner.plan_chunk`` decides (Planned / Wait / Reject), ``checks.PointChecks`` checks every
+point, and only ``_send_goal`` sends a motion to the admittance controller. Halting the node
+cancels the controller goal: the controller brings the arm to a smooth stop.
 """
 from __future__ import annotations
 
-import enum
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -27,57 +27,25 @@ from runtime.ports import Direction
 from runtime.timestamps import duration_msg, time_msg
 
 from . import config as cfg
-from .chunk import ChunkError, read_chunk, read_policy_chunk
-from .observation import ObservationError, policy_tail, robot_state
-from ..safety import MotionSafety, SafetyError, make_safety
+from .checks import PointChecks
+from .chunk import Chunk, ChunkError, read_chunk, read_policy_chunk
 from .gripper import GripperGoal, follow_goals
-from .shaping import ChunkMotion, Samples, densify, fit_chunk, join_at_seam, runout_duration
-from .stream import StepGrid, Window, WindowError, drained_seconds
+from .observation import ObservationError, policy_tail, robot_state
+from .planner import PlanInput, Planned, Reject, ShapingConfig, earliest_seam_step, next_request_step, plan_chunk, stall_at_stop_s
+from .shaping import Samples
+from .states import Committed, Goal, GoalState, HeldChunk, InFlight, Phase, Rollback, StreamState, stream_finished, stream_state
+from .stream import StepGrid, Window
 from .timing import LatencyEstimate, frozen_prefix_steps, prefetch_margin, sizing_warning
+from ..safety import MotionSafety, SafetyError, make_safety
 
 STARTUP_WAIT_S = 5.0
-GRIPPER_MAX_EFFORT = 60.0  # N; the 2F-85 holds a 30 mm cube well below its 235 N maximum
-GRIPPER_DEADBAND = 0.01  # rad of the driver joint: smaller changes are not re-sent
-TICK_PERIOD = 0.01
+GRIPPER_MAX_EFFORT_N = 60.0  # the 2F-85 holds a 30 mm cube well below its 235 N maximum
+GRIPPER_DEADBAND_RAD = 0.01  # of the driver joint: smaller changes are not re-sent
 MAX_LATE_RETRIES = 3
 LATE_GOAL_CODES = (FollowTrajectory.Result.OLD_HEADER_TIMESTAMP, FollowTrajectory.Result.SEAM_AFTER_TRAJECTORY_END)
 """The controller's answers to a goal that reached it after its seam (decided by code, not text)."""
-GOAL_ACK_TIMEOUT = 5.0  # s: a controller that does not acknowledge a goal by then is gone
-SCENE_WATCH_PERIOD = 0.05  # s: how often the rest of the committed motion is checked against the live scene
-
-
-class Phase(enum.Enum):
-    STARTUP = "startup"
-    WARMUP = "warmup"
-    STREAM = "stream"
-    DONE = "done"
-
-
-@dataclass
-class InFlight:
-    """A request the policy has not answered yet."""
-
-    future: Any
-    sent_at: float
-    request_step: int
-    frozen: int
-    anchor: JointState
-
-
-@dataclass
-class _SentChunk:
-    """A chunk sent to the controller, and the stream state from before it was committed."""
-
-    chunk: Any
-    response: Any
-    flight: InFlight
-    committed_end: int
-    executed_until: int
-    runout_steps: int
-    motion: ChunkMotion | None
-    samples: Samples | None
-    goal_handle: Any  # the goal that was playing when this chunk was sent (None: the arm was at rest)
-    result_future: Any
+GOAL_ACK_TIMEOUT_S = 5.0  # a controller that does not acknowledge a goal by then is gone
+SCENE_WATCH_PERIOD_S = 0.05  # how often the rest of the committed motion is checked against the live scene
 
 
 @dataclass
@@ -130,26 +98,19 @@ class ExecutePolicy(Behavior):
         self.message = ""
         self.rejection = ""
         self.started_at = self.context.clock.now()
-        self.in_flight: InFlight | None = None
-        self.waiting_chunk: tuple[Any, Any, InFlight] | None = None
-        """A chunk that cannot be planned yet: the controller has not acknowledged the previous
-        goal, or the motion still playing ends before the chunk could join it (it starts from
-        rest once that motion finished)."""
-        self.goal_handle: Any = None
-        self.goal_result: Any = None
-        self.pending_goal: Any = None
-        self.goal_sent_at = 0.0
-        self.last_sent: _SentChunk | None = None
-        self.motion: ChunkMotion | None = None
-        self.samples: Samples | None = None
-        self.grid: StepGrid | None = None
+        # The STREAM phase's state (see ``states``): the policy side, the controller side and
+        # what is committed.
+        self.request: InFlight | None = None
+        self.held: HeldChunk | None = None
+        self.goal = Goal()
+        self.committed: Committed | None = None  # from the end of the warmup
+        self.rollback: Rollback | None = None  # kept until the controller accepts the seam
+        self.late_retries = 0  # of the chunk being sent
         self.latency = LatencyEstimate()
         self.goal_latency_s = 0.0
         """The slowest send -> accepted of a controller goal so far: zero in process, a tick or
         more over ROS."""
-        self.late_retries = 0  # of the chunk being sent
-        self.result_future: Any = None
-        self.next_scene_check = 0.0
+        self.next_scene_check_s = 0.0
         self.checked_scene: tuple[object, ...] | None = None  # what the committed samples were last checked against
         self.policy_chunk: np.ndarray | None = None
         self.policy_chunk_request_step = 0
@@ -166,6 +127,8 @@ class ExecutePolicy(Behavior):
             self.error = str(err)
             return
         c, bus = self.config, self.context.bus
+        self.shaping = ShapingConfig(c.dt, c.committed_action_steps, c.policy_tracking_weight, c.num_interpolation_points,
+                                     self.safety.limits.max_acceleration)
         self.policy = bus.create_client(c.policy_service_name, GetActionChunk)
         self.controller = bus.create_action_client(c.controller_action_name, FollowTrajectory)
         self.gripper = bus.create_action_client(c.gripper_command_action_name, GripperCommand) if c.has_gripper else None
@@ -227,10 +190,10 @@ class ExecutePolicy(Behavior):
 
     def _warmup(self) -> Status:
         c, now = self.config, self.context.clock.now()
-        flight = self.in_flight
+        flight = self.request
         assert flight is not None
         if not flight.future.done():
-            if now - flight.sent_at > c.policy_call_timeout:
+            if now - flight.sent_at_s > c.policy_call_timeout:
                 flight.future.cancel()
                 return self._finish(
                     Status.FAILURE,
@@ -238,23 +201,22 @@ class ExecutePolicy(Behavior):
                     "(raise policy_call_timeout, or make the server finish its own warmup before it reports ready)",
                 )
             return Status.RUNNING
-        self.in_flight = None
+        self.request = None
         try:
             response = flight.future.result()
         except Exception as exc:  # a transport failure of the warmup call
             return self._finish(Status.FAILURE, f"warming up the policy service '{c.policy_service_name}' failed: {exc}")
         if response.status == GetActionChunk.Response.ERROR or response.status == GetActionChunk.Response.UNKNOWN:
             return self._finish(Status.FAILURE, self._status_reason(response, "warmup"))
-        self.latency.update(now - flight.sent_at)
+        self.latency.update(now - flight.sent_at_s)
         self._check_sizing("measured latency")
-        self.grid = StepGrid(now, c.dt, c.committed_action_steps, c.total_action_steps)
+        self.committed = Committed(StepGrid(now, c.dt, c.committed_action_steps, c.total_action_steps))
         self.phase = Phase.STREAM
         self._send_request(new_episode=True, request_step=0, frozen=self._frozen())
         return Status.RUNNING
 
     def _stream(self) -> Status:
-        now, grid = self.context.clock.now(), self.grid
-        assert grid is not None
+        now = self.context.clock.now()
         status = self._watch_controller()
         if status is not None:
             return status
@@ -263,43 +225,54 @@ class ExecutePolicy(Behavior):
         if problem is not None:
             return self._stop(Status.FAILURE, problem)
         self._track_progress(now)
-        if self.waiting_chunk is not None:
-            chunk, response, flight = self.waiting_chunk
-            self.waiting_chunk = None
-            status = self._execute(chunk, response, flight, now)  # waits again while it cannot join
-            if status is not None:
-                return status
-        elif self.in_flight is not None:
+        state = stream_state(self.held, self.request)
+        if state is StreamState.HOLDING:
+            held, self.held = self.held, None
+            assert held is not None
+            status = self._plan_and_send(held, now)  # holds it again while it cannot join
+        elif state is StreamState.AWAITING_CHUNK:
             status = self._receive(now)
-            if status is not None:
-                return status
-        elif grid.remaining > 0:
-            self._maybe_request(now)
-        if self.samples is not None and now >= self.next_scene_check - 1e-9:
-            self.next_scene_check = now + SCENE_WATCH_PERIOD
-            scene_state = self._scene_state()
-            if scene_state != self.checked_scene:  # else the remaining samples were checked against this very scene
-                collision = self.safety.first_collision(self.rules, self._remaining_samples(now), self.config.link_padding, self._gripper_now())
-                if collision is not None:
-                    return self._stop(Status.FAILURE, f"the planning scene changed: {collision} in the remaining path; robot stopped")
-                self.checked_scene = scene_state
-        if grid.remaining == 0 and self.in_flight is None and self.goal_result is not None:
-            return self._stop(Status.SUCCESS, f"executed {grid.total_steps} steps")
+        else:
+            status = self._maybe_request(now)
+        if status is not None:
+            return status
+        status = self._watch_scene(now)
+        if status is not None:
+            return status
+        committed = self._committed()
+        if stream_finished(committed, self.request, self.goal):
+            return self._stop(Status.SUCCESS, f"executed {committed.grid.total_steps} steps")
         return Status.RUNNING
+
+    def _watch_scene(self, now: float) -> Status | None:
+        """Check the rest of the committed motion again when the planning scene has changed."""
+        samples = self._committed().samples
+        if samples is None or now < self.next_scene_check_s - 1e-9:
+            return None
+        self.next_scene_check_s = now + SCENE_WATCH_PERIOD_S
+        scene_state = self._scene_state()
+        if scene_state == self.checked_scene:  # the remaining samples were checked against this very scene
+            return None
+        collision = self.safety.first_collision(self.rules, _samples_from(samples, now), self.config.link_padding, self._gripper_now())
+        if collision is not None:
+            return self._stop(Status.FAILURE, f"the planning scene changed: {collision} in the remaining path; robot stopped")
+        self.checked_scene = scene_state
+        return None
 
     # -- requests and responses --------------------------------------------------------------
     def _frozen(self) -> int:
         est = self.metrics.latency_estimate_s = self.latency.seconds
-        return frozen_prefix_steps(est, self.config.dt, prefetch_margin(est, TICK_PERIOD) + 2 * self.goal_latency_s)
+        tick_s = self.context.tick_period_s
+        return frozen_prefix_steps(est, self.config.dt, prefetch_margin(est, tick_s) + 2 * self.goal_latency_s)
 
     def _maybe_request(self, now: float) -> None:
-        grid = self.grid
-        assert grid is not None
-        frozen = self._frozen()
-        ideal = grid.ideal_request_step(frozen)
-        if now + 1e-9 < grid.time(ideal):
+        grid = self._committed().grid
+        if grid.remaining == 0:
             return
-        self._send_request(new_episode=False, request_step=max(ideal, grid.step_at_or_before(now)), frozen=frozen)
+        frozen = self._frozen()
+        step = next_request_step(grid, frozen, now)
+        if step is not None:
+            self._send_request(new_episode=False, request_step=step, frozen=frozen)
 
     def _send_request(self, new_episode: bool, request_step: int, frozen: int) -> None:
         c = self.config
@@ -315,27 +288,27 @@ class ExecutePolicy(Behavior):
             request.previous_action_chunk = policy_tail(self.policy_chunk, request_step - self.policy_chunk_request_step)
             request.previous_anchor_state = self.previous_anchor
         now = self.context.clock.now()
-        self.in_flight = InFlight(self.policy.call_async(request), now, request_step, frozen, request.robot_state)
+        self.request = InFlight(self.policy.call_async(request), now, request_step, frozen, request.robot_state)
         self.context.events.emit("chunk_requested", self.name, request_step=request_step, frozen_prefix_steps=frozen)
 
     def _receive(self, now: float) -> Status | None:
-        c, flight = self.config, self.in_flight
+        c, flight = self.config, self.request
         assert flight is not None
         if not flight.future.done():
-            if now - flight.sent_at > c.policy_call_timeout:
+            if now - flight.sent_at_s > c.policy_call_timeout:
                 flight.future.cancel()
                 return self._stop(
                     Status.FAILURE,
                     f"the policy service '{c.policy_service_name}' did not answer within policy_call_timeout = {c.policy_call_timeout:g} s",
                 )
             return None
-        self.in_flight = None
+        self.request = None
         try:
             response = flight.future.result()
         except Exception as exc:
             return self._stop(Status.FAILURE, f"calling the policy service '{c.policy_service_name}' failed: {exc}")
-        self.latency.update(now - flight.sent_at)
-        self.metrics.latencies.append(now - flight.sent_at)
+        self.latency.update(now - flight.sent_at_s)
+        self.metrics.latencies.append(now - flight.sent_at_s)
         self._check_sizing("latency estimate", f" (the {self.latency.quantile * 100:.0f}th percentile of the last {len(self.latency.recent)} round trips)")
         if response.status == GetActionChunk.Response.NO_MORE_ACTIONS:
             return self._stop(Status.SUCCESS, f"the policy has no more actions: {response.message}".rstrip(": "))
@@ -351,143 +324,73 @@ class ExecutePolicy(Behavior):
         if problem is not None:
             return self._reject(f"chunk 1 rejected: {problem}")
         self.late_retries = 0
-        return self._execute(chunk, response, flight, now)
+        return self._plan_and_send(HeldChunk(chunk, response, flight), now)
 
-    def _execute(self, chunk: Any, response: Any, flight: InFlight, now: float) -> Status | None:
-        c, grid = self.config, self.grid
-        assert grid is not None
-        if self.pending_goal is not None:
-            # Whether the controller plays the previous goal decides how this chunk joins: wait
-            # for its answer (a refused goal rolls the stream back, see _retry_late_goal).
-            self.waiting_chunk = (chunk, response, flight)
+    def _plan_and_send(self, held: HeldChunk, now: float) -> Status | None:
+        """Plan ``held`` (``planner.plan_chunk``); send it, hold it, or end the run with its rejection."""
+        c, committed = self.config, self._committed()
+        grid = committed.grid
+        rest_position = None
+        if committed.motion is None:
+            state = robot_state(self.joint_states.latest, self.safety.group_joints, None, c.joint_states_topic)
+            rest_position = np.asarray(state.position, dtype=float)
+        plan = plan_chunk(PlanInput(
+            committed=committed,
+            goal=self.goal.state,
+            chunk=held.chunk,
+            index=self.metrics.chunks,
+            request_step=held.flight.request_step,
+            frozen=held.flight.frozen,
+            earliest_seam_step=earliest_seam_step(grid, now, self.context.tick_period_s, self.goal_latency_s),
+            rest_position=rest_position,
+            config=self.shaping,
+            checks=PointChecks(self.safety, self.rules, c.link_padding, self._gripper_now(), grid),
+        ))
+        if isinstance(plan, Reject):
+            return self._reject(plan.reason)
+        if not isinstance(plan, Planned):  # Wait
+            self.held = held
             return None
-        index = self.metrics.chunks
-        # The goal must reach the controller before its seam: one tick, plus twice the goal
-        # delivery time seen so far (zero in process; over ROS, transport and the next spin).
-        earliest = grid.step_at_or_after(now + TICK_PERIOD + 2 * self.goal_latency_s)
-        try:
-            window = grid.plan_window(index, flight.request_step, flight.frozen, chunk.steps, earliest)
-        except WindowError as err:
-            return self._reject(f"chunk {index} rejected: {err}")
-        # The values the window is built from, as the policy sent them (the gripper column too).
-        last = window.end_step - window.request_step + 1
-        outside = self.safety.first_value_out_of_limits(chunk.arm[:last], None if chunk.gripper is None else chunk.gripper[:last])
-        if outside is not None:
-            return self._reject(f"chunk {index} rejected: {outside} (policy step {window.request_step + outside.step} of the run)")
-        seam_time = grid.time(window.seam_step)
-        if self.motion is not None and seam_time > self.motion.rest_time + 1e-9 and self.goal_result is None:
-            # Too late to join the motion the controller is still playing (its runout included): a
-            # seam after its end would be refused ("seam time exceeds the end of the current
-            # trajectory"). Wait for the motion to finish; the chunk then starts from rest (a
-            # pause, counted as a stall).
-            self.waiting_chunk = (chunk, response, flight)
-            return None
-        start_p, start_v = self._state_at(seam_time)
-        spline = fit_chunk(chunk.arm, c.policy_tracking_weight)
-        motion = join_at_seam(
-            spline,
-            c.dt,
-            grid.time(window.request_step),
-            seam_time,
-            grid.time(window.end_step),
-            start_p,
-            start_v,
-            blend_duration=max(c.dt, 0.5 * window.steps * c.dt),
-            max_acceleration=self.safety.limits.max_acceleration,
-        )
-        if window.end_step >= grid.total_steps:
-            motion = motion.at_rest_at_end()
-        else:
-            motion = motion.with_runout(self._runout(motion, chunk, window))
-        # A chunk over the limits on its own is the policy's; the join is planned within them.
-        reason = self._limit_violation(densify(motion.chunk_alone(), c.num_interpolation_points), window)
-        if reason is not None:
-            return self._reject(f"chunk {index} rejected: {reason}")
-        samples = densify(motion, c.num_interpolation_points)
-        scene_state = self._scene_state()
-        reason = self._check(samples, window)
-        if reason is not None and motion.runout > 0:
-            # The runout only makes a late next chunk a gentle pause: when the chunk's path beyond
-            # its window is unsafe but the window is not, the window ends without one.
-            bare = motion.with_runout(0.0)
-            bare_samples = densify(bare, c.num_interpolation_points)
-            if self._check(bare_samples, window) is None:
-                motion, samples, reason = bare, bare_samples, None
-        if reason is not None:
-            return self._reject(f"chunk {index} rejected: {reason}")
-        goal_future = self.controller.send_goal_async(self._goal(samples, seam_time))
-        self.pending_goal, self.goal_sent_at = goal_future, now
-        # Drained until the seam: in the runout (slowing down), then at rest.
-        self.metrics.stall_seconds += drained_seconds(None if self.motion is None else self.motion.end, seam_time)
+        self._send_goal(held, plan, now)
+        return None
+
+    def _send_goal(self, held: HeldChunk, plan: Planned, now: float) -> None:
+        """Send the planned motion to the controller and commit it: the one place a motion is sent."""
+        c, window = self.config, plan.window
+        samples = plan.committed.samples
+        assert samples is not None
+        self.metrics.stall_seconds += plan.stall_s
         # Kept until the controller accepts the seam: a goal refused only for arriving late is
         # planned again from the same chunk (see _retry_late_goal).
-        self.last_sent = _SentChunk(chunk, response, flight, grid.committed_end, grid.executed_until, grid.runout_steps,
-                                    self.motion, self.samples, self.goal_handle, self.result_future)
-        self.motion, self.samples = motion, samples
-        self.checked_scene = scene_state
-        grid.commit(window, runout_steps=round(motion.runout / (2 * c.dt)))
-        self.goal_result = None
-        self.goal_handle = None
-        self._queue_gripper(chunk, window)
-        policy_chunk = read_policy_chunk(response.policy_action_chunk)
+        self.rollback = Rollback(held, self._committed(), self.goal)
+        self.checked_scene = self._scene_state()  # what the samples were checked against
+        self.goal = self.goal.sent(self.controller.send_goal_async(self._goal(samples, plan.seam_time_s)), now)
+        self.committed = plan.committed
+        self._queue_gripper(held.chunk, window)
+        policy_chunk = read_policy_chunk(held.response.policy_action_chunk)
         if c.policy_uses_real_time_chunking:
             self.policy_chunk, self.policy_chunk_request_step = policy_chunk, window.request_step
-            self.previous_anchor = flight.anchor
+            self.previous_anchor = held.flight.anchor
         self.context.events.emit(
             "chunk_executed",
             self.name,
-            chunk=index,
+            chunk=window.index,
             request_step=window.request_step,
             seam_step=window.seam_step,
             steps=window.steps,
-            seam_time=seam_time,
+            seam_time=plan.seam_time_s,
             latency=self.metrics.latencies[-1],
         )
-        return None
 
-    def _check(self, samples: Samples, window: Window) -> str | None:
-        violation = self._limit_violation(samples, window)
-        if violation is not None:
-            return violation
-        collision = self.safety.first_collision(self.rules, samples, self.config.link_padding, self._gripper_now())
-        return None if collision is None else f"densified {collision}"
-
-    def _limit_violation(self, samples: Samples, window: Window) -> str | None:
-        grid = self.grid
-        assert grid is not None
-        violation = self.safety.limits.check(samples.positions, samples.velocities, samples.accelerations, samples.times)
-        if violation is None:
-            return None
-        step = window.request_step + int(np.floor((violation.time - grid.time(window.request_step)) / self.config.dt + 1e-9))
-        return f"densified {violation} (policy step {step} of the run)"
-
-    def _state_at(self, t: float) -> tuple[np.ndarray, np.ndarray]:
-        """Position and velocity of the committed motion at ``t`` (at rest after it ends)."""
-        if self.motion is None:
-            state = robot_state(self.joint_states.latest, self.safety.group_joints, None, self.config.joint_states_topic)
-            return np.asarray(state.position, dtype=float), np.zeros(len(state.position))
-        if t > self.motion.rest_time + 1e-9:  # drained: the arm rests where the motion ended
-            p, _, _ = self.motion.evaluate(np.array([self.motion.rest_time]))
-            return p[0], np.zeros(p.shape[1])
-        p, v, _ = self.motion.evaluate(np.array([t]))
-        return p[0], v[0]
-
-    def _runout(self, motion: ChunkMotion, chunk: Any, window: Window) -> float:
-        """Seconds for the window's motion to come to rest along the chunk if no chunk follows."""
-        _, v_end, _ = motion.evaluate(np.array([motion.end]))
-        spare = chunk.steps - 1 - (window.end_step - window.request_step)
-        nominal = 0.5 * self.config.committed_action_steps * self.config.dt
-        return runout_duration(v_end[0], self.safety.limits.max_acceleration, self.config.dt, nominal, spare)
-
-    def _goal(self, samples: Samples, seam_time: float) -> Any:
+    def _goal(self, samples: Samples, seam_time_s: float) -> Any:
         c = self.config
         goal = FollowTrajectory.Goal()
         trajectory = JointTrajectory()
-        trajectory.header.stamp = time_msg(seam_time)
+        trajectory.header.stamp = time_msg(seam_time_s)
         trajectory.joint_names = list(self.safety.group_joints)
         for t, p, v, a in zip(samples.times, samples.positions, samples.velocities, samples.accelerations):
             trajectory.points.append(
-                JointTrajectoryPoint(positions=p.tolist(), velocities=v.tolist(), accelerations=a.tolist(), time_from_start=duration_msg(t - seam_time))
+                JointTrajectoryPoint(positions=p.tolist(), velocities=v.tolist(), accelerations=a.tolist(), time_from_start=duration_msg(t - seam_time_s))
             )
         goal.joint_trajectory = trajectory
         goal.path_tolerance = c.goal_path_tolerance
@@ -497,22 +400,22 @@ class ExecutePolicy(Behavior):
 
     # -- controller and gripper --------------------------------------------------------------
     def _watch_controller(self) -> Status | None:
-        pending = self.pending_goal
-        if pending is not None and not pending.done() and self.context.clock.now() - self.goal_sent_at > GOAL_ACK_TIMEOUT:
-            return self._stop(Status.FAILURE, f"the controller '{self.config.controller_action_name}' did not acknowledge "
-                                              f"a goal within {GOAL_ACK_TIMEOUT:g} s")
-        if pending is not None and pending.done():
-            self.pending_goal = None
-            self.goal_latency_s = max(self.goal_latency_s, pending.ready_at - self.goal_sent_at)  # arrival, not when we looked
-            handle = pending.result()
+        goal, name = self.goal, self.config.controller_action_name
+        if goal.state is GoalState.SENT:
+            if not goal.send_future.done():
+                if self.context.clock.now() - goal.sent_at_s > GOAL_ACK_TIMEOUT_S:
+                    return self._stop(Status.FAILURE, f"the controller '{name}' did not acknowledge a goal within {GOAL_ACK_TIMEOUT_S:g} s")
+                return None
+            # arrival, not when we looked
+            self.goal_latency_s = max(self.goal_latency_s, goal.send_future.ready_at - goal.sent_at_s)
+            handle = goal.send_future.result()
             if not handle.accepted:
-                return self._stop(Status.FAILURE, f"the controller '{self.config.controller_action_name}' rejected the goal")
-            self.goal_handle = handle
-            self.result_future = handle.get_result_async()
-        if self.goal_handle is not None and self.result_future.done():
-            outcome = self.result_future.result()
-            self.goal_handle = None
-            self.goal_result = outcome
+                self.goal = Goal()  # nothing of it is playing
+                return self._stop(Status.FAILURE, f"the controller '{name}' rejected the goal")
+            self.goal = goal = goal.accepted(handle)
+        if goal.state is GoalState.PLAYING and goal.result_future.done():
+            outcome = goal.result_future.result()
+            self.goal = goal.ended(outcome)
             if outcome.status == STATUS_ABORTED or outcome.result.error_code not in (0,):
                 if outcome.result.error_code == FollowTrajectory.Result.SUPERSEDED:
                     return None
@@ -526,34 +429,30 @@ class ExecutePolicy(Behavior):
     def _retry_late_goal(self, result: Any) -> bool:
         """A goal refused only because it reached the controller after its seam (a first goal on
         a new connection, a slow tick or a busy transport): the controller goes on with what it
-        was playing, the previous window and its runout, or rest. So plan the same chunk again
-        from there, now with the measured delivery time: it joins the runout, or starts from
-        rest. At most ``MAX_LATE_RETRIES`` times per chunk."""
-        sent = self.last_sent
-        late = result.error_code in LATE_GOAL_CODES
-        if not late or sent is None or self.late_retries >= MAX_LATE_RETRIES:
+        was playing, the previous window and its runout, or rest. So roll back to what was
+        committed before it and plan the same chunk again from there, now with the measured
+        delivery time: it joins the runout, or starts from rest. At most ``MAX_LATE_RETRIES``
+        times per chunk."""
+        sent = self.rollback
+        if result.error_code not in LATE_GOAL_CODES or sent is None or self.late_retries >= MAX_LATE_RETRIES:
             return False
         self.late_retries += 1
-        grid = self.grid
-        assert grid is not None
-        grid.committed_end, grid.executed_until, grid.runout_steps = sent.committed_end, sent.executed_until, sent.runout_steps
-        self.motion, self.samples = sent.motion, sent.samples
-        if sent.goal_handle is not None:  # still playing (or its result is waiting to be read)
-            self.goal_handle, self.result_future, self.goal_result = sent.goal_handle, sent.result_future, None
-        if self.waiting_chunk is not None:
+        self.committed = sent.committed
+        if sent.goal.state is GoalState.PLAYING:  # still playing (or its result is waiting to be read)
+            self.goal = sent.goal
+        if self.held is not None:
             # A newer chunk arrived while this goal was unanswered: it takes over from what the
             # arm actually does, and the refused one is dropped.
             self._warn(f"the controller received a goal after its seam ({result.error_string}); the next chunk takes over")
             return True
-        self.waiting_chunk = (sent.chunk, sent.response, sent.flight)  # planned again next tick
+        self.held = sent.held  # planned again next tick
         self._warn(f"the controller received a goal after its seam ({result.error_string}); planning the chunk again")
         return True
 
-    def _queue_gripper(self, chunk: Any, window: Window) -> None:
+    def _queue_gripper(self, chunk: Chunk, window: Window) -> None:
         if self.gripper is None or chunk.gripper is None:
             return
-        grid = self.grid
-        assert grid is not None
+        grid = self._committed().grid
         steps = range(window.seam_step, window.end_step)
         self.gripper_schedule = [(grid.time(s), float(chunk.gripper[s - window.request_step])) for s in steps]
 
@@ -563,27 +462,19 @@ class ExecutePolicy(Behavior):
             target = self.gripper_schedule.pop(0)[1]
         if target is None or self.gripper is None:
             return
-        if self.gripper_sent is not None and abs(target - self.gripper_sent) < GRIPPER_DEADBAND:
+        if self.gripper_sent is not None and abs(target - self.gripper_sent) < GRIPPER_DEADBAND_RAD:
             return
         goal = GripperCommand.Goal()
         goal.command.position = target
-        goal.command.max_effort = GRIPPER_MAX_EFFORT
+        goal.command.max_effort = GRIPPER_MAX_EFFORT_N
         self.gripper_goals.append(GripperGoal(target, self.gripper.send_goal_async(goal)))
         self.gripper_sent = target
 
     def _track_progress(self, now: float) -> None:
-        grid = self.grid
-        assert grid is not None
-        if self.motion is None:
+        committed = self._committed()
+        if committed.motion is None:
             return
-        executed = grid.executed_until - max(0, grid.committed_end - grid.step_at_or_before(now))
-        self.metrics.steps_executed = max(self.metrics.steps_executed, min(executed, grid.executed_until))
-
-    def _remaining_samples(self, now: float) -> Samples:
-        s = self.samples
-        assert s is not None
-        keep = s.times >= now
-        return Samples(s.times[keep], s.positions[keep], s.velocities[keep], s.accelerations[keep])
+        self.metrics.steps_executed = max(self.metrics.steps_executed, committed.grid.steps_executed_by(now))
 
     # -- endings -----------------------------------------------------------------------------
     def _reject(self, reason: str) -> Status:
@@ -593,10 +484,7 @@ class ExecutePolicy(Behavior):
         return self._stop(Status.FAILURE, reason)
 
     def _stop(self, status: Status, message: str) -> Status:
-        grid = self.grid
-        if grid is not None and grid.remaining > 0 and self.motion is not None:
-            # The run ends while the arm waits for a chunk: the wait so far is a stall too.
-            self.metrics.stall_seconds += drained_seconds(self.motion.end, self.context.clock.now())
+        self.metrics.stall_seconds += stall_at_stop_s(self.committed, self.context.clock.now())
         self._cancel_goals()
         return self._finish(status, message)
 
@@ -611,19 +499,18 @@ class ExecutePolicy(Behavior):
         return status
 
     def _cancel_goals(self) -> None:
-        if self.goal_handle is not None:
-            self.goal_handle.cancel_goal_async()
-            self.goal_handle = None
-        pending = self.pending_goal
-        if pending is not None and pending.done():
-            handle = pending.result()
+        goal = self.goal
+        if goal.state is GoalState.PLAYING:
+            goal.handle.cancel_goal_async()
+        elif goal.state is GoalState.SENT and goal.send_future.done():
+            handle = goal.send_future.result()
             if handle.accepted:
                 handle.cancel_goal_async()
-        self.pending_goal = None
-        if self.in_flight is not None:
-            self.in_flight.future.cancel()
-            self.in_flight = None
-        self.waiting_chunk = None
+        self.goal = Goal()
+        if self.request is not None:
+            self.request.future.cancel()
+            self.request = None
+        self.held = None
         self.gripper_schedule = []
 
     def _write_outputs(self) -> None:
@@ -648,6 +535,10 @@ class ExecutePolicy(Behavior):
         self.joint_states = None
 
     # -- small helpers -----------------------------------------------------------------------
+    def _committed(self) -> Committed:
+        assert self.committed is not None, "the STREAM phase starts with a committed state"
+        return self.committed
+
     def _scene_state(self) -> tuple[object, ...]:
         """What a collision check of the committed samples depends on, besides the samples."""
         gripper = self._gripper_now()
@@ -694,6 +585,12 @@ class ExecutePolicy(Behavior):
         for key in ("absolute_force_torque_threshold", "image_topics", "image_names"):
             values[key] = tuple(values[key])
         return cfg.PolicyRunConfig(**values)
+
+
+def _samples_from(samples: Samples, t: float) -> Samples:
+    """The samples at or after ``t``."""
+    keep = samples.times >= t
+    return Samples(samples.times[keep], samples.positions[keep], samples.velocities[keep], samples.accelerations[keep])
 
 
 NODES = (ExecutePolicy,)

@@ -152,6 +152,11 @@ class ChunkMotion:
         return replace(self, runout=max(0.0, float(seconds)), end_velocity=None)
 
 
+RUNOUT_SLOWDOWN = 2
+"""A runout plays the chunk at half speed on average: ``runout / (RUNOUT_SLOWDOWN * dt)`` chunk
+steps in ``runout / dt`` run steps."""
+
+
 def runout_warp(s: np.ndarray, runout: float, dt: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Chunk steps advanced since the window's end, their rate and its rate, at runout fraction ``s``.
 
@@ -175,10 +180,15 @@ def runout_duration(end_velocity: np.ndarray, max_acceleration: np.ndarray, dt: 
     speed = np.abs(np.asarray(end_velocity, dtype=float))
     with np.errstate(divide="ignore", invalid="ignore"):
         needed = float(np.max(np.where(speed > 0, 3.0 * speed / np.asarray(max_acceleration, dtype=float), 0.0), initial=0.0))
-    steps = math.ceil(max(nominal, needed) / (2 * dt) - 1e-9)
+    steps = math.ceil(max(nominal, needed) / (RUNOUT_SLOWDOWN * dt) - 1e-9)
     if steps < 1 or steps > spare_steps:
         return 0.0
-    return 2 * dt * steps
+    return RUNOUT_SLOWDOWN * dt * steps
+
+
+def runout_chunk_steps(runout_s: float, dt: float) -> int:
+    """Chunk steps a runout of ``runout_s`` seconds covers (it takes ``RUNOUT_SLOWDOWN`` run steps each)."""
+    return round(runout_s / (RUNOUT_SLOWDOWN * dt))
 
 
 POSITION_BLEND_PEAK = 10.0 / math.sqrt(3.0)

@@ -1,6 +1,6 @@
 """Bookkeeping of one run's step grid: requests, seams and committed windows. Pure state.
 
-Step ``n`` of the run happens at ``origin + n * dt`` (origin = the first real request). A chunk
+Step ``n`` of the run happens at ``origin_s + n * dt`` (origin_s = the first real request). A chunk
 requested at step ``r`` covers steps ``r, r+1, ...``; it takes over at its seam step and
 contributes a committed window of at most ``committed_action_steps`` steps; the next chunk
 takes over where that window ends. Nothing here talks to the bus or the clock.
@@ -8,11 +8,11 @@ takes over where that window ends. Nothing here talks to the bus or the clock.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
-from .shaping import runout_warp
+from .shaping import RUNOUT_SLOWDOWN, runout_warp
 
 
 @dataclass(frozen=True)
@@ -36,12 +36,13 @@ class Window:
 
 def runout_progress(steps_since_end: int, runout_steps: int) -> int:
     """Chunk steps (rounded) the arm has covered ``steps_since_end`` run steps into a runout
-    that covers ``runout_steps`` chunk steps in ``2 * runout_steps`` run steps."""
+    that covers ``runout_steps`` chunk steps in ``RUNOUT_SLOWDOWN * runout_steps`` run steps."""
     if runout_steps <= 0 or steps_since_end <= 0:
         return 0
-    if steps_since_end >= 2 * runout_steps:
+    run_steps = RUNOUT_SLOWDOWN * runout_steps
+    if steps_since_end >= run_steps:
         return runout_steps
-    covered, _, _ = runout_warp(np.array([steps_since_end / (2 * runout_steps)]), 2.0 * runout_steps, 1.0)
+    covered, _, _ = runout_warp(np.array([steps_since_end / run_steps]), float(run_steps), 1.0)
     return int(round(float(covered[0])))
 
 
@@ -55,9 +56,12 @@ class WindowError(ValueError):
     pass
 
 
-@dataclass
+@dataclass(frozen=True)
 class StepGrid:
-    origin: float
+    """The run's step grid and what is committed on it. Immutable: ``commit`` returns the grid
+    after a window, so the grid from before it is what a rollback goes back to."""
+
+    origin_s: float
     dt: float
     committed_steps: int
     total_steps: int
@@ -66,13 +70,13 @@ class StepGrid:
     runout_steps: int = 0  # chunk steps the arm covers after committed_end when no chunk follows
 
     def time(self, step: int) -> float:
-        return self.origin + step * self.dt
+        return self.origin_s + step * self.dt
 
     def step_at_or_after(self, t: float) -> int:
-        return max(0, math.ceil((t - self.origin) / self.dt - 1e-9))
+        return max(0, math.ceil((t - self.origin_s) / self.dt - 1e-9))
 
     def step_at_or_before(self, t: float) -> int:
-        return max(0, math.floor((t - self.origin) / self.dt + 1e-9))
+        return max(0, math.floor((t - self.origin_s) / self.dt + 1e-9))
 
     @property
     def remaining(self) -> int:
@@ -112,7 +116,11 @@ class StepGrid:
             )
         return Window(index, request_step, seam, steps)
 
-    def commit(self, window: Window, runout_steps: int = 0) -> None:
-        self.committed_end = window.end_step
-        self.executed_until += window.steps
-        self.runout_steps = runout_steps
+    def steps_executed_by(self, t: float) -> int:
+        """Committed steps the arm has played by ``t`` (the steps after ``t`` of the last window are not)."""
+        executed = self.executed_until - max(0, self.committed_end - self.step_at_or_before(t))
+        return min(executed, self.executed_until)
+
+    def commit(self, window: Window, runout_steps: int = 0) -> StepGrid:
+        """The grid once ``window`` is committed, followed by a runout of ``runout_steps`` chunk steps."""
+        return replace(self, committed_end=window.end_step, executed_until=self.executed_until + window.steps, runout_steps=runout_steps)

@@ -54,9 +54,9 @@ def frozen_prefix_steps(latency_s: float, dt: float, margin_s: float) -> int:
     return max(1, math.ceil((latency_s + margin_s) / dt - 1e-9))
 
 
-def prefetch_margin(latency_s: float, tick_period: float) -> float:
+def prefetch_margin(latency_s: float, tick_period_s: float) -> float:
     """Slack added to the latency estimate: two ticks plus a tenth of the estimate."""
-    return 2.0 * tick_period + 0.1 * latency_s
+    return 2.0 * tick_period_s + 0.1 * latency_s
 
 
 def window_covers_latency(committed_steps: int, dt: float, latency_s: float) -> bool:

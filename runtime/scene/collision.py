@@ -330,10 +330,6 @@ class CollisionChecker:
             self._coefficients = swept.pair_coefficients(radii, [(p.first, p.second) for p in gm.collisionPairs])
         self._swept_levels: dict[tuple[int, ...], list[_SweptLevel]] = {}
 
-    @property
-    def pair_count(self) -> int:
-        return len(self._pairs)
-
     def pairs(self) -> list[tuple[str, str, str]]:
         """``(kind, first, second)`` of every checked pair of geometries."""
         return [(p.kind, p.first, p.second) for p in self._pairs]

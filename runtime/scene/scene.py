@@ -110,15 +110,6 @@ class PlanningScene:
                 self._layouts[key] = self.robot.configuration_map(key[0], key[1], self._reference)
             return self._layouts[key]
 
-    def set_reference(self, q_full: np.ndarray) -> None:
-        """Values for joints no layout covers (and the gripper when a row omits it)."""
-        q = np.array(q_full, dtype=float)
-        if q.shape != (self.robot.model.nq,):
-            raise ValueError(f"reference configuration needs {self.robot.model.nq} values, got {q.shape}")
-        with self._lock:
-            self._reference = q
-            self._layouts.clear()
-
     def full_configuration(self, group_positions: Sequence[float], gripper_position: float | None = None,
                            layout: ConfigurationMap | None = None) -> np.ndarray:
         """Pinocchio's full ``q`` from group joint values (+ gripper value)."""

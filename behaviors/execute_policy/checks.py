@@ -1,0 +1,49 @@
+"""Where a point is checked: the chunk's values against the joints' position limits, and every
+densified point against the position, velocity and acceleration limits and the planning scene
+(self-collision, and world collision with ``link_padding``). Each check returns why the points
+fail as a sentence naming the run's policy step, or None.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from ..safety import MotionSafety
+from .chunk import Chunk
+from .shaping import Samples
+from .stream import StepGrid, Window
+
+
+@dataclass(frozen=True)
+class PointChecks:
+    safety: MotionSafety
+    rules: Any  # the scene's collision rules when the run started (``MotionSafety.snapshot``)
+    link_padding_m: float
+    gripper_position: float | None  # of the gripper joint now: the collision geometry's fingers
+    grid: StepGrid
+
+    def values(self, chunk: Chunk, window: Window) -> str | None:
+        """The values the window is built from, as the policy sent them (the gripper column too)."""
+        last = window.end_step - window.request_step + 1
+        outside = self.safety.first_value_out_of_limits(chunk.arm[:last], None if chunk.gripper is None else chunk.gripper[:last])
+        return None if outside is None else f"{outside} (policy step {window.request_step + outside.step} of the run)"
+
+    def limits(self, samples: Samples, window: Window) -> str | None:
+        violation = self.safety.limits.check(samples.positions, samples.velocities, samples.accelerations, samples.times)
+        if violation is None:
+            return None
+        step = window.request_step + int(np.floor((violation.time - self.grid.time(window.request_step)) / self.grid.dt + 1e-9))
+        return f"densified {violation} (policy step {step} of the run)"
+
+    def path(self, samples: Samples, window: Window) -> str | None:
+        """Limits first, then collisions."""
+        violation = self.limits(samples, window)
+        if violation is not None:
+            return violation
+        return self.collision(samples)
+
+    def collision(self, samples: Samples) -> str | None:
+        hit = self.safety.first_collision(self.rules, samples, self.link_padding_m, self.gripper_position)
+        return None if hit is None else f"densified {hit}"

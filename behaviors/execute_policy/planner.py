@@ -1,0 +1,177 @@
+"""Where a chunk's seam is planned: a pure function from the committed state, the chunk and the
+time to Planned / Wait / Reject. Nothing here talks to the bus or reads the clock.
+
+``plan_chunk`` picks the chunk's window on the step grid (``StepGrid.plan_window``), decides
+whether it can join the motion the controller plays or must wait, blends it into that motion
+(``shaping``), gives it a runout or brings the run's last window to rest, and has every
+densified point checked (``PlanInput.checks``, see ``checks.PointChecks``). A Planned result
+carries the grid after the commit; the caller keeps the grid from before it for a rollback.
+"""
+from __future__ import annotations
+
+import enum
+from dataclasses import dataclass
+from typing import Protocol
+
+import numpy as np
+
+from .chunk import Chunk
+from .shaping import ChunkMotion, Samples, densify, fit_chunk, join_at_seam, runout_chunk_steps, runout_duration
+from .states import Committed, GoalState
+from .stream import StepGrid, Window, WindowError, drained_seconds
+
+
+class Checks(Protocol):
+    """The point checks a plan must pass; each returns why it fails, or None."""
+
+    def values(self, chunk: Chunk, window: Window) -> str | None: ...
+    def limits(self, samples: Samples, window: Window) -> str | None: ...
+    def path(self, samples: Samples, window: Window) -> str | None: ...
+
+
+@dataclass(frozen=True)
+class ShapingConfig:
+    """The run's settings the planner uses (from ``config.PolicyRunConfig``)."""
+
+    dt: float
+    committed_action_steps: int
+    policy_tracking_weight: float
+    num_interpolation_points: int
+    max_acceleration: np.ndarray
+
+
+@dataclass(frozen=True)
+class PlanInput:
+    committed: Committed
+    goal: GoalState  # of the newest goal
+    chunk: Chunk
+    index: int  # chunk number, 1-based
+    request_step: int
+    frozen: int
+    earliest_seam_step: int  # the first step a goal sent now reaches the controller before
+    rest_position: np.ndarray | None  # the arm's position now; needed only before the first chunk
+    config: ShapingConfig
+    checks: Checks
+
+
+class WaitReason(enum.Enum):
+    GOAL_UNANSWERED = "the controller has not answered the previous goal"
+    MOTION_ENDS_FIRST = "the motion still playing ends before the chunk could join it"
+
+
+@dataclass(frozen=True)
+class Wait:
+    reason: WaitReason
+
+
+@dataclass(frozen=True)
+class Reject:
+    reason: str
+
+
+@dataclass(frozen=True)
+class Planned:
+    window: Window
+    seam_time_s: float
+    committed: Committed  # after the commit: the new grid, motion and samples
+    stall_s: float  # the arm drained the committed motion (runout, then rest) this long before the seam
+
+
+def plan_chunk(inp: PlanInput) -> Planned | Wait | Reject:
+    c, grid, chunk, index = inp.config, inp.committed.grid, inp.chunk, inp.index
+    if inp.goal is GoalState.SENT:
+        # Whether the controller plays the previous goal decides how this chunk joins (a refused
+        # goal rolls the stream back).
+        return Wait(WaitReason.GOAL_UNANSWERED)
+    try:
+        window = grid.plan_window(index, inp.request_step, inp.frozen, chunk.steps, inp.earliest_seam_step)
+    except WindowError as err:
+        return Reject(f"chunk {index} rejected: {err}")
+    outside = inp.checks.values(chunk, window)
+    if outside is not None:
+        return Reject(f"chunk {index} rejected: {outside}")
+    seam_time = grid.time(window.seam_step)
+    previous = inp.committed.motion
+    if previous is not None and seam_time > previous.rest_time + 1e-9 and inp.goal is not GoalState.ENDED:
+        # Too late to join the motion the controller is still playing (its runout included): a
+        # seam after its end would be refused. Wait for it to finish; the chunk then starts from
+        # rest (a pause, counted as a stall).
+        return Wait(WaitReason.MOTION_ENDS_FIRST)
+    start_p, start_v = state_at(previous, seam_time, inp.rest_position)
+    motion = join_at_seam(
+        fit_chunk(chunk.arm, c.policy_tracking_weight),
+        c.dt,
+        grid.time(window.request_step),
+        seam_time,
+        grid.time(window.end_step),
+        start_p,
+        start_v,
+        blend_duration=max(c.dt, 0.5 * window.steps * c.dt),
+        max_acceleration=c.max_acceleration,
+    )
+    if window.end_step >= grid.total_steps:
+        motion = motion.at_rest_at_end()
+    else:
+        motion = motion.with_runout(runout_s(motion, chunk, window, c))
+    # A chunk over the limits on its own is the policy's; the join is planned within them.
+    reason = inp.checks.limits(densify(motion.chunk_alone(), c.num_interpolation_points), window)
+    if reason is not None:
+        return Reject(f"chunk {index} rejected: {reason}")
+    samples = densify(motion, c.num_interpolation_points)
+    reason = inp.checks.path(samples, window)
+    if reason is not None and motion.runout > 0:
+        # The runout only makes a late next chunk a gentle pause: when the chunk's path beyond
+        # its window is unsafe but the window is not, the window ends without one.
+        bare = motion.with_runout(0.0)
+        bare_samples = densify(bare, c.num_interpolation_points)
+        if inp.checks.path(bare_samples, window) is None:
+            motion, samples, reason = bare, bare_samples, None
+    if reason is not None:
+        return Reject(f"chunk {index} rejected: {reason}")
+    stall = drained_seconds(None if previous is None else previous.end, seam_time)
+    new_grid = grid.commit(window, runout_steps=runout_chunk_steps(motion.runout, c.dt))
+    return Planned(window, seam_time, Committed(new_grid, motion, samples), stall)
+
+
+def state_at(motion: ChunkMotion | None, t: float, rest_position: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+    """Position and velocity of the committed motion at ``t`` (at rest after it ends; at
+    ``rest_position`` before the first chunk)."""
+    if motion is None:
+        assert rest_position is not None, "the arm's position is needed before the first chunk"
+        return rest_position, np.zeros(len(rest_position))
+    if t > motion.rest_time + 1e-9:  # drained: the arm rests where the motion ended
+        p, _, _ = motion.evaluate(np.array([motion.rest_time]))
+        return p[0], np.zeros(p.shape[1])
+    p, v, _ = motion.evaluate(np.array([t]))
+    return p[0], v[0]
+
+
+def runout_s(motion: ChunkMotion, chunk: Chunk, window: Window, c: ShapingConfig) -> float:
+    """Seconds for the window's motion to come to rest along the chunk if no chunk follows."""
+    _, v_end, _ = motion.evaluate(np.array([motion.end]))
+    spare = chunk.steps - 1 - (window.end_step - window.request_step)
+    nominal = 0.5 * c.committed_action_steps * c.dt
+    return runout_duration(v_end[0], c.max_acceleration, c.dt, nominal, spare)
+
+
+def next_request_step(grid: StepGrid, frozen: int, now_s: float) -> int | None:
+    """The step to request the next chunk for, once it is due (so it lands ``frozen`` steps
+    later, at the next seam); None before then. A late request asks for the step of now."""
+    ideal = grid.ideal_request_step(frozen)
+    if now_s + 1e-9 < grid.time(ideal):
+        return None
+    return max(ideal, grid.step_at_or_before(now_s))
+
+
+def earliest_seam_step(grid: StepGrid, now_s: float, tick_period_s: float, goal_latency_s: float) -> int:
+    """The first step a goal sent now can take over at: it must reach the controller before its
+    seam, so one tick plus twice the goal delivery time seen so far (zero in process; over ROS,
+    transport and the next spin)."""
+    return grid.step_at_or_after(now_s + tick_period_s + 2 * goal_latency_s)
+
+
+def stall_at_stop_s(committed: Committed | None, now_s: float) -> float:
+    """The wait so far when the run ends while the arm waits for a chunk (a stall too)."""
+    if committed is None or committed.grid.remaining == 0 or committed.motion is None:
+        return 0.0
+    return drained_seconds(committed.motion.end, now_s)

@@ -1,0 +1,118 @@
+"""ExecutePolicy's states: the run's phases, and in the STREAM phase the policy side, the
+controller side and what is committed. Immutable values; each transition returns a new one.
+
+- ``Phase``: STARTUP -> WARMUP -> STREAM -> DONE (any phase may end in DONE).
+- ``StreamState`` (policy side, what a STREAM tick does): SCHEDULING (send the next request when
+  its step comes) -> AWAITING_CHUNK (a request is in flight) -> SCHEDULING once its chunk is
+  sent to the controller, or HOLDING (the chunk cannot be planned yet) -> SCHEDULING.
+- ``GoalState`` (controller side): NONE -> SENT -> PLAYING -> ENDED, and SENT again with each
+  chunk; a goal refused for arriving late rolls back to the ``Rollback`` taken when it was sent.
+- The run succeeds when every step is committed, no request is in flight and the last goal ENDED.
+"""
+from __future__ import annotations
+
+import enum
+from dataclasses import dataclass, replace
+from typing import Any
+
+from .chunk import Chunk
+from .shaping import ChunkMotion, Samples
+from .stream import StepGrid
+
+
+class Phase(enum.Enum):
+    STARTUP = "startup"  # wait for the service, the actions, the cameras and the joint states
+    WARMUP = "warmup"  # one discarded request seeds the latency estimate
+    STREAM = "stream"  # request, plan, check, send, watch
+    DONE = "done"
+
+
+class StreamState(enum.Enum):
+    SCHEDULING = "scheduling"  # nothing in flight or held: request when the next request step comes
+    AWAITING_CHUNK = "awaiting_chunk"  # a request is in flight
+    HOLDING = "holding"
+    """A received chunk waits to be planned: the previous goal is unanswered, or the motion still
+    playing ends before the chunk could join it."""
+
+
+class GoalState(enum.Enum):
+    NONE = "none"  # no goal sent yet: the arm rests where the run found it
+    SENT = "sent"  # the newest goal is on its way; the controller has not accepted it yet
+    PLAYING = "playing"  # the controller plays the newest accepted goal; its result has not come
+    ENDED = "ended"  # the result came: the arm rests at the end of the committed motion (or a late goal was refused)
+
+
+@dataclass(frozen=True)
+class InFlight:
+    """A request the policy has not answered yet."""
+
+    future: Any
+    sent_at_s: float
+    request_step: int
+    frozen: int
+    anchor: Any  # the JointState sent with the request
+
+
+@dataclass(frozen=True)
+class HeldChunk:
+    """A chunk received and read, with the request it answers."""
+
+    chunk: Chunk
+    response: Any
+    flight: InFlight
+
+
+@dataclass(frozen=True)
+class Goal:
+    """The newest controller goal and what is known of it."""
+
+    state: GoalState = GoalState.NONE
+    send_future: Any = None  # SENT
+    sent_at_s: float = 0.0
+    handle: Any = None  # PLAYING
+    result_future: Any = None  # PLAYING
+    outcome: Any = None  # ENDED
+
+    def sent(self, send_future: Any, now_s: float) -> Goal:
+        return Goal(GoalState.SENT, send_future=send_future, sent_at_s=now_s)
+
+    def accepted(self, handle: Any) -> Goal:
+        return replace(self, state=GoalState.PLAYING, send_future=None, handle=handle, result_future=handle.get_result_async())
+
+    def ended(self, outcome: Any) -> Goal:
+        return Goal(GoalState.ENDED, sent_at_s=self.sent_at_s, outcome=outcome)
+
+
+@dataclass(frozen=True)
+class Committed:
+    """What the controller has been sent: the step grid with its committed windows, and the
+    committed motion and its densified samples (None before the first chunk)."""
+
+    grid: StepGrid
+    motion: ChunkMotion | None = None
+    samples: Samples | None = None
+
+
+@dataclass(frozen=True)
+class Rollback:
+    """A chunk sent to the controller, and the state from before it was committed: what a goal
+    refused for arriving late goes back to."""
+
+    held: HeldChunk
+    committed: Committed
+    goal: Goal
+
+
+def stream_state(held: HeldChunk | None, request: InFlight | None) -> StreamState:
+    """What the next STREAM tick does. A held chunk comes first: a late goal's rollback may hold
+    its chunk again while the next request is already in flight."""
+    if held is not None:
+        return StreamState.HOLDING
+    if request is not None:
+        return StreamState.AWAITING_CHUNK
+    return StreamState.SCHEDULING
+
+
+def stream_finished(committed: Committed, request: InFlight | None, goal: Goal) -> bool:
+    """Every step committed, no request in flight, and the last goal's result came."""
+    return committed.grid.remaining == 0 and request is None and goal.state is GoalState.ENDED

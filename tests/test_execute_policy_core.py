@@ -1,0 +1,228 @@
+"""ExecutePolicy's pure core without a world: the immutable step grid, the planner's
+Planned / Wait / Reject decisions, and the stream's named states and their transitions."""
+from dataclasses import dataclass
+
+import numpy as np
+import pytest
+
+from behaviors.execute_policy.chunk import Chunk
+from behaviors.execute_policy.planner import (
+    PlanInput,
+    Planned,
+    Reject,
+    ShapingConfig,
+    Wait,
+    WaitReason,
+    earliest_seam_step,
+    next_request_step,
+    plan_chunk,
+    stall_at_stop_s,
+)
+from behaviors.execute_policy.shaping import RUNOUT_SLOWDOWN, runout_chunk_steps, runout_duration
+from behaviors.execute_policy.states import (
+    Committed,
+    Goal,
+    GoalState,
+    HeldChunk,
+    InFlight,
+    StreamState,
+    stream_finished,
+    stream_state,
+)
+from behaviors.execute_policy.stream import StepGrid
+
+DT = 0.1
+SHAPING = ShapingConfig(dt=DT, committed_action_steps=20, policy_tracking_weight=300.0, num_interpolation_points=100,
+                        max_acceleration=np.full(2, 5.0))
+START = np.array([0.1, -0.2])
+
+
+@dataclass
+class FakeChecks:
+    """Checks that pass unless told otherwise; ``path_horizon_s`` fails paths that go past it."""
+
+    values_reason: str | None = None
+    limits_reason: str | None = None
+    path_horizon_s: float = float("inf")
+
+    def values(self, chunk, window):
+        return self.values_reason
+
+    def limits(self, samples, window):
+        return self.limits_reason
+
+    def path(self, samples, window):
+        return "beyond the horizon" if samples.times[-1] > self.path_horizon_s + 1e-9 else None
+
+
+def ramp(steps: int = 50, speed: float = 0.05) -> Chunk:
+    """A chunk from START moving joint 0 at ``speed`` rad per step."""
+    rows = START + np.outer(np.arange(steps) * speed, [1.0, 0.0])
+    return Chunk(rows, None)
+
+
+def plan(committed: Committed, chunk: Chunk, *, index=1, request_step=0, frozen=2, earliest=2,
+         goal=GoalState.NONE, checks=None) -> Planned | Wait | Reject:
+    return plan_chunk(PlanInput(committed, goal, chunk, index, request_step, frozen, earliest,
+                                START if committed.motion is None else None, SHAPING, checks or FakeChecks()))
+
+
+def first_plan(total_steps: int = 100) -> tuple[Committed, Planned]:
+    start = Committed(StepGrid(0.0, DT, 20, total_steps))
+    planned = plan(start, ramp())
+    assert isinstance(planned, Planned)
+    return start, planned
+
+
+# -- the step grid -------------------------------------------------------------------------
+def test_committing_a_window_returns_a_new_grid_and_leaves_the_old_one_for_a_rollback():
+    grid = StepGrid(0.0, DT, 20, 100)
+    window = grid.plan_window(1, request_step=0, frozen=3, chunk_steps=50, earliest_seam=3)
+    after = grid.commit(window, runout_steps=5)
+    assert (after.committed_end, after.executed_until, after.runout_steps) == (23, 20, 5)
+    assert (grid.committed_end, grid.executed_until, grid.runout_steps) == (0, 0, 0)
+    with pytest.raises(AttributeError):
+        grid.committed_end = 7  # type: ignore[misc]
+
+
+def test_steps_executed_count_what_the_arm_has_played_of_the_committed_windows():
+    grid = StepGrid(0.0, DT, 20, 100).commit(StepGrid(0.0, DT, 20, 100).plan_window(1, 0, 3, 50, 3))
+    assert [grid.steps_executed_by(t) for t in (0.3, 1.0, 2.3, 5.0)] == [0, 7, 20, 20]
+
+
+def test_the_next_request_is_due_frozen_steps_before_the_seam_and_late_asks_for_now():
+    grid = StepGrid(0.0, DT, 20, 100).commit(StepGrid(0.0, DT, 20, 100).plan_window(1, 0, 3, 50, 3))  # seam at 23
+    assert next_request_step(grid, frozen=4, now_s=1.85) is None
+    assert next_request_step(grid, frozen=4, now_s=1.9) == 19
+    assert next_request_step(grid, frozen=4, now_s=2.04) == 20
+
+
+def test_a_goal_sent_now_can_take_over_one_tick_plus_twice_its_delivery_time_later():
+    grid = StepGrid(0.0, DT, 20, 100)
+    assert earliest_seam_step(grid, now_s=1.0, tick_period_s=0.01, goal_latency_s=0.0) == 11
+    assert earliest_seam_step(grid, now_s=1.0, tick_period_s=0.01, goal_latency_s=0.1) == 13
+    assert earliest_seam_step(grid, now_s=1.0, tick_period_s=0.05, goal_latency_s=0.0) == 11
+    assert earliest_seam_step(grid, now_s=1.0, tick_period_s=0.1, goal_latency_s=0.0) == 11
+    assert earliest_seam_step(grid, now_s=1.0, tick_period_s=0.11, goal_latency_s=0.0) == 12
+
+
+def test_a_runout_covers_half_as_many_chunk_steps_as_run_steps():
+    assert RUNOUT_SLOWDOWN == 2
+    seconds = runout_duration(np.array([0.5, 0.0]), np.array([5.0, 5.0]), DT, nominal=1.0, spare_steps=30)
+    assert seconds == pytest.approx(1.0) and runout_chunk_steps(seconds, DT) == 5
+
+
+# -- the planner ---------------------------------------------------------------------------
+def test_the_first_chunk_starts_from_the_arm_at_rest_at_the_earliest_step():
+    start, planned = first_plan()
+    assert (planned.window.seam_step, planned.window.steps, planned.seam_time_s, planned.stall_s) == (2, 20, pytest.approx(0.2), 0.0)
+    motion = planned.committed.motion
+    p, v, _ = motion.evaluate(np.array([0.2]))
+    assert np.allclose(p[0], START, atol=1e-9) and np.allclose(v[0], 0.0, atol=1e-9)
+    assert planned.committed.grid.committed_end == 22 and planned.committed.grid.runout_steps == runout_chunk_steps(motion.runout, DT) > 0
+    assert start.grid.committed_end == 0 and start.motion is None  # the state before is untouched
+
+
+def test_a_chunk_waits_while_the_previous_goal_is_unanswered():
+    _, planned = first_plan()
+    assert plan(planned.committed, ramp(), index=2, request_step=19, goal=GoalState.SENT) == Wait(WaitReason.GOAL_UNANSWERED)
+
+
+def test_an_on_time_chunk_joins_at_the_end_of_the_committed_motion_without_a_stall():
+    _, first = first_plan()
+    second = plan(first.committed, ramp(), index=2, request_step=19, frozen=3, earliest=21, goal=GoalState.PLAYING)
+    assert isinstance(second, Planned)
+    assert (second.window.seam_step, second.window.first_chunk_step, second.stall_s) == (22, 3, 0.0)
+    assert second.committed.grid.executed_until == 40
+    p_join, v_join, _ = second.committed.motion.evaluate(np.array([2.2]))
+    p_prev, v_prev, _ = first.committed.motion.evaluate(np.array([2.2]))
+    assert np.allclose(p_join, p_prev, atol=1e-9) and np.allclose(v_join, v_prev, atol=1e-9)
+
+
+def test_a_chunk_too_late_to_join_the_playing_motion_waits_then_starts_from_rest_with_a_stall():
+    _, first = first_plan()
+    motion = first.committed.motion
+    late_step = int(np.ceil(motion.rest_time / DT)) + 1
+    waits = plan(first.committed, ramp(), index=2, request_step=19, frozen=3, earliest=late_step, goal=GoalState.PLAYING)
+    assert waits == Wait(WaitReason.MOTION_ENDS_FIRST)
+    planned = plan(first.committed, ramp(), index=2, request_step=19, frozen=3, earliest=late_step, goal=GoalState.ENDED)
+    assert isinstance(planned, Planned)
+    assert planned.window.seam_step == late_step
+    assert planned.stall_s == pytest.approx(late_step * DT - motion.end)
+
+
+def test_rejections_name_the_chunk_and_the_reason():
+    start = Committed(StepGrid(0.0, DT, 20, 100))
+    assert plan(start, ramp(), checks=FakeChecks(values_reason="j1 at 9 rad")) == Reject("chunk 1 rejected: j1 at 9 rad")
+    assert plan(start, ramp(), checks=FakeChecks(limits_reason="velocity of j1")) == Reject("chunk 1 rejected: velocity of j1")
+    _, first = first_plan()
+    short = plan(first.committed, ramp(steps=3), index=2, request_step=19, frozen=3, earliest=21, goal=GoalState.PLAYING)
+    assert isinstance(short, Reject) and short.reason.startswith("chunk 2 rejected: chunk 2 has 3 steps but takes over at its step 3")
+
+
+def test_a_path_unsafe_only_in_its_runout_is_sent_without_the_runout():
+    start = Committed(StepGrid(0.0, DT, 20, 100))
+    planned = plan(start, ramp(), checks=FakeChecks(path_horizon_s=2.2))  # the window ends at 2.2 s
+    assert isinstance(planned, Planned)
+    assert planned.committed.motion.runout == 0.0 and planned.committed.grid.runout_steps == 0
+    unsafe = plan(start, ramp(), checks=FakeChecks(path_horizon_s=1.0))
+    assert unsafe == Reject("chunk 1 rejected: beyond the horizon")
+
+
+def test_the_runs_last_window_ends_at_rest_without_a_runout():
+    _, planned = first_plan(total_steps=20)
+    motion = planned.committed.motion
+    _, v, _ = motion.evaluate(np.array([motion.end]))
+    assert motion.runout == 0.0 and np.allclose(v, 0.0, atol=1e-9)
+    assert planned.committed.grid.remaining == 0
+
+
+def test_a_run_that_stops_while_the_arm_waits_counts_the_wait_as_a_stall():
+    start, planned = first_plan()
+    end = planned.committed.motion.end
+    assert stall_at_stop_s(None, 9.0) == 0.0 and stall_at_stop_s(start, 9.0) == 0.0
+    assert stall_at_stop_s(planned.committed, end + 0.7) == pytest.approx(0.7)
+    _, last = first_plan(total_steps=20)
+    assert stall_at_stop_s(last.committed, 9.0) == 0.0  # every step committed: nothing waits
+
+
+# -- the stream's states -------------------------------------------------------------------
+class FakeHandle:
+    def __init__(self):
+        self.result = object()
+
+    def get_result_async(self):
+        return self.result
+
+
+def test_goal_states_go_sent_playing_ended_and_each_transition_returns_a_new_value():
+    none = Goal()
+    sent = none.sent("send-future", 1.5)
+    handle = FakeHandle()
+    playing = sent.accepted(handle)
+    ended = playing.ended("outcome")
+    assert [g.state for g in (none, sent, playing, ended)] == [GoalState.NONE, GoalState.SENT, GoalState.PLAYING, GoalState.ENDED]
+    assert (sent.send_future, sent.sent_at_s) == ("send-future", 1.5)
+    assert (playing.handle, playing.result_future, playing.send_future) == (handle, handle.result, None)
+    assert (ended.outcome, ended.handle, ended.result_future) == ("outcome", None, None)
+    assert none.state is GoalState.NONE and sent.state is GoalState.SENT  # unchanged
+
+
+def test_stream_state_holding_comes_before_awaiting_and_scheduling():
+    flight = InFlight(None, 0.0, 0, 2, None)
+    held = HeldChunk(ramp(), None, flight)
+    assert stream_state(None, None) is StreamState.SCHEDULING
+    assert stream_state(None, flight) is StreamState.AWAITING_CHUNK
+    assert stream_state(held, None) is StreamState.HOLDING
+    assert stream_state(held, flight) is StreamState.HOLDING
+
+
+def test_the_stream_is_finished_when_all_steps_are_committed_nothing_is_asked_and_the_goal_ended():
+    _, last = first_plan(total_steps=20)
+    ended = Goal().sent("f", 0.0).accepted(FakeHandle()).ended("ok")
+    flight = InFlight(None, 0.0, 0, 2, None)
+    assert stream_finished(last.committed, None, ended)
+    assert not stream_finished(last.committed, flight, ended)
+    assert not stream_finished(last.committed, None, Goal().sent("f", 0.0).accepted(FakeHandle()))
+    _, partial = first_plan(total_steps=100)
+    assert not stream_finished(partial.committed, None, ended)
