@@ -12,6 +12,13 @@ from runtime.scene import ConfigurationMap, GroupError, JointLimit, JointLimits,
 from .execute_policy.shaping import Samples
 
 
+GRIPPER_TARGET_TOLERANCE_RAD = 0.01
+"""A gripper target this close outside the gripper joint's limits is taken as the limit: a learned
+policy's gripper output is continuous and lands a hair beyond the range (-0.0002 rad from a
+LeRobot policy for "open"), where the fingers cannot go anyway. Further out it is the policy's
+error, and the chunk is rejected like an arm joint out of its limits."""
+
+
 class SafetyError(ValueError):
     """The scene cannot check this group: unknown group, several tips, missing limits..."""
 
@@ -31,6 +38,16 @@ class MotionSafety:
     def snapshot(self) -> SceneSnapshot:
         """Collision rules and attachments now; checks with it ignore later rule changes."""
         return self.scene.snapshot()
+
+    def settle_gripper_column(self, gripper: np.ndarray | None) -> np.ndarray | None:
+        """The gripper column with targets at most ``GRIPPER_TARGET_TOLERANCE_RAD`` outside the
+        gripper joint's limits moved onto the limit; values further out (or NaN) are left as
+        they are, for the limit check to reject."""
+        if gripper is None or self.gripper_joint is None:
+            return gripper
+        limit = self.chunk_limits[self.gripper_joint]
+        near = (gripper >= limit.lower - GRIPPER_TARGET_TOLERANCE_RAD) & (gripper <= limit.upper + GRIPPER_TARGET_TOLERANCE_RAD)
+        return np.where(near, np.clip(gripper, limit.lower, limit.upper), gripper)
 
     def first_value_out_of_limits(self, arm: np.ndarray, gripper: np.ndarray | None) -> LimitViolation | None:
         """The first step of a chunk, as the policy sent it, with a value outside its joint's

@@ -345,6 +345,28 @@ def test_a_gripper_column_100_times_too_large_is_rejected_like_an_arm_joint(regi
     assert goals == [] and run.world.cell.gripper == 0.0  # nothing reached the gripper
 
 
+@pytest.mark.parametrize("sent, expected", [(-0.0002, 0.0), (-0.0099, 0.0), (0.8099, 0.8)])
+def test_a_gripper_target_a_hair_outside_the_limits_is_taken_as_the_limit(registry, sent, expected):
+    """A learned policy's "open" comes out as -0.0002 rad (found with LeRobot's SmolVLA): within
+    GRIPPER_TARGET_TOLERANCE_RAD it is the limit, and that is what the gripper is sent."""
+    goals: list[float] = []
+    hook = record_gripper_goals(goals)
+    try:
+        run = run_policy(registry, f"{BASE} {GRIPPER_PORTS}", ScriptedPolicy(with_gripper(sent)), before=hook)
+    finally:
+        hook.restore()
+    assert run.result.status == "SUCCESS", run.result.reason
+    assert run.summary["rejections"] == 0 and set(goals) <= {expected}
+
+
+def test_a_gripper_target_beyond_the_tolerance_is_rejected(registry):
+    run = run_policy(registry, f"{BASE} {GRIPPER_PORTS}", ScriptedPolicy(with_gripper(-0.0101)))
+    assert run.result.status == "FAILURE"
+    assert run.result.reason == (
+        f"chunk 1 rejected: step 0: joint {GRIPPER} position -0.0101 rad below the limit 0.0000 rad (policy step 1 of the run)"
+    )
+
+
 def test_a_gripper_goal_the_controller_refuses_fails_the_run_with_the_reason(registry, monkeypatch):
     """A controller whose range is narrower than the model's refuses 0.7 rad: on main the
     refusal was never read and the run went on."""

@@ -318,6 +318,7 @@ class ExecutePolicy(Behavior):
         self._check_period(response.native_control_period)
         try:
             chunk = read_chunk(response.chunk, self.safety.group_joints, c.gripper_joint_name or None)
+            chunk = Chunk(chunk.arm, self.safety.settle_gripper_column(chunk.gripper))
         except ChunkError as err:
             return self._reject(f"chunk {self.metrics.chunks} rejected: {err}")
         problem = cfg.committed_window_problem(c.committed_action_steps, chunk.steps) if self.metrics.chunks == 1 else None
