@@ -21,16 +21,6 @@ import pytest
 pytestmark = pytest.mark.timeout(300)
 
 ROOT = Path(__file__).resolve().parents[1]
-MOVE_TO_OBSERVE = """<root BTCPP_format="4" main_tree_to_execute="Observe">
-  <BehaviorTree ID="Observe">
-    <Sequence>
-      <SwitchController activate_controllers="joint_trajectory_admittance_controller"
-                        deactivate_controllers="velocity_force_controller"/>
-      <SubTree ID="Move to Waypoint" waypoint_name="Observe"/>
-    </Sequence>
-  </BehaviorTree>
-</root>
-"""
 
 
 def _run(cmd: list[str], cwd: Path, timeout: float = 120) -> subprocess.CompletedProcess[str]:
@@ -71,7 +61,6 @@ def installed(tmp_path_factory) -> Path:
 def outside(tmp_path) -> Path:
     """A directory outside the checkout holding copies of the Objectives the tests run."""
     shutil.copy(ROOT / "objectives" / "stack_cubes.xml", tmp_path / "stack_cubes.xml")
-    (tmp_path / "observe.xml").write_text(MOVE_TO_OBSERVE)
     return tmp_path
 
 
@@ -88,9 +77,9 @@ def test_validate_finds_the_subtree_library_without_the_checkout(installed, outs
     assert proc.stdout.strip() == "ok: stack_cubes.xml: Stack Cubes (15 nodes), Prepare for Policy (8 nodes)"
 
 
-def test_a_subtree_using_objective_runs_on_the_kinematic_world(installed, outside):
-    proc = _run([str(installed / "objective"), "run", "observe.xml", "--world", "kinematic", "--json",
-                 "--max-seconds", "30"], cwd=outside)
+def test_the_stacking_objective_runs_on_the_kinematic_world(installed, outside):
+    proc = _run([str(installed / "objective"), "run", "stack_cubes.xml", "--world", "kinematic", "--json",
+                 "--max-seconds", "60"], cwd=outside)
     assert proc.returncode == 0, proc.stderr
     summary = json.loads(proc.stdout.strip().splitlines()[-1])
     assert summary["status"] == "SUCCESS"
