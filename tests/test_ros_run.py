@@ -198,10 +198,11 @@ def test_execute_policy_over_ros_calls_a_policy_served_by_another_node(ros_env):
     def policy(request: Any) -> Any:
         """Chunks that hold the observed state (a still arm is a valid motion).
 
-        The warmup answers after 0.3 s: it seeds ExecutePolicy's latency estimate (which only
-        grows), so every later chunk is requested 0.4 s before its seam. A loaded test machine
-        can stall the runner for a tenth of a second; this keeps such a stall from making a chunk
-        miss its seam, which is not what this test is about.
+        The warmup answers after 0.3 s: it seeds ExecutePolicy's latency estimate, so the first
+        chunks are requested early. The estimate is the 90th percentile of recent round trips, so
+        after ten fast calls the warmup no longer counts, and a loaded machine that stalls the
+        real-time runner can make a chunk miss its seam by a few ticks: a pause
+        (``stall_seconds``), not what this test is about, so only a long one fails it.
         """
         requests.append(request)
         if len(requests) == 1:
@@ -225,7 +226,7 @@ def test_execute_policy_over_ros_calls_a_policy_served_by_another_node(ros_env):
     assert list(requests[1].robot_state.name) == ARM + [GRIPPER]
     latency = result.extra["execute_policy"]
     assert 0.0 < latency["latency_p50_s"] < 0.3  # a real round trip over DDS, measured on the wall clock
-    assert latency["stall_seconds"] == 0.0 and result.wall_seconds < 20.0
+    assert latency["stall_seconds"] <= 0.5 and result.wall_seconds < 20.0
 
 
 def test_a_failing_execute_policy_s_cancel_reaches_the_hosted_controller(ros_env, monkeypatch, capfd):
