@@ -21,6 +21,7 @@ from mcap_ros2.decoder import DecoderFactory
 
 from runtime.cli import main
 from runtime.recording.scene_view import LinkTree, TfEncoder, object_markers, stamp_of
+from runtime.recording.mcap_writer import LATCHED_QOS, SENSOR_DATA_QOS, OfferedQos
 from runtime.report.data import clock_origin_ns
 from tests.test_recording import CAMERAS, POLICY_XML, read_events, read_mcap, record_run
 
@@ -87,6 +88,8 @@ def test_the_directory_is_a_rosbag2_bag(recorded):
     joint_states = per_topic["/joint_states"]["topic_metadata"]
     assert joint_states["type"] == "sensor_msgs/msg/JointState" and joint_states["serialization_format"] == "cdr"
     assert joint_states["offered_qos_profiles"][0]["reliability"] == "reliable"
+    for qos in (OfferedQos(), SENSOR_DATA_QOS, LATCHED_QOS):  # the channel text and the bag's data agree
+        assert yaml.safe_load(qos.yaml()) == [qos.profile()]
 
 
 def test_schemas_carry_constants_from_the_installed_definitions(recorded):

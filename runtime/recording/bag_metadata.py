@@ -29,7 +29,7 @@ def bag_metadata(relative_path: str, topics: dict[str, tuple[str, Any]], counts:
         "message_count": total,
         "topics_with_message_count": [
             {"topic_metadata": {"name": name, "type": type_, "serialization_format": "cdr",
-                                "offered_qos_profiles": yaml.safe_load(qos.yaml()), "type_description_hash": ""},
+                                "offered_qos_profiles": [qos.profile()], "type_description_hash": ""},
              "message_count": counts.get(name, 0)}
             for name, (type_, qos) in topics.items()],
         "compression_format": "",

@@ -41,6 +41,14 @@ class OfferedQos:
     transient_local: bool = False
     depth: int = 10
 
+    def profile(self) -> dict[str, Any]:
+        """The profile as data (``metadata.yaml`` carries it so); ``yaml()`` is its text."""
+        infinite = {"sec": 9223372036, "nsec": 854775807}
+        return {"history": "keep_last", "depth": self.depth, "reliability": "reliable" if self.reliable else "best_effort",
+                "durability": "transient_local" if self.transient_local else "volatile", "deadline": infinite,
+                "lifespan": infinite, "liveliness": "automatic", "liveliness_lease_duration": infinite,
+                "avoid_ros_namespace_conventions": False}
+
     def yaml(self) -> str:
         """rosbag2's (Jazzy) ``offered_qos_profiles`` text: a list of one profile."""
         return (

@@ -37,9 +37,10 @@ TF_STATIC_TOPIC = "/tf_static"
 ROBOT_MARKERS_TOPIC = "/robot_markers"
 SCENE_MARKERS_TOPIC = "/planning_scene_markers"
 
-SCENE_MARKERS_PERIOD_S = 0.1
+SCENE_MARKERS_PERIOD_S = 0.2
 """The scene's objects are sent at most this often (clock time): cubes pushed by the gripper
-change the scene at every physics step, and 10 Hz is smooth enough to watch."""
+change the scene at every physics step, and 5 Hz is enough to watch (a carried cube is drawn in
+its link's frame, so it follows /tf at the joint states' rate)."""
 
 ROBOT_RGBA = (0.62, 0.66, 0.72, 1.0)
 TABLE_RGBA = (0.55, 0.42, 0.30, 1.0)
