@@ -17,12 +17,17 @@ import argparse
 import contextlib
 import json
 import logging
+import os
 import signal
 import sys
 from importlib.metadata import entry_points
 from pathlib import Path
 from typing import Any, Sequence
 from xml.sax.saxutils import escape, quoteattr
+
+# Runs are headless: MuJoCo (loaded by the planning scene and the simulated cell) renders
+# offscreen unless the user chose a GL backend. Its backend is fixed when it is first imported.
+os.environ.setdefault("MUJOCO_GL", "egl")
 
 from .command import COMMAND_GROUP, EXIT_BAD_INPUT, EXIT_FAILURE, EXIT_SUCCESS, Command
 from .errors import ObjectiveError

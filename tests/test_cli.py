@@ -259,6 +259,21 @@ def test_console_script_exit_codes(tmp_path):
     assert "Traceback" not in results["bad"][2]
 
 
+def test_the_mujoco_cell_renders_without_mujoco_gl_set(tmp_path):
+    """A user who never heard of MUJOCO_GL: the cameras still render (offscreen, EGL) instead of
+    the run failing on an OpenGL context (seen before the CLI set the default)."""
+    exe = Path(sys.executable).parent / "objective"
+    if not exe.exists():
+        pytest.skip("the project is not installed in this environment (pip install -e .)")
+    env = {k: v for k, v in os.environ.items() if k != "MUJOCO_GL"}
+    env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+    proc = subprocess.run([str(exe), "run", "objectives/stack_cubes.xml", "--max-seconds", "1.5", "--json"],
+                          capture_output=True, text=True, env=env, timeout=300, cwd=Path(__file__).resolve().parents[1])
+    summary = json.loads(proc.stdout.strip().splitlines()[-1])
+    assert proc.returncode == 1 and summary["reason"].startswith("stopped after --max-seconds 1.5 s"), proc.stderr
+    assert summary["execute_policy"]["chunks"] >= 1  # the policy was asked, with rendered camera frames
+
+
 # --------------------------------------------------------------------------------------------
 # Commands and the default world come from entry points (the composition root's configuration)
 # --------------------------------------------------------------------------------------------
