@@ -22,21 +22,21 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from geometry_msgs.msg import Point, Pose, PoseStamped
+from geometry_msgs.msg import Pose, PoseStamped
 from scipy.spatial.transform import Rotation
 from sensor_msgs.msg import JointState
-from std_msgs.msg import ColorRGBA
-from visualization_msgs.msg import Marker, MarkerArray
+from visualization_msgs.msg import MarkerArray
 
 from runtime.behavior import Behavior, Condition, Status
-from runtime.timestamps import duration_msg, time_msg
+from runtime.timestamps import time_msg
 from runtime.ports import InputPort, OutputPort, PortType, Range
+
+from .visualization import axis_markers, text_marker
 
 WORLD_FRAME = "world"
 WORLD_ALIASES = (WORLD_FRAME, "universe")
 JOINT_STATES_TOPIC = "/joint_states"
 MARKER_TOPIC = "/visual_markers"
-AXIS_COLORS = ((1.0, 0.0, 0.0), (0.0, 0.8, 0.0), (0.0, 0.0, 1.0))  # x, y, z
 
 
 # -- pure math -------------------------------------------------------------------------------
@@ -137,32 +137,15 @@ def stack_check(
 # -- the robot's current state and where frames are ---------------------------------------------
 def pose_markers(pose: PoseStamped, namespace: str, text: str, size_m: float, lifetime_s: float) -> MarkerArray:
     """A pose drawn as three arrows (x red, y green, z blue) of length ``size_m`` from its origin,
-    plus ``text`` above it when not empty; ``lifetime_s`` 0 keeps them until they are replaced
-    (same ``namespace`` and ids)."""
+    plus ``text`` above it when not empty (``behaviors.visualization``'s markers, as VisualizePose
+    draws them); ``lifetime_s`` 0 keeps them until they are replaced (same ``namespace`` and ids)."""
     if not size_m > 0:
         raise ValueError(f"marker_size must be a positive length in metres, got {size_m}")
     if not lifetime_s >= 0:
         raise ValueError(f"marker_lifetime must be 0 (forever) or a positive number of seconds, got {lifetime_s}")
-    matrix = pose_to_matrix(pose.pose)
-    origin = matrix[:3, 3]
-    markers = []
-    for axis, rgb in enumerate(AXIS_COLORS):
-        tip = origin + matrix[:3, axis] * size_m
-        arrow = Marker(ns=namespace, id=axis, type=Marker.ARROW, action=Marker.ADD)
-        arrow.points = [Point(x=float(origin[0]), y=float(origin[1]), z=float(origin[2])), Point(x=float(tip[0]), y=float(tip[1]), z=float(tip[2]))]
-        arrow.scale.x, arrow.scale.y, arrow.scale.z = size_m * 0.1, size_m * 0.2, size_m * 0.3  # shaft and head diameters, head length
-        arrow.color = ColorRGBA(r=rgb[0], g=rgb[1], b=rgb[2], a=1.0)
-        markers.append(arrow)
+    markers = axis_markers(namespace, 0, pose, size_m, lifetime_s)
     if text:
-        label = Marker(ns=namespace, id=len(AXIS_COLORS), type=Marker.TEXT_VIEW_FACING, action=Marker.ADD, text=text)
-        label.pose.position = Point(x=float(origin[0]), y=float(origin[1]), z=float(origin[2] + size_m * 1.2))
-        label.pose.orientation.w = 1.0
-        label.scale.z = size_m * 0.4  # text height
-        label.color = ColorRGBA(r=1.0, g=1.0, b=1.0, a=1.0)
-        markers.append(label)
-    for marker in markers:
-        marker.header = pose.header
-        marker.lifetime = duration_msg(lifetime_s)
+        markers.append(text_marker(namespace, len(markers), pose, text, size_m, lifetime_s))
     return MarkerArray(markers=markers)
 
 

@@ -46,7 +46,7 @@ def axis_markers(namespace: str, first_id: int, pose: PoseStamped, size_m: float
         marker.header = pose.header
         marker.pose.orientation.w = 1.0
         marker.points = [Point(x=start.x, y=start.y, z=start.z), Point(x=start.x + direction[0], y=start.y + direction[1], z=start.z + direction[2])]
-        marker.scale = Vector3(x=size_m * 0.1, y=size_m * 0.2, z=0.0)
+        marker.scale = Vector3(x=size_m * 0.1, y=size_m * 0.2, z=size_m * 0.3)  # shaft and head diameters, head length
         marker.color = ColorRGBA(r=color[0], g=color[1], b=color[2], a=1.0)
         marker.lifetime = _lifetime(lifetime_s)
         markers.append(marker)
