@@ -15,7 +15,8 @@ import math
 from dataclasses import dataclass, replace
 
 import numpy as np
-from scipy.interpolate import BSpline, make_interp_spline, make_smoothing_spline
+
+from .step_spline import MIN_SMOOTHING_STEPS, StepSpline, interpolating_polynomial, smoothing_spline
 
 
 @dataclass(frozen=True)
@@ -31,23 +32,18 @@ class Samples:
         return len(self.times)
 
 
-def fit_chunk(positions: np.ndarray, tracking_weight: float) -> BSpline:
+def fit_chunk(positions: np.ndarray, tracking_weight: float) -> StepSpline:
     """Smoothing spline through a (N, J) chunk, parameterised by step index.
 
     The spline minimises ``w * sum((y_k - f(k))^2) + integral(f''(k)^2)`` with
     ``w = tracking_weight``; counting time in steps makes the weight mean the same at any dt.
-    Chunks too short for a smoothing spline (fewer than 5 steps) are interpolated exactly.
+    It equals scipy's ``make_smoothing_spline(steps, positions, lam=1 / w)``. Chunks too short
+    for a smoothing spline (fewer than 5 steps) are interpolated exactly.
     """
     positions = np.asarray(positions, dtype=float)
-    steps = np.arange(len(positions), dtype=float)
-    if len(positions) >= 5:
-        return make_smoothing_spline(steps, positions, lam=1.0 / tracking_weight, axis=0)
-    degree = min(3, len(positions) - 1)
-    if degree == 0:
-        positions = np.vstack([positions, positions])
-        steps = np.array([0.0, 1.0])
-        degree = 1
-    return make_interp_spline(steps, positions, k=degree, axis=0)
+    if len(positions) >= MIN_SMOOTHING_STEPS:
+        return smoothing_spline(positions, 1.0 / tracking_weight)
+    return interpolating_polynomial(positions)
 
 
 # Quintic Hermite basis on [0, 1]: value 1 (resp. slope 1) at 0, and zero value, slope and
@@ -76,7 +72,7 @@ class ChunkMotion:
     is defined on ``[seam, end]``.
     """
 
-    spline: BSpline
+    spline: StepSpline
     dt: float
     chunk_start: float
     seam: float
@@ -221,17 +217,17 @@ def blend_duration_within(
     return max(nominal, float(np.max(needed, initial=0.0)))
 
 
-def chunk_acceleration_peak(spline: BSpline, dt: float, from_step: float) -> np.ndarray:
+def chunk_acceleration_peak(spline: StepSpline, dt: float, from_step: float) -> np.ndarray:
     """Per joint, the largest acceleration (rad/s^2) of the smoothed chunk from ``from_step`` to
     its last step. Its second derivative is piecewise linear between the integer steps (the
     knots), so the steps and ``from_step`` are where it peaks."""
-    last = float(spline.t[-1])
+    last = spline.last_step
     steps = np.unique(np.concatenate([[min(from_step, last)], np.arange(math.ceil(from_step), math.floor(last) + 1)]))
     return np.abs(np.atleast_2d(spline(steps, nu=2))).max(axis=0) / (dt * dt)
 
 
 def join_at_seam(
-    spline: BSpline,
+    spline: StepSpline,
     dt: float,
     chunk_start: float,
     seam: float,

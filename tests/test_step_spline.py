@@ -1,0 +1,89 @@
+"""ExecutePolicy's chunk spline is scipy's smoothing spline, evaluated without scipy.
+
+``fit_chunk`` builds the smoothing spline as a cached linear map of the chunk and evaluates it
+piece by piece; scipy's ``make_smoothing_spline`` (and ``make_interp_spline`` for chunks of fewer
+than 5 steps, what ``fit_chunk`` used before) is the reference: same values and derivatives,
+inside the chunk and beyond both ends.
+"""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from scipy.interpolate import make_interp_spline, make_smoothing_spline
+
+from behaviors.execute_policy.shaping import fit_chunk
+from behaviors.execute_policy.step_spline import StepSpline, interpolating_polynomial, smoothing_spline
+
+TOLERANCE = 1e-9
+
+
+def _chunk(seed: int, steps: int, joints: int, scale: float) -> np.ndarray:
+    """A random walk per joint, offset and scaled: what a policy's noisy chunk looks like."""
+    rng = np.random.default_rng(seed)
+    walk = np.cumsum(rng.normal(0.0, 0.05, size=(steps, joints)), axis=0)
+    return scale * (walk + rng.uniform(-3.0, 3.0, size=joints))
+
+
+def _assert_same_function(reference, spline: StepSpline, steps: int) -> None:
+    """Values and first three derivatives agree, from one step before the chunk to one after."""
+    k = np.concatenate([np.linspace(-1.0, steps, 5 * steps + 3), np.arange(steps, dtype=float)])
+    for nu in range(4):
+        expected = reference(k, nu=nu)
+        scale = max(1.0, float(np.max(np.abs(expected))))
+        assert np.max(np.abs(spline(k, nu) - expected)) <= TOLERANCE * scale, f"derivative {nu}"
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    seed=st.integers(0, 2**32 - 1),
+    steps=st.integers(5, 200),
+    joints=st.integers(1, 7),
+    tracking_weight=st.floats(1e-3, 1e6),
+    scale=st.sampled_from([1e-3, 1.0, 10.0]),
+)
+def test_fit_chunk_equals_scipy_make_smoothing_spline(seed, steps, joints, tracking_weight, scale):
+    chunk = _chunk(seed, steps, joints, scale)
+    reference = make_smoothing_spline(np.arange(steps, dtype=float), chunk, lam=1.0 / tracking_weight, axis=0)
+    spline = fit_chunk(chunk, tracking_weight)
+    _assert_same_function(reference, spline, steps)
+    assert spline.last_step == reference.t[-1] == steps - 1
+
+
+@pytest.mark.parametrize("steps", [1, 2, 3, 4])
+def test_short_chunks_are_interpolated_as_make_interp_spline_did(steps):
+    chunk = _chunk(steps, steps, 3, 1.0)
+    knots, rows, degree = np.arange(steps, dtype=float), chunk, min(3, steps - 1)
+    if degree == 0:  # one step: held over [0, 1]
+        knots, rows, degree = np.array([0.0, 1.0]), np.vstack([chunk, chunk]), 1
+    reference = make_interp_spline(knots, rows, k=degree, axis=0)
+    spline = fit_chunk(chunk, 300.0)
+    _assert_same_function(reference, spline, steps)
+    assert np.allclose(spline(np.arange(steps, dtype=float)), chunk, atol=1e-12)
+    assert spline.last_step == reference.t[-1]
+
+
+def test_the_map_is_reused_per_length_and_weight_and_each_chunk_gets_its_own_fit():
+    a, b = _chunk(1, 50, 6, 1.0), _chunk(2, 50, 6, 1.0)
+    fit_a, fit_b = smoothing_spline(a, 1.0 / 300.0), smoothing_spline(b, 1.0 / 300.0)
+    k = np.arange(50.0)
+    assert np.max(np.abs(fit_a(k) - a)) < 0.05 and np.max(np.abs(fit_b(k) - b)) < 0.05
+    assert not np.allclose(fit_a(k), fit_b(k))
+
+
+def test_scalar_step_gives_one_row_and_arrays_give_one_row_per_step():
+    spline = fit_chunk(_chunk(3, 20, 6, 1.0), 300.0)
+    assert spline(3.0).shape == (6,)
+    assert spline(np.array([3.0]), nu=1).shape == (1, 6)
+    assert spline(np.linspace(0, 19, 7), nu=2).shape == (7, 6)
+
+
+def test_bad_requests_say_what_is_wrong():
+    spline = fit_chunk(_chunk(4, 20, 2, 1.0), 300.0)
+    with pytest.raises(ValueError, match="derivative order nu=4 is not one of 0, 1, 2, 3"):
+        spline(1.0, nu=4)
+    with pytest.raises(ValueError, match="needs at least 5 steps, got 4"):
+        smoothing_spline(np.zeros((4, 2)), 1.0)
+    with pytest.raises(ValueError, match="needs 1 to 4 steps, got 0"):
+        interpolating_polynomial(np.zeros((0, 2)))
