@@ -44,9 +44,9 @@ class StepSpline:
             raise ValueError(f"StepSpline: derivative order nu={nu} is not one of 0, 1, 2, 3")
         k_array = np.asarray(k, dtype=float)
         steps = k_array.reshape(-1)
-        piece = np.clip(np.floor(steps), 0, len(self.coefficients) - 1).astype(np.intp)
+        piece = np.minimum(np.floor(np.maximum(steps, 0.0)), len(self.coefficients) - 1)
         u = (steps - piece)[:, None]
-        c = self.coefficients[piece]  # (M, 4, J)
+        c = self.coefficients.take(piece.astype(np.intp), axis=0)  # (M, 4, J)
         if nu == 0:
             out = c[:, 0] + u * (c[:, 1] + u * (c[:, 2] + u * c[:, 3]))
         elif nu == 1:

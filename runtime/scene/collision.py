@@ -355,10 +355,11 @@ class CollisionChecker:
         The answer is the one ``check`` gives for each row. With ``early_out`` (the default),
         runs of rows that a proven bound shows collision-free are settled by one check at
         their first row (``swept``); every other row is checked on its own."""
-        levels = self._levels_for(Q) if early_out else []
+        columns = self._moving_columns(Q) if early_out and Q.shape[0] >= 2 else None
+        levels = [] if columns is None else self._levels_for(columns)
         if not levels:
             return self._check_rows(Q, range(Q.shape[0]), times, stop_at_first)
-        moving = Q[:, self._moving_columns(Q)]
+        moving = Q[:, columns]
         budgets = np.array([level.budget_rad for level in levels])
         model, data = self.robot.model, self.data
         out: list[CollisionResult] = []
@@ -397,15 +398,16 @@ class CollisionChecker:
                     break
         return out
 
-    def _moving_columns(self, Q: np.ndarray) -> np.ndarray:
-        return np.flatnonzero(np.ptp(Q, axis=0) > 0)
+    @staticmethod
+    def _moving_columns(Q: np.ndarray) -> np.ndarray:
+        return np.flatnonzero((Q != Q[0]).any(axis=0))
 
-    def _levels_for(self, Q: np.ndarray) -> list[_SweptLevel]:
-        """Inflated checkers for the joints that move in ``Q`` (compiled once per set)."""
-        if self._coefficients is None or Q.shape[0] < 2:
+    def _levels_for(self, moving_columns: np.ndarray) -> list[_SweptLevel]:
+        """Inflated checkers for the joints of ``moving_columns`` (compiled once per set)."""
+        if self._coefficients is None:
             return []
         model = self.robot.model
-        columns = tuple(int(c) for c in self._moving_columns(Q))
+        columns = tuple(moving_columns.tolist())
         if columns not in self._swept_levels:
             joint_of_column = {int(model.idx_qs[j]): j for j in range(1, model.njoints)}
             joints = [joint_of_column[c] for c in columns]
