@@ -16,6 +16,7 @@ model's position range. A joint with ``has_*_limits: false`` is unlimited in tha
 """
 from __future__ import annotations
 
+import functools
 import math
 import os
 from dataclasses import dataclass
@@ -62,21 +63,21 @@ class JointLimits:
     def names(self) -> tuple[str, ...]:
         return tuple(j.name for j in self.joints)
 
-    @property
+    @functools.cached_property
     def lower(self) -> np.ndarray:
-        return np.array([j.lower for j in self.joints])
+        return _read_only(np.array([j.lower for j in self.joints]))
 
-    @property
+    @functools.cached_property
     def upper(self) -> np.ndarray:
-        return np.array([j.upper for j in self.joints])
+        return _read_only(np.array([j.upper for j in self.joints]))
 
-    @property
+    @functools.cached_property
     def max_velocity(self) -> np.ndarray:
-        return np.array([j.max_velocity for j in self.joints])
+        return _read_only(np.array([j.max_velocity for j in self.joints]))
 
-    @property
+    @functools.cached_property
     def max_acceleration(self) -> np.ndarray:
-        return np.array([j.max_acceleration for j in self.joints])
+        return _read_only(np.array([j.max_acceleration for j in self.joints]))
 
     def __getitem__(self, name: str) -> JointLimit:
         for j in self.joints:
@@ -103,8 +104,8 @@ class JointLimits:
         found: list[tuple[int, int, int, str, float, float]] = []  # step, order, column, ...
 
         def earliest(mask: np.ndarray) -> tuple[int, int] | None:
-            hits = np.argwhere(mask)
-            return (int(hits[0, 0]), int(hits[0, 1])) if len(hits) else None
+            hits = np.flatnonzero(mask)  # row-major: the first is the earliest step, then column
+            return divmod(int(hits[0]), mask.shape[1]) if len(hits) else None
 
         q = self._as_rows(positions, "positions")
         lower, upper = self.lower, self.upper
@@ -131,6 +132,11 @@ class JointLimits:
         if a.shape[1] != len(self.joints):
             raise ValueError(f"{what} have {a.shape[1]} columns; expected {len(self.joints)} ({', '.join(self.names)})")
         return a
+
+
+def _read_only(values: np.ndarray) -> np.ndarray:
+    values.setflags(write=False)
+    return values
 
 
 def load_joint_limits(path: str | os.PathLike, position_limits: dict[str, tuple[float, float]]) -> JointLimits:

@@ -74,4 +74,5 @@ def window_ends(Q_moving: np.ndarray, start: int, levels_rad: np.ndarray) -> np.
     """For each level L, the first index after ``start`` where some column of ``Q_moving``
     has moved more than L from its value at ``start`` (``len(Q_moving)`` if none has)."""
     deviation = np.abs(Q_moving[start:] - Q_moving[start]).max(axis=1, initial=0.0)
-    return start + np.searchsorted(np.maximum.accumulate(deviation), levels_rad, side="right")
+    np.maximum.accumulate(deviation, out=deviation)
+    return start + deviation.searchsorted(levels_rad, side="right")
