@@ -113,7 +113,7 @@ def main() -> None:
         stages = {m: {s: [] for s in STAGES} for m in methods}
         for method, early_out in methods.items():
             for _ in range(5):
-                pipeline(safety, snapshot, msg, points, early_out=early_out)  # warm caches (checker, scipy)
+                pipeline(safety, snapshot, msg, points, early_out=early_out)  # warm caches (collision checkers, the smoothing map)
         for _ in range(args.repeats):
             for method, early_out in methods.items():
                 start = time.perf_counter()

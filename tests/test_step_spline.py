@@ -14,7 +14,7 @@ from hypothesis import strategies as st
 from scipy.interpolate import make_interp_spline, make_smoothing_spline
 
 from behaviors.execute_policy.shaping import fit_chunk
-from behaviors.execute_policy.step_spline import StepSpline, interpolating_polynomial, smoothing_spline
+from behaviors.execute_policy.step_spline import StepSpline, interpolating_polynomial, smoothing_spline, solve_pentadiagonal
 
 TOLERANCE = 1e-9
 
@@ -64,6 +64,14 @@ def test_short_chunks_are_interpolated_as_make_interp_spline_did(steps):
     assert spline.last_step == reference.t[-1]
 
 
+@pytest.mark.parametrize("size", [1, 2, 3, 8, 60])
+def test_pentadiagonal_solve_matches_the_dense_matrix(size):
+    d0, d1, d2 = 0.7, 0.1, 0.02  # R + lam Q^T Q for lam = 0.02 would be 0.787, 0.087, 0.02
+    dense = sum(np.diag(np.full(size - abs(k), v), k) for k, v in ((0, d0), (1, d1), (-1, d1), (2, d2), (-2, d2)) if size > abs(k))
+    rhs = np.random.default_rng(size).normal(size=(size, 3))
+    assert np.allclose(dense @ solve_pentadiagonal(d0, d1, d2, rhs), rhs, atol=1e-12)
+
+
 def test_the_map_is_reused_per_length_and_weight_and_each_chunk_gets_its_own_fit():
     a, b = _chunk(1, 50, 6, 1.0), _chunk(2, 50, 6, 1.0)
     fit_a, fit_b = smoothing_spline(a, 1.0 / 300.0), smoothing_spline(b, 1.0 / 300.0)
@@ -87,3 +95,5 @@ def test_bad_requests_say_what_is_wrong():
         smoothing_spline(np.zeros((4, 2)), 1.0)
     with pytest.raises(ValueError, match="needs 1 to 4 steps, got 0"):
         interpolating_polynomial(np.zeros((0, 2)))
+    with pytest.raises(ValueError, match=r"must be \(steps, joints\), got shape \(20,\)"):
+        fit_chunk(np.zeros(20), 300.0)
