@@ -27,12 +27,16 @@ def _chunk(seed: int, steps: int, joints: int, scale: float) -> np.ndarray:
 
 
 def _assert_same_function(reference, spline: StepSpline, steps: int) -> None:
-    """Values and first three derivatives agree, from one step before the chunk to one after."""
+    """Values and first three derivatives agree, from one step before the chunk to one after,
+    for arrays of steps, single steps and one-step arrays."""
     k = np.concatenate([np.linspace(-1.0, steps, 5 * steps + 3), np.arange(steps, dtype=float)])
     for nu in range(4):
         expected = reference(k, nu=nu)
         scale = max(1.0, float(np.max(np.abs(expected))))
         assert np.max(np.abs(spline(k, nu) - expected)) <= TOLERANCE * scale, f"derivative {nu}"
+        for i in (0, 1, len(k) // 2, len(k) - 1):
+            assert np.max(np.abs(spline(float(k[i]), nu) - expected[i])) <= TOLERANCE * scale, f"derivative {nu} at {k[i]}"
+            assert np.max(np.abs(spline(k[i:i + 1], nu) - expected[i:i + 1])) <= TOLERANCE * scale
 
 
 @settings(max_examples=60, deadline=None)

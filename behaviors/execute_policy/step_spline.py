@@ -15,6 +15,7 @@ matrix product.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from functools import lru_cache
 
@@ -22,6 +23,10 @@ import numpy as np
 
 MIN_SMOOTHING_STEPS = 5
 """Fewest steps a smoothing spline is fitted to (as scipy's ``make_smoothing_spline``)."""
+
+
+_DERIVATIVE_FACTORS = ((1.0, 1.0, 1.0, 1.0), (1.0, 2.0, 3.0), (2.0, 6.0), (6.0,))
+"""The nu-th derivative of ``sum_d c_d u^d`` is ``sum_d factor_d c_(d+nu) u^d``."""
 
 
 @dataclass(frozen=True)
@@ -39,23 +44,29 @@ class StepSpline:
 
     def __call__(self, k: float | np.ndarray, nu: int = 0) -> np.ndarray:
         """The ``nu``-th derivative (0 to 3, per step) at step(s) ``k``: (J,) for a scalar
-        ``k``, else (M, J)."""
+        ``k``, (M, J) for M steps."""
         if nu not in (0, 1, 2, 3):
             raise ValueError(f"StepSpline: derivative order nu={nu} is not one of 0, 1, 2, 3")
-        k_array = np.asarray(k, dtype=float)
-        steps = k_array.reshape(-1)
-        piece = np.minimum(np.floor(np.maximum(steps, 0.0)), len(self.coefficients) - 1)
+        last_piece = len(self.coefficients) - 1
+        if np.ndim(k) == 0:  # one instant: plain floats are several times cheaper than arrays
+            step = float(k)
+            piece = min(max(math.floor(step), 0), last_piece)
+            u = step - piece
+            weights = [f * u**d for d, f in enumerate(_DERIVATIVE_FACTORS[nu])]
+            return np.array(weights) @ self.coefficients[piece, nu:]
+        steps = np.asarray(k, dtype=float)
+        if steps.shape == (1,):
+            return self(steps[0], nu)[None, :]
+        piece = np.minimum(np.floor(np.maximum(steps, 0.0)), last_piece)
         u = (steps - piece)[:, None]
         c = self.coefficients.take(piece.astype(np.intp), axis=0)  # (M, 4, J)
         if nu == 0:
-            out = c[:, 0] + u * (c[:, 1] + u * (c[:, 2] + u * c[:, 3]))
-        elif nu == 1:
-            out = c[:, 1] + u * (2.0 * c[:, 2] + u * (3.0 * c[:, 3]))
-        elif nu == 2:
-            out = 2.0 * c[:, 2] + u * (6.0 * c[:, 3])
-        else:
-            out = 6.0 * c[:, 3]
-        return out[0] if k_array.ndim == 0 else out
+            return c[:, 0] + u * (c[:, 1] + u * (c[:, 2] + u * c[:, 3]))
+        if nu == 1:
+            return c[:, 1] + u * (2.0 * c[:, 2] + u * (3.0 * c[:, 3]))
+        if nu == 2:
+            return 2.0 * c[:, 2] + u * (6.0 * c[:, 3])
+        return 6.0 * c[:, 3]
 
 
 def smoothing_spline(positions: np.ndarray, lam: float) -> StepSpline:
