@@ -80,7 +80,7 @@ def smoothing_spline(positions: np.ndarray, lam: float) -> StepSpline:
     return StepSpline(coefficients, float(n - 1))
 
 
-@lru_cache(maxsize=16)
+@lru_cache(maxsize=8)  # a run sees one or two (length, weight) pairs; 1.3 MB each at 200 steps
 def _smoothing_operator(n: int, lam: float) -> np.ndarray:
     """The (4 (n-1), n) matrix from data to the power-form coefficients of every piece.
 
