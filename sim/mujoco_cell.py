@@ -92,6 +92,7 @@ class MujocoCell:
         self._frames: dict[str, tuple[float, np.ndarray]] = {}
         self.external_wrench = np.zeros(6)  # tests push the tool with this (world frame, at the F/T site)
         self._pushed = False  # whether xfrc_applied holds a push from external_wrench
+        self._substeps_dt, self._substeps_count = 0.0, 1
         self.t = 0.0
         self.renders = 0
         self.reset(seed, np.asarray(arm if arm is not None else self.data.qpos[self._arm_qpos]))
@@ -207,9 +208,16 @@ class MujocoCell:
 
     def step(self, dt: float) -> None:
         self._apply_external_wrench()
-        for _ in range(max(1, int(round(dt / self.model.opt.timestep)))):
-            mujoco.mj_step(self.model, self.data)
+        model, data = self.model, self.data
+        for _ in range(self._substeps(dt)):
+            mujoco.mj_step(model, data)
         self.t += dt
+
+    def _substeps(self, dt: float) -> int:
+        """Physics steps in ``dt`` (at least one); remembered, as the world always asks the same."""
+        if dt != self._substeps_dt:
+            self._substeps_dt, self._substeps_count = dt, max(1, int(round(dt / self.model.opt.timestep)))
+        return self._substeps_count
 
     def reset(self, seed: int, arm: np.ndarray) -> None:
         """Arm at ``arm``, gripper open, cubes at the layout of ``seed``, settled at rest."""
