@@ -14,7 +14,8 @@ Mesa's software rasteriser for one thread (``LP_NUM_THREADS=1``) before anything
 Each row gives wall and CPU seconds (``time.process_time``: on a loaded machine the CPU time
 is the steadier figure). ``--profile`` then runs seed 0 of each world once more under cProfile
 and prints where its time went (physics, controllers, rendering, the tree, the world's per-tick
-upkeep, the rest); profiled seconds run ~1.5-2x the unprofiled ones, Python-heavy parts most.
+upkeep, the rest). cProfile slows the Python parts far more than physics and rendering: read the
+parts against each other, not as the unprofiled seconds.
 
     .venv/bin/python benchmarks/bench_headless.py [--runs N] [--world NAME] [--all-cores] [--profile]
 """
