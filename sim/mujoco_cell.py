@@ -34,6 +34,14 @@ SETTLE_SECONDS = 0.2  # after a reset: cubes come to rest on the table before ti
 BOX_OVERLAP_TOLERANCE = 0.001  # metres a placed box may sink into what it touches (resting on the table)
 
 
+def _as_slice(indices: np.ndarray) -> slice | np.ndarray:
+    """``indices`` as a slice when they are consecutive and increasing, else unchanged."""
+    first = int(indices[0])
+    if indices.tolist() == list(range(first, first + len(indices))):
+        return slice(first, first + len(indices))
+    return indices
+
+
 def _yaw_quat(yaw: float) -> np.ndarray:
     return np.array([np.cos(yaw / 2), 0.0, 0.0, np.sin(yaw / 2)])
 
@@ -53,6 +61,7 @@ class MujocoCell:
         self._arm_qpos = np.array([m.joint(j).qposadr[0] for j in ARM_JOINTS])
         self._arm_dof = np.array([m.joint(j).dofadr[0] for j in ARM_JOINTS])
         self._arm_ctrl = np.array([m.actuator(j.replace("_joint", "")).id for j in ARM_JOINTS])
+        self._arm_ctrl_index = _as_slice(self._arm_ctrl)  # the arm's actuators come first: a slice writes faster
         # The arm servos are PD on position: force = kp (ctrl - q) - kd qdot. At constant speed v
         # they lag by kd v / kp; adding that to the target (velocity feed-forward) removes the lag.
         self._lead = np.array([-m.actuator_biasprm[a][2] / m.actuator_gainprm[a][0] for a in self._arm_ctrl])
@@ -71,7 +80,7 @@ class MujocoCell:
         # write into the same buffers); each attribute access through the bindings builds a new
         # array object, which costs more than the arithmetic done with it.
         d = self.data
-        self._qpos, self._qvel, self._xfrc_applied = d.qpos, d.qvel, d.xfrc_applied
+        self._qpos, self._qvel, self._xfrc_applied, self._ctrl = d.qpos, d.qvel, d.xfrc_applied, d.ctrl
         self._site_rotation = d.site_xmat[self._ft_site].reshape(3, 3)
         self._site_position = d.site_xpos[self._ft_site]
         self._gripper_com = d.subtree_com[self._ft_body]
@@ -82,6 +91,8 @@ class MujocoCell:
         self._renderer: mujoco.Renderer | None = None  # one for all cameras: each costs ~50 ms to create
         self._frames: dict[str, tuple[float, np.ndarray]] = {}
         self.external_wrench = np.zeros(6)  # tests push the tool with this (world frame, at the F/T site)
+        self._pushed = False  # whether xfrc_applied holds a push from external_wrench
+        self._substeps_dt, self._substeps_count = 0.0, 1
         self.t = 0.0
         self.renders = 0
         self.reset(seed, np.asarray(arm if arm is not None else self.data.qpos[self._arm_qpos]))
@@ -100,7 +111,7 @@ class MujocoCell:
         target = np.asarray(position, dtype=float)
         if velocity is not None:
             target = target + self._lead * np.asarray(velocity, dtype=float)
-        self.data.ctrl[self._arm_ctrl] = target
+        self._ctrl[self._arm_ctrl_index] = target
 
     def gripper_position(self) -> float:
         return float(self.data.qpos[self._gripper_qpos])
@@ -114,7 +125,7 @@ class MujocoCell:
         self.data.ctrl[self._gripper_ctrl] = float(np.clip(position, 0.0, 0.8)) * GRIPPER_CTRL_PER_RAD
 
     def wrench(self) -> np.ndarray:
-        return self._raw_wrench() - self._tare
+        return np.array([raw - tare for raw, tare in zip(self._raw_wrench(), self._tare)])
 
     def tare_wrench(self) -> None:
         self._tare = self._raw_wrench()
@@ -197,9 +208,16 @@ class MujocoCell:
 
     def step(self, dt: float) -> None:
         self._apply_external_wrench()
-        for _ in range(max(1, int(round(dt / self.model.opt.timestep)))):
-            mujoco.mj_step(self.model, self.data)
+        model, data = self.model, self.data
+        for _ in range(self._substeps(dt)):
+            mujoco.mj_step(model, data)
         self.t += dt
+
+    def _substeps(self, dt: float) -> int:
+        """Physics steps in ``dt`` (at least one); remembered, as the world always asks the same."""
+        if dt != self._substeps_dt:
+            self._substeps_dt, self._substeps_count = dt, max(1, int(round(dt / self.model.opt.timestep)))
+        return self._substeps_count
 
     def reset(self, seed: int, arm: np.ndarray) -> None:
         """Arm at ``arm``, gripper open, cubes at the layout of ``seed``, settled at rest."""
@@ -218,6 +236,7 @@ class MujocoCell:
         for _ in range(int(SETTLE_SECONDS / self.model.opt.timestep)):
             mujoco.mj_step(self.model, self.data)
         self._tare = self._raw_wrench()
+        self._pushed = False  # mj_resetData cleared xfrc_applied
         self._frames.clear()
 
     def render(self, camera: str) -> np.ndarray:
@@ -241,23 +260,37 @@ class MujocoCell:
             self._renderer = None
 
     # -- internals --------------------------------------------------------------------------
-    def _raw_wrench(self) -> np.ndarray:
-        """What the environment applies to the tool, in the world frame, about the sensor.
+    def _raw_wrench(self) -> tuple[float, ...]:
+        """What the environment applies to the tool, in the world frame, about the sensor
+        (Fx Fy Fz Tx Ty Tz).
 
         The sensors give what the wrist exerts on the gripper (site frame). At rest that support
         balances the gripper's weight plus the external wrench, so the external part is minus the
         support minus the weight, with the weight's torque taken about the gripper's current
         centre of mass: a constant tare alone would drift by ~0.4 Nm as the wrist turns.
+
+        Written out in Python floats (rotation, lever arm, cross product): this runs at 500 Hz,
+        and on 3-vectors each numpy call costs more than its arithmetic (18 us became ~4 us).
         """
-        R = self._site_rotation
-        support = np.concatenate([R @ self._support_force, R @ self._support_torque])
-        # The weight's wrench (force; lever x force) written out: numpy.cross spends tens of
-        # microseconds on axis handling for one pair of 3-vectors, and this runs at 500 Hz.
-        (lx, ly, lz), (wx, wy, wz) = (self._gripper_com - self._site_position).tolist(), self._gripper_weight
-        weight = np.array([wx, wy, wz, ly * wz - lz * wy, lz * wx - lx * wz, lx * wy - ly * wx])
-        return -support - weight
+        (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = self._site_rotation.tolist()
+        fx, fy, fz = self._support_force.tolist()
+        tx, ty, tz = self._support_torque.tolist()
+        (cx, cy, cz), (sx, sy, sz) = self._gripper_com.tolist(), self._site_position.tolist()
+        lx, ly, lz = cx - sx, cy - sy, cz - sz
+        wx, wy, wz = self._gripper_weight
+        return (
+            -(r00 * fx + r01 * fy + r02 * fz) - wx,
+            -(r10 * fx + r11 * fy + r12 * fz) - wy,
+            -(r20 * fx + r21 * fy + r22 * fz) - wz,
+            -(r00 * tx + r01 * ty + r02 * tz) - (ly * wz - lz * wy),
+            -(r10 * tx + r11 * ty + r12 * tz) - (lz * wx - lx * wz),
+            -(r20 * tx + r21 * ty + r22 * tz) - (lx * wy - ly * wx),
+        )
 
     def _apply_external_wrench(self) -> None:
-        self._xfrc_applied[:] = 0.0
-        if self.external_wrench.any():
-            self._xfrc_applied[self._ft_body] = self.external_wrench
+        pushing = bool(self.external_wrench.any())
+        if pushing or self._pushed:  # otherwise xfrc_applied is all zeros already
+            self._xfrc_applied[:] = 0.0
+            if pushing:
+                self._xfrc_applied[self._ft_body] = self.external_wrench
+        self._pushed = pushing

@@ -78,3 +78,23 @@ def test_a_push_beyond_the_deadband_yields_and_springs_back():
     for _ in range(1000):
         state = admittance_step(state, np.zeros(6), params, 0.002)
     assert abs(state.offset[2]) < 1e-5
+
+
+def test_a_released_push_comes_to_exact_rest_and_a_wrench_inside_the_deadband_keeps_it_there():
+    params, state = AdmittanceParams(), AdmittanceState()
+    assert state.at_rest
+    push = np.array([0.0, 0.0, -21.0, 0.0, 0.0, 0.0])
+    for _ in range(100):
+        state = admittance_step(state, push, params, 0.002)
+    assert not state.at_rest and state.offset[2] < -0.009
+    released_steps = 0
+    while not state.at_rest and released_steps < 5000:
+        state = admittance_step(state, np.zeros(6), params, 0.002)
+        released_steps += 1
+    # Critically damped at 20 rad/s: below REST_EPS about 1.6 s after the release, then exact zeros.
+    assert 1.4 <= released_steps * 0.002 <= 1.8
+    assert not state.offset.any() and not state.rate.any()
+    inside = np.array([0.9, -1.0, 0.5, 0.09, 0.0, -0.1])  # |each axis| <= its deadband
+    assert admittance_step(state, inside, params, 0.002) is state
+    outside = inside + np.array([0.0, -0.01, 0.0, 0.0, 0.0, 0.0])
+    assert not admittance_step(state, outside, params, 0.002).at_rest

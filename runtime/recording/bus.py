@@ -39,7 +39,8 @@ WRENCH_TOPIC = "/force_torque_sensor_broadcaster/wrench"
 JOINT_STATES_TOPIC = "/joint_states"
 FEEDBACK_HZ = 25.0
 """Action feedback (and the wrench it carries) is recorded at most this often per action: the
-controller publishes it at 50 Hz, and it is half of a recording's messages at that rate."""
+simulated controllers publish it at 20 Hz; a controller publishing at 50 Hz made it half of a
+recording's messages."""
 JOINT_STATES_HZ = 50.0
 """Joint states are recorded at most this often (per second of clock time): twice the rate of
 any policy step this project runs (dt >= 0.05 s), and it keeps recording within its budget."""

@@ -58,6 +58,7 @@ from .trajectory import (
     TIME_EPS,
     SeamError,
     Trajectory,
+    TrajectoryState,
     path_violation,
     stitch,
     stop_trajectory,
@@ -197,7 +198,8 @@ class JointTrajectoryAdmittanceController(Controller):
         self._goal: _ActiveGoal | None = None
         self._params = config.admittance
         self._compliance = AdmittanceState()
-        self._joint_offset = np.zeros(len(self.joint_names))
+        self._no_offset = np.zeros(len(self.joint_names))
+        self._joint_offset = self._no_offset
         self._pseudo_inverse: np.ndarray | None = None
         self._pseudo_inverse_time = -math.inf
         self._last_feedback = -math.inf
@@ -225,7 +227,7 @@ class JointTrajectoryAdmittanceController(Controller):
         self._reference = Trajectory.hold(t, self.hardware.arm_position())
         self._params = self.config.admittance
         self._compliance = AdmittanceState()
-        self._joint_offset = np.zeros(len(self.joint_names))
+        self._joint_offset = self._no_offset
         self._pseudo_inverse = None
         self.hardware.command_arm(self._reference.positions[0], np.zeros(len(self.joint_names)))
 
@@ -321,21 +323,27 @@ class JointTrajectoryAdmittanceController(Controller):
 
         wrench = np.asarray(self.hardware.wrench(), dtype=float)
         compliance = self._compliance = admittance_step(self._compliance, wrench, self._params, dt)
-        if compliance.offset.any() or compliance.rate.any():
+        offset_rate = None
+        if compliance.at_rest:  # nothing to add (most steps: the wrench is inside the deadband)
+            self._joint_offset = self._no_offset
+        else:
             pseudo_inverse = self._wrist_pseudo_inverse(t)
             self._joint_offset, offset_rate = pseudo_inverse @ compliance.offset, pseudo_inverse @ compliance.rate
-        else:
-            self._joint_offset, offset_rate = np.zeros(len(self.joint_names)), np.zeros(len(self.joint_names))
 
         desired = self._reference.sample(t)
-        command = desired.position + self._joint_offset
+        command, velocity = self._with_offset(desired, offset_rate)
         if self._goal is not None:
             reference = self._reference
             self._supervise(t, wrench, command, desired.velocity)
             if self._reference is not reference:  # a stop began: same position at t, new velocity
-                desired = self._reference.sample(t)
-                command = desired.position + self._joint_offset
-        self.hardware.command_arm(command, desired.velocity + offset_rate)
+                command, velocity = self._with_offset(self._reference.sample(t), offset_rate)
+        self.hardware.command_arm(command, velocity)
+
+    def _with_offset(self, desired: TrajectoryState, offset_rate: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+        """Position and velocity to command: the reference plus the admittance offset (None: at rest)."""
+        if offset_rate is None:
+            return desired.position, desired.velocity
+        return desired.position + self._joint_offset, desired.velocity + offset_rate
 
     def _wrist_pseudo_inverse(self, t: float) -> np.ndarray:
         """The damped pseudo-inverse of the wrist Jacobian, at most ``jacobian_refresh_period`` old."""

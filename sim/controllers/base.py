@@ -20,8 +20,9 @@ from .compliance import AdmittanceParams
 class ControllersConfig:
     """Tunables of the simulated controllers (defaults suit the UR5e + 2F-85 cell)."""
 
-    feedback_rate: float = 50.0
-    """Hz at which action feedback is published (the control loop itself runs at 500 Hz)."""
+    feedback_rate: float = 20.0
+    """Hz at which action feedback is published (the control loop itself runs at 500 Hz); 20 Hz is
+    ros2_controllers' JTC default ``action_monitor_rate``."""
     stop_time: float = 0.2
     """Seconds to decelerate to rest on cancel, F/T abort or path-tolerance abort."""
     goal_position_tolerance: float = 0.01

@@ -80,25 +80,42 @@ def _axis_values(name: str, values: list[float] | np.ndarray) -> np.ndarray:
     return array
 
 
+REST_EPS = 1e-12
+"""Metres, radians (and per second): an admittance whose offset and rate are below this on every
+axis is at rest, exactly zero. The spring-damper only approaches zero asymptotically (into
+subnormal numbers), so without this the mapping to joint offsets would run on ~1e-300 for the
+whole run; 1e-12 m is nine orders below the sub-millimetre offsets the cell sees."""
+
+
 @dataclass(frozen=True)
 class AdmittanceState:
     """The Cartesian offset of the wrist from the reference, and its rate."""
 
     offset: np.ndarray = field(default_factory=lambda: np.zeros(6))
     rate: np.ndarray = field(default_factory=lambda: np.zeros(6))
+    at_rest: bool = field(init=False)
+    """Offset and rate all zero: the controller adds nothing to the reference."""
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "at_rest", not (np.any(self.offset) or np.any(self.rate)))
 
 
 def admittance_step(state: AdmittanceState, wrench: np.ndarray, params: AdmittanceParams, dt: float) -> AdmittanceState:
     """Advance each axis' mass-spring-damper by ``dt`` under ``wrench`` (semi-implicit Euler).
 
     The deadband shrinks each wrench component toward zero (continuous, no jump at its edge); an
-    axis whose offset reaches ``max_offset`` stops there, its rate zeroed. Written per axis in
-    plain floats: on six values, numpy's per-call overhead is twice the arithmetic, and the
-    controller runs this 500 times a second.
+    axis whose offset reaches ``max_offset`` stops there, its rate zeroed. A state whose offset
+    and rate fall below ``REST_EPS`` on every axis becomes rest (exact zeros); a state at rest
+    under a wrench inside the deadband is returned unchanged, since the step would leave it at
+    zero. Written per axis in plain floats: on six values, numpy's per-call overhead is twice the
+    arithmetic, and the controller runs this 500 times a second.
     """
+    wrench_values = np.asarray(wrench, dtype=float).tolist()
+    if state.at_rest and all(abs(w) <= deadband for w, deadband in zip(wrench_values, params.deadband.tolist())):
+        return state
     offsets, rates = [], []
     axes = zip(
-        np.asarray(wrench, dtype=float).tolist(),
+        wrench_values,
         state.offset.tolist(),
         state.rate.tolist(),
         params.deadband.tolist(),
@@ -114,6 +131,8 @@ def admittance_step(state: AdmittanceState, wrench: np.ndarray, params: Admittan
         clipped = min(max(moved, -limit), limit)
         offsets.append(clipped)
         rates.append(v if clipped == moved else 0.0)
+    if max(map(abs, offsets + rates)) < REST_EPS:
+        return AdmittanceState()
     return AdmittanceState(np.array(offsets), np.array(rates))
 
 

@@ -15,6 +15,7 @@ Times are absolute, on the runtime clock (the goal's seam stamp plus ``time_from
 """
 from __future__ import annotations
 
+import math
 from bisect import bisect_right
 from dataclasses import dataclass, field
 
@@ -364,14 +365,26 @@ def stop_trajectory(state: TrajectoryState, t: float, stop_time: float) -> Traje
 def path_violation(
     actual: np.ndarray, reference: np.ndarray, tolerance: float, joint_names: tuple[str, ...] | None = None
 ) -> str | None:
-    """The worst joint whose |actual - reference| exceeds ``tolerance`` (0 = no check), or None."""
+    """The worst joint whose |actual - reference| exceeds ``tolerance`` (0 = no check), or None.
+
+    A non-finite error counts as the worst. Plain floats: the controller checks every control step.
+    """
     if tolerance <= 0:
         return None
-    error = np.abs(np.asarray(actual) - np.asarray(reference))
-    j = int(error.argmax())
-    if error[j] <= tolerance:
+    errors = [abs(a - r) for a, r in zip(np.asarray(actual, dtype=float).tolist(), np.asarray(reference, dtype=float).tolist())]
+    worst = max(errors)
+    if worst <= tolerance and math.isfinite(sum(errors)):
         return None
-    return f"{_joint_label(joint_names, j)}: error {error[j]:.4f} rad exceeds the path tolerance {tolerance:.4f} rad"
+    j = _worst_index(errors)
+    return f"{_joint_label(joint_names, j)}: error {errors[j]:.4f} rad exceeds the path tolerance {tolerance:.4f} rad"
+
+
+def _worst_index(values: list[float]) -> int:
+    """Index of the largest value, a NaN counting as larger than anything (as ``numpy.argmax``)."""
+    for k, value in enumerate(values):
+        if math.isnan(value):
+            return k
+    return values.index(max(values))
 
 
 WRENCH_AXES = ("Fx", "Fy", "Fz", "Tx", "Ty", "Tz")
@@ -379,15 +392,18 @@ WRENCH_UNITS = ("N", "N", "N", "N m", "N m", "N m")
 
 
 def wrench_violation(wrench: np.ndarray, thresholds: np.ndarray | None) -> str | None:
-    """The axis whose |wrench| exceeds its absolute threshold the most (relative), or None."""
+    """The axis whose |wrench| exceeds its absolute threshold the most (relative), or None.
+
+    A NaN reading counts as exceeding. Plain floats: the controller checks every control step.
+    """
     if thresholds is None or len(thresholds) == 0:
         return None
-    magnitude = np.abs(np.asarray(wrench, dtype=float))
-    ratio = magnitude / np.asarray(thresholds, dtype=float)
-    i = int(ratio.argmax())
-    if magnitude[i] <= thresholds[i]:
+    values = np.asarray(wrench, dtype=float).tolist()
+    limits = np.asarray(thresholds, dtype=float).tolist()
+    if all(abs(w) <= limit for w, limit in zip(values, limits)):
         return None
+    i = _worst_index([abs(w) / limit for w, limit in zip(values, limits)])
     return (
-        f"{WRENCH_AXES[i]} = {float(wrench[i]):.2f} {WRENCH_UNITS[i]}, "
-        f"beyond the absolute threshold {float(thresholds[i]):.2f} {WRENCH_UNITS[i]}"
+        f"{WRENCH_AXES[i]} = {values[i]:.2f} {WRENCH_UNITS[i]}, "
+        f"beyond the absolute threshold {limits[i]:.2f} {WRENCH_UNITS[i]}"
     )
