@@ -19,12 +19,13 @@ from control_msgs.action import GripperCommand
 from moveit_pro_controllers_msgs.action import FollowJointTrajectoryWithAdmittance as FollowTrajectory
 from moveit_pro_ml_msgs.srv import GetActionChunk
 from sensor_msgs.msg import Image, JointState
-from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
+from trajectory_msgs.msg import JointTrajectory
 
 from runtime.behavior import Behavior, Status
 from runtime.bus import STATUS_ABORTED, STATUS_SUCCEEDED
 from runtime.ports import Direction
-from runtime.timestamps import duration_msg, time_msg
+from runtime.timestamps import time_msg
+from runtime.trajectory_points import trajectory_points
 
 from . import config as cfg
 from .checks import PointChecks
@@ -389,10 +390,7 @@ class ExecutePolicy(Behavior):
         trajectory = JointTrajectory()
         trajectory.header.stamp = time_msg(seam_time_s)
         trajectory.joint_names = list(self.safety.group_joints)
-        for t, p, v, a in zip(samples.times, samples.positions, samples.velocities, samples.accelerations):
-            trajectory.points.append(
-                JointTrajectoryPoint(positions=p.tolist(), velocities=v.tolist(), accelerations=a.tolist(), time_from_start=duration_msg(t - seam_time_s))
-            )
+        trajectory.points = trajectory_points(samples.times - seam_time_s, samples.positions, samples.velocities, samples.accelerations)
         goal.joint_trajectory = trajectory
         goal.path_tolerance = c.goal_path_tolerance
         goal.goal_time_tolerance = max(0.5, 5 * c.dt)
