@@ -175,16 +175,20 @@ class ExecutePolicy(Behavior):
             missing.append(f"gripper action '{c.gripper_command_action_name}'")
         if self.joint_states.latest is None:
             missing.append(f"joint states on '{c.joint_states_topic}' (the publisher must use reliable QoS)")
-        for topic, sub in zip(c.image_topics, self.cameras):
-            if sub.latest is None:
+        timed_out = now - self.started_at >= STARTUP_WAIT_S
+        if missing and not timed_out:
+            return Status.RUNNING  # the cameras are looked at once the rest is there (a read may render a frame)
+        frames = [sub.latest for sub in self.cameras]
+        for topic, frame in zip(c.image_topics, frames):
+            if frame is None:
                 missing.append(f"a frame on camera topic '{topic}' (subscribed best-effort, so a reliable or a "
                                "best-effort publisher matches; is the camera driver publishing there?)")
         if missing:
-            if now - self.started_at >= STARTUP_WAIT_S:
+            if timed_out:
                 return self._finish(Status.FAILURE, f"not available after {STARTUP_WAIT_S:.0f} s: " + "; ".join(missing))
             return Status.RUNNING
         self.rules = self.safety.snapshot()
-        self._send_request(new_episode=True, request_step=0, frozen=0)
+        self._send_request(new_episode=True, request_step=0, frozen=0, frames=frames)
         self.phase = Phase.WARMUP
         self.context.events.emit("policy_warmup_sent", self.name)
         return Status.RUNNING
@@ -275,13 +279,14 @@ class ExecutePolicy(Behavior):
         if step is not None:
             self._send_request(new_episode=False, request_step=step, frozen=frozen)
 
-    def _send_request(self, new_episode: bool, request_step: int, frozen: int) -> None:
+    def _send_request(self, new_episode: bool, request_step: int, frozen: int, frames: list[Image] | None = None) -> None:
+        """Ask for the chunk of ``request_step`` with the camera frames of now (``frames``: read in this tick already)."""
         c = self.config
         request = GetActionChunk.Request()
         request.prompt = c.prompt
         request.robot_state = robot_state(self.joint_states.latest, self.safety.group_joints, c.gripper_joint_name or None, c.joint_states_topic)
         request.image_names = list(c.image_names)
-        request.images = [sub.latest for sub in self.cameras]
+        request.images = frames if frames is not None else [sub.latest for sub in self.cameras]
         request.new_episode = new_episode
         request.frozen_prefix_steps = frozen
         request.guidance_horizon = c.guidance_horizon
