@@ -65,7 +65,7 @@ def _lookup(rules: Mapping[tuple[str, str], bool], obj: str, link: str) -> bool:
 
 
 def _pose_tuple(pose: np.ndarray | pin.SE3) -> tuple[float, ...]:
-    return tuple(float(v) for v in as_se3(pose).homogeneous.reshape(-1))
+    return tuple(as_se3(pose).homogeneous.reshape(-1).tolist())
 
 
 class PlanningScene:
@@ -151,7 +151,9 @@ class PlanningScene:
         with self._lock:
             return (self._structure, self._poses)
 
-    def move_object(self, name: str, pose: np.ndarray) -> None:
+    def move_object(self, name: str, pose: np.ndarray | pin.SE3) -> None:
+        """Move a world object to ``pose``: a 4x4 matrix (its 3x3 block must be a rotation), or a
+        ``pin.SE3``, taken as it is."""
         with self._lock:
             obj = self._object(name)
             self._objects[name] = WorldObject(name, obj.shape, _pose_tuple(pose))
