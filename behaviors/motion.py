@@ -12,12 +12,12 @@ import numpy as np
 from moveit_pro_controllers_msgs.action import FollowJointTrajectoryWithAdmittance as FollowTrajectory
 from ruckig import InputParameter, Result, Ruckig, Trajectory
 from sensor_msgs.msg import JointState
-from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
+from trajectory_msgs.msg import JointTrajectory
 
 from runtime.behavior import Behavior, Status
 from runtime.bus import STATUS_SUCCEEDED
 from runtime.ports import InputPort, PortType, Range
-from runtime.timestamps import duration_msg
+from runtime.trajectory_points import trajectory_points
 
 from runtime.scene import JointLimits
 from .execute_policy.shaping import Samples
@@ -72,10 +72,7 @@ def trajectory_goal(samples: Samples, joints: tuple[str, ...], path_tolerance: f
     """A controller goal that starts now and plays ``samples``."""
     goal = FollowTrajectory.Goal()
     trajectory = JointTrajectory(joint_names=list(joints))
-    for t, p, v, a in zip(samples.times, samples.positions, samples.velocities, samples.accelerations):
-        trajectory.points.append(
-            JointTrajectoryPoint(positions=p.tolist(), velocities=v.tolist(), accelerations=a.tolist(), time_from_start=duration_msg(t))
-        )
+    trajectory.points = trajectory_points(samples.times, samples.positions, samples.velocities, samples.accelerations)
     goal.joint_trajectory = trajectory
     goal.path_tolerance = path_tolerance
     goal.goal_time_tolerance = 1.0

@@ -10,7 +10,7 @@ from __future__ import annotations
 import enum
 import logging
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any, ClassVar
+from typing import TYPE_CHECKING, Any, ClassVar, Iterator
 
 import py_trees
 
@@ -207,6 +207,21 @@ class Behavior(NodeMixin, py_trees.behaviour.Behaviour):
 
     def __init__(self, name: str) -> None:
         super().__init__(name=name)
+
+    def tick(self) -> Iterator[py_trees.behaviour.Behaviour]:
+        """py_trees' ``Behaviour.tick``, less its debug line (formatted at every tick of every
+        leaf, logged or not) and its list of every status per tick: initialise unless RUNNING,
+        update, stop on a result other than RUNNING, then yield this node."""
+        if self.status != Status.RUNNING:
+            self.initialise()
+        new_status = self.update()
+        if not isinstance(new_status, Status):
+            self.logger.error(f"A behaviour returned an invalid status, setting to INVALID [{new_status}][{self.name}]")
+            new_status = Status.INVALID
+        if new_status != Status.RUNNING:
+            self.stop(new_status)
+        self.status = new_status
+        yield self
 
     def fail(self, reason: str) -> Status:
         """Record why this node fails and return FAILURE (``return self.fail("...")``)."""

@@ -239,6 +239,10 @@ def _failing(root: py_trees.behaviour.Behaviour, visited: list[Visit]) -> tuple[
     return inner, message or inner.feedback_message
 
 
+_STATUS_NAMES = {status: status.value for status in Status}  # an enum's .value is a slow property
+_RUNNING = Status.RUNNING.value
+
+
 class StatusEvents:
     """Emits a ``node_status`` event each time a node reports a status different from its last one.
 
@@ -251,10 +255,16 @@ class StatusEvents:
         self.events, self.nodes = events, nodes
         self.index = {id(node): i for i, node in enumerate(nodes)}
         self.last: dict[int, str] = {}
+        self.running: set[int] = set()
+        """The nodes whose last reported status is RUNNING: the only ones that can be halted."""
 
     def _emit(self, i: int, status: str, message: str) -> None:
         if self.last.get(i) != status:
             self.last[i] = status
+            if status == _RUNNING:
+                self.running.add(i)
+            else:
+                self.running.discard(i)
             self.events.emit("node_status", self.nodes[i].name, node=i, status=status, message=message)
 
     def update(self, visited: list[Visit]) -> None:
@@ -263,10 +273,12 @@ class StatusEvents:
             i = self.index.get(id(node))
             if i is not None:
                 seen.add(i)
-                self._emit(i, "SKIPPED" if status is SKIPPED and is_skipped(node) else status.value, message)
+                self._emit(i, "SKIPPED" if status is SKIPPED and is_skipped(node) else _STATUS_NAMES[status], message)
         self.halted(seen)
 
     def halted(self, seen: set[int] = frozenset()) -> None:
+        if self.running.issubset(seen):  # every RUNNING node reported again in this tick
+            return
         for i, last in list(self.last.items()):
             if last == Status.RUNNING.value and i not in seen and self.nodes[i].status is Status.INVALID:
                 self._emit(i, Status.INVALID.value, "halted")

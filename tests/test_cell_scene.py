@@ -36,6 +36,19 @@ def test_a_moved_cube_is_moved_in_the_scene_and_bumps_the_version():
     sync_cubes(scene, moved, synced)
     assert scene.version != version
     assert np.allclose(scene.object_pose(cube_object(color))[:3, 3], moved[color][0])
+    rotated = dict(moved)
+    rotated[color] = (moved[color][0], np.array([0.0, 0.0, 0.0, 2.0]))  # 180 degrees about z, not normalised
+    sync_cubes(scene, rotated, synced)
+    np.testing.assert_allclose(scene.object_pose(cube_object(color))[:3, :3], np.diag([-1.0, -1.0, 1.0]), atol=1e-15)
+
+
+def test_a_cube_pose_that_is_not_finite_is_refused_naming_the_cube():
+    poses = resting_cubes()
+    scene = make_cell_scene(poses)
+    broken = dict(poses)
+    broken["red"] = (np.array([0.4, np.nan, 0.015]), poses["red"][1])
+    with pytest.raises(ValueError, match="the world reports a pose of cube 'red' that is not finite"):
+        sync_cubes(scene, broken)
 
 
 def test_a_carried_cube_is_skipped_then_placed_where_the_world_has_it_once_released():

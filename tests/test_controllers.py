@@ -38,6 +38,7 @@ from sim.controllers import (
     stitch,
     stop_trajectory,
 )
+from sim.controllers.admittance import GoalError, parse_goal
 from sim.controllers.trajectory import blend_duration
 from runtime.timestamps import time_msg
 
@@ -634,6 +635,23 @@ def test_malformed_goals_are_rejected_with_reasons(cell):
         watch = cell.send(bad)
         assert watch.status == STATUS_ABORTED and watch.result.error_code == Result.INVALID_GOAL
         assert watch.result.error_string == message
+
+
+def test_goal_points_are_read_in_arm_joint_order_and_the_first_bad_one_is_named():
+    times, positions, velocities = [0.0, 0.5, 1.0], np.array([HOME, HOME + 0.1, HOME + 0.2]), np.arange(18.0).reshape(3, 6)
+    given = parse_goal(goal(times, positions[:, ::-1], velocities[:, ::-1], stamp=3.0, joint_names=ARM[::-1]), ARM, 0.0, AdmittanceParams())
+    np.testing.assert_array_equal(given.trajectory.times, [3.0, 3.5, 4.0])
+    np.testing.assert_array_equal(given.trajectory.positions, positions)
+    np.testing.assert_array_equal(given.trajectory.velocities, velocities)
+    # point 1's velocity is checked before point 2's positions; point 0 has no flaw
+    bad = goal(times, positions, velocities)
+    bad.joint_trajectory.points[2].positions = HOME[:5].tolist()
+    bad.joint_trajectory.points[1].velocities = [0.0, 0.0, math.inf, 0.0, 0.0, 0.0]
+    with pytest.raises(GoalError, match=r"^point 1 velocities\[2\] \(elbow_joint\) is not finite: inf$"):
+        parse_goal(bad, ARM, 0.0, AdmittanceParams())
+    bad.joint_trajectory.points[1].velocities = velocities[1].tolist()
+    with pytest.raises(GoalError, match=r"^point 2 has 5 positions, expected 6$"):
+        parse_goal(bad, ARM, 0.0, AdmittanceParams())
 
 
 # ---------------------------------------------------------------------------------------------

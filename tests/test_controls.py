@@ -366,3 +366,15 @@ def test_builtin_registers_every_node_with_a_description() -> None:
     assert ids <= {spec.id for spec in registry.specs()}
     for node_id in ids:
         assert len(registry.get(node_id).cls.description) > 20, node_id
+
+
+def test_a_leaf_that_returns_no_status_is_reported_not_passed_on(make):
+    """A leaf's update() that forgets its return: py_trees' rule (logged, taken as INVALID) and
+    then ours (a tick must not return INVALID) name the node; its parent never sees a result."""
+    leaf = Scripted("forgetful", [None])  # type: ignore[list-item]
+    leaf.xml_id = "Scripted"
+    root = make(controls.Sequence, leaf)
+    with pytest.raises(ObjectiveError, match="returned INVALID from a tick: a node must return RUNNING, SUCCESS or FAILURE") as info:
+        tick_root(root)
+    assert "forgetful" in str(info.value)
+    assert leaf.status is Status.INVALID and leaf.ticks == 1

@@ -187,6 +187,38 @@ def test_silent_camera_fails_naming_the_topic(registry):
                                  "publishing there?)")
 
 
+def _counting_camera(reads: list[int]) -> Callable[[Any, KinematicWorld], None]:
+    """A lazy ``/thermal_camera/color`` that counts its frames (on the in-process bus a read renders one)."""
+    from policy.images import rgb_to_image
+    from sensor_msgs.msg import Image
+
+    def add(context, world):
+        frame = rgb_to_image(np.full((4, 6, 3), 200, np.uint8))
+        context.bus.create_lazy_publisher("/thermal_camera/color", Image, lambda: reads.append(1) or frame, reliable=False)
+
+    return add
+
+
+def test_cameras_are_read_once_the_rest_is_there_and_feed_the_warmup(registry):
+    ports = f'{BASE} image_topics="/thermal_camera/color" image_names="thermal"'
+    reads: list[int] = []
+    run = run_policy(registry, ports, ScriptedPolicy(hold()), before=_counting_camera(reads))
+    assert run.result.status == "SUCCESS", run.result.reason
+    assert len(reads) == len(run.policy.requests) == 4  # one frame per request, the start-up check's included
+
+
+def test_missing_service_and_camera_are_both_named_after_five_seconds(registry):
+    ports = f'{BASE} image_topics="/thermal_camera/color;/night_camera/color" image_names="thermal;night"'
+    reads: list[int] = []
+    run = run_policy(registry, ports, None, world_options={"policy": "none"}, before=_counting_camera(reads))
+    assert run.result.reason == (
+        "not available after 5 s: policy service '/get_action_chunk' (start the adapter before running the Objective); "
+        "a frame on camera topic '/night_camera/color' (subscribed best-effort, so a reliable or a best-effort "
+        "publisher matches; is the camera driver publishing there?)"
+    )
+    assert len(reads) == 1  # read at the deadline only: nothing renders while the service is missing
+
+
 def test_a_best_effort_camera_is_observed(registry):
     """Most ROS 2 camera drivers publish best-effort (sensor-data QoS); the cameras still match."""
     from policy.images import rgb_to_image

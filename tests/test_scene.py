@@ -253,6 +253,25 @@ def test_snapshot_freezes_rules_but_not_world(scene, home):
     assert scene.check_state(q, padding=0.01, snapshot=snap) is None  # world geometry is live
 
 
+def test_checks_follow_every_object_that_moved_whatever_checker_answers(scene, home):
+    """Each cached checker (one per padding here) is brought up to date with the objects that
+    moved since it last answered, however many moves and other checks came between."""
+    q = np.r_[home, 0.0]
+    tcp = scene.link_pose(q, TCP_SITE)[:3, 3]
+    at_tcp, far = pose_matrix(tcp), pose_matrix([2.0, 0.0, 0.0])
+    scene.add_object("a", Box((0.1, 0.1, 0.02)), far)
+    scene.add_object("b", Box((0.1, 0.1, 0.02)), pose_matrix([-2.0, 0.0, 0.0]))
+    assert scene.check_state(q, padding=0.01) is None and scene.check_state(q, padding=0.02) is None
+    scene.move_object("a", at_tcp)
+    assert scene.check_state(q, padding=0.01).second == "a"
+    scene.move_object("b", at_tcp)
+    scene.move_object("a", far)
+    assert scene.check_state(q, padding=0.02).second == "b"  # this checker missed both earlier moves
+    assert scene.check_state(q, padding=0.01).second == "b"
+    scene.move_object("b", far)
+    assert scene.check_state(q, padding=0.01) is None and scene.check_state(q, padding=0.02) is None
+
+
 def test_group_with_two_tips_is_an_error(robot):
     srdf = parse_srdf(
         '<robot name="x"><group name="fingers">'

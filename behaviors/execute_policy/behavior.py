@@ -19,12 +19,13 @@ from control_msgs.action import GripperCommand
 from moveit_pro_controllers_msgs.action import FollowJointTrajectoryWithAdmittance as FollowTrajectory
 from moveit_pro_ml_msgs.srv import GetActionChunk
 from sensor_msgs.msg import Image, JointState
-from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
+from trajectory_msgs.msg import JointTrajectory
 
 from runtime.behavior import Behavior, Status
 from runtime.bus import STATUS_ABORTED, STATUS_SUCCEEDED
 from runtime.ports import Direction
-from runtime.timestamps import duration_msg, time_msg
+from runtime.timestamps import time_msg
+from runtime.trajectory_points import trajectory_points
 
 from . import config as cfg
 from .checks import PointChecks
@@ -174,16 +175,20 @@ class ExecutePolicy(Behavior):
             missing.append(f"gripper action '{c.gripper_command_action_name}'")
         if self.joint_states.latest is None:
             missing.append(f"joint states on '{c.joint_states_topic}' (the publisher must use reliable QoS)")
-        for topic, sub in zip(c.image_topics, self.cameras):
-            if sub.latest is None:
+        timed_out = now - self.started_at >= STARTUP_WAIT_S
+        if missing and not timed_out:
+            return Status.RUNNING  # the cameras are looked at once the rest is there (a read may render a frame)
+        frames = [sub.latest for sub in self.cameras]
+        for topic, frame in zip(c.image_topics, frames):
+            if frame is None:
                 missing.append(f"a frame on camera topic '{topic}' (subscribed best-effort, so a reliable or a "
                                "best-effort publisher matches; is the camera driver publishing there?)")
         if missing:
-            if now - self.started_at >= STARTUP_WAIT_S:
+            if timed_out:
                 return self._finish(Status.FAILURE, f"not available after {STARTUP_WAIT_S:.0f} s: " + "; ".join(missing))
             return Status.RUNNING
         self.rules = self.safety.snapshot()
-        self._send_request(new_episode=True, request_step=0, frozen=0)
+        self._send_request(new_episode=True, request_step=0, frozen=0, frames=frames)
         self.phase = Phase.WARMUP
         self.context.events.emit("policy_warmup_sent", self.name)
         return Status.RUNNING
@@ -274,13 +279,14 @@ class ExecutePolicy(Behavior):
         if step is not None:
             self._send_request(new_episode=False, request_step=step, frozen=frozen)
 
-    def _send_request(self, new_episode: bool, request_step: int, frozen: int) -> None:
+    def _send_request(self, new_episode: bool, request_step: int, frozen: int, frames: list[Image] | None = None) -> None:
+        """Ask for the chunk of ``request_step`` with the camera frames of now (``frames``: read in this tick already)."""
         c = self.config
         request = GetActionChunk.Request()
         request.prompt = c.prompt
         request.robot_state = robot_state(self.joint_states.latest, self.safety.group_joints, c.gripper_joint_name or None, c.joint_states_topic)
         request.image_names = list(c.image_names)
-        request.images = [sub.latest for sub in self.cameras]
+        request.images = frames if frames is not None else [sub.latest for sub in self.cameras]
         request.new_episode = new_episode
         request.frozen_prefix_steps = frozen
         request.guidance_horizon = c.guidance_horizon
@@ -389,10 +395,7 @@ class ExecutePolicy(Behavior):
         trajectory = JointTrajectory()
         trajectory.header.stamp = time_msg(seam_time_s)
         trajectory.joint_names = list(self.safety.group_joints)
-        for t, p, v, a in zip(samples.times, samples.positions, samples.velocities, samples.accelerations):
-            trajectory.points.append(
-                JointTrajectoryPoint(positions=p.tolist(), velocities=v.tolist(), accelerations=a.tolist(), time_from_start=duration_msg(t - seam_time_s))
-            )
+        trajectory.points = trajectory_points(samples.times - seam_time_s, samples.positions, samples.velocities, samples.accelerations)
         goal.joint_trajectory = trajectory
         goal.path_tolerance = c.goal_path_tolerance
         goal.goal_time_tolerance = max(0.5, 5 * c.dt)

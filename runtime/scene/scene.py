@@ -65,7 +65,7 @@ def _lookup(rules: Mapping[tuple[str, str], bool], obj: str, link: str) -> bool:
 
 
 def _pose_tuple(pose: np.ndarray | pin.SE3) -> tuple[float, ...]:
-    return tuple(float(v) for v in as_se3(pose).homogeneous.reshape(-1))
+    return tuple(as_se3(pose).homogeneous.reshape(-1).tolist())
 
 
 class PlanningScene:
@@ -91,7 +91,7 @@ class PlanningScene:
         self._attachments: dict[str, Attachment] = {}
         self._structure = 0  # bumped when the set of world objects changes
         self._poses = 0  # bumped when a world object moves
-        self._checkers: dict[tuple, tuple[CollisionChecker, int]] = {}
+        self._checkers: dict[tuple, _PlacedChecker] = {}
 
     # -- layouts and configurations -------------------------------------------------------
     @property
@@ -151,7 +151,9 @@ class PlanningScene:
         with self._lock:
             return (self._structure, self._poses)
 
-    def move_object(self, name: str, pose: np.ndarray) -> None:
+    def move_object(self, name: str, pose: np.ndarray | pin.SE3) -> None:
+        """Move a world object to ``pose``: a 4x4 matrix (its 3x3 block must be a rotation), or a
+        ``pin.SE3``, taken as it is."""
         with self._lock:
             obj = self._object(name)
             self._objects[name] = WorldObject(name, obj.shape, _pose_tuple(pose))
@@ -325,16 +327,27 @@ class PlanningScene:
         cached = self._checkers.get(key)
         if cached is None:
             carried = {a.name for a in snap.attachments}
-            world = [o for o in self._objects.values() if o.name not in carried]
-            checker = CollisionChecker(self.robot, world, snap.attachments, snap.is_allowed, padding)
+            world = {o.name: o for o in self._objects.values() if o.name not in carried}
+            checker = CollisionChecker(self.robot, list(world.values()), snap.attachments, snap.is_allowed, padding)
             if len(self._checkers) >= 8:
                 self._checkers.clear()
-            cached = (checker, self._poses)
+            cached = _PlacedChecker(checker, self._poses, {n: o for n, o in world.items() if n in checker.world_names})
             self._checkers[key] = cached
-        checker, poses = cached
-        if poses != self._poses:
-            for obj in self._objects.values():
-                if obj.name in checker.world_names:
-                    checker.move(obj.name, obj.matrix)
-            self._checkers[key] = (checker, self._poses)
-        return checker
+        if cached.poses != self._poses:  # move the objects that moved since (usually one cube of several)
+            for name, placed in cached.placed.items():
+                obj = self._objects[name]
+                if obj is not placed:
+                    cached.checker.move(name, obj.matrix)
+                    cached.placed[name] = obj
+            cached.poses = self._poses
+        return cached.checker
+
+
+@dataclass
+class _PlacedChecker:
+    """A compiled checker and the world objects (immutable) its placements were taken from."""
+
+    checker: CollisionChecker
+    poses: int
+    """``PlanningScene._poses`` when the placements were last brought up to date."""
+    placed: dict[str, WorldObject]

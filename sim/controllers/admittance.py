@@ -119,36 +119,27 @@ def parse_goal(goal, arm_joints: tuple[str, ...], now: float, admittance: Admitt
     points = list(trajectory.points)
     if not points:
         raise GoalError(Result.INVALID_GOAL, "the trajectory has no points")
-    n_joints = len(arm_joints)
-    times = np.empty(len(points))
-    positions = np.empty((len(points), n_joints))
-    columns: dict[str, np.ndarray | None] = {"velocities": None, "accelerations": None}
-    for field_name in columns:
+    fields = ["positions"]
+    for field_name in ("velocities", "accelerations"):
         given = [len(getattr(p, field_name)) > 0 for p in points]
         if any(given) and not all(given):
             k = given.index(not given[0])
             raise GoalError(Result.INVALID_GOAL, f"{field_name} must be given for every point or for none (point {k} differs from point 0)")
         if given[0]:
-            columns[field_name] = np.empty((len(points), n_joints))
-    for k, point in enumerate(points):
-        tfs = float(point.time_from_start.sec) + float(point.time_from_start.nanosec) * 1e-9
-        times[k] = tfs
-        for field_name, target in (("positions", positions), *((f, a) for f, a in columns.items() if a is not None)):
-            values = np.asarray(getattr(point, field_name), dtype=float)
-            if values.size != n_joints:
-                raise GoalError(Result.INVALID_GOAL, f"point {k} has {values.size} {field_name}, expected {n_joints}")
-            if not np.all(np.isfinite(values)):
-                j = int(np.argmax(~np.isfinite(values)))
-                raise GoalError(Result.INVALID_GOAL, f"point {k} {field_name}[{j}] ({names[j]}) is not finite: {values[j]}")
-            target[k] = values[order]
+            fields.append(field_name)
+    columns: dict[str, np.ndarray | None] = {"velocities": None, "accelerations": None}
+    columns.update(_point_columns(points, fields, names, order))
+    positions = columns.pop("positions")
+    times = np.array([float(p.time_from_start.sec) + float(p.time_from_start.nanosec) * 1e-9 for p in points])
     if times[0] < 0:
         raise GoalError(Result.INVALID_GOAL, f"point 0 has a negative time_from_start ({times[0]:.4f} s)")
-    for k in range(1, len(times)):
-        if times[k] <= times[k - 1]:
-            raise GoalError(
-                Result.INVALID_GOAL,
-                f"time_from_start must increase: point {k} at {times[k]:.4f} s follows point {k - 1} at {times[k - 1]:.4f} s",
-            )
+    not_increasing = np.flatnonzero(np.diff(times) <= 0)
+    if not_increasing.size:
+        k = int(not_increasing[0]) + 1
+        raise GoalError(
+            Result.INVALID_GOAL,
+            f"time_from_start must increase: point {k} at {times[k]:.4f} s follows point {k - 1} at {times[k - 1]:.4f} s",
+        )
     if times[-1] <= 0:
         raise GoalError(Result.INVALID_GOAL, "the last point's time_from_start must be > 0")
 
@@ -178,6 +169,31 @@ def parse_goal(goal, arm_joints: tuple[str, ...], now: float, admittance: Admitt
         force_torque_threshold=thresholds,
         admittance=params,
     )
+
+
+def _point_columns(points: list, fields: list[str], names: list[str], order: list[int]) -> dict[str, np.ndarray]:
+    """Each of ``fields`` of every point as a (points, joints) array in arm-joint order.
+
+    A goal has hundreds of points, so a well-formed one is read in one pass per field; otherwise
+    point by point, and GoalError names the first point (then field) with a wrong count or a
+    value that is not finite.
+    """
+    rows = {f: [getattr(p, f) for p in points] for f in fields}
+    if all(len(r) == len(order) for f in fields for r in rows[f]):
+        arrays = {f: np.array(rows[f], dtype=float) for f in fields}
+        if all(np.isfinite(a).all() for a in arrays.values()):
+            return {f: a[:, order] for f, a in arrays.items()}
+    columns = {f: np.empty((len(points), len(order))) for f in fields}
+    for k in range(len(points)):
+        for f in fields:
+            values = np.asarray(rows[f][k], dtype=float)
+            if values.size != len(order):
+                raise GoalError(Result.INVALID_GOAL, f"point {k} has {values.size} {f}, expected {len(order)}")
+            if not np.all(np.isfinite(values)):
+                j = int(np.argmax(~np.isfinite(values)))
+                raise GoalError(Result.INVALID_GOAL, f"point {k} {f}[{j}] ({names[j]}) is not finite: {values[j]}")
+            columns[f][k] = values[order]
+    return columns
 
 
 @dataclass
