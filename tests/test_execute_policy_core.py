@@ -16,6 +16,7 @@ from behaviors.execute_policy.planner import (
     earliest_seam_step,
     next_request_step,
     plan_chunk,
+    shorter_tails,
     stall_at_stop_s,
 )
 from behaviors.execute_policy.shaping import NO_TAIL, RUNOUT_SLOWDOWN, Tail, runout_chunk_steps, runout_duration
@@ -149,6 +150,41 @@ def test_a_chunk_too_late_to_join_the_playing_motion_waits_then_starts_from_rest
     assert isinstance(planned, Planned)
     assert planned.window.seam_step == late_step
     assert planned.stall_s == pytest.approx(late_step * DT - motion.full_speed_end)
+
+
+def test_a_late_chunk_joins_the_tail_where_the_arm_is_and_the_steps_played_there_count():
+    _, first = first_plan()
+    # Chunk 1's window ends at step 22; its 29 steps beyond: 26 at full speed, then a 3-step runout.
+    assert first.committed.grid.tail == Tail(26, 3, DT)
+    late = plan(first.committed, ramp(), index=2, request_step=19, frozen=3, earliest=30, goal=GoalState.PLAYING)
+    assert isinstance(late, Planned)
+    # 8 steps into the tail, the arm is where chunk 2's step 11 puts it: played from there, no stall.
+    assert (late.window.seam_step, late.window.first_chunk_step, late.window.tail_played, late.stall_s) == (30, 11, 8, 0.0)
+    assert late.committed.grid.executed_until == 20 + 8 + 20
+    p_join, v_join, _ = late.committed.motion.evaluate(np.array([3.0]))
+    p_tail, v_tail, _ = first.committed.motion.evaluate(np.array([3.0]))
+    assert np.allclose(p_join, p_tail, atol=1e-9) and np.allclose(v_join, v_tail, atol=1e-9)
+    assert np.allclose(v_tail[0], [0.5, 0.0], atol=1e-6)  # still the chunk's own 0.05 rad per step
+
+
+def test_the_next_request_is_timed_on_the_tail_when_the_latency_outgrows_the_window():
+    _, first = first_plan()
+    grid = first.committed.grid  # window from step 2 to 22, full speed to step 48, last chunk step at 51
+    assert next_request_step(grid, frozen=4, now_s=1.75) is None and next_request_step(grid, frozen=4, now_s=1.8) == 18
+    # 24 steps of latency: no request lands by step 22; it is timed to land as the tail slows down.
+    assert next_request_step(grid, frozen=24, now_s=2.35) is None and next_request_step(grid, frozen=24, now_s=2.4) == 24
+    # 40 steps: longer than half a chunk and the runout: asked for once half a chunk is left.
+    assert next_request_step(grid, frozen=40, now_s=2.55) is None and next_request_step(grid, frozen=40, now_s=2.6) == 26
+
+
+def test_a_tail_unsafe_from_some_point_on_is_cut_short_before_it():
+    assert shorter_tails(Tail(26, 3, DT)) == [Tail(13, 3, DT), Tail(6, 3, DT), Tail(3, 3, DT), Tail(1, 3, DT), Tail(0, 3, DT), NO_TAIL]
+    start = Committed(StepGrid(0.0, DT, 20, 100))
+    # The whole tail would end at 2.2 + 2.6 + 0.6 = 5.4 s; with 13 steps at full speed at 4.1 s,
+    # with 6 at 3.4 s: the longest that stays before 4.0 s.
+    planned = plan(start, ramp(), checks=FakeChecks(path_horizon_s=4.0))
+    assert isinstance(planned, Planned)
+    assert planned.committed.grid.tail == Tail(6, 3, DT) and planned.committed.motion.rest_time == pytest.approx(3.4)
 
 
 def test_rejections_name_the_chunk_and_the_reason():
