@@ -339,7 +339,7 @@ def test_a_gripper_column_100_times_too_large_is_rejected_like_an_arm_joint(regi
         hook.restore()
     assert run.result.status == "FAILURE"
     assert run.result.reason == (
-        f"chunk 1 rejected: step 0: joint {GRIPPER} position 60.0000 rad exceeds the limit 0.8000 rad (policy step 0 of the run)"
+        f"chunk 1 rejected: step 0: joint {GRIPPER} position 60.0000 rad exceeds the limit 0.8000 rad (policy step 1 of the run)"
     )
     assert run.result.blackboard["rejection"] == run.result.reason and run.summary["rejections"] == 1
     assert goals == [] and run.world.cell.gripper == 0.0  # nothing reached the gripper
@@ -363,7 +363,7 @@ def test_a_gripper_target_beyond_the_tolerance_is_rejected(registry):
     run = run_policy(registry, f"{BASE} {GRIPPER_PORTS}", ScriptedPolicy(with_gripper(-0.0101)))
     assert run.result.status == "FAILURE"
     assert run.result.reason == (
-        f"chunk 1 rejected: step 0: joint {GRIPPER} position -0.0101 rad below the limit 0.0000 rad (policy step 0 of the run)"
+        f"chunk 1 rejected: step 0: joint {GRIPPER} position -0.0101 rad below the limit 0.0000 rad (policy step 1 of the run)"
     )
 
 
@@ -534,10 +534,9 @@ def test_rtc_sends_the_unexecuted_tail_from_the_request_instant(registry):
     # Latency 0.25 s is measured on the 10 ms tick grid; frozen = ceil((0.25 + 2 ticks + 10%) / 0.1).
     assert frozen == 3
     tail = np.array(second.previous_action_chunk.data).reshape(-1, 2)
-    # Chunk 1 found the arm at rest, so it is played from its step 1 at its seam (run step 3: one
-    # step in, for the goal's delivery). Chunk 2 is requested 3 steps before the next seam
-    # (3 + 20): at run step 20, which is chunk 1's step 18.
-    assert tail[0, 0] == 1000.0 * 1 + 18 and len(tail) == 32
+    # Chunk 1 found the arm at rest, so its step 0 is played at its seam (run step 3). Chunk 2 is
+    # requested 3 steps before the next seam (3 + 20): at run step 20, which is chunk 1's step 17.
+    assert tail[0, 0] == 1000.0 * 1 + 17 and len(tail) == 33
     assert second.previous_action_chunk.layout.data_offset == 0
     assert [d.label for d in second.previous_action_chunk.layout.dim] == ["step", "action"]
     assert list(second.previous_anchor_state.position) == list(first.robot_state.position)
@@ -729,7 +728,7 @@ def test_a_chunk_that_never_comes_leaves_the_arm_at_rest_at_the_last_chunk_s_end
     start = np.array([run.world.waypoints["Ready"][j] for j in ARM_JOINTS])
     assert np.allclose(run.world.cell.arm - start, [0.49, 0, 0, 0, 0, 0], atol=1e-6)
     assert np.allclose(run.world.cell.arm_velocity_now, 0.0, atol=1e-9)
-    assert run.summary["steps_executed"] == 48  # the window's 20 (from chunk step 1) and the 28 beyond it
+    assert run.summary["steps_executed"] == 49  # the window's 20 and the 29 beyond it
     assert len(received) == 1 and any(np.array_equal(goal, received[0]) for goal in checked)
 
 
@@ -856,9 +855,9 @@ def test_chunk_arriving_early_after_a_spike_joins_at_the_end_of_the_committed_mo
     assert requested[2]["frozen_prefix_steps"] == 31
     assert early["seam_step"] == spiked["seam_step"] + spiked["steps"] < requested[2]["request_step"] + 31
     # The only pause of the run is the spike's, before chunk 2, and it is short: chunk 1's tail
-    # played its 25 steps beyond the window at full speed (2.5 s) and was 0.2 s into its runout.
-    pause_before_chunk_2 = spiked["seam_time"] - (first["seam_time"] + first["steps"] * 0.1 + 2.5)
-    assert pause_before_chunk_2 == pytest.approx(0.2)
+    # played its 26 steps beyond the window at full speed (2.6 s) and was 0.1 s into its runout.
+    pause_before_chunk_2 = spiked["seam_time"] - (first["seam_time"] + first["steps"] * 0.1 + 2.6)
+    assert pause_before_chunk_2 == pytest.approx(0.1)
     assert run.summary["stall_seconds"] == pytest.approx(pause_before_chunk_2, abs=1e-4)
 
 

@@ -154,9 +154,8 @@ def test_a_chunk_too_late_to_join_the_playing_motion_waits_then_starts_from_rest
 
 def test_a_late_chunk_joins_the_tail_where_the_arm_is_and_the_steps_played_there_count():
     _, first = first_plan()
-    # Chunk 1's window (chunk steps 1 to 21) ends at step 22; its 28 steps beyond: 25 at full
-    # speed, then a 3-step runout.
-    assert first.committed.grid.tail == Tail(25, 3, DT)
+    # Chunk 1's window ends at step 22; its 29 steps beyond: 26 at full speed, then a 3-step runout.
+    assert first.committed.grid.tail == Tail(26, 3, DT)
     late = plan(first.committed, ramp(), index=2, request_step=19, frozen=3, earliest=30, goal=GoalState.PLAYING)
     assert isinstance(late, Planned)
     # 8 steps into the tail, the arm is where chunk 2's step 11 puts it: played from there, no stall.
@@ -170,20 +169,20 @@ def test_a_late_chunk_joins_the_tail_where_the_arm_is_and_the_steps_played_there
 
 def test_the_next_request_is_timed_on_the_tail_when_the_latency_outgrows_the_window():
     _, first = first_plan()
-    grid = first.committed.grid  # window from step 2 to 22, full speed to step 47, last chunk step at 50
+    grid = first.committed.grid  # window from step 2 to 22, full speed to step 48, last chunk step at 51
     assert next_request_step(grid, frozen=4, now_s=1.75) is None and next_request_step(grid, frozen=4, now_s=1.8) == 18
     # 24 steps of latency: no request lands by step 22; it is timed to land as the tail slows down.
-    assert next_request_step(grid, frozen=24, now_s=2.25) is None and next_request_step(grid, frozen=24, now_s=2.3) == 23
+    assert next_request_step(grid, frozen=24, now_s=2.35) is None and next_request_step(grid, frozen=24, now_s=2.4) == 24
     # 40 steps: longer than half a chunk and the runout: asked for once half a chunk is left.
-    assert next_request_step(grid, frozen=40, now_s=2.45) is None and next_request_step(grid, frozen=40, now_s=2.5) == 25
+    assert next_request_step(grid, frozen=40, now_s=2.55) is None and next_request_step(grid, frozen=40, now_s=2.6) == 26
 
 
 def test_a_tail_unsafe_from_some_point_on_is_cut_short_before_it():
-    assert shorter_tails(Tail(25, 3, DT)) == [Tail(12, 3, DT), Tail(6, 3, DT), Tail(3, 3, DT), Tail(1, 3, DT), Tail(0, 3, DT), NO_TAIL]
+    assert shorter_tails(Tail(26, 3, DT)) == [Tail(13, 3, DT), Tail(6, 3, DT), Tail(3, 3, DT), Tail(1, 3, DT), Tail(0, 3, DT), NO_TAIL]
     start = Committed(StepGrid(0.0, DT, 20, 100))
-    # The whole tail would end at 2.2 + 2.5 + 0.6 = 5.3 s; with 12 steps at full speed at 4.0 s,
-    # with 6 at 3.4 s: the longest that stays before 3.9 s.
-    planned = plan(start, ramp(), checks=FakeChecks(path_horizon_s=3.9))
+    # The whole tail would end at 2.2 + 2.6 + 0.6 = 5.4 s; with 13 steps at full speed at 4.1 s,
+    # with 6 at 3.4 s: the longest that stays before 4.0 s.
+    planned = plan(start, ramp(), checks=FakeChecks(path_horizon_s=4.0))
     assert isinstance(planned, Planned)
     assert planned.committed.grid.tail == Tail(6, 3, DT) and planned.committed.motion.rest_time == pytest.approx(3.4)
 

@@ -193,8 +193,7 @@ def test_a_chunk_that_finds_the_arm_at_rest_plays_from_the_arms_step():
 
     grid = StepGrid(origin_s=0.0, dt=0.1, committed_steps=20, total_steps=100)
     first = grid.plan_window(1, request_step=0, frozen=3, chunk_steps=50, earliest_seam=5)
-    # The first chunk starts one step in: the step its goal takes to reach the controller.
-    assert (first.seam_step, first.request_step, first.first_chunk_step) == (5, 4, 1)
+    assert (first.seam_step, first.request_step, first.first_chunk_step) == (5, 5, 0)
     grid = grid.commit(first)  # committed motion ends at step 25
     on_time = grid.plan_window(2, request_step=22, frozen=3, chunk_steps=50, earliest_seam=24)
     assert (on_time.seam_step, on_time.first_chunk_step) == (25, 3)

@@ -132,10 +132,10 @@ def test_dropped_response_fails_at_policy_call_timeout_and_stops(registry):
     assert out.message == f"the policy service '{SERVICE}' did not answer within policy_call_timeout = {TIMEOUT:g} s"
     assert out.finished_at - out.requested_at[2] == pytest.approx(TIMEOUT, abs=2 * TICK)
     out.assert_stopped_cleanly()
-    # After chunk 1's window the arm played its 25 steps beyond the window at full speed, then
+    # After chunk 1's window the arm played its 26 steps beyond the window at full speed, then
     # slowed down (the tail's runout) and waited for chunk 2 until the timeout: the wait from the
     # end of full speed is a stall (on main stall_seconds stayed 0 when the wait ended in a failure).
-    slowing_from = out.first_window_end + 2.5
+    slowing_from = out.first_window_end + 2.6
     assert out.summary["stall_seconds"] == pytest.approx(out.finished_at - slowing_from, abs=1e-6)
     assert out.summary["stall_seconds"] > 0.1
 

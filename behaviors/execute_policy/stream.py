@@ -138,10 +138,7 @@ class StepGrid:
             if index > 1:
                 played = tail_progress(seam - self.committed_end, self.tail.extension_steps, self.tail.runout_steps)
                 reached = self.committed_end + played - request_step
-            # The chunk's time line, shifted to start at the arm's state. The first chunk starts
-            # one step in, as if the arm had started when the chunk arrived rather than at the
-            # seam a step later (the goal's delivery): the blend from rest catches that step up.
-            request_step = seam - max(0, reached) - (1 if index == 1 and chunk_steps > 2 else 0)
+            request_step = seam - max(0, reached)  # the chunk's time line, shifted to start at the arm's state
         # A chunk with N steps has positions up to chunk step N-1: the window needs its end point.
         available = request_step + chunk_steps - 1 - seam
         if not on_time and available - runout_reserve >= 1:
