@@ -213,9 +213,8 @@ class LeRobotQueue:
 
         ensure_torchvision()  # lerobot's robot and processor modules import torchvision
         from lerobot.async_inference.configs import get_aggregate_function
-        from lerobot.async_inference.robot_client import RobotClient
 
-        self._client = RobotClient
+        self._client = _import_robot_client()
         self.aggregate_fn = get_aggregate_function(aggregate_fn_name)
         self.action_queue: Queue = Queue()
         self.action_queue_lock = threading.Lock()
@@ -243,6 +242,29 @@ class LeRobotQueue:
         timed = self.action_queue.get_nowait()
         self.latest_action = timed.get_timestep()
         return timed.get_action().numpy()
+
+
+def _import_robot_client() -> type:
+    """``lerobot.async_inference.robot_client.RobotClient``. Defining the class sets up its
+    logger, which writes ``logs/robot_client_<time>.log`` under the working directory and
+    reconfigures the root logger: it is imported from a scratch directory, and the root
+    logger's handlers and level are put back."""
+    import contextlib
+    import logging
+    import sys
+    import tempfile
+
+    if "lerobot.async_inference.robot_client" in sys.modules:
+        return sys.modules["lerobot.async_inference.robot_client"].RobotClient
+    root = logging.getLogger()
+    handlers, level = list(root.handlers), root.level
+    try:
+        with tempfile.TemporaryDirectory() as scratch, contextlib.chdir(scratch):
+            from lerobot.async_inference.robot_client import RobotClient
+    finally:
+        root.handlers[:] = handlers
+        root.setLevel(level)
+    return RobotClient
 
 
 def lerobot_queue_or_reimplementation(threshold: float = 0.5) -> LeRobotQueue | ReimplementedQueue:

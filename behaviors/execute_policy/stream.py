@@ -77,7 +77,7 @@ class StepGrid:
     committed_steps: int
     total_steps: int
     committed_end: int = 0  # step where the committed motion ends (the next seam)
-    executed_until: int = 0  # steps committed so far (sum of windows)
+    executed_until: int = 0  # steps committed so far (the windows, and the tail steps played before late seams)
     seam_step: int = 0  # where the last committed window took over
     tail: Tail = NO_TAIL  # what the arm plays after committed_end when no chunk takes over there
     chunk_steps: int = 0  # steps of the last committed chunk
