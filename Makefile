@@ -33,7 +33,7 @@ $(LEROBOT_STAMP): $(STAMP) requirements/lerobot.txt requirements/lerobot-constra
 	$(LEROBOT_PIP) torch==2.13.0
 	$(LEROBOT_PIP) --no-deps torchvision==0.28.0 lerobot==0.4.4
 	set -o pipefail; $(LEROBOT_PIP) -r requirements/lerobot.txt 2>&1 | { grep -v "is ignored: it is neither" || true; }
-	HF_HUB_OFFLINE=1 $(PY) -c "from policy.lerobot_compat import ensure_torchvision; print('torchvision ops:', ensure_torchvision()); import lerobot.policies.smolvla.modeling_smolvla"
+	HF_HUB_OFFLINE=1 $(PY) -c "from policy.lerobot_compat import ensure_torchvision; print('torchvision ops:', ensure_torchvision()); import lerobot.policies.smolvla.modeling_smolvla, lerobot.async_inference.robot_client"
 	@touch $@
 
 # The demo's tiny SmolVLA: records oracle demonstrations (build/demos/stack_cubes, reused when

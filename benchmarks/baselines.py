@@ -15,7 +15,10 @@ takes ``trace[i]`` seconds) as ExecutePolicy does in the benchmark.
   ``len(queue) / chunk_size <= threshold`` (0.5); an arriving chunk's actions whose timestep has
   already been played are dropped, those already queued are aggregated ``0.3 * old + 0.7 * new``
   (LeRobot's ``weighted_average``), the rest are appended; one action is played per tick with no
-  smoothing, and the arm holds when the queue is empty.
+  smoothing, and the arm holds when the queue is empty. Where lerobot is installed (``make
+  lerobot``) the queue is LeRobot's own code (``LeRobotQueue``: ``RobotClient``'s
+  ``_aggregate_action_queues`` and ``_ready_to_send_observation``); without it, a reimplementation
+  (``ReimplementedQueue``). The stream says which ran.
 
 ``TaskPolicy`` answers with chunks of a smooth task path, starting from where the observed state
 lies on the path (like a real policy, it sees only the observation), with realistic
@@ -128,6 +131,7 @@ class Stream:
     positions: np.ndarray  # (ticks, joints): the setpoint at tick k, time k * dt
     seams: list[int]  # ticks whose setpoint is the first one taken from a newly arrived chunk
     calls: int
+    implementation: str = ""  # which code produced it, where that differs (LeRobot's own or a reimplementation)
 
     @property
     def times(self) -> np.ndarray:
@@ -157,6 +161,121 @@ def run_sync(policy: TaskPolicy, trace: list[float], start: np.ndarray, dt: floa
     return Stream(dt, np.array(out), seams, call)
 
 
+class ReimplementedQueue:
+    """LeRobot's client-side action queue, reimplemented (for installations without LeRobot):
+    timestep -> action; an arriving action already played is dropped, one already queued is
+    aggregated ``old_weight * old + (1 - old_weight) * new``, the rest are appended."""
+
+    implementation = "reimplementation (lerobot not installed)"
+
+    def __init__(self, old_weight: float = 0.3) -> None:
+        self.old_weight = old_weight
+        self.queue: dict[int, np.ndarray] = {}  # in timestep order
+        self.latest_action = -1  # timestep of the last played action
+
+    def __len__(self) -> int:
+        return len(self.queue)
+
+    def merge(self, first_timestep: int, actions: np.ndarray) -> None:
+        merged: dict[int, np.ndarray] = {}
+        for i, action in enumerate(actions):
+            step = first_timestep + i
+            if step <= self.latest_action:
+                continue
+            merged[step] = self.old_weight * self.queue[step] + (1.0 - self.old_weight) * action if step in self.queue else action
+        self.queue = merged
+
+    def ready(self, chunk_steps: int, threshold: float) -> bool:
+        return len(self.queue) / chunk_steps <= threshold
+
+    def pop(self) -> np.ndarray:
+        step = min(self.queue)
+        self.latest_action = step
+        return self.queue.pop(step)
+
+
+class LeRobotQueue:
+    """LeRobot's own client-side action queue: the queue state of ``lerobot.async_inference``'s
+    ``RobotClient`` (a ``Queue`` of ``TimedAction``, its locks, ``latest_action``), driven by
+    that class's own methods: ``_aggregate_action_queues`` with the ``weighted_average``
+    aggregate function merges a chunk, ``_ready_to_send_observation`` decides when to send an
+    observation. Only the parts of ``RobotClient`` that need a robot and a server are left out
+    (its constructor, the gRPC threads); a popped action sets ``latest_action`` as its control
+    loop does."""
+
+    implementation = "lerobot 0.4.4 (RobotClient._aggregate_action_queues, weighted_average)"
+
+    def __init__(self, chunk_size_threshold: float = 0.5, aggregate_fn_name: str = "weighted_average") -> None:
+        import threading
+        from queue import Queue
+
+        from policy.lerobot_compat import ensure_torchvision
+
+        ensure_torchvision()  # lerobot's robot and processor modules import torchvision
+        from lerobot.async_inference.configs import get_aggregate_function
+
+        self._client = _import_robot_client()
+        self.aggregate_fn = get_aggregate_function(aggregate_fn_name)
+        self.action_queue: Queue = Queue()
+        self.action_queue_lock = threading.Lock()
+        self.latest_action_lock = threading.Lock()
+        self.latest_action = -1
+        self.action_chunk_size = -1
+        self._chunk_size_threshold = chunk_size_threshold
+
+    def __len__(self) -> int:
+        return self.action_queue.qsize()
+
+    def merge(self, first_timestep: int, actions: np.ndarray) -> None:
+        import torch
+        from lerobot.async_inference.helpers import TimedAction
+
+        self.action_chunk_size = max(self.action_chunk_size, len(actions))  # as its receive thread does
+        timed = [TimedAction(timestamp=0.0, timestep=first_timestep + i, action=torch.from_numpy(np.array(a))) for i, a in enumerate(actions)]
+        self._client._aggregate_action_queues(self, timed, self.aggregate_fn)
+
+    def ready(self, chunk_steps: int, threshold: float) -> bool:
+        assert threshold == self._chunk_size_threshold, "the threshold is the client's configuration"
+        return self._client._ready_to_send_observation(self)
+
+    def pop(self) -> np.ndarray:
+        timed = self.action_queue.get_nowait()
+        self.latest_action = timed.get_timestep()
+        return timed.get_action().numpy()
+
+
+def _import_robot_client() -> type:
+    """``lerobot.async_inference.robot_client.RobotClient``. Defining the class sets up its
+    logger, which writes ``logs/robot_client_<time>.log`` under the working directory and
+    reconfigures the root logger: it is imported from a scratch directory, and the root
+    logger's handlers and level are put back."""
+    import contextlib
+    import logging
+    import sys
+    import tempfile
+
+    if "lerobot.async_inference.robot_client" in sys.modules:
+        return sys.modules["lerobot.async_inference.robot_client"].RobotClient
+    root = logging.getLogger()
+    handlers, level = list(root.handlers), root.level
+    try:
+        with tempfile.TemporaryDirectory() as scratch, contextlib.chdir(scratch):
+            from lerobot.async_inference.robot_client import RobotClient
+    finally:
+        root.handlers[:] = handlers
+        root.setLevel(level)
+    return RobotClient
+
+
+def lerobot_queue_or_reimplementation(threshold: float = 0.5) -> LeRobotQueue | ReimplementedQueue:
+    """LeRobot's own queue where ``lerobot`` (with its async-inference extra) is installed, else
+    the reimplementation; ``.implementation`` says which."""
+    try:
+        return LeRobotQueue(chunk_size_threshold=threshold)
+    except ImportError:
+        return ReimplementedQueue()
+
+
 def run_lerobot_aggregate(
     policy: TaskPolicy,
     trace: list[float],
@@ -164,13 +283,15 @@ def run_lerobot_aggregate(
     dt: float,
     total_steps: int,
     threshold: float = 0.5,
-    old_weight: float = 0.3,
+    queue: LeRobotQueue | ReimplementedQueue | None = None,
 ) -> Stream:
-    """LeRobot-async-style action queue with weighted-average aggregation; ``total_steps`` played."""
+    """LeRobot-async-style action queue with weighted-average aggregation; ``total_steps`` played.
+
+    ``queue`` is LeRobot's own (``LeRobotQueue``) where it is installed, else the reimplementation;
+    the stream's ``implementation`` says which ran."""
     policy.reset()
+    queue = queue if queue is not None else lerobot_queue_or_reimplementation(threshold)
     q = np.asarray(start, dtype=float).copy()
-    queue: dict[int, np.ndarray] = {}  # timestep -> action, in timestep order
-    latest = -1  # timestep of the last played action
     in_flight: tuple[float, int, np.ndarray] | None = None  # (arrival time, obs timestep, chunk)
     out, seams = [q.copy()], []
     played = call = tick = 0
@@ -181,18 +302,11 @@ def run_lerobot_aggregate(
         if in_flight is not None and in_flight[0] <= now + 1e-9:
             _, obs_step, chunk = in_flight
             in_flight = None
-            merged: dict[int, np.ndarray] = {}
-            for i, action in enumerate(chunk):
-                step = obs_step + i
-                if step <= latest:
-                    continue
-                merged[step] = old_weight * queue[step] + (1.0 - old_weight) * action if step in queue else action
-            queue, fresh = merged, True
+            queue.merge(obs_step, chunk)
+            fresh = True
         if tick > 0:  # tick 0 is the observed start
-            if queue:
-                step = min(queue)
-                q = queue.pop(step)
-                latest = step
+            if len(queue):
+                q = queue.pop()
                 played += 1
                 holding = False
                 if fresh:
@@ -202,12 +316,12 @@ def run_lerobot_aggregate(
                 seams.append(len(out))  # the queue ran dry: the arm stops at a chunk boundary
                 holding = True
             out.append(q.copy())
-        if in_flight is None and len(queue) / policy.chunk_steps <= threshold:
+        if in_flight is None and queue.ready(policy.chunk_steps, threshold):
             latency = trace[call % len(trace)]
-            in_flight = (now + latency, max(latest, 0), policy.chunk(call, q))
+            in_flight = (now + latency, max(queue.latest_action, 0), policy.chunk(call, q))
             call += 1
         tick += 1
-    return Stream(dt, np.array(out), seams, call)
+    return Stream(dt, np.array(out), seams, call, queue.implementation)
 
 
 # --------------------------------------------------------------------------------------------

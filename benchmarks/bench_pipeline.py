@@ -1,8 +1,8 @@
 """Chunk pipeline cost: everything ExecutePolicy does to one chunk before the controller sees it.
 
 validate (``read_chunk`` of a 50-step GetActionChunk chunk with the gripper column) + smooth
-(``fit_chunk``) + blend (``join_at_seam``, and the window's runout) + densify (the runout adds one
-sample per 10 ms after the window) + limit checks (position, velocity,
+(``fit_chunk``) + blend (``join_at_seam``, and the window's tail: the chunk's steps beyond the
+window, then a runout) + densify (the tail adds one sample per 10 ms after the window) + limit checks (position, velocity,
 acceleration of every densified point) + self and world collision checks (``make_safety`` over
 the real cell planning scene, ``sim.planning.make_cell_scene``: UR5e + 2F-85, table, three cubes,
 padding 0.01 m), at ``num_interpolation_points`` 100, 200 and 400, as a fraction of the committed
@@ -30,7 +30,7 @@ import numpy as np
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
 from behaviors.execute_policy.chunk import read_chunk
-from behaviors.execute_policy.shaping import densify, fit_chunk, join_at_seam, runout_duration
+from behaviors.execute_policy.shaping import densify, fit_chunk, join_at_seam, plan_tail
 from behaviors.safety import make_safety
 from benchmarks.baselines import TaskPolicy, benchmark_task
 from sim.layouts import layout
@@ -82,9 +82,9 @@ def pipeline(safety: Any, snapshot: Any, msg: Any, points: int, clock: Callable[
     p0 = spline(3.0) + 0.002  # the committed motion's state at the seam, slightly off the chunk
     v0 = spline(3.0, nu=1) / DT
     motion = join_at_seam(spline, DT, 0.0, seam, end, p0, v0, blend_duration=0.5 * COMMITTED * DT)
-    _, v_end, _ = motion.evaluate(np.array([end]))
-    spare = CHUNK_STEPS - 1 - (3 + COMMITTED)
-    motion = motion.with_runout(runout_duration(v_end[0], safety.limits.max_acceleration, DT, 0.5 * COMMITTED * DT, spare))
+    spare = CHUNK_STEPS - 1 - (3 + COMMITTED)  # the window's tail, as the planner makes it
+    _, beyond_v, _ = motion.evaluate(end + DT * np.arange(spare + 1))
+    motion = motion.with_tail(plan_tail(np.abs(beyond_v).max(axis=0), safety.limits.max_acceleration, DT, 0.25 * COMMITTED * DT, spare))
     mark()
     samples = densify(motion, points)
     mark()

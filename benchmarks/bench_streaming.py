@@ -8,7 +8,9 @@ position disagreement and per-step jitter, seeded by call index), same latency t
   checks); its commanded stream is recorded at the 500 Hz control loop and read at the policy
   ticks. The warmup call takes the trace's mean latency.
 - ``sync`` and ``lerobot_aggregate``: ``benchmarks.baselines`` (pure simulations of the commanded
-  stream at the policy ticks).
+  stream at the policy ticks). ``lerobot_aggregate`` runs LeRobot's own queue code where lerobot
+  is installed (``make lerobot``) and a reimplementation otherwise: the ``implementation`` column
+  says which.
 
 Every executor plays ``total_action_steps`` = 110 policy steps (dt 0.1 s, committed window 20
 steps = 2 s; chunks of 50 steps). Metrics (``benchmarks.baselines.stream_metrics``) are computed on the
@@ -142,7 +144,7 @@ def main() -> None:
                 for method, (stream, info) in streams.items():
                     entry = {"ok": info["status"] == "SUCCESS", "reason": info.get("reason", "")}
                     if stream is not None:
-                        entry.update(asdict(stream_metrics(stream, path)))
+                        entry.update(asdict(stream_metrics(stream, path)), implementation=stream.implementation)
                     per_method[method].append(entry)
             for method, entries in per_method.items():
                 rows.append(_row(method, kind, latency, entries))
@@ -151,7 +153,7 @@ def main() -> None:
         f"seeds {seeds}; no-stall bound (committed-1)*dt/2 = {(COMMITTED - 1) * DT / 2:g} s",
         "medians over seeds; jumps and jerk from the setpoints at the policy ticks (finite differences over dt)",
     ]
-    columns = ["method", "latency", "latency_s", "ok_runs", "reached_goal", "stall_fraction", "task_time_s", "motion_time_s", "max_vel_jump", "max_acc_jump", "rms_jerk", "max_path_dev"]
+    columns = ["method", "latency", "latency_s", "ok_runs", "reached_goal", "stall_fraction", "task_time_s", "motion_time_s", "max_vel_jump", "max_acc_jump", "rms_jerk", "max_path_dev", "implementation"]
     report("bench_streaming: executors under policy latency (sim clock)", rows, columns, notes)
 
 
@@ -178,6 +180,7 @@ def _row(method: str, kind: str, latency: float, entries: list[dict[str, Any]]) 
         "rms_jerk": med("rms_jerk"),
         "max_path_dev": med("max_path_dev"),
         "reached_goal": sum(bool(e.get("done")) for e in measured),
+        "implementation": "; ".join(sorted({e["implementation"] for e in entries if "implementation" in e})),
     }
     if failures:
         row["failures"] = failures

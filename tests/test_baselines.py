@@ -27,3 +27,33 @@ def test_a_pause_mid_path_counts_as_stall_and_a_dead_stop_as_a_velocity_jump():
     assert metrics.stall_fraction == pytest.approx(5 * dt / metrics.task_time_s)
     peak_speed = float(np.max(np.diff(q[:, 0]))) / dt
     assert metrics.max_vel_jump == pytest.approx(peak_speed, rel=0.05)
+
+
+def test_the_lerobot_baseline_runs_lerobot_s_own_queue_code_where_lerobot_is_installed(monkeypatch):
+    """With lerobot installed (``make lerobot``) the baseline merges every chunk with LeRobot's
+    own ``RobotClient._aggregate_action_queues`` and says so; it plays exactly what the
+    reimplementation (used without lerobot) plays."""
+    from benchmarks.baselines import LeRobotQueue, ReimplementedQueue, TaskPolicy, benchmark_task, latency_trace, run_lerobot_aggregate
+
+    try:
+        queue = LeRobotQueue()
+    except ImportError:
+        pytest.skip("lerobot is not installed (make lerobot)")
+    from lerobot.async_inference.robot_client import RobotClient
+
+    merges: list[int] = []
+    aggregate = RobotClient._aggregate_action_queues
+
+    def counted(self, incoming, aggregate_fn=None):
+        merges.append(len(incoming))
+        return aggregate(self, incoming, aggregate_fn)
+
+    monkeypatch.setattr(RobotClient, "_aggregate_action_queues", counted)
+    path = benchmark_task(np.zeros(6))
+    trace = latency_trace("lognormal", 1.5, 50, seed=1)
+    theirs = run_lerobot_aggregate(TaskPolicy(path, 0.1, 50, seed=1), trace, np.zeros(6), 0.1, 60, queue=queue)
+    ours = run_lerobot_aggregate(TaskPolicy(path, 0.1, 50, seed=1), trace, np.zeros(6), 0.1, 60, queue=ReimplementedQueue())
+    assert theirs.implementation.startswith("lerobot 0.4.4") and ours.implementation.startswith("reimplementation")
+    assert len(merges) >= 2 and set(merges) == {50}  # every chunk went through LeRobot's code
+    assert theirs.seams == ours.seams and theirs.calls == ours.calls
+    assert np.allclose(theirs.positions, ours.positions, atol=1e-12)

@@ -590,11 +590,16 @@ def test_no_stalls_while_latency_is_within_half_the_committed_window(registry, l
     assert run.summary["stall_seconds"] == 0.0
 
 
-def test_latency_beyond_the_window_pauses_between_chunks_and_warns(registry):
-    run = run_policy(registry, BASE, ScriptedPolicy(hold()), latency=2.5)
+def test_latency_beyond_the_window_keeps_the_arm_moving_and_warns(registry):
+    # Each chunk can only be asked for once the previous one arrived, 2.5 s later: longer than the
+    # 2 s window. Between windows the arm plays the chunk's steps beyond its window at the
+    # policy's pace; on main it ran out over 0.5 s and stood still for 0.5 s at each of the two
+    # boundaries (1.0 s of stall). Now chunk 2 is asked for so that it lands as chunk 1's tail
+    # would start slowing down: it never does. The guide's sizing rule still warns.
+    run = run_policy(registry, BASE, ScriptedPolicy(hold(velocity=np.array([0.1, 0, 0, 0, 0, 0]))), latency=2.5)
     assert run.result.status == "SUCCESS", run.result.reason
-    # Each chunk can only be asked for once the previous one arrived: two 0.5 s gaps in 60 steps.
-    assert run.summary["stall_seconds"] == pytest.approx(1.0, abs=0.05)
+    assert run.summary["stall_seconds"] == 0.0
+    assert run.summary["steps_executed"] == 60 and run.summary["chunks"] == 2
     assert any("is below twice the measured latency 2.500 s" in w for w in run.summary["warnings"])
 
 
@@ -638,14 +643,13 @@ class SpikeAt:
         return self.spike if self.calls - 1 == self.spike_index else self.base
 
 
-def test_chunk_arriving_too_late_to_join_pauses_the_robot_then_continues(registry):
-    # Chunk 2 is requested one step before the committed motion ends and arrives 5 ms before
-    # that end: too late to take over inside the motion still playing. Rather than send a seam
-    # the controller would refuse ("seam time exceeds the end of the current trajectory"), the
-    # chunk waits for the motion to finish and starts from rest: a pause, counted as a stall.
+def test_chunk_arriving_just_after_the_window_ends_joins_its_tail_without_a_pause(registry):
+    # Chunk 2 is requested one step before the committed window ends and arrives 5 ms before that
+    # end: too late to take over there. It joins the motion still playing, chunk 1's steps beyond
+    # its window (the tail), one step later: no pause, and every step is counted.
     run = run_policy(registry, BASE, ScriptedPolicy(hold(velocity=np.array([0.1, 0, 0, 0, 0, 0]))), latency=SpikeAt(0.05, 2, 0.095))
     assert run.result.status == "SUCCESS", run.result.reason
-    assert run.summary["stall_seconds"] == pytest.approx(0.1)  # one step: the next one after the motion ended
+    assert run.summary["stall_seconds"] == 0.0
     assert run.summary["steps_executed"] == 60
 
 
@@ -696,21 +700,68 @@ def answer_late(monkeypatch, delay: float, which: Callable[[Any], bool]) -> None
     monkeypatch.setattr(bus_module._InProcessActionClient, "send_goal_async", slow)
 
 
-def test_a_late_chunk_joins_during_the_runout_and_the_arm_never_stops_dead(registry):
-    # Chunk 2 is asked for one step before the committed motion ends and takes 0.5 s: it joins
-    # five steps after that end (the first step after its arrival). Meanwhile the arm goes on along
-    # chunk 1's path, slowing down (the runout), and chunk 2 takes over from that moving state:
-    # the commanded velocity never jumps and never reaches zero before the run's last window.
+def test_a_chunk_later_than_the_window_keeps_the_arm_at_the_policy_s_pace_along_the_chunk(registry):
+    # Chunk 2 is asked for one step before chunk 1's 2 s window ends and takes 2.0 s: it arrives
+    # 1.9 s after that end, later than a whole window but well within chunk 1 (5 s). Meanwhile the
+    # arm goes on along chunk 1's own steps beyond its window at full speed (0.1 rad/s, the
+    # policy's pace), and chunk 2 takes over from that moving state where the arm is: the
+    # commanded velocity never jumps, never slows, and no time is lost standing still. On main
+    # the arm slowed to rest within 1 s of the window's end and stood still for 0.9 s.
     commanded: list[tuple[float, float]] = []
     velocity = np.array([0.1, 0, 0, 0, 0, 0])
-    run = run_policy(registry, BASE, ScriptedPolicy(hold(velocity=velocity)), latency=SpikeAt(0.05, 2, 0.5),
+    run = run_policy(registry, BASE, ScriptedPolicy(hold(velocity=velocity)), latency=SpikeAt(0.05, 2, 2.0),
                      before=record_commanded_velocity(commanded))
     assert run.result.status == "SUCCESS", run.result.reason
-    assert run.summary["stall_seconds"] == pytest.approx(0.5, abs=0.01)  # from the window's end to the late seam
+    assert run.summary["stall_seconds"] == 0.0
+    executed = [e.data for e in run.context.events.of_kind("chunk_executed")]
+    first, late = executed
+    window_end = first["seam_time"] + first["steps"] * 0.1
+    assert late["seam_time"] - window_end == pytest.approx(2.0)  # later than the 2 s window
+    # Played from the chunk step the clock says: the arm kept the chunk's pace while it waited.
+    assert late["request_step"] == 20
+    assert run.summary["steps_executed"] == 60 and run.summary["chunks"] == 2  # the tail's steps count
     t, v = np.array(commanded).T
-    moving = (t > t[np.argmax(v > 0.05)]) & (t < 5.0)
-    assert np.min(v[moving]) > 0.03  # slowed, never stopped
+    between = (t > first["seam_time"] + 1.0) & (t < late["seam_time"] + 1.0)
+    assert np.allclose(v[between], 0.1, atol=1e-3)  # full speed through the window's end and the seam
     assert np.max(np.abs(np.diff(v))) < 0.002  # rad/s per 2 ms control step: no jump anywhere
+
+
+def test_a_chunk_that_never_comes_leaves_the_arm_at_rest_at_the_last_chunk_s_end(registry, monkeypatch):
+    # Chunk 2 never comes (the policy hangs until policy_call_timeout, 10 s). The arm plays chunk
+    # 1's window, then its steps beyond the window, and slows to rest at its last step (49 steps
+    # of 0.01 rad from the start); the run then fails on the timeout. Every point the controller
+    # received was one the checks (limits and collision) had passed.
+    import sim.controllers.admittance as admittance
+    from behaviors.execute_policy.checks import PointChecks
+
+    checked: list[np.ndarray] = []
+    check_path = PointChecks.path
+
+    def recording_path(self, samples, window):
+        reason = check_path(self, samples, window)
+        if reason is None:
+            checked.append(samples.positions)
+        return reason
+
+    received: list[np.ndarray] = []
+    parse = admittance.parse_goal
+
+    def recording_parse(request, *args):
+        received.append(np.array([p.positions for p in request.joint_trajectory.points]))
+        return parse(request, *args)
+
+    monkeypatch.setattr(PointChecks, "path", recording_path)
+    monkeypatch.setattr(admittance, "parse_goal", recording_parse)
+    ports = BASE.replace('policy_call_timeout="3.0"', 'policy_call_timeout="10.0"')
+    run = run_policy(registry, ports, ScriptedPolicy(hold(velocity=np.array([0.1, 0, 0, 0, 0, 0]))),
+                     latency=SpikeAt(0.05, 2, 30.0), max_seconds=30.0)
+    assert run.result.status == "FAILURE"
+    assert run.result.reason == "the policy service '/get_action_chunk' did not answer within policy_call_timeout = 10 s"
+    start = np.array([run.world.waypoints["Ready"][j] for j in ARM_JOINTS])
+    assert np.allclose(run.world.cell.arm - start, [0.49, 0, 0, 0, 0, 0], atol=1e-6)
+    assert np.allclose(run.world.cell.arm_velocity_now, 0.0, atol=1e-9)
+    assert run.summary["steps_executed"] == 49  # the window's 20 and the 29 beyond it
+    assert len(received) == 1 and any(np.array_equal(goal, received[0]) for goal in checked)
 
 
 def test_a_goal_that_reaches_the_controller_after_its_seam_while_moving_is_planned_again(registry, monkeypatch):
@@ -788,22 +839,57 @@ def test_a_controller_that_never_acknowledges_a_goal_ends_the_run(registry, monk
     )
 
 
+def test_an_obstacle_on_the_chunk_s_path_beyond_the_window_stops_the_arm_before_it(registry):
+    # A box stands where the gripper would be at chunk 1's step 40, beyond its 20-step window,
+    # and chunk 2 never comes. The tail (the chunk's steps beyond the window, then the runout)
+    # is checked like the window: it is cut short so that the arm comes to rest before the box,
+    # never in collision, instead of running on along the chunk to its step 49.
+    turn = np.array([0.3, 0.0, 0.0, 0.0, 0.0, 0.0])  # shoulder_pan, 0.03 rad per step
+    offsets: dict[str, float] = {}
+
+    def box_at_step_40(context, world):
+        step_to = world.step_to
+
+        def step(t):
+            step_to(t)
+            if "box" not in context.scene.objects:  # before the first chunk
+                tip = context.scene.link_pose(np.append(start + turn * 4.0, world.cell.gripper), "gripper_base")
+                context.scene.add_object("box", Box((0.12, 0.12, 0.12)), pose_matrix(tip[:3, 3]))
+            offsets["max"] = max(offsets.get("max", 0.0), float(world.cell.arm[0] - start[0]))
+
+        world.step_to = step
+
+    start = np.array([KinematicWorld({"policy": "none"}).waypoints["Ready"][j] for j in ARM_JOINTS])
+    ports = BASE.replace('policy_call_timeout="3.0"', 'policy_call_timeout="10.0"')
+    run = run_policy(registry, ports, ScriptedPolicy(hold(velocity=turn)), latency=SpikeAt(0.05, 2, 30.0),
+                     before=box_at_step_40, max_seconds=30.0)
+    assert run.result.status == "FAILURE"
+    assert run.result.reason == "the policy service '/get_action_chunk' did not answer within policy_call_timeout = 10 s"
+    rest = float(run.world.cell.arm[0] - start[0])
+    assert np.allclose(run.world.cell.arm_velocity_now, 0.0, atol=1e-9)
+    # Further than the window and a 5-step runout (0.75 rad, where main stopped), short of the box.
+    assert 0.75 < rest < 1.2 and offsets["max"] == pytest.approx(rest)
+    assert rest == pytest.approx(0.03 * round(rest / 0.03), abs=1e-6)  # at rest on one of the chunk's steps
+
+
 def test_chunk_arriving_early_after_a_spike_joins_at_the_end_of_the_committed_motion(registry):
     # A 2.8 s spike grows the latency estimate past the committed window; the next chunk is asked
-    # for at once with a large frozen prefix but arrives in 0.1 s, and joins without a pause.
-    run = run_policy(registry, BASE, ScriptedPolicy(hold(velocity=np.array([0.1, 0, 0, 0, 0, 0]))), latency=SpikeAt(0.1, 2, 2.8))
+    # for with a large frozen prefix but arrives in 0.1 s, and joins without a pause.
+    ports = BASE.replace('total_action_steps="60"', 'total_action_steps="100"')
+    run = run_policy(registry, ports, ScriptedPolicy(hold(velocity=np.array([0.1, 0, 0, 0, 0, 0]))), latency=SpikeAt(0.1, 2, 2.8))
     assert run.result.status == "SUCCESS", run.result.reason
     executed = [e.data for e in run.context.events.of_kind("chunk_executed")]
     requested = [e.data for e in run.context.events.of_kind("chunk_requested")][1:]  # the warmup's left out
-    assert len(executed) == 3 and run.summary["steps_executed"] == 60
-    first, spiked, early = executed
+    assert run.summary["steps_executed"] == 100
+    first, spiked, early = executed[:3]
     # Chunk 3's frozen prefix would put its seam 31 steps after its request; it takes over where
-    # chunk 2's window ends instead, ten steps sooner.
+    # chunk 2's window ends instead, 15 steps sooner.
     assert requested[2]["frozen_prefix_steps"] == 31
     assert early["seam_step"] == spiked["seam_step"] + spiked["steps"] < requested[2]["request_step"] + 31
-    # The only pause of the run is the spike's, before chunk 2: none before chunk 3.
-    pause_before_chunk_2 = spiked["seam_time"] - (first["seam_time"] + first["steps"] * 0.1)
-    assert pause_before_chunk_2 == pytest.approx(2.7)
+    # The only pause of the run is the spike's, before chunk 2, and it is short: chunk 1's tail
+    # played its 26 steps beyond the window at full speed (2.6 s) and was 0.1 s into its runout.
+    pause_before_chunk_2 = spiked["seam_time"] - (first["seam_time"] + first["steps"] * 0.1 + 2.6)
+    assert pause_before_chunk_2 == pytest.approx(0.1)
     assert run.summary["stall_seconds"] == pytest.approx(pause_before_chunk_2, abs=1e-4)
 
 

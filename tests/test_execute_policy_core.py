@@ -16,9 +16,10 @@ from behaviors.execute_policy.planner import (
     earliest_seam_step,
     next_request_step,
     plan_chunk,
+    shorter_tails,
     stall_at_stop_s,
 )
-from behaviors.execute_policy.shaping import RUNOUT_SLOWDOWN, runout_chunk_steps, runout_duration
+from behaviors.execute_policy.shaping import NO_TAIL, RUNOUT_SLOWDOWN, Tail, runout_chunk_steps, runout_duration
 from behaviors.execute_policy.states import (
     Committed,
     Goal,
@@ -78,9 +79,9 @@ def first_plan(total_steps: int = 100) -> tuple[Committed, Planned]:
 def test_committing_a_window_returns_a_new_grid_and_leaves_the_old_one_for_a_rollback():
     grid = StepGrid(0.0, DT, 20, 100)
     window = grid.plan_window(1, request_step=0, frozen=3, chunk_steps=50, earliest_seam=3)
-    after = grid.commit(window, runout_steps=5)
-    assert (after.committed_end, after.executed_until, after.runout_steps) == (23, 20, 5)
-    assert (grid.committed_end, grid.executed_until, grid.runout_steps) == (0, 0, 0)
+    after = grid.commit(window, Tail(20, 5, DT), chunk_steps=50)
+    assert (after.committed_end, after.executed_until, after.tail, after.chunk_steps) == (23, 20, Tail(20, 5, DT), 50)
+    assert (grid.committed_end, grid.executed_until, grid.tail, grid.chunk_steps) == (0, 0, NO_TAIL, 0)
     with pytest.raises(AttributeError):
         grid.committed_end = 7  # type: ignore[misc]
 
@@ -119,7 +120,7 @@ def test_the_first_chunk_starts_from_the_arm_at_rest_at_the_earliest_step():
     motion = planned.committed.motion
     p, v, _ = motion.evaluate(np.array([0.2]))
     assert np.allclose(p[0], START, atol=1e-9) and np.allclose(v[0], 0.0, atol=1e-9)
-    assert planned.committed.grid.committed_end == 22 and planned.committed.grid.runout_steps == runout_chunk_steps(motion.runout, DT) > 0
+    assert planned.committed.grid.committed_end == 22 and planned.committed.grid.tail.runout_steps == runout_chunk_steps(motion.runout, DT) > 0
     assert start.grid.committed_end == 0 and start.motion is None  # the state before is untouched
 
 
@@ -148,7 +149,42 @@ def test_a_chunk_too_late_to_join_the_playing_motion_waits_then_starts_from_rest
     planned = plan(first.committed, ramp(), index=2, request_step=19, frozen=3, earliest=late_step, goal=GoalState.ENDED)
     assert isinstance(planned, Planned)
     assert planned.window.seam_step == late_step
-    assert planned.stall_s == pytest.approx(late_step * DT - motion.end)
+    assert planned.stall_s == pytest.approx(late_step * DT - motion.full_speed_end)
+
+
+def test_a_late_chunk_joins_the_tail_where_the_arm_is_and_the_steps_played_there_count():
+    _, first = first_plan()
+    # Chunk 1's window ends at step 22; its 29 steps beyond: 26 at full speed, then a 3-step runout.
+    assert first.committed.grid.tail == Tail(26, 3, DT)
+    late = plan(first.committed, ramp(), index=2, request_step=19, frozen=3, earliest=30, goal=GoalState.PLAYING)
+    assert isinstance(late, Planned)
+    # 8 steps into the tail, the arm is where chunk 2's step 11 puts it: played from there, no stall.
+    assert (late.window.seam_step, late.window.first_chunk_step, late.window.tail_played, late.stall_s) == (30, 11, 8, 0.0)
+    assert late.committed.grid.executed_until == 20 + 8 + 20
+    p_join, v_join, _ = late.committed.motion.evaluate(np.array([3.0]))
+    p_tail, v_tail, _ = first.committed.motion.evaluate(np.array([3.0]))
+    assert np.allclose(p_join, p_tail, atol=1e-9) and np.allclose(v_join, v_tail, atol=1e-9)
+    assert np.allclose(v_tail[0], [0.5, 0.0], atol=1e-6)  # still the chunk's own 0.05 rad per step
+
+
+def test_the_next_request_is_timed_on_the_tail_when_the_latency_outgrows_the_window():
+    _, first = first_plan()
+    grid = first.committed.grid  # window from step 2 to 22, full speed to step 48, last chunk step at 51
+    assert next_request_step(grid, frozen=4, now_s=1.75) is None and next_request_step(grid, frozen=4, now_s=1.8) == 18
+    # 24 steps of latency: no request lands by step 22; it is timed to land as the tail slows down.
+    assert next_request_step(grid, frozen=24, now_s=2.35) is None and next_request_step(grid, frozen=24, now_s=2.4) == 24
+    # 40 steps: longer than half a chunk and the runout: asked for once half a chunk is left.
+    assert next_request_step(grid, frozen=40, now_s=2.55) is None and next_request_step(grid, frozen=40, now_s=2.6) == 26
+
+
+def test_a_tail_unsafe_from_some_point_on_is_cut_short_before_it():
+    assert shorter_tails(Tail(26, 3, DT)) == [Tail(13, 3, DT), Tail(6, 3, DT), Tail(3, 3, DT), Tail(1, 3, DT), Tail(0, 3, DT), NO_TAIL]
+    start = Committed(StepGrid(0.0, DT, 20, 100))
+    # The whole tail would end at 2.2 + 2.6 + 0.6 = 5.4 s; with 13 steps at full speed at 4.1 s,
+    # with 6 at 3.4 s: the longest that stays before 4.0 s.
+    planned = plan(start, ramp(), checks=FakeChecks(path_horizon_s=4.0))
+    assert isinstance(planned, Planned)
+    assert planned.committed.grid.tail == Tail(6, 3, DT) and planned.committed.motion.rest_time == pytest.approx(3.4)
 
 
 def test_rejections_name_the_chunk_and_the_reason():
@@ -160,11 +196,11 @@ def test_rejections_name_the_chunk_and_the_reason():
     assert isinstance(short, Reject) and short.reason.startswith("chunk 2 rejected: chunk 2 has 3 steps but takes over at its step 3")
 
 
-def test_a_path_unsafe_only_in_its_runout_is_sent_without_the_runout():
+def test_a_path_unsafe_all_along_its_tail_is_sent_without_one():
     start = Committed(StepGrid(0.0, DT, 20, 100))
     planned = plan(start, ramp(), checks=FakeChecks(path_horizon_s=2.2))  # the window ends at 2.2 s
     assert isinstance(planned, Planned)
-    assert planned.committed.motion.runout == 0.0 and planned.committed.grid.runout_steps == 0
+    assert planned.committed.motion.rest_time == planned.committed.motion.end and planned.committed.grid.tail == NO_TAIL
     unsafe = plan(start, ramp(), checks=FakeChecks(path_horizon_s=1.0))
     assert unsafe == Reject("chunk 1 rejected: beyond the horizon")
 
@@ -179,7 +215,7 @@ def test_the_runs_last_window_ends_at_rest_without_a_runout():
 
 def test_a_run_that_stops_while_the_arm_waits_counts_the_wait_as_a_stall():
     start, planned = first_plan()
-    end = planned.committed.motion.end
+    end = planned.committed.motion.full_speed_end  # the arm leaves full speed when the chunk's tail runs out
     assert stall_at_stop_s(None, 9.0) == 0.0 and stall_at_stop_s(start, 9.0) == 0.0
     assert stall_at_stop_s(planned.committed, end + 0.7) == pytest.approx(0.7)
     _, last = first_plan(total_steps=20)

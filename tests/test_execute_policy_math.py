@@ -8,15 +8,18 @@ from behaviors.execute_policy.chunk import ChunkError, read_chunk, read_policy_c
 from behaviors.execute_policy.config import committed_window_problem
 from behaviors.execute_policy.gripper import result_problem
 from behaviors.execute_policy.shaping import (
+    NO_TAIL,
     POSITION_BLEND_PEAK,
     VELOCITY_BLEND_PEAK,
     blend_duration_within,
     densify,
     fit_chunk,
     join_at_seam,
+    plan_tail,
     runout_duration,
+    Tail,
 )
-from behaviors.execute_policy.stream import drained_seconds, runout_progress
+from behaviors.execute_policy.stream import drained_seconds, runout_progress, tail_progress
 from behaviors.execute_policy.timing import (
     LatencyEstimate,
     frozen_prefix_steps,
@@ -74,16 +77,16 @@ def test_densify_spans_the_window_and_velocity_matches_finite_differences():
     assert np.max(np.abs(fd[1:-1] - s.velocities[1:-1])) < 1e-3
 
 
-def _moving_window(runout: float):
+def _moving_window(tail: Tail):
     """A window of a chunk moving at 0.2 and -0.1 rad/s (30 steps of 0.1 s), seam 0.3 s, end 1.5 s."""
     spline = fit_chunk(np.linspace([0.0, 0.0], [0.58, -0.29], 30), 300.0)
     motion = join_at_seam(spline, 0.1, 0.0, 0.3, 1.5, spline(3.0), spline(3.0, nu=1) / 0.1, 0.4)
-    return spline, motion.with_runout(runout)
+    return spline, motion.with_tail(tail)
 
 
 def test_runout_continues_the_window_smoothly_along_the_chunk_and_ends_at_rest():
-    spline, motion = _moving_window(0.6)
-    bare = motion.with_runout(0.0)
+    spline, motion = _moving_window(Tail(0, 3, 0.1))
+    bare = motion.bare()
     at_end = [x[0] for x in motion.evaluate(np.array([1.5]))]
     just_after = [x[0] for x in motion.evaluate(np.array([1.5 + 1e-7]))]
     for mine, unbounded, after in zip(at_end, (x[0] for x in bare.evaluate(np.array([1.5]))), just_after):
@@ -111,6 +114,32 @@ def test_runout_length_brakes_within_half_the_acceleration_limit_and_needs_spare
 def test_runout_progress_counts_chunk_steps_covered():
     assert [runout_progress(i, 5) for i in (0, 1, 5, 10, 12)] == [0, 1, 4, 5, 5]
     assert runout_progress(3, 0) == 0
+
+
+def test_tail_progress_is_one_step_a_step_through_the_extension_then_the_runout_s():
+    assert [tail_progress(i, 8, 5) for i in (0, 3, 8, 9, 13, 18, 30)] == [0, 3, 8, 9, 12, 13, 13]
+    assert tail_progress(4, 0, 0) == 0
+
+
+def test_the_tail_plays_the_chunk_beyond_the_window_at_full_speed_then_rests_at_its_last_step():
+    # 14 chunk steps beyond the window (15 .. 29): the runout (nominal 0.6 s) takes the last 3,
+    # the 11 before it are played as the policy planned them, one per dt.
+    spline, window = _moving_window(NO_TAIL)
+    tail = plan_tail(np.array([0.2, 0.1]), np.array([5.0, 5.0]), 0.1, 0.6, spare_steps=14)
+    assert tail == Tail(11, 3, 0.1)
+    motion = window.with_tail(tail)
+    assert (motion.full_speed_end, motion.rest_time) == (pytest.approx(2.6), pytest.approx(3.2))
+    k = np.arange(0, 12)
+    p, v, _ = motion.evaluate(1.5 + 0.1 * k)
+    assert np.allclose(p, spline(15.0 + k), atol=1e-12) and np.allclose(v, spline(15.0 + k, nu=1) / 0.1, atol=1e-12)
+    p, v, a = (x[0] for x in motion.evaluate(np.array([motion.rest_time])))
+    assert np.allclose(p, spline(29.0), atol=1e-12)  # the chunk's last step
+    assert np.allclose(v, 0.0, atol=1e-12) and np.allclose(a, 0.0, atol=1e-12)
+    s = densify(motion, 200)
+    assert s.times[-1] == pytest.approx(3.2) and np.max(np.diff(s.times)) <= 0.01 + 1e-12
+    assert np.max(np.abs(np.diff(s.velocities, axis=0))) < 0.01  # C1: no velocity step anywhere
+    assert np.max(np.abs(s.accelerations)) <= 0.5 * 5.0  # brakes within half the limit
+    assert plan_tail(np.array([0.2, 0.1]), np.array([5.0, 5.0]), 0.1, 0.6, spare_steps=2) == NO_TAIL  # no room to stop
 
 
 def test_read_chunk_without_gripper_requires_group_order():

@@ -457,7 +457,7 @@ class ExecutePolicy(Behavior):
         if self.gripper is None or chunk.gripper is None:
             return
         grid = self._committed().grid
-        steps = range(window.seam_step, window.end_step)
+        steps = range(window.seam_step, window.end_step + grid.tail.extension_steps)  # the arm plays the extension too
         self.gripper_schedule = [(grid.time(s), float(chunk.gripper[s - window.request_step])) for s in steps]
 
     def _stream_gripper(self, now: float) -> None:

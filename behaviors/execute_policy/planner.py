@@ -3,7 +3,8 @@ time to Planned / Wait / Reject. Nothing here talks to the bus or reads the cloc
 
 ``plan_chunk`` picks the chunk's window on the step grid (``StepGrid.plan_window``), decides
 whether it can join the motion the controller plays or must wait, blends it into that motion
-(``shaping``), gives it a runout or brings the run's last window to rest, and has every
+(``shaping``), gives it a tail (the chunk's steps beyond the window at full speed, then a runout
+to rest at its last step) or brings the run's last window to rest, and has every
 densified point checked (``PlanInput.checks``, see ``checks.PointChecks``). A Planned result
 carries the grid after the commit; the caller keeps the grid from before it for a rollback.
 """
@@ -16,7 +17,7 @@ from typing import Protocol
 import numpy as np
 
 from .chunk import Chunk
-from .shaping import ChunkMotion, Samples, densify, fit_chunk, join_at_seam, runout_chunk_steps, runout_duration
+from .shaping import NO_TAIL, ChunkMotion, Samples, Tail, densify, fit_chunk, join_at_seam, plan_tail, runout_chunk_steps
 from .states import Committed, GoalState
 from .stream import StepGrid, Window, WindowError, drained_seconds
 
@@ -74,7 +75,7 @@ class Planned:
     window: Window
     seam_time_s: float
     committed: Committed  # after the commit: the new grid, motion and samples
-    stall_s: float  # the arm drained the committed motion (runout, then rest) this long before the seam
+    stall_s: float  # the arm had left full speed (runout, then rest) this long before the seam
 
 
 def plan_chunk(inp: PlanInput) -> Planned | Wait | Reject:
@@ -84,7 +85,8 @@ def plan_chunk(inp: PlanInput) -> Planned | Wait | Reject:
         # goal rolls the stream back).
         return Wait(WaitReason.GOAL_UNANSWERED)
     try:
-        window = grid.plan_window(index, inp.request_step, inp.frozen, chunk.steps, inp.earliest_seam_step)
+        window = grid.plan_window(index, inp.request_step, inp.frozen, chunk.steps, inp.earliest_seam_step,
+                                  runout_reserve=runout_chunk_steps(nominal_runout_s(c), c.dt))
     except WindowError as err:
         return Reject(f"chunk {index} rejected: {err}")
     outside = inp.checks.values(chunk, window)
@@ -109,27 +111,28 @@ def plan_chunk(inp: PlanInput) -> Planned | Wait | Reject:
         blend_duration=max(c.dt, 0.5 * window.steps * c.dt),
         max_acceleration=c.max_acceleration,
     )
-    if window.end_step >= grid.total_steps:
-        motion = motion.at_rest_at_end()
-    else:
-        motion = motion.with_runout(runout_s(motion, chunk, window, c))
+    last_window = window.tail_played + window.steps >= grid.remaining
+    tail = NO_TAIL if last_window else chunk_tail(motion, chunk, window, grid.remaining - window.tail_played - window.steps, c)
+    motion = motion.at_rest_at_end() if last_window else motion.with_tail(tail)
     # A chunk over the limits on its own is the policy's; the join is planned within them.
     reason = inp.checks.limits(densify(motion.chunk_alone(), c.num_interpolation_points), window)
     if reason is not None:
         return Reject(f"chunk {index} rejected: {reason}")
     samples = densify(motion, c.num_interpolation_points)
     reason = inp.checks.path(samples, window)
-    if reason is not None and motion.runout > 0:
-        # The runout only makes a late next chunk a gentle pause: when the chunk's path beyond
-        # its window is unsafe but the window is not, the window ends without one.
-        bare = motion.with_runout(0.0)
-        bare_samples = densify(bare, c.num_interpolation_points)
-        if inp.checks.path(bare_samples, window) is None:
-            motion, samples, reason = bare, bare_samples, None
+    for shorter in shorter_tails(tail) if reason is not None else ():
+        # The tail only keeps the arm going while the next chunk is late: where the chunk's path
+        # beyond its window is unsafe but the window is not, the tail stops short of the unsafe
+        # point (a shorter extension, then the runout), or the window ends without one.
+        candidate = motion.with_tail(shorter)
+        candidate_samples = densify(candidate, c.num_interpolation_points)
+        if inp.checks.path(candidate_samples, window) is None:
+            motion, samples, reason, tail = candidate, candidate_samples, None, shorter
+            break
     if reason is not None:
         return Reject(f"chunk {index} rejected: {reason}")
-    stall = drained_seconds(None if previous is None else previous.end, seam_time)
-    new_grid = grid.commit(window, runout_steps=runout_chunk_steps(motion.runout, c.dt))
+    stall = drained_seconds(None if previous is None else previous.full_speed_end, seam_time)
+    new_grid = grid.commit(window, tail, chunk.steps)
     return Planned(window, seam_time, Committed(new_grid, motion, samples), stall)
 
 
@@ -146,12 +149,37 @@ def state_at(motion: ChunkMotion | None, t: float, rest_position: np.ndarray | N
     return p[0], v[0]
 
 
-def runout_s(motion: ChunkMotion, chunk: Chunk, window: Window, c: ShapingConfig) -> float:
-    """Seconds for the window's motion to come to rest along the chunk if no chunk follows."""
-    _, v_end, _ = motion.evaluate(np.array([motion.end]))
-    spare = chunk.steps - 1 - (window.end_step - window.request_step)
-    nominal = 0.5 * c.committed_action_steps * c.dt
-    return runout_duration(v_end[0], c.max_acceleration, c.dt, nominal, spare)
+def nominal_runout_s(c: ShapingConfig) -> float:
+    """How long a runout takes unless braking from the chunk's speed needs longer: a quarter of a
+    window (it plays the chunk's last steps at half speed on average: time lost to a late chunk)."""
+    return 0.25 * c.committed_action_steps * c.dt
+
+
+def chunk_tail(motion: ChunkMotion, chunk: Chunk, window: Window, remaining_steps: int, c: ShapingConfig) -> Tail:
+    """The window's tail if no chunk takes over at its end: the chunk's steps beyond the window
+    at full speed, then a runout to rest at its last step (``shaping.plan_tail``). It stops a
+    step short of the run's ``remaining_steps`` after the window, so a late chunk always has a
+    step left to take over."""
+    spare = min(chunk.steps - 1 - (window.end_step - window.request_step), remaining_steps - 1)
+    if spare < 1:
+        return NO_TAIL
+    beyond = motion.end + c.dt * np.arange(spare + 1)
+    _, velocity, _ = motion.evaluate(beyond)  # the window's motion carried on along the chunk
+    return plan_tail(np.abs(velocity).max(axis=0), c.max_acceleration, c.dt, nominal_runout_s(c), spare)
+
+
+def shorter_tails(tail: Tail) -> list[Tail]:
+    """Tails to try, longest first, when ``tail`` fails the checks: the same runout after half
+    the extension, a quarter, ..., none; then no tail at all."""
+    extensions = []
+    steps = tail.extension_steps // 2
+    while steps > 0:
+        extensions.append(steps)
+        steps //= 2
+    shorter = [Tail(e, tail.runout_steps, tail.dt) for e in extensions]
+    if tail.extension_steps > 0:
+        shorter.append(Tail(0, tail.runout_steps, tail.dt))
+    return shorter + [NO_TAIL] if tail.steps > 0 else []
 
 
 def next_request_step(grid: StepGrid, frozen: int, now_s: float) -> int | None:
@@ -174,4 +202,4 @@ def stall_at_stop_s(committed: Committed | None, now_s: float) -> float:
     """The wait so far when the run ends while the arm waits for a chunk (a stall too)."""
     if committed is None or committed.grid.remaining == 0 or committed.motion is None:
         return 0.0
-    return drained_seconds(committed.motion.end, now_s)
+    return drained_seconds(committed.motion.full_speed_end, now_s)

@@ -85,15 +85,24 @@ class ChunkMotion:
     the motion comes to rest exactly at the chunk's final position."""
     end_blend_duration: float = 0.0
     """Length of that mirrored blend: never longer than the window, so it leaves the seam alone."""
-    runout: float = 0.0
+    extension: float = 0.0
     """Seconds after ``end`` in which the motion, unless the next chunk takes over at ``end``,
-    goes on along the chunk's own path while slowing to rest (see ``runout_warp``): a stream
-    whose next chunk is late pauses smoothly instead of stopping dead at the window's end."""
+    goes on playing the chunk's steps beyond the window at full speed (one step per ``dt``): the
+    policy's own plan keeps the arm going while the next chunk is late."""
+    runout: float = 0.0
+    """Seconds after the extension in which the motion goes on along the chunk's remaining steps
+    while slowing to rest at its last one (see ``runout_warp``): a stream whose next chunk is
+    later still pauses smoothly instead of stopping dead."""
+
+    @property
+    def full_speed_end(self) -> float:
+        """When the motion starts slowing down if no chunk follows: the end of the extension."""
+        return self.end + self.extension
 
     @property
     def rest_time(self) -> float:
         """When the motion is at rest if no chunk follows: its end, or the end of the runout."""
-        return self.end + self.runout
+        return self.end + self.extension + self.runout
 
     def evaluate(self, times: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Positions, velocities and accelerations (each (M, J)) at clock ``times``."""
@@ -103,9 +112,10 @@ class ChunkMotion:
         k_rate = np.full_like(times, 1.0 / self.dt)
         k_accel = np.zeros_like(times)
         if self.runout > 0:
-            after = times > self.end
-            warped = runout_warp((times[after] - self.end) / self.runout, self.runout, self.dt)
-            k[after] = (self.end - self.chunk_start) / self.dt + warped[0]
+            slowing = self.full_speed_end
+            after = times > slowing
+            warped = runout_warp((times[after] - slowing) / self.runout, self.runout, self.dt)
+            k[after] = (slowing - self.chunk_start) / self.dt + warped[0]
             k_rate[after], k_accel[after] = warped[1], warped[2]
         slope = self.spline(k, nu=1)
         p = self.spline(k)
@@ -134,18 +144,23 @@ class ChunkMotion:
 
     def at_rest_at_end(self) -> ChunkMotion:
         """The same motion, decelerated so that it ends at rest (for the run's last window)."""
-        _, v_end, _ = replace(self, end_velocity=None, runout=0.0).evaluate(np.array([self.end]))
-        return replace(self, end_velocity=v_end[0], runout=0.0,
+        _, v_end, _ = self.bare().evaluate(np.array([self.end]))
+        return replace(self, end_velocity=v_end[0], extension=0.0, runout=0.0,
                        end_blend_duration=max(1e-6, min(self.blend_duration, self.end - self.seam)))
 
     def chunk_alone(self) -> ChunkMotion:
         """The smoothed chunk over the same window, without the blend into the committed motion
         (nor a stop or runout at the end): what the policy asked for."""
         zero = np.zeros_like(self.offset_position)
-        return replace(self, offset_position=zero, offset_velocity=zero, end_velocity=None, runout=0.0)
+        return replace(self.bare(), offset_position=zero, offset_velocity=zero)
 
-    def with_runout(self, seconds: float) -> ChunkMotion:
-        return replace(self, runout=max(0.0, float(seconds)), end_velocity=None)
+    def bare(self) -> ChunkMotion:
+        """The window alone: no extension, runout or stop at its end."""
+        return replace(self, end_velocity=None, extension=0.0, runout=0.0)
+
+    def with_tail(self, tail: Tail) -> ChunkMotion:
+        """The window followed by ``tail`` (the chunk's steps beyond it, then a runout)."""
+        return replace(self.bare(), extension=tail.extension_s, runout=tail.runout_s)
 
 
 RUNOUT_SLOWDOWN = 2
@@ -185,6 +200,45 @@ def runout_duration(end_velocity: np.ndarray, max_acceleration: np.ndarray, dt: 
 def runout_chunk_steps(runout_s: float, dt: float) -> int:
     """Chunk steps a runout of ``runout_s`` seconds covers (it takes ``RUNOUT_SLOWDOWN`` run steps each)."""
     return round(runout_s / (RUNOUT_SLOWDOWN * dt))
+
+
+@dataclass(frozen=True)
+class Tail:
+    """What follows a window when the next chunk is late: ``extension_steps`` of the chunk's
+    steps beyond the window at full speed, then a runout of ``runout_s`` seconds over its last
+    ``runout_steps`` steps, ending at rest."""
+
+    extension_steps: int
+    runout_steps: int
+    dt: float
+
+    @property
+    def extension_s(self) -> float:
+        return self.extension_steps * self.dt
+
+    @property
+    def runout_s(self) -> float:
+        return RUNOUT_SLOWDOWN * self.dt * self.runout_steps
+
+    @property
+    def steps(self) -> int:
+        """Chunk steps the tail covers in all."""
+        return self.extension_steps + self.runout_steps
+
+
+NO_TAIL = Tail(0, 0, 1.0)
+
+
+def plan_tail(peak_velocity: np.ndarray, max_acceleration: np.ndarray, dt: float, nominal_runout_s: float, spare_steps: int) -> Tail:
+    """The tail over the ``spare_steps`` chunk steps beyond a window, the fastest of which move
+    at ``peak_velocity``: the runout (``runout_duration``, braking from that speed) takes the
+    last steps, so the motion comes to rest at the chunk's last step, and the steps before it
+    are played at full speed. No tail when the spare steps cannot hold a runout."""
+    runout = runout_duration(peak_velocity, max_acceleration, dt, nominal_runout_s, spare_steps)
+    if runout <= 0:
+        return NO_TAIL
+    runout_steps = runout_chunk_steps(runout, dt)
+    return Tail(spare_steps - runout_steps, runout_steps, dt)
 
 
 POSITION_BLEND_PEAK = 10.0 / math.sqrt(3.0)
@@ -264,12 +318,13 @@ could hide an over-speed between two points that are each within the limits."""
 
 def densify(motion: ChunkMotion, num_points: int) -> Samples:
     """At least ``num_points`` evenly spaced samples from the seam to the end of the window
-    (inclusive), and no more than ``MAX_SAMPLE_SPACING`` apart; then the runout, if any, at that
-    spacing (the window's end stays a sample: the next seam)."""
+    (inclusive), and no more than ``MAX_SAMPLE_SPACING`` apart; then the extension and the
+    runout, if any, at that spacing (the window's end stays a sample: the next seam)."""
     needed = int(np.ceil((motion.end - motion.seam) / MAX_SAMPLE_SPACING - 1e-9)) + 1
     times = np.linspace(motion.seam, motion.end, max(2, num_points, needed))
-    if motion.runout > 0:
-        count = int(np.ceil(motion.runout / MAX_SAMPLE_SPACING - 1e-9))
-        times = np.concatenate([times, motion.end + motion.runout * np.arange(1, count + 1) / count])
+    tail_s = motion.rest_time - motion.end
+    if tail_s > 0:
+        count = int(np.ceil(tail_s / MAX_SAMPLE_SPACING - 1e-9))
+        times = np.concatenate([times, motion.end + tail_s * np.arange(1, count + 1) / count])
     p, v, a = motion.evaluate(times)
     return Samples(times, p, v, a)

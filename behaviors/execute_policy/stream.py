@@ -12,7 +12,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from .shaping import RUNOUT_SLOWDOWN, runout_warp
+from .shaping import NO_TAIL, RUNOUT_SLOWDOWN, Tail, runout_warp
 
 
 @dataclass(frozen=True)
@@ -23,6 +23,9 @@ class Window:
     request_step: int  # the run step where the chunk's step 0 is played (its request, or shifted)
     seam_step: int
     steps: int
+    tail_played: int = 0
+    """Steps of the previous chunk beyond its window (its tail) the arm played before this seam:
+    executed steps of the run, like the window's."""
 
     @property
     def end_step(self) -> int:
@@ -46,6 +49,14 @@ def runout_progress(steps_since_end: int, runout_steps: int) -> int:
     return int(round(float(covered[0])))
 
 
+def tail_progress(steps_since_end: int, tail_extension_steps: int, tail_runout_steps: int) -> int:
+    """Chunk steps the arm has covered ``steps_since_end`` run steps after a window's end when no
+    chunk took over: one a step through the tail's extension, then through its runout."""
+    if steps_since_end <= tail_extension_steps:
+        return max(0, steps_since_end)
+    return tail_extension_steps + runout_progress(steps_since_end - tail_extension_steps, tail_runout_steps)
+
+
 def drained_seconds(motion_end: float | None, until: float) -> float:
     """Seconds by ``until`` that the committed motion (ending at ``motion_end``; None before the
     first chunk) has been drained: the arm in the runout, then at rest, waiting for a chunk."""
@@ -66,8 +77,10 @@ class StepGrid:
     committed_steps: int
     total_steps: int
     committed_end: int = 0  # step where the committed motion ends (the next seam)
-    executed_until: int = 0  # steps committed so far (sum of windows)
-    runout_steps: int = 0  # chunk steps the arm covers after committed_end when no chunk follows
+    executed_until: int = 0  # steps committed so far (the windows, and the tail steps played before late seams)
+    seam_step: int = 0  # where the last committed window took over
+    tail: Tail = NO_TAIL  # what the arm plays after committed_end when no chunk takes over there
+    chunk_steps: int = 0  # steps of the last committed chunk
 
     def time(self, step: int) -> float:
         return self.origin_s + step * self.dt
@@ -83,12 +96,30 @@ class StepGrid:
         return self.total_steps - self.executed_until
 
     def ideal_request_step(self, frozen: int) -> int:
-        """Request this step so that the chunk lands ``frozen`` steps later, at the next seam."""
-        return self.committed_end - frozen
+        """Request this step so that the chunk lands ``frozen`` steps later, at the next seam.
 
-    def plan_window(self, index: int, request_step: int, frozen: int, chunk_steps: int, earliest_seam: int) -> Window:
+        When that step was already behind the window's seam (the latency is longer than the
+        window), the chunk will be late whenever it is asked for, and joins the tail. It is then
+        asked for ``frozen`` steps before the tail's extension ends, so that it lands as the arm
+        starts slowing down. When the latency is longer than half a chunk and the runout (more
+        than ``half_chunk + runout`` steps), such a request would observe the arm early on the
+        chunk being played, and its chunk would add little beyond it: the request is then due
+        once half a chunk is left, as LeRobot's async client asks (the arm pauses, but each chunk
+        takes it about half a chunk further)."""
+        on_time = self.committed_end - frozen
+        if on_time >= self.seam_step or self.tail.steps == 0:
+            return on_time
+        full_speed_end = self.committed_end + self.tail.extension_steps
+        half_chunk = self.chunk_steps // 2
+        if frozen <= half_chunk + self.tail.runout_steps:
+            return max(on_time, full_speed_end - frozen)
+        return max(on_time, full_speed_end + self.tail.runout_steps - half_chunk)
+
+    def plan_window(self, index: int, request_step: int, frozen: int, chunk_steps: int, earliest_seam: int,
+                    runout_reserve: int = 0) -> Window:
         """The window a chunk of ``chunk_steps`` steps requested at ``request_step`` executes,
-        given the first step it can still join at (``earliest_seam``, from its arrival).
+        given the first step it can still join at (``earliest_seam``, from its arrival). A late
+        chunk's window leaves ``runout_reserve`` steps of the chunk for its own runout.
 
         Raises WindowError when the chunk ends before the seam.
         """
@@ -101,26 +132,34 @@ class StepGrid:
         # have to catch up on steps it never moved through.
         on_time = index > 1 and earliest_seam <= self.committed_end
         seam = self.committed_end if on_time else max(earliest_seam, self.committed_end if index > 1 else 0)
+        played = 0
         if not on_time:
             reached = 0
             if index > 1:
-                reached = self.committed_end + runout_progress(seam - self.committed_end, self.runout_steps) - request_step
+                played = tail_progress(seam - self.committed_end, self.tail.extension_steps, self.tail.runout_steps)
+                reached = self.committed_end + played - request_step
             request_step = seam - max(0, reached)  # the chunk's time line, shifted to start at the arm's state
         # A chunk with N steps has positions up to chunk step N-1: the window needs its end point.
         available = request_step + chunk_steps - 1 - seam
-        steps = min(self.committed_steps, self.remaining, available)
+        if not on_time and available - runout_reserve >= 1:
+            available -= runout_reserve
+        steps = min(self.committed_steps, self.remaining - played, available)
         if steps < 1:
             raise WindowError(
                 f"chunk {index} has {chunk_steps} steps but takes over at its step {seam - request_step} "
                 f"(frozen prefix {frozen} steps plus arrival delay): nothing is left to execute"
             )
-        return Window(index, request_step, seam, steps)
+        return Window(index, request_step, seam, steps, played)
 
     def steps_executed_by(self, t: float) -> int:
-        """Committed steps the arm has played by ``t`` (the steps after ``t`` of the last window are not)."""
-        executed = self.executed_until - max(0, self.committed_end - self.step_at_or_before(t))
-        return min(executed, self.executed_until)
+        """Steps the arm has played by ``t``: of the committed windows (the steps after ``t`` of
+        the last window are not), then of the last window's tail."""
+        now = self.step_at_or_before(t)
+        if now <= self.committed_end:
+            return self.executed_until - (self.committed_end - now)
+        return self.executed_until + tail_progress(now - self.committed_end, self.tail.extension_steps, self.tail.runout_steps)
 
-    def commit(self, window: Window, runout_steps: int = 0) -> StepGrid:
-        """The grid once ``window`` is committed, followed by a runout of ``runout_steps`` chunk steps."""
-        return replace(self, committed_end=window.end_step, executed_until=self.executed_until + window.steps, runout_steps=runout_steps)
+    def commit(self, window: Window, tail: Tail = NO_TAIL, chunk_steps: int = 0) -> StepGrid:
+        """The grid once ``window`` (of a chunk of ``chunk_steps`` steps) is committed, followed by ``tail``."""
+        return replace(self, committed_end=window.end_step, executed_until=self.executed_until + window.tail_played + window.steps,
+                       seam_step=window.seam_step, tail=tail, chunk_steps=chunk_steps)
