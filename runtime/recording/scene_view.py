@@ -29,6 +29,7 @@ from tf2_msgs.msg import TFMessage
 from visualization_msgs.msg import Marker, MarkerArray
 
 from ..scene.collision import Box, Capsule, Cylinder, Mesh, Sphere
+from .event_messages import stamp_of  # noqa: F401  (where the tests and the recorder find it)
 from .mcap_writer import SerializedMessage
 
 WORLD_FRAME = "world"
@@ -46,10 +47,6 @@ ROBOT_RGBA = (0.62, 0.66, 0.72, 1.0)
 TABLE_RGBA = (0.55, 0.42, 0.30, 1.0)
 OBJECT_RGBA = (0.85, 0.55, 0.15, 0.9)
 NAMED_RGBA = {"red": (0.85, 0.15, 0.15, 1.0), "green": (0.15, 0.7, 0.25, 1.0), "blue": (0.15, 0.3, 0.85, 1.0)}
-
-
-def stamp_of(nanoseconds: int) -> Time:
-    return Time(sec=nanoseconds // 1_000_000_000, nanosec=nanoseconds % 1_000_000_000)
 
 
 def pose_msg(transform: pin.SE3) -> Pose:
