@@ -2,8 +2,8 @@
 
 The run only serializes: every message becomes its CDR bytes (rclpy's C serializer, or the
 ``TfEncoder``'s prepared buffer) and every event one JSON line, appended to a batch in memory;
-``send`` writes the batch to the worker's stdin once per bus spin (one ``write`` per tick at
-most). The worker writes ``run.mcap`` (schemas, chunks, zstd, the summary section),
+``flush_if_due`` writes the batch to the worker's stdin (one ``write`` per tick at
+most, about ``SEND_INTERVAL_S`` apart). The worker writes ``run.mcap`` (schemas, chunks, zstd, the summary section),
 ``events.jsonl`` and ``metadata.yaml``, turns events into ``/rosout`` and node status messages,
 and builds the report's data as messages arrive.
 
@@ -18,11 +18,11 @@ the payload:
 - ``END``: the recording is over (the worker finishes the files);
 - ``RENDER``: JSON ``{"directory"}``: render the report and answer one JSON line on stdout.
 
-Crash safety: a killed run loses only the batch it had not sent yet (at most one tick); the
-worker writes everything it received. A worker that dies (``WorkerLost``) loses what it had not
-flushed yet: at most ``FLUSH_INTERVAL_S`` of messages plus what sat in the pipe
-(``PIPE_BYTES``); the run then goes on writing ``events.jsonl`` itself and ``run.mcap`` stays
-partial (``runtime.recording.recorder``).
+Crash safety: a killed run loses only the batch it had not sent yet (``SEND_INTERVAL_S`` of wall
+time); the worker writes everything it received. A worker that dies (``WorkerLost``) loses the
+messages it had not flushed yet: at most ``FLUSH_INTERVAL_S`` of them plus what sat in the pipe
+(``PIPE_BYTES``); ``run.mcap`` stays partial, and the run rewrites ``events.jsonl`` whole from
+its own copy of the lines and goes on writing it (``runtime.recording.recorder``).
 """
 from __future__ import annotations
 
@@ -33,6 +33,7 @@ import json
 import os
 import select
 import struct
+import time
 from dataclasses import dataclass
 from typing import Any, Callable, Iterator
 
@@ -52,6 +53,12 @@ class Frame(enum.IntEnum):
 
 HEADER = struct.Struct("<BI")
 MESSAGE_HEADER = struct.Struct("<Hq")
+SEND_INTERVAL_S = 0.05
+"""Most wall time messages wait in the run before they are sent: a write wakes the worker, and
+on a busy machine each wake-up can cost the run a time slice, so the run sends about 20 batches
+a second rather than one per tick (a killed run loses at most this much)."""
+SEND_BYTES = 256 << 10
+"""A batch this large is sent at once (camera frames)."""
 PIPE_BYTES = 1 << 20
 """The pipe's capacity asked for (Linux's default limit for an unprivileged process)."""
 STALL_TIMEOUT_S = 10.0
@@ -61,11 +68,6 @@ _F_SETPIPE_SZ = 1031
 
 class WorkerLost(Exception):
     """The worker stopped reading (it died or hung): what was not sent is not recorded by it."""
-
-    def __init__(self, reason: str, sent: int = 0) -> None:
-        super().__init__(reason)
-        self.sent = sent
-        """Bytes of the data that were written before it stopped."""
 
 
 def frame(kind: Frame, payload: bytes) -> bytes:
@@ -96,13 +98,14 @@ class Handoff:
 
     def __init__(self, fd: int, directory: str, clock_origin_ns: int) -> None:
         self.fd = fd
-        self.on_lost: Callable[[WorkerLost, list[str]], None] | None = None
-        """Called (once) when the worker is lost, with the event lines it did not get."""
+        self.on_lost: Callable[[WorkerLost], None] | None = None
+        """Called (once) when the worker is lost; without it ``WorkerLost`` is raised."""
         os.set_blocking(fd, False)  # a worker that stops reading must not hang the run (see ``send``)
         widen_pipe(fd)
         self.clock_origin_ns = clock_origin_ns
         self.qos: dict[str, OfferedQos] = {}
         self._channels: dict[str, _Channel] = {}
+        self._sent_at = -float("inf")
         self._batch = bytearray(json_frame(Frame.START, {"directory": directory, "clock_origin_ns": clock_origin_ns}))
         self.closed = False
 
@@ -130,8 +133,12 @@ class Handoff:
             self._batch += frame(Frame.NOTE if note else Frame.EVENT, line.encode())
 
     def flush_if_due(self) -> None:
-        """Send the batch (the bus calls this once per spin)."""
-        self.send()
+        """Send the batch if it waited ``SEND_INTERVAL_S`` or grew to ``SEND_BYTES`` (the bus
+        calls this once per spin)."""
+        now = time.monotonic()
+        if now - self._sent_at >= SEND_INTERVAL_S or len(self._batch) >= SEND_BYTES:
+            self._sent_at = now
+            self.send()
 
     def send(self, final: bytes = b"") -> None:
         """Write the batch (and ``final``) to the worker; ``WorkerLost`` if it stopped reading."""
@@ -148,25 +155,13 @@ class Handoff:
             self.closed = True
             if self.on_lost is None:
                 raise
-            self.on_lost(lost, unsent_lines(data, lost.sent))
+            self.on_lost(lost)
 
     def close(self) -> None:
         """Send what is left and tell the worker the recording is over."""
         if not self.closed:
             self.send(frame(Frame.END, b""))
             self.closed = True
-
-
-def unsent_lines(data: bytes, sent: int) -> list[str]:
-    """The event lines of the frames in ``data`` that were not completely written (``sent`` bytes were)."""
-    lines, at = [], 0
-    while at + HEADER.size <= len(data):
-        kind, size = HEADER.unpack_from(data, at)
-        end = at + HEADER.size + size
-        if end > sent and kind in (Frame.EVENT, Frame.NOTE):
-            lines.append(data[at + HEADER.size:end].decode())
-        at = end
-    return lines
 
 
 def write_all(fd: int, data: bytes, stall_timeout_s: float = STALL_TIMEOUT_S) -> None:
@@ -180,10 +175,10 @@ def write_all(fd: int, data: bytes, stall_timeout_s: float = STALL_TIMEOUT_S) ->
             except BlockingIOError:
                 _, ready, _ = select.select([], [fd], [], stall_timeout_s)
                 if not ready:
-                    raise WorkerLost(f"the recording worker read nothing for {stall_timeout_s:.0f} s", sent) from None
+                    raise WorkerLost(f"the recording worker read nothing for {stall_timeout_s:.0f} s") from None
     except OSError as err:
         reason = "it exited" if err.errno in (errno.EPIPE, errno.EBADF) else err.strerror
-        raise WorkerLost(f"the recording worker stopped reading ({reason})", sent) from None
+        raise WorkerLost(f"the recording worker stopped reading ({reason})") from None
 
 
 def read_frames(fd: int) -> Iterator[tuple[Frame, bytes]]:

@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 from pathlib import Path
 from typing import Any, Iterable, TextIO
 
@@ -39,16 +40,11 @@ from .bag_metadata import BAG_METADATA_FILE, bag_metadata_yaml
 from .bus import JOINT_STATES_HZ, RecordingBus
 from .live import LiveOptions, LiveView
 from .event_messages import event_message, stamp_of
+from .files import EVENTS_FILE, MCAP_FILE, REPORT_FILES
 from .handoff import Handoff
 from .mcap_writer import LATCHED_QOS, McapRos2Writer, to_nanoseconds, wall_clock_origin_ns
 from .scene_view import ROBOT_MARKERS_TOPIC, SCENE_MARKERS_TOPIC, TF_STATIC_TOPIC, SceneView
 
-MCAP_FILE = "run.mcap"
-EVENTS_FILE = "events.jsonl"
-JOINTS_FILE, LATENCY_FILE, VIDEO_FILE, TREE_FILE, HTML_FILE = (
-    "joints.png", "latency.png", "cameras.mp4", "tree.svg", "report.html")
-REPORT_FILES = (JOINTS_FILE, LATENCY_FILE, VIDEO_FILE, TREE_FILE, HTML_FILE)
-"""Rendered by ``runtime.report``; a new recording into the same directory removes the old ones."""
 
 
 def jsonable(value: Any) -> Any:
@@ -132,6 +128,8 @@ class Recorder:
         self.handoff: Handoff | None = None
         self.writer: McapRos2Writer | None = None
         self._events: TextIO | None = None
+        self._lines: list[str] | None = None
+        """Every line sent to the worker (while it writes ``events.jsonl``)."""
         if self.directory is not None:
             sinks.insert(0, self._open(self.directory))
         self.sink = Tee(sinks)
@@ -164,24 +162,37 @@ class Recorder:
             self.handoff = self.worker.record(directory, self.clock_origin_ns)
             if self.handoff is not None:
                 self.handoff.on_lost = self._worker_lost
+                self._lines = []
                 return self.handoff
             self.writer = McapRos2Writer(directory / MCAP_FILE, self.clock_origin_ns)  # no worker: written here
-            self._events = _append_lines(directory / EVENTS_FILE)
+            self._events = open(directory / EVENTS_FILE, "a", encoding="utf-8", buffering=1)
             return self.writer
         except OSError as err:
             raise ObjectiveError(f"--record {directory}: cannot write there ({err.strerror})") from None
 
-    def _worker_lost(self, lost: Exception, unsent: list[str]) -> None:
-        """The worker died or hung mid-run: this process writes ``events.jsonl`` from now on
-        (``run.mcap`` stays as the worker left it: partial)."""
-        assert self.directory is not None and self.worker is not None
+    def _worker_lost(self, lost: Exception) -> None:
+        """The worker died or hung mid-run: this process writes ``events.jsonl`` from now on, from
+        its own copy of every line; ``run.mcap`` stays as the worker left it (partial), or, if the
+        worker never wrote it, this process writes it from now on."""
+        assert self.directory is not None and self.worker is not None and self._lines is not None
         self.worker.close()
-        self._events = _append_lines(self.directory / EVENTS_FILE)
-        for line in unsent:
-            self._events.write(line)
-        self._write({"time": self.context.clock.now(), "kind": "warning", "source": "recorder",
-                     "data": {"message": f"recording: {lost}: {MCAP_FILE} ends at the last chunk it wrote (partial); "
-                                         f"{EVENTS_FILE} goes on"}})
+        events = self.directory / EVENTS_FILE
+        scratch = events.with_name(EVENTS_FILE + ".new")
+        scratch.write_text("".join(self._lines), encoding="utf-8")
+        os.replace(scratch, events)
+        self._lines = None
+        self._events = open(events, "a", encoding="utf-8", buffering=1)
+        mcap = self.directory / MCAP_FILE
+        now = self.context.clock.now()
+        if mcap.is_file() and mcap.stat().st_size > 0:
+            what = f"{MCAP_FILE} ends at the last chunk it wrote (partial)"
+        else:
+            self.writer = McapRos2Writer(mcap, self.clock_origin_ns)
+            self.writer.qos = self.sink.qos
+            self.sink.sinks[self.sink.sinks.index(self.handoff)] = self.writer
+            what = f"{MCAP_FILE} holds what was recorded from {now:.2f} s on (partial)"
+        self._write({"time": now, "kind": "warning", "source": "recorder",
+                     "data": {"message": f"recording: {lost}: {what}; {EVENTS_FILE} is whole"}})
 
     def stamp(self, seconds: float) -> Any:
         """A ROS time stamp for ``seconds`` of the runtime clock (wall-clock based, like log times)."""
@@ -191,7 +202,8 @@ class Recorder:
         """``record`` as a line of ``events.jsonl`` (``note``: not also a message); returned JSON-ready."""
         record = jsonable(record)
         line = json.dumps(record, allow_nan=False) + "\n"
-        if self.handoff is not None and not self.handoff.closed:
+        if self._lines is not None:
+            self._lines.append(line)  # kept until the end, in case the worker is lost
             self.handoff.event(line, note)
         elif self._events is not None:
             self._events.write(line)
@@ -202,7 +214,7 @@ class Recorder:
             return
         record = self._write({"time": event.time, "kind": event.kind, "source": event.source, "data": event.data},
                              note=False)
-        sinks = [s for s in self.sink.sinks if s is not self.handoff]  # the worker makes its own messages
+        sinks = [s for s in self.sink.sinks if s is not self.handoff or s.closed]  # the worker makes its own
         if sinks:
             topic, msg = event_message(event.kind, event.source, record["data"],
                                        self.clock_origin_ns + to_nanoseconds(event.time))
@@ -224,6 +236,8 @@ class Recorder:
     def finish(self, summary: dict[str, Any]) -> None:
         """Stop, append the run's summary and close the recording."""
         self.stop()
+        if self.handoff is not None:
+            self.handoff.send()  # a worker lost by now is noted before the summary, which stays the last line
         self._write({"time": self.context.clock.now(), "kind": "run_summary", "source": "runner", "data": summary})
         self.close()
 
@@ -241,12 +255,3 @@ class Recorder:
                 self._events.close()
                 self._events = None
 
-
-def _append_lines(path: Path) -> TextIO:
-    """``path`` opened to append lines (line-buffered: each is in the file as it is written);
-    a torn last line (a writer killed mid-line) is cut first."""
-    with open(path, "rb+") as stream:
-        data = stream.read()
-        if data and not data.endswith(b"\n"):
-            stream.truncate(data.rfind(b"\n") + 1)
-    return open(path, "a", encoding="utf-8", buffering=1)

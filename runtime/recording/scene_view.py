@@ -97,6 +97,41 @@ class LinkTree:
         return cls(robot.model, robot.model.createData(), frame_ids, parents, moving, fixed)
 
 
+@dataclass(frozen=True)
+class JointMap:
+    """A joint state's positions (in one order of names) to the robot's full configuration, as
+    ``robot.configuration`` computes it, precomputed once per order (it runs at 50 Hz)."""
+
+    neutral: np.ndarray
+    rows: np.ndarray
+    """For each configuration entry set: which position sets it..."""
+    q_index: np.ndarray
+    """...which entry of q it is..."""
+    multiplier: np.ndarray
+    offset: np.ndarray
+    """...and how (a coupled joint follows its driver: multiplier * value + offset)."""
+
+    @classmethod
+    def of(cls, robot: Any, names: tuple[str, ...]) -> "JointMap | None":
+        """None where it cannot (a joint unknown to the model, or one of two entries in q)."""
+        entries: dict[int, tuple[int, float, float]] = {}
+        for row, name in enumerate(names):
+            if name not in robot.movable_joints:
+                return None
+            for target, multiplier, offset in robot.driven_by(name):
+                if robot.model.joints[robot.model.getJointId(target)].nq != 1:
+                    return None
+                entries[robot.joint_q_index(target)] = (row, multiplier, offset)  # the last one wins, as there
+        rows, multipliers, offsets = zip(*entries.values()) if entries else ((), (), ())
+        return cls(np.asarray(robot.neutral(), dtype=float), np.array(rows, dtype=int), np.array(list(entries), dtype=int),
+                   np.array(multipliers, dtype=float), np.array(offsets, dtype=float))
+
+    def configuration(self, positions: Any) -> np.ndarray:
+        q = self.neutral.copy()
+        q[self.q_index] = self.multiplier * np.asarray(positions, dtype=float)[self.rows] + self.offset
+        return q
+
+
 class TfEncoder:
     """Turns a configuration into the serialized TFMessage of a fixed list of links.
 
@@ -115,11 +150,16 @@ class TfEncoder:
         pin.framesForwardKinematics(self.tree.model, data, q)
         poses = data.oMf
         buffer = self._buffer
+        stamp_bytes = _STAMP.pack(stamp.sec, stamp.nanosec)
         for (parent, child), stamp_at, values_at in zip(self._frames, self._stamp_at, self._values_at):
             relative = poses[child] if parent is None else poses[parent].actInv(poses[child])
-            struct.pack_into("<iI", buffer, stamp_at, stamp.sec, stamp.nanosec)
-            struct.pack_into("<7d", buffer, values_at, *pin.SE3ToXYZQUAT(relative).tolist())  # x y z qx qy qz qw
+            buffer[stamp_at:stamp_at + 8] = stamp_bytes
+            _XYZQUAT.pack_into(buffer, values_at, *pin.SE3ToXYZQUAT(relative).tolist())  # x y z qx qy qz qw
         return SerializedMessage(TFMessage, bytes(buffer))
+
+
+_STAMP = struct.Struct("<iI")
+_XYZQUAT = struct.Struct("<7d")
 
 
 def _align(buffer: bytearray, size: int) -> None:
@@ -244,6 +284,7 @@ class SceneView:
         self._stamp = stamp
         self._tf: TfEncoder | None = None
         self._robot: Any = None
+        self._joint_maps: dict[tuple[str, ...], JointMap | None] = {}
         self._scene_version: Any = None
         self._scene_sent_s = -float("inf")
         self._objects: dict[str, int] = {}
@@ -254,7 +295,13 @@ class SceneView:
         if robot is None:
             return
         stamp = self._stamp(seconds)
-        q = robot.configuration(dict(zip(msg.name, msg.position)))
+        if robot is not self._robot:
+            self._joint_maps.clear()
+        names = tuple(msg.name)
+        if names not in self._joint_maps:
+            self._joint_maps[names] = JointMap.of(robot, names)
+        joint_map = self._joint_maps[names]
+        q = joint_map.configuration(msg.position) if joint_map is not None else robot.configuration(dict(zip(names, msg.position)))
         if robot is not self._robot:
             tree = LinkTree.of(robot)
             self._robot, self._tf = robot, TfEncoder(tree, tree.moving)

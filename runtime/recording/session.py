@@ -24,7 +24,7 @@ from .bag_metadata import BAG_METADATA_FILE, bag_metadata_yaml
 from .event_messages import event_message
 from .handoff import MESSAGE_HEADER, Frame
 from .mcap_writer import McapRos2Writer, OfferedQos, SerializedMessage, to_nanoseconds
-from .recorder import EVENTS_FILE, MCAP_FILE
+from .files import EVENTS_FILE, MCAP_FILE
 from .schema import type_name
 
 

@@ -17,7 +17,7 @@ from .data import Recording, load_recording
 
 __all__ = ["Report", "Recording", "load_recording", "log_errors", "render_report"]
 
-from ..recording.recorder import HTML_FILE, JOINTS_FILE, LATENCY_FILE, TREE_FILE, VIDEO_FILE
+from ..recording.files import HTML_FILE, JOINTS_FILE, LATENCY_FILE, TREE_FILE, VIDEO_FILE
 
 
 @dataclass

@@ -23,7 +23,7 @@ from rclpy.serialization import deserialize_message
 from ..errors import ObjectiveError
 from ..recording.bus import JOINT_STATES_TOPIC
 from ..recording.mcap_writer import METADATA_NAME
-from ..recording.recorder import EVENTS_FILE, MCAP_FILE
+from ..recording.files import EVENTS_FILE, MCAP_FILE
 from ..recording.schema import message_class
 
 

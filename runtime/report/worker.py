@@ -145,6 +145,13 @@ def _answer(directory: str, recording: Any) -> dict[str, Any]:
 
 def main() -> int | None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the run decides when the worker stops
+    try:
+        return _serve()
+    except Exception:  # the run notices (WorkerLost, or no answer) and does the work itself
+        return 1
+
+
+def _serve() -> int | None:
     from ..recording.session import RecordingSession
 
     failed: list[BaseException] = []
