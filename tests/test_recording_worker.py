@@ -117,8 +117,8 @@ def test_a_worker_killed_mid_run_leaves_a_partial_mcap_and_the_run_finishes_the_
     def kill_the_worker() -> None:
         mcap = tmp_path / "rec" / "run.mcap"
         deadline = time.monotonic() + 60
-        while time.monotonic() < deadline and not (mcap.is_file() and mcap.stat().st_size > 50_000):
-            time.sleep(0.01)  # until the worker has written a chunk or two (the robot's markers, joint states)
+        while time.monotonic() < deadline and not (mcap.is_file() and mcap.stat().st_size > 2000):
+            time.sleep(0.01)  # until the worker has flushed its first chunk (past the file's header)
         processes[0].kill()
 
     killer = threading.Thread(target=kill_the_worker)
@@ -136,7 +136,7 @@ def test_a_worker_killed_mid_run_leaves_a_partial_mcap_and_the_run_finishes_the_
     assert hold == ["RUNNING", "SUCCESS"] and warning["time"] < events[-1]["time"]
     recording = load_recording(rec)  # the report was rendered here, from the files
     assert recording.partial and recording.partial[0].startswith("run.mcap ends early at ")
-    assert 0.1 < recording.joints.times[-1] < 4.0
+    assert 0.0 < recording.joints.times[-1] < warning["time"]
     assert "Partial recording" in (rec / "report.html").read_text() and (rec / "joints.png").stat().st_size > 0
     assert not (rec / "metadata.yaml").exists()  # as for a killed recorder: `ros2 bag reindex` rebuilds it
 

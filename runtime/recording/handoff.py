@@ -173,15 +173,16 @@ def write_all(fd: int, data: bytes, stall_timeout_s: float = STALL_TIMEOUT_S) ->
             try:
                 sent += os.write(fd, view[sent:])
             except BlockingIOError:
-                _, ready, _ = select.select([], [fd], [], stall_timeout_s)
-                if not ready:
+                writable = select.poll()
+                writable.register(fd, select.POLLOUT)
+                if not writable.poll(stall_timeout_s * 1000):
                     raise WorkerLost(f"the recording worker read nothing for {stall_timeout_s:.0f} s") from None
     except OSError as err:
         reason = "it exited" if err.errno in (errno.EPIPE, errno.EBADF) else err.strerror
         raise WorkerLost(f"the recording worker stopped reading ({reason})") from None
 
 
-def read_frames(fd: int) -> Iterator[tuple[Frame, bytes]]:
+def read_frames(fd: int) -> Iterator[tuple[Frame | None, bytes]]:
     """The frames arriving on ``fd`` until end of file; a ``None`` kind between reads marks
     "nothing more for now" (the worker flushes its files then). A torn last frame is dropped."""
     pending = bytearray()
@@ -202,5 +203,5 @@ def read_frames(fd: int) -> Iterator[tuple[Frame, bytes]]:
             yield Frame(kind), bytes(pending[start:start + size])
             at = start + size
         del pending[:at]
-        yield None, b""  # type: ignore[misc]
+        yield None, b""
 

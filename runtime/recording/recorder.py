@@ -247,6 +247,7 @@ class Recorder:
         try:
             self.sink.close()
             if self.writer is not None and self.directory is not None:
+                self.writer.close()  # (it may have replaced a worker lost while the sinks were closing)
                 w = self.writer
                 (self.directory / BAG_METADATA_FILE).write_text(
                     bag_metadata_yaml(MCAP_FILE, w.topics, w.counts, w.first_ns, w.last_ns), encoding="utf-8")

@@ -125,12 +125,20 @@ class ReportWorker:
 
 
 def _import_report_libraries(failed: list[BaseException]) -> None:
-    """Everything the report imports, while the recording arrives (on a thread: it is slow)."""
+    """Everything the report imports, while the recording arrives (on a thread: it is slow), and
+    one tiny figure drawn, so that the fonts are loaded before the report's plots need them."""
     try:
+        import io
+
         from . import html, plots, tree_svg, video  # noqa: F401
 
         import imageio.v2  # noqa: F401
-        import matplotlib.backends.backend_agg  # noqa: F401
+        from matplotlib.backends.backend_agg import FigureCanvasAgg
+        from matplotlib.figure import Figure
+
+        figure = Figure(figsize=(1, 1))
+        figure.subplots().set_title("0.5", fontsize=8)
+        FigureCanvasAgg(figure).print_png(io.BytesIO())
     except BaseException as err:  # the run renders in its own process and reports what is missing there
         failed.append(err)
 
