@@ -157,3 +157,32 @@ def test_the_joint_map_gives_the_configuration_the_model_gives():
         assert joint_map.configuration(positions) == pytest.approx(robot.configuration(dict(zip(names, positions))))
     assert len(JointMap.of(robot, drivers).q_index) > len(drivers)  # the coupled gripper joints follow theirs
     assert JointMap.of(robot, ("no_such_joint",)) is None
+
+
+@pytest.mark.parametrize("frame_id, names, velocity, effort", [
+    ("", ["shoulder_pan_joint", "elbow_joint", "robotiq_85_left_knuckle_joint"], [0.5, -0.25, 0.0], []),
+    ("base", ["a", "bb", "ccc", "dddd", "eeeee"], [], [1.0, 2.0, 3.0, 4.0, 5.0]),
+    ("x", [], [], []),
+])
+def test_joint_states_encoded_by_hand_decode_as_what_was_sent(frame_id, names, velocity, effort):
+    """By rclpy (what the report reads them with) and by mcap-ros2-support (as Foxglove would)."""
+    from builtin_interfaces.msg import Time
+    from mcap_ros2._dynamic import generate_dynamic
+    from rclpy.serialization import deserialize_message
+
+    from runtime.recording.cdr import JointStateEncoder
+    from runtime.recording.schema import message_definition
+
+    decode = generate_dynamic("sensor_msgs/msg/JointState", message_definition(JointState))["sensor_msgs/msg/JointState"]
+    encoder = JointStateEncoder()
+    for k in range(2):  # the second time from the names encoded once
+        msg = JointState(name=names, position=[0.1 * (i + k) for i in range(len(names))], velocity=velocity, effort=effort)
+        msg.header.frame_id = frame_id
+        msg.header.stamp = Time(sec=1_700_000_000 + k, nanosec=123_456_789)
+        data = encoder.encode(msg)
+        assert deserialize_message(data, JointState) == msg
+        decoded = decode(data)
+        assert (decoded.header.stamp.sec, decoded.header.stamp.nanosec, decoded.header.frame_id) == (
+            1_700_000_000 + k, 123_456_789, frame_id)
+        assert (decoded.name, list(decoded.position), list(decoded.velocity), list(decoded.effort)) == (
+            names, list(msg.position), velocity, effort)

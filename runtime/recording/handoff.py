@@ -1,7 +1,7 @@
 """How a recorded run hands its messages to the recording worker (``runtime.report.worker``).
 
-The run only serializes: every message becomes its CDR bytes (rclpy's C serializer, or the
-``TfEncoder``'s prepared buffer) and every event one JSON line, appended to a batch in memory;
+The run only serializes: every message becomes its CDR bytes (rclpy's C serializer, the
+``TfEncoder``'s prepared buffer, or ``runtime.recording.cdr`` for joint states) and every event one JSON line, appended to a batch in memory;
 ``flush_if_due`` writes the batch to the worker's stdin (one ``write`` per tick at
 most, about ``SEND_INTERVAL_S`` apart). The worker writes ``run.mcap`` (schemas, chunks, zstd, the summary section),
 ``events.jsonl`` and ``metadata.yaml``, turns events into ``/rosout`` and node status messages,
@@ -37,6 +37,7 @@ import time
 from dataclasses import dataclass
 from typing import Any, Callable, Iterator
 
+from .cdr import hand_encoders
 from .mcap_writer import OfferedQos, cdr_bytes, message_type, to_nanoseconds
 from .schema import type_name
 
@@ -105,6 +106,7 @@ class Handoff:
         self.clock_origin_ns = clock_origin_ns
         self.qos: dict[str, OfferedQos] = {}
         self._channels: dict[str, _Channel] = {}
+        self._encoders = hand_encoders()
         self._sent_at = -float("inf")
         self._batch = bytearray(json_frame(Frame.START, {"directory": directory, "clock_origin_ns": clock_origin_ns}))
         self.closed = False
@@ -122,7 +124,8 @@ class Handoff:
                                                       "qos": [qos.reliable, qos.transient_local, qos.depth]})
         elif channel.msg_class is not cls:
             raise TypeError(f"recording topic '{topic}' carries {type_name(channel.msg_class)}, got {type_name(cls)}")
-        data = cdr_bytes(msg)
+        encode = self._encoders.get(cls)
+        data = encode(msg) if encode is not None else cdr_bytes(msg)
         self._batch += HEADER.pack(Frame.MESSAGE, MESSAGE_HEADER.size + len(data))
         self._batch += MESSAGE_HEADER.pack(channel.id, self.clock_origin_ns + to_nanoseconds(seconds))
         self._batch += data

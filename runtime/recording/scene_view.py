@@ -29,6 +29,7 @@ from tf2_msgs.msg import TFMessage
 from visualization_msgs.msg import Marker, MarkerArray
 
 from ..scene.collision import Box, Capsule, Cylinder, Mesh, Sphere
+from .cdr import ENCAPSULATION, add_string, align
 from .event_messages import stamp_of  # noqa: F401  (where the tests and the recorder find it)
 from .mcap_writer import SerializedMessage
 
@@ -162,28 +163,17 @@ _STAMP = struct.Struct("<iI")
 _XYZQUAT = struct.Struct("<7d")
 
 
-def _align(buffer: bytearray, size: int) -> None:
-    """Pad to ``size`` bytes, counted from after the 4-byte encapsulation header (XCDR1)."""
-    buffer.extend(b"\0" * (-(len(buffer) - 4) % size))
-
-
-def _cdr_string(buffer: bytearray, text: str) -> None:
-    data = text.encode() + b"\0"
-    _align(buffer, 4)
-    buffer += struct.pack("<I", len(data)) + data
-
-
 def _tf_template(frames: list[tuple[str, str]]) -> tuple[bytearray, list[int], list[int]]:
     """The CDR (little endian) of a TFMessage with ``frames`` (parent, child), and where each
     entry's stamp and its seven numbers (x, y, z, qx, qy, qz, qw) go."""
-    buffer = bytearray(b"\x00\x01\x00\x00") + struct.pack("<I", len(frames))
+    buffer = bytearray(ENCAPSULATION) + struct.pack("<I", len(frames))
     stamps, values = [], []
     for parent, child in frames:
         stamps.append(len(buffer))
         buffer += bytes(8)
-        _cdr_string(buffer, parent)
-        _cdr_string(buffer, child)
-        _align(buffer, 8)
+        add_string(buffer, parent)
+        add_string(buffer, child)
+        align(buffer, 8)
         values.append(len(buffer))
         buffer += bytes(56)
     return buffer, stamps, values
