@@ -544,7 +544,6 @@ def _run_recorded(loaded: LoadedTree, context: RunContext, options: RunOptions, 
     report renders stops the rendering; ``objective report DIR`` renders it later.
     """
     from .recording import Recorder
-    from .report.worker import ReportWorker
 
     recorder = Recorder(options.record_dir, context, list(loaded.root.iterate()), loaded, live=options.live)
     if recorder.live is not None:
@@ -554,8 +553,7 @@ def _run_recorded(loaded: LoadedTree, context: RunContext, options: RunOptions, 
             return run_tree(loaded, context, options, progress, stop=stop)
         finally:
             recorder.close()
-    worker = ReportWorker()
-    worker.start()  # imports the report's libraries while the run goes on
+    worker = recorder.worker  # writes the recording, then renders the report
     try:
         result = run_tree(loaded, context, options, progress, stop=stop)
     except BaseException as err:  # the run did not start (e.g. no such world): say so in the recording

@@ -23,6 +23,17 @@ _LEVELS = {"debug": Log.DEBUG, "info": Log.INFO, "warning": Log.WARN, "warn": Lo
 _WARNING_KINDS = {"warning", "chunk_rejected", "policy_halted"}
 
 
+def stamp_of(nanoseconds: int) -> Time:
+    return Time(sec=nanoseconds // 1_000_000_000, nanosec=nanoseconds % 1_000_000_000)
+
+
+def event_message(kind: str, source: str, data: dict[str, Any], stamp_ns: int) -> tuple[str, Any]:
+    """(topic, message) of one event of the run (``data`` JSON-ready), stamped ``stamp_ns``."""
+    if kind == "node_status":
+        return NODE_STATUS_TOPIC, node_status_message(data, source)
+    return ROSOUT_TOPIC, log_message(kind, source, data, stamp_of(stamp_ns))
+
+
 def node_status_message(data: dict[str, Any], name: str) -> String:
     return String(data=json.dumps({"node": data.get("node"), "name": name, "status": data.get("status"),
                                    "message": data.get("message", "")}, default=str))

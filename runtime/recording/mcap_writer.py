@@ -24,7 +24,7 @@ from mcap.well_known import MessageEncoding, Profile, SchemaEncoding
 from mcap.writer import CompressionType, Writer
 from rclpy.serialization import serialize_message
 
-from .schema import message_definition, type_name
+from .schema import message_class, message_definition, type_name
 
 LIBRARY = "objective-runtime recorder"
 METADATA_NAME = "objective_runtime"
@@ -109,9 +109,9 @@ class McapRos2Writer:
         self._flushed_at = time.monotonic()
         self.qos: dict[str, OfferedQos] = {}
         """Topic -> offered QoS, for topics not published reliable/volatile (the default)."""
-        self._schemas: dict[type, int] = {}
+        self._schemas: dict[str, int] = {}
         self._channels: dict[str, tuple[int, type]] = {}
-        self._sequence: dict[str, int] = {}
+        self._topic_of: dict[int, str] = {}
         self.counts: dict[str, int] = {}
         self.topics: dict[str, tuple[str, OfferedQos]] = {}
         """Topic -> (type name, offered QoS), in the order the channels were opened."""
@@ -126,30 +126,37 @@ class McapRos2Writer:
             if cls is not msg_class:
                 raise TypeError(f"recording topic '{topic}' carries {type_name(cls)}, got {type_name(msg_class)}")
             return channel
-        schema = self._schemas.get(msg_class)
-        if schema is None:
-            schema = self._writer.register_schema(
-                type_name(msg_class), SchemaEncoding.ROS2, message_definition(msg_class).encode()
-            )
-            self._schemas[msg_class] = schema
-        qos = self.qos.get(topic, OfferedQos())
-        channel = self._writer.register_channel(topic, MessageEncoding.CDR, schema, {"offered_qos_profiles": qos.yaml()})
+        channel = self.open_channel(topic, type_name(msg_class), self.qos.get(topic, OfferedQos()))
         self._channels[topic] = (channel, msg_class)
-        self.topics[topic] = (type_name(msg_class), qos)
+        return channel
+
+    def open_channel(self, topic: str, name: str, qos: OfferedQos) -> int:
+        """Register ``topic`` carrying type ``name`` (``pkg/msg/Type``); its schema once per type."""
+        schema = self._schemas.get(name)
+        if schema is None:
+            definition = message_definition(message_class(name))
+            schema = self._schemas[name] = self._writer.register_schema(name, SchemaEncoding.ROS2, definition.encode())
+        channel = self._writer.register_channel(topic, MessageEncoding.CDR, schema, {"offered_qos_profiles": qos.yaml()})
+        self.topics[topic] = (name, qos)
+        self._topic_of[channel] = topic
         return channel
 
     def write(self, topic: str, msg: Any, seconds: float) -> None:
         """Record ``msg`` on ``topic`` at ``seconds`` of the runtime clock."""
+        if not self.closed:
+            channel = self._channel(topic, message_type(msg))
+            self.write_cdr(channel, cdr_bytes(msg), self.clock_origin_ns + to_nanoseconds(seconds))
+
+    def write_cdr(self, channel: int, data: bytes, log_time_ns: int) -> None:
+        """Record serialized ``data`` on ``channel`` (``open_channel``) at wall-clock ``log_time_ns``."""
         if self.closed:
             return
-        channel = self._channel(topic, message_type(msg))
-        stamp = self.clock_origin_ns + to_nanoseconds(seconds)
-        sequence = self._sequence.get(topic, 0)
-        self._sequence[topic] = sequence + 1
-        self._writer.add_message(channel, log_time=stamp, data=cdr_bytes(msg), publish_time=stamp, sequence=sequence)
-        self.counts[topic] = self.counts.get(topic, 0) + 1
-        self.first_ns = stamp if self.first_ns is None else min(self.first_ns, stamp)
-        self.last_ns = stamp if self.last_ns is None else max(self.last_ns, stamp)
+        topic = self._topic_of[channel]
+        sequence = self.counts.get(topic, 0)
+        self._writer.add_message(channel, log_time=log_time_ns, data=data, publish_time=log_time_ns, sequence=sequence)
+        self.counts[topic] = sequence + 1
+        self.first_ns = log_time_ns if self.first_ns is None else min(self.first_ns, log_time_ns)
+        self.last_ns = log_time_ns if self.last_ns is None else max(self.last_ns, log_time_ns)
 
     def flush_if_due(self) -> None:
         """Close the open chunk and flush the file when ``flush_interval_s`` of wall time passed
@@ -158,6 +165,12 @@ class McapRos2Writer:
         if not self.closed and now - self._flushed_at >= self.flush_interval_s:
             self._writer.flush()  # what was recorded so far survives a crash
             self._flushed_at = now
+
+    def flush(self) -> None:
+        """Close the open chunk and hand the file to the operating system now."""
+        if not self.closed:
+            self._writer.flush()
+            self._flushed_at = time.monotonic()
 
     def close(self) -> None:
         if self.closed:

@@ -14,6 +14,14 @@ says how (``status``). A process killed outright (SIGKILL) leaves a partial reco
 event up to the kill (the file is line-buffered) and every flushed MCAP chunk
 (``McapRos2Writer``); ``objective report`` renders what there is and says it is partial.
 
+With a directory, the files are written by the recording worker (``runtime.report.worker``):
+this process only serializes and hands the bytes over (``runtime.recording.handoff``). If the
+worker cannot be started, this process writes them itself, as before. If the worker dies during
+the run, ``run.mcap`` ends at the last chunk the worker flushed (it is read as partial: at most
+``FLUSH_INTERVAL_S`` of messages and what sat in the pipe are lost) and this process goes on
+writing ``events.jsonl`` itself, starting with the lines the worker did not get and a warning
+that says what happened; the report is then rendered here.
+
 The report (plots, video, tree, page) is rendered from these two files alone
 (``runtime.report``), so ``objective report DIR`` can redo it after the run.
 """
@@ -21,6 +29,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 from pathlib import Path
 from typing import Any, Iterable, TextIO
 
@@ -30,16 +39,12 @@ from ..events import Event
 from .bag_metadata import BAG_METADATA_FILE, bag_metadata_yaml
 from .bus import JOINT_STATES_HZ, RecordingBus
 from .live import LiveOptions, LiveView
-from .event_messages import NODE_STATUS_TOPIC, ROSOUT_TOPIC, log_message, node_status_message
+from .event_messages import event_message, stamp_of
+from .files import EVENTS_FILE, MCAP_FILE, REPORT_FILES
+from .handoff import Handoff
 from .mcap_writer import LATCHED_QOS, McapRos2Writer, to_nanoseconds, wall_clock_origin_ns
-from .scene_view import ROBOT_MARKERS_TOPIC, SCENE_MARKERS_TOPIC, TF_STATIC_TOPIC, SceneView, stamp_of
+from .scene_view import ROBOT_MARKERS_TOPIC, SCENE_MARKERS_TOPIC, TF_STATIC_TOPIC, SceneView
 
-MCAP_FILE = "run.mcap"
-EVENTS_FILE = "events.jsonl"
-JOINTS_FILE, LATENCY_FILE, VIDEO_FILE, TREE_FILE, HTML_FILE = (
-    "joints.png", "latency.png", "cameras.mp4", "tree.svg", "report.html")
-REPORT_FILES = (JOINTS_FILE, LATENCY_FILE, VIDEO_FILE, TREE_FILE, HTML_FILE)
-"""Rendered by ``runtime.report``; a new recording into the same directory removes the old ones."""
 
 
 def jsonable(value: Any) -> Any:
@@ -109,24 +114,26 @@ class Recorder:
     """Records a run into ``directory`` and/or serves it live to Foxglove (see the module doc).
 
     Install it before the world starts. With ``directory=None`` nothing is written to disk.
+    ``worker``: the recording worker (``directory`` only); the run asks it for the report.
     """
 
     def __init__(self, directory: Path | str | None, context: Any, nodes: Iterable[Any] = (), tree: Any = None,
                  joint_states_hz: float = JOINT_STATES_HZ, live: LiveOptions | None = None) -> None:
         self.directory = Path(directory) if directory is not None else None
+        self.context = context
         self.clock_origin_ns = wall_clock_origin_ns(context.clock.now())
         self.live = LiveView(live, self.clock_origin_ns) if live is not None else None
         sinks: list[Any] = [] if self.live is None else [self.live]
+        self.worker: Any = None
+        self.handoff: Handoff | None = None
         self.writer: McapRos2Writer | None = None
         self._events: TextIO | None = None
+        self._lines: list[str] | None = None
+        """Every line sent to the worker (while it writes ``events.jsonl``)."""
         if self.directory is not None:
-            self.writer = self._open(self.directory)
-            sinks.insert(0, self.writer)
-            # Line-buffered: every event is in the file as soon as it happens, whatever ends the process.
-            self._events = open(self.directory / EVENTS_FILE, "w", encoding="utf-8", buffering=1)
+            sinks.insert(0, self._open(self.directory))
         self.sink = Tee(sinks)
         self.sink.qos.update({topic: LATCHED_QOS for topic in (TF_STATIC_TOPIC, ROBOT_MARKERS_TOPIC, SCENE_MARKERS_TOPIC)})
-        self.context = context
         self.bus = RecordingBus(context.bus, self.sink, joint_states_hz)
         context.bus = self.bus
         view = SceneView(lambda: getattr(context, "scene", None), self.sink.write, self.stamp)
@@ -139,62 +146,113 @@ class Recorder:
         context.events.subscribe(self._on_event)
         self.stopped = False
 
-    def _open(self, directory: Path) -> McapRos2Writer:
+    def _open(self, directory: Path) -> Handoff | McapRos2Writer:
+        """Prepare ``directory`` and start the worker that writes it; the sink of the recording."""
+        from ..report.worker import ReportWorker
+
         if directory.exists() and not directory.is_dir():
             raise ObjectiveError(f"--record {directory}: exists and is not a directory")
         try:
             directory.mkdir(parents=True, exist_ok=True)
             for name in (*REPORT_FILES, BAG_METADATA_FILE, CRASH_LOG):  # a previous run's files must not pass for this run's
                 (directory / name).unlink(missing_ok=True)
-            return McapRos2Writer(directory / MCAP_FILE, self.clock_origin_ns)
+            (directory / EVENTS_FILE).write_bytes(b"")
+            self.worker = ReportWorker()
+            self.worker.start()  # it also imports the report's libraries while the run goes on
+            self.handoff = self.worker.record(directory, self.clock_origin_ns)
+            if self.handoff is not None:
+                self.handoff.on_lost = self._worker_lost
+                self._lines = []
+                return self.handoff
+            self.writer = McapRos2Writer(directory / MCAP_FILE, self.clock_origin_ns)  # no worker: written here
+            self._events = open(directory / EVENTS_FILE, "a", encoding="utf-8", buffering=1)
+            return self.writer
         except OSError as err:
             raise ObjectiveError(f"--record {directory}: cannot write there ({err.strerror})") from None
+
+    def _worker_lost(self, lost: Exception) -> None:
+        """The worker died or hung mid-run: this process writes ``events.jsonl`` from now on, from
+        its own copy of every line; ``run.mcap`` stays as the worker left it (partial), or, if the
+        worker never wrote it, this process writes it from now on."""
+        assert self.directory is not None and self.worker is not None and self._lines is not None
+        self.worker.close()
+        events = self.directory / EVENTS_FILE
+        scratch = events.with_name(EVENTS_FILE + ".new")
+        scratch.write_text("".join(self._lines), encoding="utf-8")
+        os.replace(scratch, events)
+        self._lines = None
+        self._events = open(events, "a", encoding="utf-8", buffering=1)
+        mcap = self.directory / MCAP_FILE
+        now = self.context.clock.now()
+        if mcap.is_file() and mcap.stat().st_size > 0:
+            what = f"{MCAP_FILE} ends at the last chunk it wrote (partial)"
+        else:
+            self.writer = McapRos2Writer(mcap, self.clock_origin_ns)
+            self.writer.qos = self.sink.qos
+            self.sink.sinks[self.sink.sinks.index(self.handoff)] = self.writer
+            what = f"{MCAP_FILE} holds what was recorded from {now:.2f} s on (partial)"
+        self._write({"time": now, "kind": "warning", "source": "recorder",
+                     "data": {"message": f"recording: {lost}: {what}; {EVENTS_FILE} is whole"}})
 
     def stamp(self, seconds: float) -> Any:
         """A ROS time stamp for ``seconds`` of the runtime clock (wall-clock based, like log times)."""
         return stamp_of(self.clock_origin_ns + to_nanoseconds(seconds))
 
-    def _write(self, record: dict[str, Any]) -> None:
-        if self._events is not None:
-            self._events.write(json.dumps(jsonable(record), allow_nan=False) + "\n")
+    def _write(self, record: dict[str, Any], note: bool = True) -> dict[str, Any]:
+        """``record`` as a line of ``events.jsonl`` (``note``: not also a message); returned JSON-ready."""
+        record = jsonable(record)
+        line = json.dumps(record, allow_nan=False) + "\n"
+        if self._lines is not None:
+            self._lines.append(line)  # kept until the end, in case the worker is lost
+            self.handoff.event(line, note)
+        elif self._events is not None:
+            self._events.write(line)
+        return record
 
     def _on_event(self, event: Event) -> None:
         if self.stopped:
             return
-        self._write({"time": event.time, "kind": event.kind, "source": event.source, "data": event.data})
-        if event.kind == "node_status":
-            self.sink.write(NODE_STATUS_TOPIC, node_status_message(event.data, event.source), event.time)
-        else:
-            self.sink.write(ROSOUT_TOPIC, log_message(event.kind, event.source, jsonable(event.data),
-                                                      self.stamp(event.time)), event.time)
+        record = self._write({"time": event.time, "kind": event.kind, "source": event.source, "data": event.data},
+                             note=False)
+        sinks = [s for s in self.sink.sinks if s is not self.handoff or s.closed]  # the worker makes its own
+        if sinks:
+            topic, msg = event_message(event.kind, event.source, record["data"],
+                                       self.clock_origin_ns + to_nanoseconds(event.time))
+            for sink in sinks:
+                sink.write(topic, msg, event.time)
 
     def stop(self) -> None:
-        """Stop recording (idempotent): the MCAP file is finished, the joint limits noted."""
+        """Stop recording (idempotent): no more events; the joint limits are noted."""
         if self.stopped:
             return
         self.stopped = True
-        try:
-            self.sink.close()
-            if self.writer is not None and self.directory is not None:
-                w = self.writer
-                (self.directory / BAG_METADATA_FILE).write_text(
-                    bag_metadata_yaml(MCAP_FILE, w.topics, w.counts, w.first_ns, w.last_ns), encoding="utf-8")
-        finally:
-            limits = getattr(getattr(self.context, "scene", None), "limits", None)
-            if limits is not None:
-                joints = [{"name": j.name, "lower": j.lower, "upper": j.upper, "max_velocity": j.max_velocity}
-                          for j in limits.joints]
-                self._write({"time": self.context.clock.now(), "kind": "joint_limits", "source": "scene",
-                             "data": {"joints": joints}})
+        limits = getattr(getattr(self.context, "scene", None), "limits", None)
+        if limits is not None:
+            joints = [{"name": j.name, "lower": j.lower, "upper": j.upper, "max_velocity": j.max_velocity}
+                      for j in limits.joints]
+            self._write({"time": self.context.clock.now(), "kind": "joint_limits", "source": "scene",
+                         "data": {"joints": joints}})
 
     def finish(self, summary: dict[str, Any]) -> None:
-        """Stop, append the run's summary and close ``events.jsonl``."""
+        """Stop, append the run's summary and close the recording."""
         self.stop()
+        if self.handoff is not None:
+            self.handoff.send()  # a worker lost by now is noted before the summary, which stays the last line
         self._write({"time": self.context.clock.now(), "kind": "run_summary", "source": "runner", "data": summary})
         self.close()
 
     def close(self) -> None:
+        """Finish the files (the worker does, when it writes them: ``metadata.yaml`` included)."""
         self.stop()
-        if self._events is not None:
-            self._events.close()
-            self._events = None
+        try:
+            self.sink.close()
+            if self.writer is not None and self.directory is not None:
+                self.writer.close()  # (it may have replaced a worker lost while the sinks were closing)
+                w = self.writer
+                (self.directory / BAG_METADATA_FILE).write_text(
+                    bag_metadata_yaml(MCAP_FILE, w.topics, w.counts, w.first_ns, w.last_ns), encoding="utf-8")
+        finally:
+            if self._events is not None:
+                self._events.close()
+                self._events = None
+

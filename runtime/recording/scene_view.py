@@ -29,6 +29,8 @@ from tf2_msgs.msg import TFMessage
 from visualization_msgs.msg import Marker, MarkerArray
 
 from ..scene.collision import Box, Capsule, Cylinder, Mesh, Sphere
+from .cdr import ENCAPSULATION, add_string, align
+from .event_messages import stamp_of  # noqa: F401  (where the tests and the recorder find it)
 from .mcap_writer import SerializedMessage
 
 WORLD_FRAME = "world"
@@ -46,10 +48,6 @@ ROBOT_RGBA = (0.62, 0.66, 0.72, 1.0)
 TABLE_RGBA = (0.55, 0.42, 0.30, 1.0)
 OBJECT_RGBA = (0.85, 0.55, 0.15, 0.9)
 NAMED_RGBA = {"red": (0.85, 0.15, 0.15, 1.0), "green": (0.15, 0.7, 0.25, 1.0), "blue": (0.15, 0.3, 0.85, 1.0)}
-
-
-def stamp_of(nanoseconds: int) -> Time:
-    return Time(sec=nanoseconds // 1_000_000_000, nanosec=nanoseconds % 1_000_000_000)
 
 
 def pose_msg(transform: pin.SE3) -> Pose:
@@ -100,6 +98,41 @@ class LinkTree:
         return cls(robot.model, robot.model.createData(), frame_ids, parents, moving, fixed)
 
 
+@dataclass(frozen=True)
+class JointMap:
+    """A joint state's positions (in one order of names) to the robot's full configuration, as
+    ``robot.configuration`` computes it, precomputed once per order (it runs at 50 Hz)."""
+
+    neutral: np.ndarray
+    rows: np.ndarray
+    """For each configuration entry set: which position sets it..."""
+    q_index: np.ndarray
+    """...which entry of q it is..."""
+    multiplier: np.ndarray
+    offset: np.ndarray
+    """...and how (a coupled joint follows its driver: multiplier * value + offset)."""
+
+    @classmethod
+    def of(cls, robot: Any, names: tuple[str, ...]) -> "JointMap | None":
+        """None where it cannot (a joint unknown to the model, or one of two entries in q)."""
+        entries: dict[int, tuple[int, float, float]] = {}
+        for row, name in enumerate(names):
+            if name not in robot.movable_joints:
+                return None
+            for target, multiplier, offset in robot.driven_by(name):
+                if robot.model.joints[robot.model.getJointId(target)].nq != 1:
+                    return None
+                entries[robot.joint_q_index(target)] = (row, multiplier, offset)  # the last one wins, as there
+        rows, multipliers, offsets = zip(*entries.values()) if entries else ((), (), ())
+        return cls(np.asarray(robot.neutral(), dtype=float), np.array(rows, dtype=int), np.array(list(entries), dtype=int),
+                   np.array(multipliers, dtype=float), np.array(offsets, dtype=float))
+
+    def configuration(self, positions: Any) -> np.ndarray:
+        q = self.neutral.copy()
+        q[self.q_index] = self.multiplier * np.asarray(positions, dtype=float)[self.rows] + self.offset
+        return q
+
+
 class TfEncoder:
     """Turns a configuration into the serialized TFMessage of a fixed list of links.
 
@@ -118,35 +151,29 @@ class TfEncoder:
         pin.framesForwardKinematics(self.tree.model, data, q)
         poses = data.oMf
         buffer = self._buffer
+        stamp_bytes = _STAMP.pack(stamp.sec, stamp.nanosec)
         for (parent, child), stamp_at, values_at in zip(self._frames, self._stamp_at, self._values_at):
             relative = poses[child] if parent is None else poses[parent].actInv(poses[child])
-            struct.pack_into("<iI", buffer, stamp_at, stamp.sec, stamp.nanosec)
-            struct.pack_into("<7d", buffer, values_at, *pin.SE3ToXYZQUAT(relative).tolist())  # x y z qx qy qz qw
+            buffer[stamp_at:stamp_at + 8] = stamp_bytes
+            _XYZQUAT.pack_into(buffer, values_at, *pin.SE3ToXYZQUAT(relative).tolist())  # x y z qx qy qz qw
         return SerializedMessage(TFMessage, bytes(buffer))
 
 
-def _align(buffer: bytearray, size: int) -> None:
-    """Pad to ``size`` bytes, counted from after the 4-byte encapsulation header (XCDR1)."""
-    buffer.extend(b"\0" * (-(len(buffer) - 4) % size))
-
-
-def _cdr_string(buffer: bytearray, text: str) -> None:
-    data = text.encode() + b"\0"
-    _align(buffer, 4)
-    buffer += struct.pack("<I", len(data)) + data
+_STAMP = struct.Struct("<iI")
+_XYZQUAT = struct.Struct("<7d")
 
 
 def _tf_template(frames: list[tuple[str, str]]) -> tuple[bytearray, list[int], list[int]]:
     """The CDR (little endian) of a TFMessage with ``frames`` (parent, child), and where each
     entry's stamp and its seven numbers (x, y, z, qx, qy, qz, qw) go."""
-    buffer = bytearray(b"\x00\x01\x00\x00") + struct.pack("<I", len(frames))
+    buffer = bytearray(ENCAPSULATION) + struct.pack("<I", len(frames))
     stamps, values = [], []
     for parent, child in frames:
         stamps.append(len(buffer))
         buffer += bytes(8)
-        _cdr_string(buffer, parent)
-        _cdr_string(buffer, child)
-        _align(buffer, 8)
+        add_string(buffer, parent)
+        add_string(buffer, child)
+        align(buffer, 8)
         values.append(len(buffer))
         buffer += bytes(56)
     return buffer, stamps, values
@@ -247,6 +274,7 @@ class SceneView:
         self._stamp = stamp
         self._tf: TfEncoder | None = None
         self._robot: Any = None
+        self._joint_maps: dict[tuple[str, ...], JointMap | None] = {}
         self._scene_version: Any = None
         self._scene_sent_s = -float("inf")
         self._objects: dict[str, int] = {}
@@ -257,7 +285,13 @@ class SceneView:
         if robot is None:
             return
         stamp = self._stamp(seconds)
-        q = robot.configuration(dict(zip(msg.name, msg.position)))
+        if robot is not self._robot:
+            self._joint_maps.clear()
+        names = tuple(msg.name)
+        if names not in self._joint_maps:
+            self._joint_maps[names] = JointMap.of(robot, names)
+        joint_map = self._joint_maps[names]
+        q = joint_map.configuration(msg.position) if joint_map is not None else robot.configuration(dict(zip(names, msg.position)))
         if robot is not self._robot:
             tree = LinkTree.of(robot)
             self._robot, self._tf = robot, TfEncoder(tree, tree.moving)

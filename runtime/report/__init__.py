@@ -17,7 +17,7 @@ from .data import Recording, load_recording
 
 __all__ = ["Report", "Recording", "load_recording", "log_errors", "render_report"]
 
-from ..recording.recorder import HTML_FILE, JOINTS_FILE, LATENCY_FILE, TREE_FILE, VIDEO_FILE
+from ..recording.files import HTML_FILE, JOINTS_FILE, LATENCY_FILE, TREE_FILE, VIDEO_FILE
 
 
 @dataclass
@@ -30,8 +30,10 @@ class Report:
     """Why the recording is incomplete (``Recording.partial``); empty when it is whole."""
 
 
-def render_report(directory: Path | str, logger: logging.Logger | None = None, parallel: bool = False) -> Report:
-    """Render every artifact of the recording in ``directory`` (ObjectiveError if it is not one).
+def render_report(directory: Path | str, logger: logging.Logger | None = None, parallel: bool = False,
+                  recording: Recording | None = None) -> Report:
+    """Render every artifact of the recording in ``directory`` (ObjectiveError if it is not one);
+    ``recording``: its data already read (the recording worker builds it as the run goes).
 
     ``parallel``: draw the joint plot (the largest part) in a forked process while this one
     renders the rest. Only for a process that has no threads of its own (``fork`` copies one
@@ -43,7 +45,7 @@ def render_report(directory: Path | str, logger: logging.Logger | None = None, p
     from .video import camera_video
 
     directory = Path(directory)
-    recording = load_recording(directory)
+    recording = recording if recording is not None else load_recording(directory)
     report = Report(directory, partial=list(recording.partial))
     status = (recording.summary or {}).get("status", "unfinished (partial)")
     steps = [

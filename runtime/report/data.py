@@ -23,7 +23,7 @@ from rclpy.serialization import deserialize_message
 from ..errors import ObjectiveError
 from ..recording.bus import JOINT_STATES_TOPIC
 from ..recording.mcap_writer import METADATA_NAME
-from ..recording.recorder import EVENTS_FILE, MCAP_FILE
+from ..recording.files import EVENTS_FILE, MCAP_FILE
 from ..recording.schema import message_class
 
 
@@ -130,16 +130,21 @@ def read_events(path: Path, recording: Recording) -> None:
                 recording.partial.append(f"{path.name} ends in the middle of line {number}")
                 break
             raise ObjectiveError(f"{path}:{number}: not a JSON event ({err.msg})") from None
-        kind = record.get("kind")
-        if kind == "tree":
-            recording.tree_id = record.get("source", "")
-            recording.nodes = record["data"]["nodes"]
-        elif kind == "joint_limits":
-            recording.limits = {j["name"]: j for j in record["data"]["joints"]}
-        elif kind == "run_summary":
-            recording.summary = record["data"]
-        else:
-            recording.events.append(record)
+        add_event(record, recording)
+
+
+def add_event(record: dict[str, Any], recording: Recording) -> None:
+    """One ``events.jsonl`` record into ``recording`` (the tree, limits and summary to their fields)."""
+    kind = record.get("kind")
+    if kind == "tree":
+        recording.tree_id = record.get("source", "")
+        recording.nodes = record["data"]["nodes"]
+    elif kind == "joint_limits":
+        recording.limits = {j["name"]: j for j in record["data"]["joints"]}
+    elif kind == "run_summary":
+        recording.summary = record["data"]
+    else:
+        recording.events.append(record)
 
 
 def _joint_series(messages: list[tuple[float, Any]]) -> JointSeries:
@@ -195,32 +200,32 @@ def clock_origin_ns(path: Path) -> int:
 
 
 @dataclass
-class _McapContents:
-    """What ``read_mcap`` keeps of each message while it reads the file."""
+class McapContents:
+    """What the report keeps of a recording's messages, built one message at a time: read back
+    from ``run.mcap`` (``read_mcap``), or as they arrive in the recording worker."""
 
     recording: Recording
     origin_ns: int = 0
     """Wall-clock log time of the runtime clock's zero (``clock_origin_ns``)."""
     classes: dict[str, type] = field(default_factory=dict)
     joint_messages: list[tuple[float, Any]] = field(default_factory=list)
-    images: dict[tuple[str, int], Any] = field(default_factory=dict)
+    images: dict[tuple[str, int], bytes] = field(default_factory=dict)
     counts: dict[str, list[Any]] = field(default_factory=lambda: defaultdict(lambda: ["", 0]))
 
-    def add(self, schema: Any, channel: Any, message: Any) -> None:
+    def add(self, topic: str, type_name: str, log_time_ns: int, data: bytes) -> None:
         recording = self.recording
-        topic, type_name = channel.topic, schema.name if schema is not None else ""
         self.counts[topic][0] = type_name
         self.counts[topic][1] += 1
         if type_name == "sensor_msgs/msg/Image":
-            self.images[(topic, message.log_time - self.origin_ns)] = message.data  # decoded only if a request shows it
+            self.images[(topic, log_time_ns - self.origin_ns)] = data  # decoded only if a request shows it
             return
         if not _wanted(topic, type_name):
             return
         cls = self.classes.get(type_name)
         if cls is None:
             cls = self.classes[type_name] = message_class(type_name)
-        t = (message.log_time - self.origin_ns) * 1e-9
-        msg = deserialize_message(message.data, cls)
+        t = (log_time_ns - self.origin_ns) * 1e-9
+        msg = deserialize_message(data, cls)
         if topic == JOINT_STATES_TOPIC:
             self.joint_messages.append((t, msg))
         elif type_name == "trajectory_msgs/msg/JointTrajectory" and topic.endswith("/joint_trajectory"):
@@ -232,32 +237,46 @@ class _McapContents:
         elif topic.endswith("/response"):
             recording.responses.append(json.loads(msg.data))
 
+    def end_time_s(self) -> float | None:
+        """Clock time of the last joint state (where a partial recording ends)."""
+        return self.joint_messages[-1][0] if self.joint_messages else None
+
+    def finish(self) -> None:
+        """Fill in what needs every message: topic counts, the joint series, the camera frames."""
+        recording = self.recording
+        recording.topics = {topic: (name, count) for topic, (name, count) in self.counts.items()}
+        if self.joint_messages:
+            recording.joints = _joint_series(self.joint_messages)
+        image_class = message_class("sensor_msgs/msg/Image")
+        for request in recording.requests:
+            views = []
+            for view in request.get("images", []):
+                data = self.images.get((view["topic"], int(round(request["time"] * 1e9))))
+                if data is not None:
+                    views.append((view["name"], image_rgb(deserialize_message(data, image_class))))
+            if views:
+                recording.frames.append(CameraFrame(request["time"], request["request"], views))
+
 
 def read_mcap(path: Path, recording: Recording) -> None:
-    contents = _McapContents(recording, clock_origin_ns(path))
+    contents = McapContents(recording, clock_origin_ns(path))
     with open(path, "rb") as stream:
         # Read front to back, as a stream: file order is recording order, which is clock order
         # (the recorder writes as time passes), and a file whose writer was killed (no summary
         # section, maybe half a chunk) still gives every complete chunk.
         try:
             for schema, channel, message in NonSeekingReader(stream).iter_messages(log_time_order=False):
-                contents.add(schema, channel, message)
+                contents.add(channel.topic, schema.name if schema is not None else "", message.log_time, message.data)
         except EndOfFile:
-            joints = contents.joint_messages
-            end = f" at {joints[-1][0]:.2f} s" if joints else ""
-            recording.partial.append(f"{path.name} ends early{end}: the recorder did not close it")
-    recording.topics = {topic: (name, count) for topic, (name, count) in contents.counts.items()}
-    if contents.joint_messages:
-        recording.joints = _joint_series(contents.joint_messages)
-    image_class = message_class("sensor_msgs/msg/Image")
-    for request in recording.requests:
-        views = []
-        for view in request.get("images", []):
-            data = contents.images.get((view["topic"], int(round(request["time"] * 1e9))))
-            if data is not None:
-                views.append((view["name"], image_rgb(deserialize_message(data, image_class))))
-        if views:
-            recording.frames.append(CameraFrame(request["time"], request["request"], views))
+            end = contents.end_time_s()
+            recording.partial.append(f"{path.name} ends early{f' at {end:.2f} s' if end is not None else ''}: "
+                                     "the recorder did not close it")
+    contents.finish()
+
+
+def mark_unfinished(recording: Recording) -> None:
+    if recording.summary is None:
+        recording.partial.insert(0, f"{EVENTS_FILE} has no run summary: the run was killed before it finished")
 
 
 def load_recording(directory: Path | str) -> Recording:
@@ -275,6 +294,5 @@ def load_recording(directory: Path | str) -> Recording:
         raise
     except Exception as err:  # not MCAP at all, or damaged (a truncated end is read as partial)
         raise ObjectiveError(f"{mcap}: cannot read the recording: {err}") from None
-    if recording.summary is None:
-        recording.partial.insert(0, f"{EVENTS_FILE} has no run summary: the run was killed before it finished")
+    mark_unfinished(recording)
     return recording

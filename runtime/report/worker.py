@@ -1,21 +1,26 @@
-"""Render a recorded run's report in a second process that gets ready while the run goes on.
+"""The recording worker: a second process, started with a recorded run, that writes the
+recording and renders its report, so the run itself only serializes.
 
-Most of what a report costs after the run is fixed: importing matplotlib and imageio, then
-drawing. ``ReportWorker`` starts ``python -m runtime.report.worker`` when the recorded run starts;
-that process imports everything the report needs (on the other core, while the run ticks) and
-waits for one line on stdin. When the run is over and ``run.mcap`` is closed, ``render`` sends
-the directory, the worker renders the report (``render_report(..., parallel=True)``: the joint
-plot in a forked process beside the rest) and answers one JSON line with the files written and
-the artifacts that failed.
+``ReportWorker`` starts ``python -m runtime.report.worker`` when the recorded run starts. The
+run hands its messages over through the worker's stdin (``record``: a
+``runtime.recording.handoff.Handoff``); the worker writes ``run.mcap``, ``events.jsonl`` and
+``metadata.yaml`` and builds the report's data as messages arrive
+(``runtime.recording.session``), while it imports matplotlib and imageio on a thread beside.
+When the run is over, ``render`` asks for the report: the worker renders it from the data it
+already holds (``render_report(..., parallel=True)``: the joint plot in a forked process beside
+the rest) and answers one JSON line with the files written and the artifacts that failed.
+``render`` of a directory the worker did not record reads it back from its files.
 
 Signals are the run's business: the worker runs in a process group of its own, so Ctrl-C at the
 terminal reaches only the run (which stops the worker if it must), and it starts with SIGINT
 blocked (and then ignored), so one sent to it directly does nothing either; it never prints a
 traceback.
 
-Nothing is lost if the worker cannot help: if it died, answers garbage or takes longer than
-``timeout``, ``render`` stops it and the report is rendered in this process as before. If this
-process dies, the worker reads end-of-file and exits without rendering anything.
+Nothing is lost if the worker cannot render: if it died, answers garbage or takes longer than
+``timeout``, ``render`` stops it and the report is rendered in this process from the files. If
+the run's process dies, the worker reads end-of-file, writes what it received (the recording
+stays partial, as a killed run leaves it) and exits without rendering anything. If the worker
+dies while recording, see ``runtime.recording.recorder``.
 """
 from __future__ import annotations
 
@@ -26,10 +31,12 @@ import os
 import signal
 import subprocess
 import sys
+import threading
 from pathlib import Path
 from typing import Any, Iterator
 
 from ..errors import ObjectiveError
+from ..recording.handoff import Frame, Handoff, WorkerLost, json_frame, read_frames, write_all
 from . import Report, log_errors, render_report
 
 RENDER_TIMEOUT = 600.0
@@ -57,11 +64,21 @@ class ReportWorker:
             with _sigint_blocked():  # the worker inherits the mask: deaf to SIGINT from its first instruction
                 self.process = subprocess.Popen(
                     [sys.executable, "-m", "runtime.report.worker"],
-                    stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True,
+                    stdin=subprocess.PIPE, stdout=subprocess.PIPE,
                     process_group=0,  # the terminal's Ctrl-C goes to the run, not to its worker
                 )
         except OSError:
             self.process = None  # rendered in process instead
+
+    def record(self, directory: Path | str, clock_origin_ns: int) -> Handoff | None:
+        """Where the run sends its recording of ``directory`` (None without a worker)."""
+        if self.process is None or self.process.stdin is None:
+            return None
+        return Handoff(self.process.stdin.fileno(), str(directory), clock_origin_ns)
+
+    def exit_status(self) -> int | None:
+        """The worker's exit status once it has exited (for the run's warning when it is lost)."""
+        return self.process.poll() if self.process is not None else None
 
     def render(self, directory: Path | str, logger: logging.Logger | None = None, timeout: float = RENDER_TIMEOUT) -> Report:
         """The report of ``directory``, from the worker if it can, else rendered here."""
@@ -88,9 +105,11 @@ class ReportWorker:
         if process is None:
             return None
         try:
-            out, _ = process.communicate(json.dumps({"directory": str(directory)}) + "\n", timeout=timeout)
+            assert process.stdin is not None
+            write_all(process.stdin.fileno(), json_frame(Frame.RENDER, {"directory": str(directory)}))
+            out, _ = process.communicate(timeout=timeout)
             answer = json.loads(out.strip().splitlines()[-1]) if process.returncode == 0 and out.strip() else None
-        except (subprocess.TimeoutExpired, OSError, ValueError):
+        except (subprocess.TimeoutExpired, OSError, ValueError, WorkerLost):
             process.kill()
             process.communicate()
             return None
@@ -105,30 +124,72 @@ class ReportWorker:
         return answer
 
 
-def main() -> int | None:
-    signal.signal(signal.SIGINT, signal.SIG_IGN)  # the run decides when the worker stops
-    try:  # everything the report imports, before the directory arrives
+def _import_report_libraries(failed: list[BaseException]) -> None:
+    """Everything the report imports, while the recording arrives (on a thread: it is slow), and
+    one tiny figure drawn, so that the fonts are loaded before the report's plots need them."""
+    try:
+        import io
+
         from . import html, plots, tree_svg, video  # noqa: F401
 
         import imageio.v2  # noqa: F401
-        import matplotlib.backends.backend_agg  # noqa: F401
-        import sensor_msgs.msg  # noqa: F401  (the recording's messages are read back with these)
-        import trajectory_msgs.msg  # noqa: F401
-    except Exception:
-        return 1  # the run renders in its own process and reports what is missing there
-    line = sys.stdin.readline()
-    if not line.strip():
-        return 0  # the run ended without a report (or its process died)
+        from matplotlib.backends.backend_agg import FigureCanvasAgg
+        from matplotlib.figure import Figure
+
+        figure = Figure(figsize=(1, 1))
+        figure.subplots().set_title("0.5", fontsize=8)
+        FigureCanvasAgg(figure).print_png(io.BytesIO())
+    except BaseException as err:  # the run renders in its own process and reports what is missing there
+        failed.append(err)
+
+
+def _answer(directory: str, recording: Any) -> dict[str, Any]:
     try:
-        report = render_report(json.loads(line)["directory"], parallel=True)
-        answer = {"files": {k: str(v) for k, v in report.files.items()}, "errors": report.errors, "partial": report.partial}
+        report = render_report(directory, parallel=True, recording=recording)
+        return {"files": {k: str(v) for k, v in report.files.items()}, "errors": report.errors, "partial": report.partial}
     except Exception as err:
-        answer = {"failed": str(err) if isinstance(err, ObjectiveError) else f"{type(err).__name__}: {err}"}
+        return {"failed": str(err) if isinstance(err, ObjectiveError) else f"{type(err).__name__}: {err}"}
+
+
+def main() -> int | None:
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # the run decides when the worker stops
     try:
-        print(json.dumps(answer), flush=True)
-    except OSError:  # the run stopped listening (it was interrupted): nothing to tell
-        pass
-    os._exit(0)  # every file is closed; skip the interpreter's teardown, which the run waits for
+        return _serve()
+    except Exception:  # the run notices (WorkerLost, or no answer) and does the work itself
+        return 1
+
+
+def _serve() -> int | None:
+    from ..recording.session import RecordingSession
+
+    failed: list[BaseException] = []
+    imports = threading.Thread(target=_import_report_libraries, args=(failed,), daemon=True)
+    imports.start()
+    session: RecordingSession | None = None
+    for kind, payload in read_frames(sys.stdin.fileno()):
+        if kind is None:  # all that has arrived is taken: to the files
+            if session is not None and not session.ended:
+                session.flush_if_due()
+        elif kind is Frame.START:
+            start = json.loads(payload)
+            session = RecordingSession(start["directory"], int(start["clock_origin_ns"]))
+        elif kind is Frame.RENDER:
+            imports.join()  # no other thread when rendering forks
+            if failed:
+                return 1
+            directory = json.loads(payload)["directory"]
+            mine = session is not None and session.ended and Path(directory) == session.directory
+            answer = _answer(directory, session.recording if mine else None)
+            try:
+                print(json.dumps(answer), flush=True)
+            except OSError:  # the run stopped listening (it was interrupted): nothing to tell
+                pass
+            os._exit(0)  # every file is closed; skip the interpreter's teardown, which the run waits for
+        elif session is not None:
+            session.take(kind, payload)
+    if session is not None and not session.ended:
+        session.abandon()  # the run died: keep what it sent
+    return 0
 
 
 if __name__ == "__main__":

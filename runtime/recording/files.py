@@ -1,0 +1,8 @@
+"""The files of a recording directory (``objective run --record DIR``); see docs/recording.md."""
+
+MCAP_FILE = "run.mcap"
+EVENTS_FILE = "events.jsonl"
+JOINTS_FILE, LATENCY_FILE, VIDEO_FILE, TREE_FILE, HTML_FILE = (
+    "joints.png", "latency.png", "cameras.mp4", "tree.svg", "report.html")
+REPORT_FILES = (JOINTS_FILE, LATENCY_FILE, VIDEO_FILE, TREE_FILE, HTML_FILE)
+"""Rendered by ``runtime.report``; a new recording into the same directory removes the old ones."""

@@ -1,0 +1,102 @@
+"""``RecordingSession``: the recording worker's side of a recorded run (see ``runtime.recording.handoff``).
+
+It writes what the run sends: ``run.mcap`` (the run's serialized messages as they are, plus the
+``/rosout`` and node status messages of its events), ``events.jsonl`` (each batch's lines in one
+write) and, when the run says the recording is over, the MCAP summary section and
+``metadata.yaml``. Meanwhile it builds the report's data (``runtime.report.data.McapContents``), so
+the report needs no reading back.
+
+Crash safety as in the run before: ``events.jsonl`` gets each batch as it arrives, and the MCAP
+chunk is closed and flushed every ``FLUSH_INTERVAL_S``. If the run dies (end of file without
+``END``), everything received is flushed and the files are left as a killed run leaves them: no
+run summary, no MCAP summary section (``objective report`` renders them as partial).
+"""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+from rclpy.serialization import serialize_message
+
+from ..report.data import McapContents, Recording, add_event, mark_unfinished
+from .bag_metadata import BAG_METADATA_FILE, bag_metadata_yaml
+from .event_messages import event_message
+from .handoff import MESSAGE_HEADER, Frame
+from .mcap_writer import McapRos2Writer, OfferedQos, SerializedMessage, to_nanoseconds
+from .files import EVENTS_FILE, MCAP_FILE
+from .schema import type_name
+
+
+class RecordingSession:
+    """Writes one recording from the frames the run sends (``take``)."""
+
+    def __init__(self, directory: Path | str, clock_origin_ns: int) -> None:
+        self.directory = Path(directory)
+        self.clock_origin_ns = clock_origin_ns
+        self.writer = McapRos2Writer(self.directory / MCAP_FILE, clock_origin_ns)
+        self._events = open(self.directory / EVENTS_FILE, "ab")  # the run created it empty
+        self._lines = bytearray()
+        self._channels: dict[int, tuple[int, str, str]] = {}
+        """The run's channel id -> (MCAP channel id, topic, type name)."""
+        self.recording = Recording(self.directory)
+        self.contents = McapContents(self.recording, clock_origin_ns)
+        self.ended = False
+
+    def take(self, kind: Frame, payload: bytes) -> None:
+        if kind is Frame.MESSAGE:
+            channel, log_time_ns = MESSAGE_HEADER.unpack_from(payload)
+            mcap_channel, topic, name = self._channels[channel]
+            data = payload[MESSAGE_HEADER.size:]
+            self.writer.write_cdr(mcap_channel, data, log_time_ns)
+            self.contents.add(topic, name, log_time_ns, data)
+        elif kind is Frame.CHANNEL:
+            d = json.loads(payload)
+            qos = OfferedQos(*d["qos"])
+            self._channels[d["id"]] = (self.writer.open_channel(d["topic"], d["type"], qos), d["topic"], d["type"])
+        elif kind in (Frame.EVENT, Frame.NOTE):
+            self._lines += payload
+            record = json.loads(payload)
+            add_event(record, self.recording)
+            if kind is Frame.EVENT:
+                self._event_message(record)
+        elif kind is Frame.END:
+            self.end()
+
+    def _event_message(self, record: dict[str, Any]) -> None:
+        stamp_ns = self.clock_origin_ns + to_nanoseconds(record["time"])
+        topic, msg = event_message(record["kind"], record["source"], record["data"], stamp_ns)
+        data = serialize_message(msg)
+        self.writer.write(topic, SerializedMessage(type(msg), data), record["time"])
+        self.contents.add(topic, type_name(type(msg)), stamp_ns, data)
+
+    def flush_if_due(self) -> None:
+        """After each read from the pipe: the events to their file, the MCAP chunk when due."""
+        self._write_lines()
+        self.writer.flush_if_due()
+
+    def _write_lines(self) -> None:
+        if self._lines:
+            self._events.write(self._lines)
+            self._events.flush()
+            self._lines.clear()
+
+    def end(self) -> None:
+        """The run is over: finish ``run.mcap`` (summary section), ``metadata.yaml`` and the report's data."""
+        if self.ended:
+            return
+        self.ended = True
+        self._write_lines()
+        self._events.close()
+        w = self.writer
+        w.close()
+        (self.directory / BAG_METADATA_FILE).write_text(
+            bag_metadata_yaml(MCAP_FILE, w.topics, w.counts, w.first_ns, w.last_ns), encoding="utf-8")
+        self.contents.finish()
+        mark_unfinished(self.recording)
+
+    def abandon(self) -> None:
+        """The run died: everything received goes to the files, which stay partial."""
+        self._write_lines()
+        self._events.close()
+        self.writer.flush()
