@@ -19,15 +19,14 @@ import numpy as np
 import yaml
 from moveit_pro_controllers_msgs.action import FollowJointTrajectoryWithAdmittance as FollowTrajectory
 from sensor_msgs.msg import JointState
-from trajectory_msgs.msg import JointTrajectory
+from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
 from runtime.behavior import Behavior, Status
 from runtime.bus import STATUS_SUCCEEDED
 from runtime.ports import InputPort, OutputPort, PortType, Range
 from runtime.scene import JointLimits
 from runtime.scene.kinematics import frame_pose, solve_ik
-from runtime.timestamps import time_msg
-from runtime.trajectory_points import trajectory_points
+from runtime.timestamps import duration_msg, time_msg
 from scipy.spatial.transform import Rotation, Slerp
 
 from .execute_policy.shaping import Samples
@@ -170,7 +169,8 @@ def tip_offset_matrix(values: list[float]) -> np.ndarray:
 def to_trajectory_msg(samples: Samples, joints: tuple[str, ...], stamp_s: float = 0.0) -> JointTrajectory:
     msg = JointTrajectory(joint_names=list(joints))
     msg.header.stamp = time_msg(stamp_s)
-    msg.points = trajectory_points(samples.times, samples.positions, samples.velocities, samples.accelerations)
+    for t, p, v, a in zip(samples.times, samples.positions, samples.velocities, samples.accelerations):
+        msg.points.append(JointTrajectoryPoint(positions=p.tolist(), velocities=v.tolist(), accelerations=a.tolist(), time_from_start=duration_msg(t)))
     return msg
 
 
