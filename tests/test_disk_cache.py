@@ -3,6 +3,7 @@ the same robot, cell and planning model as building them from scratch."""
 from __future__ import annotations
 
 import os
+from pathlib import Path
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 
@@ -107,3 +108,70 @@ def _pose(robot: RobotModel, q: np.ndarray, frame: str) -> np.ndarray:
     from runtime.scene import frame_pose
 
     return frame_pose(robot, q, frame)
+
+
+def _robot(source) -> RobotModel:
+    return RobotModel.from_mjcf(source, srdf=SRDF_PATH, couplings=COUPLINGS_PATH)
+
+
+def _distances(robot: RobotModel, q: np.ndarray) -> list[tuple[float, tuple[float, ...]]]:
+    """Distance and nearest points of every pair of collision objects at ``q``."""
+    import pinocchio as pin
+
+    geometry = robot.collision_model.copy()
+    geometry.addAllCollisionPairs()
+    data, geometry_data = robot.model.createData(), pin.GeometryData(geometry)
+    pin.computeDistances(robot.model, data, geometry, geometry_data, q)
+    return [(r.min_distance, tuple(r.getNearestPoint1()) + tuple(r.getNearestPoint2()))
+            for r in geometry_data.distanceResults]
+
+
+def test_cached_collision_hulls_collide_exactly_like_fresh_ones(cache):
+    first, cached = _robot(robot_xml()), _robot(robot_xml())  # computes and stores, then reads
+    assert len(list((cache / "collision_hulls").iterdir())) == 1
+    fresh = _robot(mujoco.MjSpec.from_string(robot_xml()))  # an MjSpec is never cached
+    hulls = [go for go in fresh.collision_model.geometryObjects if type(go.geometry).__name__ == "Convex"]
+    assert len(hulls) == 10  # the gripper's meshes
+    for model in (first, cached):
+        assert model.collision_model == fresh.collision_model  # names, parents, placements, hull points and faces
+        rng = np.random.default_rng(0)
+        for _ in range(5):
+            q = fresh.neutral() + rng.uniform(-1.5, 1.5, fresh.model.nq)
+            assert _distances(model, q) == _distances(fresh, q)
+
+
+def test_a_damaged_collision_hulls_entry_is_rebuilt(cache):
+    fresh = _robot(robot_xml())
+    (entry,) = (cache / "collision_hulls").iterdir()
+    good = entry.read_bytes()
+    for damaged in (b"", b"not an archive", good[: len(good) // 2]):
+        entry.write_bytes(damaged)
+        assert _robot(robot_xml()).collision_model == fresh.collision_model
+        assert entry.read_bytes() == good
+
+
+def test_a_changed_collision_mesh_is_a_new_collision_hulls_entry(cache, tmp_path):
+    xml = robot_xml()
+    original = next(part.split('"')[1] for part in xml.split("file=")[1:] if "base_mount.stl" in part)
+    mesh = tmp_path / "base_mount.stl"
+    mesh.write_bytes(Path(original).read_bytes())
+    xml = xml.replace(original, str(mesh))
+    before = _robot(xml)
+    _scale_binary_stl(mesh, 1.5)
+    after = _robot(xml)
+    assert len(list((cache / "collision_hulls").iterdir())) == 2
+    assert after.collision_model != before.collision_model
+    name = "gripper_base_mountGeom_1"
+    (old,) = [go.geometry for go in before.collision_model.geometryObjects if go.name == name]
+    (new,) = [go.geometry for go in after.collision_model.geometryObjects if go.name == name]
+    assert new.aabb_radius == pytest.approx(1.5 * old.aabb_radius)
+
+
+def _scale_binary_stl(path: Path, factor: float) -> None:
+    """Scale every vertex of a binary STL file in place (80-byte header, count, 50-byte triangles)."""
+    data = bytearray(path.read_bytes())
+    count = int.from_bytes(data[80:84], "little")
+    triangles = np.frombuffer(data, dtype=np.dtype([("normal", "<f4", 3), ("vertices", "<f4", 9), ("attribute", "<u2")]),
+                              count=count, offset=84).copy()
+    triangles["vertices"] *= factor
+    path.write_bytes(bytes(data[:84]) + triangles.tobytes())
