@@ -23,7 +23,6 @@ import sys
 from importlib.metadata import entry_points
 from pathlib import Path
 from typing import Any, Sequence
-from xml.sax.saxutils import escape, quoteattr
 
 # Runs are headless: MuJoCo (loaded by the planning scene and the simulated cell) renders
 # offscreen unless the user chose a GL backend. Its backend is fixed when it is first imported.
@@ -303,6 +302,8 @@ def cmd_show(args: argparse.Namespace, registry: Registry) -> int:
 
 def models_xml(registry: Registry, include_builtins: bool = False) -> str:
     """TreeNodesModel XML for Groot2: one element per node, ports with type, default and description."""
+    from xml.sax.saxutils import escape, quoteattr  # imports urllib.request, http.client, ssl: not for a run
+
     lines = ['<?xml version="1.0" encoding="UTF-8"?>', '<root BTCPP_format="4">', "  <TreeNodesModel>"]
     for spec in registry.specs():
         if spec.id in BTCPP_BUILTINS and not include_builtins:

@@ -75,7 +75,32 @@ def cached(kind: str, key: str, compute: Callable[[], bytes], decode: Callable[[
     return decode(data)
 
 
-def _store(path: Path, data: bytes) -> None:
+def cached_file(kind: str, key: str, compute: Callable[[], bytes], load: Callable[[str], T]) -> T:
+    """``cached`` for an entry a library reads from a file itself: ``load(path)`` of the entry
+    ``kind/key`` (MuJoCo loads a 17 MB binary model from a path 4x faster than from bytes). On a
+    miss, or an entry ``load`` cannot read, ``compute()`` the bytes, store them and load the
+    stored file; without a cache, or when the store fails, from a temporary file."""
+    root = cache_dir()
+    path = None if root is None else root / kind / key
+    if path is not None and path.is_file():  # libraries complain about a missing file on stderr
+        try:
+            return load(str(path))
+        except Exception:  # unreadable or damaged: compute it again
+            pass
+    data = compute()
+    if path is not None and _store(path, data):
+        return load(str(path))
+    fd, tmp = tempfile.mkstemp(prefix=f"{kind}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "wb") as f:
+            f.write(data)
+        return load(tmp)
+    finally:
+        os.unlink(tmp)
+
+
+def _store(path: Path, data: bytes) -> bool:
+    """Write ``data`` to ``path`` atomically; False when it cannot be written."""
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name[:16]}.", suffix=".tmp")
@@ -87,4 +112,5 @@ def _store(path: Path, data: bytes) -> None:
             os.unlink(tmp)
             raise
     except OSError:
-        pass
+        return False
+    return True

@@ -175,3 +175,44 @@ def _scale_binary_stl(path: Path, factor: float) -> None:
                               count=count, offset=84).copy()
     triangles["vertices"] *= factor
     path.write_bytes(bytes(data[:84]) + triangles.tobytes())
+
+
+def _read_path(path: str) -> tuple[str, bytes]:
+    with open(path, "rb") as f:
+        data = f.read()
+    if not data.startswith(b"entry:"):
+        raise ValueError(f"{path}: not an entry")
+    return path, data
+
+
+def test_a_file_entry_is_loaded_from_its_path(cache):
+    calls = []
+
+    def compute() -> bytes:
+        calls.append(1)
+        return b"entry:1"
+
+    first = disk_cache.cached_file("kind", "k", compute, _read_path)
+    again = disk_cache.cached_file("kind", "k", compute, _read_path)
+    assert first == again == (str(cache / "kind" / "k"), b"entry:1")
+    assert len(calls) == 1
+    (cache / "kind" / "k").write_bytes(b"damaged")
+    assert disk_cache.cached_file("kind", "k", compute, _read_path) == (str(cache / "kind" / "k"), b"entry:1")
+    assert len(calls) == 2
+
+
+def test_a_file_entry_without_a_cache_is_loaded_from_a_removed_temporary_file(cache, monkeypatch):
+    monkeypatch.setenv(disk_cache.ENV_SWITCH, "off")
+    path, data = disk_cache.cached_file("kind", "k", lambda: b"entry:2", _read_path)
+    assert data == b"entry:2"
+    assert not os.path.exists(path)
+    assert not (cache / "kind").exists()
+
+
+def test_a_damaged_cell_entry_is_compiled_again(cache):
+    good = compile_cell(CellOptions())
+    (entry,) = (cache / "cell_mjb").iterdir()
+    entry.write_bytes(entry.read_bytes()[:1000])  # truncated
+    again = compile_cell(CellOptions())
+    np.testing.assert_array_equal(again.mesh_vert, good.mesh_vert)
+    assert mujoco.MjModel.from_binary_path(str(entry)).nmeshvert == good.nmeshvert

@@ -9,9 +9,6 @@ bit for bit like the one that was saved.
 """
 from __future__ import annotations
 
-import os
-import tempfile
-
 import coal
 import pinocchio as pin
 
@@ -43,18 +40,9 @@ def geometry_bytes(geometry: pin.GeometryModel) -> bytes:
     return bytes(buffer.tobytes())
 
 
-def geometry_from_bytes(data: bytes) -> pin.GeometryModel:
-    """The geometry model ``geometry_bytes`` wrote; raises on bytes that are not one.
-
-    pinocchio reads a binary archive from a file or from a buffer Python cannot fill, hence
-    the temporary file (a few milliseconds).
-    """
-    fd, path = tempfile.mkstemp(prefix="geometry_", suffix=".bin")
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-        geometry = pin.GeometryModel()
-        geometry.loadFromBinary(path)
-    finally:
-        os.unlink(path)
+def load_geometry(path: str) -> pin.GeometryModel:
+    """The geometry model ``geometry_bytes`` wrote to the file ``path``; raises on a file that is
+    not one (pinocchio: "input stream error")."""
+    geometry = pin.GeometryModel()
+    geometry.loadFromBinary(path)
     return geometry

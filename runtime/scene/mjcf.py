@@ -34,9 +34,9 @@ import numpy as np
 import pinocchio as pin
 from lxml import etree
 
-from runtime.disk_cache import cached, content_key
+from runtime.disk_cache import cached, cached_file, content_key
 from runtime.scene import hulls
-from runtime.scene.hulls import geometry_bytes, geometry_from_bytes, with_convex_hulls
+from runtime.scene.hulls import geometry_bytes, load_geometry, with_convex_hulls
 
 
 @dataclass(frozen=True)
@@ -285,8 +285,8 @@ def load_mjcf(source: str | os.PathLike | mujoco.MjSpec, root_body: str | None =
         if key is None:
             collision_model = hull_geometry()
         else:
-            collision_model = cached("collision_hulls", _hulls_key(key), lambda: geometry_bytes(hull_geometry()),
-                                     geometry_from_bytes)
+            collision_model = cached_file("collision_hulls", _hulls_key(key), lambda: geometry_bytes(hull_geometry()),
+                                          load_geometry)
     model = pin.appendModel(pin.Model(), robot, 0, root_placement)
     model.name = robot.name
     _add_sites(model, facts.sites)
