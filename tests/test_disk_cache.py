@@ -50,6 +50,33 @@ def test_a_changed_input_file_is_a_different_key(tmp_path):
     assert disk_cache.content_key("ab", "c") != disk_cache.content_key("a", "bc")
 
 
+def test_a_file_rewritten_with_its_size_and_time_is_a_different_key(cache, tmp_path):
+    source = tmp_path / "mesh.obj"
+    source.write_text("v 0 0 0\n")
+    before = disk_cache.content_key(source)
+    mtime_ns = source.stat().st_mtime_ns
+    source.write_text("v 0 0 1\n")
+    os.utime(source, ns=(mtime_ns, mtime_ns))  # same size, same time: the change time still moves
+    assert disk_cache.content_key(source) != before
+
+
+def test_a_settled_file_digest_is_read_from_the_cache_by_later_processes(cache, tmp_path, monkeypatch):
+    source = tmp_path / "mesh.obj"
+    source.write_text("v 0 0 0\n")
+    assert disk_cache.content_key(source)
+    assert not (cache / "file_sha256").exists()  # just written: hashed, not kept
+    monkeypatch.setattr(disk_cache, "SETTLED_NS", 0)  # as if it had been written long ago
+    key = disk_cache.content_key(source)
+    assert len(list((cache / "file_sha256").iterdir())) == 1
+    disk_cache._settled_file_digest.cache_clear()  # as a new process
+
+    def no_hashing(path: str) -> bytes:
+        raise AssertionError(f"{path} hashed again")
+
+    monkeypatch.setattr(disk_cache, "_sha256_of", no_hashing)
+    assert disk_cache.content_key(source) == key
+
+
 def test_a_damaged_entry_is_computed_again_and_replaced(cache):
     (cache / "kind").mkdir()
     (cache / "kind" / "k").write_bytes(b"garbage")
