@@ -70,7 +70,9 @@ def positive_float(text: str) -> float:
     return value
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(command: str | None = None) -> argparse.ArgumentParser:
+    """The CLI's parser. Installed commands (``objective.commands``) are loaded unless ``command``
+    is one of the engine's own: ``objective run`` imports no plug-in command's module."""
     parser = argparse.ArgumentParser(
         prog="objective",
         description="Run BehaviorTree.CPP v4 Objectives headless.",
@@ -130,7 +132,8 @@ def build_parser() -> argparse.ArgumentParser:
     models.add_argument("--all", action="store_true", help="include the nodes BehaviorTree.CPP has built in")
     report = sub.add_parser("report", help="render the plots, video, tree and page of a recording again")
     report.add_argument("dir", type=Path, help="a directory written by `objective run --record DIR`")
-    _add_plugin_commands(sub)
+    if command not in sub.choices:
+        _add_plugin_commands(sub)
     return parser
 
 
@@ -359,7 +362,8 @@ def main(argv: Sequence[str] | None = None, registry: Registry | None = None) ->
 
     ``registry`` defaults to every node the installed packages declare (tests pass their own).
     """
-    args = build_parser().parse_args(argv)
+    argv = sys.argv[1:] if argv is None else list(argv)
+    args = build_parser(argv[0] if argv else None).parse_args(argv)
     _setup_logging()
     stop = StopRequest()
     # For `run`, SIGINT and SIGTERM stop the run at the next tick (halted, recorded, summarised),
