@@ -26,6 +26,7 @@ import json
 import os
 import tempfile
 from dataclasses import asdict, dataclass
+from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 
 import coal
@@ -259,7 +260,8 @@ def load_mjcf(source: str | os.PathLike | mujoco.MjSpec, root_body: str | None =
     MuJoCo's part (a compile: ~1 s with meshes) comes from the on-disk cache
     (``runtime.disk_cache``) when the MJCF text, its mesh files, ``root_body``, this module and
     MuJoCo's version are what they were; so does the collision geometry (meshes loaded by
-    assimp, hulls built by qhull: ~0.3 s), keyed by the same and pinocchio's and coal's versions.
+    assimp, hulls built by qhull: ~0.3 s), keyed by the same and the versions of pinocchio, coal,
+    assimp and qhull.
     An ``MjSpec`` or an MJCF with ``<include>`` is always compiled.
     """
     spec = spec_from_source(source)
@@ -296,7 +298,16 @@ def load_mjcf(source: str | os.PathLike | mujoco.MjSpec, root_body: str | None =
 def _hulls_key(facts_key: str) -> str:
     """The collision hulls follow from the MuJoCo facts (``facts_key``), pinocchio's MJCF
     parser, assimp, coal's qhull and the hull code."""
-    return content_key(facts_key, pin.__version__, coal.__version__, Path(hulls.__file__))
+    return content_key(facts_key, pin.__version__, coal.__version__, _installed_version("cmeel-assimp"),
+                       _installed_version("cmeel-qhull"), Path(hulls.__file__))
+
+
+def _installed_version(distribution: str) -> str:
+    """The version of an installed distribution; ``"absent"`` where the library came another way."""
+    try:
+        return version(distribution)
+    except PackageNotFoundError:
+        return "absent"
 
 
 def _facts_key(source: str | os.PathLike | mujoco.MjSpec, spec: mujoco.MjSpec, root_body: str | None) -> str | None:
