@@ -318,6 +318,21 @@ def test_the_engine_s_own_commands_load_no_installed_command(monkeypatch, cli, t
     assert "warning: command 'broken' (no_such_module_xyz:COMMAND) failed to load" in capsys.readouterr().err
 
 
+def test_the_cyclic_collector_runs_again_once_the_installed_behaviors_are_loaded(tmp_path, lib, capsys):
+    import gc
+
+    objective = str(tree_file(tmp_path, "<AlwaysSuccess/>"))
+    gc.unfreeze()
+    assert main(["validate", objective, "--objectives-dir", str(lib)]) == 0
+    assert gc.isenabled() and gc.get_freeze_count() > 0  # paused while they loaded, then frozen
+    gc.disable()  # a caller's choice is kept
+    try:
+        assert main(["validate", objective, "--objectives-dir", str(lib)]) == 0
+        assert not gc.isenabled()
+    finally:
+        gc.enable()
+
+
 @pytest.mark.parametrize("defaults, message", [
     ([], "this tree needs a world and none is named: pass --world NAME (worlds: kinematic, vla_sim)"),
     ([("kinematic", "sim.world:create_kinematic"), ("vla_sim", "sim.world:create_vla_sim")],
