@@ -43,7 +43,7 @@ def content_key(*parts: str | bytes | os.PathLike) -> str:
     digest = hashlib.sha256()
     for part in parts:
         if isinstance(part, os.PathLike):
-            data = _file_digest(file_stamp(part))
+            data = _file_digest(os.path.abspath(part))
         elif isinstance(part, str):
             data = part.encode()
         else:
@@ -58,28 +58,22 @@ SETTLED_NS = 2_000_000_000
 its clock tick (a few ms), so a file written twice within one tick keeps its stamp."""
 
 
-def file_stamp(path: str | os.PathLike) -> str:
-    """The path and what ``stat`` says about its file: a write changes the size or the change
-    time (``st_ctime_ns``, which no user call can set back), a replaced file has a new inode."""
+def _file_digest(path: str) -> bytes:
+    """The SHA-256 of a file; hashed every time while it was changed recently. A write changes
+    its size or its change time (``st_ctime_ns``, which no user call can set back); a replaced
+    file has a new inode."""
     stat = os.stat(path)
-    return "\0".join(str(v) for v in (os.path.abspath(path), stat.st_dev, stat.st_ino, stat.st_size,
-                                       stat.st_mtime_ns, stat.st_ctime_ns))
-
-
-def _file_digest(stamp: str) -> bytes:
-    """The SHA-256 of the file ``stamp`` describes; hashed again while it was changed recently."""
-    path, *_, ctime_ns = stamp.split("\0")
-    if time.time_ns() - int(ctime_ns) < SETTLED_NS:
+    if time.time_ns() - stat.st_ctime_ns < SETTLED_NS:
         return _sha256_of(path)
-    return _settled_file_digest(stamp)
+    return _settled_file_digest(path, (stat.st_dev, stat.st_ino, stat.st_size, stat.st_mtime_ns, stat.st_ctime_ns))
 
 
 @functools.lru_cache(maxsize=1024)
-def _settled_file_digest(stamp: str) -> bytes:
-    """Kept on disk under the file's stamp: a warm start reads 32 bytes instead of hashing
-    every input file again (the cell's meshes: 34 MB)."""
-    path = stamp.split("\0", 1)[0]
-    return cached("file_sha256", hashlib.sha256(stamp.encode()).hexdigest(), lambda: _sha256_of(path), _digest)
+def _settled_file_digest(path: str, stamp: tuple[int, ...]) -> bytes:
+    """Kept on disk under the path and ``stat`` stamp: a warm start reads 32 bytes instead of
+    hashing every input file again (the cell's meshes: 34 MB)."""
+    name = hashlib.sha256("\0".join(map(str, (path, *stamp))).encode()).hexdigest()
+    return cached("file_sha256", name, lambda: _sha256_of(path), _digest)
 
 
 def _sha256_of(path: str) -> bytes:

@@ -3,6 +3,7 @@ the same robot, cell and planning model as building them from scratch."""
 from __future__ import annotations
 
 import os
+import time
 from pathlib import Path
 
 os.environ.setdefault("MUJOCO_GL", "egl")
@@ -50,11 +51,15 @@ def test_a_changed_input_file_is_a_different_key(tmp_path):
     assert disk_cache.content_key("ab", "c") != disk_cache.content_key("a", "bc")
 
 
-def test_a_file_rewritten_with_its_size_and_time_is_a_different_key(cache, tmp_path):
+@pytest.mark.parametrize("settled_ns", [disk_cache.SETTLED_NS, 0])
+def test_a_file_rewritten_with_its_size_and_time_is_a_different_key(cache, tmp_path, monkeypatch, settled_ns):
+    """Just written (hashed every time), or as if long settled (known by its stat stamp)."""
+    monkeypatch.setattr(disk_cache, "SETTLED_NS", settled_ns)
     source = tmp_path / "mesh.obj"
     source.write_text("v 0 0 0\n")
     before = disk_cache.content_key(source)
     mtime_ns = source.stat().st_mtime_ns
+    time.sleep(0.05)  # past the kernel's timestamp tick
     source.write_text("v 0 0 1\n")
     os.utime(source, ns=(mtime_ns, mtime_ns))  # same size, same time: the change time still moves
     assert disk_cache.content_key(source) != before
