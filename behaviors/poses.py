@@ -23,7 +23,6 @@ from typing import Any
 
 import numpy as np
 from geometry_msgs.msg import Pose, PoseStamped
-from scipy.spatial.transform import Rotation
 from sensor_msgs.msg import JointState
 from visualization_msgs.msg import MarkerArray
 
@@ -47,6 +46,8 @@ def pose_to_matrix(pose: Pose) -> np.ndarray:
     norm = float(np.linalg.norm(quat))
     if not math.isfinite(norm) or norm < 1e-9:
         raise ValueError(f"orientation quaternion (x, y, z, w) = {tuple(quat)} is not a rotation (zero length)")
+    from scipy.spatial.transform import Rotation  # scipy.spatial: ~0.3 s, imported on first use
+
     m = np.eye(4)
     m[:3, :3] = Rotation.from_quat(quat / norm).as_matrix()
     m[:3, 3] = (pose.position.x, pose.position.y, pose.position.z)
@@ -60,6 +61,8 @@ def matrix_to_pose(frame_id: str, matrix: np.ndarray, stamp: float = 0.0) -> Pos
     msg = PoseStamped()
     msg.header.frame_id = frame_id
     msg.header.stamp = time_msg(stamp)
+    from scipy.spatial.transform import Rotation  # scipy.spatial: ~0.3 s, imported on first use
+
     x, y, z = (float(v) for v in matrix[:3, 3])
     msg.pose.position.x, msg.pose.position.y, msg.pose.position.z = x, y, z
     qx, qy, qz, qw = (float(v) for v in Rotation.from_matrix(matrix[:3, :3]).as_quat())
@@ -80,6 +83,8 @@ def offset_matrix(translation_xyz: list[float], quaternion_xyzw: list[float]) ->
     norm = float(np.linalg.norm(quat))
     if not math.isfinite(norm) or norm < 1e-9:
         raise ValueError(f"quaternion_xyzw {list(quaternion_xyzw)} is not a rotation (zero length)")
+    from scipy.spatial.transform import Rotation  # scipy.spatial: ~0.3 s, imported on first use
+
     m = np.eye(4)
     m[:3, :3] = Rotation.from_quat(quat / norm).as_matrix()
     m[:3, 3] = translation_xyz

@@ -27,7 +27,6 @@ from runtime.ports import InputPort, OutputPort, PortType, Range
 from runtime.scene import JointLimits
 from runtime.scene.kinematics import frame_pose, solve_ik
 from runtime.timestamps import duration_msg, time_msg
-from scipy.spatial.transform import Rotation, Slerp
 
 from .execute_policy.shaping import Samples
 from .motion import DEFAULT_CONTROLLER, PlanningError
@@ -45,6 +44,8 @@ TIMING_MODES = ("time_optimal", "cartesian_trapezoidal")
 def interpolate_line(start: np.ndarray, goal: np.ndarray, step_m: float, step_rad: float) -> list[np.ndarray]:
     """Poses (4x4) from ``start`` (excluded) to ``goal`` (included) along a straight line, with
     the orientation slerped, no two more than ``step_m`` or ``step_rad`` apart."""
+    from scipy.spatial.transform import Rotation, Slerp  # scipy.spatial: ~0.3 s, imported on first use
+
     distance = float(np.linalg.norm(goal[:3, 3] - start[:3, 3]))
     rotations = Rotation.from_matrix(np.stack([start[:3, :3], goal[:3, :3]]))
     angle = float((rotations[0].inv() * rotations[1]).magnitude())
@@ -160,6 +161,8 @@ def tip_offset_matrix(values: list[float]) -> np.ndarray:
     """MoveIt Pro's ``tip_offset`` x;y;z;roll;pitch;yaw (m, rad) as a 4x4 in the tip's frame."""
     if len(values) != 6:
         raise PlanningError(f"tip_offset needs 6 values (x;y;z;roll;pitch;yaw), got {len(values)}")
+    from scipy.spatial.transform import Rotation  # scipy.spatial: ~0.3 s, imported on first use
+
     m = np.eye(4)
     m[:3, :3] = Rotation.from_euler("xyz", values[3:]).as_matrix()
     m[:3, 3] = values[:3]

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import gc
 import json
 import logging
 import os
@@ -23,7 +24,6 @@ import sys
 from importlib.metadata import entry_points
 from pathlib import Path
 from typing import Any, Sequence
-from xml.sax.saxutils import escape, quoteattr
 
 # Runs are headless: MuJoCo (loaded by the planning scene and the simulated cell) renders
 # offscreen unless the user chose a GL backend. Its backend is fixed when it is first imported.
@@ -71,7 +71,9 @@ def positive_float(text: str) -> float:
     return value
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(command: str | None = None) -> argparse.ArgumentParser:
+    """The CLI's parser. Installed commands (``objective.commands``) are loaded unless ``command``
+    is one of the engine's own: ``objective run`` imports no plug-in command's module."""
     parser = argparse.ArgumentParser(
         prog="objective",
         description="Run BehaviorTree.CPP v4 Objectives headless.",
@@ -131,7 +133,8 @@ def build_parser() -> argparse.ArgumentParser:
     models.add_argument("--all", action="store_true", help="include the nodes BehaviorTree.CPP has built in")
     report = sub.add_parser("report", help="render the plots, video, tree and page of a recording again")
     report.add_argument("dir", type=Path, help="a directory written by `objective run --record DIR`")
-    _add_plugin_commands(sub)
+    if command not in sub.choices:
+        _add_plugin_commands(sub)
     return parser
 
 
@@ -303,6 +306,8 @@ def cmd_show(args: argparse.Namespace, registry: Registry) -> int:
 
 def models_xml(registry: Registry, include_builtins: bool = False) -> str:
     """TreeNodesModel XML for Groot2: one element per node, ports with type, default and description."""
+    from xml.sax.saxutils import escape, quoteattr  # imports urllib.request, http.client, ssl: not for a run
+
     lines = ['<?xml version="1.0" encoding="UTF-8"?>', '<root BTCPP_format="4">', "  <TreeNodesModel>"]
     for spec in registry.specs():
         if spec.id in BTCPP_BUILTINS and not include_builtins:
@@ -353,12 +358,28 @@ COMMANDS = {
 }
 
 
+def _installed_registry() -> Registry:
+    """Every node the installed packages declare. Importing their modules makes ~70,000 objects;
+    the cyclic collector would walk them again and again while they load (~0.1 s of a start),
+    so it is paused meanwhile and what they made is then frozen (``gc.freeze``: kept out of every
+    later collection; module-level objects live as long as the process anyway)."""
+    if not gc.isenabled():
+        return Registry.from_entry_points()
+    gc.disable()
+    try:
+        return Registry.from_entry_points()
+    finally:
+        gc.freeze()
+        gc.enable()
+
+
 def main(argv: Sequence[str] | None = None, registry: Registry | None = None) -> int:
     """Entry point of the ``objective`` console script; returns the exit code.
 
     ``registry`` defaults to every node the installed packages declare (tests pass their own).
     """
-    args = build_parser().parse_args(argv)
+    argv = sys.argv[1:] if argv is None else list(argv)
+    args = build_parser(argv[0] if argv else None).parse_args(argv)
     _setup_logging()
     stop = StopRequest()
     # For `run`, SIGINT and SIGTERM stop the run at the next tick (halted, recorded, summarised),
@@ -366,7 +387,7 @@ def main(argv: Sequence[str] | None = None, registry: Registry | None = None) ->
     signals = stop_on_signals(stop) if args.command == "run" else contextlib.nullcontext()
     try:
         with signals:
-            registry = registry if registry is not None else Registry.from_entry_points()
+            registry = registry if registry is not None else _installed_registry()
             plugin = getattr(args, "plugin_command", None)
             if plugin is not None:
                 code = plugin.run(args, registry)

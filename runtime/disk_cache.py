@@ -5,6 +5,8 @@ bytes, settings, library versions, the source of the code that computes it), so 
 is a different key and a stale entry is never read. Writers write a temporary file in the same
 directory and rename it into place (atomic on POSIX), so concurrent processes never see a partial
 entry; two writers of one key write the same bytes. A missing or unreadable entry is a miss.
+A file's digest is itself an entry (``file_sha256``), named by the file's path and ``stat``
+(device, inode, size, modification and change times), so a warm start hashes no input file.
 
 Where: ``$OBJECTIVE_CACHE_DIR``, else ``$XDG_CACHE_HOME/objective-runtime``, else
 ``~/.cache/objective-runtime``. ``OBJECTIVE_CACHE=off`` turns it off (every lookup misses and
@@ -16,6 +18,7 @@ import functools
 import hashlib
 import os
 import tempfile
+import time
 from pathlib import Path
 from typing import Callable, TypeVar
 
@@ -40,8 +43,7 @@ def content_key(*parts: str | bytes | os.PathLike) -> str:
     digest = hashlib.sha256()
     for part in parts:
         if isinstance(part, os.PathLike):
-            stat = os.stat(part)
-            data = _file_digest(os.fspath(part), stat.st_size, stat.st_mtime_ns)
+            data = _file_digest(os.path.abspath(part))
         elif isinstance(part, str):
             data = part.encode()
         else:
@@ -51,11 +53,38 @@ def content_key(*parts: str | bytes | os.PathLike) -> str:
     return digest.hexdigest()
 
 
+SETTLED_NS = 2_000_000_000
+"""A file's digest is kept only once its change time is this old: the kernel stamps times at
+its clock tick (a few ms), so a file written twice within one tick keeps its stamp."""
+
+
+def _file_digest(path: str) -> bytes:
+    """The SHA-256 of a file; hashed every time while it was changed recently. A write changes
+    its size or its change time (``st_ctime_ns``, which no user call can set back); a replaced
+    file has a new inode."""
+    stat = os.stat(path)
+    if time.time_ns() - stat.st_ctime_ns < SETTLED_NS:
+        return _sha256_of(path)
+    return _settled_file_digest(path, (stat.st_dev, stat.st_ino, stat.st_size, stat.st_mtime_ns, stat.st_ctime_ns))
+
+
 @functools.lru_cache(maxsize=1024)
-def _file_digest(path: str, size: int, mtime_ns: int) -> bytes:
-    """A file's SHA-256, read once per process while its size and time stay the same."""
+def _settled_file_digest(path: str, stamp: tuple[int, ...]) -> bytes:
+    """Kept on disk under the path and ``stat`` stamp: a warm start reads 32 bytes instead of
+    hashing every input file again (the cell's meshes: 34 MB)."""
+    name = hashlib.sha256("\0".join(map(str, (path, *stamp))).encode()).hexdigest()
+    return cached("file_sha256", name, lambda: _sha256_of(path), _digest)
+
+
+def _sha256_of(path: str) -> bytes:
     with open(path, "rb") as f:
         return hashlib.file_digest(f, "sha256").digest()
+
+
+def _digest(data: bytes) -> bytes:
+    if len(data) != 32:
+        raise ValueError(f"a SHA-256 digest has 32 bytes, not {len(data)}")
+    return data
 
 
 def cached(kind: str, key: str, compute: Callable[[], bytes], decode: Callable[[bytes], T]) -> T:
@@ -75,7 +104,32 @@ def cached(kind: str, key: str, compute: Callable[[], bytes], decode: Callable[[
     return decode(data)
 
 
-def _store(path: Path, data: bytes) -> None:
+def cached_file(kind: str, key: str, compute: Callable[[], bytes], load: Callable[[str], T]) -> T:
+    """``cached`` for an entry a library reads from a file itself: ``load(path)`` of the entry
+    ``kind/key`` (MuJoCo loads a 17 MB binary model from a path 4x faster than from bytes). On a
+    miss, or an entry ``load`` cannot read, ``compute()`` the bytes, store them and load the
+    stored file; without a cache, or when the store fails, from a temporary file."""
+    root = cache_dir()
+    path = None if root is None else root / kind / key
+    if path is not None and path.is_file():  # libraries complain about a missing file on stderr
+        try:
+            return load(str(path))
+        except Exception:  # unreadable or damaged: compute it again
+            pass
+    data = compute()
+    if path is not None and _store(path, data):
+        return load(str(path))
+    fd, tmp = tempfile.mkstemp(prefix=f"{kind}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "wb") as f:
+            f.write(data)
+        return load(tmp)
+    finally:
+        os.unlink(tmp)
+
+
+def _store(path: Path, data: bytes) -> bool:
+    """Write ``data`` to ``path`` atomically; False when it cannot be written."""
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name[:16]}.", suffix=".tmp")
@@ -87,4 +141,5 @@ def _store(path: Path, data: bytes) -> None:
             os.unlink(tmp)
             raise
     except OSError:
-        pass
+        return False
+    return True

@@ -31,7 +31,7 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from runtime.disk_cache import cached, content_key
+from runtime.disk_cache import cached_file, content_key
 from sim.render_meshes import simplify_visual_meshes
 from sim.robot_model import FT_SITE, GRIPPER_PREFIX, build_robot_spec, mesh_files, robot_xml
 
@@ -140,17 +140,13 @@ def compile_cell(options: CellOptions | None = None) -> mujoco.MjModel:
     sources = sorted(Path(__file__).resolve().parent.glob("*.py"))
     key = content_key(xml, repr(options), mujoco.__version__, version("fast-simplification"), np.__version__,
                       *(str(p) for p in mesh_files(xml)), *mesh_files(xml), *sources)
-    return cached("cell_mjb", key, lambda: _to_mjb(build_cell_spec(options).compile()), _from_mjb)
+    return cached_file("cell_mjb", key, lambda: _to_mjb(build_cell_spec(options).compile()), mujoco.MjModel.from_binary_path)
 
 
 def _to_mjb(model: mujoco.MjModel) -> bytes:
     buffer = np.zeros(mujoco.mj_sizeModel(model), dtype=np.uint8)
     mujoco.mj_saveModel(model, None, buffer)
     return buffer.tobytes()
-
-
-def _from_mjb(data: bytes) -> mujoco.MjModel:
-    return mujoco.MjModel.from_binary_path("cell.mjb", {"cell.mjb": data})
 
 
 def _visual_mesh_keep(mesh: str, detail: float) -> float:

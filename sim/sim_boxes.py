@@ -13,7 +13,6 @@ from dataclasses import dataclass
 from typing import Any, Protocol
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from runtime.scene import Box, PlanningScene
 
@@ -72,6 +71,8 @@ class PlacedBoxes:
             raise ValueError(f"'{name}' is attached to the robot in the planning scene: pick another name")
         if name in scene.objects and not mirrored_before:
             raise ValueError(f"'{name}' is already an object of the planning scene: pick another name")
+        from scipy.spatial.transform import Rotation  # scipy.spatial: ~0.3 s, imported on first use
+
         quat_xyzw = Rotation.from_matrix(matrix[:3, :3]).as_quat()
         cell.place_box(name, np.array(size), matrix[:3, 3].copy(), np.roll(quat_xyzw, 1))
         if mirror:

@@ -307,6 +307,32 @@ def test_a_broken_or_clashing_command_is_left_out_with_a_warning(monkeypatch, cl
     assert "warning: command 'not-a-command' (runtime.cli:main) is not a runtime.command.Command" in err
 
 
+def test_the_engine_s_own_commands_load_no_installed_command(monkeypatch, cli, tmp_path, capsys):
+    import runtime.cli
+
+    fake_entry_points(monkeypatch, runtime.cli, {"objective.commands": [("broken", "no_such_module_xyz:COMMAND")]})
+    code, out, err = cli("validate", str(tree_file(tmp_path, "<AlwaysSuccess/>")))
+    assert code == 0 and "warning" not in err
+    with pytest.raises(SystemExit):
+        main(["--help"])  # lists every command: the installed ones are loaded
+    assert "warning: command 'broken' (no_such_module_xyz:COMMAND) failed to load" in capsys.readouterr().err
+
+
+def test_the_cyclic_collector_runs_again_once_the_installed_behaviors_are_loaded(tmp_path, lib, capsys):
+    import gc
+
+    objective = str(tree_file(tmp_path, "<AlwaysSuccess/>"))
+    gc.unfreeze()
+    assert main(["validate", objective, "--objectives-dir", str(lib)]) == 0
+    assert gc.isenabled() and gc.get_freeze_count() > 0  # paused while they loaded, then frozen
+    gc.disable()  # a caller's choice is kept
+    try:
+        assert main(["validate", objective, "--objectives-dir", str(lib)]) == 0
+        assert not gc.isenabled()
+    finally:
+        gc.enable()
+
+
 @pytest.mark.parametrize("defaults, message", [
     ([], "this tree needs a world and none is named: pass --world NAME (worlds: kinematic, vla_sim)"),
     ([("kinematic", "sim.world:create_kinematic"), ("vla_sim", "sim.world:create_vla_sim")],

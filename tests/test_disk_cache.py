@@ -3,6 +3,8 @@ the same robot, cell and planning model as building them from scratch."""
 from __future__ import annotations
 
 import os
+import time
+from pathlib import Path
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 
@@ -47,6 +49,37 @@ def test_a_changed_input_file_is_a_different_key(tmp_path):
     os.utime(source, ns=(1, 1))  # a new time: the digest is read again
     assert disk_cache.content_key(source, "detail=0.1") != before
     assert disk_cache.content_key("ab", "c") != disk_cache.content_key("a", "bc")
+
+
+@pytest.mark.parametrize("settled_ns", [disk_cache.SETTLED_NS, 0])
+def test_a_file_rewritten_with_its_size_and_time_is_a_different_key(cache, tmp_path, monkeypatch, settled_ns):
+    """Just written (hashed every time), or as if long settled (known by its stat stamp)."""
+    monkeypatch.setattr(disk_cache, "SETTLED_NS", settled_ns)
+    source = tmp_path / "mesh.obj"
+    source.write_text("v 0 0 0\n")
+    before = disk_cache.content_key(source)
+    mtime_ns = source.stat().st_mtime_ns
+    time.sleep(0.05)  # past the kernel's timestamp tick
+    source.write_text("v 0 0 1\n")
+    os.utime(source, ns=(mtime_ns, mtime_ns))  # same size, same time: the change time still moves
+    assert disk_cache.content_key(source) != before
+
+
+def test_a_settled_file_digest_is_read_from_the_cache_by_later_processes(cache, tmp_path, monkeypatch):
+    source = tmp_path / "mesh.obj"
+    source.write_text("v 0 0 0\n")
+    assert disk_cache.content_key(source)
+    assert not (cache / "file_sha256").exists()  # just written: hashed, not kept
+    monkeypatch.setattr(disk_cache, "SETTLED_NS", 0)  # as if it had been written long ago
+    key = disk_cache.content_key(source)
+    assert len(list((cache / "file_sha256").iterdir())) == 1
+    disk_cache._settled_file_digest.cache_clear()  # as a new process
+
+    def no_hashing(path: str) -> bytes:
+        raise AssertionError(f"{path} hashed again")
+
+    monkeypatch.setattr(disk_cache, "_sha256_of", no_hashing)
+    assert disk_cache.content_key(source) == key
 
 
 def test_a_damaged_entry_is_computed_again_and_replaced(cache):
@@ -107,3 +140,111 @@ def _pose(robot: RobotModel, q: np.ndarray, frame: str) -> np.ndarray:
     from runtime.scene import frame_pose
 
     return frame_pose(robot, q, frame)
+
+
+def _robot(source) -> RobotModel:
+    return RobotModel.from_mjcf(source, srdf=SRDF_PATH, couplings=COUPLINGS_PATH)
+
+
+def _distances(robot: RobotModel, q: np.ndarray) -> list[tuple[float, tuple[float, ...]]]:
+    """Distance and nearest points of every pair of collision objects at ``q``."""
+    import pinocchio as pin
+
+    geometry = robot.collision_model.copy()
+    geometry.addAllCollisionPairs()
+    data, geometry_data = robot.model.createData(), pin.GeometryData(geometry)
+    pin.computeDistances(robot.model, data, geometry, geometry_data, q)
+    return [(r.min_distance, tuple(r.getNearestPoint1()) + tuple(r.getNearestPoint2()))
+            for r in geometry_data.distanceResults]
+
+
+def test_cached_collision_hulls_collide_exactly_like_fresh_ones(cache):
+    first, cached = _robot(robot_xml()), _robot(robot_xml())  # computes and stores, then reads
+    assert len(list((cache / "collision_hulls").iterdir())) == 1
+    fresh = _robot(mujoco.MjSpec.from_string(robot_xml()))  # an MjSpec is never cached
+    hulls = [go for go in fresh.collision_model.geometryObjects if type(go.geometry).__name__ == "Convex"]
+    assert len(hulls) == 10  # the gripper's meshes
+    for model in (first, cached):
+        assert model.collision_model == fresh.collision_model  # names, parents, placements, hull points and faces
+        rng = np.random.default_rng(0)
+        for _ in range(5):
+            q = fresh.neutral() + rng.uniform(-1.5, 1.5, fresh.model.nq)
+            assert _distances(model, q) == _distances(fresh, q)
+
+
+def test_a_damaged_collision_hulls_entry_is_rebuilt(cache):
+    fresh = _robot(robot_xml())
+    (entry,) = (cache / "collision_hulls").iterdir()
+    good = entry.read_bytes()
+    for damaged in (b"", b"not an archive", good[: len(good) // 2]):
+        entry.write_bytes(damaged)
+        assert _robot(robot_xml()).collision_model == fresh.collision_model
+        assert entry.read_bytes() == good
+
+
+def test_a_changed_collision_mesh_is_a_new_collision_hulls_entry(cache, tmp_path):
+    xml = robot_xml()
+    original = next(part.split('"')[1] for part in xml.split("file=")[1:] if "base_mount.stl" in part)
+    mesh = tmp_path / "base_mount.stl"
+    mesh.write_bytes(Path(original).read_bytes())
+    xml = xml.replace(original, str(mesh))
+    before = _robot(xml)
+    _scale_binary_stl(mesh, 1.5)
+    after = _robot(xml)
+    assert len(list((cache / "collision_hulls").iterdir())) == 2
+    assert after.collision_model != before.collision_model
+    name = "gripper_base_mountGeom_1"
+    (old,) = [go.geometry for go in before.collision_model.geometryObjects if go.name == name]
+    (new,) = [go.geometry for go in after.collision_model.geometryObjects if go.name == name]
+    assert new.aabb_radius == pytest.approx(1.5 * old.aabb_radius)
+
+
+def _scale_binary_stl(path: Path, factor: float) -> None:
+    """Scale every vertex of a binary STL file in place (80-byte header, count, 50-byte triangles)."""
+    data = bytearray(path.read_bytes())
+    count = int.from_bytes(data[80:84], "little")
+    triangles = np.frombuffer(data, dtype=np.dtype([("normal", "<f4", 3), ("vertices", "<f4", 9), ("attribute", "<u2")]),
+                              count=count, offset=84).copy()
+    triangles["vertices"] *= factor
+    path.write_bytes(bytes(data[:84]) + triangles.tobytes())
+
+
+def _read_path(path: str) -> tuple[str, bytes]:
+    with open(path, "rb") as f:
+        data = f.read()
+    if not data.startswith(b"entry:"):
+        raise ValueError(f"{path}: not an entry")
+    return path, data
+
+
+def test_a_file_entry_is_loaded_from_its_path(cache):
+    calls = []
+
+    def compute() -> bytes:
+        calls.append(1)
+        return b"entry:1"
+
+    first = disk_cache.cached_file("kind", "k", compute, _read_path)
+    again = disk_cache.cached_file("kind", "k", compute, _read_path)
+    assert first == again == (str(cache / "kind" / "k"), b"entry:1")
+    assert len(calls) == 1
+    (cache / "kind" / "k").write_bytes(b"damaged")
+    assert disk_cache.cached_file("kind", "k", compute, _read_path) == (str(cache / "kind" / "k"), b"entry:1")
+    assert len(calls) == 2
+
+
+def test_a_file_entry_without_a_cache_is_loaded_from_a_removed_temporary_file(cache, monkeypatch):
+    monkeypatch.setenv(disk_cache.ENV_SWITCH, "off")
+    path, data = disk_cache.cached_file("kind", "k", lambda: b"entry:2", _read_path)
+    assert data == b"entry:2"
+    assert not os.path.exists(path)
+    assert not (cache / "kind").exists()
+
+
+def test_a_damaged_cell_entry_is_compiled_again(cache):
+    good = compile_cell(CellOptions())
+    (entry,) = (cache / "cell_mjb").iterdir()
+    entry.write_bytes(entry.read_bytes()[:1000])  # truncated
+    again = compile_cell(CellOptions())
+    np.testing.assert_array_equal(again.mesh_vert, good.mesh_vert)
+    assert mujoco.MjModel.from_binary_path(str(entry)).nmeshvert == good.nmeshvert

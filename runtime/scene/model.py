@@ -17,11 +17,11 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Iterable, Mapping, Sequence
 
-import coal
 import numpy as np
 import pinocchio as pin
 import yaml
 
+from .hulls import with_convex_hulls
 from .srdf import Srdf, SrdfGroup, parse_srdf
 
 WORLD_LINK = "universe"
@@ -144,7 +144,7 @@ class RobotModel:
         self.source = source
         self.srdf = srdf if srdf is not None else Srdf(robot_name=model.name, source="<none>")
         self.couplings = tuple(couplings)
-        self.collision_model = _with_convex_hulls(collision_model)
+        self.collision_model = with_convex_hulls(collision_model)
         self._frame_ids = {f.name: i for i, f in enumerate(model.frames)}
         self.link_names: tuple[str, ...] = tuple(
             f.name for f in model.frames if f.type == pin.FrameType.BODY
@@ -399,26 +399,6 @@ def _urdf_mimics(path: Path) -> tuple[JointCoupling, ...]:
             out.append(JointCoupling(joint.get("name"), mimic.get("joint"),
                                      float(mimic.get("multiplier", 1.0)), float(mimic.get("offset", 0.0))))
     return tuple(out)
-
-
-def _with_convex_hulls(geometry: pin.GeometryModel) -> pin.GeometryModel:
-    """Replace every mesh by its convex hull.
-
-    Mesh-vs-mesh narrowphase on triangle BVHs costs about 5x more and only reports surface
-    intersections (an object fully inside a mesh is missed). ``buildConvexHull(True, "Qt")``
-    keeps the hull exact; ``buildConvexRepresentation(False)`` is not used: its GJK misses
-    collisions by up to 1.5 cm (see notes/sim-stack.md).
-    """
-    out = pin.GeometryModel()
-    for go in geometry.geometryObjects:
-        shape = go.geometry
-        if isinstance(shape, coal.BVHModelBase):
-            shape.buildConvexHull(True, "Qt")
-            hull = shape.convex
-            hull.computeLocalAABB()
-            go = pin.GeometryObject(go.name, go.parentJoint, go.parentFrame, go.placement, hull)
-        out.addGeometryObject(go)
-    return out
 
 
 def _describe_source(source: object) -> str:

@@ -20,11 +20,12 @@ of itself: over the cube-stacking Objective at most 6e-6 rad on offsets up to 1.
 """
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass, field
+from typing import Callable
 
 import numpy as np
-from scipy.linalg import lapack
 
 AXES = ("x", "y", "z", "rx", "ry", "rz")
 
@@ -136,6 +137,14 @@ def admittance_step(state: AdmittanceState, wrench: np.ndarray, params: Admittan
     return AdmittanceState(np.array(offsets), np.array(rates))
 
 
+@functools.cache
+def _dgesv() -> Callable[..., tuple]:
+    """LAPACK's ``dgesv``, imported on first use (``scipy.linalg`` takes ~0.2 s to import)."""
+    from scipy.linalg import lapack
+
+    return lapack.dgesv
+
+
 def damped_pseudo_inverse(jacobian: np.ndarray, damping: float = 1e-3) -> np.ndarray:
     """The damped least-squares inverse J^T (J J^T + l^2 I)^-1 of a 6 x n Jacobian (n x 6).
 
@@ -149,7 +158,7 @@ def damped_pseudo_inverse(jacobian: np.ndarray, damping: float = 1e-3) -> np.nda
     """
     jacobian = np.asarray(jacobian, dtype=float)
     rows = jacobian.shape[0]
-    _, _, solution, info = lapack.dgesv(jacobian @ jacobian.T + (damping**2) * np.eye(rows), jacobian)
+    _, _, solution, info = _dgesv()(jacobian @ jacobian.T + (damping**2) * np.eye(rows), jacobian)
     if info != 0:  # the damping keeps a finite Jacobian's matrix regular
         raise np.linalg.LinAlgError(f"J J^T + l^2 I is singular (LAPACK dgesv info={info}): is the Jacobian finite?")
     return solution.T
