@@ -32,8 +32,11 @@ from runtime.timestamps import time_msg
 from .oracle import COLORS, ArmKinematics, OracleBackend, OracleConfig
 
 CUBE_POSE_TOPIC = "/cube_poses/cube_{color}"
-CUBE_POSE_WAIT_S = 2.0
-"""How long a request waits for the first pose of a cube it needs before answering ERROR."""
+CUBE_POSE_WAIT_S = 6.0
+"""How long a request waits for the first pose of a cube it needs before answering ERROR. A world
+that starts after the oracle is usually discovered within 0.3 s, but a missed first announcement
+waits for Fast DDS's next periodic one (measured: 3.8 s on a loaded machine), so the first request
+of a run (its warmup) may wait that long; give that call a ``policy_call_timeout`` above it."""
 
 log = logging.getLogger("objective.oracle_remote")
 
