@@ -4,10 +4,14 @@ The frames are the ones recorded from the GetActionChunk requests (nothing is re
 video), so the video shows exactly what the policy saw, at the instants it saw it. Views are
 scaled (nearest neighbour) to a common height of at least ``MIN_HEIGHT`` pixels so the tiny
 frames of the kinematic world stay visible; H.264 needs even sizes, so the mosaic is padded.
+The recording worker encodes each frame as its request arrives (``VideoEncoder``), so after the
+run only the file's end is left to write.
 """
 from __future__ import annotations
 
+import contextlib
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -36,23 +40,77 @@ def mosaic(frame: CameraFrame, height: int) -> np.ndarray:
     return row
 
 
-def camera_video(frames: list[CameraFrame], path: Path, fps: float = FPS) -> Path:
-    """Write ``frames`` as an H.264 MP4 (imageio-ffmpeg's bundled ffmpeg); one video frame each."""
-    import imageio.v2 as imageio
+def fit(image: np.ndarray, height: int, width: int) -> np.ndarray:
+    """``image`` in a ``height`` x ``width`` video frame: scaled down (keeping its aspect) if it is
+    wider, padded with black on the right and bottom."""
+    if image.shape[1] > width:
+        image = scale_to_height(image, max(2, image.shape[0] * width // image.shape[1]))[:, :width]
+    return np.pad(image, ((0, height - image.shape[0]), (0, width - image.shape[1]), (0, 0)))
 
-    if not frames:
-        raise ValueError("no camera frames were recorded (no policy request carried images)")
-    height = max(MIN_HEIGHT, max(view.shape[0] for f in frames for _, view in f.views))
-    height += height % 2
-    images = [mosaic(f, height) for f in frames]
-    width = max(image.shape[1] for image in images)
-    writer = imageio.get_writer(path, fps=fps, codec="libx264", macro_block_size=1, pixelformat="yuv420p",
-                                output_params=["-movflags", "+faststart"])
-    try:
-        for image in images:
-            if image.shape[1] < width:  # a request with fewer views: pad to the video's width
-                image = np.pad(image, ((0, 0), (0, width - image.shape[1]), (0, 0)))
-            writer.append_data(image)
-    finally:
-        writer.close()
-    return path
+
+class VideoEncoder:
+    """``cameras.mp4`` written one frame at a time, as the frames arrive (imageio-ffmpeg's bundled
+    ffmpeg, H.264): the first frame sets the video's size (its views scaled to at least
+    ``MIN_HEIGHT`` pixels high); later frames are scaled to that height and fitted to its width.
+
+    A failure is kept and raised by ``close``, so a broken video never interrupts the recording.
+    """
+
+    def __init__(self, path: Path, fps: float = FPS) -> None:
+        self.path = path
+        self.fps = fps
+        self.frames = 0
+        self._writer: Any = None
+        self._size: tuple[int, int] | None = None
+        self._error: Exception | None = None
+
+    def add(self, frame: CameraFrame) -> None:
+        if self._error is not None:
+            return
+        try:
+            self._add(frame)
+        except Exception as err:
+            self._error = err
+
+    def _add(self, frame: CameraFrame) -> None:
+        if self._size is None:
+            import imageio.v2 as imageio
+
+            height = max(MIN_HEIGHT, max(view.shape[0] for _, view in frame.views))
+            height += height % 2
+            self._size = (height, mosaic(frame, height).shape[1])
+            self._writer = imageio.get_writer(self.path, fps=self.fps, codec="libx264", macro_block_size=1,
+                                              pixelformat="yuv420p", output_params=["-movflags", "+faststart"])
+        height, width = self._size
+        self._writer.append_data(fit(mosaic(frame, height), height, width))
+        self.frames += 1
+
+    def close(self) -> Path:
+        """Finish the file; ValueError if no frame came, the first failure if one failed."""
+        writer, self._writer = self._writer, None
+        if writer is not None:
+            try:
+                writer.close()
+            except Exception as err:
+                self._error = self._error or err
+        if self._error is not None:
+            raise self._error
+        if self.frames == 0:
+            raise ValueError("no camera frames were recorded (no policy request carried images)")
+        return self.path
+
+    def discard(self) -> None:
+        """Stop encoding and remove the file (the run died: no report is rendered)."""
+        writer, self._writer = self._writer, None
+        if writer is not None:
+            with contextlib.suppress(Exception):
+                writer.close()
+        self.path.unlink(missing_ok=True)
+
+
+def camera_video(frames: list[CameraFrame], path: Path, fps: float = FPS) -> Path:
+    """Write ``frames`` as an H.264 MP4, one video frame each (``VideoEncoder``'s sizing)."""
+    encoder = VideoEncoder(path, fps)
+    for frame in frames:
+        encoder.add(frame)
+    return encoder.close()
