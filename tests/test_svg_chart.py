@@ -66,5 +66,6 @@ def test_a_video_without_frames_says_so_and_a_discarded_one_leaves_no_file(tmp_p
         VideoEncoder(tmp_path / "none.mp4").close()
     encoder = VideoEncoder(tmp_path / "gone.mp4")
     encoder.add(frame([(32, 32)]))
+    assert not (tmp_path / "gone.mp4").exists()  # never a half-written video under its name
     encoder.discard()
-    assert not (tmp_path / "gone.mp4").exists()
+    assert list(tmp_path.iterdir()) == []

@@ -10,6 +10,7 @@ run only the file's end is left to write.
 from __future__ import annotations
 
 import contextlib
+import os
 from pathlib import Path
 from typing import Any
 
@@ -53,11 +54,14 @@ class VideoEncoder:
     ffmpeg, H.264): the first frame sets the video's size (its views scaled to at least
     ``MIN_HEIGHT`` pixels high); later frames are scaled to that height and fitted to its width.
 
-    A failure is kept and raised by ``close``, so a broken video never interrupts the recording.
+    The frames go to ``cameras.<pid>.part.mp4``, renamed to ``path`` by ``close``: a worker killed
+    while encoding never leaves a broken ``cameras.mp4``, nor writes into one rendered again. A
+    failure is kept and raised by ``close``, so a broken video never interrupts the recording.
     """
 
     def __init__(self, path: Path, fps: float = FPS) -> None:
         self.path = path
+        self.partial_path = path.with_name(f"{path.stem}.{os.getpid()}.part{path.suffix}")
         self.fps = fps
         self.frames = 0
         self._writer: Any = None
@@ -79,7 +83,7 @@ class VideoEncoder:
             height = max(MIN_HEIGHT, max(view.shape[0] for _, view in frame.views))
             height += height % 2
             self._size = (height, mosaic(frame, height).shape[1])
-            self._writer = imageio.get_writer(self.path, fps=self.fps, codec="libx264", macro_block_size=1,
+            self._writer = imageio.get_writer(self.partial_path, fps=self.fps, codec="libx264", macro_block_size=1,
                                               pixelformat="yuv420p", output_params=["-movflags", "+faststart"])
         height, width = self._size
         self._writer.append_data(fit(mosaic(frame, height), height, width))
@@ -94,9 +98,11 @@ class VideoEncoder:
             except Exception as err:
                 self._error = self._error or err
         if self._error is not None:
+            self.partial_path.unlink(missing_ok=True)
             raise self._error
         if self.frames == 0:
             raise ValueError("no camera frames were recorded (no policy request carried images)")
+        os.replace(self.partial_path, self.path)
         return self.path
 
     def discard(self) -> None:
@@ -105,12 +111,16 @@ class VideoEncoder:
         if writer is not None:
             with contextlib.suppress(Exception):
                 writer.close()
-        self.path.unlink(missing_ok=True)
+        self.partial_path.unlink(missing_ok=True)
 
 
 def camera_video(frames: list[CameraFrame], path: Path, fps: float = FPS) -> Path:
-    """Write ``frames`` as an H.264 MP4, one video frame each (``VideoEncoder``'s sizing)."""
+    """Write ``frames`` as an H.264 MP4, one video frame each (``VideoEncoder``'s sizing), and
+    remove what a recording worker killed while encoding left."""
     encoder = VideoEncoder(path, fps)
     for frame in frames:
         encoder.add(frame)
-    return encoder.close()
+    encoder.close()
+    for stale in path.parent.glob(f"{path.stem}.*.part{path.suffix}"):
+        stale.unlink(missing_ok=True)
+    return path
