@@ -52,7 +52,8 @@ def test_video_size_is_set_by_the_first_frame_and_later_frames_fit_it(tmp_path):
     encoder.add(frame([(32, 32), (32, 32)]))
     encoder.add(frame([(32, 32)]))  # fewer views: padded
     encoder.add(frame([(32, 32), (32, 32), (32, 32)]))  # more views: scaled down to fit
-    assert encoder.close() == tmp_path / "v.mp4"
+    encoder.close_soon()  # as the worker does when the run ends
+    assert encoder.close() == tmp_path / "v.mp4" and sorted(p.name for p in tmp_path.iterdir()) == ["v.mp4"]
     reader = imageio.get_reader(tmp_path / "v.mp4")
     try:
         shapes = [f.shape for f in reader]

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import threading
 from pathlib import Path
 from typing import Any
 
@@ -67,6 +68,7 @@ class VideoEncoder:
         self._writer: Any = None
         self._size: tuple[int, int] | None = None
         self._error: Exception | None = None
+        self._closing: threading.Thread | None = None
 
     def add(self, frame: CameraFrame) -> None:
         if self._error is not None:
@@ -89,14 +91,27 @@ class VideoEncoder:
         self._writer.append_data(fit(mosaic(frame, height), height, width))
         self.frames += 1
 
-    def close(self) -> Path:
-        """Finish the file; ValueError if no frame came, the first failure if one failed."""
+    def close_soon(self) -> None:
+        """Start finishing the file on a thread (ffmpeg encodes its last frames meanwhile); no
+        frame may be added after it, and ``close`` waits for it."""
+        if self._closing is None:
+            self._closing = threading.Thread(target=self._close_writer, daemon=True)
+            self._closing.start()
+
+    def _close_writer(self) -> None:
         writer, self._writer = self._writer, None
         if writer is not None:
             try:
                 writer.close()
             except Exception as err:
                 self._error = self._error or err
+
+    def close(self) -> Path:
+        """Finish the file; ValueError if no frame came, the first failure if one failed."""
+        if self._closing is not None:
+            self._closing.join()
+        else:
+            self._close_writer()
         if self._error is not None:
             self.partial_path.unlink(missing_ok=True)
             raise self._error
@@ -107,6 +122,8 @@ class VideoEncoder:
 
     def discard(self) -> None:
         """Stop encoding and remove the file (the run died: no report is rendered)."""
+        if self._closing is not None:
+            self._closing.join()
         writer, self._writer = self._writer, None
         if writer is not None:
             with contextlib.suppress(Exception):

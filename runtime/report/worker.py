@@ -186,6 +186,8 @@ def _serve() -> int | None:
             os._exit(0)  # every file is closed; skip the interpreter's teardown, which the run waits for
         elif session is not None:
             session.take(kind, payload)
+            if session.ended and encoder is not None:
+                encoder.close_soon()  # every frame is in: ffmpeg finishes while the rest is drawn
     if session is not None and not session.ended:
         session.abandon()  # the run died: keep what it sent
     if encoder is not None:
