@@ -63,6 +63,14 @@ def test_a_worker_that_is_not_asked_is_stopped(tmp_path):
     assert process.poll() is not None and worker.process is None
 
 
+def test_the_report_rendered_here_removes_what_a_killed_worker_left_of_the_video(recording, tmp_path):
+    target = fresh_copy(recording, tmp_path)
+    (target / "cameras.4242.part.mp4").write_bytes(b"half a video")  # a worker killed while encoding
+    report = render_report(target)
+    assert report.errors == {} and report.files["video"] == target / "cameras.mp4"
+    assert not (target / "cameras.4242.part.mp4").exists()
+
+
 def test_a_failing_joint_plot_is_reported_and_the_rest_written(recording, tmp_path, monkeypatch):
     target = fresh_copy(recording, tmp_path)
 
