@@ -3,9 +3,10 @@ without ``--record DIR``.
 
 What a user waits for is the wall time of the run: with ``--record`` the run serializes what it
 records and pipes it to the recording worker (``runtime/report/worker.py``), which writes
-run.mcap and events.jsonl, builds the report's data as messages arrive and imports matplotlib and
-imageio meanwhile; after the run the worker renders the report. Two rows, each over alternating
-plain/recorded pairs so both see the same machine load:
+run.mcap and events.jsonl, builds the report's data and encodes the camera video as messages
+arrive; after the run the worker closes the files and writes the SVG plots and the page (that
+wait alone: ``bench_report_wait.py``). Two rows, each over alternating plain/recorded pairs so
+both see the same machine load:
 
 - in-process (``run_file``, as ``objective run`` runs it): wall seconds of the whole call, CPU
   seconds of this process (the recording itself) and of the worker (its imports and the report);

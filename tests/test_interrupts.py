@@ -172,7 +172,7 @@ def test_a_recording_killed_with_sigkill_opens_as_partial(tmp_path):
     assert code == 0
     assert "partial recording: events.jsonl has no run summary: the run was killed before it finished" in err
     page = (record / "report.html").read_text()
-    assert "Partial recording" in page and (record / "joints.png").exists()
+    assert "Partial recording" in page and (record / "joints.svg").exists()
 
     from runtime.report import load_recording
 

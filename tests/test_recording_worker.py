@@ -137,7 +137,7 @@ def test_a_worker_killed_mid_run_leaves_a_partial_mcap_and_the_run_finishes_the_
     recording = load_recording(rec)  # the report was rendered here, from the files
     assert recording.partial and recording.partial[0].startswith("run.mcap ends early at ")
     assert 0.0 < recording.joints.times[-1] < warning["time"]
-    assert "Partial recording" in (rec / "report.html").read_text() and (rec / "joints.png").stat().st_size > 0
+    assert "Partial recording" in (rec / "report.html").read_text() and (rec / "joints.svg").stat().st_size > 0
     assert not (rec / "metadata.yaml").exists()  # as for a killed recorder: `ros2 bag reindex` rebuilds it
 
 

@@ -1,4 +1,4 @@
-"""The report of a recording: each artifact valid (PNG and MP4 decodable, SVG parseable, the page's
+"""The report of a recording: each artifact valid (MP4 decodable, SVG parseable, the page's
 links resolving), ``objective report DIR`` re-rendering them, the plotted quantities, and the page
 rendered by a headless Chromium (slow)."""
 from __future__ import annotations
@@ -19,13 +19,15 @@ from runtime.cli import main
 from runtime.display import ProgressLine
 from runtime.report import load_recording, render_report
 from runtime.report.data import CommandedGoal, Recording
+from runtime.report import plots
 from runtime.report.plots import commanded_series, stall_spans
 from runtime.report.tree_svg import build_boxes, tree_svg
 
 from .browser import HeadlessPage, chromium
 from .test_recording import HALTED_XML, record_run
 
-ARTIFACTS = ("joints.png", "latency.png", "tree.svg", "cameras.mp4", "report.html")
+ARTIFACTS = ("joints.svg", "latency.svg", "tree.svg", "cameras.mp4", "report.html")
+SVG = "{http://www.w3.org/2000/svg}"
 
 
 @pytest.fixture(scope="module")
@@ -57,12 +59,37 @@ def page_links(path: Path) -> Links:
 def test_every_artifact_is_written_and_valid(recording):
     for name in ARTIFACTS:
         assert (recording / name).stat().st_size > 0, name
-    joints = iio.imread(recording / "joints.png")
-    assert joints.ndim == 3 and joints.shape[0] > 600 and joints.shape[1] > 800
-    latency = iio.imread(recording / "latency.png")
-    assert latency.shape[1] > 500
-    svg = ET.parse(recording / "tree.svg").getroot()
-    assert svg.tag == "{http://www.w3.org/2000/svg}svg"
+    for name in ("joints.svg", "latency.svg", "tree.svg"):
+        assert ET.parse(recording / name).getroot().tag == f"{SVG}svg", name
+
+
+def svg_texts(path: Path) -> list[str]:
+    return [t.text or "" for t in ET.parse(path).getroot().iter(f"{SVG}text")]
+
+
+def test_joint_plot_shows_every_joint_commanded_and_measured_with_units(recording):
+    loaded = load_recording(recording)
+    root = ET.parse(recording / "joints.svg").getroot()
+    assert int(root.get("width")) >= 1000 and int(root.get("height")) > 110 * len(loaded.joints.names)
+    texts = svg_texts(recording / "joints.svg")
+    assert set(loaded.joints.names) <= set(texts)
+    assert {"position (rad)", "velocity (rad/s)", "time (s, runtime clock)", "measured", "commanded", "chunk seam",
+            "policy request"} <= set(texts)
+    lines = list(root.iter(f"{SVG}polyline"))
+    measured = [p for p in lines if p.get("stroke") == plots.MEASURED_COLOR]
+    assert len(measured) == 2 * len(loaded.joints.names)  # position and velocity of each joint
+    assert any(p.get("stroke") == plots.COMMANDED_COLOR and p.get("stroke-dasharray") for p in lines)
+    seams = [p for p in root.iter(f"{SVG}path") if p.get("stroke") == plots.SEAM_COLOR and p.get("d", "").startswith("M")]
+    executed = len(loaded.of_kind("chunk_executed"))
+    assert executed > 0 and all(p.get("d").count("M") == executed for p in seams[:2])  # one line per seam
+
+
+def test_latency_plot_has_a_bar_per_executed_chunk_and_the_warmup(recording):
+    loaded = load_recording(recording)
+    root = ET.parse(recording / "latency.svg").getroot()
+    bars = [r.get("fill") for r in root.iter(f"{SVG}rect") if r.get("class") == "bar"]
+    assert sorted(bars) == sorted([plots.REQUEST_COLOR] + [plots.SEAM_COLOR] * len(loaded.of_kind("chunk_executed")))
+    assert "chunk (0 = warmup request)" in svg_texts(recording / "latency.svg")
 
 
 def test_video_has_one_frame_per_policy_request_with_the_three_views(recording):
@@ -80,7 +107,7 @@ def test_video_has_one_frame_per_policy_request_with_the_three_views(recording):
 
 def test_page_references_only_files_that_exist(recording):
     links = page_links(recording / "report.html")
-    assert set(links.targets) >= {"joints.png", "latency.png", "tree.svg", "cameras.mp4", "run.mcap", "events.jsonl"}
+    assert set(links.targets) >= {"joints.svg", "latency.svg", "tree.svg", "cameras.mp4", "run.mcap", "events.jsonl"}
     for target in links.targets:
         assert not re.match(r"^[a-z]+://", target), f"the page loads {target} from outside the recording"
         assert (recording / target).is_file(), target
@@ -210,12 +237,11 @@ def test_the_page_works_in_headless_chromium(recording, tmp_path):
     SCREENSHOT_DIR.mkdir(parents=True, exist_ok=True)
     (SCREENSHOT_DIR / "report.png").write_bytes(shot)
     assert errors == []
-    assert dict(figures) == {"joints.png": iio.imread(recording / "joints.png").shape[1],
-                             "latency.png": iio.imread(recording / "latency.png").shape[1],
-                             "tree.svg": dict(figures)["tree.svg"]}
+    assert dict(figures) == {name: int(ET.parse(recording / name).getroot().get("width"))
+                             for name in ("joints.svg", "latency.svg", "tree.svg")}
     assert all(width > 0 for _, width in figures), figures
     local = [link for link in links if "://" not in link and not link.startswith("#")]
-    assert {"joints.png", "latency.png", "tree.svg", "cameras.mp4"} <= set(local)
+    assert {"joints.svg", "latency.svg", "tree.svg", "cameras.mp4"} <= set(local)
     assert all((recording / link).is_file() for link in local), local
     assert video["error"] is None and video["width"] > 0 and video["duration"] > 0
     assert video["time"] > 0, "the video did not play"

@@ -1,6 +1,6 @@
-"""The report worker: a second process renders the report after a recorded run, with the joint
-plot drawn in a forked process beside the rest; whatever goes wrong there, the report still
-comes out (rendered in process), and a worker never outlives its run."""
+"""The report worker: a second process renders the report after a recorded run (the video
+encoded while the run goes on); whatever goes wrong there, the report still comes out (rendered
+in process), and a worker never outlives its run."""
 from __future__ import annotations
 
 import os
@@ -15,7 +15,7 @@ from runtime.report.worker import ReportWorker
 
 from .test_recording import record_run
 
-ARTIFACTS = {"joints": "joints.png", "latency": "latency.png", "tree": "tree.svg", "video": "cameras.mp4", "html": "report.html"}
+ARTIFACTS = {"joints": "joints.svg", "latency": "latency.svg", "tree": "tree.svg", "video": "cameras.mp4", "html": "report.html"}
 
 
 @pytest.fixture(scope="module")
@@ -52,7 +52,7 @@ def test_a_dead_worker_means_the_report_is_rendered_in_process(recording, tmp_pa
     worker.process.wait()
     report = worker.render(target)
     assert report.errors == {} and set(report.files) == set(ARTIFACTS)
-    assert (target / "joints.png").stat().st_size > 0
+    assert (target / "joints.svg").stat().st_size > 0
 
 
 def test_a_worker_that_is_not_asked_is_stopped(tmp_path):
@@ -63,21 +63,28 @@ def test_a_worker_that_is_not_asked_is_stopped(tmp_path):
     assert process.poll() is not None and worker.process is None
 
 
-def test_parallel_rendering_reports_a_failing_joint_plot_and_writes_the_rest(recording, tmp_path, monkeypatch):
+def test_the_report_rendered_here_removes_what_a_killed_worker_left_of_the_video(recording, tmp_path):
+    target = fresh_copy(recording, tmp_path)
+    (target / "cameras.4242.part.mp4").write_bytes(b"half a video")  # a worker killed while encoding
+    report = render_report(target)
+    assert report.errors == {} and report.files["video"] == target / "cameras.mp4"
+    assert not (target / "cameras.4242.part.mp4").exists()
+
+
+def test_a_failing_joint_plot_is_reported_and_the_rest_written(recording, tmp_path, monkeypatch):
     target = fresh_copy(recording, tmp_path)
 
     def broken(*args, **kwargs):
-        (tmp_path / "drawn_by").write_text(str(os.getpid()))
         raise RuntimeError("no joints today")
 
     import runtime.report.plots as plots
 
-    monkeypatch.setattr(plots, "joints_plot", broken)  # the forked process inherits it
-    report = render_report(target, parallel=True)
+    monkeypatch.setattr(plots, "joints_plot", broken)
+    report = render_report(target)
     assert report.errors == {"joints": "RuntimeError: no joints today"}
     assert set(report.files) == set(ARTIFACTS) - {"joints"}
-    assert not (target / "joints.png").exists()
-    assert int((tmp_path / "drawn_by").read_text()) != os.getpid()  # drawn in the forked process
+    assert not (target / "joints.svg").exists()
+    assert "no joint plot" in (target / "report.html").read_text()
 
 
 def test_an_unreadable_recording_is_one_clear_error_not_a_traceback(tmp_path, capfd):

@@ -1,4 +1,4 @@
-"""The report of a recorded run: ``joints.png``, ``latency.png``, ``cameras.mp4``, ``tree.svg`` and
+"""The report of a recorded run: ``joints.svg``, ``latency.svg``, ``cameras.mp4``, ``tree.svg`` and
 ``report.html``, rendered from ``events.jsonl`` + ``run.mcap`` alone (``objective report DIR``).
 
 ``render_report`` writes every artifact it can; one that fails is reported (with the reason)
@@ -6,9 +6,7 @@ in ``Report.errors`` and logged, and the others are still written.
 """
 from __future__ import annotations
 
-import json
 import logging
-import os
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
@@ -30,14 +28,11 @@ class Report:
     """Why the recording is incomplete (``Recording.partial``); empty when it is whole."""
 
 
-def render_report(directory: Path | str, logger: logging.Logger | None = None, parallel: bool = False,
-                  recording: Recording | None = None) -> Report:
+def render_report(directory: Path | str, logger: logging.Logger | None = None, recording: Recording | None = None,
+                  video: Callable[[], Path] | None = None) -> Report:
     """Render every artifact of the recording in ``directory`` (ObjectiveError if it is not one);
-    ``recording``: its data already read (the recording worker builds it as the run goes).
-
-    ``parallel``: draw the joint plot (the largest part) in a forked process while this one
-    renders the rest. Only for a process that has no threads of its own (``fork`` copies one
-    thread, so a lock another thread held would never be released): the report worker.
+    ``recording``: its data already read (the recording worker builds it as the run goes);
+    ``video``: finishes a video already encoded as the frames arrived (``VideoEncoder.close``).
     """
     from .html import report_html
     from .plots import joints_plot, latency_plot
@@ -55,15 +50,9 @@ def render_report(directory: Path | str, logger: logging.Logger | None = None, p
                                         f"{recording.tree_id}: {status}")),
     ]
     if recording.frames:
-        steps.append(("video", lambda: camera_video(recording.frames, directory / VIDEO_FILE)))
-    forked = _fork(*steps[0]) if parallel and hasattr(os, "fork") else None
-    for name, render in steps[1:] if forked is not None else steps:
+        steps.append(("video", video or (lambda: camera_video(recording.frames, directory / VIDEO_FILE))))
+    for name, render in steps:
         _render_one(report, name, render)
-    if forked is not None:
-        outcome = forked()
-        report.files.update({k: Path(v) for k, v in outcome.get("files", {}).items()})
-        report.errors.update(outcome.get("errors", {}))
-    report.files = {name: report.files[name] for name, _ in steps if name in report.files}  # steps' order
     html_path = directory / HTML_FILE
     html_path.write_text(report_html(recording, report.files), encoding="utf-8")
     report.files["html"] = html_path
@@ -83,32 +72,3 @@ def _render_one(report: Report, name: str, render: Callable[[], Path]) -> None:
         report.files[name] = render()
     except Exception as err:  # one broken artifact must not cost the others
         report.errors[name] = f"{type(err).__name__}: {err}"
-
-
-def _fork(name: str, render: Callable[[], Path]) -> Callable[[], dict]:
-    """Start ``render`` in a forked child; the returned call waits for it and gives its outcome
-    as ``{"files": {name: path}}`` or ``{"errors": {name: reason}}``."""
-    read_end, write_end = os.pipe()
-    pid = os.fork()
-    if pid == 0:  # the child: render, say how it went, leave without running any cleanup
-        try:
-            os.close(read_end)
-            outcome = Report(Path("."))
-            _render_one(outcome, name, render)
-            message = {"files": {k: str(v) for k, v in outcome.files.items()}, "errors": outcome.errors}
-            with os.fdopen(write_end, "w") as pipe:
-                pipe.write(json.dumps(message))
-        finally:
-            os._exit(0)
-    os.close(write_end)
-
-    def wait() -> dict:
-        with os.fdopen(read_end) as pipe:
-            text = pipe.read()
-        _, status = os.waitpid(pid, 0)
-        try:
-            return json.loads(text)
-        except ValueError:
-            return {"errors": {name: f"the process drawing it ended with status {status} and no answer"}}
-
-    return wait

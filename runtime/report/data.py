@@ -11,7 +11,7 @@ import json
 from collections import defaultdict
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 from mcap.exceptions import EndOfFile
@@ -211,6 +211,11 @@ class McapContents:
     joint_messages: list[tuple[float, Any]] = field(default_factory=list)
     images: dict[tuple[str, int], bytes] = field(default_factory=dict)
     counts: dict[str, list[Any]] = field(default_factory=lambda: defaultdict(lambda: ["", 0]))
+    on_frame: Callable[[CameraFrame], None] | None = None
+    """Called with each camera frame as soon as its request and images are in, in request order
+    (the recording worker encodes the video as the run goes)."""
+    pending: list[dict[str, Any]] = field(default_factory=list)
+    """Requests whose frame waits for images not yet arrived (and every request after them)."""
 
     def add(self, topic: str, type_name: str, log_time_ns: int, data: bytes) -> None:
         recording = self.recording
@@ -233,7 +238,10 @@ class McapContents:
         elif type_name.endswith("GripperCommand_Goal"):
             recording.gripper_commands.append((t, float(msg.command.position)))
         elif topic.endswith("/request"):
-            recording.requests.append(json.loads(msg.data))
+            request = json.loads(msg.data)
+            recording.requests.append(request)
+            self.pending.append(request)
+            self._frames(final=False)
         elif topic.endswith("/response"):
             recording.responses.append(json.loads(msg.data))
 
@@ -247,15 +255,34 @@ class McapContents:
         recording.topics = {topic: (name, count) for topic, (name, count) in self.counts.items()}
         if self.joint_messages:
             recording.joints = _joint_series(self.joint_messages)
-        image_class = message_class("sensor_msgs/msg/Image")
-        for request in recording.requests:
-            views = []
-            for view in request.get("images", []):
-                data = self.images.get((view["topic"], int(round(request["time"] * 1e9))))
-                if data is not None:
-                    views.append((view["name"], image_rgb(deserialize_message(data, image_class))))
+        self._frames(final=True)
+
+    def _frames(self, final: bool) -> None:
+        """The camera frames of the pending requests, in order, up to the first one whose images
+        have not all arrived (``final``: the recording is over, a frame shows the views it has)."""
+        image_class = None
+        while self.pending:
+            request = self.pending[0]
+            keys = [(view["topic"], int(round(request["time"] * 1e9))) for view in request.get("images", [])]
+            if not final and not all(key in self.images for key in keys):
+                return
+            image_class = image_class or message_class("sensor_msgs/msg/Image")
+            try:
+                views = [(view["name"], image_rgb(deserialize_message(self.images[key], image_class)))
+                         for view, key in zip(request.get("images", []), keys) if key in self.images]
+            except Exception:
+                if final:
+                    raise
+                self.on_frame = None  # an image the report cannot show: the same error, once, at the end
+                return
+            self.pending.pop(0)
+            for key in keys:
+                self.images.pop(key, None)
             if views:
-                recording.frames.append(CameraFrame(request["time"], request["request"], views))
+                frame = CameraFrame(request["time"], request["request"], views)
+                self.recording.frames.append(frame)
+                if self.on_frame is not None:
+                    self.on_frame(frame)
 
 
 def read_mcap(path: Path, recording: Recording) -> None:

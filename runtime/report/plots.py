@@ -1,9 +1,10 @@
-"""``joints.png`` and ``latency.png``: what the arm was told versus what it did, and how long the
+"""``joints.svg`` and ``latency.svg``: what the arm was told versus what it did, and how long the
 policy took versus how long it had.
 
-Drawn with matplotlib's object API on the Agg canvas (no pyplot: no global figure state, no
-display needed). The pure helpers (``commanded_series``, ``stall_spans``, ``committed_windows``)
-derive the plotted quantities from a ``Recording`` and are tested on their own.
+Written directly as SVG (``runtime.report.svg_chart``: each series decimated to the panel's
+pixel width), so rendering the report needs no plotting library and takes a few milliseconds.
+The pure helpers (``commanded_series``, ``stall_spans``, ``committed_windows``) derive the
+plotted quantities from a ``Recording`` and are tested on their own.
 """
 from __future__ import annotations
 
@@ -12,12 +13,9 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from matplotlib.backends.backend_agg import FigureCanvasAgg
-from matplotlib.collections import LineCollection
-from matplotlib.figure import Figure
-from matplotlib.ticker import MaxNLocator, NullLocator
 
 from .data import CommandedGoal, Recording
+from .svg_chart import LegendEntry, Panel, document, legend, text
 
 SEAM_COLOR = "#1f77b4"
 REQUEST_COLOR = "#7f7f7f"
@@ -81,51 +79,42 @@ def committed_windows(recording: Recording) -> list[float | None]:
     return windows
 
 
-def _save(fig: Figure, path: Path, dpi: int) -> Path:
-    FigureCanvasAgg(fig)
-    fig.savefig(path, dpi=dpi)
-    return path
-
-
-def _limits_on(ax: Any, data: np.ndarray, limits: list[float]) -> bool:
-    """Draw the limits that are near the data (and scale the axis to show them).
-
-    Returns True when some limit was too far from the data to draw without flattening it.
-    """
+def y_range(data: np.ndarray, limits: list[float]) -> tuple[tuple[float, float], list[float], bool]:
+    """The value range to show ``data`` and the ``limits`` near it: (range, limits to draw, whether
+    some limit was too far from the data to draw without flattening it)."""
     finite = data[np.isfinite(data)]
     if finite.size == 0:
-        return False
+        return (-1.0, 1.0), [], False
     lo, hi = float(finite.min()), float(finite.max())
     span = max(hi - lo, 1e-3)
     view_lo, view_hi = lo - 0.6 * span, hi + 0.6 * span
-    off_scale = False
+    drawn, off_scale = [], False
     for limit in limits:
         if not np.isfinite(limit):
             continue
         if view_lo <= limit <= view_hi:
-            ax.axhline(limit, color=LIMIT_COLOR, linestyle="--", linewidth=1.0)
+            drawn.append(limit)
             lo, hi = min(lo, limit), max(hi, limit)
         else:
             off_scale = True
     pad = 0.08 * max(hi - lo, 1e-3)
-    ax.set_ylim(lo - pad, hi + pad)
-    return off_scale
+    return (lo - pad, hi + pad), drawn, off_scale
 
 
-def _mark_timeline(ax: Any, seams: list[float], requests: list[float], stalls: list[tuple[float, float]],
+def _mark_timeline(panel: Panel, seams: list[float], requests: list[float], stalls: list[tuple[float, float]],
                    rejections: list[float]) -> None:
-    # One collection per kind, spanning the axes' height: far cheaper than a line per instant.
-    across = ax.get_xaxis_transform()
-    for times, style in ((requests, dict(colors=REQUEST_COLOR, linestyles=":", linewidths=0.8)),
-                         (seams, dict(colors=SEAM_COLOR, linewidths=0.8, alpha=0.7)),
-                         (rejections, dict(colors=STALL_COLOR, linewidths=2.0))):
-        if times:
-            ax.add_collection(LineCollection([[(t, 0.0), (t, 1.0)] for t in times], transform=across, **style), autolim=False)
     for a, b in stalls:
-        ax.axvspan(a, b, color=STALL_COLOR, alpha=0.25, linewidth=0)
+        panel.span(a, b, STALL_COLOR)
+    panel.vlines(requests, REQUEST_COLOR, dash="2,2")
+    panel.vlines(seams, SEAM_COLOR, opacity=0.7)
+    panel.vlines(rejections, STALL_COLOR, width=2.0)
 
 
-def joints_plot(recording: Recording, path: Path, dpi: int = 72) -> Path:
+JOINTS_WIDTH_PX, LEFT_PX, RIGHT_PX, COLUMN_GAP_PX = 1080, 78, 10, 62
+ROW_PX, ROW_GAP_PX, TOP_PX, BOTTOM_PX = 100, 10, 48, 52
+
+
+def joints_plot(recording: Recording, path: Path) -> Path:
     """Per joint: commanded versus measured position (left) and velocity (right) over time."""
     measured = recording.joints
     commanded_names: list[str] = []
@@ -135,72 +124,67 @@ def joints_plot(recording: Recording, path: Path, dpi: int = 72) -> Path:
     if measured is not None:
         names += [n for n in measured.names if n not in names]
     if not names:
-        fig = Figure(figsize=(8, 2))
-        fig.text(0.5, 0.5, "no joint states or commanded trajectories were recorded", ha="center", va="center")
-        return _save(fig, path, dpi)
-
+        return _message_svg(path, "no joint states or commanded trajectories were recorded", "joint plot")
     seams = [e["data"]["seam_time"] for e in recording.of_kind("chunk_executed")]
     requests = [e["time"] for e in recording.of_kind("chunk_requested")]
     rejections = [e["time"] for e in recording.of_kind("chunk_rejected")]
     stalls = stall_spans(recording)
+    span = _time_span(recording, measured) or (0.0, 1.0)
+    panel_w = (JOINTS_WIDTH_PX - LEFT_PX - RIGHT_PX - COLUMN_GAP_PX) / 2
+    height = TOP_PX + len(names) * (ROW_PX + ROW_GAP_PX) - ROW_GAP_PX + BOTTOM_PX
+    body: list[str] = []
     off_scale = False
-    height = 1.7 * len(names) + 1.0
-    fig = Figure(figsize=(15, height))
-    # Not sharex: shared axes share one tick locator, and ticks are most of the drawing cost; the
-    # rows above the last get no x ticks at all, and every axes the same time range.
-    axes = fig.subplots(len(names), 2, squeeze=False)
-    span = _time_span(recording, measured)
-    # Fixed margins: the constrained-layout solver costs more than all the drawing here.
-    fig.subplots_adjust(left=0.075, right=0.99, bottom=0.55 / height, top=1 - 0.65 / height, wspace=0.16, hspace=0.12)
     for row, name in enumerate(names):
         command = commanded_series(recording.goals, name)
         limit = recording.limits.get(name, {})
         for col, quantity in enumerate(("position", "velocity")):
-            ax = axes[row][col]
-            shown = []
+            series: list[tuple[np.ndarray, np.ndarray, str, str]] = []
+            steps: tuple[list[float], list[float]] | None = None
             if measured is not None and name in measured.names:
-                values = getattr(measured, quantity)[:, measured.names.index(name)]
-                ax.plot(measured.times, values, color=MEASURED_COLOR, linewidth=1.0, label="measured")
-                shown.append(values)
+                series.append((measured.times, getattr(measured, quantity)[:, measured.names.index(name)], MEASURED_COLOR, ""))
             if command is not None:
-                values = getattr(command, quantity)
-                ax.plot(command.times, values, color=COMMANDED_COLOR, linewidth=1.0, linestyle="--", label="commanded")
-                shown.append(values)
+                series.append((command.times, getattr(command, quantity), COMMANDED_COLOR, "5,3"))
             if quantity == "position" and name not in commanded_names and recording.gripper_commands:
                 t, p = zip(*recording.gripper_commands)
-                ax.step(t, p, where="post", color=COMMANDED_COLOR, linewidth=1.0, linestyle="--", label="commanded")
-                shown.append(np.asarray(p))
-            _mark_timeline(ax, seams, requests, stalls, rejections)
+                steps = (list(t), list(p))
             if quantity == "position":
                 bounds = [limit.get("lower"), limit.get("upper")]
             else:
                 v = limit.get("max_velocity")
                 bounds = [-v, v] if v is not None else []
-            off_scale |= _limits_on(ax, np.concatenate(shown) if shown else np.zeros(0), [b for b in bounds if b is not None])
-            ax.tick_params(labelsize=7)
-            ax.yaxis.set_major_locator(MaxNLocator(4))
-            if span is not None:
-                ax.set_xlim(*span)
-            if row < len(names) - 1:
-                ax.xaxis.set_major_locator(NullLocator())
-            ax.ticklabel_format(axis="y", useOffset=False, style="plain")
-        axes[row][0].set_ylabel(name, fontsize=8)
-    # Text is most of matplotlib's cost here: one label per row and per column, no grid.
-    axes[0][0].set_title("position (rad)", fontsize=9)
-    axes[0][1].set_title("velocity (rad/s)", fontsize=9)
-    for col in range(2):
-        axes[-1][col].set_xlabel("time (s, runtime clock)", fontsize=8)
-        axes[-1][col].xaxis.set_major_locator(MaxNLocator(8))
+            shown = [values for _, values, _, _ in series] + ([np.asarray(steps[1], float)] if steps else [])
+            ylim, drawn, far = y_range(np.concatenate(shown) if shown else np.zeros(0), [b for b in bounds if b is not None])
+            off_scale |= far
+            panel = Panel(f"j{row}{col}", LEFT_PX + col * (panel_w + COLUMN_GAP_PX), TOP_PX + row * (ROW_PX + ROW_GAP_PX),
+                          panel_w, ROW_PX, span, ylim)
+            _mark_timeline(panel, seams, requests, stalls, rejections)
+            for limit_value in drawn:
+                panel.hline(limit_value, LIMIT_COLOR)
+            for times, values, color, dash in series:
+                panel.line(times, values, color, dash)
+            if steps is not None:
+                panel.steps(steps[0], steps[1], COMMANDED_COLOR, "5,3")
+            panel.y_axis(4, name if col == 0 else "")
+            if row == len(names) - 1:
+                panel.x_axis(8, "time (s, runtime clock)")
+            body.append(panel.svg())
+    for col, title in enumerate(("position (rad)", "velocity (rad/s)")):
+        body.append(text(LEFT_PX + col * (panel_w + COLUMN_GAP_PX) + panel_w / 2, TOP_PX - 6, title, 11, "middle"))
+    body.append(legend([
+        LegendEntry("measured", MEASURED_COLOR), LegendEntry("commanded", COMMANDED_COLOR, "5,3"),
+        LegendEntry("chunk seam", SEAM_COLOR), LegendEntry("policy request", REQUEST_COLOR, "2,2"),
+        LegendEntry("stall (motion drained)", STALL_COLOR, patch=True), LegendEntry("joint limit", LIMIT_COLOR, "5,3"),
+    ], JOINTS_WIDTH_PX / 2, 16))
     if off_scale:
-        fig.text(0.99, 0.003, "joint limits far outside the plotted range are not drawn", ha="right", va="bottom",
-                 fontsize=7, color=LIMIT_COLOR)
-    handles = [
-        _line(MEASURED_COLOR, "-", "measured"), _line(COMMANDED_COLOR, "--", "commanded"),
-        _line(SEAM_COLOR, "-", "chunk seam"), _line(REQUEST_COLOR, ":", "policy request"),
-        _patch(STALL_COLOR, "stall (motion drained)"), _line(LIMIT_COLOR, "--", "joint limit"),
-    ]
-    fig.legend(handles=handles, loc="upper center", ncols=len(handles), fontsize=8, frameon=False)
-    return _save(fig, path, dpi)
+        body.append(text(JOINTS_WIDTH_PX - RIGHT_PX, height - 4, "joint limits far outside the plotted range are not drawn",
+                         9, "end", LIMIT_COLOR))
+    path.write_text(document(JOINTS_WIDTH_PX, height, body, "joints: commanded versus measured"), encoding="utf-8")
+    return path
+
+
+def _message_svg(path: Path, message: str, title: str) -> Path:
+    path.write_text(document(580, 60, [text(290, 34, message, 12, "middle")], title), encoding="utf-8")
+    return path
 
 
 def _time_span(recording: Recording, measured: Any) -> tuple[float, float] | None:
@@ -223,53 +207,58 @@ def _time_span(recording: Recording, measured: Any) -> tuple[float, float] | Non
     return lo - pad, hi + pad
 
 
-def _line(color: str, style: str, label: str) -> Any:
-    from matplotlib.lines import Line2D
-
-    return Line2D([], [], color=color, linestyle=style, label=label)
-
-
-def _patch(color: str, label: str) -> Any:
-    from matplotlib.patches import Patch
-
-    return Patch(color=color, alpha=0.25, label=label)
+LATENCY_WIDTH_PX, LATENCY_HEIGHT_PX = 720, 300
+LOG_SCALE_RATIO = 20.0
+"""A fast policy next to a long window: beyond this ratio both stay readable only on a log scale."""
 
 
-def latency_plot(recording: Recording, path: Path, dpi: int = 72) -> Path:
+def latency_scale(values: list[float]) -> tuple[tuple[float, float], bool]:
+    """The y range of the latency plot and whether it is logarithmic."""
+    shown = [v for v in values if v > 0]
+    if not shown:
+        return (0.0, 1.0), False
+    if max(shown) / min(shown) > LOG_SCALE_RATIO:
+        return (10.0 ** np.floor(np.log10(min(shown) / 1.5)), 10.0 ** np.ceil(np.log10(max(shown) * 1.5))), True
+    return (0.0, max(shown) * 1.15), False
+
+
+def latency_plot(recording: Recording, path: Path) -> Path:
     """Round trip of each executed chunk's request against the motion that chunk committed."""
     executed = recording.of_kind("chunk_executed")
-    fig = Figure(figsize=(10, 4))
-    ax = fig.subplots()
-    fig.subplots_adjust(left=0.08, right=0.98, bottom=0.13, top=0.91)  # fixed: no layout solver
     if not executed and not recording.responses:
-        ax.axis("off")
-        ax.text(0.5, 0.5, "no policy calls were recorded in this run", ha="center", va="center")
-        return _save(fig, path, dpi)
+        return _message_svg(path, "no policy calls were recorded in this run", "latency plot")
     chunks = [int(e["data"]["chunk"]) for e in executed]
     latency = [float(e["data"]["latency"]) for e in executed]
     windows = committed_windows(recording)
     stalled = [b for _, b in stall_spans(recording)]
     seams = [float(e["data"]["seam_time"]) for e in executed]
-    colors = [STALL_COLOR if any(abs(s - b) < 1e-6 for b in stalled) else SEAM_COLOR for s in seams]
-    ax.bar(chunks, latency, color=colors, width=0.6, label="request latency (red: the motion stalled before its seam)")
-    known = [(c, w) for c, w in zip(chunks, windows) if w is not None]
-    if known:
-        xs, ws = zip(*known)
-        ax.scatter(xs, ws, marker="_", s=400, color=COMMANDED_COLOR, linewidths=2, label="committed window", zorder=3)
     warmup = next((r for r in recording.responses if r.get("request") == 1), None)
+    known = [(c, w) for c, w in zip(chunks, windows) if w is not None]
+    ylim, log_y = latency_scale(latency + [w for _, w in known] + ([float(warmup["latency"])] if warmup else []))
+    last = max(chunks, default=0)
+    panel = Panel("latency", 70, 52, LATENCY_WIDTH_PX - 70 - 15, LATENCY_HEIGHT_PX - 52 - 48, (-0.7, last + 0.7), ylim, log_y)
+    for chunk, value, seam in zip(chunks, latency, seams):
+        color = STALL_COLOR if any(abs(seam - b) < 1e-6 for b in stalled) else SEAM_COLOR
+        panel.bar(chunk, 0.6, value, color)
     if warmup is not None:
-        ax.bar([0], [warmup["latency"]], color=REQUEST_COLOR, width=0.6, label="warmup (discarded)")
+        panel.bar(0, 0.6, float(warmup["latency"]), REQUEST_COLOR)
+    for chunk, window in known:
+        panel.dash_marker(chunk, 0.4, window, COMMANDED_COLOR)
     rejected = recording.of_kind("chunk_rejected")
+    body = []
     if rejected:
-        ax.text(0.01, 0.97, f"rejected: {rejected[-1]['data'].get('reason', '')}"[:160], transform=ax.transAxes,
-                va="top", fontsize=8, color=STALL_COLOR)
-    ax.set_xlabel("chunk (0 = warmup request)")
-    ax.set_ylabel("seconds")
-    shown = [v for v in latency + [w for w in windows if w is not None] if v > 0]
-    if shown and max(shown) / min(shown) > 20:  # a fast policy next to a long window: both stay readable
-        ax.set_yscale("log")
-        ax.set_ylabel("seconds (log scale)")
-    ax.set_title("Policy round trip per chunk versus the motion the chunk committed (latency above it stalls)", fontsize=10)
-    ax.grid(True, axis="y", alpha=0.3)
-    ax.legend(fontsize=8)
-    return _save(fig, path, dpi)
+        body.append(text(panel.x + 6, panel.y + 14, f"rejected: {rejected[-1]['data'].get('reason', '')}"[:160], 10,
+                         color=STALL_COLOR))
+    ticks = [float(c) for c in range(0, last + 1)] if last <= 40 else None
+    panel.x_axis(10, "chunk (0 = warmup request)", 10, ticks, [str(int(t)) for t in ticks] if ticks else None)
+    panel.y_axis(5, "seconds (log scale)" if log_y else "seconds", 10)
+    body.insert(0, panel.svg())
+    body.append(text(LATENCY_WIDTH_PX / 2, 16, "Policy round trip per chunk versus the motion the chunk committed "
+                     "(latency above it stalls)", 11, "middle"))
+    body.append(legend([
+        LegendEntry("request latency", SEAM_COLOR, patch=True, opacity=1.0),
+        LegendEntry("stalled before its seam", STALL_COLOR, patch=True, opacity=1.0),
+        LegendEntry("committed window", COMMANDED_COLOR), LegendEntry("warmup (discarded)", REQUEST_COLOR, patch=True, opacity=1.0),
+    ], LATENCY_WIDTH_PX / 2, 36))
+    path.write_text(document(LATENCY_WIDTH_PX, LATENCY_HEIGHT_PX, body, "policy latency per chunk"), encoding="utf-8")
+    return path

@@ -5,10 +5,11 @@ recording and renders its report, so the run itself only serializes.
 run hands its messages over through the worker's stdin (``record``: a
 ``runtime.recording.handoff.Handoff``); the worker writes ``run.mcap``, ``events.jsonl`` and
 ``metadata.yaml`` and builds the report's data as messages arrive
-(``runtime.recording.session``), while it imports matplotlib and imageio on a thread beside.
-When the run is over, ``render`` asks for the report: the worker renders it from the data it
-already holds (``render_report(..., parallel=True)``: the joint plot in a forked process beside
-the rest) and answers one JSON line with the files written and the artifacts that failed.
+(``runtime.recording.session``), encoding each camera frame into ``cameras.mp4`` as its policy
+request arrives (``VideoEncoder``), while it imports the report's modules on a thread beside.
+When the run is over, ``render`` asks for the report: the worker closes the video, draws the
+plots and the tree as SVG from the data it already holds and answers one JSON line with the
+files written and the artifacts that failed.
 ``render`` of a directory the worker did not record reads it back from its files.
 
 Signals are the run's business: the worker runs in a process group of its own, so Ctrl-C at the
@@ -33,11 +34,13 @@ import subprocess
 import sys
 import threading
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any, Callable, Iterator
 
 from ..errors import ObjectiveError
 from ..recording.handoff import Frame, Handoff, WorkerLost, json_frame, read_frames, write_all
+from ..recording.files import VIDEO_FILE
 from . import Report, log_errors, render_report
+from .video import VideoEncoder
 
 RENDER_TIMEOUT = 600.0
 """Seconds the worker may take to render a report (a long run's video is the slow part)."""
@@ -125,27 +128,18 @@ class ReportWorker:
 
 
 def _import_report_libraries(failed: list[BaseException]) -> None:
-    """Everything the report imports, while the recording arrives (on a thread: it is slow), and
-    one tiny figure drawn, so that the fonts are loaded before the report's plots need them."""
+    """Everything the report imports, while the recording arrives (on a thread: imageio is slow)."""
     try:
-        import io
-
         from . import html, plots, tree_svg, video  # noqa: F401
 
         import imageio.v2  # noqa: F401
-        from matplotlib.backends.backend_agg import FigureCanvasAgg
-        from matplotlib.figure import Figure
-
-        figure = Figure(figsize=(1, 1))
-        figure.subplots().set_title("0.5", fontsize=8)
-        FigureCanvasAgg(figure).print_png(io.BytesIO())
     except BaseException as err:  # the run renders in its own process and reports what is missing there
         failed.append(err)
 
 
-def _answer(directory: str, recording: Any) -> dict[str, Any]:
+def _answer(directory: str, recording: Any, video: Callable[[], Path] | None) -> dict[str, Any]:
     try:
-        report = render_report(directory, parallel=True, recording=recording)
+        report = render_report(directory, recording=recording, video=video)
         return {"files": {k: str(v) for k, v in report.files.items()}, "errors": report.errors, "partial": report.partial}
     except Exception as err:
         return {"failed": str(err) if isinstance(err, ObjectiveError) else f"{type(err).__name__}: {err}"}
@@ -166,6 +160,7 @@ def _serve() -> int | None:
     imports = threading.Thread(target=_import_report_libraries, args=(failed,), daemon=True)
     imports.start()
     session: RecordingSession | None = None
+    encoder: VideoEncoder | None = None
     for kind, payload in read_frames(sys.stdin.fileno()):
         if kind is None:  # all that has arrived is taken: to the files
             if session is not None and not session.ended:
@@ -173,13 +168,17 @@ def _serve() -> int | None:
         elif kind is Frame.START:
             start = json.loads(payload)
             session = RecordingSession(start["directory"], int(start["clock_origin_ns"]))
+            encoder = VideoEncoder(session.directory / VIDEO_FILE)
+            session.contents.on_frame = encoder.add
         elif kind is Frame.RENDER:
-            imports.join()  # no other thread when rendering forks
+            imports.join()
             if failed:
                 return 1
             directory = json.loads(payload)["directory"]
             mine = session is not None and session.ended and Path(directory) == session.directory
-            answer = _answer(directory, session.recording if mine else None)
+            if encoder is not None and not mine:
+                encoder.discard()
+            answer = _answer(directory, session.recording if mine else None, encoder.close if mine and encoder else None)
             try:
                 print(json.dumps(answer), flush=True)
             except OSError:  # the run stopped listening (it was interrupted): nothing to tell
@@ -187,8 +186,12 @@ def _serve() -> int | None:
             os._exit(0)  # every file is closed; skip the interpreter's teardown, which the run waits for
         elif session is not None:
             session.take(kind, payload)
+            if session.ended and encoder is not None:
+                encoder.close_soon()  # every frame is in: ffmpeg finishes while the rest is drawn
     if session is not None and not session.ended:
         session.abandon()  # the run died: keep what it sent
+    if encoder is not None:
+        encoder.discard()  # no report without a run: `objective report` renders the video again
     return 0
 
 
