@@ -128,7 +128,9 @@ def policy(env):
     try:
         url = read_line(server, r"listening on (http://127\.0\.0\.1:\d+)", timeout=60).group(1)
         assert wait_ready(f"{url}/health", timeout=60)["backend"] == "oracle"
-        adapter = start("adapter", "--infer-url", url, env=env)
+        # The oracle may wait seconds for DDS to discover each new run's cube poses (see
+        # sim.oracle_remote.CUBE_POSE_WAIT_S): the HTTP deadline and the call timeout cover it.
+        adapter = start("adapter", "--infer-url", url, "--timeout", "8", env=env)
         read_line(adapter, r"serving /get_action_chunk -> ", timeout=30)
         running = Policy(server, adapter, url)
         yield running
