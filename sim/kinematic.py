@@ -14,8 +14,6 @@ from typing import Any
 import numpy as np
 import pinocchio as pin
 
-from runtime.scene import frame_pose
-
 from .layouts import layout
 from .planning import CUBE_SIZE
 from .robot_model import ARM_JOINTS, GRIPPER_DRIVER_JOINT, TCP_SITE, planning_robot_model
@@ -53,6 +51,10 @@ class KinematicCell:
         self.boxes: dict[str, tuple[np.ndarray, np.ndarray]] = {}
         self._robot = planning_robot_model()
         self._full = self._robot.neutral().copy()
+        self._fk_data = self._robot.model.createData()
+        self._tcp_frame = self._robot.frame_id(TCP_SITE)
+        self._arm_slots = [_q_slots(self._robot, j) for j in ARM_JOINTS]
+        self._gripper_slots = _q_slots(self._robot, GRIPPER_DRIVER_JOINT)
         self.frame = np.full((self.image_size, self.image_size, 3), 128, dtype=np.uint8)
         self.wrench_tare = np.zeros(6)
 
@@ -126,10 +128,18 @@ class KinematicCell:
 
     # -- kinematics of the cell ---
     def _configuration(self) -> np.ndarray:
-        return self._robot.configuration({**dict(zip(ARM_JOINTS, self.arm)), GRIPPER_DRIVER_JOINT: self.gripper}, self._full)
+        """Same ``q`` as ``RobotModel.configuration`` for the arm and gripper driver, from slots found once."""
+        q = self._full.copy()
+        for slots, value in zip(self._arm_slots, self.arm):
+            _fill(q, slots, float(value))
+        _fill(q, self._gripper_slots, float(self.gripper))
+        return q
 
     def tcp_pose(self) -> np.ndarray:
-        return frame_pose(self._robot, self._configuration(), TCP_SITE)
+        """Same pose as ``runtime.scene.frame_pose`` (same pinocchio calls), on one reused ``Data``."""
+        model, data = self._robot.model, self._fk_data
+        pin.forwardKinematics(model, data, self._configuration())
+        return pin.updateFramePlacement(model, data, self._tcp_frame).homogeneous.copy()
 
     def cube_pose(self, color: str) -> tuple[np.ndarray, np.ndarray]:
         pos, quat = self.cubes[color]
@@ -137,8 +147,10 @@ class KinematicCell:
 
     def step(self, dt: float) -> None:
         self.t += dt
-        limit = GRIPPER_CLOSED_ON_CUBE if self.carried or self._cube_between_fingers() else 0.8
-        target = min(self.gripper_target, limit)
+        target = self.gripper_target
+        # The 0.52 limit only bites when the target is past it, so the FK behind it runs only then.
+        if target > GRIPPER_CLOSED_ON_CUBE and (self.carried or self._cube_between_fingers()):
+            target = GRIPPER_CLOSED_ON_CUBE
         move = float(np.clip(target - self.gripper, -GRIPPER_SPEED * dt, GRIPPER_SPEED * dt))
         self.gripper += move
         self.gripper_rate = move / dt
@@ -177,6 +189,25 @@ class KinematicCell:
         pos = pos.copy()
         pos[2] = support + CUBE_SIZE / 2
         self.cubes[color] = (pos, quat)
+
+
+_QSlot = tuple[int, float, float, bool]  # q index, multiplier, offset, stored as (cos, sin)
+
+
+def _q_slots(robot: Any, joint: str) -> list[_QSlot]:
+    """Where one value of ``joint`` lands in a full ``q`` (itself and its coupled followers)."""
+    model = robot.model
+    return [(robot.joint_q_index(target), mult, offset, model.joints[model.getJointId(target)].nq == 2)
+            for target, mult, offset in robot.driven_by(joint)]
+
+
+def _fill(q: np.ndarray, slots: list[_QSlot], value: float) -> None:
+    for idx, mult, offset, unbounded in slots:
+        v = mult * value + offset
+        if unbounded:
+            q[idx], q[idx + 1] = np.cos(v), np.sin(v)
+        else:
+            q[idx] = v
 
 
 def _quat_matrix(q: np.ndarray) -> np.ndarray:
