@@ -128,7 +128,11 @@ class KinematicCell:
 
     # -- kinematics of the cell ---
     def _configuration(self) -> np.ndarray:
-        """Same ``q`` as ``RobotModel.configuration`` for the arm and gripper driver, from slots found once."""
+        """Same ``q`` as ``RobotModel.configuration`` for the arm and gripper driver, from slots found once.
+
+        Not ``RobotModel.configuration_map``: its vectorised map takes twice as long for one row
+        (4.5 vs 2.1 us), and this runs up to twice a control step (measured: the kinematic world
+        9 % slower end to end with it)."""
         q = self._full.copy()
         for slots, value in zip(self._arm_slots, self.arm):
             _fill(q, slots, float(value))
