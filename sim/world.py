@@ -104,9 +104,11 @@ class CellWorld:
         self._publish()
 
     def step_to(self, t: float) -> None:
-        while self.cell.t + CONTROL_PERIOD <= t + 1e-9:
-            self.controllers.update(self.cell.t, CONTROL_PERIOD)
-            self.cell.step(CONTROL_PERIOD)
+        times, now = [], self.cell.t
+        while now + CONTROL_PERIOD <= t + 1e-9:  # the cell's own clock arithmetic (t += dt per step)
+            times.append(now)
+            now += CONTROL_PERIOD
+        self.controllers.advance(times, CONTROL_PERIOD, self.cell.step)
         self._publish()
         self.synced_cubes = sync_cubes(self.context.scene, self.cell.cube_poses(), self.synced_cubes)
 

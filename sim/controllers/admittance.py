@@ -38,6 +38,13 @@ The controller keeps the largest force and torque (vector norms) it read while e
 
 Admittance (see ``compliance``) runs on every control step while the controller is active, with
 the stiffness/damping of the latest accepted goal (empty = the configured defaults).
+
+The quick path (``plan_steps``/``planned_update``, which the controller manager uses for a
+tick's control steps): most steps nothing reacts (the admittance rests under a wrench inside its
+deadband, no check fires), so a step's command is the reference alone and the tick's references
+are sampled in one pass. A planned step does exactly what ``update`` would do; the first step at
+which anything would react (the wrench leaves the deadband, a check would end the goal, a cancel,
+a new goal) is left to ``update``, and so is the rest of that tick.
 """
 from __future__ import annotations
 
@@ -53,7 +60,7 @@ from runtime.clock import Clock
 
 from ..hardware import Hardware
 from .base import FT_STATE_INTERFACES, Controller, ControllersConfig, arm_command_interfaces, arm_state_interfaces
-from .compliance import AdmittanceParams, AdmittanceState, admittance_step, damped_pseudo_inverse
+from .compliance import AdmittanceParams, AdmittanceState, admittance_step, damped_pseudo_inverse, inside_deadband
 from .trajectory import (
     TIME_EPS,
     SeamError,
@@ -62,6 +69,8 @@ from .trajectory import (
     path_violation,
     stitch,
     stop_trajectory,
+    within_path_tolerance,
+    within_thresholds,
     wrench_violation,
 )
 
@@ -201,6 +210,24 @@ class _ActiveGoal:
     handle: ServerGoalHandle
     goal: ParsedGoal
     cancel_requested: bool = False
+
+
+@dataclass(frozen=True)
+class StepPlan:
+    """A tick's control steps planned ahead: the reference at each of ``times`` (rows of
+    ``positions``/``velocities``), and the state the plan assumes (the same goal, reference and
+    resting admittance), with the limits the quick path checks, read once."""
+
+    times: list[float]
+    goal: _ActiveGoal | None
+    reference: Trajectory
+    compliance: AdmittanceState
+    positions: np.ndarray
+    velocities: np.ndarray
+    position_rows: list[list[float]]
+    deadband: list[float]
+    thresholds: list[float] | None
+    path_tolerance: float
 
 
 class JointTrajectoryAdmittanceController(Controller):
@@ -355,6 +382,58 @@ class JointTrajectoryAdmittanceController(Controller):
                 command, velocity = self._with_offset(self._reference.sample(t), offset_rate)
         self.hardware.command_arm(command, velocity)
 
+    def plan_steps(self, times: list[float]) -> StepPlan | None:
+        """The reference at each of ``times`` (a tick's control steps), sampled in one pass, when
+        those steps may run the quick way: the admittance rests, no cancel is pending, and a goal
+        does not reach its end within them (the settle check is ``update``'s). None otherwise."""
+        goal = self._goal
+        if not self._compliance.at_rest:
+            return None
+        parsed = None
+        if goal is not None:
+            if goal.cancel_requested or goal.handle.is_cancel_requested or times[-1] >= self._reference.end_time - TIME_EPS:
+                return None
+            parsed = goal.goal
+        positions, velocities = self._reference.sample_many(times)
+        thresholds = parsed.force_torque_threshold if parsed is not None else None
+        return StepPlan(
+            times=times,
+            goal=goal,
+            reference=self._reference,
+            compliance=self._compliance,
+            positions=positions,
+            velocities=velocities,
+            position_rows=positions.tolist(),
+            deadband=self._params.deadband.tolist(),
+            thresholds=thresholds.tolist() if thresholds is not None else None,
+            path_tolerance=parsed.path_tolerance if parsed is not None else 0.0,
+        )
+
+    def planned_update(self, plan: StepPlan, k: int) -> bool:
+        """Control step ``k`` of ``plan``, exactly as ``update(plan.times[k], dt)`` would run it,
+        when nothing reacts in it; False, having done nothing, when something would (the wrench
+        leaves the deadband, an F/T or path check fails, the goal, reference or admittance is not
+        the plan's, a cancel is pending): then ``update`` must run this step."""
+        goal = self._goal
+        if goal is not plan.goal or self._reference is not plan.reference or self._compliance is not plan.compliance:
+            return False
+        if goal is not None and (goal.cancel_requested or goal.handle.is_cancel_requested):
+            return False
+        wrench = np.asarray(self.hardware.wrench(), dtype=float).tolist()
+        if not inside_deadband(wrench, plan.deadband):
+            return False
+        command, velocity = plan.positions[k], plan.velocities[k]
+        if goal is not None:
+            actual = np.asarray(self.hardware.arm_position(), dtype=float)
+            if not within_thresholds(wrench, plan.thresholds):
+                return False
+            if not within_path_tolerance(actual.tolist(), plan.position_rows[k], plan.path_tolerance):
+                return False
+            self._record_step(plan.times[k], goal, command, velocity, actual, wrench)
+        self._joint_offset = self._no_offset
+        self.hardware.command_arm(command, velocity)
+        return True
+
     def _with_offset(self, desired: TrajectoryState, offset_rate: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
         """Position and velocity to command: the reference plus the admittance offset (None: at rest)."""
         if offset_rate is None:
@@ -374,11 +453,7 @@ class JointTrajectoryAdmittanceController(Controller):
         assert goal is not None
         parsed = goal.goal
         actual = np.asarray(self.hardware.arm_position(), dtype=float)
-        self._publish_feedback(t, goal, command, desired_velocity, actual, wrench)
-        fx, fy, fz, tx, ty, tz = wrench.tolist()
-        self.peak_force_n = max(self.peak_force_n, math.hypot(fx, fy, fz))
-        self.peak_torque_nm = max(self.peak_torque_nm, math.hypot(tx, ty, tz))
-
+        self._record_step(t, goal, command, desired_velocity, actual, wrench.tolist())
         ft = wrench_violation(wrench, parsed.force_torque_threshold)
         if ft is not None:
             self._finish(t, "abort", Result(error_code=Result.FORCE_TORQUE_THRESHOLD_EXCEEDED, error_string=f"force-torque threshold exceeded at t={t:.3f} s: {ft}"))
@@ -408,6 +483,16 @@ class JointTrajectoryAdmittanceController(Controller):
                 ),
             )
 
+    def _record_step(
+        self, t: float, goal: _ActiveGoal, command: np.ndarray, desired_velocity: np.ndarray, actual: np.ndarray, wrench: list[float]
+    ) -> None:
+        """What every control step of a goal leaves behind: feedback when due, the peak wrench."""
+        if t - self._last_feedback >= 1.0 / self.config.feedback_rate - TIME_EPS:
+            self._publish_feedback(t, goal, command, desired_velocity, actual, wrench)
+        fx, fy, fz, tx, ty, tz = wrench
+        self.peak_force_n = max(self.peak_force_n, math.hypot(fx, fy, fz))
+        self.peak_torque_nm = max(self.peak_torque_nm, math.hypot(tx, ty, tz))
+
     def _finish(self, t: float, how: str, result) -> None:
         """End the current goal; anything but success also brings the arm smoothly to rest."""
         goal = self._goal
@@ -425,10 +510,8 @@ class JointTrajectoryAdmittanceController(Controller):
             goal.handle.abort(result)
 
     def _publish_feedback(
-        self, t: float, goal: _ActiveGoal, command: np.ndarray, desired_velocity: np.ndarray, actual: np.ndarray, wrench: np.ndarray
+        self, t: float, goal: _ActiveGoal, command: np.ndarray, desired_velocity: np.ndarray, actual: np.ndarray, wrench: list[float]
     ) -> None:
-        if t - self._last_feedback < 1.0 / self.config.feedback_rate - TIME_EPS:
-            return
         self._last_feedback = t
         velocity = np.asarray(self.hardware.arm_velocity(), dtype=float)
         # Fill the sub-messages the constructor already built (building messages dominates here).
@@ -442,5 +525,5 @@ class JointTrajectoryAdmittanceController(Controller):
         ):
             point.positions, point.velocities = positions.tolist(), velocities.tolist()
         force, torque = feedback.wrench.force, feedback.wrench.torque
-        force.x, force.y, force.z, torque.x, torque.y, torque.z = wrench.tolist()
+        force.x, force.y, force.z, torque.x, torque.y, torque.z = wrench
         goal.handle.publish_feedback(feedback)

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import Any
 
 from runtime.clock import Clock
 
@@ -109,6 +110,16 @@ class Controller:
 
     def update(self, t: float, dt: float) -> None:
         """One control step at time ``t`` (called only while active)."""
+
+    def plan_steps(self, times: list[float]) -> Any | None:
+        """Work for the control steps at ``times`` (one tick's), done ahead in one pass, that
+        ``planned_update`` then uses; None (the default): every step runs ``update``."""
+        return None
+
+    def planned_update(self, plan: Any, k: int) -> bool:
+        """Control step ``k`` of ``plan``, exactly as ``update`` would run it, or False, having
+        done nothing, when this step needs ``update`` after all (then so do the tick's others)."""
+        return False
 
     def __repr__(self) -> str:
         return f"{type(self).__name__}({self.name!r}, {'active' if self.active else 'inactive'})"

@@ -112,7 +112,7 @@ def admittance_step(state: AdmittanceState, wrench: np.ndarray, params: Admittan
     arithmetic, and the controller runs this 500 times a second.
     """
     wrench_values = np.asarray(wrench, dtype=float).tolist()
-    if state.at_rest and all(abs(w) <= deadband for w, deadband in zip(wrench_values, params.deadband.tolist())):
+    if state.at_rest and inside_deadband(wrench_values, params.deadband.tolist()):
         return state
     offsets, rates = [], []
     axes = zip(
@@ -135,6 +135,14 @@ def admittance_step(state: AdmittanceState, wrench: np.ndarray, params: Admittan
     if max(map(abs, offsets + rates)) < REST_EPS:
         return AdmittanceState()
     return AdmittanceState(np.array(offsets), np.array(rates))
+
+
+def inside_deadband(wrench: list[float], deadband: list[float]) -> bool:
+    """Every axis of ``wrench`` (6 floats) within its deadband: an admittance at rest stays at
+    rest. A NaN is outside. Written out: the controller asks every control step."""
+    fx, fy, fz, tx, ty, tz = wrench
+    bx, by, bz, rx, ry, rz = deadband
+    return abs(fx) <= bx and abs(fy) <= by and abs(fz) <= bz and abs(tx) <= rx and abs(ty) <= ry and abs(tz) <= rz
 
 
 @functools.cache

@@ -58,16 +58,18 @@ def quintic_coefficients(
 def quintic_powers(tau: float) -> np.ndarray:
     """The 3 x 6 matrix whose product with a piece's coefficients (6 x J) gives position,
     velocity and acceleration at ``tau``: one small matmul instead of three Horner chains."""
+    return np.array(_quintic_power_rows(tau))
+
+
+def _quintic_power_rows(tau: float) -> list[list[float]]:
     t2 = tau * tau
     t3 = t2 * tau
     t4 = t3 * tau
-    return np.array(
-        [
-            [1.0, tau, t2, t3, t4, t4 * tau],
-            [0.0, 1.0, 2.0 * tau, 3.0 * t2, 4.0 * t3, 5.0 * t4],
-            [0.0, 0.0, 2.0, 6.0 * tau, 12.0 * t2, 20.0 * t3],
-        ]
-    )
+    return [
+        [1.0, tau, t2, t3, t4, t4 * tau],
+        [0.0, 1.0, 2.0 * tau, 3.0 * t2, 4.0 * t3, 5.0 * t4],
+        [0.0, 0.0, 2.0, 6.0 * tau, 12.0 * t2, 20.0 * t3],
+    ]
 
 
 @dataclass(frozen=True)
@@ -170,6 +172,20 @@ class Trajectory:
         k = bisect_right(knots, t) - 1
         position, velocity, acceleration = quintic_powers(t - knots[k]) @ self._coefficients[k]
         return TrajectoryState(position, velocity, acceleration)
+
+    def sample_many(self, times: list[float]) -> tuple[np.ndarray, np.ndarray]:
+        """Positions and velocities at each of ``times`` (two N x J arrays), row k equal bit
+        for bit to ``sample(times[k])``: one vectorised pass for a tick's control steps."""
+        knots = self._knot_times
+        if not all(knots[0] < t < knots[-1] for t in times):
+            states = [self.sample(t) for t in times]
+            return np.array([s.position for s in states]), np.array([s.velocity for s in states])
+        pieces = [bisect_right(knots, t) - 1 for t in times]
+        powers = np.array([_quintic_power_rows(t - knots[k]) for t, k in zip(times, pieces)])
+        # One matmul per row, as ``sample`` does (a broadcast product of N x 3 x 6 by 6 x J is
+        # one BLAS call of 3N rows, which does not always round like N calls of 3 rows).
+        state = np.matmul(powers, self._coefficients[pieces])  # N x 3 x J
+        return state[:, 0], state[:, 1]
 
     def _sample_end(self, t: float) -> TrajectoryState:
         """At the first or last knot its own state; before or after them, its position at rest."""
@@ -372,11 +388,20 @@ def path_violation(
     if tolerance <= 0:
         return None
     errors = [abs(a - r) for a, r in zip(np.asarray(actual, dtype=float).tolist(), np.asarray(reference, dtype=float).tolist())]
-    worst = max(errors)
-    if worst <= tolerance and math.isfinite(sum(errors)):
+    if _errors_within(errors, tolerance):
         return None
     j = _worst_index(errors)
     return f"{_joint_label(joint_names, j)}: error {errors[j]:.4f} rad exceeds the path tolerance {tolerance:.4f} rad"
+
+
+def within_path_tolerance(actual: list[float], reference: list[float], tolerance: float) -> bool:
+    """``path_violation(actual, reference, tolerance) is None``, on plain floats (the
+    controller's quick path checks every control step)."""
+    return tolerance <= 0 or _errors_within([abs(a - r) for a, r in zip(actual, reference)], tolerance)
+
+
+def _errors_within(errors: list[float], tolerance: float) -> bool:
+    return max(errors) <= tolerance and math.isfinite(sum(errors))
 
 
 def _worst_index(values: list[float]) -> int:
@@ -400,10 +425,20 @@ def wrench_violation(wrench: np.ndarray, thresholds: np.ndarray | None) -> str |
         return None
     values = np.asarray(wrench, dtype=float).tolist()
     limits = np.asarray(thresholds, dtype=float).tolist()
-    if all(abs(w) <= limit for w, limit in zip(values, limits)):
+    if within_thresholds(values, limits):
         return None
     i = _worst_index([abs(w) / limit for w, limit in zip(values, limits)])
     return (
         f"{WRENCH_AXES[i]} = {values[i]:.2f} {WRENCH_UNITS[i]}, "
         f"beyond the absolute threshold {limits[i]:.2f} {WRENCH_UNITS[i]}"
     )
+
+
+def within_thresholds(values: list[float], limits: list[float] | None) -> bool:
+    """``wrench_violation(values, limits) is None`` for a wrench of 6 floats (limits None or
+    empty: none). Written out: the controller asks every control step."""
+    if not limits:
+        return True
+    fx, fy, fz, tx, ty, tz = values
+    lx, ly, lz, mx, my, mz = limits
+    return abs(fx) <= lx and abs(fy) <= ly and abs(fz) <= lz and abs(tx) <= mx and abs(ty) <= my and abs(tz) <= mz
