@@ -192,3 +192,18 @@ def test_sampling_a_tick_at_once_equals_sampling_each_step():
         for k, t in enumerate(times):
             state = trajectory.sample(t)
             assert np.array_equal(positions[k], state.position) and np.array_equal(velocities[k], state.velocity)
+
+
+def test_a_tick_without_control_steps_does_nothing():
+    # Real time: the clock may move less than a control period between two ticks.
+    clock = SimClock()
+    bus = InProcessBus(clock, default_latency=FixedLatency(0.0))
+    cell = MujocoCell(CellOptions(image_width=32, image_height=32), HOME, seed=0)
+    manager = make_controllers(bus, cell, clock)
+    assert manager.switch([TRAJECTORY_CONTROLLER], [VELOCITY_CONTROLLER]).ok
+    before = cell.data.qpos.copy()
+    manager.advance([], DT, cell.step)
+    assert cell.t == 0.0 and np.array_equal(cell.data.qpos, before)
+    positions, velocities = manager[TRAJECTORY_CONTROLLER].reference.sample_many([])
+    assert positions.shape == velocities.shape == (0, 6)
+    cell.close()

@@ -77,6 +77,8 @@ class ControllerManager:
         ``step_physics(dt)``. The same as ``update`` then ``step_physics`` at each time, but a
         controller that can plan the tick ahead (``Controller.plan_steps``) runs its steps the
         quick way until one needs ``update``, and ``update`` runs the rest of its tick."""
+        if not times:  # a tick shorter than a control period (real time, or a clock just started)
+            return
         controllers = list(self.controllers.values())
         plans = [c.plan_steps(times) if c.active else None for c in controllers]
         for k, t in enumerate(times):

@@ -177,6 +177,8 @@ class Trajectory:
         """Positions and velocities at each of ``times`` (two N x J arrays), row k equal bit
         for bit to ``sample(times[k])``: one vectorised pass for a tick's control steps."""
         knots = self._knot_times
+        if not times:
+            return np.empty((0, self.num_joints)), np.empty((0, self.num_joints))
         if not all(knots[0] < t < knots[-1] for t in times):
             states = [self.sample(t) for t in times]
             return np.array([s.position for s in states]), np.array([s.velocity for s in states])
