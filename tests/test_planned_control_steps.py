@@ -15,7 +15,14 @@ from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 from runtime.bus import FixedLatency, InProcessBus
 from runtime.clock import SimClock
 from sim.cell_model import CellOptions
-from sim.controllers import TRAJECTORY_ACTION, TRAJECTORY_CONTROLLER, VELOCITY_CONTROLLER, Trajectory, make_controllers
+from sim.controllers import (
+    TRAJECTORY_ACTION,
+    TRAJECTORY_CONTROLLER,
+    VELOCITY_CONTROLLER,
+    ControllerManager,
+    Trajectory,
+    make_controllers,
+)
 from sim.controllers.admittance import JointTrajectoryAdmittanceController
 from sim.mujoco_cell import MujocoCell
 from sim.robot_model import ARM_JOINTS, load_waypoints
@@ -54,14 +61,20 @@ class GoalSpec:
         )
 
 
-def run(planned: bool, goal: GoalSpec, seconds: float, push: np.ndarray | None = None, push_at_s: float = 0.0,
-        cancel_at_s: float | None = None) -> dict:
-    """``goal`` on a fresh cell, ticked at 100 Hz: by ``advance`` (planned) or step by step."""
+def trajectory_control() -> tuple[SimClock, InProcessBus, MujocoCell, ControllerManager]:
+    """A fresh cell (seed 0, at Home) whose trajectory controller is active."""
     clock = SimClock()
     bus = InProcessBus(clock, default_latency=FixedLatency(0.0))
     cell = MujocoCell(CellOptions(image_width=32, image_height=32), HOME, seed=0)
     manager = make_controllers(bus, cell, clock)
     assert manager.switch([TRAJECTORY_CONTROLLER], [VELOCITY_CONTROLLER]).ok
+    return clock, bus, cell, manager
+
+
+def run(planned: bool, goal: GoalSpec, seconds: float, push: np.ndarray | None = None, push_at_s: float = 0.0,
+        cancel_at_s: float | None = None) -> dict:
+    """``goal`` on a fresh cell, ticked at 100 Hz: by ``advance`` (planned) or step by step."""
+    clock, bus, cell, manager = trajectory_control()
     client = bus.create_action_client(TRAJECTORY_ACTION, FollowJointTrajectoryWithAdmittance)
     feedback: list[tuple] = []
 
@@ -196,11 +209,7 @@ def test_sampling_a_tick_at_once_equals_sampling_each_step():
 
 def test_a_tick_without_control_steps_does_nothing():
     # Real time: the clock may move less than a control period between two ticks.
-    clock = SimClock()
-    bus = InProcessBus(clock, default_latency=FixedLatency(0.0))
-    cell = MujocoCell(CellOptions(image_width=32, image_height=32), HOME, seed=0)
-    manager = make_controllers(bus, cell, clock)
-    assert manager.switch([TRAJECTORY_CONTROLLER], [VELOCITY_CONTROLLER]).ok
+    _, _, cell, manager = trajectory_control()
     before = cell.data.qpos.copy()
     manager.advance([], DT, cell.step)
     assert cell.t == 0.0 and np.array_equal(cell.data.qpos, before)
