@@ -199,8 +199,9 @@ def test_sampling_a_tick_at_once_equals_sampling_each_step():
         trajectory = Trajectory.from_points(knots, rng.normal(size=(n, 6)))
         start = float(knots[0] - 0.02 + rng.uniform(0.0, knots[-1] - knots[0] + 0.04))
         times = [start + k * DT for k in range(TICK_STEPS)]
-        if rng.uniform() < 0.2:
-            times[2] = float(knots[-1])  # exactly on a knot: the end's own state
+        if rng.uniform() < 0.3:  # exactly on a knot (the last one: the end's own state)
+            knot = float(knots[int(rng.integers(0, n))])
+            times = [knot - 2 * DT, knot - DT, knot, knot + DT, knot + 2 * DT]
         positions, velocities = trajectory.sample_many(times)
         for k, t in enumerate(times):
             state = trajectory.sample(t)

@@ -174,12 +174,12 @@ class Trajectory:
         return TrajectoryState(position, velocity, acceleration)
 
     def sample_many(self, times: list[float]) -> tuple[np.ndarray, np.ndarray]:
-        """Positions and velocities at each of ``times`` (two N x J arrays), row k equal bit
-        for bit to ``sample(times[k])``: one vectorised pass for a tick's control steps."""
+        """Positions and velocities at each of ``times`` (increasing; two N x J arrays), row k
+        equal bit for bit to ``sample(times[k])``: one vectorised pass for a tick's control steps."""
         knots = self._knot_times
         if not times:
             return np.empty((0, self.num_joints)), np.empty((0, self.num_joints))
-        if not all(knots[0] < t < knots[-1] for t in times):
+        if not knots[0] < times[0] <= times[-1] < knots[-1]:  # an end of the trajectory is in reach
             states = [self.sample(t) for t in times]
             return np.array([s.position for s in states]), np.array([s.velocity for s in states])
         pieces = [bisect_right(knots, t) - 1 for t in times]
