@@ -1,8 +1,10 @@
 """Simulated ros2_control-style controllers for the cell, served on the bus with ROS names.
 
 ``make_controllers(bus, hardware, clock)`` builds the controller manager and its controllers; the
-world calls ``manager.update(t, dt)`` at 500 Hz before each physics step. The trajectory maths
-(``Trajectory``, ``stitch``, ``stop_trajectory``) is pure and usable on its own.
+world hands it each tick's control steps (``manager.advance(times, dt, step_physics)``: 500 Hz,
+one physics step after each), which is ``manager.update(t, dt)`` then a physics step at each time,
+with the steps that nothing reacts to planned ahead. The trajectory maths (``Trajectory``,
+``stitch``, ``stop_trajectory``) is pure and usable on its own.
 """
 from .admittance import JointTrajectoryAdmittanceController, ParsedGoal, parse_goal
 from .base import Controller, ControllersConfig
