@@ -150,6 +150,9 @@ def test_a_first_chunk_starts_at_the_step_it_arrived_and_its_goal_takes_effect_w
     # before the earliest whole step, so the arm never catches up more than a step from rest.
     slow = first(Arrival(step=3, goal_takes_effect_s=0.57), earliest=6)
     assert (slow.window.seam_step, slow.window.first_chunk_step, slow.takes_over_s) == (5, 0, pytest.approx(0.57))
+    # A goal that takes effect exactly as a step begins (a tick as long as a step) takes over there.
+    on_boundary = first(Arrival(step=5, goal_takes_effect_s=0.6), earliest=6)
+    assert (on_boundary.window.seam_step, on_boundary.takes_over_s) == (6, pytest.approx(0.6))
 
 
 def test_a_chunk_waits_while_the_previous_goal_is_unanswered():

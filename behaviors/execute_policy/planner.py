@@ -61,7 +61,7 @@ class Arrival:
     """When a chunk came, on the step grid, and the earliest instant a goal sent now takes effect."""
 
     step: int  # the first step at or after the chunk arrived
-    goal_takes_effect_s: float  # ``goal_takes_effect_s``: now, one tick and twice the goal delivery time later
+    goal_takes_effect_s: float  # now plus one tick and twice the goal delivery time (``goal_takes_effect_s``)
 
 
 class WaitReason(enum.Enum):
@@ -97,7 +97,7 @@ def plan_chunk(inp: PlanInput) -> Planned | Wait | Reject:
     try:
         window = grid.plan_window(index, inp.request_step, inp.frozen, chunk.steps, inp.earliest_seam_step,
                                   runout_reserve=runout_chunk_steps(nominal_runout_s(c), c.dt),
-                                  arrival_step=None if inp.arrival is None else inp.arrival.step)
+                                  arrival_step=window_arrival_step(inp.arrival, grid, inp.earliest_seam_step))
     except WindowError as err:
         return Reject(f"chunk {index} rejected: {err}")
     outside = inp.checks.values(chunk, window)
@@ -146,6 +146,15 @@ def plan_chunk(inp: PlanInput) -> Planned | Wait | Reject:
     stall = drained_seconds(None if previous is None else previous.full_speed_end, seam_time)
     new_grid = grid.commit(window, tail, chunk.steps)
     return Planned(window, seam_time, Committed(new_grid, motion, samples), stall, takes_over)
+
+
+def window_arrival_step(arrival: Arrival | None, grid: StepGrid, earliest_seam_step: int) -> int | None:
+    """The arrival step a first chunk's window may start at (``stream.first_chunk_seam``): only
+    while its goal takes effect strictly before the earliest seam step begins, so that the goal
+    takes over within the window's first step. None: the window starts at the earliest seam."""
+    if arrival is None or grid.time(earliest_seam_step) - arrival.goal_takes_effect_s <= 1e-9:
+        return None
+    return arrival.step
 
 
 def take_over_time(seam_time_s: float, arrival: Arrival | None) -> float:
