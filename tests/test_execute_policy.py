@@ -700,6 +700,45 @@ def answer_late(monkeypatch, delay: float, which: Callable[[Any], bool]) -> None
     monkeypatch.setattr(bus_module._InProcessActionClient, "send_goal_async", slow)
 
 
+@pytest.mark.parametrize("latency_s", [0.45, 0.5])
+def test_a_first_chunk_is_played_from_its_step_0_at_the_first_step_at_or_after_it_arrives(registry, latency_s):
+    # Chunk 1 is asked for at run step 0 and arrives 0.45 or 0.5 s later: either way its window
+    # starts at step 5, the first step at or after the arrival, with the chunk's step 0 there (the
+    # arm has rested there since the request), as both baselines of bench_streaming play a first
+    # chunk. Arriving on the step itself, its goal cannot reach the controller before the next
+    # tick (one tick plus twice the delivery time): it takes over then, within the step, and the
+    # arm moves from the next control step on. Before, that window started a whole step later.
+    commanded: list[tuple[float, float]] = []
+    run = run_policy(registry, BASE, ScriptedPolicy(hold(velocity=np.array([0.1, 0, 0, 0, 0, 0]))), latency=latency_s,
+                     before=record_commanded_velocity(commanded))
+    assert run.result.status == "SUCCESS", run.result.reason
+    origin = run.context.events.of_kind("chunk_requested")[1].time  # the first real request (run step 0)
+    first = run.context.events.of_kind("chunk_executed")[0].data
+    assert (first["request_step"], first["seam_step"]) == (5, 5)
+    assert first["seam_time"] == pytest.approx(origin + 0.5)
+    takes_over = origin + (0.51 if latency_s == 0.5 else 0.5)
+    assert first["takes_over_time"] == pytest.approx(takes_over)
+    t, v = np.array(commanded).T
+    assert np.abs(v[t <= takes_over + 1e-9]).max() < 1e-12  # at rest until the goal takes over
+    assert t[t > takes_over + 1e-9][0] == pytest.approx(takes_over + 0.002) and v[t > takes_over + 1e-9][0] > 1e-6
+
+
+def test_a_first_chunk_s_rejection_names_the_run_step_its_value_would_be_played_at(registry):
+    # Chunk 1 arrives on step 5 and is played from its step 0 there, so its step 3 belongs to run
+    # step 8: the rejection says so (policy step N of the run: the step the value is played at).
+    def far_at_step_3(index: int, request: Any) -> Any:
+        response = hold(velocity=np.array([0.1, 0, 0, 0, 0, 0]))(index, request)
+        if index == 1:
+            point = response.chunk.points[3]
+            point.positions = [1000.0, *list(point.positions)[1:]]
+        return response
+
+    run = run_policy(registry, BASE, ScriptedPolicy(far_at_step_3), latency=0.5)
+    assert run.result.status == "FAILURE"
+    assert run.result.reason == ("chunk 1 rejected: step 3: joint shoulder_pan_joint position 1000.0000 rad exceeds the limit "
+                                 "6.2832 rad (policy step 8 of the run)")
+
+
 def test_a_chunk_later_than_the_window_keeps_the_arm_at_the_policy_s_pace_along_the_chunk(registry):
     # Chunk 2 is asked for one step before chunk 1's 2 s window ends and takes 2.0 s: it arrives
     # 1.9 s after that end, later than a whole window but well within chunk 1 (5 s). Meanwhile the

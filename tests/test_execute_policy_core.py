@@ -7,6 +7,7 @@ import pytest
 
 from behaviors.execute_policy.chunk import Chunk
 from behaviors.execute_policy.planner import (
+    Arrival,
     PlanInput,
     Planned,
     Reject,
@@ -122,6 +123,36 @@ def test_the_first_chunk_starts_from_the_arm_at_rest_at_the_earliest_step():
     assert np.allclose(p[0], START, atol=1e-9) and np.allclose(v[0], 0.0, atol=1e-9)
     assert planned.committed.grid.committed_end == 22 and planned.committed.grid.tail.runout_steps == runout_chunk_steps(motion.runout, DT) > 0
     assert start.grid.committed_end == 0 and start.motion is None  # the state before is untouched
+
+
+def test_a_first_chunk_starts_at_the_step_it_arrived_and_its_goal_takes_effect_within_that_step():
+    start = Committed(StepGrid(0.0, DT, 20, 100))
+
+    def first(arrival: Arrival, earliest: int) -> Planned:
+        planned = plan_chunk(PlanInput(start, GoalState.NONE, ramp(), 1, 0, 6, earliest, START, SHAPING, FakeChecks(), arrival))
+        assert isinstance(planned, Planned)
+        return planned
+
+    # Arrived on step 5; a goal sent now takes effect at 0.51 s (one tick), so the earliest whole
+    # step is 6. The window starts at step 5 with the chunk's step 0 (the arm has rested there),
+    # and the goal takes over at 0.51 s from rest.
+    on_step = first(Arrival(step=5, goal_takes_effect_s=0.51), earliest=6)
+    assert (on_step.window.seam_step, on_step.window.first_chunk_step, on_step.seam_time_s) == (5, 0, pytest.approx(0.5))
+    assert on_step.takes_over_s == pytest.approx(0.51) and on_step.committed.motion.seam == pytest.approx(0.51)
+    assert on_step.committed.samples.times[0] == pytest.approx(0.51)  # nothing before the goal takes effect
+    p, v, _ = on_step.committed.motion.evaluate(np.array([0.51]))
+    assert np.allclose(p[0], START, atol=1e-12) and np.allclose(v[0], 0.0, atol=1e-12)
+    assert on_step.committed.grid.committed_end == 25
+    # Arrived between steps (0.45 s): the window and the goal both start at step 5, as before.
+    between = first(Arrival(step=5, goal_takes_effect_s=0.46), earliest=5)
+    assert (between.window.seam_step, between.takes_over_s) == (5, pytest.approx(0.5))
+    # A goal that takes longer to reach the controller (over ROS): the window starts at the step
+    # before the earliest whole step, so the arm never catches up more than a step from rest.
+    slow = first(Arrival(step=3, goal_takes_effect_s=0.57), earliest=6)
+    assert (slow.window.seam_step, slow.window.first_chunk_step, slow.takes_over_s) == (5, 0, pytest.approx(0.57))
+    # A goal that takes effect exactly as a step begins (a tick as long as a step) takes over there.
+    on_boundary = first(Arrival(step=5, goal_takes_effect_s=0.6), earliest=6)
+    assert (on_boundary.window.seam_step, on_boundary.takes_over_s) == (6, pytest.approx(0.6))
 
 
 def test_a_chunk_waits_while_the_previous_goal_is_unanswered():

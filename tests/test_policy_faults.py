@@ -264,8 +264,10 @@ def test_a_chunk_a_million_radians_away_is_reported_by_the_value_the_policy_sent
 
     out = run_with_faults(registry, Policy(fault_at=2, fault=far), FixedLatency(0.1))
     assert out.status == "FAILURE"
+    # Chunk 1 arrives on run step 1 and its window starts there (steps 1 to 21); chunk 2 is asked
+    # for two steps before that window ends, at step 19, so its step 0 is policy step 19.
     assert out.message == (f"chunk 2 rejected: step 0: joint shoulder_pan_joint position {sent[0]:.4f} rad exceeds the "
-                           "limit 6.2832 rad (policy step 20 of the run)")
+                           "limit 6.2832 rad (policy step 19 of the run)")
     out.assert_stopped_cleanly()
 
 

@@ -32,7 +32,18 @@ from .checks import PointChecks
 from .chunk import Chunk, ChunkError, read_chunk, read_policy_chunk
 from .gripper import GripperGoal, follow_goals
 from .observation import ObservationError, policy_tail, robot_state
-from .planner import PlanInput, Planned, Reject, ShapingConfig, earliest_seam_step, next_request_step, plan_chunk, stall_at_stop_s
+from .planner import (
+    Arrival,
+    PlanInput,
+    Planned,
+    Reject,
+    ShapingConfig,
+    earliest_seam_step,
+    goal_takes_effect_s,
+    next_request_step,
+    plan_chunk,
+    stall_at_stop_s,
+)
 from .shaping import Samples
 from .states import Committed, Goal, GoalState, HeldChunk, InFlight, Phase, Rollback, StreamState, stream_finished, stream_state
 from .stream import StepGrid, Window
@@ -352,6 +363,8 @@ class ExecutePolicy(Behavior):
             rest_position=rest_position,
             config=self.shaping,
             checks=PointChecks(self.safety, self.rules, c.link_padding, self._gripper_now(), grid),
+            arrival=Arrival(grid.step_at_or_after(held.flight.future.ready_at),  # arrival, not when we looked
+                            goal_takes_effect_s(now, self.context.tick_period_s, self.goal_latency_s)),
         ))
         if isinstance(plan, Reject):
             return self._reject(plan.reason)
@@ -371,7 +384,7 @@ class ExecutePolicy(Behavior):
         # planned again from the same chunk (see _retry_late_goal).
         self.rollback = Rollback(held, self._committed(), self.goal)
         self.checked_scene = self._scene_state()  # what the samples were checked against
-        self.goal = self.goal.sent(self.controller.send_goal_async(self._goal(samples, plan.seam_time_s)), now)
+        self.goal = self.goal.sent(self.controller.send_goal_async(self._goal(samples, plan.takes_over_s)), now)
         self.committed = plan.committed
         self._queue_gripper(held.chunk, window)
         policy_chunk = read_policy_chunk(held.response.policy_action_chunk)
@@ -386,6 +399,7 @@ class ExecutePolicy(Behavior):
             seam_step=window.seam_step,
             steps=window.steps,
             seam_time=plan.seam_time_s,
+            takes_over_time=plan.takes_over_s,
             latency=self.metrics.latencies[-1],
         )
 

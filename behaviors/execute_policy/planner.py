@@ -53,6 +53,15 @@ class PlanInput:
     rest_position: np.ndarray | None  # the arm's position now; needed only before the first chunk
     config: ShapingConfig
     checks: Checks
+    arrival: Arrival | None = None  # when the chunk came; None: it is placed by earliest_seam_step alone
+
+
+@dataclass(frozen=True)
+class Arrival:
+    """When a chunk came, on the step grid, and the earliest instant a goal sent now takes effect."""
+
+    step: int  # the first step at or after the chunk arrived
+    goal_takes_effect_s: float  # now plus one tick and twice the goal delivery time (``goal_takes_effect_s``)
 
 
 class WaitReason(enum.Enum):
@@ -73,9 +82,10 @@ class Reject:
 @dataclass(frozen=True)
 class Planned:
     window: Window
-    seam_time_s: float
+    seam_time_s: float  # of the window's seam step
     committed: Committed  # after the commit: the new grid, motion and samples
     stall_s: float  # the arm had left full speed (runout, then rest) this long before the seam
+    takes_over_s: float  # the goal's stamp: the seam, or within its step for a first chunk (take_over_time)
 
 
 def plan_chunk(inp: PlanInput) -> Planned | Wait | Reject:
@@ -86,7 +96,8 @@ def plan_chunk(inp: PlanInput) -> Planned | Wait | Reject:
         return Wait(WaitReason.GOAL_UNANSWERED)
     try:
         window = grid.plan_window(index, inp.request_step, inp.frozen, chunk.steps, inp.earliest_seam_step,
-                                  runout_reserve=runout_chunk_steps(nominal_runout_s(c), c.dt))
+                                  runout_reserve=runout_chunk_steps(nominal_runout_s(c), c.dt),
+                                  arrival_step=window_arrival_step(inp.arrival, grid, inp.earliest_seam_step))
     except WindowError as err:
         return Reject(f"chunk {index} rejected: {err}")
     outside = inp.checks.values(chunk, window)
@@ -99,12 +110,13 @@ def plan_chunk(inp: PlanInput) -> Planned | Wait | Reject:
         # seam after its end would be refused. Wait for it to finish; the chunk then starts from
         # rest (a pause, counted as a stall).
         return Wait(WaitReason.MOTION_ENDS_FIRST)
-    start_p, start_v = state_at(previous, seam_time, inp.rest_position)
+    takes_over = take_over_time(seam_time, inp.arrival if previous is None else None)
+    start_p, start_v = state_at(previous, takes_over, inp.rest_position)
     motion = join_at_seam(
         fit_chunk(chunk.arm, c.policy_tracking_weight),
         c.dt,
         grid.time(window.request_step),
-        seam_time,
+        takes_over,
         grid.time(window.end_step),
         start_p,
         start_v,
@@ -133,7 +145,24 @@ def plan_chunk(inp: PlanInput) -> Planned | Wait | Reject:
         return Reject(f"chunk {index} rejected: {reason}")
     stall = drained_seconds(None if previous is None else previous.full_speed_end, seam_time)
     new_grid = grid.commit(window, tail, chunk.steps)
-    return Planned(window, seam_time, Committed(new_grid, motion, samples), stall)
+    return Planned(window, seam_time, Committed(new_grid, motion, samples), stall, takes_over)
+
+
+def window_arrival_step(arrival: Arrival | None, grid: StepGrid, earliest_seam_step: int) -> int | None:
+    """The arrival step a first chunk's window may start at (``stream.first_chunk_seam``): only
+    while its goal takes effect strictly before the earliest seam step begins, so that the goal
+    takes over within the window's first step. None: the window starts at the earliest seam."""
+    if arrival is None or grid.time(earliest_seam_step) - arrival.goal_takes_effect_s <= 1e-9:
+        return None
+    return arrival.step
+
+
+def take_over_time(seam_time_s: float, arrival: Arrival | None) -> float:
+    """When the goal takes over from the motion the controller plays: at the seam, except that a
+    first chunk's window may start at the step the chunk arrived (``stream.first_chunk_seam``)
+    while its goal takes effect later within that step. The arm rests where the chunk's step 0
+    is until then, and the blend from rest catches up the fraction of a step."""
+    return seam_time_s if arrival is None else max(seam_time_s, arrival.goal_takes_effect_s)
 
 
 def state_at(motion: ChunkMotion | None, t: float, rest_position: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
@@ -191,11 +220,16 @@ def next_request_step(grid: StepGrid, frozen: int, now_s: float) -> int | None:
     return max(ideal, grid.step_at_or_before(now_s))
 
 
-def earliest_seam_step(grid: StepGrid, now_s: float, tick_period_s: float, goal_latency_s: float) -> int:
-    """The first step a goal sent now can take over at: it must reach the controller before its
-    seam, so one tick plus twice the goal delivery time seen so far (zero in process; over ROS,
+def goal_takes_effect_s(now_s: float, tick_period_s: float, goal_latency_s: float) -> float:
+    """The earliest instant a goal sent now surely takes effect: it must reach the controller
+    first, so one tick plus twice the goal delivery time seen so far (zero in process; over ROS,
     transport and the next spin)."""
-    return grid.step_at_or_after(now_s + tick_period_s + 2 * goal_latency_s)
+    return now_s + tick_period_s + 2 * goal_latency_s
+
+
+def earliest_seam_step(grid: StepGrid, now_s: float, tick_period_s: float, goal_latency_s: float) -> int:
+    """The first step a goal sent now can take over at (``goal_takes_effect_s``)."""
+    return grid.step_at_or_after(goal_takes_effect_s(now_s, tick_period_s, goal_latency_s))
 
 
 def stall_at_stop_s(committed: Committed | None, now_s: float) -> float:
