@@ -401,38 +401,31 @@ class CollisionChecker:
         """Rows of ``Q`` where a pair of ``pairs`` collides, as ``hit_at(step)`` reports them
         (called right after that row's check), settling runs of rows at once with ``levels``."""
         out: list[CollisionResult] = []
-        if not levels:
-            for step in range(Q.shape[0]):
-                if self._collides(pairs, Q[step]):
-                    hit = hit_at(step)
-                    if hit is not None:
-                        out.append(hit)
-                        if stop_at_first:
-                            break
-            return out
-        moving = np.asfortranarray(Q[:, self._moving_columns(Q)])  # window_ends reduces across joints: 2x faster by column
-        budgets = np.array([level.budget_rad for level in levels])
+        if levels:
+            moving = np.asfortranarray(Q[:, self._moving_columns(Q)])  # window_ends reduces across joints: 2x faster by column
+            budgets = np.array([level.budget_rad for level in levels])
         step, start_level = 0, len(levels)
         while step < Q.shape[0]:
-            ends = swept.window_ends(moving, step, budgets)
-            level = start_level
-            while level > 0:
-                while level > 1 and ends[level - 2] == ends[level - 1]:
-                    level -= 1  # a smaller budget covers the same rows: less inflation
-                if not self._collides(levels[level - 1], Q[step]):
-                    break
-                level -= 1
-            if level > 0:
-                start_level = min(level + 1, len(levels)) if level == start_level else level
-                step = int(ends[level - 1])
-                continue
+            if levels:
+                ends = swept.window_ends(moving, step, budgets)
+                level = start_level
+                while level > 0:
+                    while level > 1 and ends[level - 2] == ends[level - 1]:
+                        level -= 1  # a smaller budget covers the same rows: less inflation
+                    if not self._collides(levels[level - 1], Q[step]):
+                        break
+                    level -= 1
+                if level > 0:
+                    start_level = min(level + 1, len(levels)) if level == start_level else level
+                    step = int(ends[level - 1])
+                    continue
+                start_level = 1 if start_level == 0 else 0
             if self._collides(pairs, Q[step]):
                 hit = hit_at(step)
                 if hit is not None:
                     out.append(hit)
                     if stop_at_first:
                         break
-            start_level = 1 if start_level == 0 else 0
             step += 1
         return out
 

@@ -7,7 +7,7 @@ set-up and ``Data`` for many solves by one caller. Poses are 4x4 homogeneous mat
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Sequence
+from typing import Any, Sequence
 
 import numpy as np
 import pinocchio as pin
@@ -135,25 +135,17 @@ def solve_ik(
     seeds: Sequence[Sequence[float]] | np.ndarray | None = None,
     frame: str | None = None,
     reference: np.ndarray | None = None,
-    position_tolerance: float = 1e-4,
-    orientation_tolerance: float = 1e-3,
-    position_only: bool = False,
-    max_iterations: int = 100,
-    damping: float = 1e-4,
-    random_restarts: int = 8,
-    rng_seed: int = 0,
+    **options: Any,
 ) -> IkResult:
     """Joint values of ``group`` that put ``frame`` (default: the group's tip) at ``target``.
 
     Seeds are tried in order, then ``random_restarts`` seeds drawn uniformly within the limits
     (capped to +-pi) from ``rng_seed``: the answer is deterministic. Joints outside the group
-    keep their value from ``reference`` (default: neutral). See ``IkSolver`` for the method;
-    a caller solving many times keeps one.
+    keep their value from ``reference`` (default: neutral). ``options`` are ``IkSolver.solve``'s
+    (tolerances, ``position_only``, ``max_iterations``, ``damping``, ``random_restarts``,
+    ``rng_seed``); a caller solving many times keeps one ``IkSolver``.
     """
-    return IkSolver(robot, group, frame, reference).solve(
-        target, seeds, position_tolerance, orientation_tolerance, position_only, max_iterations, damping,
-        random_restarts, rng_seed,
-    )
+    return IkSolver(robot, group, frame, reference).solve(target, seeds, **options)
 
 
 def _score(pos_err: float, rot_err: float, position_only: bool) -> float:
