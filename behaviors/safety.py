@@ -57,17 +57,20 @@ class MotionSafety:
         return self.chunk_limits.check(rows)
 
     def first_collision(
-        self, snapshot: SceneSnapshot, samples: Samples, padding: float, gripper_position: float | None = None
+        self, snapshot: SceneSnapshot, samples: Samples, padding: float, gripper_position: float | None = None,
+        free_at: tuple[int, int] | None = None,
     ) -> str | None:
         """The first colliding sample as a sentence, or None. World objects are checked with
-        ``padding``; self-collision with the unpadded geometry."""
+        ``padding``; self-collision with the unpadded geometry. ``free_at``: the scene version
+        at which these samples were found free with the same snapshot, padding and gripper
+        position (see ``PlanningScene.check_path``)."""
         if len(samples) == 0:
             return None
         rows = samples.positions
         if self.gripper_joint is not None:
             value = 0.0 if gripper_position is None else gripper_position
             rows = np.hstack([rows, np.full((len(rows), 1), value)])
-        hit = self.scene.check_path(rows, samples.times, padding, snapshot=snapshot, layout=self.layout)
+        hit = self.scene.check_path(rows, samples.times, padding, snapshot=snapshot, layout=self.layout, free_at=free_at)
         return None if hit is None else str(hit)
 
 

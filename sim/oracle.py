@@ -46,6 +46,7 @@ from __future__ import annotations
 
 import math
 import re
+import threading
 from dataclasses import dataclass, field
 from typing import Callable, Protocol, Sequence
 
@@ -559,22 +560,21 @@ class SceneKinematics:
     """
 
     def __init__(self, robot: object, group: str = "manipulator", tcp_frame: str = "tcp") -> None:
-        from runtime.scene.kinematics import frame_pose, solve_ik
+        from runtime.scene.kinematics import IkSolver, frame_pose
 
-        self._frame_pose, self._solve_ik = frame_pose, solve_ik
+        self._frame_pose = frame_pose
         self.robot, self.group, self.tcp_frame = robot, group, tcp_frame
         self._layout = robot.configuration_map(group, None)  # type: ignore[attr-defined]
         self.joint_names: tuple[str, ...] = tuple(self._layout.group.joints)
-        robot.frame_id(tcp_frame)  # type: ignore[attr-defined]  # fail now on an unknown frame
+        self._ik = IkSolver(robot, group, tcp_frame)  # type: ignore[arg-type]  # fails now on an unknown frame
+        self._ik_lock = threading.Lock()
 
     def tcp_pose(self, q: np.ndarray) -> np.ndarray:
         return self._frame_pose(self.robot, self._layout(np.asarray(q, dtype=float)), self.tcp_frame)
 
     def solve_ik(self, target: np.ndarray, seed: np.ndarray) -> np.ndarray:
-        result = self._solve_ik(
-            self.robot, self.group, target, seeds=[np.asarray(seed, dtype=float)], frame=self.tcp_frame,
-            random_restarts=0, max_iterations=200,
-        )
+        with self._ik_lock:  # one solver, one caller at a time
+            result = self._ik.solve(target, seeds=[np.asarray(seed, dtype=float)], random_restarts=0, max_iterations=200)
         if not result.success:
             raise ValueError(
                 f"IK did not converge from the seed (position error {result.position_error * 1000:.1f} mm, "

@@ -18,6 +18,7 @@ from sensor_msgs.msg import Image, JointState
 
 from policy.images import rgb_to_image
 from runtime.behavior import RunContext
+from runtime.joint_states import joint_state
 from runtime.timestamps import time_msg
 
 from .cell_model import CAMERA_NAMES, CUBE_COLORS, CellOptions
@@ -31,6 +32,7 @@ from .sim_boxes import PlacedBoxes
 
 CONTROL_PERIOD = 0.002
 CAMERA_TOPICS = {name: f"/{name}_camera/color" for name in CAMERA_NAMES}
+JOINT_STATE_NAMES = (*ARM_JOINTS, GRIPPER_DRIVER_JOINT)
 
 
 class Cell(Hardware, Protocol):
@@ -157,12 +159,12 @@ class CellWorld:
 
     # -- publishing --------------------------------------------------------------------------
     def _publish(self) -> None:
-        msg = JointState()
-        msg.header.stamp = time_msg(self.cell.t)
-        msg.name = list(ARM_JOINTS) + [GRIPPER_DRIVER_JOINT]
-        msg.position = self.cell.arm_position().tolist() + [self.cell.gripper_position()]
-        msg.velocity = self.cell.arm_velocity().tolist() + [self.cell.gripper_velocity()]
-        self.joint_states.publish(msg)
+        cell = self.cell
+        self.joint_states.publish(joint_state(
+            cell.t, JOINT_STATE_NAMES,
+            cell.arm_position().tolist() + [cell.gripper_position()],
+            cell.arm_velocity().tolist() + [cell.gripper_velocity()],
+        ))
 
     def _cube_pose(self, color: str) -> TransformStamped:
         position, quat = self.cell.cube_pose(color)

@@ -20,6 +20,7 @@ from runtime.scene import (  # noqa: E402
     load_joint_limits,
     parse_srdf,
     pose_matrix,
+    IkSolver,
     solve_ik,
 )
 from sim.robot_model import (  # noqa: E402
@@ -329,6 +330,25 @@ def test_ik_reaches_pose_above_table(robot, home):
     assert np.allclose(reached[:3, :3], target[:3, :3], atol=2e-3)
     lower, upper = robot.position_limits(ARM_JOINTS)
     assert np.all(result.positions >= lower) and np.all(result.positions <= upper)
+
+
+def test_a_reused_ik_solver_answers_as_a_fresh_one(robot, home):
+    """One ``IkSolver`` solving one target after another gives, bit for bit, what ``solve_ik``
+    (a fresh solver per call) gives, also after targets it could not reach."""
+    solver = IkSolver(robot, "manipulator", TCP_SITE)
+    rng = np.random.default_rng(5)
+    targets = [pose_matrix([x, y, z], DOWN) for x, y, z in rng.uniform([-0.3, 0.3, 0.02], [0.3, 0.7, 0.4], (12, 3))]
+    targets.insert(4, pose_matrix([0.0, 3.0, 0.1], DOWN))  # out of reach
+    outcomes = []
+    for target in targets:
+        for restarts in (0, 2):
+            fresh = solve_ik(robot, "manipulator", target, seeds=[home], frame=TCP_SITE, random_restarts=restarts, max_iterations=60)
+            reused = solver.solve(target, seeds=[home], random_restarts=restarts, max_iterations=60)
+            assert reused.positions.tobytes() == fresh.positions.tobytes()
+            assert (reused.success, reused.position_error, reused.orientation_error, reused.iterations) == \
+                (fresh.success, fresh.position_error, fresh.orientation_error, fresh.iterations)
+            outcomes.append(fresh.success)
+    assert True in outcomes and False in outcomes
 
 
 def test_home_waypoint_looks_down_above_the_table(robot, home):

@@ -7,7 +7,7 @@ from rclpy.serialization import deserialize_message, serialize_message
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 from trajectory_msgs.msg import _joint_trajectory_point
 
-from runtime.timestamps import duration_msg
+from runtime.timestamps import duration_msg, split_seconds, split_seconds_array
 from runtime.trajectory_points import trajectory_points
 
 
@@ -71,3 +71,12 @@ def test_checked_fields_go_through_the_constructor(monkeypatch):
     assert all(q._check_fields for q in points)
     with pytest.raises(AssertionError, match="positions"):
         points[0].positions = ["not a number"]
+
+
+def test_stamps_split_in_one_pass_as_one_by_one():
+    rng = np.random.default_rng(11)
+    ties = (np.arange(-2000, 2000) + 0.5) * 1e-9  # half a nanosecond: ties, or the nearest double to one
+    seconds = np.concatenate([rng.uniform(-5.0, 40.0, 5000), ties, ties + 1.0, [0.0, -0.0, 1.0, -1.0, 2.9999999995, 1e-10]])
+    secs, nanosecs = split_seconds_array(seconds)
+    assert list(zip(secs, nanosecs)) == [split_seconds(float(s)) for s in seconds]
+    assert all(type(v) is int for v in secs[:3] + nanosecs[:3])

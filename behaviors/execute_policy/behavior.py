@@ -45,7 +45,7 @@ from .planner import (
     stall_at_stop_s,
 )
 from .shaping import Samples
-from .states import Committed, Goal, GoalState, HeldChunk, InFlight, Phase, Rollback, StreamState, stream_finished, stream_state
+from .states import Committed, FreeSamples, Goal, GoalState, HeldChunk, InFlight, Phase, Rollback, StreamState, stream_finished, stream_state
 from .stream import StepGrid, Window
 from .timing import LatencyEstimate, frozen_prefix_steps, prefetch_margin, sizing_warning
 from ..safety import MotionSafety, SafetyError, make_safety
@@ -124,6 +124,7 @@ class ExecutePolicy(Behavior):
         more over ROS."""
         self.next_scene_check_s = 0.0
         self.checked_scene: tuple[object, ...] | None = None  # what the committed samples were last checked against
+        self.free_samples: FreeSamples | None = None  # the watch's last collision-free answer
         self.policy_chunk: np.ndarray | None = None
         self.policy_chunk_request_step = 0
         self.gripper_schedule: list[tuple[float, float]] = []
@@ -269,10 +270,18 @@ class ExecutePolicy(Behavior):
         scene_state = self._scene_state()
         if scene_state == self.checked_scene:  # the remaining samples were checked against this very scene
             return None
-        collision = self.safety.first_collision(self.rules, _samples_from(samples, now), self.config.link_padding, self._gripper_now())
+        version, free = self.safety.scene.version, self.free_samples
+        if free is not None and free.samples is samples and _gripper_key(free.gripper_position) == scene_state[1]:
+            # Found free before with a gripper position this state does not tell apart: only the
+            # world objects that moved since need a check, at the gripper position of then.
+            gripper, free_at = free.gripper_position, free.scene_version
+        else:
+            gripper, free_at = self._gripper_now(), None
+        collision = self.safety.first_collision(self.rules, _samples_from(samples, now), self.config.link_padding, gripper, free_at)
         if collision is not None:
             return self._stop(Status.FAILURE, f"the planning scene changed: {collision} in the remaining path; robot stopped")
         self.checked_scene = scene_state
+        self.free_samples = FreeSamples(samples, gripper, version)
         return None
 
     # -- requests and responses --------------------------------------------------------------
@@ -559,8 +568,7 @@ class ExecutePolicy(Behavior):
 
     def _scene_state(self) -> tuple[object, ...]:
         """What a collision check of the committed samples depends on, besides the samples."""
-        gripper = self._gripper_now()
-        return (self.safety.scene.version, None if gripper is None else round(gripper, 4))
+        return (self.safety.scene.version, _gripper_key(self._gripper_now()))
 
     def _gripper_now(self) -> float | None:
         joint = self.config.gripper_joint_name
@@ -603,6 +611,12 @@ class ExecutePolicy(Behavior):
         for key in ("absolute_force_torque_threshold", "image_topics", "image_names"):
             values[key] = tuple(values[key])
         return cfg.PolicyRunConfig(**values)
+
+
+def _gripper_key(position: float | None) -> float | None:
+    """The gripper position as the scene watch compares it: a change below 1e-4 rad (a few
+    micrometres at the fingertips) is no reason to check the committed samples again."""
+    return None if position is None else round(position, 4)
 
 
 def _samples_from(samples: Samples, t: float) -> Samples:

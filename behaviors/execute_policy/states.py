@@ -35,6 +35,16 @@ class StreamState(enum.Enum):
     playing ends before the chunk could join it."""
 
 
+@dataclass(frozen=True)
+class FreeSamples:
+    """Committed samples the scene watch found collision-free: at which scene version and with
+    which gripper position (the gripper column of every checked row)."""
+
+    samples: Samples
+    gripper_position: float | None
+    scene_version: tuple[int, int]
+
+
 class GoalState(enum.Enum):
     NONE = "none"  # no goal sent yet: the arm rests where the run found it
     SENT = "sent"  # the newest goal is on its way; the controller has not accepted it yet

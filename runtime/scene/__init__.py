@@ -17,7 +17,7 @@ from .collision import (
     WorldObject,
     pose_matrix,
 )
-from .kinematics import IkResult, frame_pose, frame_poses, solve_ik
+from .kinematics import IkResult, IkSolver, frame_pose, frame_poses, solve_ik
 from .limits import JointLimit, JointLimits, LimitViolation, load_joint_limits
 from .model import ConfigurationMap, GroupError, JointCoupling, JointGroup, RobotModel, load_couplings
 from .scene import ANY, PlanningScene, SceneSnapshot
@@ -25,7 +25,7 @@ from .srdf import Srdf, SrdfError, SrdfGroup, parse_srdf
 
 __all__ = [
     "ANY", "Attachment", "Box", "Capsule", "Clearance", "CollisionChecker", "CollisionResult",
-    "ConfigurationMap", "Cylinder", "GroupError", "IkResult", "JointCoupling", "JointGroup",
+    "ConfigurationMap", "Cylinder", "GroupError", "IkResult", "IkSolver", "JointCoupling", "JointGroup",
     "JointLimit", "JointLimits", "LimitViolation", "Mesh", "PlanningScene", "RobotModel",
     "SceneSnapshot", "Shape", "Sphere", "Srdf", "SrdfError", "SrdfGroup", "WorldObject",
     "frame_pose", "frame_poses", "load_couplings", "load_joint_limits", "parse_srdf",

@@ -218,13 +218,16 @@ class _Pair:
 
 
 @dataclass(frozen=True)
-class _SweptLevel:
-    """A second geometry data + broadphase whose margins are inflated for joint budget L."""
+class _PairSet:
+    """Geometry data whose active pairs are answered together: all pairs through a broadphase,
+    or a few objects' pairs (then ``manager`` is None: checking those pairs one by one is
+    cheaper than a broadphase over every geometry)."""
 
-    budget_rad: float
     geometry_data: pin.GeometryData
-    manager: object
-    callback: pin.CollisionCallBackDefault
+    manager: object | None
+    callback: pin.CollisionCallBackDefault | None
+    budget_rad: float = 0.0
+    """Joint motion its margins are inflated for (``swept``); 0: the checker's own margins."""
 
 
 class CollisionChecker:
@@ -328,7 +331,9 @@ class CollisionChecker:
         if swept.supported(model):
             radii = swept.motion_radii(model, gm)
             self._coefficients = swept.pair_coefficients(radii, [(p.first, p.second) for p in gm.collisionPairs])
-        self._swept_levels: dict[tuple[int, ...], list[_SweptLevel]] = {}
+        self._all_pairs = _PairSet(self.geometry_data, self._manager, self._callback)
+        self._swept_levels: dict[tuple[tuple[int, ...], frozenset[str] | None], list[_PairSet]] = {}
+        self._object_pairs: dict[frozenset[str], tuple[list[int], _PairSet]] = {}
 
     def pairs(self) -> list[tuple[str, str, str]]:
         """``(kind, first, second)`` of every checked pair of geometries."""
@@ -355,74 +360,119 @@ class CollisionChecker:
         The answer is the one ``check`` gives for each row. With ``early_out`` (the default),
         runs of rows that a proven bound shows collision-free are settled by one check at
         their first row (``swept``); every other row is checked on its own."""
-        columns = self._moving_columns(Q) if early_out and Q.shape[0] >= 2 else None
-        levels = [] if columns is None else self._levels_for(columns)
-        if not levels:
-            return self._check_rows(Q, range(Q.shape[0]), times, stop_at_first)
-        moving = np.asfortranarray(Q[:, columns])  # window_ends reduces across joints: 2x faster by column
-        budgets = np.array([level.budget_rad for level in levels])
-        model, data = self.robot.model, self.data
+        levels = self._levels_for(Q, None) if early_out else []
+        return self._check_many(self._all_pairs, levels, Q, stop_at_first, lambda step: self._last_hit(step, times))
+
+    def first_hit_of_objects(self, objects: Iterable[str], Q: np.ndarray, times: np.ndarray | None) -> CollisionResult | None:
+        """``check_many(Q, times, stop_at_first=True)`` for a path whose every row was found free
+        with the world objects of ``objects`` placed elsewhere and everything else as now: only
+        the pairs of ``objects`` can have changed, so only they are checked, and the first row
+        where one collides is checked again in full (the answer ``check`` gives that row).
+        Wrong when that premise does not hold."""
+        names = frozenset(objects) & frozenset(self._world_ids)
+        if names not in self._object_pairs:
+            active = [k for k, p in enumerate(self._pairs) if p.kind == "world" and p.second in names]
+            self._object_pairs[names] = (active, _PairSet(self._pair_data(active), None, None))
+        active, pairs = self._object_pairs[names]
+        if not active:
+            return None
+        hits = self._check_many(pairs, self._levels_for(Q, names), Q, True, lambda step: self._check_row(Q, step, times))
+        return hits[0] if hits else None
+
+    def _check_row(self, Q: np.ndarray, step: int, times: np.ndarray | None) -> CollisionResult | None:
+        """Row ``step`` checked against every pair, as ``check_many`` reports it."""
+        if not self._collides(self._all_pairs, Q[step]):
+            return None
+        return self._last_hit(step, times)
+
+    def _last_hit(self, step: int, times: np.ndarray | None) -> CollisionResult:
+        """The pair the last check of every pair stopped at, as row ``step``'s answer."""
+        hit = self._result(self._callback.collisionPairIndex)
+        t = None if times is None else float(times[step])
+        return CollisionResult(hit.kind, hit.first, hit.second, hit.distance, hit.padding, step, t)
+
+    def _collides(self, pairs: _PairSet, q: np.ndarray) -> bool:
+        if pairs.manager is None:
+            return pin.computeCollisions(self.robot.model, self.data, self.geometry_model, pairs.geometry_data, q, True)
+        return pin.computeCollisions(self.robot.model, self.data, pairs.manager, pairs.callback, q)
+
+    def _check_many(self, pairs: _PairSet, levels: list[_PairSet], Q: np.ndarray, stop_at_first: bool,
+                    hit_at: Callable[[int], CollisionResult | None]) -> list[CollisionResult]:
+        """Rows of ``Q`` where a pair of ``pairs`` collides, as ``hit_at(step)`` reports them
+        (called right after that row's check), settling runs of rows at once with ``levels``."""
         out: list[CollisionResult] = []
+        if levels:
+            moving = np.asfortranarray(Q[:, self._moving_columns(Q)])  # window_ends reduces across joints: 2x faster by column
+            budgets = np.array([level.budget_rad for level in levels])
         step, start_level = 0, len(levels)
         while step < Q.shape[0]:
-            ends = swept.window_ends(moving, step, budgets)
-            level = start_level
-            while level > 0:
-                while level > 1 and ends[level - 2] == ends[level - 1]:
-                    level -= 1  # a smaller budget covers the same rows: less inflation
-                entry = levels[level - 1]
-                if not pin.computeCollisions(model, data, entry.manager, entry.callback, Q[step]):
-                    break
-                level -= 1
-            if level > 0:
-                start_level = min(level + 1, len(levels)) if level == start_level else level
-                step = int(ends[level - 1])
-                continue
-            out += self._check_rows(Q, (step,), times, stop_at_first)
-            if out and stop_at_first:
-                break
-            start_level = 1 if start_level == 0 else 0
+            if levels:
+                ends = swept.window_ends(moving, step, budgets)
+                level = start_level
+                while level > 0:
+                    while level > 1 and ends[level - 2] == ends[level - 1]:
+                        level -= 1  # a smaller budget covers the same rows: less inflation
+                    if not self._collides(levels[level - 1], Q[step]):
+                        break
+                    level -= 1
+                if level > 0:
+                    start_level = min(level + 1, len(levels)) if level == start_level else level
+                    step = int(ends[level - 1])
+                    continue
+                start_level = 1 if start_level == 0 else 0
+            if self._collides(pairs, Q[step]):
+                hit = hit_at(step)
+                if hit is not None:
+                    out.append(hit)
+                    if stop_at_first:
+                        break
             step += 1
-        return out
-
-    def _check_rows(self, Q: np.ndarray, steps: Iterable[int], times: np.ndarray | None,
-                    stop_at_first: bool) -> list[CollisionResult]:
-        out = []
-        model, data, manager, callback = self.robot.model, self.data, self._manager, self._callback
-        for step in steps:
-            if pin.computeCollisions(model, data, manager, callback, Q[step]):
-                hit = self._result(callback.collisionPairIndex)
-                t = None if times is None else float(times[step])
-                out.append(CollisionResult(hit.kind, hit.first, hit.second, hit.distance, hit.padding, step, t))
-                if stop_at_first:
-                    break
         return out
 
     @staticmethod
     def _moving_columns(Q: np.ndarray) -> np.ndarray:
         return np.flatnonzero((Q != Q[0]).any(axis=0))
 
-    def _levels_for(self, moving_columns: np.ndarray) -> list[_SweptLevel]:
-        """Inflated checkers for the joints of ``moving_columns`` (compiled once per set)."""
-        if self._coefficients is None:
+    def _pair_data(self, active: list[int] | None, budget_rad: float | None = None,
+                   per_rad: np.ndarray | None = None) -> pin.GeometryData:
+        """Geometry data with this checker's margins, inflated for a joint budget when one is
+        given (see ``swept``), and only the ``active`` pairs switched on (None: all)."""
+        data = pin.GeometryData(self.geometry_model)
+        for k, request in enumerate(data.collisionRequests):
+            base = self.geometry_data.collisionRequests[k].security_margin
+            if budget_rad is not None and per_rad is not None:
+                base = base + budget_rad * float(per_rad[k]) + SWEPT_SLACK_M
+            request.security_margin = base
+            request.enable_contact = False
+        if active is not None:
+            data.deactivateAllCollisionPairs()
+            for k in active:
+                data.activateCollisionPair(k)
+        return data
+
+    def _levels_for(self, Q: np.ndarray, objects: frozenset[str] | None) -> list[_PairSet]:
+        """Inflated checkers for the joints that move in ``Q`` (compiled once per set of joints),
+        of every pair or of ``objects``' pairs; none for a single row or an unsupported model."""
+        if self._coefficients is None or Q.shape[0] < 2:
             return []
         model = self.robot.model
-        columns = tuple(moving_columns.tolist())
-        if columns not in self._swept_levels:
+        columns = tuple(self._moving_columns(Q).tolist())
+        key = (columns, objects)
+        if key not in self._swept_levels:
             joint_of_column = {int(model.idx_qs[j]): j for j in range(1, model.njoints)}
             joints = [joint_of_column[c] for c in columns]
             per_rad = self._coefficients[:, joints].sum(axis=1)
+            active = None if objects is None else self._object_pairs[objects][0]
             levels = []
             for budget in SWEPT_LEVELS_RAD:
-                data = pin.GeometryData(self.geometry_model)
-                for k, request in enumerate(data.collisionRequests):
-                    base = self.geometry_data.collisionRequests[k].security_margin
-                    request.security_margin = base + budget * float(per_rad[k]) + SWEPT_SLACK_M
-                    request.enable_contact = False
-                levels.append(_SweptLevel(budget, data, self._manager_class(model, self.geometry_model, data),
-                                          pin.CollisionCallBackDefault(self.geometry_model, data, True)))
-            self._swept_levels[columns] = levels
-        return self._swept_levels[columns]
+                data = self._pair_data(active, budget, per_rad)
+                if objects is None:
+                    levels.append(_PairSet(data, self._manager_class(model, self.geometry_model, data),
+                                           pin.CollisionCallBackDefault(self.geometry_model, data, True), budget))
+                else:
+                    levels.append(_PairSet(data, None, None, budget))
+            self._swept_levels[key] = levels
+        return self._swept_levels[key]
 
     def _result(self, pair_index: int) -> CollisionResult:
         pair = self._pairs[pair_index]

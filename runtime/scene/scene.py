@@ -91,6 +91,7 @@ class PlanningScene:
         self._attachments: dict[str, Attachment] = {}
         self._structure = 0  # bumped when the set of world objects changes
         self._poses = 0  # bumped when a world object moves
+        self._moved_at: dict[str, int] = {}  # each object's ``_poses`` after its last move
         self._checkers: dict[tuple, _PlacedChecker] = {}
 
     # -- layouts and configurations -------------------------------------------------------
@@ -158,6 +159,7 @@ class PlanningScene:
             obj = self._object(name)
             self._objects[name] = WorldObject(name, obj.shape, _pose_tuple(pose))
             self._poses += 1
+            self._moved_at[name] = self._poses
 
     def remove_object(self, name: str) -> None:
         with self._lock:
@@ -299,16 +301,25 @@ class PlanningScene:
         snapshot: SceneSnapshot | None = None,
         layout: ConfigurationMap | None = None,
         early_out: bool = True,
+        free_at: tuple[int, int] | None = None,
     ) -> CollisionResult | None | list[CollisionResult]:
         """Check every row of ``Q`` (N, dof). ``stop_at_first``: the first hit or None;
         otherwise a list with the first colliding pair of every colliding step. The answer for
         every row is the one ``check_state`` gives; ``early_out=False`` checks each row on its
-        own instead of settling proven-free runs of rows at once (for comparisons)."""
+        own instead of settling proven-free runs of rows at once (for comparisons).
+
+        ``free_at`` (with ``stop_at_first``): a ``version`` at which the caller found these very
+        rows free with the same padding and snapshot. If only world objects moved since, only
+        their pairs are checked (9 of the cell's 143 for one cube), with the same answer."""
         full = self._rows(Q, layout)
         if times is not None and len(times) != len(full):
             raise ValueError(f"times has {len(times)} entries for {len(full)} path points")
         with self._lock:
-            hits = self._checker(padding, snapshot).check_many(full, times, stop_at_first, early_out)
+            checker = self._checker(padding, snapshot)
+            if stop_at_first and free_at is not None and free_at[0] == self._structure:
+                moved = [name for name, at in self._moved_at.items() if at > free_at[1]]
+                return checker.first_hit_of_objects(moved, full, times)
+            hits = checker.check_many(full, times, stop_at_first, early_out)
         if stop_at_first:
             return hits[0] if hits else None
         return hits
