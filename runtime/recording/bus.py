@@ -193,9 +193,9 @@ class RecordingBus:
         def record(msg: Any) -> None:
             now = self.clock.now()
             if self._due(name, now, max_hz):
-                self.writer.write(name, msg, now)
-                for listener in listeners:
+                for listener in listeners:  # first: what they send may be needed to read the message (/tf)
                     listener(msg, now)
+                self.writer.write(name, msg, now)
 
         # Best effort connects to reliable and best-effort publishers alike.
         self._recorded_topics[name] = self.inner.create_subscription(name, msg_type, record, reliable=False)

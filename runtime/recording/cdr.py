@@ -68,6 +68,37 @@ class JointStateEncoder:
         return bytes(buffer)
 
 
+def _string_at(data: bytes, at: int) -> tuple[str, int]:
+    """The string at ``at`` (aligned to 4 first) and the offset after it."""
+    at += -(at - 4) % 4
+    (size,) = _COUNT.unpack_from(data, at)
+    return data[at + 4:at + 3 + size].decode(), at + 4 + size
+
+
+def joint_state_positions(data: bytes) -> tuple[tuple[str, ...], tuple[float, ...]]:
+    """The names and positions of a ``sensor_msgs/JointState`` in CDR (little endian, as
+    ``JointStateEncoder`` and rclpy write it); ValueError for anything else."""
+    if data[:4] != ENCAPSULATION:
+        raise ValueError("not little-endian CDR")
+    try:
+        _, at = _string_at(data, 12)  # after the stamp: the frame id
+        at += -(at - 4) % 4
+        (count,) = _COUNT.unpack_from(data, at)
+        at += 4
+        names = []
+        for _ in range(count):
+            name, at = _string_at(data, at)
+            names.append(name)
+        at += -(at - 4) % 4
+        (size,) = _COUNT.unpack_from(data, at)
+        at += 4
+        at += -(at - 4) % 8
+        positions = struct.unpack_from(f"<{size}d", data, at)
+    except struct.error as err:
+        raise ValueError(f"a truncated JointState ({err})") from None
+    return tuple(names), positions
+
+
 def hand_encoders() -> dict[type, Any]:
     """Message class -> its hand-written encoder (none on a big-endian machine: the arrays'
     bytes are copied as they are in memory)."""

@@ -15,6 +15,8 @@ the payload:
 - ``MESSAGE``: channel id (2 bytes), log time (8 bytes, wall-clock ns), the CDR bytes;
 - ``EVENT``: one ``events.jsonl`` line of an event that also goes on ``/rosout`` or
   ``/behavior_tree/node_status``; ``NOTE``: a line that goes only to ``events.jsonl``;
+- ``TF_MODEL``: JSON ``runtime.recording.tf_model.TfModel``: from now on the worker writes
+  ``/tf`` with every ``/joint_states`` message (and ``/tf_static`` with the first);
 - ``END``: the recording is over (the worker finishes the files);
 - ``RENDER``: JSON ``{"directory"}``: render the report and answer one JSON line on stdout.
 
@@ -40,6 +42,7 @@ from typing import Any, Callable, Iterator
 from .cdr import hand_encoders
 from .mcap_writer import OfferedQos, cdr_bytes, message_type, to_nanoseconds
 from .schema import type_name
+from .tf_model import TfModel
 
 
 class Frame(enum.IntEnum):
@@ -50,6 +53,7 @@ class Frame(enum.IntEnum):
     NOTE = 5
     END = 6
     RENDER = 7
+    TF_MODEL = 8
 
 
 HEADER = struct.Struct("<BI")
@@ -134,6 +138,11 @@ class Handoff:
         """One ``events.jsonl`` line (``note``: not also a ``/rosout``/node status message)."""
         if not self.closed:
             self._batch += frame(Frame.NOTE if note else Frame.EVENT, line.encode())
+
+    def tf_model(self, model: TfModel) -> None:
+        """The worker computes ``/tf`` and ``/tf_static`` with ``model`` from the next joint state on."""
+        if not self.closed:
+            self._batch += json_frame(Frame.TF_MODEL, model.to_json())
 
     def flush_if_due(self) -> None:
         """Send the batch if it waited ``SEND_INTERVAL_S`` or grew to ``SEND_BYTES`` (the bus

@@ -21,11 +21,14 @@ from rclpy.serialization import serialize_message
 
 from ..report.data import McapContents, Recording, add_event, mark_unfinished
 from .bag_metadata import BAG_METADATA_FILE, bag_metadata_yaml
+from .bus import JOINT_STATES_TOPIC
+from .cdr import joint_state_positions
 from .event_messages import event_message
 from .handoff import MESSAGE_HEADER, Frame
-from .mcap_writer import McapRos2Writer, OfferedQos, SerializedMessage, to_nanoseconds
+from .mcap_writer import LATCHED_QOS, McapRos2Writer, OfferedQos, SerializedMessage, to_nanoseconds
 from .files import EVENTS_FILE, MCAP_FILE
 from .schema import type_name
+from .tf_model import TF_STATIC_TOPIC, TF_TOPIC, TF_TYPE, TfModel, TfWriter
 
 
 class RecordingSession:
@@ -41,6 +44,10 @@ class RecordingSession:
         """The run's channel id -> (MCAP channel id, topic, type name)."""
         self.recording = Recording(self.directory)
         self.contents = McapContents(self.recording, clock_origin_ns)
+        self.tf: TfWriter | None = None
+        """Set by the run's ``TF_MODEL``: ``/tf`` is computed here from each joint state."""
+        self._tf_static_due = False
+        self._own_channels: dict[str, int] = {}
         self.ended = False
 
     def take(self, kind: Frame, payload: bytes) -> None:
@@ -50,6 +57,8 @@ class RecordingSession:
             data = payload[MESSAGE_HEADER.size:]
             self.writer.write_cdr(mcap_channel, data, log_time_ns)
             self.contents.add(topic, name, log_time_ns, data)
+            if self.tf is not None and topic == JOINT_STATES_TOPIC:
+                self._tf(data, log_time_ns)
         elif kind is Frame.CHANNEL:
             d = json.loads(payload)
             qos = OfferedQos(*d["qos"])
@@ -60,8 +69,30 @@ class RecordingSession:
             add_event(record, self.recording)
             if kind is Frame.EVENT:
                 self._event_message(record)
+        elif kind is Frame.TF_MODEL:
+            self.tf = TfWriter(TfModel.from_json(json.loads(payload)))
+            self._tf_static_due = True
         elif kind is Frame.END:
             self.end()
+
+    def _tf(self, joint_state: bytes, log_time_ns: int) -> None:
+        """``/tf`` (and ``/tf_static`` the first time) of a recorded joint state, stamped like it."""
+        assert self.tf is not None
+        names, positions = joint_state_positions(joint_state)
+        if len(positions) != len(names):
+            return  # no positions to draw the robot at (as ``robot.configuration`` would refuse them)
+        if self._tf_static_due:
+            self._tf_static_due = False
+            self._write_own(TF_STATIC_TOPIC, self.tf.tf_static(log_time_ns), log_time_ns, LATCHED_QOS)
+        self._write_own(TF_TOPIC, self.tf.tf(names, positions, log_time_ns), log_time_ns)
+
+    def _write_own(self, topic: str, data: bytes, log_time_ns: int, qos: OfferedQos = OfferedQos()) -> None:
+        """A ``TFMessage`` this worker computed, on ``topic``."""
+        channel = self._own_channels.get(topic)
+        if channel is None:
+            channel = self._own_channels[topic] = self.writer.open_channel(topic, TF_TYPE, qos)
+        self.writer.write_cdr(channel, data, log_time_ns)
+        self.contents.add(topic, TF_TYPE, log_time_ns, data)
 
     def _event_message(self, record: dict[str, Any]) -> None:
         stamp_ns = self.clock_origin_ns + to_nanoseconds(record["time"])
