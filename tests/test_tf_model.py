@@ -120,3 +120,23 @@ def test_joint_state_positions_reads_what_the_hand_encoder_and_rclpy_write():
         assert joint_state_positions(data) == (("a", "bb", "ccc"), (0.5, -1.25, 3.0))
     with pytest.raises(ValueError, match="truncated"):
         joint_state_positions(serialize_message(msg)[:30])
+
+
+@pytest.mark.parametrize("cache", ["fresh", "off"])
+def test_the_robot_markers_from_the_disk_cache_are_the_markers_stamped_anew(tmp_path, monkeypatch, cache):
+    from rclpy.serialization import serialize_message
+    from visualization_msgs.msg import MarkerArray
+
+    from runtime.recording.scene_view import robot_markers, robot_markers_cdr, stamp_of
+    from sim.robot_model import planning_robot_model
+
+    monkeypatch.setenv("OBJECTIVE_CACHE_DIR", str(tmp_path))
+    if cache == "off":
+        monkeypatch.setenv("OBJECTIVE_CACHE", "off")
+    robot = planning_robot_model()
+    for stamp_ns in (1_700_000_000_123_456_789, 1_700_000_042_000_000_001):  # a miss, then a hit
+        stamp = stamp_of(stamp_ns)
+        got = deserialize_message(robot_markers_cdr(robot, stamp).data, MarkerArray)
+        assert got == deserialize_message(serialize_message(robot_markers(robot, stamp)), MarkerArray)  # (float32 colours)
+        assert {(m.header.stamp.sec, m.header.stamp.nanosec) for m in got.markers} == {divmod(stamp_ns, 10**9)}
+    assert len(list(tmp_path.glob("robot_markers/*"))) == (0 if cache == "off" else 1)

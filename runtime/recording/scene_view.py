@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import struct
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any, Callable
 
 import coal
@@ -24,10 +25,12 @@ import numpy as np
 import pinocchio as pin
 from builtin_interfaces.msg import Time
 from geometry_msgs.msg import Point, Pose
+from rclpy.serialization import serialize_message
 from std_msgs.msg import ColorRGBA
 from tf2_msgs.msg import TFMessage
 from visualization_msgs.msg import Marker, MarkerArray
 
+from ..disk_cache import cached, content_key
 from ..scene.collision import Box, Capsule, Cylinder, Mesh, Sphere
 from .event_messages import stamp_of  # noqa: F401  (where the tests and the recorder find it)
 from .mcap_writer import SerializedMessage
@@ -282,6 +285,70 @@ def robot_markers(robot: Any, stamp: Time) -> MarkerArray:
     return out
 
 
+_SENTINEL = Time(sec=2_147_480_000, nanosec=999_999_937)
+"""A stamp no marker field holds: where it lands in the CDR is where each marker's stamp goes."""
+_OFFSET = struct.Struct("<I")
+
+
+def _geometry_digest(robot: Any) -> str:
+    """What the robot's markers are made of: each collision geometry's link, placement, kind and
+    size (a convex hull's vertices), and this module's code."""
+    parts: list[str | bytes] = [Path(__file__).read_bytes(), pin.__version__, coal.__version__]
+    for go in robot.collision_model.geometryObjects:
+        link = robot.link_of_frame(go.parentFrame)
+        geometry = go.geometry
+        parts += [link, type(geometry).__name__, robot.model.frames[robot.frame_id(link)].placement.homogeneous.tobytes(),
+                  go.placement.homogeneous.tobytes()]
+        if isinstance(geometry, coal.ConvexBase):
+            parts += [np.asarray(geometry.points()).tobytes(), str(geometry.num_polygons)]
+        else:
+            parts += [repr([getattr(geometry, a, None) for a in ("halfSide", "radius", "halfLength", "size", "length")])]
+    return content_key(*parts)
+
+
+def _stamped_template(robot: Any) -> bytes:
+    """The robot's markers in CDR, stamped ``_SENTINEL``, after the offsets of those stamps
+    (a count, then each offset: little-endian uint32)."""
+    markers = robot_markers(robot, _SENTINEL)
+    data = serialize_message(markers)
+    sentinel = _STAMP.pack(_SENTINEL.sec, _SENTINEL.nanosec)
+    offsets, at = [], data.find(sentinel)
+    while at >= 0:
+        offsets.append(at)
+        at = data.find(sentinel, at + 1)
+    if len(offsets) != len(markers.markers):
+        raise ValueError("the sentinel stamp is not where the markers' stamps are")
+    return _OFFSET.pack(len(offsets)) + b"".join(_OFFSET.pack(o) for o in offsets) + data
+
+
+def _stamp_template(template: bytes, stamp: Time) -> bytes:
+    (count,) = _OFFSET.unpack_from(template)
+    data = bytearray(template[4 + 4 * count:])
+    stamp_bytes = _STAMP.pack(stamp.sec, stamp.nanosec)
+    for k in range(count):
+        (at,) = _OFFSET.unpack_from(template, 4 + 4 * k)
+        data[at:at + 8] = stamp_bytes
+    return bytes(data)
+
+
+def robot_markers_cdr(robot: Any, stamp: Time) -> SerializedMessage:
+    """``robot_markers`` serialized, from the on-disk cache (``runtime.disk_cache``) when the
+    robot's collision geometry is what it was: building them is a tenth of a second of Python
+    (thousands of triangle vertices) that every recorded run would pay."""
+    try:
+        template = cached("robot_markers", _geometry_digest(robot), lambda: _stamped_template(robot), _checked_template)
+    except ValueError:
+        return SerializedMessage(MarkerArray, serialize_message(robot_markers(robot, stamp)))
+    return SerializedMessage(MarkerArray, _stamp_template(template, stamp))
+
+
+def _checked_template(data: bytes) -> bytes:
+    (count,) = _OFFSET.unpack_from(data)
+    if len(data) < 4 + 4 * count + 8 or data[4 + 4 * count:8 + 4 * count] != b"\x00\x01\x00\x00":
+        raise ValueError("not a stamped MarkerArray template")
+    return data
+
+
 def object_markers(objects: dict[str, Any], attachments: tuple[Any, ...], stamp: Time,
                    previous: dict[str, int] | None = None) -> MarkerArray:
     """The scene's world objects in ``world`` and the objects the robot carries, locked to their
@@ -370,7 +437,7 @@ class SceneView:
         else:
             self._tf = TfEncoder(tree, tree.moving)
             self._write(TF_STATIC_TOPIC, TfEncoder(tree, tree.fixed).encode(self._configuration(robot, msg), stamp), seconds)
-        self._write(ROBOT_MARKERS_TOPIC, robot_markers(robot, stamp), seconds)
+        self._write(ROBOT_MARKERS_TOPIC, robot_markers_cdr(robot, stamp), seconds)
 
     def _configuration(self, robot: Any, msg: Any) -> np.ndarray:
         names = tuple(msg.name)
