@@ -1,19 +1,32 @@
-"""CDR (XCDR1, little endian) written by hand for the messages a recording sends most often.
+"""CDR (XCDR1, little endian) written by hand for the messages a recording sends.
 
 rclpy's C serializer costs a few microseconds per message in a tight loop but tens of them in a
-running simulation (its code and buffers are cold by then); ``/joint_states`` at 50 Hz is the
-most frequent message a run records, and most of its bytes never change (the frame id and the
-joint names), so they are encoded once per list of names and only the stamp and the numbers are
-written per message. rclpy reads the bytes back as the message sent, and so does
-mcap-ros2-support (``tests/test_recording_worker.py``); they differ from rclpy's own only in
+running simulation (its code and buffers are cold by then, and it first converts the whole
+Python message into a C one). Two encoders here write the bytes from the Python message directly:
+
+- ``JointStateEncoder``: ``/joint_states`` at 50 Hz is the most frequent message a run records,
+  and most of its bytes never change (the frame id and the joint names), so they are encoded
+  once per list of names and only the stamp and the numbers are written per message;
+- ``MessageEncoder``: any other message type, from the field types rosidl generates into each
+  Python message class (``SLOT_TYPES``), compiled once per type into a list of field writers
+  (numeric arrays are copied from their buffers, nested messages are their fields in order).
+  A type with a field it does not know (``char``, ``wstring``, ``long double``, an empty
+  structure) is left to rclpy (``message_encoder`` returns None).
+
+rclpy reads the bytes back as the message sent, and so does mcap-ros2-support
+(``tests/test_recording_worker.py``, ``tests/test_cdr.py``); they differ from rclpy's own only in
 padding (rclpy leaves its padding bytes uninitialized and pads the end to 8 bytes).
 """
 from __future__ import annotations
 
+import array
+import importlib
 import struct
 import sys
-from typing import Any
+from operator import attrgetter
+from typing import Any, Callable
 
+from rosidl_parser import definition as idl
 from sensor_msgs.msg import JointState
 
 ENCAPSULATION = b"\x00\x01\x00\x00"
@@ -99,7 +112,132 @@ def joint_state_positions(data: bytes) -> tuple[tuple[str, ...], tuple[float, ..
     return tuple(names), positions
 
 
-def hand_encoders() -> dict[type, Any]:
-    """Message class -> its hand-written encoder (none on a big-endian machine: the arrays'
-    bytes are copied as they are in memory)."""
-    return {JointState: JointStateEncoder().encode} if sys.byteorder == "little" else {}
+FieldWriter = Callable[[bytearray, Any], None]
+"""Appends one field's value to a CDR buffer (started with the encapsulation header)."""
+
+_FORMATS = {"boolean": "?", "octet": "B", "uint8": "B", "int8": "b", "uint16": "H", "int16": "h", "uint32": "I",
+            "int32": "i", "uint64": "Q", "int64": "q", "float": "f", "double": "d"}
+_ZEROS = bytes(8)
+
+
+def _pad(buffer: bytearray, size: int) -> None:
+    pad = -(len(buffer) - 4) % size
+    if pad:
+        buffer += _ZEROS[:pad]
+
+
+def _primitive(fmt: str) -> FieldWriter:
+    packer = struct.Struct("<" + fmt)
+    size, pack = packer.size, packer.pack
+
+    def write(buffer: bytearray, value: Any) -> None:
+        if size > 1:
+            _pad(buffer, size)
+        buffer += pack(value)
+    return write
+
+
+def _string(buffer: bytearray, value: str) -> None:
+    data = value.encode()
+    _pad(buffer, 4)
+    buffer += _COUNT.pack(len(data) + 1)
+    buffer += data
+    buffer += b"\0"
+
+
+def _numbers(fmt: str, counted: bool) -> FieldWriter:
+    """A sequence (``counted``) or fixed array of numbers: rosidl holds them in an ``array.array``
+    (sequences), a numpy array (fixed arrays) or a list (booleans)."""
+    size = struct.calcsize(fmt)
+    dtype = "<" + ("?" if fmt == "?" else fmt)
+
+    def write(buffer: bytearray, values: Any) -> None:
+        if counted:
+            _pad(buffer, 4)
+            buffer += _COUNT.pack(len(values))
+        if len(values):
+            if size > 1:
+                _pad(buffer, size)
+            if isinstance(values, array.array):
+                buffer += values.tobytes()
+            elif hasattr(values, "astype"):
+                buffer += values.astype(dtype, copy=False).tobytes()
+            else:
+                buffer += struct.pack(f"<{len(values)}{fmt}", *values)
+    return write
+
+
+def _items(item: FieldWriter, counted: bool) -> FieldWriter:
+    def write(buffer: bytearray, values: Any) -> None:
+        if counted:
+            _pad(buffer, 4)
+            buffer += _COUNT.pack(len(values))
+        for value in values:
+            item(buffer, value)
+    return write
+
+
+def _field_writer(kind: Any) -> FieldWriter | None:
+    """How to write a field of rosidl type ``kind``; None where this module does not know it."""
+    if isinstance(kind, idl.BasicType):
+        fmt = _FORMATS.get(kind.typename)
+        return None if fmt is None else _primitive(fmt)
+    if isinstance(kind, (idl.UnboundedString, idl.BoundedString)):
+        return _string
+    if isinstance(kind, idl.NamespacedType):
+        encoder = _message_encoder(_message_class(kind))
+        return None if encoder is None else encoder.write
+    if isinstance(kind, (idl.AbstractSequence, idl.Array)):
+        counted = isinstance(kind, idl.AbstractSequence)
+        element = kind.value_type
+        if isinstance(element, idl.BasicType) and element.typename in _FORMATS:
+            return _numbers(_FORMATS[element.typename], counted)
+        item = _field_writer(element)
+        return None if item is None else _items(item, counted)
+    return None
+
+
+def _message_class(kind: Any) -> type:
+    return getattr(importlib.import_module(".".join(kind.namespaces)), kind.name)
+
+
+class MessageEncoder:
+    """One message type to CDR (see the module doc); ``message_encoder`` makes them."""
+
+    def __init__(self, fields: list[tuple[Callable[[Any], Any], FieldWriter]]) -> None:
+        self._fields = fields
+
+    def write(self, buffer: bytearray, msg: Any) -> None:
+        for get, write in self._fields:
+            write(buffer, get(msg))
+
+    def encode(self, msg: Any) -> bytes:
+        buffer = bytearray(ENCAPSULATION)
+        self.write(buffer, msg)
+        return bytes(buffer)
+
+
+_COMPILED: dict[type, MessageEncoder | None] = {}
+"""Per message class: its encoder, or None (left to rclpy). Message classes never change within
+a process, so what is compiled once holds for every recording."""
+
+
+def _message_encoder(cls: type) -> MessageEncoder | None:
+    if cls not in _COMPILED:
+        _COMPILED[cls] = None  # (no message type contains itself; a second look sees "not known")
+        names = list(cls.get_fields_and_field_types())
+        kinds = list(getattr(cls, "SLOT_TYPES", ()))
+        writers = [_field_writer(kind) for kind in kinds]
+        if names and len(names) == len(kinds) and all(w is not None for w in writers):
+            _COMPILED[cls] = MessageEncoder([(attrgetter("_" + name), w) for name, w in zip(names, writers)])  # type: ignore[misc]
+    return _COMPILED[cls]
+
+
+def message_encoder(cls: type) -> Callable[[Any], bytes] | None:
+    """The CDR encoder of message class ``cls``; None for a type left to rclpy (see the module doc)."""
+    if sys.byteorder != "little":
+        return None  # the arrays' bytes are copied as they are in memory
+    if cls is JointState:
+        return JointStateEncoder().encode
+    encoder = _message_encoder(cls)
+    return None if encoder is None else encoder.encode

@@ -1,7 +1,8 @@
 """How a recorded run hands its messages to the recording worker (``runtime.report.worker``).
 
-The run only serializes: every message becomes its CDR bytes (rclpy's C serializer, the
-``TfEncoder``'s prepared buffer, or ``runtime.recording.cdr`` for joint states) and every event one JSON line, appended to a batch in memory;
+The run only serializes: every message becomes its CDR bytes (``runtime.recording.cdr``, rclpy's
+C serializer for the few types it leaves, or bytes prepared before: the robot's markers) and every
+event one JSON line, appended to a batch in memory;
 ``flush_if_due`` writes the batch to the worker's stdin (one ``write`` per tick at
 most, about ``SEND_INTERVAL_S`` apart). The worker writes ``run.mcap`` (schemas, chunks, zstd, the summary section),
 ``events.jsonl`` and ``metadata.yaml``, turns events into ``/rosout`` and node status messages,
@@ -28,6 +29,7 @@ its own copy of the lines and goes on writing it (``runtime.recording.recorder``
 """
 from __future__ import annotations
 
+import array
 import enum
 import errno
 import fcntl
@@ -39,8 +41,8 @@ import time
 from dataclasses import dataclass
 from typing import Any, Callable, Iterator
 
-from .cdr import hand_encoders
-from .mcap_writer import OfferedQos, cdr_bytes, message_type, to_nanoseconds
+from .cdr import message_encoder
+from .mcap_writer import OfferedQos, SerializedMessage, message_type, serialize_message, to_nanoseconds
 from .schema import type_name
 from .tf_model import TfModel
 
@@ -110,9 +112,13 @@ class Handoff:
         self.clock_origin_ns = clock_origin_ns
         self.qos: dict[str, OfferedQos] = {}
         self._channels: dict[str, _Channel] = {}
-        self._encoders = hand_encoders()
+        self._encoders: dict[type, Callable[[Any], bytes]] = {}
         self._sent_at = -float("inf")
-        self._batch = bytearray(json_frame(Frame.START, {"directory": directory, "clock_origin_ns": clock_origin_ns}))
+        self._pending: list[bytes | tuple[int, int, Any]] = []
+        """What was written since the last batch: frames, and (channel id, log time, message)
+        for the messages, serialized when the batch is sent."""
+        self._pending_bytes = 0
+        self._add(json_frame(Frame.START, {"directory": directory, "clock_origin_ns": clock_origin_ns}))
         self.closed = False
 
     def write(self, topic: str, msg: Any, seconds: float) -> None:
@@ -124,31 +130,57 @@ class Handoff:
         if channel is None:
             channel = self._channels[topic] = _Channel(len(self._channels), cls)
             qos = self.qos.get(topic, OfferedQos())
-            self._batch += json_frame(Frame.CHANNEL, {"id": channel.id, "topic": topic, "type": type_name(cls),
-                                                      "qos": [qos.reliable, qos.transient_local, qos.depth]})
+            self._add(json_frame(Frame.CHANNEL, {"id": channel.id, "topic": topic, "type": type_name(cls),
+                                                "qos": [qos.reliable, qos.transient_local, qos.depth]}))
         elif channel.msg_class is not cls:
             raise TypeError(f"recording topic '{topic}' carries {type_name(channel.msg_class)}, got {type_name(cls)}")
-        encode = self._encoders.get(cls)
-        data = encode(msg) if encode is not None else cdr_bytes(msg)
-        self._batch += HEADER.pack(Frame.MESSAGE, MESSAGE_HEADER.size + len(data))
-        self._batch += MESSAGE_HEADER.pack(channel.id, self.clock_origin_ns + to_nanoseconds(seconds))
-        self._batch += data
+        self._pending.append((channel.id, self.clock_origin_ns + to_nanoseconds(seconds), msg))
+        self._pending_bytes += _size_hint(msg)
+
+    def _add(self, frame_bytes: bytes) -> None:
+        self._pending.append(frame_bytes)
+        self._pending_bytes += len(frame_bytes)
+
+    def _serialize(self) -> bytes:
+        """What was written since the last batch, as frames. The messages are serialized here,
+        together, rather than one at a time between ticks: the serializers' code and data are
+        then still in the CPU's caches from the previous message (several times cheaper each)."""
+        batch = bytearray()
+        for item in self._pending:
+            if isinstance(item, bytes):
+                batch += item
+                continue
+            channel, log_time_ns, msg = item
+            if isinstance(msg, SerializedMessage):
+                data = msg.data
+            else:
+                cls = type(msg)
+                encode = self._encoders.get(cls)
+                if encode is None:
+                    encode = self._encoders[cls] = message_encoder(cls) or serialize_message
+                data = encode(msg)
+            batch += HEADER.pack(Frame.MESSAGE, MESSAGE_HEADER.size + len(data))
+            batch += MESSAGE_HEADER.pack(channel, log_time_ns)
+            batch += data
+        self._pending.clear()
+        self._pending_bytes = 0
+        return bytes(batch)
 
     def event(self, line: str, note: bool = False) -> None:
         """One ``events.jsonl`` line (``note``: not also a ``/rosout``/node status message)."""
         if not self.closed:
-            self._batch += frame(Frame.NOTE if note else Frame.EVENT, line.encode())
+            self._add(frame(Frame.NOTE if note else Frame.EVENT, line.encode()))
 
     def tf_model(self, model: TfModel) -> None:
         """The worker computes ``/tf`` and ``/tf_static`` with ``model`` from the next joint state on."""
         if not self.closed:
-            self._batch += json_frame(Frame.TF_MODEL, model.to_json())
+            self._add(json_frame(Frame.TF_MODEL, model.to_json()))
 
     def flush_if_due(self) -> None:
         """Send the batch if it waited ``SEND_INTERVAL_S`` or grew to ``SEND_BYTES`` (the bus
         calls this once per spin)."""
         now = time.monotonic()
-        if now - self._sent_at >= SEND_INTERVAL_S or len(self._batch) >= SEND_BYTES:
+        if now - self._sent_at >= SEND_INTERVAL_S or self._pending_bytes >= SEND_BYTES:
             self._sent_at = now
             self.send()
 
@@ -156,11 +188,10 @@ class Handoff:
         """Write the batch (and ``final``) to the worker; ``WorkerLost`` if it stopped reading."""
         if self.closed:
             return
-        self._batch += final
-        if not self._batch:
+        self._add(final)
+        data = self._serialize()
+        if not data:
             return
-        data = bytes(self._batch)
-        self._batch.clear()
         try:
             write_all(self.fd, data)
         except WorkerLost as lost:
@@ -174,6 +205,12 @@ class Handoff:
         if not self.closed:
             self.send(frame(Frame.END, b""))
             self.closed = True
+
+
+def _size_hint(msg: Any) -> int:
+    """About how many bytes ``msg`` will take (its ``data``: camera frames, prepared bytes)."""
+    data = getattr(msg, "data", None)
+    return len(data) if isinstance(data, (bytes, bytearray, array.array)) else 0
 
 
 def write_all(fd: int, data: bytes, stall_timeout_s: float = STALL_TIMEOUT_S) -> None:
