@@ -231,13 +231,15 @@ def write_all(fd: int, data: bytes, stall_timeout_s: float = STALL_TIMEOUT_S) ->
         raise WorkerLost(f"the recording worker stopped reading ({reason})") from None
 
 
-def read_frames(fd: int) -> Iterator[tuple[Frame | None, bytes]]:
-    """The frames arriving on ``fd`` until end of file; a ``None`` kind between reads marks
-    "nothing more for now" (the worker flushes its files then). A torn last frame is dropped."""
+def read_frames(source: int | Callable[[], bytes]) -> Iterator[tuple[Frame | None, bytes]]:
+    """The frames arriving from ``source`` (a file descriptor, or a function returning what has
+    arrived, ``b""`` at the end) until end of file; a ``None`` kind between reads marks "nothing
+    more for now" (the worker flushes its files then). A torn last frame is dropped."""
+    read = source if callable(source) else (lambda: os.read(source, PIPE_BYTES))
     pending = bytearray()
     while True:
         try:
-            data = os.read(fd, PIPE_BYTES)
+            data = read()
         except InterruptedError:
             continue
         if not data:
@@ -253,4 +255,3 @@ def read_frames(fd: int) -> Iterator[tuple[Frame | None, bytes]]:
             at = start + size
         del pending[:at]
         yield None, b""
-
