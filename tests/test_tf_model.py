@@ -9,7 +9,7 @@ import pytest
 from rclpy.serialization import deserialize_message
 from tf2_msgs.msg import TFMessage
 
-from runtime.recording.cdr import JointStateEncoder, joint_state_positions
+from runtime.recording.cdr import JointStateEncoder, joint_state_arrays
 from runtime.recording.scene_view import LinkTree, tf_model
 from runtime.recording.tf_model import TfModel, TfWriter
 from runtime.scene.model import JointCoupling, RobotModel
@@ -68,7 +68,9 @@ def _check(robot: RobotModel, names: tuple[str, ...], positions: np.ndarray) -> 
     model = TfModel.from_json(model.to_json())  # as the worker gets it
     writer = TfWriter(model)
     q = robot.configuration(dict(zip(names, positions)))
-    for data, links in ((writer.tf(names, positions, 1_700_000_000_123_456_789), model.moving),
+    tf, later = writer.tf(names, [positions, positions], [1_700_000_000_123_456_789, 1_800_000_000_000_000_001])
+    assert deserialize_message(later, TFMessage).transforms[0].header.stamp.sec == 1_800_000_000  # each its own stamp
+    for data, links in ((tf, model.moving),
                         (writer.tf_static(1_700_000_000_123_456_789), model.fixed)):
         decoded = _decoded(data)
         frames = [(link.parent, link.child) for link in links]
@@ -110,16 +112,18 @@ def test_a_link_two_joints_below_its_parent_link_is_left_to_the_run():
     assert tf_model(RobotModel(model, pin.GeometryModel()), LinkTree.of(RobotModel(model, pin.GeometryModel()))) is None
 
 
-def test_joint_state_positions_reads_what_the_hand_encoder_and_rclpy_write():
+def test_joint_state_arrays_reads_what_the_hand_encoder_and_rclpy_write():
     from rclpy.serialization import serialize_message
     from sensor_msgs.msg import JointState
 
     msg = JointState(name=["a", "bb", "ccc"], position=[0.5, -1.25, 3.0], velocity=[1.0, 2.0, 3.0])
     msg.header.frame_id = "base"
     for data in (JointStateEncoder().encode(msg), serialize_message(msg)):
-        assert joint_state_positions(data) == (("a", "bb", "ccc"), (0.5, -1.25, 3.0))
+        assert joint_state_arrays(data) == (("a", "bb", "ccc"), (0.5, -1.25, 3.0), (1.0, 2.0, 3.0))
+    msg.velocity = []
+    assert joint_state_arrays(serialize_message(msg)).velocity == ()
     with pytest.raises(ValueError, match="truncated"):
-        joint_state_positions(serialize_message(msg)[:30])
+        joint_state_arrays(serialize_message(msg)[:30])
 
 
 @pytest.mark.parametrize("cache", ["fresh", "off"])

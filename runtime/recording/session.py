@@ -22,7 +22,6 @@ from rclpy.serialization import serialize_message
 from ..report.data import McapContents, Recording, add_event, mark_unfinished
 from .bag_metadata import BAG_METADATA_FILE, bag_metadata_yaml
 from .bus import JOINT_STATES_TOPIC
-from .cdr import joint_state_positions
 from .event_messages import event_message
 from .handoff import MESSAGE_HEADER, Frame
 from .mcap_writer import LATCHED_QOS, McapRos2Writer, OfferedQos, SerializedMessage, to_nanoseconds
@@ -47,6 +46,8 @@ class RecordingSession:
         self.tf: TfWriter | None = None
         """Set by the run's ``TF_MODEL``: ``/tf`` is computed here from each joint state."""
         self._tf_static_due = False
+        self._tf_due: list[tuple[int, Any]] = []
+        """Joint states (log time, ``JointStateArrays``) whose ``/tf`` is not written yet."""
         self._own_channels: dict[str, int] = {}
         self.ended = False
 
@@ -56,9 +57,9 @@ class RecordingSession:
             mcap_channel, topic, name = self._channels[channel]
             data = payload[MESSAGE_HEADER.size:]
             self.writer.write_cdr(mcap_channel, data, log_time_ns)
-            self.contents.add(topic, name, log_time_ns, data)
-            if self.tf is not None and topic == JOINT_STATES_TOPIC:
-                self._tf(data, log_time_ns)
+            joint_state = self.contents.add(topic, name, log_time_ns, data)
+            if self.tf is not None and topic == JOINT_STATES_TOPIC and joint_state is not None:
+                self._tf_due.append((log_time_ns, joint_state))
         elif kind is Frame.CHANNEL:
             d = json.loads(payload)
             qos = OfferedQos(*d["qos"])
@@ -70,21 +71,30 @@ class RecordingSession:
             if kind is Frame.EVENT:
                 self._event_message(record)
         elif kind is Frame.TF_MODEL:
+            self._write_tf()  # the joint states before it, with the model they came with
             self.tf = TfWriter(TfModel.from_json(json.loads(payload)))
             self._tf_static_due = True
         elif kind is Frame.END:
             self.end()
 
-    def _tf(self, joint_state: bytes, log_time_ns: int) -> None:
-        """``/tf`` (and ``/tf_static`` the first time) of a recorded joint state, stamped like it."""
-        assert self.tf is not None
-        names, positions = joint_state_positions(joint_state)
-        if len(positions) != len(names):
-            return  # no positions to draw the robot at (as ``robot.configuration`` would refuse them)
-        if self._tf_static_due:
+    def _write_tf(self) -> None:
+        """``/tf`` (and ``/tf_static`` the first time) of the joint states taken since the last
+        time, stamped like them: computed together, once per read from the pipe."""
+        due, self._tf_due = self._tf_due, []
+        if self.tf is None:
+            return
+        groups: dict[tuple[str, ...], list[tuple[int, Any]]] = {}
+        for log_time_ns, state in due:
+            if len(state.position) == len(state.name):  # (one without positions cannot place the robot)
+                groups.setdefault(state.name, []).append((log_time_ns, state.position))
+        if groups and self._tf_static_due:
             self._tf_static_due = False
-            self._write_own(TF_STATIC_TOPIC, self.tf.tf_static(log_time_ns), log_time_ns, LATCHED_QOS)
-        self._write_own(TF_TOPIC, self.tf.tf(names, positions, log_time_ns), log_time_ns)
+            first_ns = min(states[0][0] for states in groups.values())
+            self._write_own(TF_STATIC_TOPIC, self.tf.tf_static(first_ns), first_ns, LATCHED_QOS)
+        for names, states in groups.items():
+            stamps_ns = [log_time_ns for log_time_ns, _ in states]
+            for log_time_ns, data in zip(stamps_ns, self.tf.tf(names, [p for _, p in states], stamps_ns)):
+                self._write_own(TF_TOPIC, data, log_time_ns)
 
     def _write_own(self, topic: str, data: bytes, log_time_ns: int, qos: OfferedQos = OfferedQos()) -> None:
         """A ``TFMessage`` this worker computed, on ``topic``."""
@@ -102,7 +112,8 @@ class RecordingSession:
         self.contents.add(topic, type_name(type(msg)), stamp_ns, data)
 
     def flush_if_due(self) -> None:
-        """After each read from the pipe: the events to their file, the MCAP chunk when due."""
+        """After each read from the pipe: ``/tf``, the events to their file, the MCAP chunk when due."""
+        self._write_tf()
         self._write_lines()
         self.writer.flush_if_due()
 
@@ -117,6 +128,7 @@ class RecordingSession:
         if self.ended:
             return
         self.ended = True
+        self._write_tf()
         self._write_lines()
         self._events.close()
         w = self.writer
@@ -128,6 +140,7 @@ class RecordingSession:
 
     def abandon(self) -> None:
         """The run died: everything received goes to the files, which stay partial."""
+        self._write_tf()
         self._write_lines()
         self._events.close()
         self.writer.flush()

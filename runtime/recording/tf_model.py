@@ -144,11 +144,11 @@ def link_coefficients(before: tuple[np.ndarray, np.ndarray], kind: str, axis: np
 
 # -- evaluation (the worker's side) ------------------------------------------------------------
 def link_values(coefficients: np.ndarray, values: np.ndarray) -> np.ndarray:
-    """(n_links, 7) x y z qx qy qz qw of every link, from its coefficients (n_links, 6, 7) and
-    its joint's value (n_links,)."""
+    """(n_states, n_links, 7) x y z qx qy qz qw of every link, from its coefficients
+    (n_links, 6, 7) and its joint's value in each state (n_states, n_links)."""
     half = 0.5 * values
-    features = np.stack([np.ones_like(values), np.cos(values), np.sin(values), np.cos(half), np.sin(half), values], axis=1)
-    return np.einsum("lf,lfo->lo", features, coefficients)
+    features = np.stack([np.ones_like(values), np.cos(values), np.sin(values), np.cos(half), np.sin(half), values], axis=-1)
+    return np.einsum("nlf,lfo->nlo", features, coefficients)
 
 
 @dataclass(frozen=True)
@@ -175,9 +175,13 @@ class _ValueMap:
                 offset.append(driver.offset)
         return cls(np.array(rows, dtype=int), np.array(multiplier), np.array(offset))
 
-    def values(self, positions: Any) -> np.ndarray:
-        padded = np.array((*positions, 0.0))  # the row of links no name drives
-        return self.multiplier * padded[self.rows] + self.offset
+    def values(self, positions: np.ndarray) -> np.ndarray:
+        """(n_states, n_links) joint values of (n_states, n_names) positions."""
+        padded = np.concatenate([positions, np.zeros((len(positions), 1))], axis=1)  # the row no name drives
+        return self.multiplier * padded[:, self.rows] + self.offset
+
+
+_STAMP_DTYPE = np.dtype([("sec", "<i4"), ("nanosec", "<u4")])
 
 
 class TfTemplate:
@@ -198,20 +202,20 @@ class TfTemplate:
         self.buffer = buffer
         self.stamp_at = stamps
         self.values_at = values
-        self._stamp_index = (np.array(stamps)[:, None] + np.arange(8)).ravel() if frames else np.zeros(0, dtype=int)
-        self._values_index = (np.array(values)[:, None] + np.arange(56)).ravel() if frames else np.zeros(0, dtype=int)
+        self._stamp_index = (np.array(stamps, dtype=int)[:, None] + np.arange(8)).ravel()
+        self._values_index = (np.array(values, dtype=int)[:, None] + np.arange(56)).ravel()
 
-    def encode(self, values: np.ndarray, sec: int, nanosec: int) -> bytes:
-        """The message with every entry stamped ``sec``/``nanosec`` and ``values`` (n, 7) in order."""
-        out = np.frombuffer(self.buffer, dtype=np.uint8).copy()
-        stamp = np.frombuffer(struct.pack("<iI", sec, nanosec), dtype=np.uint8)
-        out[self._stamp_index] = np.tile(stamp, len(self.stamp_at))
-        out[self._values_index] = np.ascontiguousarray(values, dtype="<f8").view(np.uint8).ravel()
-        return out.tobytes()
+    def encode(self, values: np.ndarray, stamps_ns: list[int]) -> list[bytes]:
+        """One message per stamp: every entry stamped alike, ``values`` (n_states, n, 7) in order."""
+        out = np.tile(np.frombuffer(self.buffer, dtype=np.uint8), (len(stamps_ns), 1))
+        stamps = np.array([divmod(ns, 1_000_000_000) for ns in stamps_ns], dtype=_STAMP_DTYPE)
+        out[:, self._stamp_index] = np.tile(stamps.view(np.uint8).reshape(-1, 8), len(self.stamp_at))
+        out[:, self._values_index] = np.ascontiguousarray(values, dtype="<f8").reshape(len(stamps_ns), -1).view(np.uint8)
+        return [row.tobytes() for row in out]
 
 
 class TfWriter:
-    """The worker's ``/tf`` and ``/tf_static``: evaluates a ``TfModel`` for joint states."""
+    """The worker's ``/tf`` and ``/tf_static``: evaluates a ``TfModel`` for joint states, many at once."""
 
     def __init__(self, model: TfModel) -> None:
         self.model = model
@@ -220,15 +224,16 @@ class TfWriter:
         self._fixed = TfTemplate([(link.parent, link.child) for link in model.fixed])
         self._maps: dict[tuple[str, ...], _ValueMap] = {}
 
-    def tf(self, names: tuple[str, ...], positions: Any, stamp_ns: int) -> bytes:
-        """The ``/tf`` message of a joint state (``names``, ``positions``) stamped ``stamp_ns``."""
+    def tf(self, names: tuple[str, ...], positions: list[Any], stamps_ns: list[int]) -> list[bytes]:
+        """The ``/tf`` message of each joint state (all with ``names``; ``positions``: one row
+        per state), stamped like it."""
         value_map = self._maps.get(names)
         if value_map is None:
             value_map = self._maps[names] = _ValueMap.of(self.model.moving, names)
-        values = link_values(self._coefficients, value_map.values(positions))
-        return self._moving.encode(values, *divmod(stamp_ns, 1_000_000_000))
+        values = link_values(self._coefficients, value_map.values(np.array(positions, dtype=float).reshape(len(stamps_ns), len(names))))
+        return self._moving.encode(values, stamps_ns)
 
     def tf_static(self, stamp_ns: int) -> bytes:
         """The ``/tf_static`` message: the links fixed to their parent."""
-        values = np.array([link.coefficients[0] for link in self.model.fixed], dtype=float).reshape(-1, 7)
-        return self._fixed.encode(values, *divmod(stamp_ns, 1_000_000_000))
+        values = np.array([link.coefficients[0] for link in self.model.fixed], dtype=float).reshape(1, -1, 7)
+        return self._fixed.encode(values, [stamp_ns])[0]

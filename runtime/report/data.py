@@ -22,6 +22,7 @@ from rclpy.serialization import deserialize_message
 
 from ..errors import ObjectiveError
 from ..recording.bus import JOINT_STATES_TOPIC
+from ..recording.cdr import JointStateArrays, joint_state_arrays
 from ..recording.mcap_writer import METADATA_NAME
 from ..recording.files import EVENTS_FILE, MCAP_FILE
 from ..recording.schema import message_class
@@ -163,6 +164,15 @@ def _joint_series(messages: list[tuple[float, Any]]) -> JointSeries:
     return JointSeries(np.array([t for t, _ in messages]), names, position, velocity)
 
 
+def _joint_state(data: bytes, cls: type) -> JointStateArrays:
+    """A recorded joint state's names, positions and velocities (read directly from its CDR)."""
+    try:
+        return joint_state_arrays(data)
+    except ValueError:  # not the little-endian CDR this project writes: rclpy reads any
+        msg = deserialize_message(data, cls)
+        return JointStateArrays(tuple(msg.name), tuple(msg.position), tuple(msg.velocity))
+
+
 def _goal(topic: str, sent_at: float, msg: Any) -> CommandedGoal:
     stamp = _seconds(msg.header.stamp)
     start = stamp if stamp > 0 else sent_at  # a zero stamp means "start now"
@@ -217,23 +227,26 @@ class McapContents:
     pending: list[dict[str, Any]] = field(default_factory=list)
     """Requests whose frame waits for images not yet arrived (and every request after them)."""
 
-    def add(self, topic: str, type_name: str, log_time_ns: int, data: bytes) -> None:
+    def add(self, topic: str, type_name: str, log_time_ns: int, data: bytes) -> Any:
+        """Take one message; returns a joint state as read (``JointStateArrays``), else None."""
         recording = self.recording
         self.counts[topic][0] = type_name
         self.counts[topic][1] += 1
         if type_name == "sensor_msgs/msg/Image":
             self.images[(topic, log_time_ns - self.origin_ns)] = data  # decoded only if a request shows it
-            return
+            return None
         if not _wanted(topic, type_name):
-            return
+            return None
         cls = self.classes.get(type_name)
         if cls is None:
             cls = self.classes[type_name] = message_class(type_name)
         t = (log_time_ns - self.origin_ns) * 1e-9
-        msg = deserialize_message(data, cls)
         if topic == JOINT_STATES_TOPIC:
+            msg = _joint_state(data, cls)
             self.joint_messages.append((t, msg))
-        elif type_name == "trajectory_msgs/msg/JointTrajectory" and topic.endswith("/joint_trajectory"):
+            return msg
+        msg = deserialize_message(data, cls)
+        if type_name == "trajectory_msgs/msg/JointTrajectory" and topic.endswith("/joint_trajectory"):
             recording.goals.append(_goal(topic, t, msg))
         elif type_name.endswith("GripperCommand_Goal"):
             recording.gripper_commands.append((t, float(msg.command.position)))
@@ -244,6 +257,7 @@ class McapContents:
             self._frames(final=False)
         elif topic.endswith("/response"):
             recording.responses.append(json.loads(msg.data))
+        return None
 
     def end_time_s(self) -> float | None:
         """Clock time of the last joint state (where a partial recording ends)."""
