@@ -66,3 +66,22 @@ def test_an_empty_structure_is_left_to_rclpy():
     from controller_manager_msgs.srv import ListControllers
 
     assert message_encoder(ListControllers.Request) is None
+
+
+def test_a_trajectory_is_read_back_from_the_cdr_of_both_encoders():
+    from builtin_interfaces.msg import Duration, Time
+    from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
+
+    from runtime.recording.cdr import joint_trajectory_arrays
+
+    points = [JointTrajectoryPoint(positions=[0.5, -1.0], velocities=[], accelerations=[1.0, 2.0],
+                                   time_from_start=Duration(sec=1, nanosec=250_000_000)),
+              JointTrajectoryPoint(positions=[0.25, 3.0], velocities=[0.125, 0.0], effort=[7.0],
+                                   time_from_start=Duration(sec=2, nanosec=0))]
+    msg = JointTrajectory(joint_names=["a", "bb"], points=points)
+    msg.header.stamp, msg.header.frame_id = Time(sec=12, nanosec=500_000_000), "base_link"
+    for data in (message_encoder(JointTrajectory)(msg), serialize_message(msg)):
+        got = joint_trajectory_arrays(data)
+        assert got == (12.5, ("a", "bb"), (1.25, 2.0), ((0.5, -1.0), (0.25, 3.0)), ((), (0.125, 0.0)))
+    with pytest.raises(ValueError, match="truncated"):
+        joint_trajectory_arrays(serialize_message(msg)[:60])

@@ -127,6 +127,52 @@ def joint_state_arrays(data: bytes) -> JointStateArrays:
     return JointStateArrays(tuple(names), position, velocity)
 
 
+class TrajectoryArrays(NamedTuple):
+    """What a recording reads of a ``trajectory_msgs/JointTrajectory``: its stamp and, per point,
+    its time from start (both in seconds), positions and velocities."""
+
+    stamp_s: float
+    joint_names: tuple[str, ...]
+    times_s: tuple[float, ...]
+    positions: tuple[tuple[float, ...], ...]
+    velocities: tuple[tuple[float, ...], ...]
+
+
+def joint_trajectory_arrays(data: bytes) -> TrajectoryArrays:
+    """``joint_state_arrays`` for a ``trajectory_msgs/JointTrajectory`` (a policy's chunk, a
+    controller's goal: hundreds of points, each a message rclpy would build)."""
+    if data[:4] != ENCAPSULATION:
+        raise ValueError("not little-endian CDR")
+    try:
+        sec, nanosec = _STAMP.unpack_from(data, 4)
+        _, at = _string_at(data, 12)
+        at += -(at - 4) % 4
+        (count,) = _COUNT.unpack_from(data, at)
+        at += 4
+        names = []
+        for _ in range(count):
+            name, at = _string_at(data, at)
+            names.append(name)
+        at += -(at - 4) % 4
+        (count,) = _COUNT.unpack_from(data, at)
+        at += 4
+        times, positions, velocities = [], [], []
+        for _ in range(count):
+            position, at = _doubles_at(data, at)
+            velocity, at = _doubles_at(data, at)
+            _, at = _doubles_at(data, at)  # accelerations
+            _, at = _doubles_at(data, at)  # effort
+            at += -(at - 4) % 4
+            point_sec, point_nanosec = _STAMP.unpack_from(data, at)
+            at += 8
+            times.append(point_sec + point_nanosec * 1e-9)
+            positions.append(position)
+            velocities.append(velocity)
+    except struct.error as err:
+        raise ValueError(f"a truncated JointTrajectory ({err})") from None
+    return TrajectoryArrays(sec + nanosec * 1e-9, tuple(names), tuple(times), tuple(positions), tuple(velocities))
+
+
 FieldWriter = Callable[[bytearray, Any], None]
 """Appends one field's value to a CDR buffer (started with the encapsulation header)."""
 
