@@ -10,8 +10,8 @@ Python message into a C one). Two encoders here write the bytes from the Python 
 - ``MessageEncoder``: any other message type, from the field types rosidl generates into each
   Python message class (``SLOT_TYPES``), compiled once per type into a list of field writers
   (numeric arrays are copied from their buffers, nested messages are their fields in order).
-  A type with a field it does not know (``char``, ``wstring``, ``long double``, an empty
-  structure) is left to rclpy (``message_encoder`` returns None).
+  A type with a field it does not know (``char``, ``wstring``, ``long double``) is left to
+  rclpy (``message_encoder`` returns None).
 
 rclpy reads the bytes back as the message sent, and so does mcap-ros2-support
 (``tests/test_recording_worker.py``, ``tests/test_cdr.py``); they differ from rclpy's own only in
@@ -289,7 +289,9 @@ def _message_encoder(cls: type) -> MessageEncoder | None:
         names = list(cls.get_fields_and_field_types())
         kinds = list(getattr(cls, "SLOT_TYPES", ()))
         writers = [_field_writer(kind) for kind in kinds]
-        if names and len(names) == len(kinds) and all(w is not None for w in writers):
+        if not names and not kinds:  # an empty structure: IDL gives it one uint8 member
+            _COMPILED[cls] = MessageEncoder([(lambda msg: 0, _primitive("B"))])
+        elif len(names) == len(kinds) and all(w is not None for w in writers):
             _COMPILED[cls] = MessageEncoder([(attrgetter("_" + name), w) for name, w in zip(names, writers)])  # type: ignore[misc]
     return _COMPILED[cls]
 

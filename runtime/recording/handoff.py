@@ -1,10 +1,11 @@
 """How a recorded run hands its messages to the recording worker (``runtime.report.worker``).
 
-The run only serializes: every message becomes its CDR bytes (``runtime.recording.cdr``, rclpy's
-C serializer for the few types it leaves, or bytes prepared before: the robot's markers) and every
-event one JSON line, appended to a batch in memory;
+The run only serializes: every message is kept as it is until the batch is sent, then becomes
+its CDR bytes (``runtime.recording.cdr``; rclpy's C serializer for the few types it leaves;
+bytes prepared before, such as the robot's markers, as they are); every event is one JSON line.
 ``flush_if_due`` writes the batch to the worker's stdin (one ``write`` per tick at
-most, about ``SEND_INTERVAL_S`` apart). The worker writes ``run.mcap`` (schemas, chunks, zstd, the summary section),
+most, about ``SEND_INTERVAL_S`` apart). A message must not change after it was written: the
+bus's never do (the in-process bus hands its subscribers the same object). The worker writes ``run.mcap`` (schemas, chunks, zstd, the summary section),
 ``events.jsonl`` and ``metadata.yaml``, turns events into ``/rosout`` and node status messages,
 and builds the report's data as messages arrive.
 
@@ -24,7 +25,7 @@ the payload:
 Crash safety: a killed run loses only the batch it had not sent yet (``SEND_INTERVAL_S`` of wall
 time); the worker writes everything it received. A worker that dies (``WorkerLost``) loses the
 messages it had not flushed yet: at most ``FLUSH_INTERVAL_S`` of them plus what sat in the pipe
-(``PIPE_BYTES``); ``run.mcap`` stays partial, and the run rewrites ``events.jsonl`` whole from
+(``PIPE_BYTES``) or in what it read ahead (``runtime.report.worker.READ_AHEAD_BYTES``); ``run.mcap`` stays partial, and the run rewrites ``events.jsonl`` whole from
 its own copy of the lines and goes on writing it (``runtime.recording.recorder``).
 """
 from __future__ import annotations
@@ -42,7 +43,7 @@ from dataclasses import dataclass
 from typing import Any, Callable, Iterator
 
 from .cdr import message_encoder
-from .mcap_writer import OfferedQos, SerializedMessage, message_type, serialize_message, to_nanoseconds
+from .mcap_writer import OfferedQos, SerializedMessage, cdr_bytes, message_type, to_nanoseconds
 from .schema import type_name
 from .tf_model import TfModel
 
@@ -157,7 +158,7 @@ class Handoff:
                 cls = type(msg)
                 encode = self._encoders.get(cls)
                 if encode is None:
-                    encode = self._encoders[cls] = message_encoder(cls) or serialize_message
+                    encode = self._encoders[cls] = message_encoder(cls) or cdr_bytes
                 data = encode(msg)
             batch += HEADER.pack(Frame.MESSAGE, MESSAGE_HEADER.size + len(data))
             batch += MESSAGE_HEADER.pack(channel, log_time_ns)

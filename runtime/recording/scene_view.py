@@ -2,10 +2,11 @@
 
 - ``/tf`` and ``/tf_static``: every link's pose relative to its parent link, computed from a
   joint state with the planning model's forward kinematics, links behind a joint on ``/tf``, links
-  fixed to their parent once on ``/tf_static`` (what ``robot_state_publisher`` publishes);
+  fixed to their parent once on ``/tf_static`` (what ``robot_state_publisher`` publishes); in a
+  recording the worker computes them from a ``TfModel`` this module builds (``tf_model``);
 - ``/robot_markers``: one ``visualization_msgs/MarkerArray`` of the robot's collision geometry
   (capsules, cylinders, boxes, convex hulls as triangle lists), each marker locked to its link's
-  frame, so the recorded ``/tf`` moves it; sent once;
+  frame, so the recorded ``/tf`` moves it; sent once, its CDR from the on-disk cache;
 - ``/planning_scene_markers``: the planning scene's world objects (table, cubes, added
   objects) in ``world``, sent again whenever the scene's version changes (objects deleted from
   the scene are deleted from the view).
@@ -25,7 +26,6 @@ import numpy as np
 import pinocchio as pin
 from builtin_interfaces.msg import Time
 from geometry_msgs.msg import Point, Pose
-from rclpy.serialization import serialize_message
 from std_msgs.msg import ColorRGBA
 from tf2_msgs.msg import TFMessage
 from visualization_msgs.msg import Marker, MarkerArray
@@ -33,7 +33,7 @@ from visualization_msgs.msg import Marker, MarkerArray
 from ..disk_cache import cached, content_key
 from ..scene.collision import Box, Capsule, Cylinder, Mesh, Sphere
 from .event_messages import stamp_of  # noqa: F401  (where the tests and the recorder find it)
-from .mcap_writer import SerializedMessage
+from .mcap_writer import SerializedMessage, cdr_bytes
 from .tf_model import TF_STATIC_TOPIC, TF_TOPIC, LinkDriver, LinkTf, TfModel, TfTemplate, link_coefficients
 
 WORLD_FRAME = "world"
@@ -310,7 +310,7 @@ def _stamped_template(robot: Any) -> bytes:
     """The robot's markers in CDR, stamped ``_SENTINEL``, after the offsets of those stamps
     (a count, then each offset: little-endian uint32)."""
     markers = robot_markers(robot, _SENTINEL)
-    data = serialize_message(markers)
+    data = cdr_bytes(markers)
     sentinel = _STAMP.pack(_SENTINEL.sec, _SENTINEL.nanosec)
     offsets, at = [], data.find(sentinel)
     while at >= 0:
@@ -338,7 +338,7 @@ def robot_markers_cdr(robot: Any, stamp: Time) -> SerializedMessage:
     try:
         template = cached("robot_markers", _geometry_digest(robot), lambda: _stamped_template(robot), _checked_template)
     except ValueError:
-        return SerializedMessage(MarkerArray, serialize_message(robot_markers(robot, stamp)))
+        return SerializedMessage(MarkerArray, cdr_bytes(robot_markers(robot, stamp)))
     return SerializedMessage(MarkerArray, _stamp_template(template, stamp))
 
 
