@@ -9,7 +9,8 @@ Python message into a C one). Two encoders here write the bytes from the Python 
   once per list of names and only the stamp and the numbers are written per message;
 - ``MessageEncoder``: any other message type, from the field types rosidl generates into each
   Python message class (``SLOT_TYPES``), compiled once per type into a list of field writers
-  (numeric arrays are copied from their buffers, nested messages are their fields in order).
+  (numeric arrays are copied from their buffers, nested messages are their fields in order,
+  one ``struct.pack`` for a nested message of numbers only such as a ``Duration`` or a ``Pose``).
   A type with a field it does not know (``char``, ``wstring``, ``long double``) is left to
   rclpy (``message_encoder`` returns None).
 
@@ -182,9 +183,7 @@ _ZEROS = bytes(8)
 
 
 def _pad(buffer: bytearray, size: int) -> None:
-    pad = -(len(buffer) - 4) % size
-    if pad:
-        buffer += _ZEROS[:pad]
+    buffer += _ZEROS[:-(len(buffer) - 4) % size]
 
 
 def _primitive(fmt: str) -> FieldWriter:
@@ -192,15 +191,14 @@ def _primitive(fmt: str) -> FieldWriter:
     size, pack = packer.size, packer.pack
 
     def write(buffer: bytearray, value: Any) -> None:
-        if size > 1:
-            _pad(buffer, size)
+        buffer += _ZEROS[:-(len(buffer) - 4) % size]
         buffer += pack(value)
     return write
 
 
 def _string(buffer: bytearray, value: str) -> None:
     data = value.encode()
-    _pad(buffer, 4)
+    buffer += _ZEROS[:-(len(buffer) - 4) % 4]
     buffer += _COUNT.pack(len(data) + 1)
     buffer += data
     buffer += b"\0"
@@ -214,11 +212,10 @@ def _numbers(fmt: str, counted: bool) -> FieldWriter:
 
     def write(buffer: bytearray, values: Any) -> None:
         if counted:
-            _pad(buffer, 4)
+            buffer += _ZEROS[:-(len(buffer) - 4) % 4]
             buffer += _COUNT.pack(len(values))
         if len(values):
-            if size > 1:
-                _pad(buffer, size)
+            buffer += _ZEROS[:-(len(buffer) - 4) % size]
             if isinstance(values, array.array):
                 buffer += values.tobytes()
             elif hasattr(values, "astype"):
@@ -226,6 +223,45 @@ def _numbers(fmt: str, counted: bool) -> FieldWriter:
             else:
                 buffer += struct.pack(f"<{len(values)}{fmt}", *values)
     return write
+
+
+def _flat_leaves(cls: type, prefix: str = "") -> list[tuple[str, str]] | None:
+    """(dotted attribute, struct format) of every field of a message made of numbers only, nested
+    messages included (``Duration``, ``Point``, ``Pose``, ``Wrench``...); None for any other."""
+    leaves: list[tuple[str, str]] = []
+    names = list(cls.get_fields_and_field_types())
+    kinds = list(getattr(cls, "SLOT_TYPES", ()))
+    if not names or len(names) != len(kinds):
+        return None
+    for name, kind in zip(names, kinds):
+        path = f"{prefix}_{name}"
+        if isinstance(kind, idl.BasicType) and kind.typename in _FORMATS:
+            leaves.append((path, _FORMATS[kind.typename]))
+        elif isinstance(kind, idl.NamespacedType):
+            nested = _flat_leaves(_message_class(kind), path + ".")
+            if nested is None:
+                return None
+            leaves += nested
+        else:
+            return None
+    return leaves
+
+
+def _flat(leaves: list[tuple[str, str]]) -> FieldWriter:
+    """One ``struct.pack`` for a message of numbers only: its layout (the padding between fields)
+    precomputed for each of the 8 places it can start at."""
+    get = attrgetter(*(path for path, _ in leaves))
+    packers = []
+    for start in range(8):
+        fmt, at = "<", start
+        for _, code in leaves:
+            size = struct.calcsize(code)
+            fmt += "x" * (-at % size) + code
+            at += -at % size + size
+        packers.append(struct.Struct(fmt).pack)
+    if len(leaves) == 1:
+        return lambda buffer, msg: buffer.extend(packers[(len(buffer) - 4) % 8](get(msg)))
+    return lambda buffer, msg: buffer.extend(packers[(len(buffer) - 4) % 8](*get(msg)))
 
 
 def _items(item: FieldWriter, counted: bool) -> FieldWriter:
@@ -246,7 +282,11 @@ def _field_writer(kind: Any) -> FieldWriter | None:
     if isinstance(kind, (idl.UnboundedString, idl.BoundedString)):
         return _string
     if isinstance(kind, idl.NamespacedType):
-        encoder = _message_encoder(_message_class(kind))
+        cls = _message_class(kind)
+        leaves = _flat_leaves(cls)
+        if leaves is not None:
+            return _flat(leaves)
+        encoder = _message_encoder(cls)
         return None if encoder is None else encoder.write
     if isinstance(kind, (idl.AbstractSequence, idl.Array)):
         counted = isinstance(kind, idl.AbstractSequence)
