@@ -97,6 +97,18 @@ class JointStateArrays(NamedTuple):
     velocity: tuple[float, ...]
 
 
+def _strings_at(data: bytes, at: int) -> tuple[list[str], int]:
+    """The ``string[]`` at ``at`` and the offset after it."""
+    at += -(at - 4) % 4
+    (count,) = _COUNT.unpack_from(data, at)
+    at += 4
+    strings = []
+    for _ in range(count):
+        text, at = _string_at(data, at)
+        strings.append(text)
+    return strings, at
+
+
 def _doubles_at(data: bytes, at: int) -> tuple[tuple[float, ...], int]:
     at += -(at - 4) % 4
     (size,) = _COUNT.unpack_from(data, at)
@@ -114,13 +126,7 @@ def joint_state_arrays(data: bytes) -> JointStateArrays:
         raise ValueError("not little-endian CDR")
     try:
         _, at = _string_at(data, 12)  # after the stamp: the frame id
-        at += -(at - 4) % 4
-        (count,) = _COUNT.unpack_from(data, at)
-        at += 4
-        names = []
-        for _ in range(count):
-            name, at = _string_at(data, at)
-            names.append(name)
+        names, at = _strings_at(data, at)
         position, at = _doubles_at(data, at)
         velocity, at = _doubles_at(data, at)
     except struct.error as err:
@@ -147,13 +153,7 @@ def joint_trajectory_arrays(data: bytes) -> TrajectoryArrays:
     try:
         sec, nanosec = _STAMP.unpack_from(data, 4)
         _, at = _string_at(data, 12)
-        at += -(at - 4) % 4
-        (count,) = _COUNT.unpack_from(data, at)
-        at += 4
-        names = []
-        for _ in range(count):
-            name, at = _string_at(data, at)
-            names.append(name)
+        names, at = _strings_at(data, at)
         at += -(at - 4) % 4
         (count,) = _COUNT.unpack_from(data, at)
         at += 4
