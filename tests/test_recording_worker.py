@@ -141,6 +141,28 @@ def test_a_worker_killed_mid_run_leaves_a_partial_mcap_and_the_run_finishes_the_
     assert not (rec / "metadata.yaml").exists()  # as for a killed recorder: `ros2 bag reindex` rebuilds it
 
 
+def test_a_worker_that_dies_before_writing_run_mcap_leaves_it_to_the_run_with_tf(tmp_path, monkeypatch):
+    """The worker computed /tf: the run's own writer computes it again, /tf_static and the
+    robot's markers included, from the moment it took over."""
+    import re
+    import subprocess
+    import sys
+
+    def short_lived(self):
+        self.process = subprocess.Popen([sys.executable, "-c", "pass"], stdin=subprocess.PIPE, stdout=subprocess.PIPE)
+        self.process.wait()  # gone before it read anything
+
+    monkeypatch.setattr(ReportWorker, "start", short_lived)
+    code, rec = record_run(tmp_path, WAIT_XML)
+    assert code == 0
+    (warning,) = [e for e in read_events(rec / "events.jsonl") if e["kind"] == "warning"]
+    assert re.search(r"run\.mcap holds what was recorded from 0\.\d\d s on \(partial\)", warning["data"]["message"])
+    messages = read_mcap(rec / "run.mcap")
+    assert len(messages["/tf"]) == len(messages["/joint_states"]) > 100
+    assert len(messages["/tf_static"]) == len(messages["/robot_markers"]) == 1
+    assert [t for t, _, _ in messages["/tf"]] == [t for t, _, _ in messages["/joint_states"]]
+
+
 def test_the_joint_map_gives_the_configuration_the_model_gives():
     from sim.robot_model import planning_robot_model
     import numpy as np
