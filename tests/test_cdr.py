@@ -87,3 +87,17 @@ def test_a_trajectory_is_read_back_from_the_cdr_of_both_encoders():
         assert got == (12.5, ("a", "bb"), (1.25, 2.0), ((0.5, -1.0), (0.25, 3.0)), ((), (0.125, 0.0)))
     with pytest.raises(ValueError, match="truncated"):
         joint_trajectory_arrays(serialize_message(msg)[:60])
+
+
+def test_a_goal_reuses_the_bytes_of_the_trajectory_encoded_before_it():
+    from moveit_pro_controllers_msgs.action import FollowJointTrajectoryWithAdmittance as Follow
+    from trajectory_msgs.msg import JointTrajectory
+
+    goal = next(m for m in _messages() if isinstance(m, Follow.Goal))
+    alone = message_encoder(Follow.Goal)(goal)
+    known: dict[int, bytes] = {}
+    trajectory = message_encoder(JointTrajectory)(goal.joint_trajectory, known)
+    assert known == {id(goal.joint_trajectory): trajectory}
+    assert message_encoder(Follow.Goal)(goal, known) == alone and alone.startswith(trajectory)
+    known[id(goal.joint_trajectory)] = trajectory[:4] + b"\xff" + trajectory[5:]  # what it reuses, marked
+    assert message_encoder(Follow.Goal)(goal, known)[4] == 0xFF

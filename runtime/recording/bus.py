@@ -259,10 +259,10 @@ class RecordingBus:
 
     def _goal(self, name: str, goal: Any, future: Any) -> None:
         now = self.clock.now()
-        self.writer.write(f"{name}/goal", goal, now)
         trajectory = getattr(goal, "joint_trajectory", None)
-        if trajectory is not None:
+        if trajectory is not None:  # (first: the goal's CDR reuses its bytes)
             self.writer.write(f"{controller_namespace(name)}/joint_trajectory", trajectory, now)
+        self.writer.write(f"{name}/goal", goal, now)
 
         def sent(f: Any) -> None:
             if f.cancelled() or f.exception() is not None:

@@ -312,10 +312,23 @@ class MessageEncoder:
         for get, write in self._fields:
             write(buffer, get(msg))
 
-    def encode(self, msg: Any) -> bytes:
-        buffer = bytearray(ENCAPSULATION)
-        self.write(buffer, msg)
-        return bytes(buffer)
+    def encode(self, msg: Any, known: dict[int, bytes] | None = None) -> bytes:
+        """``msg`` in CDR. ``known``: the CDR of messages encoded before, by ``id``, to reuse
+        where one is this message's first field (a controller goal holds the trajectory also
+        recorded on its own topic): a first field starts where a whole message does, so its
+        bytes are the same. What is encoded here is added to it."""
+        fields = self._fields
+        head = known.get(id(fields[0][0](msg))) if known else None
+        if head is None:
+            buffer = bytearray(ENCAPSULATION)
+        else:
+            buffer, fields = bytearray(head), fields[1:]
+        for get, write in fields:
+            write(buffer, get(msg))
+        data = bytes(buffer)
+        if known is not None:
+            known[id(msg)] = data
+        return data
 
 
 _COMPILED: dict[type, MessageEncoder | None] = {}
@@ -336,11 +349,13 @@ def _message_encoder(cls: type) -> MessageEncoder | None:
     return _COMPILED[cls]
 
 
-def message_encoder(cls: type) -> Callable[[Any], bytes] | None:
-    """The CDR encoder of message class ``cls``; None for a type left to rclpy (see the module doc)."""
+def message_encoder(cls: type) -> Callable[[Any, dict[int, bytes] | None], bytes] | None:
+    """The CDR encoder of message class ``cls`` (``encode(msg, known)``, see
+    ``MessageEncoder.encode``); None for a type left to rclpy (see the module doc)."""
     if sys.byteorder != "little":
         return None  # the arrays' bytes are copied as they are in memory
     if cls is JointState:
-        return JointStateEncoder().encode
+        joint_states = JointStateEncoder()
+        return lambda msg, known=None: joint_states.encode(msg)
     encoder = _message_encoder(cls)
     return None if encoder is None else encoder.encode

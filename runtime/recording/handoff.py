@@ -113,7 +113,7 @@ class Handoff:
         self.clock_origin_ns = clock_origin_ns
         self.qos: dict[str, OfferedQos] = {}
         self._channels: dict[str, _Channel] = {}
-        self._encoders: dict[type, Callable[[Any], bytes]] = {}
+        self._encoders: dict[type, Callable[[Any, dict[int, bytes]], bytes]] = {}
         self._sent_at = -float("inf")
         self._pending: list[bytes | tuple[int, int, Any]] = []
         """What was written since the last batch: frames, and (channel id, log time, message)
@@ -147,6 +147,7 @@ class Handoff:
         together, rather than one at a time between ticks: the serializers' code and data are
         then still in the CPU's caches from the previous message (several times cheaper each)."""
         batch = bytearray()
+        known: dict[int, bytes] = {}  # (a goal reuses the bytes of its trajectory, written just before)
         for item in self._pending:
             if isinstance(item, bytes):
                 batch += item
@@ -158,8 +159,8 @@ class Handoff:
                 cls = type(msg)
                 encode = self._encoders.get(cls)
                 if encode is None:
-                    encode = self._encoders[cls] = message_encoder(cls) or cdr_bytes
-                data = encode(msg)
+                    encode = self._encoders[cls] = message_encoder(cls) or _rclpy_encode
+                data = encode(msg, known)
             batch += HEADER.pack(Frame.MESSAGE, MESSAGE_HEADER.size + len(data))
             batch += MESSAGE_HEADER.pack(channel, log_time_ns)
             batch += data
@@ -206,6 +207,10 @@ class Handoff:
         if not self.closed:
             self.send(frame(Frame.END, b""))
             self.closed = True
+
+
+def _rclpy_encode(msg: Any, known: dict[int, bytes]) -> bytes:
+    return cdr_bytes(msg)  # (its padding is not zeros: nothing to reuse)
 
 
 def _size_hint(msg: Any) -> int:
