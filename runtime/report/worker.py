@@ -12,6 +12,10 @@ plots and the tree as SVG from the data it already holds and answers one JSON li
 files written and the artifacts that failed.
 ``render`` of a directory the worker did not record reads it back from its files.
 
+The worker reads its stdin on a thread from its first instant (``_Drain``) and only then imports
+what it needs (numpy, rclpy, mcap: a few tenths of a second), so a run that fills the pipe
+meanwhile does not wait; this module imports nothing heavy at its top for that reason.
+
 Signals are the run's business: the worker runs in a process group of its own, so Ctrl-C at the
 terminal reaches only the run (which stops the worker if it must), and it starts with SIGINT
 blocked (and then ignored), so one sent to it directly does nothing either; it never prints a
