@@ -18,7 +18,8 @@ the payload:
 - ``EVENT``: one ``events.jsonl`` line of an event that also goes on ``/rosout`` or
   ``/behavior_tree/node_status``; ``NOTE``: a line that goes only to ``events.jsonl``;
 - ``TF_MODEL``: JSON ``runtime.recording.tf_model.TfModel``: from now on the worker writes
-  ``/tf`` with every ``/joint_states`` message (and ``/tf_static`` with the first);
+  ``/tf`` with every ``/joint_states`` message (and ``/tf_static`` with the first); ``null``:
+  it stops (a new robot the model cannot describe: the run sends ``/tf``);
 - ``END``: the recording is over (the worker finishes the files);
 - ``RENDER``: JSON ``{"directory"}``: render the report and answer one JSON line on stdout.
 
@@ -173,10 +174,11 @@ class Handoff:
         if not self.closed:
             self._add(frame(Frame.NOTE if note else Frame.EVENT, line.encode()))
 
-    def tf_model(self, model: TfModel) -> None:
-        """The worker computes ``/tf`` and ``/tf_static`` with ``model`` from the next joint state on."""
+    def tf_model(self, model: TfModel | None) -> None:
+        """The worker computes ``/tf`` and ``/tf_static`` with ``model`` from the next joint state
+        on (None: it stops; the run sends them)."""
         if not self.closed:
-            self._add(json_frame(Frame.TF_MODEL, model.to_json()))
+            self._add(frame(Frame.TF_MODEL, json.dumps(model.to_json() if model is not None else None).encode()))
 
     def flush_if_due(self) -> None:
         """Send the batch if it waited ``SEND_INTERVAL_S`` or grew to ``SEND_BYTES`` (the bus

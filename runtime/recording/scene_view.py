@@ -389,7 +389,7 @@ class SceneView:
     e.g. when the worker is lost). A robot the model cannot describe gets its ``/tf`` here."""
 
     def __init__(self, scene: Callable[[], Any], write: Callable[[str, Any, float], None],
-                 stamp: Callable[[float], Time], send_tf_model: Callable[[TfModel], None] | None = None) -> None:
+                 stamp: Callable[[float], Time], send_tf_model: Callable[[TfModel | None], None] | None = None) -> None:
         self._scene = scene
         self._write = write
         self._stamp = stamp
@@ -432,9 +432,9 @@ class SceneView:
         tree = LinkTree.of(robot)
         model = tf_model(robot, tree) if self._send_tf_model is not None else None
         stamp = self._stamp(seconds)
-        if model is not None and self._send_tf_model is not None:
-            self._send_tf_model(model)
-        else:
+        if self._send_tf_model is not None:
+            self._send_tf_model(model)  # (None: the worker stops, this view computes /tf)
+        if model is None:
             self._tf = TfEncoder(tree, tree.moving)
             self._write(TF_STATIC_TOPIC, TfEncoder(tree, tree.fixed).encode(self._configuration(robot, msg), stamp), seconds)
         self._write(ROBOT_MARKERS_TOPIC, robot_markers_cdr(robot, stamp), seconds)

@@ -48,7 +48,9 @@ class RecordingSession:
         self._tf_static_due = False
         self._tf_due: list[tuple[int, Any]] = []
         """Joint states (log time, ``JointStateArrays``) whose ``/tf`` is not written yet."""
-        self._own_channels: dict[str, int] = {}
+        self._topic_channels: dict[str, int] = {}
+        """Topic -> MCAP channel id: one channel per topic, whether the run or this worker writes
+        it (``/tf`` comes from the run for a robot a ``TfModel`` cannot describe)."""
         self.ended = False
 
     def take(self, kind: Frame, payload: bytes) -> None:
@@ -63,7 +65,7 @@ class RecordingSession:
         elif kind is Frame.CHANNEL:
             d = json.loads(payload)
             qos = OfferedQos(*d["qos"])
-            self._channels[d["id"]] = (self.writer.open_channel(d["topic"], d["type"], qos), d["topic"], d["type"])
+            self._channels[d["id"]] = (self._channel(d["topic"], d["type"], qos), d["topic"], d["type"])
         elif kind in (Frame.EVENT, Frame.NOTE):
             self._lines += payload
             record = json.loads(payload)
@@ -72,8 +74,9 @@ class RecordingSession:
                 self._event_message(record)
         elif kind is Frame.TF_MODEL:
             self._write_tf()  # the joint states before it, with the model they came with
-            self.tf = TfWriter(TfModel.from_json(json.loads(payload)))
-            self._tf_static_due = True
+            model = json.loads(payload)  # null: the run computes /tf itself from now on
+            self.tf = TfWriter(TfModel.from_json(model)) if model is not None else None
+            self._tf_static_due = model is not None
         elif kind is Frame.END:
             self.end()
 
@@ -96,12 +99,15 @@ class RecordingSession:
             for log_time_ns, data in zip(stamps_ns, self.tf.tf(names, [p for _, p in states], stamps_ns)):
                 self._write_own(TF_TOPIC, data, log_time_ns)
 
+    def _channel(self, topic: str, type_name: str, qos: OfferedQos) -> int:
+        channel = self._topic_channels.get(topic)
+        if channel is None:
+            channel = self._topic_channels[topic] = self.writer.open_channel(topic, type_name, qos)
+        return channel
+
     def _write_own(self, topic: str, data: bytes, log_time_ns: int, qos: OfferedQos = OfferedQos()) -> None:
         """A ``TFMessage`` this worker computed, on ``topic``."""
-        channel = self._own_channels.get(topic)
-        if channel is None:
-            channel = self._own_channels[topic] = self.writer.open_channel(topic, TF_TYPE, qos)
-        self.writer.write_cdr(channel, data, log_time_ns)
+        self.writer.write_cdr(self._channel(topic, TF_TYPE, qos), data, log_time_ns)
         self.contents.add(topic, TF_TYPE, log_time_ns, data)
 
     def _event_message(self, record: dict[str, Any]) -> None:
