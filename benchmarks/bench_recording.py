@@ -1,5 +1,5 @@
-"""Recording overhead: ``objective run objectives/stack_cubes.xml --world kinematic`` with and
-without ``--record DIR``.
+"""Recording overhead: ``objective run objectives/stack_cubes.xml --world WORLD`` with and
+without ``--record DIR`` (``--world``: kinematic, the default, or vla_sim: MuJoCo and three cameras).
 
 What a user waits for is the wall time of the run: with ``--record`` the run serializes what it
 records and pipes it to the recording worker (``runtime/report/worker.py``), which writes
@@ -16,7 +16,7 @@ both see the same machine load:
 ``overhead`` is the wall time added, over the plain run's; the target is at most 0.15. CPU
 overheads are reported beside it: they are larger, since the worker runs on another core.
 
-    .venv/bin/python benchmarks/bench_recording.py [--pairs N]
+    .venv/bin/python benchmarks/bench_recording.py [--pairs N] [--world kinematic|vla_sim]
 """
 from __future__ import annotations
 
@@ -42,10 +42,10 @@ def children_cpu() -> float:
     return usage.ru_utime + usage.ru_stime
 
 
-def timed_run(registry: Registry, record_dir: Path | None) -> dict[str, float]:
+def timed_run(registry: Registry, world: str, record_dir: Path | None) -> dict[str, float]:
     """Wall seconds of one run (report included), CPU of this process and of its children."""
     wall, cpu, children = time.perf_counter(), time.process_time(), children_cpu()
-    result = run_file(OBJECTIVE, registry, RunOptions(world="kinematic", record_dir=record_dir))
+    result = run_file(OBJECTIVE, registry, RunOptions(world=world, record_dir=record_dir))
     out = {"wall": time.perf_counter() - wall, "cpu": time.process_time() - cpu, "children_cpu": children_cpu() - children,
            "sim_seconds": result.sim_seconds}
     if result.status != "SUCCESS":
@@ -55,9 +55,9 @@ def timed_run(registry: Registry, record_dir: Path | None) -> dict[str, float]:
     return out
 
 
-def process_run(record_dir: Path | None) -> dict[str, float]:
+def process_run(world: str, record_dir: Path | None) -> dict[str, float]:
     """CPU (process tree) and wall seconds of one ``objective run`` process."""
-    command = [str(ROOT / ".venv" / "bin" / "objective"), "run", str(OBJECTIVE), "--world", "kinematic"]
+    command = [str(ROOT / ".venv" / "bin" / "objective"), "run", str(OBJECTIVE), "--world", world]
     if record_dir is not None:
         command += ["--record", str(record_dir)]
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
@@ -74,20 +74,21 @@ def process_run(record_dir: Path | None) -> dict[str, float]:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--pairs", type=int, default=3, help="plain/recorded pairs (medians are quoted)")
+    parser.add_argument("--world", default="kinematic", choices=("kinematic", "vla_sim"), help="the world to run on")
     args = parser.parse_args()
     registry = Registry.from_entry_points()
     scratch = Path(tempfile.mkdtemp(prefix="bench_recording_"))
     try:
-        timed_run(registry, scratch / "warmup")  # first-run imports (including the renderer's) off the books
+        timed_run(registry, args.world, scratch / "warmup")  # first-run imports (including the renderer's) off the books
         plain, recorded = [], []
         for k in range(args.pairs):
-            plain.append(timed_run(registry, None))
-            recorded.append(timed_run(registry, scratch / f"run{k}"))
+            plain.append(timed_run(registry, args.world, None))
+            recorded.append(timed_run(registry, args.world, scratch / f"run{k}"))
         mcap_bytes = (scratch / "run0" / "run.mcap").stat().st_size
         processes_plain, processes_recorded = [], []
         for k in range(args.pairs):
-            processes_plain.append(process_run(None))
-            processes_recorded.append(process_run(scratch / f"process{k}"))
+            processes_plain.append(process_run(args.world, None))
+            processes_recorded.append(process_run(args.world, scratch / f"process{k}"))
     finally:
         shutil.rmtree(scratch, ignore_errors=True)
     base_wall, recorded_wall = median([p["wall"] for p in plain]), median([r["wall"] for r in recorded])
@@ -95,7 +96,7 @@ def main() -> None:
     row = {
         "bench": "recording",
         "objective": OBJECTIVE.name,
-        "world": "kinematic",
+        "world": args.world,
         "pairs": args.pairs,
         "sim_seconds": rounded(plain[0]["sim_seconds"], 2),
         "plain_wall_s": rounded(base_wall, 3),
@@ -111,7 +112,7 @@ def main() -> None:
     process_row = {
         "bench": "recording_process",
         "objective": OBJECTIVE.name,
-        "world": "kinematic",
+        "world": args.world,
         "pairs": args.pairs,
         "plain_wall_s": rounded(plain_wall, 3),
         "recorded_wall_s": rounded(process_wall, 3),
@@ -125,7 +126,7 @@ def main() -> None:
              "process row: whole `objective run` processes; CPU of the process tree"]
     columns = ["bench", "plain_wall_s", "recorded_wall_s", "overhead", "plain_cpu_s", "record_cpu_s", "worker_cpu_s",
                "recorded_cpu_s", "cpu_overhead"]
-    report("bench_recording: stack_cubes.xml on 'kinematic', --record versus none", [row, process_row], columns, notes)
+    report(f"bench_recording: stack_cubes.xml on '{args.world}', --record versus none", [row, process_row], columns, notes)
 
 
 if __name__ == "__main__":

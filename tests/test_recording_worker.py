@@ -9,6 +9,7 @@ import time
 from pathlib import Path
 
 import pytest
+from mcap.reader import make_reader
 from sensor_msgs.msg import JointState
 from std_msgs.msg import String
 
@@ -41,6 +42,11 @@ def handed_over(tmp_path: Path, *writes: tuple) -> tuple[Path, RecordingSession]
     handoff.event(json.dumps({"time": 0.5, "kind": "log", "source": "say", "data": {"message": "hi"}}) + "\n")
     handoff.close()
     os.close(write_end)
+    return tmp_path, worker_session(read_end)
+
+
+def worker_session(read_end: int) -> RecordingSession:
+    """What the worker does with the frames arriving on ``read_end`` (closed at the end)."""
     session = None
     for kind, payload in read_frames(read_end):
         if kind is Frame.START:
@@ -48,7 +54,7 @@ def handed_over(tmp_path: Path, *writes: tuple) -> tuple[Path, RecordingSession]
         elif kind is not None:
             session.take(kind, payload)
     os.close(read_end)
-    return tmp_path, session
+    return session
 
 
 def test_messages_and_events_handed_over_land_in_the_files_and_the_report_data(tmp_path):
@@ -139,6 +145,58 @@ def test_a_worker_killed_mid_run_leaves_a_partial_mcap_and_the_run_finishes_the_
     assert 0.0 < recording.joints.times[-1] < warning["time"]
     assert "Partial recording" in (rec / "report.html").read_text() and (rec / "joints.svg").stat().st_size > 0
     assert not (rec / "metadata.yaml").exists()  # as for a killed recorder: `ros2 bag reindex` rebuilds it
+
+
+def test_a_worker_that_dies_before_writing_run_mcap_leaves_it_to_the_run_with_tf(tmp_path, monkeypatch):
+    """The worker computed /tf: the run's own writer computes it again, /tf_static and the
+    robot's markers included, from the moment it took over."""
+    import re
+    import subprocess
+    import sys
+
+    def short_lived(self):
+        self.process = subprocess.Popen([sys.executable, "-c", "pass"], stdin=subprocess.PIPE, stdout=subprocess.PIPE)
+        self.process.wait()  # gone before it read anything
+
+    monkeypatch.setattr(ReportWorker, "start", short_lived)
+    code, rec = record_run(tmp_path, WAIT_XML)
+    assert code == 0
+    (warning,) = [e for e in read_events(rec / "events.jsonl") if e["kind"] == "warning"]
+    assert re.search(r"run\.mcap holds what was recorded from 0\.\d\d s on \(partial\)", warning["data"]["message"])
+    messages = read_mcap(rec / "run.mcap")
+    assert len(messages["/tf"]) == len(messages["/joint_states"]) > 100
+    assert len(messages["/tf_static"]) == len(messages["/robot_markers"]) == 1
+    assert [t for t, _, _ in messages["/tf"]] == [t for t, _, _ in messages["/joint_states"]]
+
+
+def test_tf_from_the_worker_then_from_the_run_share_one_channel(tmp_path):
+    """A new robot the ``TfModel`` cannot describe: the run says so (a null model) and sends
+    ``/tf`` itself; the file still has one ``/tf`` channel, one message per joint state."""
+    from sim.robot_model import planning_robot_model
+
+    from runtime.recording.mcap_writer import SerializedMessage
+    from runtime.recording.scene_view import LinkTree, TfEncoder, stamp_of, tf_model
+    from tf2_msgs.msg import TFMessage
+
+    robot = planning_robot_model()
+    tree = LinkTree.of(robot)
+    joints = JointState(name=list(robot.movable_joints), position=[0.1] * len(robot.movable_joints))
+    read_end, write_end = os.pipe()
+    handoff = Handoff(write_end, str(tmp_path), clock_origin_ns=1_000_000_000)
+    (tmp_path / "events.jsonl").write_bytes(b"")
+    handoff.tf_model(tf_model(robot, tree))
+    handoff.write("/joint_states", joints, 0.1)  # the worker's /tf
+    handoff.tf_model(None)
+    tf = TfEncoder(tree, tree.moving).encode(robot.configuration(dict(zip(joints.name, joints.position))), stamp_of(0))
+    handoff.write("/tf", SerializedMessage(TFMessage, tf.data), 0.2)  # the run's
+    handoff.write("/joint_states", joints, 0.2)
+    handoff.close()
+    os.close(write_end)
+    worker_session(read_end)
+    with open(tmp_path / "run.mcap", "rb") as stream:
+        channels = [c.topic for c in make_reader(stream).get_summary().channels.values()]
+    assert channels.count("/tf") == 1 and channels.count("/tf_static") == 1
+    assert [t for t, _, _ in read_mcap(tmp_path / "run.mcap")["/tf"]] == [1_100_000_000, 1_200_000_000]
 
 
 def test_the_joint_map_gives_the_configuration_the_model_gives():

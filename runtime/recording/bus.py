@@ -193,9 +193,9 @@ class RecordingBus:
         def record(msg: Any) -> None:
             now = self.clock.now()
             if self._due(name, now, max_hz):
-                self.writer.write(name, msg, now)
-                for listener in listeners:
+                for listener in listeners:  # first: what they send may be needed to read the message (/tf)
                     listener(msg, now)
+                self.writer.write(name, msg, now)
 
         # Best effort connects to reliable and best-effort publishers alike.
         self._recorded_topics[name] = self.inner.create_subscription(name, msg_type, record, reliable=False)
@@ -259,10 +259,10 @@ class RecordingBus:
 
     def _goal(self, name: str, goal: Any, future: Any) -> None:
         now = self.clock.now()
-        self.writer.write(f"{name}/goal", goal, now)
         trajectory = getattr(goal, "joint_trajectory", None)
-        if trajectory is not None:
+        if trajectory is not None:  # (first: the goal's CDR reuses its bytes)
             self.writer.write(f"{controller_namespace(name)}/joint_trajectory", trajectory, now)
+        self.writer.write(f"{name}/goal", goal, now)
 
         def sent(f: Any) -> None:
             if f.cancelled() or f.exception() is not None:

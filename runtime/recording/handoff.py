@@ -1,9 +1,11 @@
 """How a recorded run hands its messages to the recording worker (``runtime.report.worker``).
 
-The run only serializes: every message becomes its CDR bytes (rclpy's C serializer, the
-``TfEncoder``'s prepared buffer, or ``runtime.recording.cdr`` for joint states) and every event one JSON line, appended to a batch in memory;
+The run only serializes: every message is kept as it is until the batch is sent, then becomes
+its CDR bytes (``runtime.recording.cdr``; rclpy's C serializer for the few types it leaves;
+bytes prepared before, such as the robot's markers, as they are); every event is one JSON line.
 ``flush_if_due`` writes the batch to the worker's stdin (one ``write`` per tick at
-most, about ``SEND_INTERVAL_S`` apart). The worker writes ``run.mcap`` (schemas, chunks, zstd, the summary section),
+most, about ``SEND_INTERVAL_S`` apart). A message must not change after it was written: the
+bus's never do (the in-process bus hands its subscribers the same object). The worker writes ``run.mcap`` (schemas, chunks, zstd, the summary section),
 ``events.jsonl`` and ``metadata.yaml``, turns events into ``/rosout`` and node status messages,
 and builds the report's data as messages arrive.
 
@@ -15,17 +17,21 @@ the payload:
 - ``MESSAGE``: channel id (2 bytes), log time (8 bytes, wall-clock ns), the CDR bytes;
 - ``EVENT``: one ``events.jsonl`` line of an event that also goes on ``/rosout`` or
   ``/behavior_tree/node_status``; ``NOTE``: a line that goes only to ``events.jsonl``;
+- ``TF_MODEL``: JSON ``runtime.recording.tf_model.TfModel``: from now on the worker writes
+  ``/tf`` with every ``/joint_states`` message (and ``/tf_static`` with the first); ``null``:
+  it stops (a new robot the model cannot describe: the run sends ``/tf``);
 - ``END``: the recording is over (the worker finishes the files);
 - ``RENDER``: JSON ``{"directory"}``: render the report and answer one JSON line on stdout.
 
 Crash safety: a killed run loses only the batch it had not sent yet (``SEND_INTERVAL_S`` of wall
 time); the worker writes everything it received. A worker that dies (``WorkerLost``) loses the
 messages it had not flushed yet: at most ``FLUSH_INTERVAL_S`` of them plus what sat in the pipe
-(``PIPE_BYTES``); ``run.mcap`` stays partial, and the run rewrites ``events.jsonl`` whole from
+(``PIPE_BYTES``) or in what it read ahead (``runtime.report.worker.READ_AHEAD_BYTES``); ``run.mcap`` stays partial, and the run rewrites ``events.jsonl`` whole from
 its own copy of the lines and goes on writing it (``runtime.recording.recorder``).
 """
 from __future__ import annotations
 
+import array
 import enum
 import errno
 import fcntl
@@ -37,9 +43,10 @@ import time
 from dataclasses import dataclass
 from typing import Any, Callable, Iterator
 
-from .cdr import hand_encoders
-from .mcap_writer import OfferedQos, cdr_bytes, message_type, to_nanoseconds
+from .cdr import message_encoder
+from .mcap_writer import OfferedQos, SerializedMessage, cdr_bytes, message_type, to_nanoseconds
 from .schema import type_name
+from .tf_model import TfModel
 
 
 class Frame(enum.IntEnum):
@@ -50,6 +57,7 @@ class Frame(enum.IntEnum):
     NOTE = 5
     END = 6
     RENDER = 7
+    TF_MODEL = 8
 
 
 HEADER = struct.Struct("<BI")
@@ -106,9 +114,13 @@ class Handoff:
         self.clock_origin_ns = clock_origin_ns
         self.qos: dict[str, OfferedQos] = {}
         self._channels: dict[str, _Channel] = {}
-        self._encoders = hand_encoders()
+        self._encoders: dict[type, Callable[[Any, dict[int, bytes]], bytes]] = {}
         self._sent_at = -float("inf")
-        self._batch = bytearray(json_frame(Frame.START, {"directory": directory, "clock_origin_ns": clock_origin_ns}))
+        self._pending: list[bytes | tuple[int, int, Any]] = []
+        """What was written since the last batch: frames, and (channel id, log time, message)
+        for the messages, serialized when the batch is sent."""
+        self._pending_bytes = 0
+        self._add(json_frame(Frame.START, {"directory": directory, "clock_origin_ns": clock_origin_ns}))
         self.closed = False
 
     def write(self, topic: str, msg: Any, seconds: float) -> None:
@@ -120,26 +132,59 @@ class Handoff:
         if channel is None:
             channel = self._channels[topic] = _Channel(len(self._channels), cls)
             qos = self.qos.get(topic, OfferedQos())
-            self._batch += json_frame(Frame.CHANNEL, {"id": channel.id, "topic": topic, "type": type_name(cls),
-                                                      "qos": [qos.reliable, qos.transient_local, qos.depth]})
+            self._add(json_frame(Frame.CHANNEL, {"id": channel.id, "topic": topic, "type": type_name(cls),
+                                                "qos": [qos.reliable, qos.transient_local, qos.depth]}))
         elif channel.msg_class is not cls:
             raise TypeError(f"recording topic '{topic}' carries {type_name(channel.msg_class)}, got {type_name(cls)}")
-        encode = self._encoders.get(cls)
-        data = encode(msg) if encode is not None else cdr_bytes(msg)
-        self._batch += HEADER.pack(Frame.MESSAGE, MESSAGE_HEADER.size + len(data))
-        self._batch += MESSAGE_HEADER.pack(channel.id, self.clock_origin_ns + to_nanoseconds(seconds))
-        self._batch += data
+        self._pending.append((channel.id, self.clock_origin_ns + to_nanoseconds(seconds), msg))
+        self._pending_bytes += _size_hint(msg)
+
+    def _add(self, frame_bytes: bytes) -> None:
+        self._pending.append(frame_bytes)
+        self._pending_bytes += len(frame_bytes)
+
+    def _serialize(self) -> bytes:
+        """What was written since the last batch, as frames. The messages are serialized here,
+        together, rather than one at a time between ticks: the serializers' code and data are
+        then still in the CPU's caches from the previous message (several times cheaper each)."""
+        batch = bytearray()
+        known: dict[int, bytes] = {}  # (a goal reuses the bytes of its trajectory, written just before)
+        for item in self._pending:
+            if isinstance(item, bytes):
+                batch += item
+                continue
+            channel, log_time_ns, msg = item
+            if isinstance(msg, SerializedMessage):
+                data = msg.data
+            else:
+                cls = type(msg)
+                encode = self._encoders.get(cls)
+                if encode is None:
+                    encode = self._encoders[cls] = message_encoder(cls) or _rclpy_encode
+                data = encode(msg, known)
+            batch += HEADER.pack(Frame.MESSAGE, MESSAGE_HEADER.size + len(data))
+            batch += MESSAGE_HEADER.pack(channel, log_time_ns)
+            batch += data
+        self._pending.clear()
+        self._pending_bytes = 0
+        return bytes(batch)
 
     def event(self, line: str, note: bool = False) -> None:
         """One ``events.jsonl`` line (``note``: not also a ``/rosout``/node status message)."""
         if not self.closed:
-            self._batch += frame(Frame.NOTE if note else Frame.EVENT, line.encode())
+            self._add(frame(Frame.NOTE if note else Frame.EVENT, line.encode()))
+
+    def tf_model(self, model: TfModel | None) -> None:
+        """The worker computes ``/tf`` and ``/tf_static`` with ``model`` from the next joint state
+        on (None: it stops; the run sends them)."""
+        if not self.closed:
+            self._add(frame(Frame.TF_MODEL, json.dumps(model.to_json() if model is not None else None).encode()))
 
     def flush_if_due(self) -> None:
         """Send the batch if it waited ``SEND_INTERVAL_S`` or grew to ``SEND_BYTES`` (the bus
         calls this once per spin)."""
         now = time.monotonic()
-        if now - self._sent_at >= SEND_INTERVAL_S or len(self._batch) >= SEND_BYTES:
+        if now - self._sent_at >= SEND_INTERVAL_S or self._pending_bytes >= SEND_BYTES:
             self._sent_at = now
             self.send()
 
@@ -147,11 +192,10 @@ class Handoff:
         """Write the batch (and ``final``) to the worker; ``WorkerLost`` if it stopped reading."""
         if self.closed:
             return
-        self._batch += final
-        if not self._batch:
+        self._add(final)
+        data = self._serialize()
+        if not data:
             return
-        data = bytes(self._batch)
-        self._batch.clear()
         try:
             write_all(self.fd, data)
         except WorkerLost as lost:
@@ -165,6 +209,16 @@ class Handoff:
         if not self.closed:
             self.send(frame(Frame.END, b""))
             self.closed = True
+
+
+def _rclpy_encode(msg: Any, known: dict[int, bytes]) -> bytes:
+    return cdr_bytes(msg)  # (its padding is not zeros: nothing to reuse)
+
+
+def _size_hint(msg: Any) -> int:
+    """About how many bytes ``msg`` will take (its ``data``: camera frames, prepared bytes)."""
+    data = getattr(msg, "data", None)
+    return len(data) if isinstance(data, (bytes, bytearray, array.array)) else 0
 
 
 def write_all(fd: int, data: bytes, stall_timeout_s: float = STALL_TIMEOUT_S) -> None:
@@ -185,13 +239,15 @@ def write_all(fd: int, data: bytes, stall_timeout_s: float = STALL_TIMEOUT_S) ->
         raise WorkerLost(f"the recording worker stopped reading ({reason})") from None
 
 
-def read_frames(fd: int) -> Iterator[tuple[Frame | None, bytes]]:
-    """The frames arriving on ``fd`` until end of file; a ``None`` kind between reads marks
-    "nothing more for now" (the worker flushes its files then). A torn last frame is dropped."""
+def read_frames(source: int | Callable[[], bytes]) -> Iterator[tuple[Frame | None, bytes]]:
+    """The frames arriving from ``source`` (a file descriptor, or a function returning what has
+    arrived, ``b""`` at the end) until end of file; a ``None`` kind between reads marks "nothing
+    more for now" (the worker flushes its files then). A torn last frame is dropped."""
+    read = source if callable(source) else (lambda: os.read(source, PIPE_BYTES))
     pending = bytearray()
     while True:
         try:
-            data = os.read(fd, PIPE_BYTES)
+            data = read()
         except InterruptedError:
             continue
         if not data:
@@ -207,4 +263,3 @@ def read_frames(fd: int) -> Iterator[tuple[Frame | None, bytes]]:
             at = start + size
         del pending[:at]
         yield None, b""
-

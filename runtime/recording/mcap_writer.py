@@ -20,10 +20,6 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from mcap.well_known import MessageEncoding, Profile, SchemaEncoding
-from mcap.writer import CompressionType, Writer
-from rclpy.serialization import serialize_message
-
 from .schema import message_class, message_definition, type_name
 
 LIBRARY = "objective-runtime recorder"
@@ -78,7 +74,11 @@ def message_type(msg: Any) -> type:
 
 def cdr_bytes(msg: Any) -> bytes:
     """The CDR bytes a ROS 2 subscriber would get (rclpy's C serializer)."""
-    return msg.data if isinstance(msg, SerializedMessage) else serialize_message(msg)
+    if isinstance(msg, SerializedMessage):
+        return msg.data
+    from rclpy.serialization import serialize_message  # (a recorded run's process needs it rarely)
+
+    return serialize_message(msg)
 
 
 FLUSH_INTERVAL_S = 0.5
@@ -98,6 +98,9 @@ class McapRos2Writer:
     """One ``.mcap`` file: a channel per topic (one type per topic), a schema per message type."""
 
     def __init__(self, path: Path | str, clock_origin_ns: int = 0, flush_interval_s: float = FLUSH_INTERVAL_S) -> None:
+        from mcap.well_known import Profile  # (imported by the process that writes: the worker, mostly)
+        from mcap.writer import CompressionType, Writer
+
         self.path = Path(path)
         self.clock_origin_ns = clock_origin_ns
         self.flush_interval_s = flush_interval_s
@@ -132,6 +135,8 @@ class McapRos2Writer:
 
     def open_channel(self, topic: str, name: str, qos: OfferedQos) -> int:
         """Register ``topic`` carrying type ``name`` (``pkg/msg/Type``); its schema once per type."""
+        from mcap.well_known import MessageEncoding, SchemaEncoding
+
         schema = self._schemas.get(name)
         if schema is None:
             definition = message_definition(message_class(name))

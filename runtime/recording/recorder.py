@@ -136,8 +136,9 @@ class Recorder:
         self.sink.qos.update({topic: LATCHED_QOS for topic in (TF_STATIC_TOPIC, ROBOT_MARKERS_TOPIC, SCENE_MARKERS_TOPIC)})
         self.bus = RecordingBus(context.bus, self.sink, joint_states_hz)
         context.bus = self.bus
-        view = SceneView(lambda: getattr(context, "scene", None), self.sink.write, self.stamp)
-        self.bus.joint_state_listeners.append(view.joint_state)
+        tf_in_worker = self.handoff.tf_model if self.handoff is not None and self.live is None else None
+        self.view = SceneView(lambda: getattr(context, "scene", None), self.sink.write, self.stamp, tf_in_worker)
+        self.bus.joint_state_listeners.append(self.view.joint_state)
         nodes = list(nodes)
         ids = {id(node): i for i, node in enumerate(nodes)}
         tree_id = getattr(tree, "tree_id", "")
@@ -190,6 +191,7 @@ class Recorder:
             self.writer = McapRos2Writer(mcap, self.clock_origin_ns)
             self.writer.qos = self.sink.qos
             self.sink.sinks[self.sink.sinks.index(self.handoff)] = self.writer
+            self.view.tf_here()  # the worker computed /tf from the joint states
             what = f"{MCAP_FILE} holds what was recorded from {now:.2f} s on (partial)"
         self._write({"time": now, "kind": "warning", "source": "recorder",
                      "data": {"message": f"recording: {lost}: {what}; {EVENTS_FILE} is whole"}})

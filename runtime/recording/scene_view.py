@@ -2,10 +2,11 @@
 
 - ``/tf`` and ``/tf_static``: every link's pose relative to its parent link, computed from a
   joint state with the planning model's forward kinematics, links behind a joint on ``/tf``, links
-  fixed to their parent once on ``/tf_static`` (what ``robot_state_publisher`` publishes);
+  fixed to their parent once on ``/tf_static`` (what ``robot_state_publisher`` publishes); in a
+  recording the worker computes them from a ``TfModel`` this module builds (``tf_model``);
 - ``/robot_markers``: one ``visualization_msgs/MarkerArray`` of the robot's collision geometry
   (capsules, cylinders, boxes, convex hulls as triangle lists), each marker locked to its link's
-  frame, so the recorded ``/tf`` moves it; sent once;
+  frame, so the recorded ``/tf`` moves it; sent once, its CDR from the on-disk cache;
 - ``/planning_scene_markers``: the planning scene's world objects (table, cubes, added
   objects) in ``world``, sent again whenever the scene's version changes (objects deleted from
   the scene are deleted from the view).
@@ -17,6 +18,7 @@ from __future__ import annotations
 
 import struct
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any, Callable
 
 import coal
@@ -28,14 +30,13 @@ from std_msgs.msg import ColorRGBA
 from tf2_msgs.msg import TFMessage
 from visualization_msgs.msg import Marker, MarkerArray
 
+from ..disk_cache import cached, content_key
 from ..scene.collision import Box, Capsule, Cylinder, Mesh, Sphere
-from .cdr import ENCAPSULATION, add_string, align
 from .event_messages import stamp_of  # noqa: F401  (where the tests and the recorder find it)
-from .mcap_writer import SerializedMessage
+from .mcap_writer import SerializedMessage, cdr_bytes
+from .tf_model import TF_STATIC_TOPIC, TF_TOPIC, LinkDriver, LinkTf, TfModel, TfTemplate, link_coefficients
 
 WORLD_FRAME = "world"
-TF_TOPIC = "/tf"
-TF_STATIC_TOPIC = "/tf_static"
 ROBOT_MARKERS_TOPIC = "/robot_markers"
 SCENE_MARKERS_TOPIC = "/planning_scene_markers"
 
@@ -144,7 +145,8 @@ class TfEncoder:
         self.tree = tree
         self.links = links
         self._frames = [(tree.frame_ids.get(tree.parents[link]), tree.frame_ids[link]) for link in links]
-        self._buffer, self._stamp_at, self._values_at = _tf_template([(tree.parents[l], l) for l in links])
+        template = TfTemplate([(tree.parents[link], link) for link in links])
+        self._buffer, self._stamp_at, self._values_at = template.buffer, template.stamp_at, template.values_at
 
     def encode(self, q: np.ndarray, stamp: Time) -> SerializedMessage:
         data = self.tree.data
@@ -163,20 +165,70 @@ _STAMP = struct.Struct("<iI")
 _XYZQUAT = struct.Struct("<7d")
 
 
-def _tf_template(frames: list[tuple[str, str]]) -> tuple[bytearray, list[int], list[int]]:
-    """The CDR (little endian) of a TFMessage with ``frames`` (parent, child), and where each
-    entry's stamp and its seven numbers (x, y, z, qx, qy, qz, qw) go."""
-    buffer = bytearray(ENCAPSULATION) + struct.pack("<I", len(frames))
-    stamps, values = [], []
-    for parent, child in frames:
-        stamps.append(len(buffer))
-        buffer += bytes(8)
-        add_string(buffer, parent)
-        add_string(buffer, child)
-        align(buffer, 8)
-        values.append(len(buffer))
-        buffer += bytes(56)
-    return buffer, stamps, values
+_REVOLUTE = {"JointModelRX": (1.0, 0.0, 0.0), "JointModelRY": (0.0, 1.0, 0.0), "JointModelRZ": (0.0, 0.0, 1.0),
+             "JointModelRUBX": (1.0, 0.0, 0.0), "JointModelRUBY": (0.0, 1.0, 0.0), "JointModelRUBZ": (0.0, 0.0, 1.0)}
+_PRISMATIC = {"JointModelPX": (1.0, 0.0, 0.0), "JointModelPY": (0.0, 1.0, 0.0), "JointModelPZ": (0.0, 0.0, 1.0)}
+_UNALIGNED = {"JointModelRevoluteUnaligned": "revolute", "JointModelRevoluteUnboundedUnaligned": "revolute",
+              "JointModelPrismaticUnaligned": "prismatic"}
+
+
+def _joint_motion(joint: Any) -> tuple[str, np.ndarray] | None:
+    """(kind, unit axis) of a one-axis joint; None for any other (spherical, free-flyer...)."""
+    name = joint.shortname()
+    if name in _REVOLUTE:
+        return "revolute", np.array(_REVOLUTE[name])
+    if name in _PRISMATIC:
+        return "prismatic", np.array(_PRISMATIC[name])
+    if name in _UNALIGNED:
+        axis = np.asarray(joint.extract().axis, dtype=float)
+        return _UNALIGNED[name], axis / np.linalg.norm(axis)
+    return None
+
+
+def _neutral_value(model: pin.Model, joint: int) -> float:
+    q, j = pin.neutral(model), model.joints[joint]
+    return float(np.arctan2(q[j.idx_q + 1], q[j.idx_q])) if j.nq == 2 else float(q[j.idx_q])
+
+
+def tf_model(robot: Any, tree: LinkTree) -> TfModel | None:
+    """What the recording worker needs to compute ``/tf`` and ``/tf_static`` for ``robot``
+    (``runtime.recording.tf_model``); None where a link is more than one joint, or a joint with
+    more than one axis, away from its parent link (the run then computes ``/tf`` itself)."""
+    model = robot.model
+    drivers: dict[str, list[LinkDriver]] = {}
+    for name in robot.movable_joints:
+        for target, multiplier, offset in robot.driven_by(name):
+            drivers.setdefault(target, []).append(LinkDriver(name, float(multiplier), float(offset)))
+
+    def placement(link: str) -> pin.SE3:
+        return pin.SE3.Identity() if link == WORLD_FRAME else model.frames[tree.frame_ids[link]].placement
+
+    def joint_of(link: str) -> int:
+        return 0 if link == WORLD_FRAME else model.frames[tree.frame_ids[link]].parentJoint
+
+    def link_tf(link: str) -> LinkTf | None:
+        parent = tree.parents[link]
+        joint, parent_joint, after = joint_of(link), joint_of(parent), placement(link)
+        if joint == parent_joint:
+            before = placement(parent).inverse()
+            kind, axis, name = "fixed", None, ""
+        else:
+            motion = _joint_motion(model.joints[joint])
+            if model.parents[joint] != parent_joint or motion is None:
+                return None
+            before = placement(parent).inverse() * model.jointPlacements[joint]
+            (kind, axis), name = motion, model.names[joint]
+        coefficients = link_coefficients((before.rotation, before.translation), kind, axis,
+                                         (after.rotation, after.translation))
+        neutral = 0.0 if kind == "fixed" else _neutral_value(model, joint)
+        return LinkTf(parent, link, tuple(tuple(float(v) for v in row) for row in coefficients),
+                      tuple(drivers.get(name, ())), neutral)
+
+    moving = [link_tf(link) for link in tree.moving]
+    fixed = [link_tf(link) for link in tree.fixed]
+    if any(link is None for link in (*moving, *fixed)):
+        return None
+    return TfModel(tuple(moving), tuple(fixed))  # type: ignore[arg-type]
 
 
 def _hull_triangles(hull: Any) -> np.ndarray:
@@ -233,6 +285,70 @@ def robot_markers(robot: Any, stamp: Time) -> MarkerArray:
     return out
 
 
+_SENTINEL = Time(sec=2_147_480_000, nanosec=999_999_937)
+"""A stamp no marker field holds: where it lands in the CDR is where each marker's stamp goes."""
+_OFFSET = struct.Struct("<I")
+
+
+def _geometry_digest(robot: Any) -> str:
+    """What the robot's markers are made of: each collision geometry's link, placement, kind and
+    size (a convex hull's vertices), and this module's code."""
+    parts: list[str | bytes] = [Path(__file__).read_bytes(), pin.__version__, coal.__version__]
+    for go in robot.collision_model.geometryObjects:
+        link = robot.link_of_frame(go.parentFrame)
+        geometry = go.geometry
+        parts += [link, type(geometry).__name__, robot.model.frames[robot.frame_id(link)].placement.homogeneous.tobytes(),
+                  go.placement.homogeneous.tobytes()]
+        if isinstance(geometry, coal.ConvexBase):
+            parts += [np.asarray(geometry.points()).tobytes(), str(geometry.num_polygons)]
+        else:
+            parts += [repr([getattr(geometry, a, None) for a in ("halfSide", "radius", "halfLength", "size", "length")])]
+    return content_key(*parts)
+
+
+def _stamped_template(robot: Any) -> bytes:
+    """The robot's markers in CDR, stamped ``_SENTINEL``, after the offsets of those stamps
+    (a count, then each offset: little-endian uint32)."""
+    markers = robot_markers(robot, _SENTINEL)
+    data = cdr_bytes(markers)
+    sentinel = _STAMP.pack(_SENTINEL.sec, _SENTINEL.nanosec)
+    offsets, at = [], data.find(sentinel)
+    while at >= 0:
+        offsets.append(at)
+        at = data.find(sentinel, at + 1)
+    if len(offsets) != len(markers.markers):
+        raise ValueError("the sentinel stamp is not where the markers' stamps are")
+    return _OFFSET.pack(len(offsets)) + b"".join(_OFFSET.pack(o) for o in offsets) + data
+
+
+def _stamp_template(template: bytes, stamp: Time) -> bytes:
+    (count,) = _OFFSET.unpack_from(template)
+    data = bytearray(template[4 + 4 * count:])
+    stamp_bytes = _STAMP.pack(stamp.sec, stamp.nanosec)
+    for k in range(count):
+        (at,) = _OFFSET.unpack_from(template, 4 + 4 * k)
+        data[at:at + 8] = stamp_bytes
+    return bytes(data)
+
+
+def robot_markers_cdr(robot: Any, stamp: Time) -> SerializedMessage:
+    """``robot_markers`` serialized, from the on-disk cache (``runtime.disk_cache``) when the
+    robot's collision geometry is what it was: building them is a tenth of a second of Python
+    (thousands of triangle vertices) that every recorded run would pay."""
+    try:
+        template = cached("robot_markers", _geometry_digest(robot), lambda: _stamped_template(robot), _checked_template)
+    except ValueError:
+        return SerializedMessage(MarkerArray, cdr_bytes(robot_markers(robot, stamp)))
+    return SerializedMessage(MarkerArray, _stamp_template(template, stamp))
+
+
+def _checked_template(data: bytes) -> bytes:
+    (count,) = _OFFSET.unpack_from(data)
+    if len(data) < 4 + 4 * count + 8 or data[4 + 4 * count:8 + 4 * count] != b"\x00\x01\x00\x00":
+        raise ValueError("not a stamped MarkerArray template")
+    return data
+
+
 def object_markers(objects: dict[str, Any], attachments: tuple[Any, ...], stamp: Time,
                    previous: dict[str, int] | None = None) -> MarkerArray:
     """The scene's world objects in ``world`` and the objects the robot carries, locked to their
@@ -265,43 +381,67 @@ def marker_counts(markers: MarkerArray) -> dict[str, int]:
 
 class SceneView:
     """Sends ``/tf`` with every recorded joint state, ``/tf_static`` and the robot's markers once,
-    and the scene's objects whenever the scene changes. ``scene`` is read lazily: worlds create it on start."""
+    and the scene's objects whenever the scene changes. ``scene`` is read lazily: worlds create it on start.
+
+    With ``send_tf_model``, the recording worker computes ``/tf`` and ``/tf_static`` from the
+    joint states it receives: this view sends it the robot's ``TfModel`` once (per robot) and
+    computes nothing per joint state but the scene's markers (``tf_here`` turns that off again,
+    e.g. when the worker is lost). A robot the model cannot describe gets its ``/tf`` here."""
 
     def __init__(self, scene: Callable[[], Any], write: Callable[[str, Any, float], None],
-                 stamp: Callable[[float], Time]) -> None:
+                 stamp: Callable[[float], Time], send_tf_model: Callable[[TfModel | None], None] | None = None) -> None:
         self._scene = scene
         self._write = write
         self._stamp = stamp
+        self._send_tf_model = send_tf_model
         self._tf: TfEncoder | None = None
+        """The run's own ``/tf`` encoder (None while the worker computes it)."""
         self._robot: Any = None
         self._joint_maps: dict[tuple[str, ...], JointMap | None] = {}
         self._scene_version: Any = None
         self._scene_sent_s = -float("inf")
         self._objects: dict[str, int] = {}
 
+    def tf_here(self) -> None:
+        """Compute ``/tf`` in this process from now on (``/tf_static`` and the markers are sent
+        again with the next joint state)."""
+        self._send_tf_model = None
+        self._robot = None
+
     def joint_state(self, msg: Any, seconds: float) -> None:
         scene = self._scene()
         robot = getattr(scene, "robot", None)
         if robot is None:
             return
-        stamp = self._stamp(seconds)
         if robot is not self._robot:
-            self._joint_maps.clear()
-        names = tuple(msg.name)
-        if names not in self._joint_maps:
-            self._joint_maps[names] = JointMap.of(robot, names)
-        joint_map = self._joint_maps[names]
-        q = joint_map.configuration(msg.position) if joint_map is not None else robot.configuration(dict(zip(names, msg.position)))
-        if robot is not self._robot:
-            tree = LinkTree.of(robot)
-            self._robot, self._tf = robot, TfEncoder(tree, tree.moving)
-            self._write(TF_STATIC_TOPIC, TfEncoder(tree, tree.fixed).encode(q, stamp), seconds)
-            self._write(ROBOT_MARKERS_TOPIC, robot_markers(robot, stamp), seconds)
-        self._write(TF_TOPIC, self._tf.encode(q, stamp), seconds)
+            self._new_robot(robot, msg, seconds)
+        if self._tf is not None:
+            self._write(TF_TOPIC, self._tf.encode(self._configuration(robot, msg), self._stamp(seconds)), seconds)
         version = scene.version
         if version != self._scene_version and seconds - self._scene_sent_s >= SCENE_MARKERS_PERIOD_S - 1e-9:
             self._scene_version, self._scene_sent_s = version, seconds
             objects, attachments = scene.objects, scene.attachments
-            markers = object_markers(objects, attachments, stamp, self._objects)
+            markers = object_markers(objects, attachments, self._stamp(seconds), self._objects)
             self._write(SCENE_MARKERS_TOPIC, markers, seconds)
             self._objects = marker_counts(markers)
+
+    def _new_robot(self, robot: Any, msg: Any, seconds: float) -> None:
+        """``/tf_static`` (or the worker's ``TfModel``) and the robot's markers, for a robot seen first."""
+        self._robot, self._tf = robot, None
+        self._joint_maps.clear()
+        tree = LinkTree.of(robot)
+        model = tf_model(robot, tree) if self._send_tf_model is not None else None
+        stamp = self._stamp(seconds)
+        if self._send_tf_model is not None:
+            self._send_tf_model(model)  # (None: the worker stops, this view computes /tf)
+        if model is None:
+            self._tf = TfEncoder(tree, tree.moving)
+            self._write(TF_STATIC_TOPIC, TfEncoder(tree, tree.fixed).encode(self._configuration(robot, msg), stamp), seconds)
+        self._write(ROBOT_MARKERS_TOPIC, robot_markers_cdr(robot, stamp), seconds)
+
+    def _configuration(self, robot: Any, msg: Any) -> np.ndarray:
+        names = tuple(msg.name)
+        if names not in self._joint_maps:
+            self._joint_maps[names] = JointMap.of(robot, names)
+        joint_map = self._joint_maps[names]
+        return joint_map.configuration(msg.position) if joint_map is not None else robot.configuration(dict(zip(names, msg.position)))

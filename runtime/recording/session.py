@@ -21,11 +21,13 @@ from rclpy.serialization import serialize_message
 
 from ..report.data import McapContents, Recording, add_event, mark_unfinished
 from .bag_metadata import BAG_METADATA_FILE, bag_metadata_yaml
+from .bus import JOINT_STATES_TOPIC
 from .event_messages import event_message
 from .handoff import MESSAGE_HEADER, Frame
-from .mcap_writer import McapRos2Writer, OfferedQos, SerializedMessage, to_nanoseconds
+from .mcap_writer import LATCHED_QOS, McapRos2Writer, OfferedQos, SerializedMessage, to_nanoseconds
 from .files import EVENTS_FILE, MCAP_FILE
 from .schema import type_name
+from .tf_model import TF_STATIC_TOPIC, TF_TOPIC, TF_TYPE, TfModel, TfWriter
 
 
 class RecordingSession:
@@ -41,6 +43,14 @@ class RecordingSession:
         """The run's channel id -> (MCAP channel id, topic, type name)."""
         self.recording = Recording(self.directory)
         self.contents = McapContents(self.recording, clock_origin_ns)
+        self.tf: TfWriter | None = None
+        """Set by the run's ``TF_MODEL``: ``/tf`` is computed here from each joint state."""
+        self._tf_static_due = False
+        self._tf_due: list[tuple[int, Any]] = []
+        """Joint states (log time, ``JointStateArrays``) whose ``/tf`` is not written yet."""
+        self._topic_channels: dict[str, int] = {}
+        """Topic -> MCAP channel id: one channel per topic, whether the run or this worker writes
+        it (``/tf`` comes from the run for a robot a ``TfModel`` cannot describe)."""
         self.ended = False
 
     def take(self, kind: Frame, payload: bytes) -> None:
@@ -49,19 +59,56 @@ class RecordingSession:
             mcap_channel, topic, name = self._channels[channel]
             data = payload[MESSAGE_HEADER.size:]
             self.writer.write_cdr(mcap_channel, data, log_time_ns)
-            self.contents.add(topic, name, log_time_ns, data)
+            joint_state = self.contents.add(topic, name, log_time_ns, data)
+            if self.tf is not None and topic == JOINT_STATES_TOPIC and joint_state is not None:
+                self._tf_due.append((log_time_ns, joint_state))
         elif kind is Frame.CHANNEL:
             d = json.loads(payload)
             qos = OfferedQos(*d["qos"])
-            self._channels[d["id"]] = (self.writer.open_channel(d["topic"], d["type"], qos), d["topic"], d["type"])
+            self._channels[d["id"]] = (self._channel(d["topic"], d["type"], qos), d["topic"], d["type"])
         elif kind in (Frame.EVENT, Frame.NOTE):
             self._lines += payload
             record = json.loads(payload)
             add_event(record, self.recording)
             if kind is Frame.EVENT:
                 self._event_message(record)
+        elif kind is Frame.TF_MODEL:
+            self._write_tf()  # the joint states before it, with the model they came with
+            model = json.loads(payload)  # null: the run computes /tf itself from now on
+            self.tf = TfWriter(TfModel.from_json(model)) if model is not None else None
+            self._tf_static_due = model is not None
         elif kind is Frame.END:
             self.end()
+
+    def _write_tf(self) -> None:
+        """``/tf`` (and ``/tf_static`` the first time) of the joint states taken since the last
+        time, stamped like them: computed together, once per read from the pipe."""
+        due, self._tf_due = self._tf_due, []
+        if self.tf is None:
+            return
+        groups: dict[tuple[str, ...], list[tuple[int, Any]]] = {}
+        for log_time_ns, state in due:
+            if len(state.position) == len(state.name):  # (one without positions cannot place the robot)
+                groups.setdefault(state.name, []).append((log_time_ns, state.position))
+        if groups and self._tf_static_due:
+            self._tf_static_due = False
+            first_ns = min(states[0][0] for states in groups.values())
+            self._write_own(TF_STATIC_TOPIC, self.tf.tf_static(first_ns), first_ns, LATCHED_QOS)
+        for names, states in groups.items():
+            stamps_ns = [log_time_ns for log_time_ns, _ in states]
+            for log_time_ns, data in zip(stamps_ns, self.tf.tf(names, [p for _, p in states], stamps_ns)):
+                self._write_own(TF_TOPIC, data, log_time_ns)
+
+    def _channel(self, topic: str, type_name: str, qos: OfferedQos) -> int:
+        channel = self._topic_channels.get(topic)
+        if channel is None:
+            channel = self._topic_channels[topic] = self.writer.open_channel(topic, type_name, qos)
+        return channel
+
+    def _write_own(self, topic: str, data: bytes, log_time_ns: int, qos: OfferedQos = OfferedQos()) -> None:
+        """A ``TFMessage`` this worker computed, on ``topic``."""
+        self.writer.write_cdr(self._channel(topic, TF_TYPE, qos), data, log_time_ns)
+        self.contents.add(topic, TF_TYPE, log_time_ns, data)
 
     def _event_message(self, record: dict[str, Any]) -> None:
         stamp_ns = self.clock_origin_ns + to_nanoseconds(record["time"])
@@ -71,7 +118,8 @@ class RecordingSession:
         self.contents.add(topic, type_name(type(msg)), stamp_ns, data)
 
     def flush_if_due(self) -> None:
-        """After each read from the pipe: the events to their file, the MCAP chunk when due."""
+        """After each read from the pipe: ``/tf``, the events to their file, the MCAP chunk when due."""
+        self._write_tf()
         self._write_lines()
         self.writer.flush_if_due()
 
@@ -86,6 +134,7 @@ class RecordingSession:
         if self.ended:
             return
         self.ended = True
+        self._write_tf()
         self._write_lines()
         self._events.close()
         w = self.writer
@@ -97,6 +146,7 @@ class RecordingSession:
 
     def abandon(self) -> None:
         """The run died: everything received goes to the files, which stay partial."""
+        self._write_tf()
         self._write_lines()
         self._events.close()
         self.writer.flush()

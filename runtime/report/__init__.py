@@ -9,13 +9,25 @@ from __future__ import annotations
 import logging
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable
+from typing import TYPE_CHECKING, Any, Callable
 
-from .data import Recording, load_recording
+from ..recording.files import HTML_FILE, JOINTS_FILE, LATENCY_FILE, TREE_FILE, VIDEO_FILE
+
+if TYPE_CHECKING:
+    from .data import Recording
 
 __all__ = ["Report", "Recording", "load_recording", "log_errors", "render_report"]
 
-from ..recording.files import HTML_FILE, JOINTS_FILE, LATENCY_FILE, TREE_FILE, VIDEO_FILE
+
+def __getattr__(name: str) -> Any:
+    """``Recording`` and ``load_recording`` from ``.data`` when first used: the recording worker
+    imports this package before it can drain the run's pipe, and ``.data`` takes a few tenths of a
+    second (numpy, rclpy, mcap)."""
+    if name in ("Recording", "load_recording"):
+        from . import data
+
+        return getattr(data, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 @dataclass
@@ -34,6 +46,7 @@ def render_report(directory: Path | str, logger: logging.Logger | None = None, r
     ``recording``: its data already read (the recording worker builds it as the run goes);
     ``video``: finishes a video already encoded as the frames arrived (``VideoEncoder.close``).
     """
+    from .data import load_recording
     from .html import report_html
     from .plots import joints_plot, latency_plot
     from .tree_svg import write_tree_svg

@@ -22,6 +22,7 @@ from rclpy.serialization import deserialize_message
 
 from ..errors import ObjectiveError
 from ..recording.bus import JOINT_STATES_TOPIC
+from ..recording.cdr import JointStateArrays, TrajectoryArrays, joint_state_arrays, joint_trajectory_arrays
 from ..recording.mcap_writer import METADATA_NAME
 from ..recording.files import EVENTS_FILE, MCAP_FILE
 from ..recording.schema import message_class
@@ -163,17 +164,36 @@ def _joint_series(messages: list[tuple[float, Any]]) -> JointSeries:
     return JointSeries(np.array([t for t, _ in messages]), names, position, velocity)
 
 
-def _goal(topic: str, sent_at: float, msg: Any) -> CommandedGoal:
-    stamp = _seconds(msg.header.stamp)
-    start = stamp if stamp > 0 else sent_at  # a zero stamp means "start now"
-    times = np.array([start + _seconds(p.time_from_start) for p in msg.points])
-    n = len(msg.joint_names)
+def _joint_state(data: bytes, cls: type) -> JointStateArrays:
+    """A recorded joint state's names, positions and velocities (read directly from its CDR)."""
+    try:
+        return joint_state_arrays(data)
+    except ValueError:  # not the little-endian CDR this project writes: rclpy reads any
+        msg = deserialize_message(data, cls)
+        return JointStateArrays(tuple(msg.name), tuple(msg.position), tuple(msg.velocity))
 
-    def column(field_name: str) -> np.ndarray:
-        rows = [list(getattr(p, field_name)) or [np.nan] * n for p in msg.points]
-        return np.array(rows, dtype=float).reshape(len(msg.points), n)
 
-    return CommandedGoal(topic, sent_at, list(msg.joint_names), times, column("positions"), column("velocities"))
+def _trajectory(data: bytes, cls: type) -> TrajectoryArrays:
+    """A recorded trajectory's stamp, names and points (read directly from its CDR)."""
+    try:
+        return joint_trajectory_arrays(data)
+    except ValueError:  # not the little-endian CDR this project writes: rclpy reads any
+        msg = deserialize_message(data, cls)
+        return TrajectoryArrays(_seconds(msg.header.stamp), tuple(msg.joint_names),
+                                tuple(_seconds(p.time_from_start) for p in msg.points),
+                                tuple(tuple(p.positions) for p in msg.points), tuple(tuple(p.velocities) for p in msg.points))
+
+
+def _goal(topic: str, sent_at: float, trajectory: TrajectoryArrays) -> CommandedGoal:
+    start = trajectory.stamp_s if trajectory.stamp_s > 0 else sent_at  # a zero stamp means "start now"
+    times = start + np.array(trajectory.times_s, dtype=float)
+    n = len(trajectory.joint_names)
+
+    def column(rows: tuple[tuple[float, ...], ...]) -> np.ndarray:
+        return np.array([row or [np.nan] * n for row in rows], dtype=float).reshape(len(rows), n)
+
+    return CommandedGoal(topic, sent_at, list(trajectory.joint_names), times, column(trajectory.positions),
+                         column(trajectory.velocities))
 
 
 def _wanted(topic: str, type_name: str) -> bool:
@@ -217,25 +237,29 @@ class McapContents:
     pending: list[dict[str, Any]] = field(default_factory=list)
     """Requests whose frame waits for images not yet arrived (and every request after them)."""
 
-    def add(self, topic: str, type_name: str, log_time_ns: int, data: bytes) -> None:
+    def add(self, topic: str, type_name: str, log_time_ns: int, data: bytes) -> Any:
+        """Take one message; returns a joint state as read (``JointStateArrays``), else None."""
         recording = self.recording
         self.counts[topic][0] = type_name
         self.counts[topic][1] += 1
         if type_name == "sensor_msgs/msg/Image":
             self.images[(topic, log_time_ns - self.origin_ns)] = data  # decoded only if a request shows it
-            return
+            return None
         if not _wanted(topic, type_name):
-            return
+            return None
         cls = self.classes.get(type_name)
         if cls is None:
             cls = self.classes[type_name] = message_class(type_name)
         t = (log_time_ns - self.origin_ns) * 1e-9
-        msg = deserialize_message(data, cls)
         if topic == JOINT_STATES_TOPIC:
+            msg = _joint_state(data, cls)
             self.joint_messages.append((t, msg))
-        elif type_name == "trajectory_msgs/msg/JointTrajectory" and topic.endswith("/joint_trajectory"):
-            recording.goals.append(_goal(topic, t, msg))
-        elif type_name.endswith("GripperCommand_Goal"):
+            return msg
+        if type_name == "trajectory_msgs/msg/JointTrajectory":  # (on a controller's /joint_trajectory: _wanted)
+            recording.goals.append(_goal(topic, t, _trajectory(data, cls)))
+            return None
+        msg = deserialize_message(data, cls)
+        if type_name.endswith("GripperCommand_Goal"):
             recording.gripper_commands.append((t, float(msg.command.position)))
         elif topic.endswith("/request"):
             request = json.loads(msg.data)
@@ -244,6 +268,7 @@ class McapContents:
             self._frames(final=False)
         elif topic.endswith("/response"):
             recording.responses.append(json.loads(msg.data))
+        return None
 
     def end_time_s(self) -> float | None:
         """Clock time of the last joint state (where a partial recording ends)."""

@@ -12,6 +12,10 @@ plots and the tree as SVG from the data it already holds and answers one JSON li
 files written and the artifacts that failed.
 ``render`` of a directory the worker did not record reads it back from its files.
 
+The worker reads its stdin on a thread from its first instant (``_Drain``) and only then imports
+what it needs (numpy, rclpy, mcap: a few tenths of a second), so a run that fills the pipe
+meanwhile does not wait; this module imports nothing heavy at its top for that reason.
+
 Signals are the run's business: the worker runs in a process group of its own, so Ctrl-C at the
 terminal reaches only the run (which stops the worker if it must), and it starts with SIGINT
 blocked (and then ignored), so one sent to it directly does nothing either; it never prints a
@@ -34,16 +38,20 @@ import subprocess
 import sys
 import threading
 from pathlib import Path
-from typing import Any, Callable, Iterator
+from typing import TYPE_CHECKING, Any, Callable, Iterator
 
 from ..errors import ObjectiveError
-from ..recording.handoff import Frame, Handoff, WorkerLost, json_frame, read_frames, write_all
 from ..recording.files import VIDEO_FILE
 from . import Report, log_errors, render_report
-from .video import VideoEncoder
+
+if TYPE_CHECKING:
+    from ..recording.handoff import Handoff
 
 RENDER_TIMEOUT = 600.0
 """Seconds the worker may take to render a report (a long run's video is the slow part)."""
+READ_AHEAD_BYTES = 1 << 20
+"""Most the worker reads from the run's pipe ahead of what it has written (``_Drain``); with
+the pipe itself (``runtime.recording.handoff.PIPE_BYTES``) what a worker that dies can lose."""
 
 
 @contextlib.contextmanager
@@ -75,6 +83,8 @@ class ReportWorker:
 
     def record(self, directory: Path | str, clock_origin_ns: int) -> Handoff | None:
         """Where the run sends its recording of ``directory`` (None without a worker)."""
+        from ..recording.handoff import Handoff
+
         if self.process is None or self.process.stdin is None:
             return None
         return Handoff(self.process.stdin.fileno(), str(directory), clock_origin_ns)
@@ -104,6 +114,8 @@ class ReportWorker:
             process.communicate()
 
     def _ask(self, directory: Path, timeout: float) -> dict[str, Any] | None:
+        from ..recording.handoff import Frame, WorkerLost, json_frame, write_all
+
         process, self.process = self.process, None
         if process is None:
             return None
@@ -145,23 +157,69 @@ def _answer(directory: str, recording: Any, video: Callable[[], Path] | None) ->
         return {"failed": str(err) if isinstance(err, ObjectiveError) else f"{type(err).__name__}: {err}"}
 
 
+class _Drain:
+    """Reads the run's pipe on a thread from the worker's first instant: its imports take a few
+    tenths of a second, during which a run that filled the pipe would wait. Holds at most
+    ``READ_AHEAD_BYTES`` read ahead of what the worker has taken (``read``)."""
+
+    def __init__(self, fd: int, limit: int = READ_AHEAD_BYTES) -> None:
+        self._fd = fd
+        self._limit = limit
+        self._chunks: list[bytes] = []
+        self._held = 0
+        self._ended = False
+        self._changed = threading.Condition()
+        threading.Thread(target=self._drain, daemon=True).start()
+
+    def _drain(self) -> None:
+        while True:
+            with self._changed:
+                self._changed.wait_for(lambda: self._held < self._limit)
+            try:
+                data = os.read(self._fd, self._limit)
+            except InterruptedError:
+                continue
+            except OSError:
+                data = b""
+            with self._changed:
+                self._chunks.append(data)
+                self._held += len(data)
+                self._changed.notify_all()
+            if not data:
+                return
+
+    def read(self) -> bytes:
+        """All that arrived since the last call (waits for something); ``b""`` at end of file."""
+        with self._changed:
+            self._changed.wait_for(lambda: self._chunks or self._ended)
+            data = b"".join(self._chunks)
+            self._ended = self._ended or self._chunks[-1:] == [b""]
+            self._chunks.clear()
+            self._held = 0
+            self._changed.notify_all()
+        return data
+
+
 def main() -> int | None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the run decides when the worker stops
     try:
-        return _serve()
+        drain = _Drain(sys.stdin.fileno())  # before the imports: the run must not wait for them
+        return _serve(drain.read)
     except Exception:  # the run notices (WorkerLost, or no answer) and does the work itself
         return 1
 
 
-def _serve() -> int | None:
+def _serve(read: Callable[[], bytes]) -> int | None:
+    from ..recording.handoff import Frame, read_frames
     from ..recording.session import RecordingSession
+    from .video import VideoEncoder
 
     failed: list[BaseException] = []
     imports = threading.Thread(target=_import_report_libraries, args=(failed,), daemon=True)
     imports.start()
     session: RecordingSession | None = None
     encoder: VideoEncoder | None = None
-    for kind, payload in read_frames(sys.stdin.fileno()):
+    for kind, payload in read_frames(read):
         if kind is None:  # all that has arrived is taken: to the files
             if session is not None and not session.ended:
                 session.flush_if_due()
