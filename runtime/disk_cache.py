@@ -11,14 +11,21 @@ A file's digest is itself an entry (``file_sha256``), named by the file's path a
 Where: ``$OBJECTIVE_CACHE_DIR``, else ``$XDG_CACHE_HOME/objective-runtime``, else
 ``~/.cache/objective-runtime``. ``OBJECTIVE_CACHE=off`` turns it off (every lookup misses and
 nothing is written): ``benchmarks/bench_cold_start.py`` uses it to compare.
+
+Size: every key is new after a change to an input or to the code, so old entries would pile up
+(a cell binary is ~20 MB). A read marks an entry used (its modification time); at most once an
+hour, a store prunes the least recently used entries until the cache fits in
+``$OBJECTIVE_CACHE_MAX_MB`` (default 1024), and removes temporary files a killed writer left.
 """
 from __future__ import annotations
 
 import functools
 import hashlib
 import os
+import sys
 import tempfile
 import time
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable, TypeVar
 
@@ -26,6 +33,13 @@ T = TypeVar("T")
 
 ENV_DIR = "OBJECTIVE_CACHE_DIR"
 ENV_SWITCH = "OBJECTIVE_CACHE"
+ENV_LIMIT = "OBJECTIVE_CACHE_MAX_MB"
+DEFAULT_LIMIT_MB = 1024.0
+PRUNE_PERIOD_S = 3600.0
+"""A store prunes only when the last pruning (``PRUNE_MARKER``'s time) is older than this."""
+PRUNE_MARKER = ".pruned"
+STALE_TEMPORARY_S = 3600.0
+"""A writer's temporary file this old was left by a process that died mid-write."""
 
 
 def cache_dir() -> Path | None:
@@ -95,9 +109,12 @@ def cached(kind: str, key: str, compute: Callable[[], bytes], decode: Callable[[
     path = None if root is None else root / kind / key
     if path is not None:
         try:
-            return decode(path.read_bytes())
+            value = decode(path.read_bytes())
         except Exception:  # missing, unreadable or damaged: compute it again
             pass
+        else:
+            _mark_used(path)
+            return value
     data = compute()
     if path is not None:
         _store(path, data)
@@ -113,9 +130,12 @@ def cached_file(kind: str, key: str, compute: Callable[[], bytes], load: Callabl
     path = None if root is None else root / kind / key
     if path is not None and path.is_file():  # libraries complain about a missing file on stderr
         try:
-            return load(str(path))
+            value = load(str(path))
         except Exception:  # unreadable or damaged: compute it again
             pass
+        else:
+            _mark_used(path)
+            return value
     data = compute()
     if path is not None and _store(path, data):
         return load(str(path))
@@ -142,4 +162,95 @@ def _store(path: Path, data: bytes) -> bool:
             raise
     except OSError:
         return False
+    _prune_when_due(path.parent.parent, keep=path)
     return True
+
+
+def _mark_used(path: Path) -> None:
+    """An entry just read is the most recently used: pruning removes others first."""
+    try:
+        os.utime(path)
+    except OSError:  # a read-only cache is still read
+        pass
+
+
+def size_limit_bytes() -> int | None:
+    """``$OBJECTIVE_CACHE_MAX_MB`` in bytes (default ``DEFAULT_LIMIT_MB``); None, after saying
+    so on stderr, when it is not a number of megabytes >= 0 (the cache is then not pruned)."""
+    text = os.environ.get(ENV_LIMIT, "").strip()
+    try:
+        limit_mb = float(text) if text else DEFAULT_LIMIT_MB
+        if not limit_mb >= 0 or limit_mb == float("inf"):
+            raise ValueError
+    except ValueError:
+        print(f"objective-runtime: {ENV_LIMIT}={text!r} is not a number of megabytes >= 0; "
+              "the disk cache is not pruned", file=sys.stderr)
+        return None
+    return int(limit_mb * 1_000_000)
+
+
+@dataclass(frozen=True)
+class Entry:
+    path: Path
+    size_bytes: int
+    used_ns: int  # when it was written or last read (its modification time)
+
+
+def entries_to_remove(entries: list[Entry], limit_bytes: int, keep: Path) -> list[Path]:
+    """The least recently used entries, oldest first, whose removal brings the total to at most
+    ``limit_bytes``; never ``keep`` (the entry just written)."""
+    total = sum(e.size_bytes for e in entries)
+    remove = []
+    for entry in sorted(entries, key=lambda e: e.used_ns):
+        if total <= limit_bytes:
+            break
+        if entry.path != keep:
+            remove.append(entry.path)
+            total -= entry.size_bytes
+    return remove
+
+
+def _prune_when_due(root: Path, keep: Path) -> None:
+    """Prune ``root`` when it was last pruned more than ``PRUNE_PERIOD_S`` ago (or never)."""
+    marker = root / PRUNE_MARKER
+    try:
+        if time.time() - marker.stat().st_mtime < PRUNE_PERIOD_S:
+            return
+    except OSError:  # never pruned
+        pass
+    limit = size_limit_bytes()
+    if limit is None:
+        return
+    try:
+        marker.touch()
+        prune(root, limit, keep)
+    except OSError:  # another process pruned it meanwhile, or the disk went read-only
+        pass
+
+
+def prune(root: Path, limit_bytes: int, keep: Path | None = None) -> list[Path]:
+    """Remove the least recently used entries of the cache at ``root`` until it holds at most
+    ``limit_bytes``, and temporary files older than ``STALE_TEMPORARY_S``; the removed paths.
+    A process reading an entry removed meanwhile computes it again."""
+    entries, removed = [], []
+    stale_before_ns = time.time_ns() - int(STALE_TEMPORARY_S * 1e9)
+    for kind in os.scandir(root):
+        if not kind.is_dir(follow_symlinks=False):
+            continue
+        for item in os.scandir(kind.path):
+            try:
+                stat = item.stat(follow_symlinks=False)
+            except FileNotFoundError:  # removed by another process meanwhile
+                continue
+            if item.name.startswith("."):  # a writer's temporary file
+                if item.name.endswith(".tmp") and stat.st_mtime_ns < stale_before_ns:
+                    removed.append(Path(item.path))
+            elif item.is_file(follow_symlinks=False):
+                entries.append(Entry(Path(item.path), stat.st_size, stat.st_mtime_ns))
+    removed += entries_to_remove(entries, limit_bytes, keep if keep is not None else Path())
+    for path in removed:
+        try:
+            path.unlink()
+        except FileNotFoundError:
+            pass
+    return removed

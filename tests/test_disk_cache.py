@@ -248,3 +248,65 @@ def test_a_damaged_cell_entry_is_compiled_again(cache):
     again = compile_cell(CellOptions())
     np.testing.assert_array_equal(again.mesh_vert, good.mesh_vert)
     assert mujoco.MjModel.from_binary_path(str(entry)).nmeshvert == good.nmeshvert
+
+
+# -- size: least recently used entries are pruned ------------------------------------------------
+def _entry(root: Path, kind: str, name: str, size: int, age_s: float) -> Path:
+    path = root / kind / name
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_bytes(b"x" * size)
+    then = time.time() - age_s
+    os.utime(path, (then, then))
+    return path
+
+
+def test_the_least_recently_used_entries_go_first_and_the_new_one_stays():
+    entries = [disk_cache.Entry(Path(name), size, used) for name, size, used in
+               [("old", 50, 1), ("new", 50, 9), ("mid", 50, 5), ("kept", 50, 0)]]
+    assert disk_cache.entries_to_remove(entries, 100, keep=Path("kept")) == [Path("old"), Path("mid")]
+    assert disk_cache.entries_to_remove(entries, 200, keep=Path("kept")) == []
+    assert disk_cache.entries_to_remove(entries, 0, keep=Path("kept")) == [Path("old"), Path("mid"), Path("new")]
+
+
+def test_prune_removes_the_oldest_entries_and_stale_temporary_files(cache):
+    old = _entry(cache, "cell_mjb", "a", 600, age_s=300)
+    recent = _entry(cache, "cell_mjb", "b", 600, age_s=10)
+    small = _entry(cache, "file_sha256", "c", 32, age_s=200)
+    stale_tmp = _entry(cache, "cell_mjb", ".a.123.tmp", 100, age_s=2 * disk_cache.STALE_TEMPORARY_S)
+    live_tmp = _entry(cache, "cell_mjb", ".b.456.tmp", 100, age_s=1)
+    removed = disk_cache.prune(cache, 1000)
+    assert sorted(removed) == sorted([old, stale_tmp])
+    assert recent.exists() and small.exists() and live_tmp.exists()
+    assert not old.exists() and not stale_tmp.exists()
+
+
+def test_a_read_entry_counts_as_recently_used(cache):
+    read = _entry(cache, "kind", "read", 600, age_s=500)
+    unread = _entry(cache, "kind", "unread", 600, age_s=100)
+    assert disk_cache.cached("kind", "read", lambda: b"never", len) == 600  # a hit: not computed
+    assert disk_cache.prune(cache, 1000) == [unread]
+    assert read.exists()
+
+
+def test_a_store_prunes_at_most_once_a_period(cache, monkeypatch):
+    monkeypatch.setenv(disk_cache.ENV_LIMIT, "0.001")  # 1000 bytes
+    first = _entry(cache, "kind", "first", 600, age_s=500)
+    disk_cache.cached("kind", "second", lambda: b"y" * 600, len)  # over the limit, never pruned before
+    assert not first.exists() and (cache / "kind" / "second").exists()
+    disk_cache.cached("kind", "third", lambda: b"z" * 600, len)  # pruned just now: not again
+    assert (cache / "kind" / "second").exists() and (cache / "kind" / "third").exists()
+    marker = cache / disk_cache.PRUNE_MARKER
+    then = time.time() - 2 * disk_cache.PRUNE_PERIOD_S
+    os.utime(marker, (then, then))
+    os.utime(cache / "kind" / "second", (then, then))
+    disk_cache.cached("kind", "fourth", lambda: b"w" * 100, len)
+    assert sorted(p.name for p in (cache / "kind").iterdir()) == ["fourth", "third"]
+
+
+@pytest.mark.parametrize("value", ["lots", "-5", "nan", "inf"])
+def test_a_bad_size_limit_is_reported_and_nothing_is_pruned(cache, monkeypatch, capsys, value):
+    monkeypatch.setenv(disk_cache.ENV_LIMIT, value)
+    kept = _entry(cache, "kind", "old", 10_000, age_s=500)
+    assert disk_cache.cached("kind", "new", lambda: b"v", bytes.decode) == "v"
+    assert kept.exists()
+    assert f"OBJECTIVE_CACHE_MAX_MB={value!r} is not a number of megabytes >= 0" in capsys.readouterr().err
