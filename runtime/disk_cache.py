@@ -196,7 +196,7 @@ class Entry:
     used_ns: int  # when it was written or last read (its modification time)
 
 
-def entries_to_remove(entries: list[Entry], limit_bytes: int, keep: Path) -> list[Path]:
+def entries_to_remove(entries: list[Entry], limit_bytes: int, keep: Path | None = None) -> list[Path]:
     """The least recently used entries, oldest first, whose removal brings the total to at most
     ``limit_bytes``; never ``keep`` (the entry just written)."""
     total = sum(e.size_bytes for e in entries)
@@ -247,7 +247,7 @@ def prune(root: Path, limit_bytes: int, keep: Path | None = None) -> list[Path]:
                     removed.append(Path(item.path))
             elif item.is_file(follow_symlinks=False):
                 entries.append(Entry(Path(item.path), stat.st_size, stat.st_mtime_ns))
-    removed += entries_to_remove(entries, limit_bytes, keep if keep is not None else Path())
+    removed += entries_to_remove(entries, limit_bytes, keep)
     for path in removed:
         try:
             path.unlink()
