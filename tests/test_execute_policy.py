@@ -723,6 +723,43 @@ def test_a_first_chunk_is_played_from_its_step_0_at_the_first_step_at_or_after_i
     assert t[t > takes_over + 1e-9][0] == pytest.approx(takes_over + 0.002) and v[t > takes_over + 1e-9][0] > 1e-6
 
 
+def test_a_chunk_that_finds_the_arm_at_rest_starts_at_its_arrival_step_and_the_next_request_goes_out_then(registry):
+    # Chunk 2 takes 8 s: chunk 1 (50 steps at 0.1 rad/s) has run out and the arm rests when it
+    # lands, exactly on a step. As a first chunk does, its window starts at that step and its
+    # goal takes over one tick later, within the step (before, the window waited for the next
+    # step: 0.1 s more standing still), and chunk 3 is asked for in the same tick.
+    commanded: list[tuple[float, float]] = []
+    ports = BASE.replace('policy_call_timeout="3.0"', 'policy_call_timeout="10.0"').replace('total_action_steps="60"', 'total_action_steps="100"')
+    run = run_policy(registry, ports, ScriptedPolicy(hold(velocity=np.array([0.1, 0, 0, 0, 0, 0]))), latency=SpikeAt(0.05, 2, 8.0),
+                     before=record_commanded_velocity(commanded))
+    assert run.result.status == "SUCCESS", run.result.reason
+    requests = run.context.events.of_kind("chunk_requested")
+    executed = run.context.events.of_kind("chunk_executed")
+    arrival = requests[2].time + 8.0  # chunk 2's request (requests[0] is the warmup)
+    second = executed[1].data
+    assert second["seam_time"] == pytest.approx(arrival)
+    assert second["takes_over_time"] == pytest.approx(arrival + 0.01)
+    assert executed[1].time == pytest.approx(arrival) and requests[3].time == pytest.approx(arrival)
+    t, v = np.array(commanded).T
+    waiting = (t > arrival - 1.0) & (t <= arrival + 0.01 + 1e-9)
+    assert np.abs(v[waiting]).max() < 1e-12  # at rest until the goal takes over
+    assert v[t > arrival + 0.01 + 1e-9][0] > 1e-6
+
+
+def test_a_one_step_run_whose_chunk_lands_on_a_step_is_started_at_the_next_step_when_the_arrival_step_is_too_short(registry):
+    # total_action_steps = 1: the chunk's one step is played and the arm brought to rest at it.
+    # Landing on a step, started there, the goal would take over 10 ms into the step and leave
+    # 90 ms for the move from rest and back to rest: at 0.1 rad/s that is over the acceleration
+    # limit. The planner then starts the window at the next step, with the whole step for it.
+    ports = BASE.replace('total_action_steps="60"', 'total_action_steps="1"')
+    run = run_policy(registry, ports, ScriptedPolicy(hold(velocity=np.array([0.1, 0, 0, 0, 0, 0]))), latency=0.5)
+    assert run.result.status == "SUCCESS", run.result.reason
+    origin = run.context.events.of_kind("chunk_requested")[1].time
+    first = run.context.events.of_kind("chunk_executed")[0].data
+    assert (first["seam_time"], first["takes_over_time"]) == (pytest.approx(origin + 0.6), pytest.approx(origin + 0.6))
+    assert run.summary["steps_executed"] == 1
+
+
 def test_a_first_chunk_s_rejection_names_the_run_step_its_value_would_be_played_at(registry):
     # Chunk 1 arrives on step 5 and is played from its step 0 there, so its step 3 belongs to run
     # step 8: the rejection says so (policy step N of the run: the step the value is played at).

@@ -250,9 +250,11 @@ class ExecutePolicy(Behavior):
         elif state is StreamState.AWAITING_CHUNK:
             status = self._receive(now)
         else:
-            status = self._maybe_request(now)
+            status = None
         if status is not None:
             return status
+        if stream_state(self.held, self.request) is StreamState.SCHEDULING:  # also right after a chunk was sent: its next request may be due now
+            self._maybe_request(now)
         status = self._watch_scene(now)
         if status is not None:
             return status

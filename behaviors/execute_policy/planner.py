@@ -89,28 +89,42 @@ class Planned:
 
 
 def plan_chunk(inp: PlanInput) -> Planned | Wait | Reject:
-    c, grid, chunk, index = inp.config, inp.committed.grid, inp.chunk, inp.index
     if inp.goal is GoalState.SENT:
         # Whether the controller plays the previous goal decides how this chunk joins (a refused
         # goal rolls the stream back).
         return Wait(WaitReason.GOAL_UNANSWERED)
+    from_rest = inp.arrival if arrives_at_rest(inp.committed.motion, inp.arrival, inp.committed.grid) else None
+    plan = _plan(inp, from_rest)
+    if isinstance(plan, Reject) and from_rest is not None:
+        # A window started at the arrival step gives the start from rest a fraction of a step
+        # less (the goal takes over within the step): a short window may need the whole step.
+        later = _plan(inp, None)
+        if not isinstance(later, Reject):
+            return later
+    return plan
+
+
+def _plan(inp: PlanInput, from_rest: Arrival | None) -> Planned | Wait | Reject:
+    """``plan_chunk`` with the window started at the arrival step (``from_rest``) or at the
+    earliest seam (None)."""
+    c, grid, chunk, index = inp.config, inp.committed.grid, inp.chunk, inp.index
+    previous = inp.committed.motion
     try:
         window = grid.plan_window(index, inp.request_step, inp.frozen, chunk.steps, inp.earliest_seam_step,
                                   runout_reserve=runout_chunk_steps(nominal_runout_s(c), c.dt),
-                                  arrival_step=window_arrival_step(inp.arrival, grid, inp.earliest_seam_step))
+                                  arrival_step=window_arrival_step(from_rest, grid, inp.earliest_seam_step))
     except WindowError as err:
         return Reject(f"chunk {index} rejected: {err}")
     outside = inp.checks.values(chunk, window)
     if outside is not None:
         return Reject(f"chunk {index} rejected: {outside}")
     seam_time = grid.time(window.seam_step)
-    previous = inp.committed.motion
     if previous is not None and seam_time > previous.rest_time + 1e-9 and inp.goal is not GoalState.ENDED:
         # Too late to join the motion the controller is still playing (its runout included): a
         # seam after its end would be refused. Wait for it to finish; the chunk then starts from
         # rest (a pause, counted as a stall).
         return Wait(WaitReason.MOTION_ENDS_FIRST)
-    takes_over = take_over_time(seam_time, inp.arrival if previous is None else None)
+    takes_over = take_over_time(seam_time, from_rest)
     start_p, start_v = state_at(previous, takes_over, inp.rest_position)
     motion = join_at_seam(
         fit_chunk(chunk.arm, c.policy_tracking_weight),
@@ -148,9 +162,17 @@ def plan_chunk(inp: PlanInput) -> Planned | Wait | Reject:
     return Planned(window, seam_time, Committed(new_grid, motion, samples), stall, takes_over)
 
 
+def arrives_at_rest(previous: ChunkMotion | None, arrival: Arrival | None, grid: StepGrid) -> bool:
+    """Whether the arm rests when the chunk arrives: before the first chunk, or once the
+    committed motion (its runout included) has ended by the arrival step."""
+    if arrival is None:
+        return False
+    return previous is None or previous.rest_time <= grid.time(arrival.step) + 1e-9
+
+
 def window_arrival_step(arrival: Arrival | None, grid: StepGrid, earliest_seam_step: int) -> int | None:
-    """The arrival step a first chunk's window may start at (``stream.first_chunk_seam``): only
-    while its goal takes effect strictly before the earliest seam step begins, so that the goal
+    """The arrival step the window of a chunk that finds the arm at rest may start at
+    (``stream.from_rest_seam``; ``arrival`` None: the arm moves): only while its goal takes effect strictly before the earliest seam step begins, so that the goal
     takes over within the window's first step. None: the window starts at the earliest seam."""
     if arrival is None or grid.time(earliest_seam_step) - arrival.goal_takes_effect_s <= 1e-9:
         return None
@@ -158,10 +180,10 @@ def window_arrival_step(arrival: Arrival | None, grid: StepGrid, earliest_seam_s
 
 
 def take_over_time(seam_time_s: float, arrival: Arrival | None) -> float:
-    """When the goal takes over from the motion the controller plays: at the seam, except that a
-    first chunk's window may start at the step the chunk arrived (``stream.first_chunk_seam``)
-    while its goal takes effect later within that step. The arm rests where the chunk's step 0
-    is until then, and the blend from rest catches up the fraction of a step."""
+    """When the goal takes over from the motion the controller plays: at the seam, except that
+    the window of a chunk that finds the arm at rest (``arrival`` not None) may start at the
+    step the chunk arrived (``stream.from_rest_seam``) while its goal takes effect later within
+    that step. The arm rests until then, and the blend from rest catches up the fraction of a step."""
     return seam_time_s if arrival is None else max(seam_time_s, arrival.goal_takes_effect_s)
 
 

@@ -57,13 +57,14 @@ def tail_progress(steps_since_end: int, tail_extension_steps: int, tail_runout_s
     return tail_extension_steps + runout_progress(steps_since_end - tail_extension_steps, tail_runout_steps)
 
 
-def first_chunk_seam(earliest_seam: int, arrival_step: int | None) -> int:
-    """The step where the first chunk's window starts, played from the chunk's step 0: the arm
-    has rested there since the request. That is the first step at or after the chunk arrived,
-    as both baselines play a first chunk, unless its goal cannot take effect within that step
-    (``earliest_seam`` is later still); then the step before the earliest seam. A goal that takes
-    effect within the window's first step (one tick after the arrival, in process) starts the
-    motion from rest there (``planner.take_over_time``)."""
+def from_rest_seam(earliest_seam: int, arrival_step: int | None) -> int:
+    """The step where a chunk that finds the arm at rest (the first chunk, or one after the
+    previous motion ran out) starts its window: the first step at or after the chunk arrived,
+    as both baselines play a chunk into an empty queue, unless its goal cannot take effect
+    within that step (``earliest_seam`` is later still); then the step before the earliest seam.
+    A goal that takes effect within the window's first step (one tick after the arrival, in
+    process) starts the motion from rest there (``planner.take_over_time``). ``arrival_step``
+    None (the arm is moving): the earliest seam."""
     if arrival_step is None:
         return earliest_seam
     return max(0, arrival_step, earliest_seam - 1)
@@ -133,7 +134,7 @@ class StepGrid:
         given the first step it can still join at (``earliest_seam``, from its arrival). A late
         chunk's window leaves ``runout_reserve`` steps of the chunk for its own runout.
         ``arrival_step`` (the first step at or after the chunk arrived; None: ``earliest_seam``)
-        places the first chunk: see ``first_chunk_seam``.
+        places a chunk that finds the arm at rest: see ``from_rest_seam``.
 
         Raises WindowError when the chunk ends before the seam.
         """
@@ -145,10 +146,10 @@ class StepGrid:
         # along the previous chunk rather than from the step the clock says, so the arm does not
         # have to catch up on steps it never moved through.
         on_time = index > 1 and earliest_seam <= self.committed_end
-        if index == 1:
-            seam = first_chunk_seam(earliest_seam, arrival_step)
+        if on_time:
+            seam = self.committed_end
         else:
-            seam = self.committed_end if on_time else max(earliest_seam, self.committed_end)
+            seam = max(self.committed_end, from_rest_seam(earliest_seam, arrival_step))
         played = 0
         if not on_time:
             reached = 0
