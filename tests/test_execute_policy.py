@@ -614,8 +614,27 @@ def test_heavy_tailed_latency_warns_once_during_the_run_with_the_figures(registr
     assert run.result.status == "SUCCESS", run.result.reason
     assert [w for w in run.summary["warnings"] if "below twice" in w] == [
         "(committed_action_steps - 1) * dt = 1.900 s is below twice the latency estimate 1.200 s (the 90th percentile "
-        "of the last 3 round trips): expect pauses at chunk boundaries (committed_action_steps = 25 would cover it)"
+        "of the last 3 round trips): chunks land after their committed window ends; the arm goes on along the chunk's "
+        "steps beyond the window meanwhile, and pauses only once the latency passes about 2.500 s, half the 50-step "
+        "chunk (committed_action_steps = 25 would cover it)"
     ]
+    assert run.summary["stall_seconds"] == 0.0  # as the warning says
+
+
+def test_a_latency_that_outgrows_the_chunk_s_tail_too_warns_a_second_time(registry):
+    # As above, then one call takes 2.8 s: more than half the 50-step chunk (2.5 s), which the
+    # arm plays beyond each window while it waits. The warning about pauses follows the first.
+    from runtime.bus import TraceLatency
+
+    run = run_policy(registry, BASE, ScriptedPolicy(hold()), latency=TraceLatency([0.2, 0.2, 1.2, 2.8, 0.2]))
+    assert run.result.status == "SUCCESS", run.result.reason
+    sizing = [w for w in run.summary["warnings"] if "below twice" in w]
+    assert len(sizing) == 2 and "pauses only once the latency passes about 2.500 s" in sizing[0]
+    assert sizing[1] == (
+        "(committed_action_steps - 1) * dt = 1.900 s is below twice the latency estimate 2.800 s (the 90th percentile "
+        "of the last 4 round trips) and longer than half the 50-step chunk (2.500 s): expect pauses at chunk boundaries "
+        "(covering it would take committed_action_steps = 57, not below the chunk's 50 steps: a faster policy or longer chunks)"
+    )
 
 
 def test_committed_window_not_smaller_than_the_chunk_fails_at_the_first_chunk(registry):

@@ -24,6 +24,8 @@ from behaviors.execute_policy.timing import (
     LatencyEstimate,
     frozen_prefix_steps,
     nearest_rank_quantile,
+    SizingRisk,
+    sizing_risk,
     sizing_warning,
     window_covers_latency,
 )
@@ -244,6 +246,24 @@ def test_sizing_warning_names_the_figures():
     assert sizing_warning(20, 0.1, 1.2, "latency estimate", " (the 90th percentile of the last 4 round trips)") == (
         "(committed_action_steps - 1) * dt = 1.900 s is below twice the latency estimate 1.200 s (the 90th percentile "
         "of the last 4 round trips): expect pauses at chunk boundaries (committed_action_steps = 25 would cover it)"
+    )
+
+
+def test_sizing_warning_says_whether_the_chunk_s_tail_covers_the_latency():
+    # 50-step chunks at dt 0.1: the arm plays the steps beyond the 2 s window while it waits, so
+    # up to about half the chunk (2.5 s) no pause is expected; beyond it, pauses are.
+    assert [sizing_risk(20, 0.1, latency, 50) for latency in (0.95, 1.2, 2.5, 2.6)] == [
+        SizingRisk.COVERED, SizingRisk.TAIL_COVERS, SizingRisk.TAIL_COVERS, SizingRisk.PAUSES]
+    assert sizing_risk(20, 0.1, 1.2, None) is SizingRisk.PAUSES  # chunk size not known yet
+    assert sizing_warning(20, 0.1, 1.2, "measured latency", chunk_steps=50) == (
+        "(committed_action_steps - 1) * dt = 1.900 s is below twice the measured latency 1.200 s: chunks land after "
+        "their committed window ends; the arm goes on along the chunk's steps beyond the window meanwhile, and pauses "
+        "only once the latency passes about 2.500 s, half the 50-step chunk (committed_action_steps = 25 would cover it)"
+    )
+    assert sizing_warning(20, 0.1, 3.0, "measured latency", chunk_steps=50) == (
+        "(committed_action_steps - 1) * dt = 1.900 s is below twice the measured latency 3.000 s and longer than half "
+        "the 50-step chunk (2.500 s): expect pauses at chunk boundaries (covering it would take committed_action_steps "
+        "= 61, not below the chunk's 50 steps: a faster policy or longer chunks)"
     )
 
 

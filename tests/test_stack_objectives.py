@@ -50,7 +50,8 @@ def test_one_slow_inference_pauses_the_stack_once_and_the_estimate_recovers(caps
     sizing = [w for w in policy["warnings"] if "below twice" in w]
     assert sizing == [
         "(committed_action_steps - 1) * dt = 1.900 s is below twice the latency estimate 3.000 s (the 90th percentile "
-        "of the last 3 round trips): expect pauses at chunk boundaries (committed_action_steps = 61 would cover it)"
+        "of the last 3 round trips) and longer than half the 50-step chunk (2.500 s): expect pauses at chunk boundaries "
+        "(covering it would take committed_action_steps = 61, not below the chunk's 50 steps: a faster policy or longer chunks)"
     ]
     assert summary["stack_check"]["stacked"] is True
 

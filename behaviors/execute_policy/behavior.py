@@ -47,7 +47,7 @@ from .planner import (
 from .shaping import Samples
 from .states import Committed, FreeSamples, Goal, GoalState, HeldChunk, InFlight, Phase, Rollback, StreamState, stream_finished, stream_state
 from .stream import StepGrid, Window
-from .timing import LatencyEstimate, frozen_prefix_steps, prefetch_margin, sizing_warning
+from .timing import LatencyEstimate, SizingRisk, frozen_prefix_steps, prefetch_margin, sizing_risk, sizing_warning
 from ..safety import MotionSafety, SafetyError, make_safety
 
 STARTUP_WAIT_S = 5.0
@@ -131,7 +131,8 @@ class ExecutePolicy(Behavior):
         self.gripper_sent: float | None = None
         self.gripper_goals: list[GripperGoal] = []
         self.warned_period = False
-        self.warned_sizing = False
+        self.warned_sizing = SizingRisk.COVERED  # the worst sizing risk warned about so far
+        self.chunk_steps: int | None = None  # the policy's chunk size, once an answer showed it
         try:
             self.config = self._read_config()
             cfg.validate(self.config)
@@ -226,6 +227,8 @@ class ExecutePolicy(Behavior):
         if response.status == GetActionChunk.Response.ERROR or response.status == GetActionChunk.Response.UNKNOWN:
             return self._finish(Status.FAILURE, self._status_reason(response, "warmup"))
         self.latency.update(now - flight.sent_at_s)
+        if response.status == GetActionChunk.Response.CHUNK_PRODUCED and response.chunk.points:
+            self.chunk_steps = len(response.chunk.points)
         self._check_sizing("measured latency")
         self.committed = Committed(StepGrid(now, c.dt, c.committed_action_steps, c.total_action_steps))
         self.phase = Phase.STREAM
@@ -337,6 +340,8 @@ class ExecutePolicy(Behavior):
             return self._stop(Status.FAILURE, f"calling the policy service '{c.policy_service_name}' failed: {exc}")
         self.latency.update(now - flight.sent_at_s)
         self.metrics.latencies.append(now - flight.sent_at_s)
+        if response.status == GetActionChunk.Response.CHUNK_PRODUCED and response.chunk.points:
+            self.chunk_steps = len(response.chunk.points)
         self._check_sizing("latency estimate", f" (the {self.latency.quantile * 100:.0f}th percentile of the last {len(self.latency.recent)} round trips)")
         if response.status == GetActionChunk.Response.NO_MORE_ACTIONS:
             return self._stop(Status.SUCCESS, f"the policy has no more actions: {response.message}".rstrip(": "))
@@ -586,11 +591,14 @@ class ExecutePolicy(Behavior):
         return f"the policy answered {status} for the {what}: {detail}"
 
     def _check_sizing(self, what: str, detail: str = "") -> None:
-        """Warn once per run, with the figures, when the latency outgrows the committed window."""
+        """Warn, with the figures, when the latency outgrows the committed window: once, and
+        once more if it later outgrows what the chunk's tail covers as well."""
         c = self.config
-        text = sizing_warning(c.committed_action_steps, c.dt, self.latency.seconds, what, detail)
-        if text is not None and not self.warned_sizing:
-            self.warned_sizing = True
+        risk = sizing_risk(c.committed_action_steps, c.dt, self.latency.seconds, self.chunk_steps)
+        if risk > self.warned_sizing:
+            self.warned_sizing = risk
+            text = sizing_warning(c.committed_action_steps, c.dt, self.latency.seconds, what, detail, self.chunk_steps)
+            assert text is not None
             self._warn(text)
 
     def _check_period(self, period: float) -> None:
