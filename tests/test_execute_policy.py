@@ -890,6 +890,24 @@ def refuse_third_goal_with(monkeypatch, code: int, text: str) -> None:
     monkeypatch.setattr(admittance.JointTrajectoryAdmittanceController, "_take_over", refuse)
 
 
+def test_a_late_goal_planned_again_after_a_stall_counts_the_stall_once(registry, monkeypatch):
+    # Chunk 2 takes 8 s: chunk 1's window (2 s) and its tail (26 steps at full speed, 2.6 s, then
+    # the runout) are over and the arm rests when it lands. Its goal is refused as late and the
+    # chunk is planned again from rest. The run's stall is the time from the end of chunk 1's
+    # full-speed motion to the seam that was played; before, the refused plan's stall was
+    # counted as well.
+    arrivals = refuse_as_late(monkeypatch, 2)
+    ports = BASE.replace('policy_call_timeout="3.0"', 'policy_call_timeout="10.0"').replace('total_action_steps="60"', 'total_action_steps="100"')
+    run = run_policy(registry, ports, ScriptedPolicy(hold(velocity=np.array([0.1, 0, 0, 0, 0, 0]))), latency=SpikeAt(0.05, 2, 8.0))
+    assert run.result.status == "SUCCESS", run.result.reason
+    assert len(arrivals) >= 3 and any("planning the chunk again" in w for w in run.summary["warnings"])
+    executed = [e.data for e in run.context.events.of_kind("chunk_executed")]
+    first, refused, played = executed[:3]
+    assert refused["chunk"] == played["chunk"] == 2 and played["takes_over_time"] > refused["takes_over_time"]
+    full_speed_end = first["seam_time"] + first["steps"] * 0.1 + 2.6
+    assert run.summary["stall_seconds"] == pytest.approx(played["seam_time"] - full_speed_end, abs=1e-4)
+
+
 def test_a_late_goal_is_recognised_by_its_result_code_not_its_wording(registry, monkeypatch):
     from moveit_pro_controllers_msgs.action import FollowJointTrajectoryWithAdmittance as Action
 

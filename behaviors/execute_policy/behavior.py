@@ -398,7 +398,7 @@ class ExecutePolicy(Behavior):
         self.metrics.stall_seconds += plan.stall_s
         # Kept until the controller accepts the seam: a goal refused only for arriving late is
         # planned again from the same chunk (see _retry_late_goal).
-        self.rollback = Rollback(held, self._committed(), self.goal)
+        self.rollback = Rollback(held, self._committed(), self.goal, plan.stall_s)
         self.checked_scene = self._scene_state()  # what the samples were checked against
         self.goal = self.goal.sent(self.controller.send_goal_async(self._goal(samples, plan.takes_over_s)), now)
         self.committed = plan.committed
@@ -472,6 +472,7 @@ class ExecutePolicy(Behavior):
             return False
         self.late_retries += 1
         self.committed = sent.committed
+        self.metrics.stall_seconds -= sent.stall_s  # the chunk that takes over counts the stall up to its own seam
         if sent.goal.state is GoalState.PLAYING:  # still playing (or its result is waiting to be read)
             self.goal = sent.goal
         if self.held is not None:

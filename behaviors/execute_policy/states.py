@@ -111,6 +111,7 @@ class Rollback:
     held: HeldChunk
     committed: Committed
     goal: Goal
+    stall_s: float  # the stall its plan counted: a rollback takes it back
 
 
 def stream_state(held: HeldChunk | None, request: InFlight | None) -> StreamState:
