@@ -256,8 +256,8 @@ class ExecutePolicy(Behavior):
             status = None
         if status is not None:
             return status
-        if stream_state(self.held, self.request) is StreamState.SCHEDULING:  # also right after a chunk was sent: its next request may be due now
-            self._maybe_request(now)
+        if stream_state(self.held, self.request) is StreamState.SCHEDULING:
+            self._maybe_request(now)  # also in the tick a chunk was sent: its next request may be due already
         status = self._watch_scene(now)
         if status is not None:
             return status

@@ -172,8 +172,9 @@ def arrives_at_rest(previous: ChunkMotion | None, arrival: Arrival | None, grid:
 
 def window_arrival_step(arrival: Arrival | None, grid: StepGrid, earliest_seam_step: int) -> int | None:
     """The arrival step the window of a chunk that finds the arm at rest may start at
-    (``stream.from_rest_seam``; ``arrival`` None: the arm moves): only while its goal takes effect strictly before the earliest seam step begins, so that the goal
-    takes over within the window's first step. None: the window starts at the earliest seam."""
+    (``stream.from_rest_seam``; ``arrival`` None: the arm moves): only while its goal takes
+    effect strictly before the earliest seam step begins, so that the goal takes over within the
+    window's first step. None: the window starts at the earliest seam."""
     if arrival is None or grid.time(earliest_seam_step) - arrival.goal_takes_effect_s <= 1e-9:
         return None
     return arrival.step
