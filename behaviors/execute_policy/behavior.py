@@ -227,8 +227,7 @@ class ExecutePolicy(Behavior):
         if response.status == GetActionChunk.Response.ERROR or response.status == GetActionChunk.Response.UNKNOWN:
             return self._finish(Status.FAILURE, self._status_reason(response, "warmup"))
         self.latency.update(now - flight.sent_at_s)
-        if response.status == GetActionChunk.Response.CHUNK_PRODUCED and response.chunk.points:
-            self.chunk_steps = len(response.chunk.points)
+        self._note_chunk_size(response)
         self._check_sizing("measured latency")
         self.committed = Committed(StepGrid(now, c.dt, c.committed_action_steps, c.total_action_steps))
         self.phase = Phase.STREAM
@@ -340,8 +339,7 @@ class ExecutePolicy(Behavior):
             return self._stop(Status.FAILURE, f"calling the policy service '{c.policy_service_name}' failed: {exc}")
         self.latency.update(now - flight.sent_at_s)
         self.metrics.latencies.append(now - flight.sent_at_s)
-        if response.status == GetActionChunk.Response.CHUNK_PRODUCED and response.chunk.points:
-            self.chunk_steps = len(response.chunk.points)
+        self._note_chunk_size(response)
         self._check_sizing("latency estimate", f" (the {self.latency.quantile * 100:.0f}th percentile of the last {len(self.latency.recent)} round trips)")
         if response.status == GetActionChunk.Response.NO_MORE_ACTIONS:
             return self._stop(Status.SUCCESS, f"the policy has no more actions: {response.message}".rstrip(": "))
@@ -590,6 +588,11 @@ class ExecutePolicy(Behavior):
         status = names.get(response.status, f"status {response.status}")
         detail = response.message or ("the policy left the status unset" if response.status == 0 else "no message")
         return f"the policy answered {status} for the {what}: {detail}"
+
+    def _note_chunk_size(self, response: Any) -> None:
+        """Remember the policy's chunk size from an answer that carries a chunk (the sizing warning uses it)."""
+        if response.status == GetActionChunk.Response.CHUNK_PRODUCED and response.chunk.points:
+            self.chunk_steps = len(response.chunk.points)
 
     def _check_sizing(self, what: str, detail: str = "") -> None:
         """Warn, with the figures, when the latency outgrows the committed window: once, and
