@@ -1,6 +1,9 @@
 # Everything a fresh machine needs: `make demo` and `make test` set themselves up.
 SHELL := /bin/bash
-PYTHON ?= python3.11
+# Python 3.12 (ROS 2 Jazzy's Python): the first `python3.12` on PATH that runs (a pyenv shim may
+# not), else pyenv's 3.12.1. `make setup PYTHON=python3.11` builds the venv on 3.11 instead.
+PYTHON ?= $(firstword $(shell for p in python3.12 $(HOME)/.pyenv/versions/3.12.1/bin/python3.12; do \
+	$$p -c 'import sys' 2>/dev/null && command -v $$p; done))
 VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.setup-stamp
@@ -20,6 +23,7 @@ setup: $(STAMP)
 	@$(PY) -m compileall -q runtime behaviors policy sim evaluation
 
 $(STAMP): pyproject.toml runtime/build_interfaces.py $(shell find runtime/ros/interfaces -type f 2>/dev/null)
+	@test -x $(PY) || test -n "$(PYTHON)" || { echo "make: no Python 3.12 found (python3.12, ~/.pyenv/versions/3.12.1); name one with PYTHON=..."; exit 2; }
 	@test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
 	$(PY) -m pip install --quiet -e '.[ros-build,test]'

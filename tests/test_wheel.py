@@ -21,6 +21,7 @@ import pytest
 pytestmark = pytest.mark.timeout(300)
 
 ROOT = Path(__file__).resolve().parents[1]
+PYTHON = f"python{sys.version_info.major}.{sys.version_info.minor}"  # the venv's lib/ folder
 
 
 def _run(cmd: list[str], cwd: Path, timeout: float = 120) -> subprocess.CompletedProcess[str]:
@@ -46,7 +47,7 @@ def installed(tmp_path_factory) -> Path:
     assert built.returncode == 0, built.stderr[-3000:]
     [wheel] = (work / "dist").glob("objective_runtime-*.whl")
     venv = work / "venv"
-    subprocess.run([shutil.which("python3.11") or sys.executable, "-m", "venv", "--without-pip", str(venv)],
+    subprocess.run([sys.executable, "-m", "venv", "--without-pip", str(venv)],
                    check=True, timeout=60)
     installed = _run([sys.executable, "-m", "pip", "--python", str(venv / "bin" / "python"), "install",
                       "--no-deps", "--quiet", str(wheel)], cwd=work)
@@ -83,14 +84,14 @@ def test_the_stacking_objective_runs_on_the_kinematic_world(installed, outside):
     assert proc.returncode == 0, proc.stderr
     summary = json.loads(proc.stdout.strip().splitlines()[-1])
     assert summary["status"] == "SUCCESS"
-    library = installed.parent / "lib" / "python3.11" / "site-packages" / "objectives" / "move_to_waypoint.xml"
+    library = installed.parent / "lib" / PYTHON / "site-packages" / "objectives" / "move_to_waypoint.xml"
     assert library.is_file()
 
 
 def test_the_interface_sources_and_their_builder_ship(installed, outside):
     proc = _run([str(installed / "objective"), "build-interfaces", "--help"], cwd=outside)
     assert proc.returncode == 0 and "--build-dir" in proc.stdout, proc.stderr
-    interfaces = installed.parent / "lib" / "python3.11" / "site-packages" / "runtime" / "ros" / "interfaces"
+    interfaces = installed.parent / "lib" / PYTHON / "site-packages" / "runtime" / "ros" / "interfaces"
     for package, source in [("moveit_pro_ml_msgs", "srv/GetActionChunk.srv"),
                             ("moveit_pro_controllers_msgs", "action/FollowJointTrajectoryWithAdmittance.action"),
                             ("control_msgs", "msg/GripperCommand.msg"),
