@@ -20,7 +20,7 @@ export ROS_LOG_DIR ?= $(CURDIR)/build/ros_log
 # import system reads .pyc files even under PYTHONDONTWRITEBYTECODE=1 (which only stops it writing
 # them), and compileall writes them regardless. Only changed modules are compiled again (~0.1 s).
 setup: $(STAMP)
-	@$(PY) -m compileall -q runtime behaviors policy sim evaluation
+	@$(PY) -m compileall -q runtime behaviors policy sim evaluation recording
 
 $(STAMP): pyproject.toml runtime/build_interfaces.py $(shell find runtime/ros/interfaces -type f 2>/dev/null)
 	@test -x $(PY) || test -n "$(PYTHON)" || { echo "make: no Python 3.12 found (python3.12, ~/.pyenv/versions/3.12.1); name one with PYTHON=..."; exit 2; }

@@ -2,7 +2,7 @@
 without ``--record DIR`` (``--world``: kinematic, the default, or vla_sim: MuJoCo and three cameras).
 
 What a user waits for is the wall time of the run: with ``--record`` the run serializes what it
-records and pipes it to the recording worker (``runtime/report/worker.py``), which writes
+records and pipes it to the recording worker (``recording/report/worker.py``), which writes
 run.mcap and events.jsonl, builds the report's data and encodes the camera video as messages
 arrive; after the run the worker closes the files and writes the SVG plots and the page (that
 wait alone: ``bench_report_wait.py``). Two rows, each over alternating plain/recorded pairs so

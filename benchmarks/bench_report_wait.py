@@ -19,9 +19,9 @@ from typing import Any, Callable
 import common  # noqa: F401  (environment and sys.path first)
 from common import ROOT, median, report, rounded
 
-from runtime.recording.recorder import Recorder
+from recording.recorder import Recorder
 from runtime.registry import Registry
-from runtime.report.worker import ReportWorker
+from recording.report.worker import ReportWorker
 from runtime.runner import RunOptions, run_file
 
 OBJECTIVE = ROOT / "objectives" / "stack_cubes.xml"

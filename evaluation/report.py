@@ -1,6 +1,6 @@
 """``DIR/report.html``: the summary of an evaluation, its plots and every episode, linked to its
 recording when one was kept. One self-contained page (inline CSS and SVG plots), in the style of
-a run's report (``runtime/report/html.py``)."""
+a run's report (``recording/report/html.py``)."""
 from __future__ import annotations
 
 import html
@@ -8,7 +8,7 @@ import io
 from pathlib import Path
 from typing import Any
 
-from runtime.report.html import CSS
+from recording.report.html import CSS
 
 from .episode import EpisodeRecord, EpisodeStatus
 from .stats import wilson_interval

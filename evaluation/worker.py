@@ -141,8 +141,8 @@ class EpisodeWorker:
 
     def _run_recorded(self, seed: int, loaded: Any, context: Any, options: RunOptions, world: Any) -> EpisodeRecord:
         """The run with a Recorder on its bus; kept (with its report) or deleted per ``--record``."""
-        from runtime.recording import Recorder
-        from runtime.report import render_report
+        from recording import Recorder
+        from recording.report import render_report
 
         assert self.recordings is not None
         final = self.recordings / recording_name(seed)

@@ -171,7 +171,7 @@ def cmd_run(args: argparse.Namespace, registry: Registry, stop: StopRequest | No
 
     live = None
     if args.live is not None:  # the recording package (mcap, schemas) only when it serves
-        from .recording.live import LiveOptions
+        from recording.live import LiveOptions
 
         live = LiveOptions(port=args.live)
     options = RunOptions(
@@ -331,7 +331,7 @@ def models_xml(registry: Registry, include_builtins: bool = False) -> str:
 
 
 def cmd_report(args: argparse.Namespace, registry: Registry) -> int:
-    from .report import render_report
+    from recording.report import render_report
 
     report = render_report(args.dir)
     for name, path in report.files.items():

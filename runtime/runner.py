@@ -40,7 +40,7 @@ from .crash import CRASH_LOG, culprit, describe_crash, write_traceback
 from .errors import ObjectiveError
 
 if TYPE_CHECKING:
-    from .recording.live import LiveOptions
+    from recording.live import LiveOptions
 from .events import EventLog
 from .interrupt import Interrupted, StopRequest, exit_code_for, signal_name
 from .loader import LoadedTree, load_tree
@@ -66,7 +66,7 @@ class RunOptions:
     """Latency model of policy service calls (``runtime.bus.parse_latency`` syntax), for the world."""
     record_dir: Path | None = None
     live: "LiveOptions | None" = None
-    """Serve the run's topics to Foxglove while it runs (``--live``); see ``runtime.recording.live``."""
+    """Serve the run's topics to Foxglove while it runs (``--live``); see ``recording.live``."""
     world_options: dict[str, Any] = field(default_factory=dict)
     ros: bool = False
     """Run on real ROS 2 (``runtime.ros.run``): a RosBus node, paced by a WallClock (implies
@@ -543,7 +543,7 @@ def _run_recorded(loaded: LoadedTree, context: RunContext, options: RunOptions, 
     The recording is finished whatever ended the run (its summary says how). A signal while the
     report renders stops the rendering; ``objective report DIR`` renders it later.
     """
-    from .recording import Recorder
+    from recording import Recorder
 
     recorder = Recorder(options.record_dir, context, list(loaded.root.iterate()), loaded, live=options.live)
     if recorder.live is not None:

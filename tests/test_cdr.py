@@ -1,4 +1,4 @@
-"""``runtime.recording.cdr.message_encoder``: the CDR a recording writes for every message type
+"""``recording.cdr.message_encoder``: the CDR a recording writes for every message type
 the runtime records, read back by rclpy's deserializer (what the report uses) and by
 mcap-ros2-support's decoder built from the recorded schema (what Foxglove does), and equal to
 rclpy's own bytes except in padding (rclpy leaves padding uninitialized)."""
@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 from rclpy.serialization import deserialize_message, serialize_message
 
-from runtime.recording.cdr import message_encoder
-from runtime.recording.schema import message_definition, type_name
+from recording.cdr import message_encoder
+from recording.schema import message_definition, type_name
 
 
 def _messages() -> list[object]:
@@ -65,7 +65,7 @@ def test_hand_encoded_messages_decode_as_what_was_sent(msg):
 def test_a_type_with_a_field_it_does_not_know_is_left_to_rclpy():
     from rosidl_parser import definition as idl
 
-    from runtime.recording import cdr
+    from recording import cdr
 
     assert cdr._field_writer(idl.BasicType("long double")) is None and cdr._field_writer(idl.UnboundedWString()) is None
 
@@ -74,7 +74,7 @@ def test_a_trajectory_is_read_back_from_the_cdr_of_both_encoders():
     from builtin_interfaces.msg import Duration, Time
     from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
-    from runtime.recording.cdr import joint_trajectory_arrays
+    from recording.cdr import joint_trajectory_arrays
 
     points = [JointTrajectoryPoint(positions=[0.5, -1.0], velocities=[], accelerations=[1.0, 2.0],
                                    time_from_start=Duration(sec=1, nanosec=250_000_000)),

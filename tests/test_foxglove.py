@@ -20,9 +20,9 @@ from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 
 from runtime.cli import main
-from runtime.recording.scene_view import LinkTree, TfEncoder, object_markers, stamp_of
-from runtime.recording.mcap_writer import LATCHED_QOS, SENSOR_DATA_QOS, OfferedQos
-from runtime.report.data import clock_origin_ns
+from recording.scene_view import LinkTree, TfEncoder, object_markers, stamp_of
+from recording.mcap_writer import LATCHED_QOS, SENSOR_DATA_QOS, OfferedQos
+from recording.report.data import clock_origin_ns
 from tests.test_recording import CAMERAS, POLICY_XML, read_events, read_mcap, record_run
 
 TYPE_NAME = re.compile(r"^[A-Za-z0-9_]+/(msg|srv|action)/[A-Za-z0-9_]+$")
@@ -279,7 +279,7 @@ def test_tf_cdr_is_what_rclpy_serializes():
     from rclpy.serialization import deserialize_message
     from tf2_msgs.msg import TFMessage
 
-    from runtime.recording.schema import message_definition
+    from recording.schema import message_definition
 
     from sim.planning import planning_robot_model
 

@@ -174,7 +174,7 @@ def test_a_recording_killed_with_sigkill_opens_as_partial(tmp_path):
     page = (record / "report.html").read_text()
     assert "Partial recording" in page and (record / "joints.svg").exists()
 
-    from runtime.report import load_recording
+    from recording.report import load_recording
 
     recording = load_recording(record)
     assert recording.joints is not None and recording.joints.times[-1] > 0.5

@@ -18,9 +18,9 @@ from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 from runtime.bus import FixedLatency, InProcessBus
 from runtime.clock import SimClock
 from runtime.cli import main
-from runtime.recording import McapRos2Writer, RecordingBus
-from runtime.recording.schema import message_class, message_definition, type_name
-from runtime.report.data import clock_origin_ns
+from recording import McapRos2Writer, RecordingBus
+from recording.schema import message_class, message_definition, type_name
+from recording.report.data import clock_origin_ns
 from runtime.timestamps import duration_msg, time_msg
 
 CAMERAS = ("/scene_camera/color", "/wrist_camera/color", "/overview_camera/color")

@@ -1,5 +1,5 @@
 """The recording worker writes the recording while the run goes on: what the run hands over
-(``runtime.recording.handoff``), and what is left when one side of the pipe dies."""
+(``recording.handoff``), and what is left when one side of the pipe dies."""
 from __future__ import annotations
 
 import json
@@ -13,11 +13,11 @@ from mcap.reader import make_reader
 from sensor_msgs.msg import JointState
 from std_msgs.msg import String
 
-from runtime.recording.handoff import Frame, Handoff, WorkerLost, read_frames, write_all
-from runtime.recording.mcap_writer import LATCHED_QOS
-from runtime.recording.session import RecordingSession
-from runtime.report import load_recording
-from runtime.report.worker import ReportWorker
+from recording.handoff import Frame, Handoff, WorkerLost, read_frames, write_all
+from recording.mcap_writer import LATCHED_QOS
+from recording.session import RecordingSession
+from recording.report import load_recording
+from recording.report.worker import ReportWorker
 
 from .test_interrupts import GRIPPER
 from .test_recording import read_events, read_mcap, record_run
@@ -174,8 +174,8 @@ def test_tf_from_the_worker_then_from_the_run_share_one_channel(tmp_path):
     ``/tf`` itself; the file still has one ``/tf`` channel, one message per joint state."""
     from sim.robot_model import planning_robot_model
 
-    from runtime.recording.mcap_writer import SerializedMessage
-    from runtime.recording.scene_view import LinkTree, TfEncoder, stamp_of, tf_model
+    from recording.mcap_writer import SerializedMessage
+    from recording.scene_view import LinkTree, TfEncoder, stamp_of, tf_model
     from tf2_msgs.msg import TFMessage
 
     robot = planning_robot_model()
@@ -203,7 +203,7 @@ def test_the_joint_map_gives_the_configuration_the_model_gives():
     from sim.robot_model import planning_robot_model
     import numpy as np
 
-    from runtime.recording.scene_view import JointMap
+    from recording.scene_view import JointMap
 
     robot = planning_robot_model()
     followers = {c.joint for c in robot.couplings}
@@ -228,8 +228,8 @@ def test_joint_states_encoded_by_hand_decode_as_what_was_sent(frame_id, names, v
     from mcap_ros2._dynamic import generate_dynamic
     from rclpy.serialization import deserialize_message
 
-    from runtime.recording.cdr import JointStateEncoder
-    from runtime.recording.schema import message_definition
+    from recording.cdr import JointStateEncoder
+    from recording.schema import message_definition
 
     decode = generate_dynamic("sensor_msgs/msg/JointState", message_definition(JointState))["sensor_msgs/msg/JointState"]
     encoder = JointStateEncoder()

@@ -17,11 +17,11 @@ import pytest
 
 from runtime.cli import main
 from runtime.display import ProgressLine
-from runtime.report import load_recording, render_report
-from runtime.report.data import CommandedGoal, Recording
-from runtime.report import plots
-from runtime.report.plots import commanded_series, stall_spans
-from runtime.report.tree_svg import build_boxes, tree_svg
+from recording.report import load_recording, render_report
+from recording.report.data import CommandedGoal, Recording
+from recording.report import plots
+from recording.report.plots import commanded_series, stall_spans
+from recording.report.tree_svg import build_boxes, tree_svg
 
 from .browser import HeadlessPage, chromium
 from .test_recording import HALTED_XML, record_run

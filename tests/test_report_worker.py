@@ -9,9 +9,9 @@ from pathlib import Path
 
 import pytest
 
-from runtime.report import render_report
+from recording.report import render_report
 from runtime.errors import ObjectiveError
-from runtime.report.worker import ReportWorker
+from recording.report.worker import ReportWorker
 
 from .test_recording import record_run
 
@@ -77,7 +77,7 @@ def test_a_failing_joint_plot_is_reported_and_the_rest_written(recording, tmp_pa
     def broken(*args, **kwargs):
         raise RuntimeError("no joints today")
 
-    import runtime.report.plots as plots
+    import recording.report.plots as plots
 
     monkeypatch.setattr(plots, "joints_plot", broken)
     report = render_report(target)
@@ -104,7 +104,7 @@ def test_sigint_sent_to_the_worker_itself_is_ignored_from_its_start(recording, t
     import signal
     import time
 
-    from runtime.report import worker as worker_module
+    from recording.report import worker as worker_module
 
     def fallback(*args, **kwargs):
         raise AssertionError("the worker died: the report was rendered in process")

@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from runtime.report.data import CameraFrame
-from runtime.report.svg_chart import Panel, decimate, log_ticks, nice_ticks, tick_label
-from runtime.report.video import MIN_HEIGHT, VideoEncoder
+from recording.report.data import CameraFrame
+from recording.report.svg_chart import Panel, decimate, log_ticks, nice_ticks, tick_label
+from recording.report.video import MIN_HEIGHT, VideoEncoder
 
 
 def test_ticks_are_round_values_inside_the_range():

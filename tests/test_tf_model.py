@@ -1,4 +1,4 @@
-"""The recording worker's ``/tf`` (``runtime.recording.tf_model``) against pinocchio's forward
+"""The recording worker's ``/tf`` (``recording.tf_model``) against pinocchio's forward
 kinematics: every kind of one-axis joint, coupled joints, fixed links, names a joint state
 leaves out, and the planning robot itself."""
 from __future__ import annotations
@@ -9,9 +9,9 @@ import pytest
 from rclpy.serialization import deserialize_message
 from tf2_msgs.msg import TFMessage
 
-from runtime.recording.cdr import JointStateEncoder, joint_state_arrays
-from runtime.recording.scene_view import LinkTree, tf_model
-from runtime.recording.tf_model import TfModel, TfWriter
+from recording.cdr import JointStateEncoder, joint_state_arrays
+from recording.scene_view import LinkTree, tf_model
+from recording.tf_model import TfModel, TfWriter
 from runtime.scene.model import JointCoupling, RobotModel
 
 
@@ -131,7 +131,7 @@ def test_the_robot_markers_from_the_disk_cache_are_the_markers_stamped_anew(tmp_
     from rclpy.serialization import serialize_message
     from visualization_msgs.msg import MarkerArray
 
-    from runtime.recording.scene_view import robot_markers, robot_markers_cdr, stamp_of
+    from recording.scene_view import robot_markers, robot_markers_cdr, stamp_of
     from sim.robot_model import planning_robot_model
 
     monkeypatch.setenv("OBJECTIVE_CACHE_DIR", str(tmp_path))

@@ -7,4 +7,4 @@ JOINTS_FILE, LATENCY_FILE, VIDEO_FILE, TREE_FILE, HTML_FILE = (
 FORMER_REPORT_FILES = ("joints.png", "latency.png")
 """The plots as earlier versions wrote them."""
 REPORT_FILES = (JOINTS_FILE, LATENCY_FILE, VIDEO_FILE, TREE_FILE, HTML_FILE, *FORMER_REPORT_FILES)
-"""Rendered by ``runtime.report``; a new recording into the same directory removes the old ones."""
+"""Rendered by ``recording.report``; a new recording into the same directory removes the old ones."""

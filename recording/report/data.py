@@ -20,12 +20,12 @@ from mcap.records import Chunk, Message, Metadata
 from mcap.stream_reader import StreamReader
 from rclpy.serialization import deserialize_message
 
-from ..errors import ObjectiveError
-from ..recording.bus import JOINT_STATES_TOPIC
-from ..recording.cdr import JointStateArrays, TrajectoryArrays, joint_state_arrays, joint_trajectory_arrays
-from ..recording.mcap_writer import METADATA_NAME
-from ..recording.files import EVENTS_FILE, MCAP_FILE
-from ..recording.schema import message_class
+from runtime.errors import ObjectiveError
+from ..bus import JOINT_STATES_TOPIC
+from ..cdr import JointStateArrays, TrajectoryArrays, joint_state_arrays, joint_trajectory_arrays
+from ..mcap_writer import METADATA_NAME
+from ..files import EVENTS_FILE, MCAP_FILE
+from ..schema import message_class
 
 
 @dataclass

@@ -1,9 +1,9 @@
-"""``RecordingSession``: the recording worker's side of a recorded run (see ``runtime.recording.handoff``).
+"""``RecordingSession``: the recording worker's side of a recorded run (see ``recording.handoff``).
 
 It writes what the run sends: ``run.mcap`` (the run's serialized messages as they are, plus the
 ``/rosout`` and node status messages of its events), ``events.jsonl`` (each batch's lines in one
 write) and, when the run says the recording is over, the MCAP summary section and
-``metadata.yaml``. Meanwhile it builds the report's data (``runtime.report.data.McapContents``), so
+``metadata.yaml``. Meanwhile it builds the report's data (``recording.report.data.McapContents``), so
 the report needs no reading back.
 
 Crash safety as in the run before: ``events.jsonl`` gets each batch as it arrives, and the MCAP
@@ -19,7 +19,7 @@ from typing import Any
 
 from rclpy.serialization import serialize_message
 
-from ..report.data import McapContents, Recording, add_event, mark_unfinished
+from .report.data import McapContents, Recording, add_event, mark_unfinished
 from .bag_metadata import BAG_METADATA_FILE, bag_metadata_yaml
 from .bus import JOINT_STATES_TOPIC
 from .event_messages import event_message

@@ -1,11 +1,11 @@
 """The recording worker: a second process, started with a recorded run, that writes the
 recording and renders its report, so the run itself only serializes.
 
-``ReportWorker`` starts ``python -m runtime.report.worker`` when the recorded run starts. The
+``ReportWorker`` starts ``python -m recording.report.worker`` when the recorded run starts. The
 run hands its messages over through the worker's stdin (``record``: a
-``runtime.recording.handoff.Handoff``); the worker writes ``run.mcap``, ``events.jsonl`` and
+``recording.handoff.Handoff``); the worker writes ``run.mcap``, ``events.jsonl`` and
 ``metadata.yaml`` and builds the report's data as messages arrive
-(``runtime.recording.session``), encoding each camera frame into ``cameras.mp4`` as its policy
+(``recording.session``), encoding each camera frame into ``cameras.mp4`` as its policy
 request arrives (``VideoEncoder``), while it imports the report's modules on a thread beside.
 When the run is over, ``render`` asks for the report: the worker closes the video, draws the
 plots and the tree as SVG from the data it already holds and answers one JSON line with the
@@ -25,7 +25,7 @@ Nothing is lost if the worker cannot render: if it died, answers garbage or take
 ``timeout``, ``render`` stops it and the report is rendered in this process from the files. If
 the run's process dies, the worker reads end-of-file, writes what it received (the recording
 stays partial, as a killed run leaves it) and exits without rendering anything. If the worker
-dies while recording, see ``runtime.recording.recorder``.
+dies while recording, see ``recording.recorder``.
 """
 from __future__ import annotations
 
@@ -40,18 +40,18 @@ import threading
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Callable, Iterator
 
-from ..errors import ObjectiveError
-from ..recording.files import VIDEO_FILE
+from runtime.errors import ObjectiveError
+from ..files import VIDEO_FILE
 from . import Report, log_errors, render_report
 
 if TYPE_CHECKING:
-    from ..recording.handoff import Handoff
+    from ..handoff import Handoff
 
 RENDER_TIMEOUT = 600.0
 """Seconds the worker may take to render a report (a long run's video is the slow part)."""
 READ_AHEAD_BYTES = 1 << 20
 """Most the worker reads from the run's pipe ahead of what it has written (``_Drain``); with
-the pipe itself (``runtime.recording.handoff.PIPE_BYTES``) what a worker that dies can lose."""
+the pipe itself (``recording.handoff.PIPE_BYTES``) what a worker that dies can lose."""
 
 
 @contextlib.contextmanager
@@ -74,7 +74,7 @@ class ReportWorker:
         try:
             with _sigint_blocked():  # the worker inherits the mask: deaf to SIGINT from its first instruction
                 self.process = subprocess.Popen(
-                    [sys.executable, "-m", "runtime.report.worker"],
+                    [sys.executable, "-m", "recording.report.worker"],
                     stdin=subprocess.PIPE, stdout=subprocess.PIPE,
                     process_group=0,  # the terminal's Ctrl-C goes to the run, not to its worker
                 )
@@ -83,7 +83,7 @@ class ReportWorker:
 
     def record(self, directory: Path | str, clock_origin_ns: int) -> Handoff | None:
         """Where the run sends its recording of ``directory`` (None without a worker)."""
-        from ..recording.handoff import Handoff
+        from ..handoff import Handoff
 
         if self.process is None or self.process.stdin is None:
             return None
@@ -114,7 +114,7 @@ class ReportWorker:
             process.communicate()
 
     def _ask(self, directory: Path, timeout: float) -> dict[str, Any] | None:
-        from ..recording.handoff import Frame, WorkerLost, json_frame, write_all
+        from ..handoff import Frame, WorkerLost, json_frame, write_all
 
         process, self.process = self.process, None
         if process is None:
@@ -210,8 +210,8 @@ def main() -> int | None:
 
 
 def _serve(read: Callable[[], bytes]) -> int | None:
-    from ..recording.handoff import Frame, read_frames
-    from ..recording.session import RecordingSession
+    from ..handoff import Frame, read_frames
+    from ..session import RecordingSession
     from .video import VideoEncoder
 
     failed: list[BaseException] = []

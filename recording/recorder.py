@@ -2,8 +2,8 @@
 
 - ``run.mcap``: the bus traffic, through a ``RecordingBus`` installed as ``context.bus``, with
   what a 3D viewer needs to draw the run (``/tf``, the robot's and the scene's markers:
-  ``runtime.recording.scene_view``) and the run's events on ``/rosout`` and
-  ``/behavior_tree/node_status`` (``runtime.recording.event_messages``);
+  ``recording.scene_view``) and the run's events on ``/rosout`` and
+  ``/behavior_tree/node_status`` (``recording.event_messages``);
 - ``events.jsonl``: one JSON object per line, ``{"time", "kind", "source", "data"}``: first the
   tree (``kind: "tree"``, every node with its parent, so the tree can be drawn again later),
   then every event of the run's ``EventLog`` as it happens (node status changes, chunk
@@ -14,8 +14,8 @@ says how (``status``). A process killed outright (SIGKILL) leaves a partial reco
 event up to the kill (the file is line-buffered) and every flushed MCAP chunk
 (``McapRos2Writer``); ``objective report`` renders what there is and says it is partial.
 
-With a directory, the files are written by the recording worker (``runtime.report.worker``):
-this process only serializes and hands the bytes over (``runtime.recording.handoff``). If the
+With a directory, the files are written by the recording worker (``recording.report.worker``):
+this process only serializes and hands the bytes over (``recording.handoff``). If the
 worker cannot be started, this process writes them itself, as before. If the worker dies during
 the run, ``run.mcap`` ends at the last chunk the worker flushed (it is read as partial: at most
 ``FLUSH_INTERVAL_S`` of messages and what sat in the pipe are lost) and this process goes on
@@ -23,7 +23,7 @@ writing ``events.jsonl`` itself, starting with the lines the worker did not get 
 that says what happened; the report is then rendered here.
 
 The report (plots, video, tree, page) is rendered from these two files alone
-(``runtime.report``), so ``objective report DIR`` can redo it after the run.
+(``recording.report``), so ``objective report DIR`` can redo it after the run.
 """
 from __future__ import annotations
 
@@ -33,9 +33,9 @@ import os
 from pathlib import Path
 from typing import Any, Iterable, TextIO
 
-from ..crash import CRASH_LOG
-from ..errors import ObjectiveError
-from ..events import Event
+from runtime.crash import CRASH_LOG
+from runtime.errors import ObjectiveError
+from runtime.events import Event
 from .bag_metadata import BAG_METADATA_FILE, bag_metadata_yaml
 from .bus import JOINT_STATES_HZ, RecordingBus
 from .live import LiveOptions, LiveView
@@ -149,7 +149,7 @@ class Recorder:
 
     def _open(self, directory: Path) -> Handoff | McapRos2Writer:
         """Prepare ``directory`` and start the worker that writes it; the sink of the recording."""
-        from ..report.worker import ReportWorker
+        from .report.worker import ReportWorker
 
         if directory.exists() and not directory.is_dir():
             raise ObjectiveError(f"--record {directory}: exists and is not a directory")

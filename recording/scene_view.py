@@ -30,8 +30,8 @@ from std_msgs.msg import ColorRGBA
 from tf2_msgs.msg import TFMessage
 from visualization_msgs.msg import Marker, MarkerArray
 
-from ..disk_cache import cached, content_key
-from ..scene.collision import Box, Capsule, Cylinder, Mesh, Sphere
+from runtime.disk_cache import cached, content_key
+from runtime.scene.collision import Box, Capsule, Cylinder, Mesh, Sphere
 from .event_messages import stamp_of  # noqa: F401  (where the tests and the recorder find it)
 from .mcap_writer import SerializedMessage, cdr_bytes
 from .tf_model import TF_STATIC_TOPIC, TF_TOPIC, LinkDriver, LinkTf, TfModel, TfTemplate, link_coefficients
@@ -192,7 +192,7 @@ def _neutral_value(model: pin.Model, joint: int) -> float:
 
 def tf_model(robot: Any, tree: LinkTree) -> TfModel | None:
     """What the recording worker needs to compute ``/tf`` and ``/tf_static`` for ``robot``
-    (``runtime.recording.tf_model``); None where a link is more than one joint, or a joint with
+    (``recording.tf_model``); None where a link is more than one joint, or a joint with
     more than one axis, away from its parent link (the run then computes ``/tf`` itself)."""
     model = robot.model
     drivers: dict[str, list[LinkDriver]] = {}

@@ -1,7 +1,7 @@
-"""How a recorded run hands its messages to the recording worker (``runtime.report.worker``).
+"""How a recorded run hands its messages to the recording worker (``recording.report.worker``).
 
 The run only serializes: every message is kept as it is until the batch is sent, then becomes
-its CDR bytes (``runtime.recording.cdr``; rclpy's C serializer for the few types it leaves;
+its CDR bytes (``recording.cdr``; rclpy's C serializer for the few types it leaves;
 bytes prepared before, such as the robot's markers, as they are); every event is one JSON line.
 ``flush_if_due`` writes the batch to the worker's stdin (one ``write`` per tick at
 most, about ``SEND_INTERVAL_S`` apart). A message must not change after it was written: the
@@ -17,7 +17,7 @@ the payload:
 - ``MESSAGE``: channel id (2 bytes), log time (8 bytes, wall-clock ns), the CDR bytes;
 - ``EVENT``: one ``events.jsonl`` line of an event that also goes on ``/rosout`` or
   ``/behavior_tree/node_status``; ``NOTE``: a line that goes only to ``events.jsonl``;
-- ``TF_MODEL``: JSON ``runtime.recording.tf_model.TfModel``: from now on the worker writes
+- ``TF_MODEL``: JSON ``recording.tf_model.TfModel``: from now on the worker writes
   ``/tf`` with every ``/joint_states`` message (and ``/tf_static`` with the first); ``null``:
   it stops (a new robot the model cannot describe: the run sends ``/tf``);
 - ``END``: the recording is over (the worker finishes the files);
@@ -26,8 +26,8 @@ the payload:
 Crash safety: a killed run loses only the batch it had not sent yet (``SEND_INTERVAL_S`` of wall
 time); the worker writes everything it received. A worker that dies (``WorkerLost``) loses the
 messages it had not flushed yet: at most ``FLUSH_INTERVAL_S`` of them plus what sat in the pipe
-(``PIPE_BYTES``) or in what it read ahead (``runtime.report.worker.READ_AHEAD_BYTES``); ``run.mcap`` stays partial, and the run rewrites ``events.jsonl`` whole from
-its own copy of the lines and goes on writing it (``runtime.recording.recorder``).
+(``PIPE_BYTES``) or in what it read ahead (``recording.report.worker.READ_AHEAD_BYTES``); ``run.mcap`` stays partial, and the run rewrites ``events.jsonl`` whole from
+its own copy of the lines and goes on writing it (``recording.recorder``).
 """
 from __future__ import annotations
 

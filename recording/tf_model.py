@@ -16,7 +16,7 @@ So the run sends, once per robot, a ``TfModel``: per link its frame names, the 6
 coefficients and where its joint's value comes from (the joint state names that drive it, with a
 multiplier and an offset, as ``RobotModel.driven_by`` says); the worker evaluates it for each
 recorded joint state and writes the CDR of the ``TFMessage`` into a prepared buffer
-(``TfTemplate``). This module imports numpy only (``runtime.recording.scene_view`` builds the
+(``TfTemplate``). This module imports numpy only (``recording.scene_view`` builds the
 model from pinocchio's).
 """
 from __future__ import annotations

@@ -1,7 +1,7 @@
 """``joints.svg`` and ``latency.svg``: what the arm was told versus what it did, and how long the
 policy took versus how long it had.
 
-Written directly as SVG (``runtime.report.svg_chart``: each series decimated to the panel's
+Written directly as SVG (``recording.report.svg_chart``: each series decimated to the panel's
 pixel width), so rendering the report needs no plotting library and takes a few milliseconds.
 The pure helpers (``commanded_series``, ``stall_spans``, ``committed_windows``) derive the
 plotted quantities from a ``Recording`` and are tested on their own.

@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Callable
 
-from ..recording.files import HTML_FILE, JOINTS_FILE, LATENCY_FILE, TREE_FILE, VIDEO_FILE
+from ..files import HTML_FILE, JOINTS_FILE, LATENCY_FILE, TREE_FILE, VIDEO_FILE
 
 if TYPE_CHECKING:
     from .data import Recording

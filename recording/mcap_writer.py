@@ -3,7 +3,7 @@
 Messages are serialized by rclpy's C serializer (the same CDR bytes a ROS 2 subscriber gets),
 which is what keeps recording cheap: the pure-Python encoder of mcap-ros2-support costs an
 order of magnitude more per message. Schemas use the ``ros2msg`` encoding
-(``runtime.recording.schema``). Each channel carries the ``offered_qos_profiles`` metadata the
+(``recording.schema``). Each channel carries the ``offered_qos_profiles`` metadata the
 MCAP ros2 profile requires (in rosbag2's Jazzy YAML). Log times are wall-clock nanoseconds:
 the runtime clock's seconds plus the instant the run started (``clock_origin_ns``, stored in the
 file's ``objective_runtime`` metadata record so a reader gets the runtime clock back).
@@ -11,7 +11,7 @@ file's ``objective_runtime`` metadata record so a reader gets the runtime clock 
 Crash safety: the file is written in chunks, and the open chunk is closed and flushed to the
 operating system every ``FLUSH_INTERVAL_S`` of wall time (``flush_if_due``, once per tick). A
 process killed outright (SIGKILL) leaves a file whose every complete chunk can be read
-(``runtime.report.data`` reads it as a partial recording); only the summary section is missing.
+(``recording.report.data`` reads it as a partial recording); only the summary section is missing.
 """
 from __future__ import annotations
 

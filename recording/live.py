@@ -12,7 +12,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
-from ..errors import ObjectiveError
+from runtime.errors import ObjectiveError
 from .mcap_writer import OfferedQos, cdr_bytes, message_type, to_nanoseconds
 from .schema import message_definition, type_name
 
