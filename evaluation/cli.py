@@ -9,7 +9,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from runtime.cli import _parse_set as parse_set
+from runtime.cli import parse_set
 from runtime.cli import positive_float
 from runtime.command import Command
 

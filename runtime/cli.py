@@ -8,8 +8,9 @@ a run. Every piece of Objective-supplied text is printed through ``runtime.termi
 
 The CLI is the composition root: behaviors come from the ``objective.behaviors`` entry points,
 worlds from ``objective.worlds`` (the default one from ``objective.default_world``) and the
-commands beyond the engine's own (``serve``, ``adapter``, ``record-demos``, ...) from
-``objective.commands``, so the runtime imports none of them.
+commands beyond the engine's own (``serve``, ``adapter``, ``report``, ``record-demos``, ...) from
+``objective.commands`` and the recording of ``--record``/``--live`` from ``objective.run_observers``
+(``runtime.observer``), so the runtime imports none of them.
 """
 from __future__ import annotations
 
@@ -25,8 +26,8 @@ from importlib.metadata import entry_points
 from pathlib import Path
 from typing import Any, Sequence
 
-# Runs are headless: MuJoCo (loaded by the planning scene and the simulated cell) renders
-# offscreen unless the user chose a GL backend. Its backend is fixed when it is first imported.
+# Runs are headless: MuJoCo (the simulated cell's, when it is installed) renders offscreen unless
+# the user chose a GL backend. Its backend is fixed when it is first imported.
 os.environ.setdefault("MUJOCO_GL", "egl")
 
 from .command import COMMAND_GROUP, EXIT_BAD_INPUT, EXIT_FAILURE, EXIT_SUCCESS, Command
@@ -48,7 +49,7 @@ BTCPP_BUILTINS = frozenset({
 _MODEL_TYPES = {PortType.STRING: "std::string"}
 
 
-def _parse_set(text: str) -> tuple[str, str]:
+def parse_set(text: str) -> tuple[str, str]:
     name, sep, value = text.partition("=")
     if not sep or not name.strip():
         raise argparse.ArgumentTypeError(f"expected name=value, got {text!r}")
@@ -91,7 +92,7 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     run = sub.add_parser("run", help="run an Objective until it succeeds or fails")
     run.add_argument("file", type=Path)
     run.add_argument("--tree", metavar="ID", help="the BehaviorTree to run (default: main_tree_to_execute)")
-    run.add_argument("--set", action="append", type=_parse_set, default=[], metavar="NAME=VALUE",
+    run.add_argument("--set", action="append", type=parse_set, default=[], metavar="NAME=VALUE",
                      help="set a root blackboard entry (a string) before the first tick; repeatable")
     run.add_argument("--seed", type=int, default=0, help="seed of the world's layout and random latencies")
     run.add_argument("--realtime", action="store_true", help="pace the ticks to wall-clock time")
@@ -107,7 +108,7 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
                           "trace:FILE (one latency per line, per call, the last repeating)")
     run.add_argument("--policy", metavar="SPEC",
                      help="policy the world serves on /get_action_chunk in headless runs: oracle (default), replay:FILE or none")
-    run.add_argument("--world-option", action="append", type=_parse_set, default=[], metavar="KEY=VALUE",
+    run.add_argument("--world-option", action="append", type=parse_set, default=[], metavar="KEY=VALUE",
                      help="an option of the world, e.g. urdf=robot.urdf for --world robot (repeatable)")
     run.add_argument("--record", type=Path, metavar="DIR",
                      help="record the run into DIR: run.mcap, events.jsonl, plots, camera video, tree.svg, report.html")
@@ -131,8 +132,6 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
 
     models = sub.add_parser("models", help="print TreeNodesModel XML for Groot2")
     models.add_argument("--all", action="store_true", help="include the nodes BehaviorTree.CPP has built in")
-    report = sub.add_parser("report", help="render the plots, video, tree and page of a recording again")
-    report.add_argument("dir", type=Path, help="a directory written by `objective run --record DIR`")
     if command not in sub.choices:
         _add_plugin_commands(sub)
     return parser
@@ -169,11 +168,6 @@ def cmd_run(args: argparse.Namespace, registry: Registry, stop: StopRequest | No
     from .display import ProgressLine
     from .runner import RunOptions, run_file
 
-    live = None
-    if args.live is not None:  # the recording package (mcap, schemas) only when it serves
-        from recording.live import LiveOptions
-
-        live = LiveOptions(port=args.live)
     options = RunOptions(
         seed=args.seed,
         realtime=args.realtime or args.ros,
@@ -184,7 +178,7 @@ def cmd_run(args: argparse.Namespace, registry: Registry, stop: StopRequest | No
         sets=dict(args.set),
         policy_latency=args.policy_latency,
         record_dir=args.record,
-        live=live,
+        live_port=args.live,
         world_options={**dict(args.world_option), **({"policy": args.policy} if args.policy else {})},
     )
     progress = ProgressLine(sys.stderr) if sys.stderr.isatty() else None
@@ -330,19 +324,6 @@ def models_xml(registry: Registry, include_builtins: bool = False) -> str:
     return "\n".join(lines)
 
 
-def cmd_report(args: argparse.Namespace, registry: Registry) -> int:
-    from recording.report import render_report
-
-    report = render_report(args.dir)
-    for name, path in report.files.items():
-        print(path)
-    for name, error in report.errors.items():
-        print(f"error: {name}: {printable(error)}", file=sys.stderr)
-    for reason in report.partial:
-        print(f"partial recording: {printable(reason)}", file=sys.stderr)
-    return EXIT_FAILURE if report.errors else EXIT_SUCCESS
-
-
 def cmd_models(args: argparse.Namespace, registry: Registry) -> int:
     print(models_xml(registry, args.all))
     return EXIT_SUCCESS
@@ -354,7 +335,6 @@ COMMANDS = {
     "behaviors": cmd_behaviors,
     "show": cmd_show,
     "models": cmd_models,
-    "report": cmd_report,
 }
 
 

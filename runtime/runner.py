@@ -28,7 +28,7 @@ import time
 from dataclasses import dataclass, field
 from importlib.metadata import entry_points
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Callable, Iterable
+from typing import Any, Callable, Iterable
 
 import py_trees
 
@@ -38,10 +38,8 @@ from .clock import SimClock, WallClock
 from .controls import SKIPPED, Visit, is_skipped, tick_tree
 from .crash import CRASH_LOG, culprit, describe_crash, write_traceback
 from .errors import ObjectiveError
-
-if TYPE_CHECKING:
-    from recording.live import LiveOptions
 from .events import EventLog
+from .extras import missing_module_message
 from .interrupt import Interrupted, StopRequest, exit_code_for, signal_name
 from .loader import LoadedTree, load_tree
 from .registry import WORLD_GROUP, Registry, default_world_name
@@ -65,8 +63,10 @@ class RunOptions:
     policy_latency: str | None = None
     """Latency model of policy service calls (``runtime.bus.parse_latency`` syntax), for the world."""
     record_dir: Path | None = None
-    live: "LiveOptions | None" = None
-    """Serve the run's topics to Foxglove while it runs (``--live``); see ``recording.live``."""
+    """Record the run into this directory (``--record``): done by a run observer (``runtime.observer``)."""
+    live_port: int | None = None
+    """Serve the run's topics to Foxglove on this port while it runs (``--live``; 0: any free
+    port): done by a run observer (``runtime.observer``)."""
     world_options: dict[str, Any] = field(default_factory=dict)
     ros: bool = False
     """Run on real ROS 2 (``runtime.ros.run``): a RosBus node, paced by a WallClock (implies
@@ -75,6 +75,11 @@ class RunOptions:
     log_dir: Path | None = None
     """Where the traceback of an unexpected exception goes: the recording directory when
     recording, else this (None: ``build/logs/`` under the working directory)."""
+
+    @property
+    def observed(self) -> bool:
+        """True when a run observer has work (``--record`` or ``--live``)."""
+        return self.record_dir is not None or self.live_port is not None
 
     @property
     def paced(self) -> bool:
@@ -182,7 +187,10 @@ def create_world(name: str, options: dict[str, Any]) -> Any:
     if name not in available:
         known = ", ".join(sorted(available)) or "none installed"
         raise ObjectiveError(f"no world named '{name}' (worlds: {known})")
-    create = available[name].load()
+    try:
+        create = available[name].load()
+    except ModuleNotFoundError as err:  # a world of an extra that is not installed
+        raise ObjectiveError(f"world '{name}' cannot start: {missing_module_message(err.name or str(err))}") from None
     try:
         return create(options)
     except ValueError as err:  # a world refuses bad options with ValueError: that is bad input
@@ -530,49 +538,17 @@ def run_file(
     options.check()
     context = make_context(options)
     loaded = load_tree(source, registry, context, tree_id, search_paths, objectives_dir)
-    if options.record_dir is None and options.live is None:
+    if not options.observed:
         return run_tree(loaded, context, options, progress, stop=stop)
-    return _run_recorded(loaded, context, options, progress, stop)
+    from .observer import attach_observers
 
-
-def _run_recorded(loaded: LoadedTree, context: RunContext, options: RunOptions, progress: Progress | None,
-                  stop: StopRequest | None) -> RunResult:
-    """``run_tree`` with a ``Recorder`` on the bus (into ``options.record_dir`` and/or served live),
-    then the report rendered into ``options.record_dir``.
-
-    The recording is finished whatever ended the run (its summary says how). A signal while the
-    report renders stops the rendering; ``objective report DIR`` renders it later.
-    """
-    from recording import Recorder
-
-    recorder = Recorder(options.record_dir, context, list(loaded.root.iterate()), loaded, live=options.live)
-    if recorder.live is not None:
-        context.logger.info("live view: in Foxglove, open a Foxglove WebSocket connection to %s", recorder.live.url)
-    if options.record_dir is None:
-        try:
-            return run_tree(loaded, context, options, progress, stop=stop)
-        finally:
-            recorder.close()
-    worker = recorder.worker  # writes the recording, then renders the report
+    observers = attach_observers(loaded, context, options)
     try:
         result = run_tree(loaded, context, options, progress, stop=stop)
-    except BaseException as err:  # the run did not start (e.g. no such world): say so in the recording
-        end = RunEnd.INTERRUPTED if isinstance(err, KeyboardInterrupt) else RunEnd.ERROR
-        try:
-            recorder.finish({"status": end.value, "reason": str(err) or type(err).__name__})
-        finally:
-            worker.close()
+    except BaseException as err:  # the run did not start (e.g. no such world): the observers say so
+        for observer in observers:
+            observer.aborted(err)
         raise
-    recorder.finish(result.to_json())
-    if stop is not None:
-        stop.urgent = True  # the run is over: a signal now stops the rendering at once
-    try:
-        worker.render(options.record_dir, context.logger)
-    except KeyboardInterrupt:
-        context.logger.warning("recording %s: the report was not rendered (interrupted); "
-                               "`objective report %s` renders it", options.record_dir, options.record_dir)
-    except Exception as err:  # the run itself is over and recorded: its result stands
-        context.logger.warning("recording %s: the report could not be rendered: %s", options.record_dir, err)
-    finally:
-        worker.close()
+    for observer in observers:
+        observer.finished(result, stop)
     return result

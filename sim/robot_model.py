@@ -146,9 +146,9 @@ def planning_robot_model():
 
     Loading it takes ~0.3 s; a ``RobotModel`` is immutable (users make their own pinocchio
     data), so one per process serves the planning scene, the oracle's IK and the tests."""
-    from runtime.scene import RobotModel
+    from .mjcf import robot_model_from_mjcf
 
-    return RobotModel.from_mjcf(robot_xml(), srdf=SRDF_PATH, couplings=COUPLINGS_PATH)
+    return robot_model_from_mjcf(robot_xml(), srdf=SRDF_PATH, couplings=COUPLINGS_PATH)
 
 
 def load_waypoints(path: str | os.PathLike = WAYPOINTS_PATH) -> dict[str, dict[str, float]]:

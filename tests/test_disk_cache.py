@@ -14,6 +14,7 @@ import pytest  # noqa: E402
 
 from runtime import disk_cache  # noqa: E402
 from runtime.scene import RobotModel  # noqa: E402
+from sim.mjcf import robot_model_from_mjcf  # noqa: E402
 from sim.cell_model import CellOptions, build_cell_spec, compile_cell  # noqa: E402
 from sim.robot_model import COUPLINGS_PATH, SRDF_PATH, robot_xml  # noqa: E402
 
@@ -123,11 +124,11 @@ def test_cached_cell_is_the_compiled_cell(cache):
 
 
 def test_cached_planning_model_is_the_compiled_one(cache, monkeypatch):
-    first = RobotModel.from_mjcf(robot_xml(), srdf=SRDF_PATH, couplings=COUPLINGS_PATH)
+    first = robot_model_from_mjcf(robot_xml(), srdf=SRDF_PATH, couplings=COUPLINGS_PATH)
     assert len(list((cache / "mjcf_facts").iterdir())) == 1
-    cached = RobotModel.from_mjcf(robot_xml(), srdf=SRDF_PATH, couplings=COUPLINGS_PATH)
+    cached = robot_model_from_mjcf(robot_xml(), srdf=SRDF_PATH, couplings=COUPLINGS_PATH)
     monkeypatch.setenv(disk_cache.ENV_SWITCH, "off")
-    fresh = RobotModel.from_mjcf(mujoco.MjSpec.from_string(robot_xml()), srdf=SRDF_PATH, couplings=COUPLINGS_PATH)
+    fresh = robot_model_from_mjcf(mujoco.MjSpec.from_string(robot_xml()), srdf=SRDF_PATH, couplings=COUPLINGS_PATH)
     q = fresh.neutral() + 0.3
     for model in (first, cached):
         assert [f.name for f in model.model.frames] == [f.name for f in fresh.model.frames]
@@ -143,7 +144,7 @@ def _pose(robot: RobotModel, q: np.ndarray, frame: str) -> np.ndarray:
 
 
 def _robot(source) -> RobotModel:
-    return RobotModel.from_mjcf(source, srdf=SRDF_PATH, couplings=COUPLINGS_PATH)
+    return robot_model_from_mjcf(source, srdf=SRDF_PATH, couplings=COUPLINGS_PATH)
 
 
 def _distances(robot: RobotModel, q: np.ndarray) -> list[tuple[float, tuple[float, ...]]]:

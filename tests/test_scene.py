@@ -23,6 +23,7 @@ from runtime.scene import (  # noqa: E402
     IkSolver,
     solve_ik,
 )
+from sim.mjcf import robot_model_from_mjcf  # noqa: E402
 from sim.robot_model import (  # noqa: E402
     ARM_JOINTS,
     GRIPPER_DRIVER_JOINT,
@@ -410,8 +411,8 @@ def test_robot_from_a_cell_mjcf_with_other_bodies(robot, scene):
     cube.add_freejoint()
     cube.add_geom(type=mujoco.mjtGeom.mjGEOM_BOX, size=[0.015] * 3)
     with pytest.raises(ValueError, match=r"MJCF has 2 top-level bodies \(base, cube\); pass root_body="):
-        RobotModel.from_mjcf(spec)
-    cell_robot = RobotModel.from_mjcf(spec.to_xml(), root_body="base")
+        robot_model_from_mjcf(spec)
+    cell_robot = robot_model_from_mjcf(spec.to_xml(), root_body="base")
     assert cell_robot.model.nq == robot.model.nq == 14
     q = _random_q(robot, np.random.default_rng(5))
     assert np.allclose(frame_pose(cell_robot, q, TCP_SITE), frame_pose(robot, q, TCP_SITE), atol=1e-12)

@@ -23,6 +23,7 @@ import pinocchio as pin
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from runtime.scene import RobotModel, parse_srdf  # noqa: E402
+from sim.mjcf import robot_model_from_mjcf  # noqa: E402
 from sim.robot_model import COUPLINGS_PATH, GRIPPER_DRIVER_JOINT, SRDF_PATH, build_robot_spec  # noqa: E402
 
 ALWAYS_FRACTION = 0.95  # a pair colliding in at least this share of samples is "Always"
@@ -99,7 +100,7 @@ def main() -> int:
     args = parser.parse_args()
 
     srdf = parse_srdf(SRDF_PATH)
-    robot = RobotModel.from_mjcf(build_robot_spec(), srdf=replace(srdf, disabled_collisions=()),
+    robot = robot_model_from_mjcf(build_robot_spec(), srdf=replace(srdf, disabled_collisions=()),
                                  couplings=COUPLINGS_PATH)
     reasons = classify(robot, args.samples, args.seed)
     text = SRDF_PATH.read_text()

@@ -1,7 +1,8 @@
 """Planning scene for the safety checks: robot model, world, rules, collision queries, IK.
 
-Robot-agnostic: the robot comes from an MJCF (``RobotModel.from_mjcf``) or URDF + SRDF
-(``RobotModel.from_urdf``); nothing here knows about the simulated cell.
+Robot-agnostic: the robot comes from a URDF + SRDF (``RobotModel.from_urdf``) or from pinocchio
+models another loader built (``RobotModel.from_pinocchio``; the simulated cell's MJCF loader is
+``sim.mjcf``); nothing here knows about the simulated cell or imports MuJoCo.
 """
 from .collision import (
     Attachment,

@@ -2,7 +2,7 @@
 
 Every mesh of a robot's collision model is replaced by its convex hull (``with_convex_hulls``).
 Building the mesh (assimp) and its hull (qhull) is most of loading a robot model, so
-``runtime.scene.mjcf`` keeps the finished hull model on disk: ``geometry_bytes`` is pinocchio's
+``sim.mjcf`` keeps the finished hull model on disk: ``geometry_bytes`` is pinocchio's
 binary archive, which holds every field coal's GJK reads (hull points, faces, normals, offsets,
 support warm starts, bounding boxes; neighbours are rebuilt on load), so a loaded model collides
 bit for bit like the one that was saved.

@@ -1,7 +1,8 @@
 """The robot model of the planning scene: kinematics, collision geometry, groups, coupling.
 
-``RobotModel`` is built once from either the simulator's MJCF (``from_mjcf``) or the URDF +
-SRDF pair ROS users have (``from_urdf``) and is read-only afterwards, so the same instance can
+``RobotModel`` is built once from either the URDF + SRDF pair ROS users have (``from_urdf``)
+or pinocchio models another loader built (``from_pinocchio``: the simulated cell's MJCF, see
+``sim.mjcf``) and is read-only afterwards, so the same instance can
 serve several scenes. Links are pinocchio BODY frames (MJCF bodies, URDF links); the world is
 the link ``"universe"``.
 
@@ -162,19 +163,17 @@ class RobotModel:
 
     # -- construction ---------------------------------------------------------------------
     @classmethod
-    def from_mjcf(
+    def from_pinocchio(
         cls,
-        source: str | os.PathLike | "mujoco.MjSpec",  # noqa: F821 (mujoco imported lazily)
+        model: pin.Model,
+        collision_model: pin.GeometryModel,
         srdf: str | os.PathLike | Srdf | None = None,
         couplings: Iterable[JointCoupling] | str | os.PathLike = (),
-        root_body: str | None = None,
+        source: str = "",
     ) -> "RobotModel":
-        """Load a robot from an MJCF (MjSpec, file or XML text); see ``runtime.scene.mjcf``."""
-        from .mjcf import load_mjcf
-
-        loaded = load_mjcf(source, root_body=root_body)
-        return cls(loaded.model, loaded.collision_model, _srdf(srdf), _couplings(couplings),
-                   source=_describe_source(source))
+        """A robot from models a loader built (``sim.mjcf`` builds them from the simulator's MJCF),
+        with its SRDF and couplings given as objects or files."""
+        return cls(model, collision_model, _srdf(srdf), _couplings(couplings), source=source)
 
     @classmethod
     def from_urdf(
@@ -399,10 +398,3 @@ def _urdf_mimics(path: Path) -> tuple[JointCoupling, ...]:
             out.append(JointCoupling(joint.get("name"), mimic.get("joint"),
                                      float(mimic.get("multiplier", 1.0)), float(mimic.get("offset", 0.0))))
     return tuple(out)
-
-
-def _describe_source(source: object) -> str:
-    if hasattr(source, "compile"):
-        return "<MjSpec>"
-    text = str(source)
-    return "<MJCF text>" if text.lstrip().startswith("<") else text

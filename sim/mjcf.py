@@ -28,6 +28,7 @@ import tempfile
 from dataclasses import asdict, dataclass
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
+from typing import Iterable
 
 import coal
 import mujoco
@@ -38,6 +39,8 @@ from lxml import etree
 from runtime.disk_cache import cached, cached_file, content_key
 from runtime.scene import hulls
 from runtime.scene.hulls import geometry_bytes, load_geometry, with_convex_hulls
+from runtime.scene.model import JointCoupling, RobotModel
+from runtime.scene.srdf import Srdf
 
 
 @dataclass(frozen=True)
@@ -293,6 +296,25 @@ def load_mjcf(source: str | os.PathLike | mujoco.MjSpec, root_body: str | None =
     model.name = robot.name
     _add_sites(model, facts.sites)
     return MjcfRobot(model=model, collision_model=collision_model, body_parents=facts.body_parents, renamed=facts.renamed)
+
+
+def robot_model_from_mjcf(
+    source: str | os.PathLike | mujoco.MjSpec,
+    srdf: str | os.PathLike | Srdf | None = None,
+    couplings: Iterable[JointCoupling] | str | os.PathLike = (),
+    root_body: str | None = None,
+) -> RobotModel:
+    """The planning scene's robot from an MJCF (MjSpec, file or XML text), with its SRDF and couplings."""
+    loaded = load_mjcf(source, root_body=root_body)
+    return RobotModel.from_pinocchio(loaded.model, loaded.collision_model, srdf, couplings,
+                                     source=_describe_source(source))
+
+
+def _describe_source(source: object) -> str:
+    if hasattr(source, "compile"):
+        return "<MjSpec>"
+    text = str(source)
+    return "<MJCF text>" if text.lstrip().startswith("<") else text
 
 
 def _hulls_key(facts_key: str) -> str:

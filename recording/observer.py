@@ -1,0 +1,79 @@
+"""The recording as a run observer (``runtime.observer``): ``objective run --record DIR`` / ``--live``.
+
+``attach`` puts a ``Recorder`` on the run's bus (into ``options.record_dir`` and/or served live);
+``finished`` writes the summary and renders the report into the directory; ``aborted`` writes
+what ended a run that never got to a result. A signal while the report renders stops the
+rendering; ``objective report DIR`` renders it later.
+"""
+from __future__ import annotations
+
+from importlib.util import find_spec
+from pathlib import Path
+from typing import Any
+
+from runtime.errors import ObjectiveError
+from runtime.extras import missing_module_message
+from runtime.runner import RunEnd
+
+NEEDED_MODULES = ("mcap", "mcap_ros2")
+"""What a recording needs beyond the core (the ``[record]`` extra); ``--live`` needs foxglove too."""
+
+
+def attach(loaded: Any, context: Any, options: Any) -> "RecordingObserver | None":
+    """The ``objective.run_observers`` factory: a recorder when the options ask for one."""
+    if not options.observed:
+        return None
+    _check_installed(NEEDED_MODULES + (("foxglove",) if options.live_port is not None else ()))
+    from .live import LiveOptions
+    from .recorder import Recorder
+
+    live = LiveOptions(port=options.live_port) if options.live_port is not None else None
+    recorder = Recorder(options.record_dir, context, list(loaded.root.iterate()), loaded, live=live)
+    if recorder.live is not None:
+        context.logger.info("live view: in Foxglove, open a Foxglove WebSocket connection to %s", recorder.live.url)
+    return RecordingObserver(recorder, options.record_dir, context.logger)
+
+
+def _check_installed(modules: tuple[str, ...]) -> None:
+    """ObjectiveError naming the extra when one of ``modules`` is not installed (nothing is imported:
+    the recording worker's process imports mcap, not the run's)."""
+    for module in modules:
+        if find_spec(module) is None:
+            raise ObjectiveError(f"--record/--live: {missing_module_message(module)}")
+
+
+class RecordingObserver:
+    """One recorded run: the recorder on its bus, then the summary and the report."""
+
+    def __init__(self, recorder: Any, record_dir: Path | None, logger: Any) -> None:
+        self.recorder = recorder
+        self.record_dir = record_dir
+        self.logger = logger
+        self.worker = recorder.worker if record_dir is not None else None  # writes the recording, renders the report
+
+    def aborted(self, error: BaseException) -> None:
+        if self.worker is None:
+            self.recorder.close()
+            return
+        end = RunEnd.INTERRUPTED if isinstance(error, KeyboardInterrupt) else RunEnd.ERROR
+        try:
+            self.recorder.finish({"status": end.value, "reason": str(error) or type(error).__name__})
+        finally:
+            self.worker.close()
+
+    def finished(self, result: Any, stop: Any) -> None:
+        if self.worker is None:
+            self.recorder.close()
+            return
+        self.recorder.finish(result.to_json())
+        if stop is not None:
+            stop.urgent = True  # the run is over: a signal now stops the rendering at once
+        try:
+            self.worker.render(self.record_dir, self.logger)
+        except KeyboardInterrupt:
+            self.logger.warning("recording %s: the report was not rendered (interrupted); "
+                                "`objective report %s` renders it", self.record_dir, self.record_dir)
+        except Exception as err:  # the run itself is over and recorded: its result stands
+            self.logger.warning("recording %s: the report could not be rendered: %s", self.record_dir, err)
+        finally:
+            self.worker.close()
