@@ -1,80 +1,33 @@
 """The policies an evaluation can run, and the one place it imports the policy side (``policy``).
 
-A spec names the policy the world serves on ``/get_action_chunk``, as ``objective run --policy``:
-
-| spec | what | deterministic per seed |
-|---|---|---|
-| ``oracle`` (default) | the scripted oracle, peeking at the cell | yes |
-| ``replay:FILE`` | the chunks recorded in FILE | yes |
-| ``lerobot:DIR`` | a LeRobot checkpoint, loaded once per worker; torch is seeded with the episode's seed | yes on one machine type (CPU float maths may differ across CPUs) |
-| ``http://127.0.0.1:PORT``, ``https://HOST`` | a running inference server; its bearer key from ``POLICY_SERVER_KEY`` | no: the server's model, state and load are outside the evaluation |
-| ``none`` | nothing is served (the Objective needs no policy) | yes |
+A spec names the policy the world serves on ``/get_action_chunk``, as ``objective run --policy``
+(parsed by ``policy.specs``, the table of specs is there). Deterministic per seed: ``oracle``,
+``replay:FILE``, ``none``, and ``lerobot:DIR`` on one machine type (torch is seeded with the
+episode's seed; CPU float maths may differ across CPUs); not an inference server (its model,
+state and load are outside the evaluation) nor your own factory (the evaluation cannot tell).
 
 "Deterministic" also needs a latency model that does not read the wall clock: a fixed number
 of seconds or ``lognormal:MEAN,SD`` (seeded by the episode's seed), not ``measured``.
 """
 from __future__ import annotations
 
-import enum
 import hashlib
-import os
-from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any
 
+from policy.specs import PolicyKind, PolicySpec, PolicySpecError
+from policy.specs import parse_policy as parse_policy_spec
 from runtime.bus import parse_latency
 from runtime.errors import ObjectiveError
 
-HTTP_TIMEOUT_S = 10.0
-"""Wall-clock deadline of one call to an inference server (the shipped Objectives' policy_call_timeout)."""
-
-
-class PolicyKind(enum.Enum):
-    ORACLE = "oracle"
-    REPLAY = "replay"
-    LEROBOT = "lerobot"
-    HTTP = "http"
-    NONE = "none"
-
-
-@dataclass(frozen=True)
-class PolicySpec:
-    kind: PolicyKind
-    text: str
-    path: Path | None = None
-    key: str | None = field(default=None, repr=False, compare=False)
-    """An inference server's bearer key, read from ``POLICY_SERVER_KEY`` where the evaluation
-    starts and carried to every worker with the spec (a Ray node has no such variable)."""
-
-    @property
-    def deterministic(self) -> bool:
-        return self.kind is not PolicyKind.HTTP
+__all__ = ["PolicyHost", "PolicyKind", "PolicySpec", "check_latency", "parse_policy", "policy_digest"]
 
 
 def parse_policy(text: str | None) -> PolicySpec:
     """The spec of ``--policy`` (None: the oracle); ObjectiveError naming what is wrong."""
-    text = (text or "oracle").strip()
-    lowered = text.lower()
-    if lowered in ("oracle", "none"):
-        return PolicySpec(PolicyKind(lowered), lowered)
-    if lowered.startswith(("http://", "https://")):
-        from policy.http_client import InferUrlError, check_infer_url
-        from policy.server import key_from_env
-
-        try:
-            check_infer_url(text)
-        except InferUrlError as err:
-            raise ObjectiveError(f"--policy: {err}") from None
-        return PolicySpec(PolicyKind.HTTP, text, key=key_from_env(dict(os.environ)))
-    kind, sep, rest = text.partition(":")
-    if sep and kind in ("replay", "lerobot") and rest:
-        path = Path(rest).expanduser()
-        if kind == "replay" and not path.is_file():
-            raise ObjectiveError(f"--policy replay:{rest}: no such file")
-        if kind == "lerobot" and not path.is_dir():
-            raise ObjectiveError(f"--policy lerobot:{rest}: no such checkpoint directory")
-        return PolicySpec(PolicyKind(kind), f"{kind}:{path.resolve()}", path.resolve())
-    raise ObjectiveError(f"--policy: unknown policy '{text}' (expected oracle, replay:FILE, lerobot:DIR, http(s)://HOST:PORT or none)")
+    try:
+        return parse_policy_spec(text)
+    except PolicySpecError as err:
+        raise ObjectiveError(f"--{err}") from None  # "--policy 'X': what is wrong"
 
 
 def check_latency(spec: str) -> None:
@@ -127,15 +80,9 @@ class PolicyHost:
 
 
 def _make_backend(spec: PolicySpec, cell: Any) -> Any:
-    if spec.kind is PolicyKind.NONE:
-        return None
-    if spec.kind is PolicyKind.HTTP:
-        from policy.http_client import ClientConfig, HttpBackend
-
-        return HttpBackend(ClientConfig(spec.text, timeout=HTTP_TIMEOUT_S, key=spec.key))
     from sim.embedded_policy import make_backend
 
     try:
-        return make_backend(spec.text, cell)
+        return make_backend(spec, cell)
     except ValueError as err:
         raise ObjectiveError(f"--policy {spec.text}: {err}") from None

@@ -118,8 +118,10 @@ def unpack_inputs(spec: WorkerSpec, inputs: dict[str, Any], root: Path) -> Worke
     policy = spec.policy
     if inputs["policy"] is not None:
         folder = write(root / "policy", inputs["policy"])
-        local = folder / next(iter(inputs["policy"])) if policy.kind is PolicyKind.REPLAY else folder
-        policy = parse_policy(f"{policy.kind.value}:{local}")
+        single_file = policy.kind in (PolicyKind.REPLAY, PolicyKind.FACTORY)
+        local = folder / next(iter(inputs["policy"])) if single_file else folder
+        factory = policy.text.rpartition(":")[2]  # FILE.py:NAME travels as its file
+        policy = parse_policy(f"{local}:{factory}" if policy.kind is PolicyKind.FACTORY else f"{policy.kind.value}:{local}")
     return dataclasses.replace(spec, objective=objective, search_paths=paths, objectives_dir=library, policy=policy)
 
 

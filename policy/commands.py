@@ -21,7 +21,8 @@ def _policy_logging() -> None:
 
 def _serve_arguments(serve: argparse.ArgumentParser) -> None:
     serve.add_argument("--backend", required=True,
-                       help="a name in the objective.policy_backends group: oracle, replay or lerobot here")
+                       help="a name in the objective.policy_backends group (oracle, replay or lerobot here), "
+                            "or your own factory: FILE.py:NAME or MODULE:NAME, called as NAME(BackendOptions)")
     serve.add_argument("--checkpoint", type=Path, metavar="DIR", help="LeRobot checkpoint folder (--backend lerobot)")
     serve.add_argument("--replay-file", type=Path, metavar="FILE", help="chunks as JSON lines (--backend replay)")
     serve.add_argument("--host", default="127.0.0.1", help="address to bind (default 127.0.0.1: loopback only)")

@@ -52,6 +52,7 @@ from typing import Any, Callable
 import numpy as np
 
 from .backend import PolicyBackend, PolicyRequest
+from .factory import build_backend, is_factory_spec
 from .http_client import is_loopback
 from .wire import CONTENT_TYPE, DEFAULT_MAX_BODY_BYTES, WireError, decode_request, encode_response, error_body
 
@@ -463,10 +464,14 @@ def backend_names() -> list[str]:
 
 
 def make_backend(name: str, options: BackendOptions) -> PolicyBackend:
-    """The backend ``name`` built from ``options``; ValueError naming the known ones."""
+    """The backend ``name`` (an installed one, or your own factory ``FILE.py:NAME`` /
+    ``MODULE:NAME``, see ``policy.factory``) built from ``options``; ValueError saying what is wrong."""
     found = [ep for ep in entry_points(group=BACKEND_GROUP) if ep.name == name]
+    if not found and is_factory_spec(name):
+        return build_backend(name, options)
     if not found:
-        raise ValueError(f"unknown backend {name!r} (known: {', '.join(backend_names()) or 'none installed'})")
+        raise ValueError(f"unknown backend {name!r} (known: {', '.join(backend_names()) or 'none installed'}; "
+                         "or your own factory as FILE.py:NAME or MODULE:NAME)")
     factory: Callable[[BackendOptions], PolicyBackend] = found[0].load()
     return factory(options)
 

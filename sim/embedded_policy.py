@@ -1,46 +1,29 @@
-"""The policy a headless world serves on ``/get_action_chunk``, chosen by a spec string.
+"""The policy a headless world serves on ``/get_action_chunk``, chosen by a ``--policy`` spec.
 
-``oracle`` (default): the scripted cube-stacking oracle, peeking at the cell.
-``replay:FILE``: the chunks recorded in FILE (JSON lines), then NO_MORE_ACTIONS.
-``lerobot:DIR``: the LeRobot checkpoint in DIR (``policy.lerobot_backend``; needs ``make lerobot``),
-warmed up with a synthetic full-size observation when loaded.
-``none``: serve nothing (a policy comes from elsewhere, or a test serves its own).
+The spec is parsed by ``policy.specs`` (oracle, replay:FILE, lerobot:DIR, FILE.py:FACTORY,
+MODULE:FACTORY, http(s)://HOST:PORT, none); the cell supplies only the oracle, which peeks at it.
+A LeRobot checkpoint is warmed up with a synthetic full-size observation when loaded.
 """
 from __future__ import annotations
 
-from pathlib import Path
 from typing import Any
 
 from policy.adapter import DEFAULT_SERVICE_NAME, PolicyAdapter
+from policy.specs import PolicySpec, parse_policy
+from policy.specs import make_backend as make_spec_backend
 from runtime.bus import parse_latency
 
-POLICY_SPECS = "oracle, replay:FILE or none"
+def make_backend(spec: PolicySpec | str | None, cell: Any) -> Any:
+    """The backend named by ``spec`` (None for ``none``); ValueError for a spec that names none."""
+    if not isinstance(spec, PolicySpec):
+        spec = parse_policy(spec)
 
-
-def make_backend(spec: str | None, cell: Any) -> Any:
-    """The backend named by ``spec`` (None for ``none``); ValueError for an unknown spec."""
-    spec = (spec or "oracle").strip()
-    if spec == "none":
-        return None
-    if spec == "oracle":
+    def oracle() -> Any:
         from .oracle import oracle_for_cell
 
         return oracle_for_cell(cell)
-    if spec.startswith("replay:"):
-        from policy.replay import ReplayBackend
 
-        path = Path(spec.split(":", 1)[1])
-        if not path.is_file():
-            raise ValueError(f"policy 'replay:{path}': no such file")
-        return ReplayBackend(path)
-    if spec.startswith("lerobot:"):
-        from policy.lerobot_backend import make_lerobot_backend
-
-        path = Path(spec.split(":", 1)[1])
-        if not path.is_dir():
-            raise ValueError(f"policy 'lerobot:{path}': no such checkpoint directory")
-        return make_lerobot_backend(path, warmup_on_load=True)
-    raise ValueError(f"unknown policy '{spec}' (expected {POLICY_SPECS})")
+    return make_spec_backend(spec, oracle)
 
 
 def serve_embedded_policy(bus: Any, spec: str | None, cell: Any, latency: str | None, seed: int) -> PolicyAdapter | None:

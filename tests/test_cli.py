@@ -291,7 +291,8 @@ def test_installed_commands_come_from_the_entry_point_group(cli):
     code, out, _ = cli("serve", "--backend", "no-such-backend")
     assert code == 2
     code, _, err = cli("serve", "--backend", "no-such-backend", "--insecure-no-key")
-    assert code == 2 and "error: unknown backend 'no-such-backend' (known: lerobot, oracle, replay)" in err
+    assert code == 2 and ("error: unknown backend 'no-such-backend' (known: lerobot, oracle, replay; "
+                          "or your own factory as FILE.py:NAME or MODULE:NAME)") in err
 
 
 def test_a_broken_or_clashing_command_is_left_out_with_a_warning(monkeypatch, cli):

@@ -194,7 +194,7 @@ def test_bad_input_is_refused_before_any_worker_starts(tmp_path, capsys):
     assert code == 2 and summary["status"] == "ERROR"
     assert f"{broken}:1" in err and "NoSuchNode" in err
     code = main(["eval", str(STACK), "--episodes", "2", "--out", str(tmp_path / "b"), "--policy", "lerobot:/no/such"])
-    assert code == 2 and "--policy lerobot:/no/such: no such checkpoint directory" in capsys.readouterr().err
+    assert code == 2 and "--policy 'lerobot:/no/such': no such checkpoint directory" in capsys.readouterr().err
     code = main(["eval", str(STACK), "--episodes", "0", "--out", str(tmp_path / "c")])
     assert code == 2 and "--episodes must be at least 1, got 0" in capsys.readouterr().err
     code = main(["eval", str(STACK), "--episodes", "1", "--out", str(tmp_path / "d"), "--policy-latency", "soon"])

@@ -80,4 +80,5 @@ def test_replayed_chunks_end_with_no_more_actions(capsys, tmp_path):
 
 def test_unknown_policy_spec_is_bad_input(capsys):
     assert main(["run", "objectives/stack_cubes.xml", "--world", "kinematic", "--policy", "bogus"]) == 2
-    assert "world 'kinematic': unknown policy 'bogus' (expected oracle, replay:FILE or none)" in capsys.readouterr().err
+    assert ("world 'kinematic': policy 'bogus' is unknown (expected oracle, replay:FILE, lerobot:DIR, "
+            "FILE.py:FACTORY, MODULE:FACTORY, http(s)://HOST:PORT or none)") in capsys.readouterr().err
