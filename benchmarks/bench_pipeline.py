@@ -88,7 +88,7 @@ def pipeline(safety: Any, snapshot: Any, msg: Any, points: int, clock: Callable[
     mark()
     samples = densify(motion, points)
     mark()
-    violation = safety.limits.check(samples.positions, samples.velocities, samples.accelerations, samples.times)
+    violation = safety.first_limit_violation(samples)
     mark()
     if early_out:
         collision = safety.first_collision(snapshot, samples, PADDING, 0.0)
