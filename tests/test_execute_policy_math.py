@@ -9,9 +9,6 @@ from behaviors.execute_policy.config import committed_window_problem
 from behaviors.execute_policy.gripper import result_problem
 from behaviors.execute_policy.shaping import (
     NO_TAIL,
-    POSITION_BLEND_PEAK,
-    VELOCITY_BLEND_PEAK,
-    blend_duration_within,
     densify,
     fit_chunk,
     join_at_seam,
@@ -294,16 +291,6 @@ def test_a_chunk_that_starts_away_from_the_arm_is_joined_within_the_acceleration
     p, v, a = joined.evaluate(t)
     assert np.abs(a).max() <= 0.5 * limit[0] + 1e-9  # the chunk alone does not accelerate: the blend gets half
     assert np.allclose(p[0], joined.offset_position + joined.spline(34.0), atol=1e-12)
-
-
-def test_blend_duration_is_the_nominal_one_unless_the_offset_needs_longer():
-    headroom = np.array([5.0, 5.0])
-    assert blend_duration_within(np.array([0.001, 0.0]), np.zeros(2), headroom, 1.0) == 1.0
-    # A position offset d over T adds at most d * 10/sqrt(3) / T^2; half the headroom is used.
-    assert blend_duration_within(np.array([1.0, 0.0]), np.zeros(2), headroom, 0.5) == pytest.approx(np.sqrt(POSITION_BLEND_PEAK / 2.5))
-    assert blend_duration_within(np.zeros(2), np.array([0.0, 2.0]), headroom, 0.5) == pytest.approx(2.0 * VELOCITY_BLEND_PEAK / 2.5)
-    # No headroom (the chunk alone is at its limit): nothing to gain, the check rejects the chunk.
-    assert blend_duration_within(np.array([1.0, 0.0]), np.zeros(2), np.array([0.0, 5.0]), 0.5) == 0.5
 
 
 # -- the rest of issue 13's ExecutePolicy items ------------------------------------------------
