@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import re
+from pathlib import Path
 from dataclasses import dataclass, field
 from typing import Any, Callable
 
@@ -16,6 +17,8 @@ from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 import runtime.bus as bus_module
 from runtime.bus import FixedLatency
 from runtime.loader import load_tree
+from runtime.report.data import Recording
+from runtime.report.plots import stall_spans
 from runtime.registry import Registry
 from runtime.runner import RunOptions, make_context, run_tree
 from runtime.scene import Box, pose_matrix
@@ -118,6 +121,12 @@ def run_policy(
 
 
 BASE = 'total_action_steps="60" dt="0.1" committed_action_steps="20" goal_path_tolerance="0.3" policy_call_timeout="3.0"'
+
+
+def plotted_stall_s(run: Run) -> float:
+    """Seconds of stall the report's joint plot draws (red bands) from the run's events."""
+    recording = Recording(Path("."), events=[dataclasses.asdict(e) for e in run.context.events.events])
+    return sum(end - start for start, end in stall_spans(recording))
 
 
 # -- the happy path ------------------------------------------------------------------------
@@ -580,7 +589,10 @@ def test_rtc_off_sends_no_carryover(registry):
         return chunk_response(list(request.robot_state.name), np.tile(request.robot_state.position, (50, 1)), policy_rows=np.ones((50, 2)))
 
     run = run_policy(registry, BASE, ScriptedPolicy(answer))
-    assert all(len(r.previous_action_chunk.data) == 0 for r in run.policy.requests)
+    assert run.result.status == "SUCCESS", run.result.reason
+    assert len(run.policy.requests) == 4  # the warmup, then one request per 20-step window of the 60 steps
+    assert [len(r.previous_action_chunk.data) for r in run.policy.requests] == [0, 0, 0, 0]
+    assert [len(r.previous_anchor_state.position) for r in run.policy.requests] == [0, 0, 0, 0]
 
 
 @pytest.mark.parametrize("latency", [0.0, 0.3, 0.6, 0.95])
@@ -906,6 +918,7 @@ def test_a_late_goal_planned_again_after_a_stall_counts_the_stall_once(registry,
     assert refused["chunk"] == played["chunk"] == 2 and played["takes_over_time"] > refused["takes_over_time"]
     full_speed_end = first["seam_time"] + first["steps"] * 0.1 + 2.6
     assert run.summary["stall_seconds"] == pytest.approx(played["seam_time"] - full_speed_end, abs=1e-4)
+    assert plotted_stall_s(run) == pytest.approx(run.summary["stall_seconds"], abs=1e-4)  # the refused plan's stall is not drawn
 
 
 def test_a_late_goal_is_recognised_by_its_result_code_not_its_wording(registry, monkeypatch):
@@ -1004,6 +1017,7 @@ def test_chunk_arriving_early_after_a_spike_joins_at_the_end_of_the_committed_mo
     pause_before_chunk_2 = spiked["seam_time"] - (first["seam_time"] + first["steps"] * 0.1 + 2.6)
     assert pause_before_chunk_2 == pytest.approx(0.1)
     assert run.summary["stall_seconds"] == pytest.approx(pause_before_chunk_2, abs=1e-4)
+    assert plotted_stall_s(run) == pytest.approx(run.summary["stall_seconds"], abs=1e-4)
 
 
 def test_halt_cancels_the_goal_and_the_robot_stops(registry):

@@ -19,6 +19,8 @@ import pytest
 from moveit_pro_ml_msgs.srv import GetActionChunk
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
+import policy.node as node_mod
+import policy.server as server_mod
 from runtime.bus import FixedLatency
 from runtime.loader import load_tree
 from runtime.registry import Registry
@@ -272,8 +274,6 @@ def test_a_chunk_a_million_radians_away_is_reported_by_the_value_the_policy_sent
 
 
 # -- the HTTP inference server behind the adapter --------------------------------------------
-server_mod = pytest.importorskip("policy.server", reason="the HTTP inference server (policy/server.py) is not there yet")
-node_mod = pytest.importorskip("policy.node", reason="the HTTP adapter (policy/node.py) is not there yet")
 
 
 class ChunkBackend:

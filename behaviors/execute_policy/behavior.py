@@ -414,6 +414,7 @@ class ExecutePolicy(Behavior):
             seam_time=plan.seam_time_s,
             takes_over_time=plan.takes_over_s,
             latency=self.metrics.latencies[-1],
+            stall_s=plan.stall_s,
         )
 
     def _goal(self, samples: Samples, seam_time_s: float) -> Any:
@@ -460,6 +461,7 @@ class ExecutePolicy(Behavior):
         self.late_retries += 1
         self.committed = sent.committed
         self.metrics.stall_seconds -= sent.stall_s  # the chunk that takes over counts the stall up to its own seam
+        self.context.events.emit("chunk_rolled_back", self.name, stall_s=sent.stall_s)
         if sent.goal.state is GoalState.PLAYING:  # still playing (or its result is waiting to be read)
             self.goal = sent.goal
         if self.held is not None:
@@ -506,16 +508,18 @@ class ExecutePolicy(Behavior):
         return self._stop(Status.FAILURE, reason)
 
     def _stop(self, status: Status, message: str) -> Status:
-        self.metrics.stall_seconds += stall_at_stop_s(self.committed, self.context.clock.now())
+        stall_s = stall_at_stop_s(self.committed, self.context.clock.now())
+        self.metrics.stall_seconds += stall_s
         self._cancel_goals()
-        return self._finish(status, message)
+        return self._finish(status, message, stall_s)
 
-    def _finish(self, status: Status, message: str) -> Status:
+    def _finish(self, status: Status, message: str, stall_s: float = 0.0) -> Status:
+        """End the run; ``stall_s``: how long the arm had been waiting for a chunk when it ended."""
         self.phase = Phase.DONE
         self.message = message
         self.feedback_message = message
         self._write_outputs()
-        self.context.events.emit("policy_finished", self.name, status=status.value, message=message)
+        self.context.events.emit("policy_finished", self.name, status=status.value, message=message, stall_s=stall_s)
         if status is Status.SUCCESS:
             self.context.logger.info("%s: %s", self.name, message)
         return status
