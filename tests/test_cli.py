@@ -13,6 +13,7 @@ from lxml import etree
 from runtime.cli import main
 from runtime.loader import display_path
 from tests.data.nodes import make_registry
+from tools.cli_synopsis import synopsis
 
 REPO = Path(__file__).resolve().parent.parent
 DATA = Path(__file__).parent / "data"
@@ -420,3 +421,14 @@ def test_printable_escapes_only_what_a_terminal_would_act_on():
 
     assert printable("Pick 'cube' ü → 機器人 🤖") == "Pick 'cube' ü → 機器人 🤖"
     assert printable(f"a{BIDI}b\u2066c\u200bd\r\n\te{ESC}\x85\u2028") == "a\\u202eb\\u2066c\\u200bd\\r\\n\\te\\x1b\\x85\\u2028"
+
+
+def test_the_synopsis_in_docs_cli_md_is_the_argument_parser_s():
+    """Every command and every option the parser takes is on the page, and nothing else
+    (regenerate it with tools/cli_synopsis.py)."""
+    page = (REPO / "docs" / "cli.md").read_text(encoding="utf-8")
+    block = page.split("```\n", 2)[1].split("```", 1)[0]
+    assert block.rstrip("\n") == synopsis()
+    for option in ("--ros", "--policy SPEC", "--world-option KEY=VALUE", "objective report DIR"):
+        assert option in block
+
