@@ -491,7 +491,7 @@ class ExecutePolicy(Behavior):
         goal = GripperCommand.Goal()
         goal.command.position = target
         goal.command.max_effort = GRIPPER_MAX_EFFORT_N
-        self.gripper_goals.append(GripperGoal(target, self.gripper.send_goal_async(goal)))
+        self.gripper_goals.append(GripperGoal(target, Goal.send(self.gripper, goal, now)))
         self.gripper_sent = target
 
     def _track_progress(self, now: float) -> None:
