@@ -13,15 +13,14 @@ from moveit_pro_controllers_msgs.action import FollowJointTrajectoryWithAdmittan
 from ruckig import InputParameter, Result, Ruckig, Trajectory
 from sensor_msgs.msg import JointState
 
-from runtime.behavior import Behavior, Status
-from runtime.bus import STATUS_SUCCEEDED
+from runtime.behavior import Status
 from runtime.ports import InputPort, PortType, Range
 
 from runtime.scene import JointLimits
 from .action_goal import Goal, GoalState
 from .execute_policy.shaping import Samples
 from .safety import SafetyError, make_safety
-from .trajectory_goal import admittance_goal, trajectory_msg
+from .trajectory_goal import SendsTrajectoryGoal, admittance_goal, trajectory_msg
 from .waiting import Deadline, when_ready
 
 DEFAULT_CONTROLLER = "/joint_trajectory_admittance_controller/follow_joint_trajectory"
@@ -64,7 +63,7 @@ def plan_point_to_point(
     return Samples(times, p, v, a)
 
 
-class _MoveToJoints(Behavior):
+class _MoveToJoints(SendsTrajectoryGoal):
     """Shared lifecycle: resolve the target, plan, check, send, wait for the controller."""
 
     needs_world = True
@@ -81,8 +80,6 @@ class _MoveToJoints(Behavior):
 
     def target(self, joints: tuple[str, ...]) -> np.ndarray:
         raise NotImplementedError
-
-    goal = Goal()
 
     def initialise(self) -> None:
         self.error = None
@@ -104,15 +101,7 @@ class _MoveToJoints(Behavior):
             return self.fail(self.error)
         if self.goal.state is GoalState.NONE:
             return self._plan_and_send()
-        self.goal = self.goal.advance()
-        if self.goal.state is GoalState.REJECTED:
-            return self.fail(f"controller '{self.action}' rejected the motion")
-        if self.goal.state is not GoalState.ENDED:
-            return Status.RUNNING
-        outcome = self.goal.outcome
-        if outcome.status != STATUS_SUCCEEDED:
-            return self.fail(f"the controller aborted the motion: {outcome.result.error_string}")
-        return Status.SUCCESS
+        return self.follow_goal("motion")
 
     def _plan_and_send(self) -> Status:
         ready = when_ready(self.client.server_is_ready, self.deadline, f"controller action '{self.action}'")

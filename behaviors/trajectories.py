@@ -21,7 +21,6 @@ from sensor_msgs.msg import JointState
 from trajectory_msgs.msg import JointTrajectory
 
 from runtime.behavior import Behavior, Status
-from runtime.bus import STATUS_SUCCEEDED
 from runtime.ports import InputPort, OutputPort, PortType, Range
 from runtime.scene import JointLimits
 from runtime.scene.kinematics import frame_pose, solve_ik
@@ -32,7 +31,7 @@ from .execute_policy.shaping import Samples
 from .motion import DEFAULT_CONTROLLER, PlanningError
 from .poses import FrameError, ReadsRobotState, RobotState, matrix_to_pose, pose_in_world
 from .safety import MotionSafety, SafetyError, make_safety
-from .trajectory_goal import GOAL_TIME_TOLERANCE_S, admittance_goal, trajectory_msg
+from .trajectory_goal import GOAL_TIME_TOLERANCE_S, SendsTrajectoryGoal, admittance_goal, trajectory_msg
 from .waiting import Deadline, when_ready
 
 JTC_ACTION = "/joint_trajectory_controller/follow_joint_trajectory"
@@ -399,7 +398,7 @@ class ValidateTrajectory(Behavior):
         return Status.SUCCESS
 
 
-class ExecuteTrajectory(ReadsRobotState, Behavior):
+class ExecuteTrajectory(ReadsRobotState, SendsTrajectoryGoal):
     """MoveIt Pro's ExecuteTrajectory, on the admittance controller (execution_pipeline jtac)."""
 
     needs_world = True
@@ -420,8 +419,6 @@ class ExecuteTrajectory(ReadsRobotState, Behavior):
         InputPort("link_padding", PortType.FLOAT, 0.0, "Clearance (m) required from world objects for the pre-check.", valid=Range(0, 0.5, "m")),
         InputPort("timeout", PortType.FLOAT, 5.0, "Seconds to wait for the controller and the joint states.", valid=Range(0, 3600, "s", min_open=True)),
     )
-
-    goal = Goal()
 
     def initialise(self) -> None:
         self.error: str | None = None
@@ -452,15 +449,7 @@ class ExecuteTrajectory(ReadsRobotState, Behavior):
             except (PlanningError, SafetyError, FrameError) as err:
                 return self.fail(str(err))
             self.goal = Goal.send(self.client, goal)
-        self.goal = self.goal.advance()
-        if self.goal.state is GoalState.REJECTED:
-            return self.fail(f"controller '{self.action}' rejected the trajectory")
-        if self.goal.state is not GoalState.ENDED:
-            return Status.RUNNING
-        outcome = self.goal.outcome
-        if outcome.status != STATUS_SUCCEEDED:
-            return self.fail(f"the controller aborted the trajectory: {outcome.result.error_string}")
-        return Status.SUCCESS
+        return self.follow_goal("trajectory")
 
     def _goal(self) -> Any:
         safety = make_safety(self.context.scene, self.get_input("planning_group_name"), None)
