@@ -7,6 +7,7 @@ from runtime.behavior import Behavior, Status
 from runtime.bus import STATUS_SUCCEEDED
 from runtime.ports import InputPort, PortType, Range
 
+from .action_goal import Goal, GoalState
 from .waiting import Deadline, when_ready
 
 
@@ -23,32 +24,29 @@ class MoveGripperAction(Behavior):
         InputPort("timeout", PortType.FLOAT, 5.0, "Seconds to wait for the server and the motion.", valid=Range(0.0, 3600.0, "s", min_open=True)),
     )
 
+    goal = Goal()
+
     def initialise(self) -> None:
         self.action = self.get_input("gripper_command_action_name")
         self.client = self.context.bus.create_action_client(self.action, GripperCommand)
         self.deadline = Deadline(self, self.get_input("timeout"))
-        self.goal_future = self.result_future = self.handle = None
+        self.goal = Goal()
 
     def update(self) -> Status:
-        if self.goal_future is None:
+        if self.goal.state is GoalState.NONE:
             ready = when_ready(self.client.server_is_ready, self.deadline, f"gripper action '{self.action}'")
             if ready is not True:
                 return self.fail(ready) if isinstance(ready, str) else Status.RUNNING
             goal = GripperCommand.Goal()
             goal.command.position = self.get_input("position")
             goal.command.max_effort = self.get_input("max_effort")
-            self.goal_future = self.client.send_goal_async(goal)
-        if self.result_future is None:
-            if not self.goal_future.done():
-                return self._waiting()
-            self.handle = self.goal_future.result()
-            if not self.handle.accepted:
-                return self.fail(f"gripper action '{self.action}' rejected the goal")
-            self.result_future = self.handle.get_result_async()
-        if not self.result_future.done():
+            self.goal = Goal.send(self.client, goal)
+        self.goal = self.goal.advance()
+        if self.goal.state is GoalState.REJECTED:
+            return self.fail(f"gripper action '{self.action}' rejected the goal")
+        if self.goal.state is not GoalState.ENDED:
             return self._waiting()
-        outcome = self.result_future.result()
-        self.handle = None
+        outcome = self.goal.outcome
         result = outcome.result
         if outcome.status != STATUS_SUCCEEDED:
             return self.fail(f"gripper action '{self.action}' did not succeed (goal status {outcome.status}, position {result.position:.3f})")
@@ -59,15 +57,13 @@ class MoveGripperAction(Behavior):
 
     def _waiting(self) -> Status:
         if self.deadline.expired:
-            if self.handle is not None:
-                self.handle.cancel_goal_async()
+            self.goal = self.goal.cancel()
             return self.fail(f"gripper did not finish within {self.deadline.seconds:g} s")
         return Status.RUNNING
 
     def terminate(self, new_status: Status) -> None:
-        if new_status is Status.INVALID and getattr(self, "handle", None) is not None:
-            self.handle.cancel_goal_async()
-            self.handle = None
+        if new_status is Status.INVALID:
+            self.goal = self.goal.cancel()
 
 
 NODES = (MoveGripperAction,)

@@ -12,16 +12,15 @@ import numpy as np
 from moveit_pro_controllers_msgs.action import FollowJointTrajectoryWithAdmittance as FollowTrajectory
 from ruckig import InputParameter, Result, Ruckig, Trajectory
 from sensor_msgs.msg import JointState
-from trajectory_msgs.msg import JointTrajectory
 
-from runtime.behavior import Behavior, Status
-from runtime.bus import STATUS_SUCCEEDED
+from runtime.behavior import Status
 from runtime.ports import InputPort, PortType, Range
-from runtime.trajectory_points import trajectory_points
 
 from runtime.scene import JointLimits
+from .action_goal import Goal, GoalState
 from .execute_policy.shaping import Samples
 from .safety import SafetyError, make_safety
+from .trajectory_goal import SendsTrajectoryGoal, admittance_goal, trajectory_msg
 from .waiting import Deadline, when_ready
 
 DEFAULT_CONTROLLER = "/joint_trajectory_admittance_controller/follow_joint_trajectory"
@@ -45,13 +44,9 @@ def plan_point_to_point(
     for name, value in (("velocity_scaling", velocity_scale), ("acceleration_scaling", acceleration_scale)):
         if not 0 < value <= 1:
             raise PlanningError(f"{name} must be in (0, 1], got {value}")
-    outside = [
-        f"{n}={g:.4f} (limits {lo:.4f}..{hi:.4f})"
-        for n, g, lo, hi in zip(limits.names, goal, limits.lower, limits.upper)
-        if not lo <= g <= hi
-    ]
-    if outside:
-        raise PlanningError("target outside the joint limits: " + ", ".join(outside))
+    outside = limits.check(goal)
+    if outside is not None:
+        raise PlanningError(f"target outside the joint limits: {outside.what}")
     dof = len(start)
     otg, inp, trajectory = Ruckig(dof), InputParameter(dof), Trajectory(dof)
     inp.current_position, inp.target_position = list(start), list(goal)
@@ -68,18 +63,7 @@ def plan_point_to_point(
     return Samples(times, p, v, a)
 
 
-def trajectory_goal(samples: Samples, joints: tuple[str, ...], path_tolerance: float) -> FollowTrajectory.Goal:
-    """A controller goal that starts now and plays ``samples``."""
-    goal = FollowTrajectory.Goal()
-    trajectory = JointTrajectory(joint_names=list(joints))
-    trajectory.points = trajectory_points(samples.times, samples.positions, samples.velocities, samples.accelerations)
-    goal.joint_trajectory = trajectory
-    goal.path_tolerance = path_tolerance
-    goal.goal_time_tolerance = 1.0
-    return goal
-
-
-class _MoveToJoints(Behavior):
+class _MoveToJoints(SendsTrajectoryGoal):
     """Shared lifecycle: resolve the target, plan, check, send, wait for the controller."""
 
     needs_world = True
@@ -99,7 +83,7 @@ class _MoveToJoints(Behavior):
 
     def initialise(self) -> None:
         self.error = None
-        self.goal_future = self.result_future = self.handle = None
+        self.goal = Goal()
         try:
             self.safety = make_safety(self.context.scene, self.get_input("joint_group_name"), None)
         except SafetyError as err:
@@ -115,22 +99,9 @@ class _MoveToJoints(Behavior):
     def update(self) -> Status:
         if self.error:
             return self.fail(self.error)
-        if self.goal_future is None:
+        if self.goal.state is GoalState.NONE:
             return self._plan_and_send()
-        if self.result_future is None:
-            if not self.goal_future.done():
-                return Status.RUNNING
-            self.handle = self.goal_future.result()
-            if not self.handle.accepted:
-                return self.fail(f"controller '{self.action}' rejected the motion")
-            self.result_future = self.handle.get_result_async()
-        if not self.result_future.done():
-            return Status.RUNNING
-        outcome = self.result_future.result()
-        self.handle = None
-        if outcome.status != STATUS_SUCCEEDED:
-            return self.fail(f"the controller aborted the motion: {outcome.result.error_string}")
-        return Status.SUCCESS
+        return self.follow_goal("motion")
 
     def _plan_and_send(self) -> Status:
         ready = when_ready(self.client.server_is_ready, self.deadline, f"controller action '{self.action}'")
@@ -154,16 +125,18 @@ class _MoveToJoints(Behavior):
             )
         except (PlanningError, SafetyError) as err:
             return self.fail(str(err))
+        outside = self.safety.first_limit_violation(samples)
+        if outside is not None:
+            return self.fail(f"the motion is outside the joint limits: {outside}")
         collision = self.safety.first_collision(self.safety.snapshot(), samples, self.get_input("link_padding"))
         if collision is not None:
             return self.fail(f"the motion would collide: {collision}")
-        self.goal_future = self.client.send_goal_async(trajectory_goal(samples, joints, self.get_input("path_tolerance")))
+        self.goal = Goal.send(self.client, admittance_goal(trajectory_msg(samples, joints), self.get_input("path_tolerance")))
         return Status.RUNNING
 
     def terminate(self, new_status: Status) -> None:
-        if new_status is Status.INVALID and getattr(self, "handle", None) is not None:
-            self.handle.cancel_goal_async()
-            self.handle = None
+        if new_status is Status.INVALID:
+            self.goal = self.goal.cancel()
         sub = getattr(self, "joint_states", None)
         destroy = getattr(self.context.bus, "destroy_subscription", None) if hasattr(self, "context") else None
         if sub is not None and destroy is not None:

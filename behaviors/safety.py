@@ -49,6 +49,11 @@ class MotionSafety:
         near = (gripper >= limit.lower - GRIPPER_TARGET_TOLERANCE_RAD) & (gripper <= limit.upper + GRIPPER_TARGET_TOLERANCE_RAD)
         return np.where(near, np.clip(gripper, limit.lower, limit.upper), gripper)
 
+    def first_limit_violation(self, samples: Samples) -> LimitViolation | None:
+        """The earliest sample of a motion outside the group's position, velocity or
+        acceleration limits: the one limit check of every behavior that sends motion."""
+        return self.limits.check(samples.positions, samples.velocities, samples.accelerations, samples.times)
+
     def first_value_out_of_limits(self, arm: np.ndarray, gripper: np.ndarray | None) -> LimitViolation | None:
         """The first step of a chunk, as the policy sent it, with a value outside its joint's
         position limits: the arm columns against the group's joints, the gripper column

@@ -11,7 +11,6 @@ to the admittance controller after checking again, from where the arm is now.
 """
 from __future__ import annotations
 
-import enum
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
@@ -19,19 +18,20 @@ import numpy as np
 import yaml
 from moveit_pro_controllers_msgs.action import FollowJointTrajectoryWithAdmittance as FollowTrajectory
 from sensor_msgs.msg import JointState
-from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
+from trajectory_msgs.msg import JointTrajectory
 
 from runtime.behavior import Behavior, Status
-from runtime.bus import STATUS_SUCCEEDED
 from runtime.ports import InputPort, OutputPort, PortType, Range
 from runtime.scene import JointLimits
 from runtime.scene.kinematics import frame_pose, solve_ik
-from runtime.timestamps import duration_msg, time_msg
+from runtime.timestamps import time_msg
 
+from .action_goal import Goal, GoalState
 from .execute_policy.shaping import Samples
 from .motion import DEFAULT_CONTROLLER, PlanningError
 from .poses import FrameError, ReadsRobotState, RobotState, matrix_to_pose, pose_in_world
 from .safety import MotionSafety, SafetyError, make_safety
+from .trajectory_goal import GOAL_TIME_TOLERANCE_S, SendsTrajectoryGoal, admittance_goal, trajectory_msg
 from .waiting import Deadline, when_ready
 
 JTC_ACTION = "/joint_trajectory_controller/follow_joint_trajectory"
@@ -131,6 +131,23 @@ def resample(timing: PathTiming, path: np.ndarray, rate_hz: float) -> Samples:
     return Samples(t, positions, velocities, accelerations)
 
 
+def resample_within(timing: PathTiming, path: np.ndarray, rate_hz: float, limits: JointLimits) -> Samples:
+    """``resample``, slowed down evenly where its velocities or accelerations exceed the joint
+    limits: ``time_path`` bounds the speed along each piece, not the turn from one piece to the
+    next, which adds a little acceleration where the IK points bend the joint path."""
+    samples = resample(timing, path, rate_hz)
+    for _ in range(5):
+        with np.errstate(divide="ignore", invalid="ignore"):
+            ratio = max(float(np.max(np.abs(samples.velocities) / limits.max_velocity)),
+                        float(np.sqrt(np.max(np.abs(samples.accelerations) / limits.max_acceleration))))
+        if ratio <= 1.0:
+            break
+        stretch = 1.01 * ratio
+        timing = PathTiming(timing.times * stretch, timing.speeds / stretch)
+        samples = resample(timing, path, rate_hz)
+    return samples
+
+
 def parse_timing(text: str) -> tuple[str, float, float]:
     """MoveIt Pro's ``trajectory_timing`` ("[{mode: time_optimal, velocity_scale_factor: 0.5}]"):
     the mode and the velocity and acceleration scale factors it sets (1.0 when unset)."""
@@ -169,14 +186,6 @@ def tip_offset_matrix(values: list[float]) -> np.ndarray:
     return m
 
 
-def to_trajectory_msg(samples: Samples, joints: tuple[str, ...], stamp_s: float = 0.0) -> JointTrajectory:
-    msg = JointTrajectory(joint_names=list(joints))
-    msg.header.stamp = time_msg(stamp_s)
-    for t, p, v, a in zip(samples.times, samples.positions, samples.velocities, samples.accelerations):
-        msg.points.append(JointTrajectoryPoint(positions=p.tolist(), velocities=v.tolist(), accelerations=a.tolist(), time_from_start=duration_msg(t)))
-    return msg
-
-
 def from_trajectory_msg(msg: JointTrajectory, joints: tuple[str, ...]) -> Samples:
     """The trajectory's points in ``joints`` order; PlanningError when it does not fit."""
     missing = [j for j in joints if j not in msg.joint_names]
@@ -200,9 +209,9 @@ def from_trajectory_msg(msg: JointTrajectory, joints: tuple[str, ...]) -> Sample
     return Samples(times, positions, velocities, accelerations)
 
 
-def densify(samples: Samples, step_rad: float) -> Samples:
+def subdivide(samples: Samples, step_rad: float) -> Samples:
     """Extra points between a trajectory's points, none more than ``step_rad`` apart in any joint
-    (for collision checks of a coarse trajectory)."""
+    (for collision checks of a coarse trajectory; positions only)."""
     times, rows = [samples.times[0]], [samples.positions[0]]
     for i in range(1, len(samples)):
         a, b = samples.positions[i - 1], samples.positions[i]
@@ -215,19 +224,12 @@ def densify(samples: Samples, step_rad: float) -> Samples:
 
 
 def check_motion(safety: MotionSafety, samples: Samples, padding_m: float, check_step_rad: float) -> str | None:
-    """The first limit violation or collision of a motion, as a sentence, or None."""
-    outside = [
-        f"{n} {v:.4f} rad (limits {lo:.4f}..{hi:.4f})"
-        for n, v, lo, hi in zip(safety.limits.names, samples.positions.min(axis=0), safety.limits.lower, safety.limits.upper)
-        if v < lo
-    ] + [
-        f"{n} {v:.4f} rad (limits {lo:.4f}..{hi:.4f})"
-        for n, v, lo, hi in zip(safety.limits.names, samples.positions.max(axis=0), safety.limits.lower, safety.limits.upper)
-        if v > hi
-    ]
-    if outside:
-        return "outside the joint limits: " + ", ".join(outside)
-    collision = safety.first_collision(safety.snapshot(), densify(samples, check_step_rad), padding_m)
+    """The first point of a motion outside the position, velocity or acceleration limits, or
+    else its first collision, as a sentence; or None."""
+    outside = safety.first_limit_violation(samples)
+    if outside is not None:
+        return f"breaks a joint limit at point {outside.step} (t={outside.time:.3f} s): {outside.what}"
+    collision = safety.first_collision(safety.snapshot(), subdivide(samples, check_step_rad), padding_m)
     return None if collision is None else f"collides: {collision}"
 
 
@@ -284,7 +286,7 @@ def plan_cartesian(
         stops.add(len(rows) - 1)
     path = np.array(rows)
     timing = time_path(path, stops, safety.limits, velocity_scale, acceleration_scale)
-    return CartesianPlan(resample(timing, path, rate_hz), tip_poses)
+    return CartesianPlan(resample_within(timing, path, rate_hz, safety.limits), tip_poses)
 
 
 # -- nodes -------------------------------------------------------------------------------------
@@ -321,7 +323,7 @@ class PlanCartesianPath(ReadsRobotState, Behavior):
         except (PlanningError, SafetyError, FrameError, ValueError) as err:
             return self.fail(str(err))
         now = self.context.clock.now()
-        self.set_output("joint_trajectory_msg", to_trajectory_msg(plan.samples, joints, 0.0))
+        self.set_output("joint_trajectory_msg", trajectory_msg(plan.samples, joints))
         self.set_output("debug_solution", [matrix_to_pose("world", m, now) for m in plan.tip_poses])
         self.feedback_message = f"{len(plan.tip_poses)} IK points, {plan.samples.times[-1]:.2f} s"
         return Status.SUCCESS
@@ -366,7 +368,7 @@ class ValidateTrajectory(Behavior):
 
     needs_world = True
     description: ClassVar[str] = (
-        "SUCCESS when a joint trajectory stays within the position limits and collision-free in the planning scene; "
+        "SUCCESS when a joint trajectory stays within the position, velocity and acceleration limits and collision-free in the planning scene; "
         "FAILURE naming the first problem."
     )
     ports = (
@@ -396,13 +398,7 @@ class ValidateTrajectory(Behavior):
         return Status.SUCCESS
 
 
-class Phase(enum.Enum):
-    CONNECT = 1
-    SENT = 2
-    EXECUTING = 3
-
-
-class ExecuteTrajectory(ReadsRobotState, Behavior):
+class ExecuteTrajectory(ReadsRobotState, SendsTrajectoryGoal):
     """MoveIt Pro's ExecuteTrajectory, on the admittance controller (execution_pipeline jtac)."""
 
     needs_world = True
@@ -426,8 +422,7 @@ class ExecuteTrajectory(ReadsRobotState, Behavior):
 
     def initialise(self) -> None:
         self.error: str | None = None
-        self.phase = Phase.CONNECT
-        self.goal_future = self.result_future = self.handle = None
+        self.goal = Goal()
         pipeline = self.get_input("execution_pipeline").strip().lower()
         if pipeline != "jtac":
             self.error = (
@@ -445,7 +440,7 @@ class ExecuteTrajectory(ReadsRobotState, Behavior):
     def update(self) -> Status:
         if self.error:
             return self.fail(self.error)
-        if self.phase is Phase.CONNECT:
+        if self.goal.state is GoalState.NONE:
             ready = when_ready(self.client.server_is_ready, self.deadline, f"controller action '{self.action}'")
             if ready is not True:
                 return self.fail(ready) if isinstance(ready, str) else Status.RUNNING
@@ -453,23 +448,8 @@ class ExecuteTrajectory(ReadsRobotState, Behavior):
                 goal = self._goal()
             except (PlanningError, SafetyError, FrameError) as err:
                 return self.fail(str(err))
-            self.goal_future = self.client.send_goal_async(goal)
-            self.phase = Phase.SENT
-        if self.phase is Phase.SENT:
-            if not self.goal_future.done():
-                return Status.RUNNING
-            self.handle = self.goal_future.result()
-            if not self.handle.accepted:
-                return self.fail(f"controller '{self.action}' rejected the trajectory")
-            self.result_future = self.handle.get_result_async()
-            self.phase = Phase.EXECUTING
-        if not self.result_future.done():
-            return Status.RUNNING
-        outcome = self.result_future.result()
-        self.handle = None
-        if outcome.status != STATUS_SUCCEEDED:
-            return self.fail(f"the controller aborted the trajectory: {outcome.result.error_string}")
-        return Status.SUCCESS
+            self.goal = Goal.send(self.client, goal)
+        return self.follow_goal("trajectory")
 
     def _goal(self) -> Any:
         safety = make_safety(self.context.scene, self.get_input("planning_group_name"), None)
@@ -492,18 +472,17 @@ class ExecuteTrajectory(ReadsRobotState, Behavior):
             raise PlanningError(f"path_position_tolerance must be positive, got {tolerances}")
         if threshold and len(threshold) != 6:
             raise PlanningError(f"absolute_force_torque_threshold needs 6 values (Fx;Fy;Fz;Tx;Ty;Tz), got {len(threshold)}")
-        goal = FollowTrajectory.Goal()
-        goal.joint_trajectory = to_trajectory_msg(samples, safety.group_joints, 0.0)
-        goal.path_tolerance = float(min(tolerances)) if tolerances else 0.1
         duration_tolerance = self.get_input("goal_duration_tolerance")
-        goal.goal_time_tolerance = 1.0 if duration_tolerance < 0 else float(duration_tolerance)
-        goal.absolute_force_torque_threshold = [float(v) for v in threshold]
-        return goal
+        return admittance_goal(
+            trajectory_msg(samples, safety.group_joints),
+            min(tolerances) if tolerances else 0.1,
+            GOAL_TIME_TOLERANCE_S if duration_tolerance < 0 else duration_tolerance,
+            threshold,
+        )
 
     def terminate(self, new_status: Status) -> None:
-        if new_status is Status.INVALID and getattr(self, "handle", None) is not None:
-            self.handle.cancel_goal_async()
-            self.handle = None
+        if new_status is Status.INVALID:
+            self.goal = self.goal.cancel()
 
 
 class RetrieveWaypoint(Behavior):

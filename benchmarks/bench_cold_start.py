@@ -9,14 +9,14 @@ scene (robot model loaded), the tree loaded. Each process runs the objective wit
 time is the cold start plus a few milliseconds of ticking. Three ways, interleaved run by run so
 all see the same machine load:
 
-- ``off``: ``OBJECTIVE_CACHE=off``, nothing read or written (what main did before the cache);
+- ``off``: ``OBJECTIVE_CACHE=off``, nothing read or written (no cache at all);
 - ``cold``: an empty cache directory each run (computes everything and writes the entries);
 - ``warm``: a cache directory filled by a run before the first measured one.
 
 ``--full`` adds the same three ways for whole runs of the objective (31 s of sim time), where the
 cold start is a small part. A row's ``speedup`` is ``off``'s median wall time over its own.
 ``--importtime`` prints the slowest imports of ``objective`` itself (``python -X importtime``).
-``--against DIR`` times another checkout's ``DIR/.venv/bin/objective`` (e.g. ``/work/main``) the
+``--against DIR`` times another checkout's ``DIR/.venv/bin/objective`` (e.g. ``../main``) the
 same three ways, interleaved run by run with this one, for a side-by-side on a loaded machine.
 
     .venv/bin/python benchmarks/bench_cold_start.py [--runs N] [--full] [--importtime] [--against DIR]
@@ -110,7 +110,7 @@ def main() -> None:
     parser.add_argument("--full", action="store_true", help="also time whole runs of the objective")
     parser.add_argument("--importtime", action="store_true", help="print the slowest imports")
     parser.add_argument("--against", type=Path, metavar="DIR",
-                        help="another checkout (with its .venv) to time interleaved with this one, e.g. /work/main")
+                        help="another checkout (with its .venv) to time interleaved with this one, e.g. ../main")
     args = parser.parse_args()
     checkouts = [ROOT]
     if args.against is not None:
@@ -131,7 +131,7 @@ def main() -> None:
         f"whole `objective run {OBJECTIVE}` processes (--max-seconds 0.01: start-up and the first ticks); "
         f"{args.runs} runs per way, interleaved; medians",
         "off: OBJECTIVE_CACHE=off; cold: empty cache each run (computes and writes); warm: cache filled beforehand",
-        "target (issue 15): <= 1 s per cold start",
+        "target: <= 1 s per cold start",
     ]
     report("bench_cold_start: objective run, disk cache off / cold / warm", rows,
            ["bench", "checkout", "cache", "wall_s", "min_wall_s", "cpu_s", "speedup"], notes)

@@ -242,7 +242,7 @@ def main() -> None:
     installed = {ep.name for ep in entry_points(group=WORLD_GROUP)}
     worlds = args.world or [w for w in ("vla_sim", "kinematic") if w in installed]
     cores = len(os.sched_getaffinity(0))
-    rows, notes = [], ["target: sim_per_wall >= 40 on one core (issue 15; the first target was 10)",
+    rows, notes = [], ["target: sim_per_wall >= 40 on one core",
                        f"seeds 0..{args.runs - 1} per world; medians; {cores} core(s) for this process"]
     if "vla_sim" not in installed:
         notes.append("vla_sim is not installed (no 'vla_sim' entry point in objective.worlds): kinematic only")

@@ -2,7 +2,7 @@
 written (``Recorder.finish`` plus ``ReportWorker.render``, timed around the calls), on
 ``objectives/stack_cubes.xml`` and the kinematic world, in-process runs (``run_file``).
 
-The target (issue 17): at most about 0.1 s. The two methods are wrapped for the timing only;
+The target: at most about 0.1 s. The two methods are wrapped for the timing only;
 the run is otherwise the one ``objective run --record`` does.
 
     .venv/bin/python benchmarks/bench_report_wait.py [--runs N]

@@ -134,7 +134,10 @@ def tail(text: str, lines: int = TAIL_LINES) -> str:
 # Steps with I/O
 # --------------------------------------------------------------------------------------------
 def fix_cmake_exports(prefix: Path) -> int:
-    """Trap 1 of shared/notes/ros2-from-pypi.md. Returns how many files were rewritten."""
+    """The CMake export files of the ROS wheels name the include directories of the machine the
+    wheels were built on (``/opt/python/...``): point them at this venv's Python and numpy
+    headers, or a package that links against them fails to configure. Returns how many files
+    were rewritten."""
     import numpy  # the venv has it; needed only for its include path
 
     python_include = sysconfig.get_paths()["include"]

@@ -1,7 +1,7 @@
 """Load a MuJoCo MJCF robot into pinocchio (kinematics) and coal (collision geometry).
 
 ``pin.buildModelFromMJCF`` reads the Menagerie files without complaint but gets them wrong
-in three silent ways (measured, see ``notes/sim-stack.md``); each has a fix here:
+in three silent ways (measured against MuJoCo's own kinematics); each has a fix here:
 
 1. Attributes inherited from ``<default class>`` are dropped (mesh scale, geom and joint
    positions): we flatten the defaults with MjSpec, setting every element's class to the

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import re
+from pathlib import Path
 from dataclasses import dataclass, field
 from typing import Any, Callable
 
@@ -16,6 +17,8 @@ from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 import runtime.bus as bus_module
 from runtime.bus import FixedLatency
 from runtime.loader import load_tree
+from recording.report.data import Recording
+from recording.report.plots import stall_spans
 from runtime.registry import Registry
 from runtime.runner import RunOptions, make_context, run_tree
 from runtime.scene import Box, pose_matrix
@@ -118,6 +121,12 @@ def run_policy(
 
 
 BASE = 'total_action_steps="60" dt="0.1" committed_action_steps="20" goal_path_tolerance="0.3" policy_call_timeout="3.0"'
+
+
+def plotted_stall_s(run: Run) -> float:
+    """Seconds of stall the report's joint plot draws (red bands) from the run's events."""
+    recording = Recording(Path("."), events=[dataclasses.asdict(e) for e in run.context.events.events])
+    return sum(end - start for start, end in stall_spans(recording))
 
 
 # -- the happy path ------------------------------------------------------------------------
@@ -328,7 +337,7 @@ def test_missing_gripper_joint_in_joint_states_fails_at_the_first_observation(re
     )
 
 
-# -- the gripper column and the gripper's answers (issue 13, item 5) --------------------------
+# -- the gripper column and the gripper's answers --------------------------------------------
 def with_gripper(value: float, velocity: np.ndarray | None = None) -> Callable[[int, Any], Any]:
     """``hold`` chunks whose gripper column is ``value`` at every step."""
 
@@ -360,9 +369,9 @@ def record_gripper_goals(goals: list[float]) -> Callable[[Any, KinematicWorld], 
 
 
 def test_a_gripper_column_100_times_too_large_is_rejected_like_an_arm_joint(registry):
-    """On main a policy whose gripper values were 100x too large ran to the end with no
-    rejection. The column is checked against the gripper joint's limits (0..0.8 rad) before
-    anything is sent, and the chunk is rejected naming the step, the joint and the value."""
+    """A policy whose gripper values are 100x too large: the column is checked against the
+    gripper joint's limits (0..0.8 rad) before anything is sent, and the chunk is rejected naming
+    the step, the joint and the value."""
     goals: list[float] = []
     hook = record_gripper_goals(goals)
     try:
@@ -400,8 +409,8 @@ def test_a_gripper_target_beyond_the_tolerance_is_rejected(registry):
 
 
 def test_a_gripper_goal_the_controller_refuses_fails_the_run_with_the_reason(registry, monkeypatch):
-    """A controller whose range is narrower than the model's refuses 0.7 rad: on main the
-    refusal was never read and the run went on."""
+    """A controller whose range is narrower than the model's refuses 0.7 rad: the refusal is
+    read and ends the run."""
     import sim.controllers.gripper as gripper_module
 
     original = gripper_module.GripperActionController._on_goal
@@ -415,7 +424,7 @@ def test_a_gripper_goal_the_controller_refuses_fails_the_run_with_the_reason(reg
 
 def test_a_gripper_goal_aborted_by_an_inactive_controller_fails_the_run(registry):
     """The gripper controller was switched off before the run: it accepts and aborts every goal
-    without moving. On main that went unnoticed."""
+    without moving, and the run notices."""
     switch = ('<SwitchController activate_controllers="joint_trajectory_admittance_controller" '
               'deactivate_controllers="velocity_force_controller;robotiq_gripper_controller"/>{node}')
     run = run_policy(registry, f"{BASE} {GRIPPER_PORTS}", ScriptedPolicy(with_gripper(0.4)), prepare=False, wrap=switch)
@@ -580,7 +589,10 @@ def test_rtc_off_sends_no_carryover(registry):
         return chunk_response(list(request.robot_state.name), np.tile(request.robot_state.position, (50, 1)), policy_rows=np.ones((50, 2)))
 
     run = run_policy(registry, BASE, ScriptedPolicy(answer))
-    assert all(len(r.previous_action_chunk.data) == 0 for r in run.policy.requests)
+    assert run.result.status == "SUCCESS", run.result.reason
+    assert len(run.policy.requests) == 4  # the warmup, then one request per 20-step window of the 60 steps
+    assert [len(r.previous_action_chunk.data) for r in run.policy.requests] == [0, 0, 0, 0]
+    assert [len(r.previous_anchor_state.position) for r in run.policy.requests] == [0, 0, 0, 0]
 
 
 @pytest.mark.parametrize("latency", [0.0, 0.3, 0.6, 0.95])
@@ -593,9 +605,9 @@ def test_no_stalls_while_latency_is_within_half_the_committed_window(registry, l
 def test_latency_beyond_the_window_keeps_the_arm_moving_and_warns(registry):
     # Each chunk can only be asked for once the previous one arrived, 2.5 s later: longer than the
     # 2 s window. Between windows the arm plays the chunk's steps beyond its window at the
-    # policy's pace; on main it ran out over 0.5 s and stood still for 0.5 s at each of the two
-    # boundaries (1.0 s of stall). Now chunk 2 is asked for so that it lands as chunk 1's tail
-    # would start slowing down: it never does. The guide's sizing rule still warns.
+    # policy's pace, and chunk 2 is asked for so that it lands as chunk 1's tail would start
+    # slowing down: it never does (a runout at each window's end would cost 1.0 s of stall). The
+    # guide's sizing rule still warns.
     run = run_policy(registry, BASE, ScriptedPolicy(hold(velocity=np.array([0.1, 0, 0, 0, 0, 0]))), latency=2.5)
     assert run.result.status == "SUCCESS", run.result.reason
     assert run.summary["stall_seconds"] == 0.0
@@ -605,9 +617,9 @@ def test_latency_beyond_the_window_keeps_the_arm_moving_and_warns(registry):
 
 def test_heavy_tailed_latency_warns_once_during_the_run_with_the_figures(registry):
     """The warmup is fast (0.2 s) and so is the first chunk; then the policy slows to 1.2-1.3 s,
-    more than half the committed window (1.9 s). On main the sizing rule was only checked at the
-    warmup, so heavy-tailed latency never warned; now it is checked at every answer and warns
-    once, naming the estimate and how it was made."""
+    more than half the committed window (1.9 s). The sizing rule is checked at every answer, not
+    only at the warmup, so heavy-tailed latency warns, once, naming the estimate and how it was
+    made."""
     from runtime.bus import TraceLatency
 
     run = run_policy(registry, BASE, ScriptedPolicy(hold()), latency=TraceLatency([0.2, 0.2, 1.2, 1.3, 0.2]))
@@ -638,8 +650,8 @@ def test_a_latency_that_outgrows_the_chunk_s_tail_too_warns_a_second_time(regist
 
 
 def test_committed_window_not_smaller_than_the_chunk_fails_at_the_first_chunk(registry):
-    """The guide: committed_action_steps must be smaller than the policy's chunk size. On main
-    this only warned and ran on."""
+    """The guide: committed_action_steps must be smaller than the policy's chunk size; a run
+    that breaks the rule fails, it does not only warn."""
     run = run_policy(registry, BASE, ScriptedPolicy(hold(steps=20, velocity=np.array([0.1, 0, 0, 0, 0, 0]))))
     assert run.result.status == "FAILURE"
     assert run.result.reason == (
@@ -726,7 +738,7 @@ def test_a_first_chunk_is_played_from_its_step_0_at_the_first_step_at_or_after_i
     # arm has rested there since the request), as both baselines of bench_streaming play a first
     # chunk. Arriving on the step itself, its goal cannot reach the controller before the next
     # tick (one tick plus twice the delivery time): it takes over then, within the step, and the
-    # arm moves from the next control step on. Before, that window started a whole step later.
+    # arm moves from the next control step on, not a whole step later.
     commanded: list[tuple[float, float]] = []
     run = run_policy(registry, BASE, ScriptedPolicy(hold(velocity=np.array([0.1, 0, 0, 0, 0, 0]))), latency=latency_s,
                      before=record_commanded_velocity(commanded))
@@ -745,8 +757,8 @@ def test_a_first_chunk_is_played_from_its_step_0_at_the_first_step_at_or_after_i
 def test_a_chunk_that_finds_the_arm_at_rest_starts_at_its_arrival_step_and_the_next_request_goes_out_then(registry):
     # Chunk 2 takes 8 s: chunk 1 (50 steps at 0.1 rad/s) has run out and the arm rests when it
     # lands, exactly on a step. As a first chunk does, its window starts at that step and its
-    # goal takes over one tick later, within the step (before, the window waited for the next
-    # step: 0.1 s more standing still), and chunk 3 is asked for in the same tick.
+    # goal takes over one tick later, within the step (not at the next step: 0.1 s more standing
+    # still), and chunk 3 is asked for in the same tick.
     commanded: list[tuple[float, float]] = []
     ports = BASE.replace('policy_call_timeout="3.0"', 'policy_call_timeout="10.0"').replace('total_action_steps="60"', 'total_action_steps="100"')
     run = run_policy(registry, ports, ScriptedPolicy(hold(velocity=np.array([0.1, 0, 0, 0, 0, 0]))), latency=SpikeAt(0.05, 2, 8.0),
@@ -800,8 +812,8 @@ def test_a_chunk_later_than_the_window_keeps_the_arm_at_the_policy_s_pace_along_
     # 1.9 s after that end, later than a whole window but well within chunk 1 (5 s). Meanwhile the
     # arm goes on along chunk 1's own steps beyond its window at full speed (0.1 rad/s, the
     # policy's pace), and chunk 2 takes over from that moving state where the arm is: the
-    # commanded velocity never jumps, never slows, and no time is lost standing still. On main
-    # the arm slowed to rest within 1 s of the window's end and stood still for 0.9 s.
+    # commanded velocity never jumps, never slows, and no time is lost standing still (a runout at
+    # the window's end would bring the arm to rest within 1 s and keep it still for 0.9 s).
     commanded: list[tuple[float, float]] = []
     velocity = np.array([0.1, 0, 0, 0, 0, 0])
     run = run_policy(registry, BASE, ScriptedPolicy(hold(velocity=velocity)), latency=SpikeAt(0.05, 2, 2.0),
@@ -894,8 +906,7 @@ def test_a_late_goal_planned_again_after_a_stall_counts_the_stall_once(registry,
     # Chunk 2 takes 8 s: chunk 1's window (2 s) and its tail (26 steps at full speed, 2.6 s, then
     # the runout) are over and the arm rests when it lands. Its goal is refused as late and the
     # chunk is planned again from rest. The run's stall is the time from the end of chunk 1's
-    # full-speed motion to the seam that was played; before, the refused plan's stall was
-    # counted as well.
+    # full-speed motion to the seam that was played; the refused plan's stall is not counted.
     arrivals = refuse_as_late(monkeypatch, 2)
     ports = BASE.replace('policy_call_timeout="3.0"', 'policy_call_timeout="10.0"').replace('total_action_steps="60"', 'total_action_steps="100"')
     run = run_policy(registry, ports, ScriptedPolicy(hold(velocity=np.array([0.1, 0, 0, 0, 0, 0]))), latency=SpikeAt(0.05, 2, 8.0))
@@ -906,6 +917,7 @@ def test_a_late_goal_planned_again_after_a_stall_counts_the_stall_once(registry,
     assert refused["chunk"] == played["chunk"] == 2 and played["takes_over_time"] > refused["takes_over_time"]
     full_speed_end = first["seam_time"] + first["steps"] * 0.1 + 2.6
     assert run.summary["stall_seconds"] == pytest.approx(played["seam_time"] - full_speed_end, abs=1e-4)
+    assert plotted_stall_s(run) == pytest.approx(run.summary["stall_seconds"], abs=1e-4)  # the refused plan's stall is not drawn
 
 
 def test_a_late_goal_is_recognised_by_its_result_code_not_its_wording(registry, monkeypatch):
@@ -980,7 +992,7 @@ def test_an_obstacle_on_the_chunk_s_path_beyond_the_window_stops_the_arm_before_
     assert run.result.reason == "the policy service '/get_action_chunk' did not answer within policy_call_timeout = 10 s"
     rest = float(run.world.cell.arm[0] - start[0])
     assert np.allclose(run.world.cell.arm_velocity_now, 0.0, atol=1e-9)
-    # Further than the window and a 5-step runout (0.75 rad, where main stopped), short of the box.
+    # Further than the window and a 5-step runout (0.75 rad), short of the box.
     assert 0.75 < rest < 1.2 and offsets["max"] == pytest.approx(rest)
     assert rest == pytest.approx(0.03 * round(rest / 0.03), abs=1e-6)  # at rest on one of the chunk's steps
 
@@ -1004,6 +1016,7 @@ def test_chunk_arriving_early_after_a_spike_joins_at_the_end_of_the_committed_mo
     pause_before_chunk_2 = spiked["seam_time"] - (first["seam_time"] + first["steps"] * 0.1 + 2.6)
     assert pause_before_chunk_2 == pytest.approx(0.1)
     assert run.summary["stall_seconds"] == pytest.approx(pause_before_chunk_2, abs=1e-4)
+    assert plotted_stall_s(run) == pytest.approx(run.summary["stall_seconds"], abs=1e-4)
 
 
 def test_halt_cancels_the_goal_and_the_robot_stops(registry):

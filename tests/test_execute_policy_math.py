@@ -9,9 +9,6 @@ from behaviors.execute_policy.config import committed_window_problem
 from behaviors.execute_policy.gripper import result_problem
 from behaviors.execute_policy.shaping import (
     NO_TAIL,
-    POSITION_BLEND_PEAK,
-    VELOCITY_BLEND_PEAK,
-    blend_duration_within,
     densify,
     fit_chunk,
     join_at_seam,
@@ -204,7 +201,7 @@ def test_a_chunk_that_finds_the_arm_at_rest_plays_from_the_arms_step():
     assert (late.seam_step, late.first_chunk_step, late.request_step) == (31, 3, 28)
 
 
-# -- the latency estimate (issue 13, item 2) -------------------------------------------------
+# -- the latency estimate ---------------------------------------------------------------------
 def test_nearest_rank_quantile_is_the_largest_until_one_in_ten_can_be_left_out():
     assert nearest_rank_quantile([], 0.9) == 0.0
     assert nearest_rank_quantile([0.1] * 8 + [3.0], 0.9) == 3.0  # 9 values: too few to leave one out
@@ -214,10 +211,10 @@ def test_nearest_rank_quantile_is_the_largest_until_one_in_ten_can_be_left_out()
 
 
 def test_latency_estimate_covers_a_spike_at_once_and_recovers_after_it():
-    """Pins the estimate that replaced the grow-only maximum: a 3 s call as the second streamed
-    request (the warmup and one call before it) is covered at once, and once ten round trips
-    have been seen the spike is the slowest tenth and the estimate is back at the usual 0.05 s
-    (on main it stayed 3 s for the rest of the run: a 34-step frozen prefix)."""
+    """A 3 s call as the second streamed request (the warmup and one call before it) is covered
+    at once, and once ten round trips have been seen the spike is the slowest tenth and the
+    estimate is back at the usual 0.05 s (a maximum would keep it at 3 s for the rest of the
+    run: a 34-step frozen prefix)."""
     est = LatencyEstimate()
     history = []
     for seconds in [0.05, 0.05, 3.0] + [0.05] * 25:
@@ -267,9 +264,9 @@ def test_sizing_warning_says_whether_the_chunk_s_tail_covers_the_latency():
     )
 
 
-# -- joining a chunk that starts away from the arm (issue 13, item 2) -------------------------
+# -- joining a chunk that starts away from the arm ---------------------------------------------
 def _offset_join(max_acceleration):
-    """The issue's chunk 6: the policy re-planned, so its chunk is 0.55 rad away from where the
+    """A re-planned chunk after a slow inference: it is 0.55 rad away from where the
     committed motion is at the seam (and 0.23 rad/s slower); the window is 15 steps of 0.1 s."""
     chunk = np.linspace([0.0, 0.0], [0.3, -0.1], 50)
     spline = fit_chunk(chunk, 300.0)
@@ -280,10 +277,10 @@ def _offset_join(max_acceleration):
 
 
 def test_a_chunk_that_starts_away_from_the_arm_is_joined_within_the_acceleration_limit():
-    """Pins the cause of 'chunk 6 rejected: ... acceleration 5.0-6.3 rad/s^2 exceeds the limit'
-    after a slow inference: the seam blend was always half the window (0.75 s here), so a
-    0.55 rad offset was planned at 5.6 rad/s^2. The blend is now as long as the acceleration
-    the chunk leaves free requires, and the join stays continuous at the seam."""
+    """A seam blend of a fixed half window (0.75 s here) would join a 0.55 rad offset at
+    5.6 rad/s^2, and the chunk would be rejected ('acceleration ... exceeds the limit'). The blend
+    is as long as the acceleration the chunk leaves free requires, and the join stays continuous
+    at the seam."""
     limit = np.array([5.0, 5.0])
     fixed = _offset_join(None)
     _, _, a_fixed = fixed.evaluate(np.linspace(3.4, 4.9, 301))
@@ -296,17 +293,7 @@ def test_a_chunk_that_starts_away_from_the_arm_is_joined_within_the_acceleration
     assert np.allclose(p[0], joined.offset_position + joined.spline(34.0), atol=1e-12)
 
 
-def test_blend_duration_is_the_nominal_one_unless_the_offset_needs_longer():
-    headroom = np.array([5.0, 5.0])
-    assert blend_duration_within(np.array([0.001, 0.0]), np.zeros(2), headroom, 1.0) == 1.0
-    # A position offset d over T adds at most d * 10/sqrt(3) / T^2; half the headroom is used.
-    assert blend_duration_within(np.array([1.0, 0.0]), np.zeros(2), headroom, 0.5) == pytest.approx(np.sqrt(POSITION_BLEND_PEAK / 2.5))
-    assert blend_duration_within(np.zeros(2), np.array([0.0, 2.0]), headroom, 0.5) == pytest.approx(2.0 * VELOCITY_BLEND_PEAK / 2.5)
-    # No headroom (the chunk alone is at its limit): nothing to gain, the check rejects the chunk.
-    assert blend_duration_within(np.array([1.0, 0.0]), np.zeros(2), np.array([0.0, 5.0]), 0.5) == 0.5
-
-
-# -- the rest of issue 13's ExecutePolicy items ------------------------------------------------
+# -- window sizing, the gripper's answers, and chunk reading ----------------------------------
 def test_committed_window_must_be_smaller_than_the_chunk():
     assert committed_window_problem(19, 20) is None
     assert committed_window_problem(20, 20) == (

@@ -21,8 +21,8 @@ from behaviors.trajectories import (
     resample,
     time_path,
     tip_offset_matrix,
-    to_trajectory_msg,
 )
+from behaviors.trajectory_goal import trajectory_msg
 from behaviors.poses import matrix_to_pose
 from runtime.blackboard import Blackboard
 from runtime.behavior import Status
@@ -89,7 +89,7 @@ def test_trajectory_timing_is_read_like_moveit_pro_writes_it():
 
 def test_trajectory_message_round_trip_reorders_joints():
     samples = Samples(np.array([0.0, 0.5]), np.array([[1.0, 2.0], [3.0, 4.0]]), np.zeros((2, 2)), np.zeros((2, 2)))
-    msg = to_trajectory_msg(samples, ("a", "b"))
+    msg = trajectory_msg(samples, ("a", "b"))
     back = from_trajectory_msg(msg, ("b", "a"))
     np.testing.assert_allclose(back.positions, [[2.0, 1.0], [4.0, 3.0]])
     with pytest.raises(PlanningError, match="the trajectory lacks joints c"):
@@ -240,11 +240,33 @@ def test_validate_trajectory_finds_a_collision_with_the_table(robot):
     path = np.linspace(HOME, below.positions, 20)
     samples = Samples(np.linspace(0, 2, 20), path, np.zeros_like(path), np.zeros_like(path))
     blackboard = Blackboard()
-    blackboard.set("joint_trajectory_msg", to_trajectory_msg(samples, ARM_JOINTS))
+    blackboard.set("joint_trajectory_msg", trajectory_msg(samples, ARM_JOINTS))
     node = make_node(ValidateTrajectory, make_context(scene), blackboard, debug_solution="{why}")
     assert tick(node) is Status.FAILURE
     assert node.feedback_message.startswith("the trajectory collides:") and "table" in node.feedback_message
     assert blackboard.get("why") == node.feedback_message.removeprefix("the trajectory ")
+
+
+@pytest.mark.parametrize("quantity, value, expected", [
+    ("velocities", 5.0, "joint shoulder_pan_joint velocity 5.0000 rad/s exceeds the limit 3.1416 rad/s"),
+    ("accelerations", -20.0, "joint shoulder_pan_joint acceleration -20.0000 rad/s^2 exceeds the limit -5.0000 rad/s^2"),
+])
+def test_execute_trajectory_refuses_a_trajectory_over_the_velocity_or_acceleration_limits(robot, quantity, value, expected):
+    from behaviors.trajectories import ExecuteTrajectory
+    from tests.test_pose_behaviors import RecordingController
+
+    context = make_context(cell_scene())
+    controller = RecordingController(context)
+    path = np.tile(HOME, (3, 1)) + np.outer([0.0, 0.05, 0.1], [1, 0, 0, 0, 0, 0])
+    derivatives = {"velocities": np.zeros_like(path), "accelerations": np.zeros_like(path)}
+    derivatives[quantity][1, 0] = value  # point 1 of shoulder_pan_joint, as the blackboard holds it
+    blackboard = Blackboard()
+    blackboard.set("joint_trajectory_msg", trajectory_msg(Samples(np.array([0.0, 0.5, 1.0]), path, **derivatives), ARM_JOINTS))
+    node = make_node(ExecuteTrajectory, context, blackboard)
+    publish_joint_states(context, HOME)
+    assert tick(node) is Status.FAILURE
+    assert node.feedback_message == f"the trajectory breaks a joint limit at point 1 (t=0.500 s): {expected}"
+    assert controller.goals == []  # nothing reached the controller
 
 
 def test_retrieve_waypoint_lists_the_known_waypoints(registry, tmp_path):

@@ -139,8 +139,8 @@ def test_wrench_stays_near_zero_when_the_wrist_turns(cell):
 
 def test_a_first_goal_from_the_sagging_arm_does_not_jolt_the_wrist():
     # The controller holds Home; the arm, under the gripper's weight, rests a few mrad off it. A
-    # goal planned from the measured position (as a policy's first chunk is) used to close that
-    # gap in its first 10 ms interval: 75 N on the wrist sensor, beyond the default 45 N.
+    # goal planned from the measured position (as a policy's first chunk is) closing that gap in
+    # its first 10 ms interval would put 75 N on the wrist sensor, beyond the default 45 N.
     clock = SimClock()
     bus = InProcessBus(clock, default_latency=FixedLatency(0.0))
     cell = MujocoCell(CellOptions(image_width=32, image_height=32), HOME, seed=0)

@@ -19,6 +19,8 @@ import pytest
 from moveit_pro_ml_msgs.srv import GetActionChunk
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
+import policy.node as node_mod
+import policy.server as server_mod
 from runtime.bus import FixedLatency
 from runtime.loader import load_tree
 from runtime.registry import Registry
@@ -134,7 +136,7 @@ def test_dropped_response_fails_at_policy_call_timeout_and_stops(registry):
     out.assert_stopped_cleanly()
     # After chunk 1's window the arm played its 26 steps beyond the window at full speed, then
     # slowed down (the tail's runout) and waited for chunk 2 until the timeout: the wait from the
-    # end of full speed is a stall (on main stall_seconds stayed 0 when the wait ended in a failure).
+    # end of full speed is a stall, counted although the wait ended in a failure.
     slowing_from = out.first_window_end + 2.6
     assert out.summary["stall_seconds"] == pytest.approx(out.finished_at - slowing_from, abs=1e-6)
     assert out.summary["stall_seconds"] > 0.1
@@ -160,7 +162,7 @@ def test_latency_spike_beyond_the_window_pauses_then_finishes(registry):
     # asked for 0.2 s before chunk 2's window ends, and lands 2.6 s after that end. Meanwhile the
     # arm plays chunk 2's steps beyond its window up to the run's last-but-one step (16 at full
     # speed, then a 3-step runout), waits at rest from 1.6 s after the window's end until the
-    # step after the chunk lands (on main: 2.7 s of stall), and chunk 3 plays the last step.
+    # step after the chunk lands, and chunk 3 plays the last step.
     out = run_with_faults(registry, Policy(), Latencies(0.1, c3=2.8))
     assert out.status == "SUCCESS", out.message
     assert out.message == "executed 60 steps"
@@ -250,9 +252,8 @@ def test_malformed_answer_stops_the_arm_with_the_reason(registry, fault, status,
 
 
 def test_a_chunk_a_million_radians_away_is_reported_by_the_value_the_policy_sent(registry):
-    """On main the rejection quoted the first densified point (a value the blend made up, far
-    from what was sent); it now names the policy's own value, its step and joint, before
-    anything is shaped or sent."""
+    """The rejection names the policy's own value, its step and joint, before anything is shaped
+    or sent (not the first densified point, a value the blend makes up far from what was sent)."""
     sent: list[float] = []
 
     def far(request):
@@ -272,8 +273,6 @@ def test_a_chunk_a_million_radians_away_is_reported_by_the_value_the_policy_sent
 
 
 # -- the HTTP inference server behind the adapter --------------------------------------------
-server_mod = pytest.importorskip("policy.server", reason="the HTTP inference server (policy/server.py) is not there yet")
-node_mod = pytest.importorskip("policy.node", reason="the HTTP adapter (policy/node.py) is not there yet")
 
 
 class ChunkBackend:

@@ -172,12 +172,20 @@ def test_commanded_motion_switches_to_each_goal_at_its_seam():
     assert commanded_series([goal(0.0, 0.0, 5, 1.0)], "other") is None
 
 
-def test_stalls_are_the_gaps_between_consecutive_chunk_motions():
+def test_stall_bands_are_the_stalls_execute_policy_counted():
+    def event(kind: str, time: float, **data: float) -> dict:
+        return {"kind": kind, "time": time, "source": "p", "data": data}
+
     recording = Recording(Path("."))
-    recording.goals = [goal(0.0, 0.0, 3, 1.0), goal(0.9, 1.0, 3, 1.0), goal(2.4, 2.5, 3, 1.0)]
-    recording.events = [{"kind": "chunk_executed", "time": g.sent_at, "source": "p", "data": {"seam_time": g.start}}
-                        for g in recording.goals]
-    assert stall_spans(recording) == [(2.0, 2.5)]
+    recording.events = [
+        event("chunk_executed", 0.9, seam_time=1.0, stall_s=0.0),
+        event("chunk_executed", 2.4, seam_time=2.5, stall_s=0.3),  # the arm left full speed at 2.2
+        event("chunk_executed", 4.0, seam_time=4.2, stall_s=0.5),
+        event("chunk_rolled_back", 4.1, stall_s=0.5),  # its goal came late: planned again
+        event("chunk_executed", 4.3, seam_time=4.4, stall_s=0.7),
+        event("policy_finished", 9.0, stall_s=1.5),  # the run ended while the arm waited
+    ]
+    assert stall_spans(recording) == [(2.5 - 0.3, 2.5), (4.4 - 0.7, 4.4), (9.0 - 1.5, 9.0)]
 
 
 def test_tree_layout_never_overlaps_boxes_of_one_level():

@@ -9,7 +9,7 @@ and the oracle (in the server's process) reads the cube poses the cell publishes
 Everything stays on loopback (ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST) in a ROS domain of the
 module's own. The server and the adapter start once for the module.
 
-The full stacking run (the issue's "Done when") is real time: about 33 s of robot time, 35-45 s
+The full stacking run is real time: about 33 s of robot time, 35-45 s
 of wall time. A late tick on a loaded machine makes the robot pause at a chunk boundary rather
 than fail (ExecutePolicy waits for the motion to end, and re-plans a goal that reached the
 controller after its seam), so it is part of the default run.
@@ -185,7 +185,7 @@ def test_one_chunk_through_server_and_adapter(env, policy, tmp_path):
 
 
 def test_stack_cubes_over_ros_with_the_oracle_behind_server_and_adapter(env, policy):
-    """The issue's end-to-end run: objectives/stack_cubes.xml, about 33 s of real time."""
+    """The end-to-end run: objectives/stack_cubes.xml, about 33 s of real time."""
     wall_start = time.monotonic()
     summary = run_objective("objectives/stack_cubes.xml", env, timeout=150)
     assert summary["status"] == "SUCCESS"

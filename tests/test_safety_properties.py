@@ -380,7 +380,7 @@ def test_motion_between_sparse_densified_points_stays_within_the_velocity_limit(
 
 def test_a_gripper_column_out_of_range_never_reaches_the_gripper_controller():
     """The property's gripper half can fail: an in-range column does reach the gripper, and one
-    100 times too large is rejected with the gripper joint named (on main it was streamed)."""
+    100 times too large is rejected with the gripper joint named, never streamed."""
     smooth = {"kind": "smooth", "steps": 40, "velocity": [0.2] * 6, "joint": 0, "at": 0.5, "size": 0.0,
               "bad": float("nan"), "names": "permuted", "width": 0, "seed": 0, "gripper": 0.5, "gripper_ramp": True}
     out = run_chunks([smooth], READY, 0.1, 50, gripper=True)

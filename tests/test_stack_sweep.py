@@ -1,4 +1,4 @@
-"""The issue's acceptance run: the oracle Objective over 20 seeded layouts on the physics cell.
+"""The acceptance run: the oracle Objective over 20 seeded layouts on the physics cell.
 Slow (about 20 minutes on 2 cores): `make test-all` or `pytest -m slow tests/test_stack_sweep.py`."""
 from __future__ import annotations
 

@@ -3,7 +3,7 @@
 Phases (``states.Phase``): STARTUP (wait for the service, the controller and gripper actions,
 every camera and the joint states; 5 s), WARMUP (one discarded request, ``new_episode=true``,
 that seeds the latency estimate), STREAM, then DONE. In STREAM each tick watches the controller
-goal (``states.GoalState``), streams the gripper column, then does what ``states.StreamState``
+goal (``action_goal.GoalState``), streams the gripper column, then does what ``states.StreamState``
 says: send the next request when it is due, read an answered one, or plan a held chunk again.
 ``planner.plan_chunk`` decides (Planned / Wait / Reject), ``checks.PointChecks`` checks every
 point, and only ``_send_goal`` sends a motion to the admittance controller. Halting the node
@@ -19,13 +19,10 @@ from control_msgs.action import GripperCommand
 from moveit_pro_controllers_msgs.action import FollowJointTrajectoryWithAdmittance as FollowTrajectory
 from moveit_pro_ml_msgs.srv import GetActionChunk
 from sensor_msgs.msg import Image, JointState
-from trajectory_msgs.msg import JointTrajectory
 
 from runtime.behavior import Behavior, Status
 from runtime.bus import STATUS_ABORTED, STATUS_SUCCEEDED
 from runtime.ports import Direction
-from runtime.timestamps import time_msg
-from runtime.trajectory_points import trajectory_points
 
 from . import config as cfg
 from .checks import PointChecks
@@ -45,10 +42,12 @@ from .planner import (
     stall_at_stop_s,
 )
 from .shaping import Samples
-from .states import Committed, FreeSamples, Goal, GoalState, HeldChunk, InFlight, Phase, Rollback, StreamState, stream_finished, stream_state
+from .states import Committed, FreeSamples, HeldChunk, InFlight, Phase, Rollback, StreamState, stream_finished, stream_state
 from .stream import StepGrid, Window
 from .timing import LatencyEstimate, SizingRisk, frozen_prefix_steps, prefetch_margin, sizing_risk, sizing_warning
+from ..action_goal import Goal, GoalState
 from ..safety import MotionSafety, SafetyError, make_safety
+from ..trajectory_goal import admittance_goal, trajectory_msg
 
 STARTUP_WAIT_S = 5.0
 GRIPPER_MAX_EFFORT_N = 60.0  # the 2F-85 holds a 30 mm cube well below its 235 N maximum
@@ -398,7 +397,7 @@ class ExecutePolicy(Behavior):
         # planned again from the same chunk (see _retry_late_goal).
         self.rollback = Rollback(held, self._committed(), self.goal, plan.stall_s)
         self.checked_scene = self._scene_state()  # what the samples were checked against
-        self.goal = self.goal.sent(self.controller.send_goal_async(self._goal(samples, plan.takes_over_s)), now)
+        self.goal = Goal.send(self.controller, self._goal(samples, plan.takes_over_s), now)
         self.committed = plan.committed
         self._queue_gripper(held.chunk, window)
         policy_chunk = read_policy_chunk(held.response.policy_action_chunk)
@@ -415,20 +414,13 @@ class ExecutePolicy(Behavior):
             seam_time=plan.seam_time_s,
             takes_over_time=plan.takes_over_s,
             latency=self.metrics.latencies[-1],
+            stall_s=plan.stall_s,
         )
 
     def _goal(self, samples: Samples, seam_time_s: float) -> Any:
         c = self.config
-        goal = FollowTrajectory.Goal()
-        trajectory = JointTrajectory()
-        trajectory.header.stamp = time_msg(seam_time_s)
-        trajectory.joint_names = list(self.safety.group_joints)
-        trajectory.points = trajectory_points(samples.times - seam_time_s, samples.positions, samples.velocities, samples.accelerations)
-        goal.joint_trajectory = trajectory
-        goal.path_tolerance = c.goal_path_tolerance
-        goal.goal_time_tolerance = max(0.5, 5 * c.dt)
-        goal.absolute_force_torque_threshold = list(c.absolute_force_torque_threshold)
-        return goal
+        return admittance_goal(trajectory_msg(samples, self.safety.group_joints, seam_time_s), c.goal_path_tolerance,
+                               max(0.5, 5 * c.dt), c.absolute_force_torque_threshold)
 
     # -- controller and gripper --------------------------------------------------------------
     def _watch_controller(self) -> Status | None:
@@ -440,14 +432,12 @@ class ExecutePolicy(Behavior):
                 return None
             # arrival, not when we looked
             self.goal_latency_s = max(self.goal_latency_s, goal.send_future.ready_at - goal.sent_at_s)
-            handle = goal.send_future.result()
-            if not handle.accepted:
-                self.goal = Goal()  # nothing of it is playing
-                return self._stop(Status.FAILURE, f"the controller '{name}' rejected the goal")
-            self.goal = goal = goal.accepted(handle)
-        if goal.state is GoalState.PLAYING and goal.result_future.done():
-            outcome = goal.result_future.result()
-            self.goal = goal.ended(outcome)
+        self.goal = goal.advance()
+        if self.goal.state is GoalState.REJECTED:
+            self.goal = Goal()  # nothing of it is playing
+            return self._stop(Status.FAILURE, f"the controller '{name}' rejected the goal")
+        if self.goal.state is GoalState.ENDED and goal.state is not GoalState.ENDED:  # its result came now
+            outcome = self.goal.outcome
             if outcome.status == STATUS_ABORTED or outcome.result.error_code not in (0,):
                 if outcome.result.error_code == FollowTrajectory.Result.SUPERSEDED:
                     return None
@@ -471,6 +461,7 @@ class ExecutePolicy(Behavior):
         self.late_retries += 1
         self.committed = sent.committed
         self.metrics.stall_seconds -= sent.stall_s  # the chunk that takes over counts the stall up to its own seam
+        self.context.events.emit("chunk_rolled_back", self.name, stall_s=sent.stall_s)
         if sent.goal.state is GoalState.PLAYING:  # still playing (or its result is waiting to be read)
             self.goal = sent.goal
         if self.held is not None:
@@ -500,7 +491,7 @@ class ExecutePolicy(Behavior):
         goal = GripperCommand.Goal()
         goal.command.position = target
         goal.command.max_effort = GRIPPER_MAX_EFFORT_N
-        self.gripper_goals.append(GripperGoal(target, self.gripper.send_goal_async(goal)))
+        self.gripper_goals.append(GripperGoal(target, Goal.send(self.gripper, goal, now)))
         self.gripper_sent = target
 
     def _track_progress(self, now: float) -> None:
@@ -517,29 +508,24 @@ class ExecutePolicy(Behavior):
         return self._stop(Status.FAILURE, reason)
 
     def _stop(self, status: Status, message: str) -> Status:
-        self.metrics.stall_seconds += stall_at_stop_s(self.committed, self.context.clock.now())
+        stall_s = stall_at_stop_s(self.committed, self.context.clock.now())
+        self.metrics.stall_seconds += stall_s
         self._cancel_goals()
-        return self._finish(status, message)
+        return self._finish(status, message, stall_s)
 
-    def _finish(self, status: Status, message: str) -> Status:
+    def _finish(self, status: Status, message: str, stall_s: float = 0.0) -> Status:
+        """End the run; ``stall_s``: how long the arm had been waiting for a chunk when it ended."""
         self.phase = Phase.DONE
         self.message = message
         self.feedback_message = message
         self._write_outputs()
-        self.context.events.emit("policy_finished", self.name, status=status.value, message=message)
+        self.context.events.emit("policy_finished", self.name, status=status.value, message=message, stall_s=stall_s)
         if status is Status.SUCCESS:
             self.context.logger.info("%s: %s", self.name, message)
         return status
 
     def _cancel_goals(self) -> None:
-        goal = self.goal
-        if goal.state is GoalState.PLAYING:
-            goal.handle.cancel_goal_async()
-        elif goal.state is GoalState.SENT and goal.send_future.done():
-            handle = goal.send_future.result()
-            if handle.accepted:
-                handle.cancel_goal_async()
-        self.goal = Goal()
+        self.goal = self.goal.cancel()
         if self.request is not None:
             self.request.future.cancel()
             self.request = None

@@ -31,7 +31,7 @@ class PointChecks:
         return None if outside is None else f"{outside} (policy step {window.request_step + outside.step} of the run)"
 
     def limits(self, samples: Samples, window: Window) -> str | None:
-        violation = self.safety.limits.check(samples.positions, samples.velocities, samples.accelerations, samples.times)
+        violation = self.safety.first_limit_violation(samples)
         if violation is None:
             return None
         step = window.request_step + int(np.floor((violation.time - self.grid.time(window.request_step)) / self.grid.dt + 1e-9))

@@ -14,14 +14,15 @@ from typing import Any
 
 from runtime.bus import STATUS_ABORTED, STATUS_CANCELED, STATUS_SUCCEEDED
 
+from ..action_goal import Goal, GoalState
+
 
 @dataclass
 class GripperGoal:
-    """A goal sent to the gripper action: its target, and the futures of its answers."""
+    """A goal sent to the gripper action: its target, and what is known of it."""
 
     target: float
-    handle_future: Any
-    result_future: Any = None
+    goal: Goal
 
 
 def refused(action_name: str, target: float) -> str:
@@ -40,18 +41,14 @@ def result_problem(action_name: str, target: float, status: int, result: Any) ->
 def follow_goals(goals: list[GripperGoal], action_name: str) -> str | None:
     """Read the answers that have come in (and drop the goals that are over); return the first
     problem, or None. Goals still waiting for an answer stay in ``goals``."""
-    for goal in list(goals):
-        if goal.result_future is None:
-            if not goal.handle_future.done():
-                continue
-            handle = goal.handle_future.result()
-            if not handle.accepted:
-                return refused(action_name, goal.target)
-            goal.result_future = handle.get_result_async()
-        if goal.result_future.done():
-            goals.remove(goal)
-            outcome = goal.result_future.result()
-            problem = result_problem(action_name, goal.target, outcome.status, outcome.result)
+    for sent in list(goals):
+        sent.goal = sent.goal.advance()
+        if sent.goal.state is GoalState.REJECTED:
+            return refused(action_name, sent.target)
+        if sent.goal.state is GoalState.ENDED:
+            goals.remove(sent)
+            outcome = sent.goal.outcome
+            problem = result_problem(action_name, sent.target, outcome.status, outcome.result)
             if problem is not None:
                 return problem
     return None

@@ -16,6 +16,9 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from runtime import seam_blend
+from runtime.seam_blend import blend_offset, velocity_basis
+
 from .step_spline import MIN_SMOOTHING_STEPS, StepSpline, interpolating_polynomial, smoothing_spline
 
 
@@ -44,24 +47,6 @@ def fit_chunk(positions: np.ndarray, tracking_weight: float) -> StepSpline:
     if len(positions) >= MIN_SMOOTHING_STEPS:
         return smoothing_spline(positions, 1.0 / tracking_weight)
     return interpolating_polynomial(positions)
-
-
-# Quintic Hermite basis on [0, 1]: value 1 (resp. slope 1) at 0, and zero value, slope and
-# curvature at 1, with zero curvature at 0: the blend adds no acceleration step of its own.
-def _h_position(tau: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    t2, t3 = tau * tau, tau * tau * tau
-    value = 1 - 10 * t3 + 15 * t3 * tau - 6 * t3 * t2
-    slope = -30 * t2 + 60 * t3 - 30 * t3 * tau
-    curve = -60 * tau + 180 * t2 - 120 * t3
-    return value, slope, curve
-
-
-def _h_velocity(tau: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    t2, t3 = tau * tau, tau * tau * tau
-    value = tau - 6 * t3 + 8 * t3 * tau - 3 * t3 * t2
-    slope = 1 - 18 * t2 + 32 * t3 - 15 * t3 * tau
-    curve = -36 * tau + 96 * t2 - 60 * t3
-    return value, slope, curve
 
 
 @dataclass(frozen=True)
@@ -122,20 +107,17 @@ class ChunkMotion:
         v = slope * k_rate[:, None]
         a = self.spline(k, nu=2) * (k_rate * k_rate)[:, None] + slope * k_accel[:, None]
         T = self.blend_duration
-        tau = np.clip((times - self.seam) / T, 0.0, 1.0)[:, None]
         inside = ((times >= self.seam) & (times <= self.seam + T))[:, None]
-        hp, hp1, hp2 = _h_position(tau)
-        hv, hv1, hv2 = _h_velocity(tau)
-        dp, dv = self.offset_position[None, :], self.offset_velocity[None, :]
-        p = p + dp * hp + dv * T * hv
-        v = v + np.where(inside, dp * hp1 / T + dv * hv1, 0.0)
-        a = a + np.where(inside, dp * hp2 / (T * T) + dv * hv2 / T, 0.0)
+        bp, bv, ba = blend_offset(self.offset_position, self.offset_velocity, np.zeros_like(self.offset_position), T, times - self.seam)
+        p = p + bp
+        v = v + np.where(inside, bv, 0.0)
+        a = a + np.where(inside, ba, 0.0)
         if self.end_velocity is not None:
             # g(t) = c T h(s), s = (end - t) / T: g(end) = 0, g'(end) = -c, g''(end) = 0.
             T = self.end_blend_duration
             s = np.clip((self.end - times) / T, 0.0, 1.0)[:, None]
             near_end = ((times <= self.end) & (times >= self.end - T))[:, None]
-            hs, hs1, hs2 = _h_velocity(s)
+            hs, hs1, hs2 = velocity_basis(s)
             c = self.end_velocity[None, :]
             p = p + c * T * hs
             v = v - np.where(near_end, c * hs1, 0.0)
@@ -241,34 +223,9 @@ def plan_tail(peak_velocity: np.ndarray, max_acceleration: np.ndarray, dt: float
     return Tail(spare_steps - runout_steps, runout_steps, dt)
 
 
-POSITION_BLEND_PEAK = 10.0 / math.sqrt(3.0)
-"""max |h''| of the position blend on [0, 1] (at tau = 1/2 -+ sqrt(3)/6): a position offset ``d``
-blended over ``T`` seconds adds at most ``d * POSITION_BLEND_PEAK / T^2`` of acceleration."""
-VELOCITY_BLEND_PEAK = float(np.abs(_h_velocity(np.array([(192.0 - math.sqrt(10944.0)) / 360.0]))[2][0]))
-"""max |h''| of the velocity blend on [0, 1] (about 3.94, where its derivative
-``-36 + 192 tau - 180 tau^2`` vanishes): a velocity offset ``w`` blended over ``T`` seconds adds
-at most ``w * VELOCITY_BLEND_PEAK / T`` of acceleration."""
 BLEND_SHARE = 0.5
 """The blend may use this share of the acceleration the chunk's own motion leaves free (half,
 as the runout brakes with half the limit): a long way to join is covered gently."""
-
-
-def blend_duration_within(
-    offset_position: np.ndarray,
-    offset_velocity: np.ndarray,
-    headroom_acceleration: np.ndarray,
-    nominal: float,
-) -> float:
-    """The seam blend's length: ``nominal`` seconds, or longer where blending these offsets that
-    fast would add more acceleration to a joint than ``BLEND_SHARE`` of its headroom (its limit
-    less what the chunk's own motion uses). Solves ``a / T^2 + b / T <= h`` per joint. A joint
-    with no headroom cannot be helped (the chunk alone is at its limit; the check rejects it)."""
-    a = np.abs(np.asarray(offset_position, dtype=float)) * POSITION_BLEND_PEAK
-    b = np.abs(np.asarray(offset_velocity, dtype=float)) * VELOCITY_BLEND_PEAK
-    h = BLEND_SHARE * np.asarray(headroom_acceleration, dtype=float)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        needed = np.where((h > 0) & np.isfinite(h), (b + np.sqrt(b * b + 4.0 * h * a)) / (2.0 * h), 0.0)
-    return max(nominal, float(np.max(needed, initial=0.0)))
 
 
 def chunk_acceleration_peak(spline: StepSpline, dt: float, from_step: float) -> np.ndarray:
@@ -294,9 +251,9 @@ def join_at_seam(
     """The chunk's motion from ``seam`` to ``end``, continuous in position and velocity with
     the committed motion's state (``committed_position``, ``committed_velocity``) at the seam.
 
-    The offset between the two is blended out over ``blend_duration`` seconds; with
-    ``max_acceleration`` (per joint) over longer where that would take more acceleration than
-    the chunk leaves free (``blend_duration_within``): a chunk that starts away from where the
+    The offset between the two is blended out (``runtime.seam_blend``) over ``blend_duration``
+    seconds; with ``max_acceleration`` (per joint) over longer where that would take more than
+    ``BLEND_SHARE`` of the acceleration the chunk leaves free: a chunk that starts away from where the
     arm is (a policy that re-planned, or ran ahead of an arm that paused) joins more slowly
     instead of being planned over the limits."""
     if not end > seam:
@@ -306,7 +263,7 @@ def join_at_seam(
     offset_v = np.asarray(committed_velocity, dtype=float) - spline(k, nu=1) / dt
     if max_acceleration is not None:
         headroom = np.asarray(max_acceleration, dtype=float) - chunk_acceleration_peak(spline, dt, k)
-        blend_duration = blend_duration_within(offset_p, offset_v, headroom, blend_duration)
+        blend_duration = seam_blend.blend_duration(offset_p, offset_v, BLEND_SHARE * headroom, blend_duration)
     return ChunkMotion(spline, dt, chunk_start, seam, end, offset_p, offset_v, max(blend_duration, 1e-6))
 
 

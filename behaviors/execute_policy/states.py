@@ -5,16 +5,19 @@ controller side and what is committed. Immutable values; each transition returns
 - ``StreamState`` (policy side, what a STREAM tick does): SCHEDULING (send the next request when
   its step comes) -> AWAITING_CHUNK (a request is in flight) -> SCHEDULING once its chunk is
   sent to the controller, or HOLDING (the chunk cannot be planned yet) -> SCHEDULING.
-- ``GoalState`` (controller side): NONE -> SENT -> PLAYING -> ENDED, and SENT again with each
-  chunk; a goal refused for arriving late rolls back to the ``Rollback`` taken when it was sent.
+- ``action_goal.GoalState`` (controller side): NONE -> SENT -> PLAYING -> ENDED, and SENT again
+  with each chunk (the arm rests where the run found it before the first, and at the end of the
+  committed motion once the last ENDED); a goal refused for arriving late rolls back to the
+  ``Rollback`` taken when it was sent.
 - The run succeeds when every step is committed, no request is in flight and the last goal ENDED.
 """
 from __future__ import annotations
 
 import enum
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import Any
 
+from ..action_goal import Goal, GoalState
 from .chunk import Chunk
 from .shaping import ChunkMotion, Samples
 from .stream import StepGrid
@@ -45,13 +48,6 @@ class FreeSamples:
     scene_version: tuple[int, int]
 
 
-class GoalState(enum.Enum):
-    NONE = "none"  # no goal sent yet: the arm rests where the run found it
-    SENT = "sent"  # the newest goal is on its way; the controller has not accepted it yet
-    PLAYING = "playing"  # the controller plays the newest accepted goal; its result has not come
-    ENDED = "ended"  # the result came: the arm rests at the end of the committed motion (or a late goal was refused)
-
-
 @dataclass(frozen=True)
 class InFlight:
     """A request the policy has not answered yet."""
@@ -70,27 +66,6 @@ class HeldChunk:
     chunk: Chunk
     response: Any
     flight: InFlight
-
-
-@dataclass(frozen=True)
-class Goal:
-    """The newest controller goal and what is known of it."""
-
-    state: GoalState = GoalState.NONE
-    send_future: Any = None  # SENT
-    sent_at_s: float = 0.0
-    handle: Any = None  # PLAYING
-    result_future: Any = None  # PLAYING
-    outcome: Any = None  # ENDED
-
-    def sent(self, send_future: Any, now_s: float) -> Goal:
-        return Goal(GoalState.SENT, send_future=send_future, sent_at_s=now_s)
-
-    def accepted(self, handle: Any) -> Goal:
-        return replace(self, state=GoalState.PLAYING, send_future=None, handle=handle, result_future=handle.get_result_async())
-
-    def ended(self, outcome: Any) -> Goal:
-        return Goal(GoalState.ENDED, sent_at_s=self.sent_at_s, outcome=outcome)
 
 
 @dataclass(frozen=True)

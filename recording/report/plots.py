@@ -52,21 +52,25 @@ def commanded_series(goals: list[CommandedGoal], joint: str) -> Series | None:
     return Series(*cat)
 
 
-def policy_goals(recording: Recording) -> list[CommandedGoal]:
-    """The goals ExecutePolicy sent for its chunks (matched to ``chunk_executed`` by seam time)."""
-    seams = [e["data"]["seam_time"] for e in recording.of_kind("chunk_executed")]
-    out = []
-    for seam in seams:
-        match = [g for g in recording.goals if abs(g.start - seam) < 1e-6]
-        if match:
-            out.append(match[-1])
-    return out
-
-
 def stall_spans(recording: Recording) -> list[tuple[float, float]]:
-    """Intervals where the committed motion had drained before the next chunk's seam."""
-    goals = policy_goals(recording)
-    return [(a.end, b.start) for a, b in zip(goals, goals[1:]) if b.start > a.end + SEAM_TOLERANCE]
+    """When the arm waited for a chunk, as ExecutePolicy counts it in ``stall_seconds``: the
+    ``stall_s`` seconds before the seam of each ``chunk_executed`` (from the end of the committed
+    motion's full speed), unless a ``chunk_rolled_back`` that follows takes it back, and before a
+    ``policy_finished`` that ended the run while the arm waited."""
+    spans: list[tuple[float, float] | None] = []
+    for event in recording.events:
+        kind, data = event["kind"], event["data"]
+        if kind == "chunk_executed":
+            spans.append(_span_before(float(data["seam_time"]), float(data.get("stall_s", 0.0))))
+        elif kind == "chunk_rolled_back" and spans:
+            spans[-1] = None
+        elif kind == "policy_finished":
+            spans.append(_span_before(float(event["time"]), float(data.get("stall_s", 0.0))))
+    return [span for span in spans if span is not None]
+
+
+def _span_before(end: float, seconds: float) -> tuple[float, float] | None:
+    return (end - seconds, end) if seconds > 0 else None
 
 
 def committed_windows(recording: Recording) -> list[float | None]:
@@ -173,7 +177,7 @@ def joints_plot(recording: Recording, path: Path) -> Path:
     body.append(legend([
         LegendEntry("measured", MEASURED_COLOR), LegendEntry("commanded", COMMANDED_COLOR, "5,3"),
         LegendEntry("chunk seam", SEAM_COLOR), LegendEntry("policy request", REQUEST_COLOR, "2,2"),
-        LegendEntry("stall (motion drained)", STALL_COLOR, patch=True), LegendEntry("joint limit", LIMIT_COLOR, "5,3"),
+        LegendEntry("stall (waiting for a chunk)", STALL_COLOR, patch=True), LegendEntry("joint limit", LIMIT_COLOR, "5,3"),
     ], JOINTS_WIDTH_PX / 2, 16))
     if off_scale:
         body.append(text(JOINTS_WIDTH_PX - RIGHT_PX, height - 4, "joint limits far outside the plotted range are not drawn",

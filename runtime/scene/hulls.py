@@ -19,7 +19,7 @@ def with_convex_hulls(geometry: pin.GeometryModel) -> pin.GeometryModel:
     Mesh-vs-mesh narrowphase on triangle BVHs costs about 5x more and only reports surface
     intersections (an object fully inside a mesh is missed). ``buildConvexHull(True, "Qt")``
     keeps the hull exact; ``buildConvexRepresentation(False)`` is not used: its GJK misses
-    collisions by up to 1.5 cm (see notes/sim-stack.md).
+    collisions by up to 1.5 cm (measured on this cell's meshes).
     """
     out = pin.GeometryModel()
     for go in geometry.geometryObjects:

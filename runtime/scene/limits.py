@@ -49,10 +49,14 @@ class LimitViolation:
 
     def __str__(self) -> str:
         when = f"step {self.step}" + (f" (t={self.time:.3f} s)" if self.time is not None else "")
+        return f"{when}: {self.what}"
+
+    @property
+    def what(self) -> str:
+        """The violation without its step: joint, quantity, value and limit."""
         unit = {"position": "rad", "velocity": "rad/s", "acceleration": "rad/s^2"}[self.quantity]
         relation = "below" if self.quantity == "position" and self.value < self.limit else "exceeds"
-        return (f"{when}: joint {self.joint} {self.quantity} {self.value:.4f} {unit} "
-                f"{relation} the limit {self.limit:.4f} {unit}")
+        return f"joint {self.joint} {self.quantity} {self.value:.4f} {unit} {relation} the limit {self.limit:.4f} {unit}"
 
 
 @dataclass(frozen=True)

@@ -21,6 +21,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from runtime import seam_blend
+from runtime.seam_blend import blend_offset
+
 TIME_EPS = 1e-6  # seconds: stamps travel as integer nanoseconds, rounded on both sides
 """Seconds within which two instants are the same (seam exactly at a point, at the end)."""
 
@@ -222,41 +225,20 @@ DEVIATION_EPS = 1e-9
 
 
 def blend_duration(deviation: TrajectoryState, max_acceleration: float, min_duration: float) -> float:
-    """Seconds over which the quintic offset starting at ``deviation`` (position, velocity and
-    acceleration differences) decays to zero with at most ``max_acceleration`` rad/s^2 on any joint.
-
-    Starts from the closed forms (a pure position offset d peaks at 5.77 d / T^2, a pure velocity
-    offset v needs T of about 3 v / a) and lengthens T until the sampled peak fits; an initial
-    acceleration difference larger than the budget is the floor (no T lowers it).
-    """
+    """Seconds over which the offset starting at ``deviation`` fades to zero, its position and
+    velocity parts adding at most ``max_acceleration`` rad/s^2 to any joint
+    (``runtime.seam_blend.blend_duration``); its acceleration part adds no more than itself."""
     if max_acceleration <= 0:
         raise ValueError(f"max_acceleration must be > 0, got {max_acceleration}")
-    d = float(np.max(np.abs(deviation.position)))
-    v = float(np.max(np.abs(deviation.velocity)))
-    limit = max(max_acceleration, float(np.max(np.abs(deviation.acceleration)))) * (1.0 + 1e-6)
-    duration = max(min_duration, float(np.sqrt(6.0 * d / max_acceleration)), 3.0 * v / max_acceleration, 1e-3)
-    zeros = np.zeros((1, deviation.position.size))
-    for _ in range(60):
-        c = _offset_coefficients(deviation, duration, zeros)
-        tau = np.linspace(0.0, duration, 65)[:, None]
-        acceleration = 2.0 * c[2] + tau * (6.0 * c[3] + tau * (12.0 * c[4] + tau * 20.0 * c[5]))
-        if np.abs(acceleration).max() <= limit:
-            break
-        duration *= 1.2
-    return duration
-
-
-def _offset_coefficients(deviation: TrajectoryState, duration: float, zeros: np.ndarray) -> np.ndarray:
-    return quintic_coefficients(
-        np.array([duration]), deviation.position[None, :], deviation.velocity[None, :], deviation.acceleration[None, :], zeros, zeros, zeros
-    )[0]
+    return seam_blend.blend_duration(deviation.position, deviation.velocity, max_acceleration, max(min_duration, 1e-3))
 
 
 def absorb_deviation(new: Trajectory, start: float, deviation: TrajectoryState, duration: float) -> Trajectory:
-    """``new`` plus an offset that equals ``deviation`` at ``start`` and fades to zero (with its
-    velocity and acceleration) at ``start + duration``, after which ``new`` is unchanged.
+    """``new`` plus the seam blend (``runtime.seam_blend.blend_offset``) that equals ``deviation``
+    at ``start`` and fades to zero (with its velocity and acceleration) at ``start + duration``,
+    after which ``new`` is unchanged.
 
-    The offset is one quintic; a knot is added at its end (``new``'s own state there), so every
+    The blend is one quintic; a knot is added at its end (``new``'s own state there), so every
     piece inside the window is a quintic plus a quintic and the Hermite pieces reproduce the sum
     exactly. A window reaching past ``new``'s end is cut there.
     """
@@ -271,13 +253,13 @@ def absorb_deviation(new: Trajectory, start: float, deviation: TrajectoryState, 
         positions = np.insert(positions, k, state.position, axis=0)
         velocities = np.insert(velocities, k, state.velocity, axis=0)
         accelerations = np.insert(accelerations, k, state.acceleration, axis=0)
+    inside = np.flatnonzero((times >= start - TIME_EPS) & (times < end - TIME_EPS))
+    offset = blend_offset(deviation.position, deviation.velocity, deviation.acceleration, duration,
+                          np.maximum(times[inside] - start, 0.0))
     positions, velocities, accelerations = positions.copy(), velocities.copy(), accelerations.copy()
-    coefficients = _offset_coefficients(deviation, duration, np.zeros((1, new.num_joints)))
-    for k in np.flatnonzero((times >= start - TIME_EPS) & (times < end - TIME_EPS)):
-        offset = quintic_powers(max(float(times[k]) - start, 0.0)) @ coefficients
-        positions[k] += offset[0]
-        velocities[k] += offset[1]
-        accelerations[k] += offset[2]
+    positions[inside] += offset[0]
+    velocities[inside] += offset[1]
+    accelerations[inside] += offset[2]
     return Trajectory(times, positions, velocities, accelerations)
 
 
@@ -307,8 +289,9 @@ def stitch(
     the result is continuous up to acceleration and identical to ``current`` before the seam.
     When ``new`` has a point at the seam that differs from that state (within the tolerance just
     checked), the difference is not closed in ``new``'s first interval (a 3 mrad gap over a 10 ms
-    interval asks 150 rad/s^2) but fades out as an offset on ``new`` with at most
-    ``blend_acceleration`` rad/s^2 (``blend_duration``, at least ``min_blend_time``): the typical
+    interval asks 150 rad/s^2) but fades out as an offset on ``new`` that adds at most
+    ``blend_acceleration`` rad/s^2 for its position and velocity parts (``blend_duration``, at
+    least ``min_blend_time``): the typical
     case is a first goal that starts from the measured position while the controller holds its
     reference a few mrad away (the servos sag under the gripper's weight). When ``new`` starts
     after the seam, the piece between the seam and its first point bridges from ``current``'s
