@@ -13,6 +13,7 @@ from typing import Any
 
 from policy.adapter import DEFAULT_SERVICE_NAME, PolicyAdapter
 from runtime.bus import parse_latency
+from runtime.errors import OptionError
 
 POLICY_SPECS = "oracle, replay:FILE or none"
 
@@ -31,16 +32,16 @@ def make_backend(spec: str | None, cell: Any) -> Any:
 
         path = Path(spec.split(":", 1)[1])
         if not path.is_file():
-            raise ValueError(f"policy 'replay:{path}': no such file")
+            raise OptionError(f"policy 'replay:{path}': no such file")
         return ReplayBackend(path)
     if spec.startswith("lerobot:"):
         from policy.lerobot_backend import make_lerobot_backend
 
         path = Path(spec.split(":", 1)[1])
         if not path.is_dir():
-            raise ValueError(f"policy 'lerobot:{path}': no such checkpoint directory")
+            raise OptionError(f"policy 'lerobot:{path}': no such checkpoint directory")
         return make_lerobot_backend(path, warmup_on_load=True)
-    raise ValueError(f"unknown policy '{spec}' (expected {POLICY_SPECS})")
+    raise OptionError(f"unknown policy '{spec}' (expected {POLICY_SPECS})")
 
 
 def serve_embedded_policy(bus: Any, spec: str | None, cell: Any, latency: str | None, seed: int) -> PolicyAdapter | None:
