@@ -19,7 +19,7 @@ from controller_manager_msgs.msg import ControllerState
 from controller_manager_msgs.srv import ListControllers, SwitchController as SwitchSrv
 
 from runtime.behavior import Behavior, Status
-from runtime.ports import InputPort, PortType, Range
+from runtime.ports import InputPort, NameKind, Names, PortType, Range
 from runtime.timestamps import duration_msg
 
 from .waiting import Deadline, when_ready
@@ -97,8 +97,10 @@ class SwitchController(Behavior):
         InputPort("activate_asap", PortType.BOOL, False, "Passed to the controller manager: activate as soon as the hardware interfaces are ready."),
         InputPort("automatic_activation", PortType.BOOL, False, "Also activate the controllers the ones to activate are chained to."),
         InputPort("automatic_deactivation", PortType.BOOL, False, "Also deactivate the active controllers that hold a command interface the ones to activate need."),
-        InputPort("controller_list_action_name", PortType.STRING, "/controller_manager/list_controllers", "ListControllers service."),
-        InputPort("controller_switch_action_name", PortType.STRING, "/controller_manager/switch_controller", "SwitchController service."),
+        InputPort("controller_list_action_name", PortType.STRING, "/controller_manager/list_controllers", "ListControllers service.",
+                  names=Names(NameKind.SERVICE, ListControllers)),
+        InputPort("controller_switch_action_name", PortType.STRING, "/controller_manager/switch_controller", "SwitchController service.",
+                  names=Names(NameKind.SERVICE, SwitchSrv)),
     )
 
     def initialise(self) -> None:

@@ -5,7 +5,7 @@ from control_msgs.action import GripperCommand
 
 from runtime.behavior import Behavior, Status
 from runtime.bus import STATUS_SUCCEEDED
-from runtime.ports import InputPort, PortType, Range
+from runtime.ports import InputPort, NameKind, Names, PortType, Range
 
 from .action_goal import Goal, GoalState
 from .waiting import Deadline, when_ready
@@ -18,7 +18,8 @@ class MoveGripperAction(Behavior):
     needs_world = True
     description = "Move the gripper to a position (0.0 = open) and wait until it gets there or stalls on an object."
     ports = (
-        InputPort("gripper_command_action_name", PortType.STRING, "/robotiq_gripper_controller/gripper_cmd", "GripperCommand action."),
+        InputPort("gripper_command_action_name", PortType.STRING, "/robotiq_gripper_controller/gripper_cmd", "GripperCommand action.",
+                  names=Names(NameKind.ACTION, GripperCommand)),
         InputPort("position", PortType.FLOAT, description="Target of the gripper joint (0.0 = open, 0.8 = closed on the 2F-85).", valid=Range(-10.0, 10.0, "rad or m")),
         InputPort("max_effort", PortType.FLOAT, 100.0, "Largest force (N) the fingers may apply.", valid=Range(0.0, 10_000.0, "N")),
         InputPort("timeout", PortType.FLOAT, 5.0, "Seconds to wait for the server and the motion.", valid=Range(0.0, 3600.0, "s", min_open=True)),

@@ -140,8 +140,8 @@ class CallTriggerService(Behavior):
     """MoveIt Pro's CallTriggerService: succeeds when the service answers success=true."""
 
     description: ClassVar[str] = (
-        "Call a std_srvs/Trigger service; SUCCESS when it answers success=true, FAILURE with its message otherwise, "
-        "or when it is not available or does not answer in time."
+        "Call a std_srvs/Trigger service; SUCCESS when it answers success=true, FAILURE with its message otherwise "
+        "or when it does not answer in time; ERROR (the run stops) when the service is not available."
     )
     ports = (
         InputPort("service_name", PortType.STRING, description="The Trigger service."),

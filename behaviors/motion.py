@@ -14,9 +14,10 @@ from ruckig import InputParameter, Result, Ruckig, Trajectory
 from sensor_msgs.msg import JointState
 
 from runtime.behavior import Status
-from runtime.ports import InputPort, PortType, Range
+from runtime.ports import InputPort, NameKind, Names, PortType, Range
 
 from runtime.scene import JointLimits
+from runtime.errors import ObjectiveError, SetupError
 from .action_goal import Goal, GoalState
 from .execute_policy.shaping import Samples
 from .safety import SafetyError, make_safety
@@ -28,7 +29,7 @@ SAMPLE_PERIOD = 0.02
 JERK_PER_ACCELERATION = 10.0  # 1/s: max jerk = 10 x max acceleration
 
 
-class PlanningError(ValueError):
+class PlanningError(ObjectiveError, ValueError):
     pass
 
 
@@ -68,12 +69,13 @@ class _MoveToJoints(SendsTrajectoryGoal):
 
     needs_world = True
     common_ports = (
-        InputPort("joint_group_name", PortType.STRING, "manipulator", "SRDF joint group to move."),
+        InputPort("joint_group_name", PortType.STRING, "manipulator", "SRDF joint group to move.", names=Names(NameKind.JOINT_GROUP)),
         InputPort("velocity_scaling_factor", PortType.FLOAT, 0.5, "Fraction of the joint velocity limits, in (0, 1].", valid=Range(0.0, 1.0, min_open=True)),
         InputPort("acceleration_scaling_factor", PortType.FLOAT, 0.5, "Fraction of the joint acceleration limits, in (0, 1].", valid=Range(0.0, 1.0, min_open=True)),
         InputPort("link_padding", PortType.FLOAT, 0.01, "Meters of clearance required from world objects.", valid=Range(0.0, 0.5, "m")),
         InputPort("path_tolerance", PortType.FLOAT, 0.1, "Radians of tracking error before the controller aborts.", valid=Range(0.0, math.pi, "rad", min_open=True)),
-        InputPort("controller_action_name", PortType.STRING, DEFAULT_CONTROLLER, "FollowJointTrajectoryWithAdmittance action."),
+        InputPort("controller_action_name", PortType.STRING, DEFAULT_CONTROLLER, "FollowJointTrajectoryWithAdmittance action.",
+                  names=Names(NameKind.ACTION, FollowTrajectory)),
         InputPort("joint_states_topic", PortType.STRING, "/joint_states", "Where the start state is read."),
         InputPort("timeout", PortType.FLOAT, 5.0, "Seconds to wait for the controller and the joint states.", valid=Range(0.0, 3600.0, "s", min_open=True)),
     )
@@ -82,13 +84,11 @@ class _MoveToJoints(SendsTrajectoryGoal):
         raise NotImplementedError
 
     def initialise(self) -> None:
-        self.error = None
         self.goal = Goal()
         try:
             self.safety = make_safety(self.context.scene, self.get_input("joint_group_name"), None)
-        except SafetyError as err:
-            self.error = str(err)
-            return
+        except SafetyError as err:  # e.g. an unknown joint group: ERROR, never retried
+            raise SetupError(str(err)) from None
         bus = self.context.bus
         self.action = self.get_input("controller_action_name")
         self.client = bus.create_action_client(self.action, FollowTrajectory)
@@ -97,8 +97,6 @@ class _MoveToJoints(SendsTrajectoryGoal):
         self.deadline = Deadline(self, self.get_input("timeout"))
 
     def update(self) -> Status:
-        if self.error:
-            return self.fail(self.error)
         if self.goal.state is GoalState.NONE:
             return self._plan_and_send()
         return self.follow_goal("motion")
@@ -162,7 +160,7 @@ class MoveToWaypoint(_MoveToJoints):
 
     description = "Move a joint group to a named waypoint (e.g. Home) from the cell's waypoints file."
     ports = (
-        InputPort("waypoint_name", PortType.STRING, description="Name of the waypoint, e.g. Home."),
+        InputPort("waypoint_name", PortType.STRING, description="Name of the waypoint, e.g. Home.", names=Names(NameKind.WAYPOINT)),
         InputPort("seed", PortType.INT, 0, "MoveIt Pro's planner seed (an integer). The motion here is planned without sampling, so every seed gives the same motion.",
                   valid=Range(-(2**31), 2**31 - 1)),
     ) + _MoveToJoints.common_ports
@@ -173,7 +171,7 @@ class MoveToWaypoint(_MoveToJoints):
         name = self.get_input("waypoint_name")
         if name not in waypoints:
             known = ", ".join(sorted(waypoints)) or "none are defined"
-            raise PlanningError(f"unknown waypoint '{name}' (known: {known})")
+            raise SetupError(f"unknown waypoint '{name}' (known: {known})")
         positions = waypoints[name]
         missing = [j for j in joints if j not in positions]
         if missing:

@@ -28,7 +28,8 @@ from visualization_msgs.msg import MarkerArray
 
 from runtime.behavior import Behavior, Condition, Status
 from runtime.timestamps import time_msg
-from runtime.ports import InputPort, OutputPort, PortType, Range
+from runtime.ports import InputPort, NameKind, Names, OutputPort, PortType, Range
+from runtime.errors import ObjectiveError, SetupError
 
 from .visualization import axis_markers, text_marker
 
@@ -154,8 +155,9 @@ def pose_markers(pose: PoseStamped, namespace: str, text: str, size_m: float, li
     return MarkerArray(markers=markers)
 
 
-class FrameError(LookupError):
-    """A frame or object that the scene does not know, or a state that is not available yet."""
+class FrameError(ObjectiveError, LookupError):
+    """A frame's pose that cannot be told yet: no joint states, or states without the needed joints.
+    (A frame or object the scene does not know is a ``SetupError``: the run ends as ERROR.)"""
 
 
 class RobotState:
@@ -216,7 +218,7 @@ def frame_in_world(scene: Any, frame: str, state: RobotState | None) -> np.ndarr
         if frame in attached:
             return scene.object_world_pose(frame, row)
         return scene.link_pose(row, frame)
-    raise FrameError(f"unknown frame '{frame}' (known: {known_frames(scene)})")
+    raise SetupError(f"unknown frame '{frame}' (known: {known_frames(scene)})")
 
 
 def pose_in_world(scene: Any, pose: PoseStamped, state: RobotState | None) -> np.ndarray:
@@ -263,7 +265,7 @@ class GetObjectPose(SceneBehavior):
 
     description = "Write the world-frame pose (PoseStamped) of a planning-scene object, e.g. cube_red."
     ports = (
-        InputPort("object_name", PortType.STRING, description="Planning-scene object, e.g. cube_red."),
+        InputPort("object_name", PortType.STRING, description="Planning-scene object, e.g. cube_red.", names=Names(NameKind.OBJECT)),
         OutputPort("pose", PortType.ANY, "The object's pose (geometry_msgs/PoseStamped, frame 'world')."),
     )
 
@@ -275,7 +277,7 @@ class GetObjectPose(SceneBehavior):
         attached = {a.name for a in scene.attachments}
         if name not in scene.objects and name not in attached:
             known = sorted(scene.objects) + sorted(attached)
-            return self.fail(f"no object '{name}' in the planning scene (objects: {', '.join(known) or 'none'})")
+            raise SetupError(f"no object '{name}' in the planning scene (objects: {', '.join(known) or 'none'})")
         try:
             matrix = frame_in_world(scene, name, self.state())
         except FrameError as err:
@@ -289,8 +291,9 @@ class GetLatestTransform(SceneBehavior):
 
     description = "Write the pose of source_frame expressed in target_frame (world, robot links, scene objects) as a PoseStamped."
     ports = (
-        InputPort("target_frame", PortType.STRING, WORLD_FRAME, "Frame the result is expressed in."),
-        InputPort("source_frame", PortType.STRING, description="Frame whose pose is looked up, e.g. tcp or cube_blue."),
+        InputPort("target_frame", PortType.STRING, WORLD_FRAME, "Frame the result is expressed in.", names=Names(NameKind.FRAME)),
+        InputPort("source_frame", PortType.STRING, description="Frame whose pose is looked up, e.g. tcp or cube_blue.",
+                  names=Names(NameKind.FRAME)),
         OutputPort("transform", PortType.ANY, "Pose of source_frame in target_frame (geometry_msgs/PoseStamped)."),
     )
 
@@ -396,11 +399,12 @@ class CheckObjectStacked(ReadsRobotState, Condition):
         "bottom_object's centre (world z) and gripper_frame is at least min_gripper_distance from it."
     )
     ports = (
-        InputPort("top_object_name", PortType.STRING, description="Object that should be on top, e.g. cube_blue."),
-        InputPort("bottom_object_name", PortType.STRING, description="Object it should rest on, e.g. cube_green."),
+        InputPort("top_object_name", PortType.STRING, description="Object that should be on top, e.g. cube_blue.", names=Names(NameKind.FRAME)),
+        InputPort("bottom_object_name", PortType.STRING, description="Object it should rest on, e.g. cube_green.", names=Names(NameKind.FRAME)),
         InputPort("stack_height", PortType.FLOAT, 0.03, "Centre-to-centre height of a stack (m): the bottom object's height for cubes.", valid=Range(0.0, 10.0, "m")),
         InputPort("position_tolerance", PortType.FLOAT, 0.015, "Largest distance (m) of the top centre from its stacked position.", valid=Range(0.0, 10.0, "m")),
-        InputPort("gripper_frame", PortType.STRING, "tcp", "Robot frame that must be away from the top object (the tool centre point)."),
+        InputPort("gripper_frame", PortType.STRING, "tcp", "Robot frame that must be away from the top object (the tool centre point).",
+                  names=Names(NameKind.FRAME)),
         InputPort("min_gripper_distance", PortType.FLOAT, 0.05, "Smallest distance (m) between gripper_frame and the top object's centre.", valid=Range(0.0, 10.0, "m")),
     )
 

@@ -7,7 +7,8 @@ from typing import Any
 
 import numpy as np
 
-from runtime.scene import ConfigurationMap, GroupError, JointLimit, JointLimits, LimitViolation, PlanningScene, SceneSnapshot
+from runtime.scene import CollisionResult, ConfigurationMap, GroupError, JointLimit, JointLimits, LimitViolation, PlanningScene, SceneSnapshot
+from runtime.errors import ObjectiveError
 
 from .execute_policy.shaping import Samples
 
@@ -19,7 +20,7 @@ LeRobot policy for "open"), where the fingers cannot go anyway. Further out it i
 error, and the chunk is rejected like an arm joint out of its limits."""
 
 
-class SafetyError(ValueError):
+class SafetyError(ObjectiveError, ValueError):
     """The scene cannot check this group: unknown group, several tips, missing limits..."""
 
 
@@ -64,8 +65,8 @@ class MotionSafety:
     def first_collision(
         self, snapshot: SceneSnapshot, samples: Samples, padding: float, gripper_position: float | None = None,
         free_at: tuple[int, int] | None = None,
-    ) -> str | None:
-        """The first colliding sample as a sentence, or None. World objects are checked with
+    ) -> CollisionResult | None:
+        """The first colliding sample (``str()`` says it as a sentence), or None. World objects are checked with
         ``padding``; self-collision with the unpadded geometry. ``free_at``: the scene version
         at which these samples were found free with the same snapshot, padding and gripper
         position (see ``PlanningScene.check_path``)."""
@@ -76,7 +77,7 @@ class MotionSafety:
             value = 0.0 if gripper_position is None else gripper_position
             rows = np.hstack([rows, np.full((len(rows), 1), value)])
         hit = self.scene.check_path(rows, samples.times, padding, snapshot=snapshot, layout=self.layout, free_at=free_at)
-        return None if hit is None else str(hit)
+        return hit
 
 
 def make_safety(scene: Any, group: str, gripper_joint: str | None) -> MotionSafety:

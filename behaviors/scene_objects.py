@@ -22,7 +22,7 @@ from typing import Any, Callable
 
 from runtime.behavior import Status
 from runtime.errors import PortError
-from runtime.ports import InputPort, PortType, Range
+from runtime.ports import InputPort, NameKind, Names, PortType, Range
 from runtime.scene import Box
 
 from .poses import NO_SCENE, FrameError, SceneBehavior, as_pose_stamped, pose_in_world
@@ -84,7 +84,10 @@ class ChecksPorts:
             raise ValueError(f"port '{port}': {err}") from None
 
 
-OBJECT_ID = InputPort("object_id", PortType.STRING, description="Id of the collision object in the planning scene, e.g. box.")
+OBJECT_ID = InputPort("object_id", PortType.STRING, description="Id of the collision object in the planning scene, e.g. box.",
+                      names=Names(NameKind.OBJECT))
+NEW_OBJECT_ID = InputPort("object_id", PortType.STRING, description="Id of the collision object in the planning scene, e.g. box.",
+                          names=Names(NameKind.OBJECT, creates=True))
 POSE = InputPort(
     "pose",
     PortType.ANY,
@@ -97,7 +100,7 @@ class AddCollisionBox(ChecksPorts, SceneBehavior):
 
     description = "Add a box collision object (object_id, full dimensions x;y;z in m, pose) to the planning scene."
     ports = (
-        OBJECT_ID,
+        NEW_OBJECT_ID,
         InputPort("dimensions", PortType.FLOAT_LIST, description="Full edge lengths x;y;z in metres, along the pose's axes.",
                   valid=Range(0.0, 100.0, "m", min_open=True), length=3),
         POSE,

@@ -12,7 +12,7 @@ from typing import Any
 import numpy as np
 
 from runtime.behavior import Behavior, Status
-from runtime.ports import UINT32_MAX, InputPort, PortType, Range
+from runtime.ports import UINT32_MAX, InputPort, NameKind, Names, PortType, Range
 
 from .poses import FrameError, ReadsRobotState, frame_in_world, offset_matrix
 from .scene_objects import ChecksPorts, box_dimensions, object_id
@@ -84,7 +84,8 @@ class PlaceSimBox(ChecksPorts, ReadsRobotState, Behavior):
         "orientation_xyzw in reference_frame; mirrored into the planning scene unless add_to_planning_scene is false."
     )
     ports = (
-        InputPort("object_id", PortType.STRING, description="Name of the box (also its planning-scene id), e.g. tray."),
+        InputPort("object_id", PortType.STRING, description="Name of the box (also its planning-scene id), e.g. tray.",
+                  names=Names(NameKind.OBJECT, creates=True)),
         InputPort("dimensions", PortType.FLOAT_LIST, description="Full edge lengths x;y;z in metres.",
                   valid=Range(0.0, 100.0, "m", min_open=True), length=3),
         InputPort("position_xyz", PortType.FLOAT_LIST, description="Centre x;y;z in metres, in reference_frame.",

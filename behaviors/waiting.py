@@ -4,6 +4,7 @@ from __future__ import annotations
 from typing import Callable
 
 from runtime.behavior import Behavior
+from runtime.errors import SetupError
 
 
 class Deadline:
@@ -19,12 +20,13 @@ class Deadline:
         return self._clock.now() >= self.until - 1e-9
 
 
-def when_ready(is_ready: Callable[[], bool], deadline: Deadline, what: str) -> bool | str:
-    """True when ready, False while waiting, or the failure reason once the deadline passed."""
+def when_ready(is_ready: Callable[[], bool], deadline: Deadline, what: str) -> bool:
+    """True when ready, False while waiting; a ``SetupError`` once the deadline passed: a service or
+    action that is not there is a mistake of the setup, which ends the run as ERROR (never retried)."""
     if is_ready():
         return True
     if deadline.expired:
-        return f"{what} is not available after {deadline.seconds:g} s"
+        raise SetupError(f"{what} is not available after {deadline.seconds:g} s")
     return False
 
 

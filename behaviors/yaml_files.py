@@ -20,11 +20,12 @@ from sensor_msgs.msg import JointState
 
 from runtime.behavior import Behavior, Status
 from runtime.ports import InputPort, OutputPort, PortType
+from runtime.errors import ObjectiveError
 
 MAX_YAML_BYTES = 5 * 1024 * 1024
 
 
-class YamlFileError(ValueError):
+class YamlFileError(ObjectiveError, ValueError):
     """A file that cannot be read or written, or whose content is not what the node needs."""
 
 

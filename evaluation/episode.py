@@ -14,10 +14,14 @@ from typing import Any
 
 from runtime.runner import RunResult
 
-BASE_SUMMARY_KEYS = frozenset({"status", "failing_node", "reason", "sim_seconds", "wall_seconds", "ticks", "blackboard"})
+BASE_SUMMARY_KEYS = frozenset({"status", "failing_node", "reason", "failure_kind", "sim_seconds", "wall_seconds", "ticks",
+                               "blackboard"})
 """The fields of ``RunResult.to_json`` every run has; the rest are what behaviors and the world add."""
 WALL_CLOCK_FIELDS = frozenset({"wall_seconds", "worker", "attempts", "recording"})
 """Fields that depend on where and when an episode ran, not on its seed."""
+EPISODE_TIMEOUT = "episode timeout"
+WORKER_LOST = "worker lost"
+"""The failure kinds of an episode that did not finish because of its worker."""
 
 
 class EpisodeStatus(enum.Enum):
@@ -36,6 +40,9 @@ class EpisodeRecord:
     reason: str = ""
     failing_node: str | None = None
     failing_location: str | None = None
+    failure_kind: str | None = None
+    """What kind of ending a FAILURE or ERROR was (``RunResult.failure_kind``, ``EPISODE_TIMEOUT``,
+    ``WORKER_LOST``): what ``stats.failure_groups`` groups by."""
     sim_seconds: float = 0.0
     wall_seconds: float = 0.0
     ticks: int = 0
@@ -56,6 +63,7 @@ class EpisodeRecord:
             reason=result.reason,
             failing_node=result.failing_node,
             failing_location=result.failing_location,
+            failure_kind=result.failure_kind,
             sim_seconds=round(result.sim_seconds, 6),
             wall_seconds=round(result.wall_seconds, 3),
             ticks=result.ticks,
@@ -64,9 +72,10 @@ class EpisodeRecord:
         )
 
     @classmethod
-    def error(cls, seed: int, reason: str, wall_seconds: float = 0.0, attempts: int = 1, worker: str = "") -> EpisodeRecord:
+    def error(cls, seed: int, reason: str, wall_seconds: float = 0.0, attempts: int = 1, worker: str = "",
+              kind: str | None = None) -> EpisodeRecord:
         return cls(seed=seed, status=EpisodeStatus.ERROR, reason=reason, wall_seconds=round(wall_seconds, 3),
-                   attempts=attempts, worker=worker)
+                   attempts=attempts, worker=worker, failure_kind=kind)
 
     def numbers(self) -> dict[str, float]:
         """Every number of the run's summary by dotted path, plus ``sim_seconds`` and ``wall_seconds``."""
@@ -80,7 +89,7 @@ class EpisodeRecord:
         return {
             "seed": self.seed, "status": self.status.value, "reason": self.reason,
             "failing_node": self.failing_node, "failing_location": self.failing_location,
-            "sim_seconds": self.sim_seconds, "wall_seconds": self.wall_seconds, "ticks": self.ticks,
+            "failure_kind": self.failure_kind, "sim_seconds": self.sim_seconds, "wall_seconds": self.wall_seconds, "ticks": self.ticks,
             "run": self.run, "blackboard": self.blackboard,
             "worker": self.worker, "attempts": self.attempts, "recording": self.recording,
         }
@@ -91,6 +100,7 @@ class EpisodeRecord:
         return cls(
             seed=int(data["seed"]), status=EpisodeStatus(data["status"]), reason=str(data.get("reason") or ""),
             failing_node=data.get("failing_node"), failing_location=data.get("failing_location"),
+            failure_kind=data.get("failure_kind"),
             sim_seconds=float(data.get("sim_seconds") or 0.0), wall_seconds=float(data.get("wall_seconds") or 0.0),
             ticks=int(data.get("ticks") or 0), run=dict(data.get("run") or {}),
             blackboard=dict(data.get("blackboard") or {}), worker=str(data.get("worker") or ""),

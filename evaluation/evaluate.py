@@ -49,7 +49,7 @@ def evaluate(config: EvalConfig, registry: Registry, progress: Any = None) -> Ev
     """
     config.check()
     spec = config.spec
-    validate(spec.objective, registry, spec.tree, spec.search_paths, spec.objectives_dir)
+    validate(spec.objective, registry, spec.tree, spec.search_paths, spec.objectives_dir).trees_or_raise()
     ident = identity(spec)
     store = EvalStore(config.out, ident)
     resumed = sum(1 for seed in config.seeds if seed in store.records)

@@ -84,5 +84,5 @@ def _make_backend(spec: PolicySpec, cell: Any) -> Any:
 
     try:
         return make_backend(spec, cell)
-    except ValueError as err:
+    except ObjectiveError as err:
         raise ObjectiveError(f"--policy {spec.text}: {err}") from None

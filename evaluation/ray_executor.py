@@ -27,7 +27,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from runtime.errors import ObjectiveError
+from runtime.errors import ObjectiveError, error_kind
 
 from .config import WorkerSpec
 from .episode import EpisodeRecord
@@ -252,7 +252,8 @@ class RayExecutor(SlotPool):
                 return [Event(EventKind.LOAD_FAILED, reason=reason.splitlines()[-1] if reason else reason, worker=slot.name)]
             seed = slot.seed
             slot.state, slot.seed = SlotState.IDLE, None
-            return [Event(EventKind.DONE, seed, EpisodeRecord.error(seed, reason, worker=slot.name), worker=slot.name)]
+            record = EpisodeRecord.error(seed, reason, worker=slot.name, kind=error_kind(cause))
+            return [Event(EventKind.DONE, seed, record, worker=slot.name)]
         if slot.state is SlotState.LOADING:
             slot.state, slot.since = SlotState.IDLE, time.monotonic()
             return []

@@ -54,7 +54,7 @@ def _groups_table(summary: dict[str, Any]) -> str:
         f"<td>{_e(', '.join(map(str, g['seeds'][:20])) + (' ...' if len(g['seeds']) > 20 else ''))}</td></tr>"
         for g in groups
     )
-    return f"<table><tr><th>status</th><th>episodes</th><th>failing node</th><th>reason (numbers as #)</th><th>seeds</th></tr>{rows}</table>"
+    return f"<table><tr><th>status</th><th>episodes</th><th>failing node</th><th>kind of failure (or reason)</th><th>seeds</th></tr>{rows}</table>"
 
 
 def _percentile_table(summary: dict[str, Any]) -> str:

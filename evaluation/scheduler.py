@@ -15,7 +15,7 @@ from typing import Callable
 from runtime.errors import ObjectiveError
 
 from .config import EvalConfig
-from .episode import EpisodeRecord
+from .episode import EPISODE_TIMEOUT, WORKER_LOST, EpisodeRecord
 from .executors import Event, EventKind, Executor
 from .store import EvalStore
 
@@ -65,14 +65,14 @@ def _handle(event: Event, config: EvalConfig, pending: deque[int], attempts: dic
     if event.kind is EventKind.DONE and event.record is not None:
         record(event.record)
     elif event.kind is EventKind.TIMED_OUT:
-        record(EpisodeRecord.error(event.seed, event.reason, event.wall_seconds, worker=event.worker))
+        record(EpisodeRecord.error(event.seed, event.reason, event.wall_seconds, worker=event.worker, kind=EPISODE_TIMEOUT))
     elif event.kind is EventKind.LOST:
         if attempts[event.seed] <= config.retries:
             pending.appendleft(event.seed)
         else:
             tries = attempts[event.seed]
             reason = f"{event.reason}; {tries} attempt{'s' if tries > 1 else ''}, each lost its worker"
-            record(EpisodeRecord.error(event.seed, reason, event.wall_seconds, worker=event.worker))
+            record(EpisodeRecord.error(event.seed, reason, event.wall_seconds, worker=event.worker, kind=WORKER_LOST))
 
 
 def wait_for_workers(executor: Executor, timeout_s: float, clock: Callable[[], float] = time.monotonic) -> None:

@@ -1,8 +1,8 @@
 """The numbers of an evaluation, from its episode records: pure functions, no I/O.
 
 - :func:`wilson_interval`: the 95 % Wilson score interval of a success rate (sound at 0 and n).
-- :func:`normalise_reason`: a failure reason with its numbers replaced by ``#``, so that
-  "chunk 6 rejected: 5.3 rad/s^2" and "chunk 7 rejected: 6.1 rad/s^2" are one group.
+- :func:`failure_groups`: the episodes that did not succeed, grouped by their failure's kind
+  (``EpisodeRecord.failure_kind``: "velocity limit", "policy timeout", "SetupError", ...).
 - :func:`summarise`: the ``summary.json`` object (counts, rate, groups, percentiles).
 """
 from __future__ import annotations
@@ -28,9 +28,6 @@ HEADLINE_METRICS = {
 PEAK_FORCE_PATTERN = re.compile(r"(^|\.)(peak|max)_force")
 """Peak force is read wherever a run's summary reports one (its key names a peak or max force)."""
 
-_NUMBER = re.compile(r"(?<![\w.])[-+]?(?:\d+(?:\.\d*)?|\.\d+)(?:[eE][-+]?\d+)?")
-
-
 def wilson_interval(successes: int, trials: int, z: float = Z_95) -> tuple[float, float]:
     """The Wilson score interval of ``successes / trials``; (0, 1) when there are no trials."""
     if trials <= 0:
@@ -44,11 +41,6 @@ def wilson_interval(successes: int, trials: int, z: float = Z_95) -> tuple[float
     low = 0.0 if successes == 0 else max(0.0, centre - half)
     high = 1.0 if successes == trials else min(1.0, centre + half)
     return low, high
-
-
-def normalise_reason(reason: str) -> str:
-    """``reason`` with every free-standing number replaced by ``#`` (names like ``joint_2`` are kept)."""
-    return _NUMBER.sub("#", reason.strip())
 
 
 def percentiles(values: Iterable[float]) -> dict[str, float] | None:
@@ -81,19 +73,20 @@ def flatten_numbers(tree: Mapping[str, Any], prefix: str = "") -> dict[str, floa
 
 
 def failure_groups(records: Iterable[EpisodeRecord]) -> list[dict[str, Any]]:
-    """Episodes that did not succeed, grouped by status, failing node and normalised reason; largest first."""
+    """Episodes that did not succeed, grouped by status, failing node and failure kind (by the
+    reason itself where the failing node gave no kind); largest first. ``reason`` names the group."""
     groups: dict[tuple[str, str, str], list[EpisodeRecord]] = {}
     for record in records:
         if record.status is EpisodeStatus.SUCCESS:
             continue
-        key = (record.status.value, record.failing_node or "", normalise_reason(record.reason))
+        key = (record.status.value, record.failing_node or "", record.failure_kind or record.reason.strip())
         groups.setdefault(key, []).append(record)
     out = []
     for (status, node, reason), members in groups.items():
         seeds = sorted(r.seed for r in members)
         out.append({
-            "status": status, "failing_node": node or None, "reason": reason, "count": len(members),
-            "seeds": seeds, "example": next(r.reason for r in members if r.seed == seeds[0]),
+            "status": status, "failing_node": node or None, "reason": reason, "failure_kind": members[0].failure_kind,
+            "count": len(members), "seeds": seeds, "example": next(r.reason for r in members if r.seed == seeds[0]),
         })
     return sorted(out, key=lambda g: (-g["count"], g["status"], g["reason"]))
 

@@ -19,7 +19,7 @@ from pathlib import Path
 from typing import Any
 
 from runtime.bus import FixedLatency
-from runtime.errors import ObjectiveError
+from runtime.errors import INTERNAL, InternalError, ObjectiveError, error_kind
 from runtime.loader import load_tree
 from runtime.registry import Registry
 from runtime.registry import default_world_name
@@ -90,7 +90,7 @@ class EpisodeWorker:
                     self.policy = PolicyHost(self.spec.policy, getattr(world, "cell", None))
                 except ImportError as err:
                     raise ObjectiveError(f"--policy {self.spec.policy.text}: {err} (the LeRobot extra: make lerobot)") from None
-                except (ValueError, OSError, RuntimeError) as err:
+                except (ObjectiveError, OSError) as err:
                     raise ObjectiveError(f"--policy {self.spec.policy.text}: {err}") from None
             else:
                 world.close()
@@ -107,13 +107,13 @@ class EpisodeWorker:
         started = time.monotonic()
         try:
             record = self._run(seed)
-        except ObjectiveError as err:
-            record = EpisodeRecord.error(seed, str(err), time.monotonic() - started)
+        except (ObjectiveError, InternalError) as err:
+            record = EpisodeRecord.error(seed, str(err), time.monotonic() - started, kind=error_kind(err))
         except Exception as err:  # a behavior or world raised: the episode is an error, the evaluation goes on
             where = traceback.extract_tb(err.__traceback__)[-1]
             record = EpisodeRecord.error(
                 seed, f"{type(err).__name__}: {err} (at {Path(where.filename).name}:{where.lineno})",
-                time.monotonic() - started,
+                time.monotonic() - started, kind=INTERNAL,
             )
         record.worker = self.name
         return record

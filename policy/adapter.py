@@ -32,6 +32,7 @@ from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 from trajectory_msgs.msg import JointTrajectoryPoint
 
 from runtime.timestamps import duration_msg, time_msg, to_seconds
+from runtime.errors import ObjectiveError
 
 from .backend import PolicyBackend, PolicyRequest, PolicyResponse, PolicyStatus
 from .images import image_to_rgb, rgb_to_image
@@ -45,11 +46,11 @@ _STATUS_TO_MSG = {
 }
 
 
-class RequestError(ValueError):
+class RequestError(ObjectiveError, ValueError):
     """The request message cannot be turned into a ``PolicyRequest``; says which field and why."""
 
 
-class ResponseError(ValueError):
+class ResponseError(ObjectiveError, ValueError):
     """The backend's answer breaks the contract; says how."""
 
 

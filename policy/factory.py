@@ -33,13 +33,15 @@ import sys
 from pathlib import Path
 from typing import Any, Callable
 
+from runtime.errors import OptionError
+
 from .backend import PolicyBackend
 
 _MODULE_NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_]*(\.[A-Za-z_][A-Za-z0-9_]*)*")
 BACKEND_METHODS = ("load", "warmup", "infer")
 
 
-class FactoryError(ValueError):
+class FactoryError(OptionError):
     """A ``FILE.py:NAME`` or ``MODULE:NAME`` that gives no backend; the message says why."""
 
 

@@ -36,6 +36,8 @@ from pathlib import Path
 from typing import Any
 from urllib.parse import urlsplit
 
+from runtime.errors import ObjectiveError
+
 from .backend import PolicyRequest, PolicyResponse
 from .wire import CONTENT_TYPE, WireError, decode_response, encode_request, read_error
 
@@ -48,7 +50,7 @@ _SEND_PIECE = 1 << 20
 log = logging.getLogger("policy.http_client")
 
 
-class InferUrlError(ValueError):
+class InferUrlError(ObjectiveError, ValueError):
     """An ``infer_url`` the adapter refuses to use; the message says why and what to do."""
 
 

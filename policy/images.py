@@ -14,11 +14,13 @@ from __future__ import annotations
 import numpy as np
 from sensor_msgs.msg import Image
 
+from runtime.errors import ObjectiveError
+
 CHANNELS = {"rgb8": 3, "bgr8": 3, "mono8": 1}
 """Encodings understood, with their channel counts (all 8 bits per channel)."""
 
 
-class ImageError(ValueError):
+class ImageError(ObjectiveError, ValueError):
     """A frame cannot be read; the message names the image and what is wrong."""
 
 

@@ -49,6 +49,8 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
+from runtime.errors import ObjectiveError, OptionError
+
 from .backend import PolicyRequest, PolicyResponse
 
 LOG = logging.getLogger("objective.policy.lerobot")
@@ -71,7 +73,7 @@ DEFAULT_GUIDANCE_HORIZON = 10
 # ---------------------------------------------------------------------------------------------
 # Pure functions (no torch)
 # ---------------------------------------------------------------------------------------------
-class CameraMappingError(ValueError):
+class CameraMappingError(ObjectiveError, ValueError):
     """Request image names and checkpoint cameras do not correspond; names both sides."""
 
 
@@ -85,11 +87,11 @@ def execution_horizon(frozen_prefix_steps: int, guidance_horizon: int, server_de
     under way.
     """
     if frozen_prefix_steps < 0:
-        raise ValueError(f"frozen_prefix_steps must be >= 0, got {frozen_prefix_steps}")
+        raise OptionError(f"frozen_prefix_steps must be >= 0, got {frozen_prefix_steps}")
     if guidance_horizon < 0:
-        raise ValueError(f"guidance_horizon must be >= 0, got {guidance_horizon}")
+        raise OptionError(f"guidance_horizon must be >= 0, got {guidance_horizon}")
     if server_default < 1:
-        raise ValueError(f"the server's default guidance horizon must be >= 1, got {server_default}")
+        raise OptionError(f"the server's default guidance horizon must be >= 1, got {server_default}")
     width = guidance_horizon if guidance_horizon > 0 else server_default
     return frozen_prefix_steps + width
 
@@ -157,7 +159,7 @@ def parse_camera_map(text: str) -> dict[str, str]:
             continue
         name, sep, target = item.partition("=")
         if not sep or not name.strip() or not target.strip():
-            raise ValueError(f"camera map item {item!r} is not request_name=checkpoint_camera")
+            raise OptionError(f"camera map item {item!r} is not request_name=checkpoint_camera")
         mapping[name.strip()] = target.strip()
     return mapping
 
@@ -167,25 +169,25 @@ def frame_to_rgb(frame: np.ndarray, encoding: str = "rgb8", name: str = "") -> n
     label = f"image '{name}'" if name else "image"
     array = np.asarray(frame)
     if array.dtype != np.uint8:
-        raise ValueError(f"{label}: expected uint8 pixels, got {array.dtype}")
+        raise OptionError(f"{label}: expected uint8 pixels, got {array.dtype}")
     encoding = encoding.lower()
     if encoding == "mono8":
         if array.ndim == 3 and array.shape[2] == 1:
             array = array[:, :, 0]
         if array.ndim != 2:
-            raise ValueError(f"{label}: mono8 needs H x W pixels, got shape {array.shape}")
+            raise OptionError(f"{label}: mono8 needs H x W pixels, got shape {array.shape}")
         return np.repeat(array[:, :, None], 3, axis=2)
     if encoding not in ("rgb8", "bgr8"):
-        raise ValueError(f"{label}: unsupported encoding '{encoding}' (expected rgb8, bgr8 or mono8)")
+        raise OptionError(f"{label}: unsupported encoding '{encoding}' (expected rgb8, bgr8 or mono8)")
     if array.ndim != 3 or array.shape[2] != 3:
-        raise ValueError(f"{label}: {encoding} needs H x W x 3 pixels, got shape {array.shape}")
+        raise OptionError(f"{label}: {encoding} needs H x W x 3 pixels, got shape {array.shape}")
     return array[:, :, ::-1] if encoding == "bgr8" else array
 
 
 def joint_order(request_names: Sequence[str], checkpoint_names: Sequence[str]) -> list[int]:
     """For each checkpoint joint, its column in the request; ValueError naming both lists on a mismatch."""
     if sorted(request_names) != sorted(checkpoint_names) or len(set(request_names)) != len(request_names):
-        raise ValueError(
+        raise OptionError(
             f"the checkpoint's joints [{', '.join(checkpoint_names)}] do not match the request's robot_state "
             f"joints [{', '.join(request_names)}]"
         )
@@ -368,7 +370,7 @@ class LeRobotBackend:
         self.action_dim = int(config.output_features[ACTION_KEY].shape[0])
         names = options.joint_names or self.metadata.get("joint_names")
         if names is not None and len(names) != self.action_dim:
-            raise ValueError(
+            raise OptionError(
                 f"checkpoint '{folder}': {len(names)} joint names [{', '.join(names)}] for {self.action_dim} action dimensions"
             )
         self.joint_names = list(names) if names else None
@@ -411,7 +413,7 @@ class LeRobotBackend:
         for attempt in range(2):
             response = self.infer(example_request)
             if response.actions is None:
-                raise ValueError(f"warmup inference failed: {response.message}")
+                raise OptionError(f"warmup inference failed: {response.message}")
         LOG.info("warmup done: %.0f ms per chunk", self.latency.steady() * 1000)
 
     def infer(self, request: PolicyRequest) -> PolicyResponse:
@@ -467,7 +469,7 @@ class LeRobotBackend:
 
         state = np.asarray(request.joint_positions, dtype=np.float32)
         if self.state_dim and state.shape != (self.state_dim,):
-            raise ValueError(
+            raise OptionError(
                 f"the checkpoint observes {self.state_dim} joint positions, the request has {state.shape[0]} "
                 f"([{', '.join(request.joint_names)}])"
             )
@@ -508,7 +510,7 @@ class LeRobotBackend:
 
         tail = np.array(tail, dtype=np.float32, copy=True)
         if tail.ndim != 2 or tail.shape[1] != self.action_dim:
-            raise ValueError(
+            raise OptionError(
                 f"previous_action_chunk has shape {tail.shape}; this policy's normalized actions are "
                 f"(steps, {self.action_dim}) (echo policy_action_chunk back untouched)"
             )
@@ -527,7 +529,7 @@ class LeRobotBackend:
         if self.joint_names:
             return joint_order(request.joint_names, self.joint_names)
         if len(request.joint_names) != self.action_dim:
-            raise ValueError(
+            raise OptionError(
                 f"the checkpoint outputs {self.action_dim} action dimensions, the request observes "
                 f"{len(request.joint_names)} joints ([{', '.join(request.joint_names)}])"
             )
@@ -547,7 +549,7 @@ def make_lerobot_backend(checkpoint: str | Path, **options: Any) -> LeRobotBacke
     known = set(LeRobotOptions.__dataclass_fields__)
     unknown = sorted(set(options) - known)
     if unknown:
-        raise ValueError(f"unknown LeRobot backend options {', '.join(unknown)} (known: {', '.join(sorted(known))})")
+        raise OptionError(f"unknown LeRobot backend options {', '.join(unknown)} (known: {', '.join(sorted(known))})")
     if isinstance(options.get("camera_map"), str):
         options["camera_map"] = parse_camera_map(options["camera_map"])
     return LeRobotBackend(checkpoint, LeRobotOptions(**options))

@@ -32,10 +32,12 @@ from typing import Iterable, Sequence
 
 import numpy as np
 
+from runtime.errors import ObjectiveError
+
 from .backend import PolicyBackend, PolicyRequest, PolicyResponse, PolicyStatus
 
 
-class ReplayFileError(ValueError):
+class ReplayFileError(ObjectiveError, ValueError):
     """A replay file cannot be read; names the file, line and problem."""
 
 

@@ -19,6 +19,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from runtime.errors import OptionError
+
 from .factory import FactoryError, build_backend, factory_file, is_factory_spec
 
 HTTP_TIMEOUT_S = 10.0
@@ -26,7 +28,7 @@ HTTP_TIMEOUT_S = 10.0
 POLICY_SPECS = "oracle, replay:FILE, lerobot:DIR, FILE.py:FACTORY, MODULE:FACTORY, http(s)://HOST:PORT or none"
 
 
-class PolicySpecError(ValueError):
+class PolicySpecError(OptionError):
     """A ``--policy`` that names no policy; the message starts ``policy '...'`` and says what is wrong."""
 
 

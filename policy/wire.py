@@ -45,6 +45,8 @@ from typing import Any
 
 import numpy as np
 
+from runtime.errors import ObjectiveError
+
 from .backend import PolicyRequest, PolicyResponse, PolicyStatus
 
 WIRE_VERSION = 1
@@ -64,7 +66,7 @@ _REQUEST_FIELDS = {
 _RESPONSE_FIELDS = {"version", "status", "message", "actions", "native_control_period", "policy_actions"}
 
 
-class WireError(ValueError):
+class WireError(ObjectiveError, ValueError):
     """A body that is not a valid request or response; the message names the field."""
 
 

@@ -204,6 +204,9 @@ class Behavior(NodeMixin, py_trees.behaviour.Behaviour):
     """A leaf the XML can name: an Action (does something) or a Condition (checks something)."""
 
     kind: ClassVar[NodeKind] = NodeKind.ACTION
+    failure_kind: str | None = None
+    """What kind of failure this node's last FAILURE was (``fail(reason, kind)``), for grouping
+    runs by it; None when the node does not say."""
 
     def __init__(self, name: str) -> None:
         super().__init__(name=name)
@@ -213,6 +216,7 @@ class Behavior(NodeMixin, py_trees.behaviour.Behaviour):
         leaf, logged or not) and its list of every status per tick: initialise unless RUNNING,
         update, stop on a result other than RUNNING, then yield this node."""
         if self.status != Status.RUNNING:
+            self.failure_kind = None
             self.initialise()
         new_status = self.update()
         if not isinstance(new_status, Status):
@@ -223,9 +227,11 @@ class Behavior(NodeMixin, py_trees.behaviour.Behaviour):
         self.status = new_status
         yield self
 
-    def fail(self, reason: str) -> Status:
-        """Record why this node fails and return FAILURE (``return self.fail("...")``)."""
+    def fail(self, reason: str, kind: str | None = None) -> Status:
+        """Record why this node fails (and what kind of failure it is) and return FAILURE
+        (``return self.fail("...")``)."""
         self.feedback_message = reason
+        self.failure_kind = kind
         return Status.FAILURE
 
 

@@ -65,6 +65,10 @@ class Blackboard:
             raise KeyError(key)
         return board._entries[mapped]
 
+    def owner(self, key: str) -> tuple[Blackboard, str]:
+        """The blackboard that stores ``key`` (after SubTree remapping), and the key's name there."""
+        return self._owner(key)
+
     def _owner(self, key: str) -> tuple[Blackboard, str]:
         """The blackboard that stores ``key``, and the key's name there."""
         board, mapped = self, key

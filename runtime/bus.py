@@ -545,6 +545,10 @@ class InProcessBus:
     def create_client(self, name: str, srv_type: type) -> ServiceClient:
         return _InProcessClient(self, name, srv_type)
 
+    def served(self) -> dict[str, type]:
+        """Every service served on this bus now, with its type."""
+        return {name: srv_type for name, (srv_type, _) in self._services.items()}
+
     # -- topics ---
     def create_publisher(self, name: str, msg_type: type, reliable: bool = True) -> Publisher:
         pub = _InProcessPublisher(self, name, msg_type, reliable)
@@ -604,6 +608,10 @@ class InProcessBus:
 
     def create_action_client(self, name: str, action_type: type) -> ActionClient:
         return _InProcessActionClient(self, name, action_type)
+
+    def action_servers(self) -> dict[str, type]:
+        """Every action served on this bus now, with its type."""
+        return {name: server.action_type for name, server in self._action_servers.items()}
 
     # -- delivery ---
     def spin_once(self) -> None:

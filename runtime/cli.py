@@ -31,7 +31,7 @@ from typing import Any, Sequence
 os.environ.setdefault("MUJOCO_GL", "egl")
 
 from .command import COMMAND_GROUP, EXIT_BAD_INPUT, EXIT_FAILURE, EXIT_SUCCESS, Command
-from .errors import ObjectiveError
+from .errors import INTERNAL, InternalError, ObjectiveError, error_kind
 from .interrupt import StopRequest, exit_code_for, signal_name, stop_on_signals
 from .ports import FINITE, NUMERIC_TYPES, Direction, PortInfo, PortType
 from .registry import Registry
@@ -120,6 +120,11 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     val = sub.add_parser("validate", help="load Objectives and report every error (nothing runs)")
     val.add_argument("files", type=Path, nargs="+")
     val.add_argument("--tree", metavar="ID", help="validate only this BehaviorTree (default: every tree in each file)")
+    val.add_argument("--world", metavar="NAME",
+                     help="also check what the world knows: frames, objects, joint groups and joints, waypoints, "
+                          "services and actions and their types (the world is started; nothing moves)")
+    val.add_argument("--world-option", action="append", type=_parse_set, default=[], metavar="KEY=VALUE",
+                     help="an option of the world, as for `objective run` (repeatable)")
     add_paths(val)
 
     beh = sub.add_parser("behaviors", help="list every registered node with its ports")
@@ -212,26 +217,44 @@ def run_outcome_line(result: Any) -> str:
     if result.status == "INTERRUPTED":
         return f"INTERRUPTED after {result.sim_seconds:.2f} s ({result.ticks} ticks): {printable(result.reason)}"
     if result.status == "ERROR":
-        return f"error: {printable(result.reason)}"
+        return f"{error_label(result.failure_kind)}: {printable(result.reason)}"
     where = f" ({printable(result.failing_location)})" if result.failing_location else ""
     node = f"'{printable(result.failing_node)}'{where}" if result.failing_node else "the root"
     return (f"FAILURE after {result.sim_seconds:.2f} s: {node} failed: "
             f"{printable(result.reason) or 'no reason given'}")
 
 
-def cmd_validate(args: argparse.Namespace, registry: Registry) -> int:
-    from .loader import validate
+def error_label(failure_kind: str | None) -> str:
+    """``internal error`` for a bug (its message names the crash report), else ``error``."""
+    return "internal error" if failure_kind == INTERNAL else "error"
 
-    failed = 0
-    for file in args.files:
-        try:
-            trees = validate(file, registry, args.tree, args.path, args.objectives_dir)
-        except ObjectiveError as err:
-            failed += 1
-            print(f"error: {printable(err)}", file=sys.stderr)
-            continue
-        summary = ", ".join(f"{t.tree_id} ({len(t.nodes)} nodes)" for t in trees)
-        print(printable(f"ok: {file}: {summary}"))
+
+def cmd_validate(args: argparse.Namespace, registry: Registry) -> int:
+    """Every error of every file, each on its own line; with ``--world``, what the world does not have too."""
+    from .loader import throwaway_context, validate
+
+    with contextlib.ExitStack() as stack:
+        context, check = throwaway_context, None
+        if args.world is not None:
+            from .world_check import started_world
+
+            started = stack.enter_context(started_world(args.world, dict(args.world_option)))
+            context, check = (lambda: started.context), started.check
+        failed = 0
+        for file in args.files:
+            try:
+                found = validate(file, registry, args.tree, args.path, args.objectives_dir, context, check)
+            except ObjectiveError as err:
+                failed += 1
+                print(f"error: {printable(err)}", file=sys.stderr)
+                continue
+            for err in found.errors:
+                print(f"error: {printable(err)}", file=sys.stderr)
+            if found.errors:
+                failed += 1
+                continue
+            summary = ", ".join(f"{t.tree_id} ({len(t.nodes)} nodes)" for t in found.trees)
+            print(printable(f"ok: {file}: {summary}"))
     return EXIT_BAD_INPUT if failed else EXIT_SUCCESS
 
 
@@ -378,8 +401,8 @@ def main(argv: Sequence[str] | None = None, registry: Registry | None = None) ->
     except BrokenPipeError:
         _quiet_stdout()
         return EXIT_SUCCESS
-    except ObjectiveError as err:
-        return _error_exit(args, str(err))
+    except (ObjectiveError, InternalError) as err:
+        return _error_exit(args, str(err), error_kind(err))
     except KeyboardInterrupt as err:  # a second signal, or one outside a run
         name = signal_name(getattr(err, "signum", signal.SIGINT))
         print(f"interrupted ({name})", file=sys.stderr)
@@ -390,7 +413,7 @@ def main(argv: Sequence[str] | None = None, registry: Registry | None = None) ->
         from .crash import describe_crash, write_traceback
 
         stopped = f"`objective {args.command}` stopped"
-        return _error_exit(args, str(describe_crash(err, None, write_traceback(err, None), consequence=stopped)))
+        return _error_exit(args, str(describe_crash(err, None, write_traceback(err, None), consequence=stopped)), INTERNAL)
     try:
         sys.stdout.flush()
     except BrokenPipeError:
@@ -398,10 +421,10 @@ def main(argv: Sequence[str] | None = None, registry: Registry | None = None) ->
     return code
 
 
-def _error_exit(args: argparse.Namespace, message: str) -> int:
-    print(f"error: {printable(message)}", file=sys.stderr)
+def _error_exit(args: argparse.Namespace, message: str, failure_kind: str) -> int:
+    print(f"{error_label(failure_kind)}: {printable(message)}", file=sys.stderr)
     if getattr(args, "json", False) and args.command in ("run", "eval"):
-        print(json.dumps({"status": "ERROR", "reason": message}))
+        print(json.dumps({"status": "ERROR", "reason": message, "failure_kind": failure_kind}))
     return EXIT_BAD_INPUT
 
 

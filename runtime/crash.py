@@ -14,7 +14,7 @@ import traceback
 from pathlib import Path
 from typing import Any, Iterable
 
-from .errors import ObjectiveError, SourceLocation
+from .errors import InternalError, SourceLocation
 
 DEFAULT_LOG_DIR = Path("build") / "logs"
 CRASH_LOG = "error.log"
@@ -69,17 +69,18 @@ LOAD_STOPPED = "Loading stopped there; nothing was run"
 
 def describe_crash(error: BaseException, node: Any | None, log_file: Path | None,
                    location: SourceLocation | None = None, consequence: str = RUN_STOPPED,
-                   label: str | None = None) -> ObjectiveError:
+                   label: str | None = None) -> InternalError:
     """The one-paragraph message, shaped like every Objective error: ``file:line: Node 'name': what``.
 
     ``label`` names the node when there is no node object yet (a constructor that raised).
     """
     where = f"an unexpected {type(error).__name__} in {raised_at(error)}"
     detail = str(error).strip().replace("\n", " ")
-    log = f"the full traceback is in {log_file}" if log_file is not None else "the traceback could not be written to a file"
+    log = (f"the full traceback is in {log_file} (a bug: please report it with that file)" if log_file is not None
+           else "the traceback could not be written to a file")
     what = f"{where}: {detail or 'no message'}. {consequence}; {log}"
     if node is not None:
         xml_id = getattr(node, "xml_id", type(node).__name__)
         label = xml_id if node.name == xml_id else f"{xml_id} '{node.name}'"
         location = location or getattr(node, "location", None)
-    return ObjectiveError(what, location, label)
+    return InternalError(what, location, label)

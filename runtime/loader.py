@@ -34,7 +34,7 @@ import os
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Iterable
+from typing import Any, Callable, Iterable
 
 import py_trees
 from lxml import etree
@@ -42,8 +42,8 @@ from lxml import etree
 from .behavior import NodeKind, NodeMixin, RunContext
 from .blackboard import Blackboard
 from .crash import LOAD_STOPPED, describe_crash, write_traceback
-from .errors import LoadError, ObjectiveError, PortError, SourceLocation
-from .ports import ConversionError, convert, parse_reference
+from .errors import E, LoadError, ObjectiveError, ObjectiveRuntimeError, PortError, SourceLocation
+from .ports import ConversionError, PortType, convert, parse_reference
 from .registry import Registry
 from .subtree import SubTree
 
@@ -396,6 +396,18 @@ class LoadedNode:
     location: SourceLocation
     values: dict[str, str]
     """The port attributes as written (SubTrees: the remapping and literal ports)."""
+    callers: tuple[tuple[SourceLocation, str], ...] = ()
+    """The SubTree calls this node is inside, outermost first: (where the call is written, the SubTree's ID)."""
+
+    def error(self, error: E) -> E:
+        """``error``, raised by this node, placed at it: its ``file:line: Node:`` (if it has none
+        yet), preceded by the line of each SubTree call it is inside."""
+        if error.location is None:
+            label = self.xml_id if self.node.name == self.xml_id else f"{self.xml_id} '{self.node.name}'"
+            error.at(self.location, label)
+        for caller, subtree in reversed(self.callers):
+            error.inside_subtree(caller, subtree)
+        return error
 
 
 @dataclass
@@ -412,6 +424,14 @@ class LoadedTree:
     def info(self, node: py_trees.behaviour.Behaviour) -> LoadedNode | None:
         """Where ``node`` came from (None for wrappers the loader did not write, e.g. condition guards)."""
         return self._index.get(id(node))
+
+
+def _types_fit(entry: PortType, port: PortType) -> bool:
+    """Whether a port of type ``port`` may use an entry of type ``entry`` (see ``_check_entry_types``)."""
+    if PortType.ANY in (entry, port) or entry in (port, PortType.STRING):
+        return True
+    vectors = (entry.value.startswith("std::vector<"), port.value.startswith("std::vector<"))
+    return PortType.ANY_LIST in (entry, port) and all(vectors)
 
 
 def _suggest(word: str, candidates: Iterable[str]) -> str:
@@ -432,12 +452,31 @@ def _parse_bool_attr(value: str, name: str, loc: SourceLocation, node: str) -> b
     raise LoadError(f"{name} expects true or false, got {value!r}", loc, node)
 
 
+@dataclass(frozen=True)
+class _EntryType:
+    """The type a blackboard entry got from the first port wired to it (BT.CPP's rule)."""
+
+    type: PortType
+    location: SourceLocation
+    node: str
+    port: str
+
+
 class _Builder:
-    def __init__(self, registry: Registry, context: RunContext, library: Library) -> None:
+    """Builds a tree from its XML. With ``collect``, an error in a node is kept in ``errors`` and
+    the build goes on with the next node (the broken node is left out), so that every error of a
+    file is found; otherwise the first error is raised."""
+
+    def __init__(self, registry: Registry, context: RunContext, library: Library, collect: bool = False) -> None:
         self.registry = registry
         self.context = context
         self.library = library
         self.nodes: list[LoadedNode] = []
+        self.collect = collect
+        self.errors: list[ObjectiveRuntimeError] = []
+        self.calls: list[tuple[SourceLocation, str]] = []
+        """The SubTree calls being built, outermost first."""
+        self.entry_types: dict[tuple[int, str], _EntryType] = {}
 
     # -- resolution ---
     def resolve(self, tree_id: str, doc: Document, loc: SourceLocation) -> TreeDef:
@@ -501,11 +540,12 @@ class _Builder:
         try:
             node = cls(name)
             node.bind(self.context, blackboard, values, loc, node_id)
-        except ObjectiveError:
+        except ObjectiveRuntimeError:
             raise
         except Exception as err:  # a bug in the node's class: one paragraph, the traceback in a file
             raise describe_crash(err, None, write_traceback(err, None), loc, LOAD_STOPPED, node_id) from None
-        record = LoadedNode(node, node_id, cls.kind, loc, dict(element.attrib))
+        self._check_entry_types(node, blackboard, loc, node_id)
+        record = LoadedNode(node, node_id, cls.kind, loc, dict(element.attrib), tuple(self.calls))
         self.nodes.append(record)
 
         children = _elements(element)
@@ -513,8 +553,46 @@ class _Builder:
         if problem:
             raise LoadError(problem, loc, node_id)
         for child_el in children:
-            node.add_child(self.build_node(child_el, doc, file, blackboard, stack))
+            child = self._build_child(child_el, doc, file, blackboard, stack)
+            if child is not None:
+                node.add_child(child)
         return self._with_conditions(node, conditions, loc, node_id)
+
+    def _build_child(
+        self, element: Any, doc: Document, file: str, blackboard: Blackboard, stack: list[tuple[str, str]]
+    ) -> py_trees.behaviour.Behaviour | None:
+        """``build_node``; with ``collect``, an error is kept and the child left out (None)."""
+        try:
+            return self.build_node(element, doc, file, blackboard, stack)
+        except ObjectiveError as err:
+            if not self.collect:
+                raise
+            self.errors.append(err)
+            return None
+
+    def _check_entry_types(self, node: Any, blackboard: Blackboard, loc: SourceLocation, node_id: str) -> None:
+        """BT.CPP's rule for ports wired to one blackboard entry: the first port gives the entry its
+        type; a later port of another type is refused unless either is untyped (``AnyTypeAllowed``),
+        the entry's type is a string (converted when read), or one is ``std::vector<BT::Any>`` and
+        the other a vector (MoveIt Pro's vector nodes are templates, one per element type)."""
+        for port, binding in node.bindings.items():
+            if binding.key is None:
+                continue
+            owner, key = blackboard.owner(binding.key)
+            slot = (id(owner), key)
+            first = self.entry_types.get(slot)
+            if first is None:
+                self.entry_types[slot] = _EntryType(binding.info.type, loc, node_id, port)
+                continue
+            if _types_fit(first.type, binding.info.type):
+                continue
+            port_type = binding.info.type
+            raise PortError(
+                f"port '{port}' ({port_type.value}) is wired to blackboard entry '{{{binding.key}}}', which port "
+                f"'{first.port}' of {first.node} ({first.location}) made a {first.type.value}: BehaviorTree.CPP "
+                "refuses one entry with two types (use another entry, or ports of one type)",
+                loc, node_id,
+            )
 
     def build_subtree(
         self, element: Any, doc: Document, blackboard: Blackboard, stack: list[tuple[str, str]], loc: SourceLocation
@@ -559,14 +637,24 @@ class _Builder:
         child_bb = Blackboard(blackboard, remapping, autoremap)
         for port, value in literals.items():
             child_bb.set_local(port, value)
+            self.entry_types[(id(child_bb), port)] = _EntryType(PortType.STRING, loc, tree_id, port)
 
         node = SubTree(name)
         node.bind(self.context, blackboard, {}, loc, tree_id)
         node.tree_id = tree_id
         node.child_blackboard = child_bb
         node.remapping, node.literals, node.autoremap = remapping, literals, autoremap
-        self.nodes.append(LoadedNode(node, tree_id, NodeKind.SUBTREE, loc, dict(ports)))
-        node.add_child(self.build_tree(tree, child_bb, [*stack, key]))
+        self.nodes.append(LoadedNode(node, tree_id, NodeKind.SUBTREE, loc, dict(ports), tuple(self.calls)))
+        first_error = len(self.errors)
+        self.calls.append((loc, tree_id))
+        try:
+            node.add_child(self.build_tree(tree, child_bb, [*stack, key]))
+        except ObjectiveError as err:
+            raise err.inside_subtree(loc, tree_id) from None
+        finally:
+            self.calls.pop()
+            for kept in self.errors[first_error:]:
+                kept.inside_subtree(loc, tree_id)
         return self._with_conditions(node, conditions, loc, tree_id)
 
     # -- helpers ---
@@ -707,16 +795,33 @@ def _build(builder: _Builder, doc: Document, tree: TreeDef) -> LoadedTree:
     return LoadedTree(root, blackboard, tree.id, doc.path, builder.nodes)
 
 
+@dataclass
+class Validation:
+    """What ``validate`` found in a file: the trees it built, and every error, each at its file:line."""
+
+    trees: list[LoadedTree]
+    errors: list[ObjectiveRuntimeError]
+
+    def trees_or_raise(self) -> list[LoadedTree]:
+        """The trees when nothing is wrong; else the first error is raised."""
+        if self.errors:
+            raise self.errors[0]
+        return self.trees
+
+
 def validate(
     source: Path | str,
     registry: Registry,
     tree_id: str | None = None,
     search_paths: Iterable[Path] = (),
     objectives_dir: Path | None = None,
-) -> list[LoadedTree]:
-    """Load a file's trees on a throwaway context: ``tree_id``, or every BehaviorTree written in it.
-
-    Raises the first LoadError/PortError found; returns the loaded trees otherwise.
+    context: Callable[[], RunContext] = throwaway_context,
+    check: Callable[[LoadedTree], list[ObjectiveRuntimeError]] | None = None,
+) -> Validation:
+    """Load a file's trees, ``tree_id`` or every BehaviorTree written in it, each on a ``context()``,
+    and find every error: a broken node is left out and the rest is built and checked. ``check``
+    adds the errors only a world knows (``runtime.world_check``). A file that does not parse, or
+    names no tree to validate, raises its LoadError.
     """
     search_paths = [Path(p) for p in search_paths]
     objectives = Path(objectives_dir) if objectives_dir is not None else default_objectives_dir()
@@ -730,10 +835,21 @@ def validate(
             raise LoadError("no <BehaviorTree> in this file", SourceLocation(doc.display, 0))
         if doc.main_tree and doc.main_tree not in doc.trees:
             _select_tree(doc, None, _Builder(registry, throwaway_context(), library))
-    loaded = []
+    result = Validation([], [])
     for tid in ids:
-        builder = _Builder(registry, throwaway_context(), library)
+        builder = _Builder(registry, context(), library, collect=True)
         tree = doc.trees[tid] if tid in doc.trees else _select_tree(doc, tid, builder)
-        loaded.append(_build(builder, doc, tree))
-    return loaded
+        try:
+            loaded = _build(builder, doc, tree)
+        except ObjectiveError as err:  # the tree's root itself is broken
+            builder.errors.append(err)
+            loaded = None
+        if loaded is not None:
+            result.trees.append(loaded)
+            if check is not None:
+                builder.errors.extend(check(loaded))
+        for error in builder.errors:  # a SubTree used by several trees has its errors once
+            if all(str(error) != str(seen) for seen in result.errors):
+                result.errors.append(error)
+    return result
 

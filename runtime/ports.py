@@ -14,6 +14,8 @@ import re
 from dataclasses import dataclass
 from typing import Any
 
+from .errors import ObjectiveError
+
 
 class Direction(enum.Enum):
     INPUT = "input_port"
@@ -103,6 +105,33 @@ FINITE = Range(finite=True)
 """What a float port with no declared range accepts: any finite number."""
 
 
+class NameKind(enum.Enum):
+    """What a string port's value names in the world (``Names``)."""
+
+    FRAME = "frame"
+    """``world``, a robot link or a planning-scene object."""
+    OBJECT = "object"
+    """A planning-scene object."""
+    JOINT_GROUP = "joint group"
+    JOINT = "joint"
+    WAYPOINT = "waypoint"
+    SERVICE = "service"
+    ACTION = "action"
+
+
+@dataclass(frozen=True)
+class Names:
+    """A string port (or each item of a string list) names a thing of the world: checked against
+    the world before the first tick and by ``objective validate --world`` (``runtime.world_check``).
+    An empty value means "none" and is not checked."""
+
+    kind: NameKind
+    interface: type | None = None
+    """For a service or an action: the ROS 2 type it must have (e.g. ``GetActionChunk``)."""
+    creates: bool = False
+    """The node creates the object it names (AddCollisionBox, PlaceSimBox): later nodes may name it."""
+
+
 @dataclass(frozen=True)
 class PortInfo:
     name: str
@@ -114,6 +143,8 @@ class PortInfo:
     """The values a numeric port accepts (see ``Range``); checked at load time and when read."""
     length: int | None = None
     """How many items a list port takes (``3`` for x;y;z); None: any number."""
+    names: Names | None = None
+    """What the value names in the world (a frame, a joint group, an action, ...), if anything."""
 
     @property
     def required(self) -> bool:
@@ -129,8 +160,8 @@ class PortInfo:
 
 
 def InputPort(name: str, type: PortType = PortType.STRING, default: Any = REQUIRED, description: str = "",
-              valid: Range | None = None, length: int | None = None) -> PortInfo:
-    return PortInfo(name, type, default, description, Direction.INPUT, valid, length)
+              valid: Range | None = None, length: int | None = None, names: Names | None = None) -> PortInfo:
+    return PortInfo(name, type, default, description, Direction.INPUT, valid, length, names)
 
 
 def OutputPort(name: str, type: PortType = PortType.ANY, description: str = "", default: Any = REQUIRED) -> PortInfo:
@@ -231,7 +262,7 @@ _EXPECTS = {
 NODE_STATUSES = ("SUCCESS", "FAILURE", "RUNNING", "SKIPPED")
 
 
-class ConversionError(ValueError):
+class ConversionError(ObjectiveError, ValueError):
     """A value does not fit its port type; the message says what was expected and what came."""
 
 

@@ -18,6 +18,7 @@ import yaml
 
 from .behavior import RunContext
 from .scene import PlanningScene, RobotModel, load_joint_limits
+from .errors import OptionError
 
 OPTIONS = ("seed", "realtime", "policy_latency", "record_dir", "policy", "urdf", "srdf", "joint_limits",
            "group", "gripper_joint", "package_dirs", "waypoints")
@@ -26,10 +27,10 @@ OPTIONS = ("seed", "realtime", "policy_latency", "record_dir", "policy", "urdf",
 def _existing(options: dict[str, Any], key: str) -> Path:
     value = options.get(key)
     if not value:
-        raise ValueError(f"option '{key}' is required (--world-option {key}=PATH)")
+        raise OptionError(f"option '{key}' is required (--world-option {key}=PATH)")
     path = Path(str(value))
     if not path.is_file():
-        raise ValueError(f"option '{key}': no such file {path}")
+        raise OptionError(f"option '{key}': no such file {path}")
     return path
 
 
@@ -39,7 +40,7 @@ def load_waypoints_yaml(path: Path) -> dict[str, dict[str, float]]:
     for name, entry in (doc.get("waypoints") or {}).items():
         joints, positions = entry.get("joints"), entry.get("positions")
         if not isinstance(joints, list) or not isinstance(positions, list) or len(joints) != len(positions):
-            raise ValueError(f"{path}: waypoint '{name}' needs equally long 'joints' and 'positions' lists")
+            raise OptionError(f"{path}: waypoint '{name}' needs equally long 'joints' and 'positions' lists")
         out[str(name)] = {str(j): float(p) for j, p in zip(joints, positions)}
     return out
 
@@ -50,7 +51,7 @@ class RobotDescriptionWorld:
     def __init__(self, options: dict[str, Any]) -> None:
         unknown = sorted(set(options) - set(OPTIONS))
         if unknown:
-            raise ValueError(f"unknown options {', '.join(unknown)} (known: {', '.join(OPTIONS[4:])})")
+            raise OptionError(f"unknown options {', '.join(unknown)} (known: {', '.join(OPTIONS[4:])})")
         urdf, srdf = _existing(options, "urdf"), _existing(options, "srdf")
         dirs = [d for d in str(options.get("package_dirs") or "").split(";") if d]
         self.robot = RobotModel.from_urdf(urdf, srdf, package_dirs=dirs)
@@ -73,7 +74,7 @@ class RobotDescriptionWorld:
         """Nothing to simulate: the real robot moves on its own clock."""
 
     def reset(self, seed: int) -> None:
-        raise ValueError("world 'robot' drives a real robot: it cannot be reset")
+        raise OptionError("world 'robot' drives a real robot: it cannot be reset")
 
     def summary(self) -> dict[str, Any]:
         return {"robot": self.robot.source if hasattr(self.robot, "source") else "", "group": self.group}

@@ -37,12 +37,13 @@ from .bus import InProcessBus, parse_latency
 from .clock import SimClock, WallClock
 from .controls import SKIPPED, Visit, is_skipped, tick_tree
 from .crash import CRASH_LOG, culprit, describe_crash, write_traceback
-from .errors import ObjectiveError
+from .errors import ObjectiveError, ObjectiveRuntimeError, error_kind
 from .events import EventLog
 from .extras import missing_module_message
 from .interrupt import Interrupted, StopRequest, exit_code_for, signal_name
 from .loader import LoadedTree, load_tree
 from .registry import WORLD_GROUP, Registry, default_world_name
+from .world_check import check_tree
 
 Progress = Callable[[float, int, str], None]
 """Called after every tick with (clock seconds, ticks so far, name of the running node)."""
@@ -106,6 +107,10 @@ class RunOptions:
             )
 
 
+TIMEOUT = "timeout"
+"""The failure kind of a run stopped by ``--max-seconds``."""
+
+
 class RunEnd(enum.Enum):
     """How a run ended."""
 
@@ -138,6 +143,10 @@ class RunResult:
     """Leaves that were RUNNING when the run was interrupted or broke off, halted since."""
     log_file: str | None = None
     """The full traceback of an unexpected exception (ERROR only)."""
+    failure_kind: str | None = None
+    """What kind of ending a FAILURE or ERROR was, for grouping runs: the failing node's kind
+    (``Behavior.failure_kind``, e.g. ``velocity limit``; ``timeout`` for ``--max-seconds``), a user
+    error's class name (``SetupError``) or ``internal`` (a bug); None when nobody says."""
 
     @property
     def exit_code(self) -> int:
@@ -158,6 +167,8 @@ class RunResult:
             "ticks": self.ticks,
             "blackboard": self.blackboard,
         }
+        if self.failure_kind is not None:
+            summary["failure_kind"] = self.failure_kind
         if self.status == RunEnd.INTERRUPTED.value:
             summary["signal"] = signal_name(self.signum or signal.SIGINT)
         if self.status in (RunEnd.INTERRUPTED.value, RunEnd.ERROR.value):
@@ -193,8 +204,8 @@ def create_world(name: str, options: dict[str, Any]) -> Any:
         raise ObjectiveError(f"world '{name}' cannot start: {missing_module_message(err.name or str(err))}") from None
     try:
         return create(options)
-    except ValueError as err:  # a world refuses bad options with ValueError: that is bad input
-        raise ObjectiveError(f"world '{name}': {err}") from None
+    except ObjectiveError as err:  # a world refuses the user's options with an ObjectiveError (OptionError)
+        raise err.within(f"world '{name}'") from None
 
 
 def json_entries(board_items: Iterable[tuple[str, Any]]) -> dict[str, Any]:
@@ -218,8 +229,8 @@ def _unwrap(node: py_trees.behaviour.Behaviour) -> py_trees.behaviour.Behaviour:
     return node
 
 
-def _failing(root: py_trees.behaviour.Behaviour, visited: list[Visit]) -> tuple[py_trees.behaviour.Behaviour, str] | None:
-    """The node to blame for the root's FAILURE in this tick, with its reason.
+def _failing(root: py_trees.behaviour.Behaviour, visited: list[Visit]) -> tuple[py_trees.behaviour.Behaviour, str, str | None] | None:
+    """The node to blame for the root's FAILURE in this tick, with its reason and failure kind.
 
     Follow the failure down from the root: at each node, go to the child that reported FAILURE
     most recently in this tick; stop at a node none of whose children failed (a leaf that
@@ -244,7 +255,7 @@ def _failing(root: py_trees.behaviour.Behaviour, visited: list[Visit]) -> tuple[
         node = max(failing, key=lambda item: item[0])[1]
     message = last[id(node)][2]
     inner = _unwrap(node)
-    return inner, message or inner.feedback_message
+    return inner, message or inner.feedback_message, getattr(inner, "failure_kind", None)
 
 
 _STATUS_NAMES = {status: status.value for status in Status}  # an enum's .value is a slow property
@@ -384,7 +395,7 @@ def run_tree(
     period = context.tick_period_s = 1.0 / options.tick_hz  # the run's nodes read it from the context
     clock, bus = context.clock, context.bus
     ticks = 0
-    blame: tuple[py_trees.behaviour.Behaviour, str] | None = None
+    blame: tuple[py_trees.behaviour.Behaviour, str, str | None] | None = None
     status = Status.INVALID
     timed_out = False
     breakoff: Breakoff | None = None
@@ -400,8 +411,9 @@ def run_tree(
                 context.world = world
                 try:
                     world.start(context)
-                except ValueError as err:
-                    raise ObjectiveError(f"world '{getattr(world, 'name', '?')}': {err}") from None
+                except ObjectiveError as err:
+                    raise err.within(f"world '{getattr(world, 'name', '?')}'") from None
+                check_tree(loaded, context)  # a name the world does not have: ERROR before anything moves
             for node in nodes:
                 node.setup()
             context.events.emit("run_started", loaded.tree_id, seed=options.seed)
@@ -439,7 +451,7 @@ def run_tree(
             tip = root.tip()
             where = f" while '{tip.name}' was RUNNING" if tip is not None else ""
             reason = f"stopped after --max-seconds {options.max_seconds:g} s of clock time{where}"
-            blame = (tip if tip is not None else root, reason)
+            blame = (tip if tip is not None else root, reason, TIMEOUT)
         end = breakoff.end.value if breakoff is not None else outcome(status, timed_out).value
         context.events.emit("run_finished", loaded.tree_id, status=end)
     finally:
@@ -487,7 +499,7 @@ def run_tree(
     if breakoff is not None:
         _describe_breakoff(result, breakoff, running, loaded, nodes, options)
     elif blame is not None:
-        node, reason = blame
+        node, reason, result.failure_kind = blame
         info = loaded.info(node)
         result.failing_node, result.reason = node.name, reason or ""
         result.failing_location = str(info.location) if info is not None else None
@@ -506,7 +518,13 @@ def _describe_breakoff(result: RunResult, breakoff: Breakoff, running: list[py_t
         return
     error, culprit_name = breakoff.error, None
     assert error is not None
-    if not isinstance(error, ObjectiveError):
+    result.failure_kind = error_kind(error)
+    if isinstance(error, ObjectiveRuntimeError) and not error.callers:
+        node = culprit(error, nodes)  # the node that raised it: its place, and the SubTree calls it is inside
+        info = loaded.info(node) if node is not None else None
+        if info is not None and error.location in (None, info.location):
+            error = info.error(error)
+    if not isinstance(error, ObjectiveRuntimeError):
         node = culprit(error, nodes)
         culprit_name = node.name if node is not None else None
         directory = options.record_dir or options.log_dir

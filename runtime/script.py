@@ -46,6 +46,7 @@ import numbers
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
+from .errors import ObjectiveError
 from .ports import to_xml_string
 
 MAX_SOURCE_CHARS = 10_000
@@ -66,7 +67,7 @@ class BlackboardLike(Protocol):
     def set(self, key: str, value: Any) -> None: ...
 
 
-class ScriptError(Exception):
+class ScriptError(ObjectiveError):
     """A script that does not parse, or a statement that cannot be evaluated.
 
     ``message`` says what is wrong, ``column`` (1-based, counted from the start of the source)

@@ -34,6 +34,7 @@ import numpy as np
 from runtime.disk_cache import cached_file, content_key
 from sim.render_meshes import simplify_visual_meshes
 from sim.robot_model import FT_SITE, GRIPPER_PREFIX, build_robot_spec, mesh_files, robot_xml
+from runtime.errors import OptionError
 
 CUBE_COLORS: dict[str, tuple[float, float, float, float]] = {
     "red": (0.85, 0.1, 0.1, 1.0),
@@ -80,20 +81,20 @@ class CellOptions:
 
     def __post_init__(self) -> None:
         if not 0.01 <= self.cube_size <= 0.06:
-            raise ValueError(f"cube_size {self.cube_size} m: must be in [0.01, 0.06] for the 2F-85 to grasp it")
+            raise OptionError(f"cube_size {self.cube_size} m: must be in [0.01, 0.06] for the 2F-85 to grasp it")
         if self.cube_mass <= 0:
-            raise ValueError(f"cube_mass {self.cube_mass} kg: must be positive")
+            raise OptionError(f"cube_mass {self.cube_mass} kg: must be positive")
         if self.cube_friction <= 0:
-            raise ValueError(f"cube_friction {self.cube_friction}: must be positive")
+            raise OptionError(f"cube_friction {self.cube_friction}: must be positive")
         for name in ("image_width", "image_height"):
             value = getattr(self, name)
             if not isinstance(value, int) or not 16 <= value <= 4096:
-                raise ValueError(f"{name} {value!r}: must be an integer in [16, 4096]")
+                raise OptionError(f"{name} {value!r}: must be an integer in [16, 4096]")
         if not 0 < self.timestep <= 0.005:
-            raise ValueError(f"timestep {self.timestep} s: must be in (0, 0.005]")
+            raise OptionError(f"timestep {self.timestep} s: must be in (0, 0.005]")
         detail = self.visual_mesh_detail
         if isinstance(detail, bool) or not isinstance(detail, (int, float)) or not 0.01 <= detail <= 1.0:
-            raise ValueError(
+            raise OptionError(
                 f"visual_mesh_detail {self.visual_mesh_detail!r}: must be a fraction of triangles in "
                 "[0.01, 1.0] (1.0 draws the original meshes)"
             )

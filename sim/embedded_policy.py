@@ -14,7 +14,7 @@ from policy.specs import make_backend as make_spec_backend
 from runtime.bus import parse_latency
 
 def make_backend(spec: PolicySpec | str | None, cell: Any) -> Any:
-    """The backend named by ``spec`` (None for ``none``); ValueError for a spec that names none."""
+    """The backend named by ``spec`` (None for ``none``); PolicySpecError (an OptionError) for a spec that names none."""
     if not isinstance(spec, PolicySpec):
         spec = parse_policy(spec)
 

@@ -15,6 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from sim.cell_model import CUBE_COLORS
+from runtime.errors import OptionError
 
 
 @dataclass(frozen=True)
@@ -41,7 +42,7 @@ def layout(seed: int, workspace: Workspace = DEFAULT_WORKSPACE) -> dict[str, tup
     Yaw is uniform in [-pi/4, pi/4): a cube looks the same every quarter turn.
     """
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
-        raise ValueError(f"layout seed must be a non-negative integer, got {seed!r}")
+        raise OptionError(f"layout seed must be a non-negative integer, got {seed!r}")
     rng = np.random.default_rng(int(seed))
     placed: dict[str, tuple[float, float, float]] = {}
     for color in CUBE_COLORS:

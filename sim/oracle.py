@@ -53,6 +53,7 @@ from typing import Callable, Protocol, Sequence
 import numpy as np
 
 from policy.backend import PolicyRequest, PolicyResponse
+from runtime.errors import ObjectiveError
 
 COLORS = ("red", "green", "blue")
 
@@ -93,7 +94,7 @@ class OraclePeek(Protocol):
 # ---------------------------------------------------------------------------------------------
 # Prompt
 # ---------------------------------------------------------------------------------------------
-class PromptError(ValueError):
+class PromptError(ObjectiveError, ValueError):
     """The prompt does not say which cube goes on which."""
 
 
@@ -346,7 +347,7 @@ class OracleConfig:
                 raise ValueError(f"{name} must be positive, got {getattr(self, name)}")
 
 
-class PlanError(ValueError):
+class PlanError(ObjectiveError, ValueError):
     """The task cannot be planned from here (unreachable pose, broken IK line)."""
 
 

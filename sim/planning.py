@@ -18,6 +18,7 @@ import numpy as np
 import pinocchio as pin
 
 from runtime.scene import Box, PlanningScene, load_joint_limits, pose_matrix
+from runtime.errors import OptionError
 
 from .cell_model import CUBE_COLORS, TABLE_CENTER_XY, TABLE_HALF_SIZE, TABLE_TOP_Z
 from .robot_model import ARM_JOINTS, GRIPPER_DRIVER_JOINT, JOINT_LIMITS_PATH, planning_robot_model
@@ -39,7 +40,7 @@ class CubeContact(enum.Enum):
         try:
             return cls(str(value).strip().lower())
         except ValueError:
-            raise ValueError(f"cube_contact must be {' or '.join(m.value for m in cls)}, got '{value}'") from None
+            raise OptionError(f"cube_contact must be {' or '.join(m.value for m in cls)}, got '{value}'") from None
 
 
 def cube_object(color: str) -> str:

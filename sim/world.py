@@ -20,6 +20,7 @@ from policy.images import rgb_to_image
 from runtime.behavior import RunContext
 from runtime.joint_states import joint_state
 from runtime.timestamps import time_msg
+from runtime.errors import OptionError
 
 from .cell_model import CAMERA_NAMES, CUBE_COLORS, CellOptions
 from .controllers import TRAJECTORY_CONTROLLER, make_controllers
@@ -59,23 +60,34 @@ COMMON_OPTIONS = ("seed", "realtime", "policy_latency", "record_dir", "policy", 
                   "image_size", "encoding", "camera_rate_hz", "cube_contact")
 
 
+def number_option(options: dict[str, Any], key: str, default: float, kind: type = float) -> Any:
+    """The option ``key`` as a number of type ``kind`` (``--world-option`` gives text); OptionError if it is not one."""
+    value = options.get(key)
+    if value is None or value == "":
+        return kind(default)
+    try:
+        return kind(value)
+    except (TypeError, ValueError):
+        raise OptionError(f"option '{key}' must be {'a whole number' if kind is int else 'a number'}, got {value!r}") from None
+
+
 class CellWorld:
     """A cell's services on the bus, stepped at 500 Hz of the runtime clock."""
 
     def __init__(self, name: str, options: dict[str, Any], make_cell: Callable[[np.ndarray, int], Cell]) -> None:
         unknown = sorted(set(options) - set(COMMON_OPTIONS))
         if unknown:
-            raise ValueError(f"unknown options {', '.join(unknown)} (known: {', '.join(COMMON_OPTIONS[4:])})")
+            raise OptionError(f"unknown options {', '.join(unknown)} (known: {', '.join(COMMON_OPTIONS[4:])})")
         self.name = name
         self.options = options
         self.seed = int(options.get("seed") or 0)
         self.encoding = str(options.get("encoding") or "rgb8")
         if self.encoding not in ("rgb8", "bgr8"):
-            raise ValueError(f"encoding must be rgb8 or bgr8, got '{self.encoding}'")
+            raise OptionError(f"encoding must be rgb8 or bgr8, got '{self.encoding}'")
         self.waypoints = load_waypoints()
         start = str(options.get("start") or "Ready")
         if start not in self.waypoints:
-            raise ValueError(f"unknown start waypoint '{start}' (waypoints: {', '.join(self.waypoints)})")
+            raise OptionError(f"unknown start waypoint '{start}' (waypoints: {', '.join(self.waypoints)})")
         self.start_arm = np.array([self.waypoints[start][j] for j in ARM_JOINTS])
         self.cube_contact = CubeContact.parse(options.get("cube_contact") or CubeContact.GRIPPER)
         self.cell = make_cell(self.start_arm, self.seed)
@@ -88,7 +100,7 @@ class CellWorld:
         self.controllers = make_controllers(bus, self.cell, context.clock)
         reliable = bool(self.options.get("joint_states_reliable", True))
         self.joint_states = bus.create_publisher("/joint_states", JointState, reliable=reliable)
-        rate = float(self.options.get("camera_rate_hz") or 10.0)  # used on real ROS only
+        rate = number_option(self.options, "camera_rate_hz", 10.0)  # used on real ROS only
         for name, topic in CAMERA_TOPICS.items():
             bus.create_lazy_publisher(topic, Image, functools.partial(self._camera_frame, name), rate_hz=rate)
         from .sensor_topics import SensorTopics  # camera infos and the wrist wrench
@@ -183,7 +195,7 @@ def create_vla_sim(options: dict[str, Any]) -> CellWorld:
     """World ``vla_sim``: the MuJoCo cell."""
     from .mujoco_cell import MujocoCell
 
-    size = int(options.get("image_size") or 224)
+    size = number_option(options, "image_size", 224, int)
     cell_options = CellOptions(image_width=size, image_height=size)
     return CellWorld("vla_sim", options, lambda arm, seed: MujocoCell(cell_options, arm, seed))
 

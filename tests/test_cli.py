@@ -86,7 +86,7 @@ def test_run_bad_input_exit_2_without_traceback(cli, tmp_path):
     assert out == ""
     code, out, err = cli("run", str(path), "--json")
     assert json.loads(out.strip().splitlines()[-1]) == {
-        "status": "ERROR", "reason": f"{path}:3: Typed: port 'x' expects a number, got 'fast'"
+        "status": "ERROR", "reason": f"{path}:3: Typed: port 'x' expects a number, got 'fast'", "failure_kind": "PortError",
     }
 
 
@@ -363,9 +363,11 @@ def test_run_ends_as_error_with_one_paragraph_and_the_traceback_in_a_log_file(cl
     assert (summary["status"], summary["failing_node"], summary["ticks"], summary["running_nodes"]) == ("ERROR", "probe", 5, ["Wait", "probe"])
     log = Path(summary["log_file"])
     assert log.parent == Path("build/logs") and "RuntimeError: sensor exploded" in (tmp_path / log).read_text()
-    assert err == f"error: {summary['reason']}\n"
+    assert err == f"internal error: {summary['reason']}\n"  # a bug, never the user's mistake
+    assert summary["failure_kind"] == "internal"
     assert summary["reason"].startswith("t.xml:5: Crash 'probe': an unexpected RuntimeError in ")
-    assert summary["reason"].endswith(f"sensor exploded. The run was stopped and its running nodes halted; the full traceback is in {log}")
+    assert summary["reason"].endswith(f"sensor exploded. The run was stopped and its running nodes halted; the full traceback is in {log} "
+                                      "(a bug: please report it with that file)")
 
 
 def test_a_bug_while_loading_names_the_node_and_exits_2(cli, tmp_path, monkeypatch):
@@ -373,7 +375,7 @@ def test_a_bug_while_loading_names_the_node_and_exits_2(cli, tmp_path, monkeypat
     path = tree_file(tmp_path, "<Sequence>\n<BrokenAtLoad/>\n</Sequence>")
     code, out, err = cli("validate", str(path))
     assert (code, out) == (2, "")
-    assert err.startswith(f"error: t.xml:4: BrokenAtLoad: an unexpected KeyError in {REPO / 'tests/data/nodes.py'}:")
+    assert err.startswith(f"internal error: t.xml:4: BrokenAtLoad: an unexpected KeyError in {REPO / 'tests/data/nodes.py'}:")
     assert "'calibration'. Loading stopped there; nothing was run; the full traceback is in build/logs/objective-" in err
     assert "Traceback" not in err and len(list((tmp_path / "build" / "logs").glob("objective-*.log"))) == 1
 

@@ -68,7 +68,8 @@ def test_stacking_cut_short_on_two_workers(tmp_path, capsys):
     assert summary["deterministic"] and summary["policy_latency"] == "0.1"
     (group,) = summary["failure_groups"]
     assert (group["count"], group["failing_node"], group["seeds"]) == (2, "ExecutePolicy", [5, 6])
-    assert group["reason"] == "stopped after --max-seconds # s of clock time while 'ExecutePolicy' was RUNNING"
+    assert (group["reason"], group["failure_kind"]) == ("timeout", "timeout")
+    assert group["example"] == "stopped after --max-seconds 8 s of clock time while 'ExecutePolicy' was RUNNING"
     lines = episodes(out)
     assert sorted(line["seed"] for line in lines) == [5, 6]
     assert {line["worker"] for line in lines} <= {"worker-0", "worker-1"}
@@ -162,7 +163,8 @@ def test_crashed_hung_and_raising_episodes_are_errors_and_the_evaluation_goes_on
     assert (summary["successes"], summary["failures"], summary["errors"]) == (2, 1, 3)
     assert summary["success_rate"] == pytest.approx(2 / 6, abs=1e-6)
     groups = {g["seeds"][0]: g for g in summary["failure_groups"]}
-    assert groups[4]["reason"] == "check missed by # m on seed #"
+    assert groups[4]["reason"] == "check missed by 0.043 m on seed 4"  # a node that names no kind: by its reason
+    assert [groups[seed]["failure_kind"] for seed in (1, 2, 3, 4)] == ["worker lost", "episode timeout", "internal", None]
 
 
 def test_resume_skips_finished_seeds_and_refuses_another_objective_or_policy(tmp_path, capsys, fault_plugin):

@@ -16,6 +16,7 @@ from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
 import runtime.bus as bus_module
 from runtime.bus import FixedLatency
+from runtime.errors import PortError
 from runtime.loader import load_tree
 from recording.report.data import Recording
 from recording.report.plots import stall_spans
@@ -74,8 +75,8 @@ def hold(steps: int = 50, velocity: np.ndarray | None = None, dt: float = 0.1) -
     return answer
 
 
-def policy_xml(ports: str, prepare: bool = True, wrap: str | None = None) -> str:
-    node = f'<ExecutePolicy policy_service_name="{SERVICE}" joint_group_name="manipulator" {ports} steps_executed="{{steps}}" chunks_received="{{chunks}}" rejection_reason="{{rejection}}" status_message="{{message}}"/>'
+def policy_xml(ports: str, prepare: bool = True, wrap: str | None = None, service: str = SERVICE) -> str:
+    node = f'<ExecutePolicy policy_service_name="{service}" joint_group_name="manipulator" {ports} steps_executed="{{steps}}" chunks_received="{{chunks}}" rejection_reason="{{rejection}}" status_message="{{message}}"/>'
     if wrap:
         node = wrap.format(node=node)
     prep = '<SwitchController activate_controllers="joint_trajectory_admittance_controller" deactivate_controllers="velocity_force_controller"/>' if prepare else ""
@@ -105,11 +106,12 @@ def run_policy(
     max_seconds: float = 60.0,
     world_options: dict[str, Any] | None = None,
     before: Callable[[Any, KinematicWorld], None] | None = None,
+    service: str = SERVICE,
 ) -> Run:
     options = RunOptions(seed=seed, max_seconds=max_seconds, world="kinematic")
     context = make_context(options)
     world = KinematicWorld({"seed": seed, "policy": "none" if policy is not None else "oracle", **(world_options or {})})
-    loaded = load_tree(policy_xml(ports, prepare, wrap), registry, context)
+    loaded = load_tree(policy_xml(ports, prepare, wrap, service), registry, context)
     if policy is not None:
         context.bus.create_service(SERVICE, GetActionChunk, policy)
     if latency is not None:
@@ -178,22 +180,82 @@ def test_error_and_unknown_fail_with_the_reason(registry, status, message, expec
     assert run.result.reason == expected
 
 
+def test_every_run_of_a_retried_policy_is_counted(registry):
+    # The policy fails its first run at chunk 2; RetryUntilSuccessful runs it again, to the end.
+    def answer(i, request):
+        return R(status=R.ERROR, message="lost the cube") if i == 2 else hold()(i, request)
+
+    run = run_policy(registry, BASE, ScriptedPolicy(answer), wrap=RETRY)
+    assert run.result.status == "SUCCESS", run.result.reason
+    summary = run.summary
+    assert [(r["chunks"], r["steps_executed"], r["message"]) for r in summary["runs"]] == [
+        (1, 19, "the policy answered ERROR for the chunk 2: lost the cube"),  # stopped in chunk 1's window
+        (3, 60, "executed 60 steps"),
+    ]
+    assert (summary["run_count"], summary["chunks"], summary["steps_executed"]) == (2, 4, 79)
+    assert summary["message"] == "executed 60 steps" and len(run.policy.requests) == 7  # warmup + 2, then warmup + 3
+    assert run.result.to_json()["execute_policy"]["chunks"] == 4
+
+
 # -- start-up ------------------------------------------------------------------------------
-def test_missing_service_fails_after_five_seconds_naming_it(registry):
+SERVICES_HERE = "/controller_manager/list_controllers, /controller_manager/switch_controller, /velocity_force_controller/zero_fts"
+
+
+def test_missing_service_is_an_error_before_anything_moves(registry):
     run = run_policy(registry, BASE, None, world_options={"policy": "none"})
-    assert run.result.status == "FAILURE"
+    assert (run.result.status, run.result.exit_code, run.result.ticks) == ("ERROR", 2, 0)
     assert run.result.reason == (
-        "not available after 5 s: policy service '/get_action_chunk' (start the adapter before running the Objective)"
+        f"<string>:1: ExecutePolicy: port 'policy_service_name': no service '/get_action_chunk' (services: {SERVICES_HERE})"
     )
-    assert run.result.sim_seconds == pytest.approx(5.0, abs=0.05)
 
 
-def test_silent_camera_fails_naming_the_topic(registry):
+RETRY = '<RetryUntilSuccessful num_attempts="3">{node}</RetryUntilSuccessful>'
+
+
+def test_a_wrong_service_name_under_retry_waits_once_and_ends_as_error(registry):
+    # The name comes from the blackboard, so only the running node can find it missing: it waits
+    # 5 s once, and the error is not retried. The hint fits the run: no adapter in a headless run.
+    wrap = "<Sequence><Script code=\"svc := '/get_action_chnk'\"/>" + RETRY + "</Sequence>"
+    run = run_policy(registry, BASE, ScriptedPolicy(hold()), wrap=wrap, service="{svc}")
+    assert (run.result.status, run.result.exit_code, run.result.failure_kind) == ("ERROR", 2, "SetupError")
+    assert run.result.sim_seconds == pytest.approx(5.0, abs=0.05)  # one wait, not three
+    assert run.result.reason == (
+        "<string>:1: ExecutePolicy: not available after 5 s: policy service '/get_action_chnk' (in this run the world "
+        "serves the policy chosen with --policy; services here: /controller_manager/list_controllers, "
+        "/controller_manager/switch_controller, /get_action_chunk, /velocity_force_controller/zero_fts)"
+    )
+    assert run.policy.requests == [] and run.summary["run_count"] == 1
+
+
+def test_a_frame_typo_inside_a_retry_runs_the_policy_zero_times(registry):
+    check = '<CheckObjectStacked top_object_name="cube_purple" bottom_object_name="cube_green"/>'
+    wrap = '<RetryUntilSuccessful num_attempts="3"><Sequence>{node}' + check + "</Sequence></RetryUntilSuccessful>"
+    run = run_policy(registry, BASE, ScriptedPolicy(hold()), wrap=wrap)
+    assert (run.result.status, run.result.exit_code, run.result.ticks) == ("ERROR", 2, 0)
+    assert run.result.reason.startswith(
+        "<string>:1: CheckObjectStacked: port 'top_object_name': unknown frame 'cube_purple' (did you mean 'cube_red'?) "
+        "(frames: cube_blue, cube_green, cube_red, table, world, base, shoulder_link, "
+    )
+    assert run.policy.requests == []
+
+
+def test_a_frame_typo_the_tree_computes_ends_the_run_at_the_check_without_a_retry(registry):
+    check = ("<Script code=\"top := 'cube_' .. 'purple'\"/>"
+             '<CheckObjectStacked top_object_name="{{top}}" bottom_object_name="cube_green"/>')
+    wrap = '<RetryUntilSuccessful num_attempts="3"><Sequence>{node}' + check + "</Sequence></RetryUntilSuccessful>"
+    run = run_policy(registry, BASE, ScriptedPolicy(hold()), wrap=wrap)
+    assert (run.result.status, run.result.exit_code, run.result.failing_node) == ("ERROR", 2, "CheckObjectStacked")
+    assert run.result.reason.startswith("<string>:1: CheckObjectStacked: unknown frame 'cube_purple' (known: 'world', ")
+    assert run.summary["run_count"] == 1 and len(run.policy.requests) == 4  # one policy run: warmup and 3 chunks
+
+
+def test_silent_camera_is_an_error_naming_the_topic(registry):
     ports = f'{BASE} image_topics="/scene_camera/color;/thermal_camera/color" image_names="scene;thermal"'
     run = run_policy(registry, ports, ScriptedPolicy(hold()))
-    assert run.result.reason == ("not available after 5 s: a frame on camera topic '/thermal_camera/color' (subscribed "
-                                 "best-effort, so a reliable or a best-effort publisher matches; is the camera driver "
-                                 "publishing there?)")
+    assert run.result.status == "ERROR"
+    assert run.result.reason == ("<string>:1: ExecutePolicy: not available after 5 s: a frame on camera topic "
+                                 "'/thermal_camera/color' (subscribed best-effort, so a reliable or a best-effort "
+                                 "publisher matches; is the camera driver publishing there?)")
 
 
 def _counting_camera(reads: list[int]) -> Callable[[Any, KinematicWorld], None]:
@@ -219,9 +281,12 @@ def test_cameras_are_read_once_the_rest_is_there_and_feed_the_warmup(registry):
 def test_missing_service_and_camera_are_both_named_after_five_seconds(registry):
     ports = f'{BASE} image_topics="/thermal_camera/color;/night_camera/color" image_names="thermal;night"'
     reads: list[int] = []
-    run = run_policy(registry, ports, None, world_options={"policy": "none"}, before=_counting_camera(reads))
+    wrap = "<Sequence><Script code=\"svc := '/get_action_chunk'\"/>{node}</Sequence>"
+    run = run_policy(registry, ports, None, world_options={"policy": "none"}, before=_counting_camera(reads),
+                     wrap=wrap, service="{svc}")
     assert run.result.reason == (
-        "not available after 5 s: policy service '/get_action_chunk' (start the adapter before running the Objective); "
+        "<string>:1: ExecutePolicy: not available after 5 s: policy service '/get_action_chunk' (in this run the world "
+        f"serves the policy chosen with --policy; services here: {SERVICES_HERE}); "
         "a frame on camera topic '/night_camera/color' (subscribed best-effort, so a reliable or a best-effort "
         "publisher matches; is the camera driver publishing there?)"
     )
@@ -245,26 +310,39 @@ def test_a_best_effort_camera_is_observed(registry):
 
 def test_best_effort_joint_states_never_connect(registry):
     run = run_policy(registry, BASE, ScriptedPolicy(hold()), prepare=False, world_options={"joint_states_reliable": False})
-    assert run.result.reason == "not available after 5 s: joint states on '/joint_states' (the publisher must use reliable QoS)"
+    assert run.result.reason == ("<string>:1: ExecutePolicy: not available after 5 s: joint states on '/joint_states' "
+                                 "(the publisher must use reliable QoS)")
 
 
-def test_gripper_port_alone_fails_at_start(registry):
-    run = run_policy(registry, f'{BASE} gripper_joint_name="{GRIPPER}"', ScriptedPolicy(hold()))
-    assert run.result.reason == (
-        "gripper_command_action_name and gripper_joint_name must be set together: "
+def test_gripper_port_alone_is_a_load_error(registry):
+    with pytest.raises(PortError) as err:
+        run_policy(registry, f'{BASE} gripper_joint_name="{GRIPPER}"', ScriptedPolicy(hold()))
+    assert str(err.value) == (
+        "<string>:1: ExecutePolicy: gripper_command_action_name and gripper_joint_name must be set together: "
         "gripper_joint_name is set but gripper_command_action_name is empty"
     )
-    assert run.policy.requests == []
 
 
-def test_image_lists_must_be_index_aligned(registry):
-    run = run_policy(registry, f'{BASE} image_topics="/scene_camera/color;/wrist_camera/color" image_names="scene"', ScriptedPolicy(hold()))
-    assert run.result.reason == "image_topics has 2 entries and image_names has 1; they must be index-aligned"
+def test_image_lists_must_be_index_aligned_when_written(registry):
+    with pytest.raises(PortError) as err:
+        run_policy(registry, f'{BASE} image_topics="/scene_camera/color;/wrist_camera/color" image_names="scene"', ScriptedPolicy(hold()))
+    assert str(err.value) == "<string>:1: ExecutePolicy: image_topics has 2 entries and image_names has 1; they must be index-aligned"
+
+
+def test_image_lists_from_the_blackboard_of_different_lengths_are_an_error_when_the_node_starts(registry):
+    wrap = "<Sequence><Script code=\"names := 'scene'\"/>{node}</Sequence>"
+    ports = f'{BASE} image_topics="/scene_camera/color;/wrist_camera/color" image_names="{{names}}"'
+    run = run_policy(registry, ports, ScriptedPolicy(hold()), wrap=wrap)
+    assert (run.result.status, run.result.ticks) == ("ERROR", 3)  # SwitchController, the Script, ExecutePolicy
+    assert run.result.reason == "<string>:1: ExecutePolicy: image_topics has 2 entries and image_names has 1; they must be index-aligned"
 
 
 def test_group_with_two_tips_and_gripper_inside_the_group_fail_at_start(registry):
-    run = run_policy(registry, BASE.replace("", "", 1) + ' gripper_command_action_name="/g" gripper_joint_name="wrist_3_joint"', ScriptedPolicy(hold()))
-    assert run.result.reason == "gripper joint 'wrist_3_joint' is inside the joint group 'manipulator'; it must be outside it"
+    gripper = ' gripper_command_action_name="/robotiq_gripper_controller/gripper_cmd" gripper_joint_name="wrist_3_joint"'
+    run = run_policy(registry, BASE + gripper, ScriptedPolicy(hold()))
+    assert run.result.status == "ERROR"
+    assert run.result.reason == ("<string>:1: ExecutePolicy: gripper joint 'wrist_3_joint' is inside the joint group "
+                                 "'manipulator'; it must be outside it")
 
 
 def test_warmup_timeout_names_policy_call_timeout(registry):
@@ -331,9 +409,10 @@ def test_chunk_naming_another_gripper_joint_is_rejected(registry):
 
 def test_missing_gripper_joint_in_joint_states_fails_at_the_first_observation(registry):
     run = run_policy(registry, f'{BASE} gripper_command_action_name="/robotiq_gripper_controller/gripper_cmd" gripper_joint_name="gripper_right_driver_joint"', ScriptedPolicy(hold()))
+    assert run.result.status == "ERROR"
     assert run.result.reason == (
-        "the joint states on '/joint_states' do not include the gripper joint 'gripper_right_driver_joint': "
-        "it must be published alongside the arm joints"
+        "<string>:1: ExecutePolicy: the joint states on '/joint_states' do not include the gripper joint "
+        "'gripper_right_driver_joint': it must be published alongside the arm joints"
     )
 
 
@@ -881,7 +960,10 @@ def test_a_goal_that_reaches_the_controller_after_its_seam_while_moving_is_plann
                      before=record_commanded_velocity(commanded))
     assert run.result.status == "SUCCESS", run.result.reason
     assert run.summary["steps_executed"] == 60
-    assert any("received a goal after its seam" in w and "is already past" in w for w in run.summary["warnings"])
+    (late,) = [w for w in run.summary["warnings"] if "reached the controller" in w]
+    assert re.fullmatch(r"chunk 3's goal reached the controller after t=\d+\.\d\d s, the moment it was meant to take "
+                        r"over, so the controller went on with what it was playing; the chunk is planned again from "
+                        r"what the arm is doing", late), late
     t, v = np.array(commanded).T
     assert np.max(np.abs(np.diff(v))) < 0.002  # rad/s per control step: no dead stop, no jump
 
@@ -911,7 +993,7 @@ def test_a_late_goal_planned_again_after_a_stall_counts_the_stall_once(registry,
     ports = BASE.replace('policy_call_timeout="3.0"', 'policy_call_timeout="10.0"').replace('total_action_steps="60"', 'total_action_steps="100"')
     run = run_policy(registry, ports, ScriptedPolicy(hold(velocity=np.array([0.1, 0, 0, 0, 0, 0]))), latency=SpikeAt(0.05, 2, 8.0))
     assert run.result.status == "SUCCESS", run.result.reason
-    assert len(arrivals) >= 3 and any("planning the chunk again" in w for w in run.summary["warnings"])
+    assert len(arrivals) >= 3 and any(w.endswith("the chunk is planned again from what the arm is doing") for w in run.summary["warnings"])
     executed = [e.data for e in run.context.events.of_kind("chunk_executed")]
     first, refused, played = executed[:3]
     assert refused["chunk"] == played["chunk"] == 2 and played["takes_over_time"] > refused["takes_over_time"]
@@ -949,7 +1031,7 @@ def test_a_goal_answered_only_after_the_next_chunk_arrived_is_waited_for(registr
     ports = 'total_action_steps="20" dt="0.1" committed_action_steps="5" goal_path_tolerance="0.01" policy_call_timeout="3.0"'
     run = run_policy(registry, ports, ScriptedPolicy(hold(velocity=np.array([0.05, 0, 0, 0, 0, 0]))), latency=0.05)
     assert run.result.status == "SUCCESS", run.result.reason
-    assert any("the next chunk takes over" in w for w in run.summary["warnings"])
+    assert any(w.endswith("the next chunk, already here, is planned from what the arm is doing") for w in run.summary["warnings"])
     second = [e.data for e in run.context.events.of_kind("chunk_executed") if e.data["chunk"] == 2]
     assert len(second) == 1 and second[0]["request_step"] == second[0]["seam_step"]  # from its step 0: the arm never moved
     assert run.summary["steps_executed"] == 20

@@ -5,6 +5,7 @@ from dataclasses import dataclass
 import numpy as np
 import pytest
 
+from behaviors.execute_policy.checks import CheckFailure, CheckKind
 from behaviors.execute_policy.chunk import Chunk
 from behaviors.execute_policy.planner import (
     Arrival,
@@ -43,8 +44,8 @@ START = np.array([0.1, -0.2])
 class FakeChecks:
     """Checks that pass unless told otherwise; ``path_horizon_s`` fails paths that go past it."""
 
-    values_reason: str | None = None
-    limits_reason: str | None = None
+    values_reason: CheckFailure | None = None
+    limits_reason: CheckFailure | None = None
     path_horizon_s: float = float("inf")
 
     def values(self, chunk, window):
@@ -54,7 +55,8 @@ class FakeChecks:
         return self.limits_reason
 
     def path(self, samples, window):
-        return "beyond the horizon" if samples.times[-1] > self.path_horizon_s + 1e-9 else None
+        beyond = samples.times[-1] > self.path_horizon_s + 1e-9
+        return CheckFailure(CheckKind.WORLD_COLLISION, "beyond the horizon") if beyond else None
 
 
 def ramp(steps: int = 50, speed: float = 0.05) -> Chunk:
@@ -220,11 +222,14 @@ def test_a_tail_unsafe_from_some_point_on_is_cut_short_before_it():
 
 def test_rejections_name_the_chunk_and_the_reason():
     start = Committed(StepGrid(0.0, DT, 20, 100))
-    assert plan(start, ramp(), checks=FakeChecks(values_reason="j1 at 9 rad")) == Reject("chunk 1 rejected: j1 at 9 rad")
-    assert plan(start, ramp(), checks=FakeChecks(limits_reason="velocity of j1")) == Reject("chunk 1 rejected: velocity of j1")
+    outside = CheckFailure(CheckKind.POSITION_LIMIT, "j1 at 9 rad")
+    too_fast = CheckFailure(CheckKind.VELOCITY_LIMIT, "velocity of j1")
+    assert plan(start, ramp(), checks=FakeChecks(values_reason=outside)) == Reject("chunk 1 rejected: j1 at 9 rad", "position limit")
+    assert plan(start, ramp(), checks=FakeChecks(limits_reason=too_fast)) == Reject("chunk 1 rejected: velocity of j1", "velocity limit")
     _, first = first_plan()
     short = plan(first.committed, ramp(steps=3), index=2, request_step=19, frozen=3, earliest=21, goal=GoalState.PLAYING)
     assert isinstance(short, Reject) and short.reason.startswith("chunk 2 rejected: chunk 2 has 3 steps but takes over at its step 3")
+    assert short.kind == "chunk too short"
 
 
 def test_a_path_unsafe_all_along_its_tail_is_sent_without_one():
@@ -233,7 +238,7 @@ def test_a_path_unsafe_all_along_its_tail_is_sent_without_one():
     assert isinstance(planned, Planned)
     assert planned.committed.motion.rest_time == planned.committed.motion.end and planned.committed.grid.tail == NO_TAIL
     unsafe = plan(start, ramp(), checks=FakeChecks(path_horizon_s=1.0))
-    assert unsafe == Reject("chunk 1 rejected: beyond the horizon")
+    assert unsafe == Reject("chunk 1 rejected: beyond the horizon", "world collision")
 
 
 def test_the_runs_last_window_ends_at_rest_without_a_runout():

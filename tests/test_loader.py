@@ -435,7 +435,8 @@ def test_recursive_subtrees_are_load_errors(registry, tmp_path, empty_lib):
   <BehaviorTree ID="A"><SubTree ID="B"/></BehaviorTree>
   <BehaviorTree ID="B"><Fallback><AlwaysFailure/><SubTree ID="A"/></Fallback></BehaviorTree>
 </root>""", "indirect.xml")
-    assert error_of(registry, indirect, empty_lib) == f"{indirect}:4: A: recursive SubTree: A -> B -> A"
+    assert error_of(registry, indirect, empty_lib) == (  # each SubTree call on the way is named, outermost first
+        f"{indirect}:2: SubTree 'A': {indirect}:3: SubTree 'B': {indirect}:4: A: recursive SubTree: A -> B -> A")
 
 
 def test_same_subtree_twice_is_not_recursion(registry, tmp_path, empty_lib):
@@ -526,9 +527,9 @@ def test_validate_checks_every_tree_of_a_library_file(registry, tmp_path, empty_
   <BehaviorTree ID="Bad"><Typed/></BehaviorTree>
 </root>""")
     with pytest.raises(PortError) as info:
-        validate(path, registry, objectives_dir=empty_lib)
+        validate(path, registry, objectives_dir=empty_lib).trees_or_raise()
     assert str(info.value) == f"{path}:3: Typed: missing required port 'x'"
-    assert [t.tree_id for t in validate(path, registry, tree_id="Good", objectives_dir=empty_lib)] == ["Good"]
+    assert [t.tree_id for t in validate(path, registry, tree_id="Good", objectives_dir=empty_lib).trees] == ["Good"]
 
 
 def test_errors_in_an_included_file_name_that_file(registry, tmp_path, empty_lib):
@@ -538,7 +539,7 @@ def test_errors_in_an_included_file_name_that_file(registry, tmp_path, empty_lib
   <include path="part.xml"/>
   <BehaviorTree ID="M"><SubTree ID="Part"/></BehaviorTree>
 </root>""")
-    assert error_of(registry, main, empty_lib) == f"{part}:3: Typed: port 'x' expects a number, got 'slow'"
+    assert error_of(registry, main, empty_lib) == f"{main}:3: SubTree 'Part': {part}:3: Typed: port 'x' expects a number, got 'slow'"
 
 
 def test_line_numbers_are_where_the_start_tag_begins(registry, tmp_path, empty_lib):

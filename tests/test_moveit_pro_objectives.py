@@ -48,7 +48,7 @@ def test_the_objective_is_picknik_s_file_unchanged():
 
 
 def test_it_validates_with_its_subtree_from_the_library(registry):
-    (tree,) = validate(OBJECTIVE, registry)
+    (tree,) = validate(OBJECTIVE, registry).trees_or_raise()
     assert tree.tree_id == "Stack Cubes with the VLA Policy"
     ids = [n.xml_id for n in tree.nodes]
     assert ids[:4] == ["Sequence", "SwitchController", "MoveGripperAction", "Move to Waypoint"]

@@ -19,6 +19,7 @@ from behaviors.controllers import SwitchController, plan_switch
 from behaviors.poses import MARKER_TOPIC, TransformPose, matrix_to_pose, pose_markers
 from runtime.behavior import Status
 from runtime.blackboard import Blackboard
+from runtime.errors import SetupError
 from runtime.registry import Registry
 from runtime.runner import RunOptions, RunResult, run_file
 from runtime.scene.collision import pose_matrix
@@ -122,8 +123,8 @@ def test_a_timeout_of_zero_or_less_waits_without_limit(timeout):
 def test_a_positive_timeout_still_ends_the_wait():
     context = make_context(None)
     node = make_node(SwitchController, context, activate_controllers=JTAC, timeout="1.5")
-    assert run_node(context, node, 10.0) is Status.FAILURE
-    assert node.feedback_message == "service '/controller_manager/list_controllers' is not available after 1.5 s"
+    with pytest.raises(SetupError, match=r"^service '/controller_manager/list_controllers' is not available after 1.5 s$"):
+        run_node(context, node, 10.0)  # a missing service is a setup error: the run ends as ERROR
     assert context.clock.now() == pytest.approx(1.5, abs=0.011)
 
 
@@ -170,16 +171,18 @@ def test_move_to_waypoint_takes_moveit_pro_s_ports_and_its_scale_factors_set_the
 
 
 @pytest.mark.parametrize(
-    ("ports", "reason"),
+    ("ports", "status", "reason"),
     [
-        ('controller_names="no_such_controller"', "unknown controllers: no_such_controller (known: "),
-        ('controller_action_server="/nowhere/follow_joint_trajectory"', "controller action '/nowhere/follow_joint_trajectory' is not available"),
-        ('joint_group_name="gripper_arm"', "gripper_arm"),
+        ('controller_names="no_such_controller"', "FAILURE", "unknown controllers: no_such_controller (known: "),
+        # What the cell does not have is an error of the setup, found before anything moves.
+        ('controller_action_server="/nowhere/follow_joint_trajectory"', "ERROR",
+         "MoveToWaypoint: port 'controller_action_name': no action '/nowhere/follow_joint_trajectory' (actions: "),
+        ('joint_group_name="gripper_arm"', "ERROR", "MoveToWaypoint: port 'joint_group_name': unknown joint group 'gripper_arm'"),
     ],
 )
-def test_move_to_waypoint_bad_ports_fail_naming_them(registry, tmp_path, ports, reason):
+def test_move_to_waypoint_bad_ports_fail_naming_them(registry, tmp_path, ports, status, reason):
     result = run_tree(registry, tmp_path, f'<SubTree ID="Move to Waypoint" {ports}/>')
-    assert result.status == "FAILURE" and reason in result.reason
+    assert result.status == status and reason in result.reason, result.reason
 
 
 def test_move_to_waypoint_scale_outside_its_range_is_an_error_of_the_objective(registry, tmp_path):

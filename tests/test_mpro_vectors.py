@@ -67,7 +67,7 @@ def test_a_literal_for_a_pose_port_is_a_load_error_naming_file_line_and_port(reg
     from runtime.loader import validate
 
     with pytest.raises(PortError) as err:
-        validate(path, registry)
+        validate(path, registry).trees_or_raise()
     assert str(err.value).endswith(
         "bad.xml:2: VisualizePose: port 'pose' expects a geometry_msgs/PoseStamped from the blackboard, got '0;0;0'"
     )

@@ -36,20 +36,21 @@ def world_args(d, *extra: str) -> list[str]:
 
 
 def test_behaviors_plan_against_your_robot(robot_files, capsys):
-    # The group, its limits and the scene come from the files; no controller runs here, so the
-    # motion is planned and checked, then waits for a controller action that never appears.
+    # The group, its limits and the scene come from the files; nothing serves a controller on this
+    # in-process bus (over --ros the drivers would), so the action is named before anything moves.
     code = main(world_args(robot_files, "--world-option", "group=arm"))
     summary = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
-    assert code == 1
-    assert summary["reason"] == "controller action '/joint_trajectory_admittance_controller/follow_joint_trajectory' is not available after 0.2 s"
+    assert (code, summary["ticks"]) == (2, 0)
+    assert summary["reason"].endswith("port 'controller_action_name': no action "
+                                      "'/joint_trajectory_admittance_controller/follow_joint_trajectory' (actions: none)")
     assert summary["world"]["group"] == "arm"
 
 
 def test_a_group_the_srdf_lacks_is_named(robot_files, capsys):
     (robot_files / "move.xml").write_text((robot_files / "move.xml").read_text().replace('joint_group_name="arm"', 'joint_group_name="manipulator"'))
     code = main(world_args(robot_files, "--world-option", "group=arm"))
-    assert code == 1
-    assert "unknown joint group 'manipulator' (groups: arm, hand)" in capsys.readouterr().out
+    assert code == 2
+    assert "port 'joint_group_name': unknown joint group 'manipulator' (joint groups: arm, hand)" in capsys.readouterr().out
 
 
 @pytest.mark.parametrize(

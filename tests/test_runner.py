@@ -140,7 +140,7 @@ def test_an_unexpected_exception_names_the_node_and_logs_the_traceback(run, tmp_
     assert "Traceback" in log.read_text()
     assert result.reason.startswith(f"{tmp_path / 'tree.xml'}:3: Crash 'probe': an unexpected RuntimeError in tests/data/nodes.py:")
     assert result.reason.endswith(f": sensor exploded. The run was stopped and its running nodes halted; "
-                                  f"the full traceback is in {log}")
+                                  f"the full traceback is in {log} (a bug: please report it with that file)")
     forever = next(n for n in loaded.root.iterate() if n.name == "Forever")
     assert forever.terminated == [Status.INVALID]
 

@@ -66,8 +66,8 @@ def test_added_box_sits_where_its_pose_says_and_moves(registry):
 def test_removed_box_is_gone(capsys, tmp_path):
     check = '<GetObjectPose object_name="box" pose="{p}"/>'
     code, summary = run_xml(capsys, tmp_path, TCP_POSE + box_below_tcp() + check + '<RemoveCollisionObject object_id="box"/>' + check)
-    assert code == 1 and summary["failing_node"] == "GetObjectPose"
-    assert summary["reason"].startswith("no object 'box' in the planning scene (objects: ")
+    assert code == 2 and summary["failing_node"] == "GetObjectPose"  # naming an object the scene lacks: ERROR
+    assert "GetObjectPose: no object 'box' in the planning scene (objects: " in summary["reason"]
     assert "box" not in summary["reason"].split("(objects: ")[1]
 
 
@@ -82,8 +82,6 @@ def test_an_existing_id_needs_overwrite(capsys, tmp_path):
 @pytest.mark.parametrize(
     "node, reason",
     [
-        ('<RemoveCollisionObject object_id="ghost"/>', "no collision object 'ghost' in the planning scene (objects: "),
-        ('<MoveCollisionObject object_id="ghost" pose="{tcp}"/>', "no collision object 'ghost' in the planning scene (objects: "),
         ('<AddCollisionBox object_id="box" dimensions="0.1;0.1;0.1" pose="{dims}"/>', "port 'pose' expects a geometry_msgs/PoseStamped, got str"),
         ('<AttachObject object_name="cube_red"/><RemoveCollisionObject object_id="cube_red"/>', "'cube_red' is attached to the robot: detach it (DetachObject) first"),
     ],
@@ -92,6 +90,13 @@ def test_bad_input_at_run_time_fails_the_node_with_a_reason(capsys, tmp_path, no
     code, summary = run_xml(capsys, tmp_path, TCP_POSE + node, "--set", "dims=0.1;-0.1;0.1")
     assert code == 1, summary
     assert summary["reason"].startswith(reason), summary["reason"]
+
+
+@pytest.mark.parametrize("node", ['<RemoveCollisionObject object_id="ghost"/>', '<MoveCollisionObject object_id="ghost" pose="{tcp}"/>'])
+def test_an_unknown_object_is_a_setup_error_before_anything_moves(capsys, tmp_path, node):
+    code, summary = run_xml(capsys, tmp_path, TCP_POSE + node)
+    assert code == 2 and summary["status"] == "ERROR" and summary["ticks"] == 0, summary
+    assert "port 'object_id': unknown object 'ghost' (objects: cube_blue, cube_green, cube_red, table)" in summary["reason"]
 
 
 @pytest.mark.parametrize(
@@ -139,21 +144,21 @@ def test_placed_box_is_mirrored_into_the_planning_scene_and_removed_with_it(caps
     assert code == 0, summary["reason"]
     assert summary["world"]["boxes"] == {"crate": {"size_m": [0.2, 0.2, 0.1], "position_m": [0.3, 0.3, 0.05], "in_planning_scene": True}}
     code, summary = run_xml(capsys, tmp_path, place + '<RemoveSimBox object_id="crate"/><GetObjectPose object_name="crate" pose="{p}"/>')
-    assert code == 1 and summary["reason"].startswith("no object 'crate' in the planning scene")
+    assert code == 2 and "GetObjectPose: no object 'crate' in the planning scene" in summary["reason"]
     assert "boxes" not in summary["world"]
 
 
 def test_a_box_kept_out_of_the_planning_scene_is_only_in_the_cell(capsys, tmp_path):
     place = '<PlaceSimBox object_id="crate" dimensions="0.2;0.2;0.1" position_xyz="0.3;0.3;0.05" add_to_planning_scene="false"/>'
     code, summary = run_xml(capsys, tmp_path, place + '<GetObjectPose object_name="crate" pose="{p}"/>')
-    assert code == 1 and summary["reason"].startswith("no object 'crate' in the planning scene")
+    assert code == 2 and "GetObjectPose: no object 'crate' in the planning scene" in summary["reason"]
     assert summary["world"]["boxes"]["crate"]["in_planning_scene"] is False
 
 
 def test_a_reset_takes_placed_boxes_away(capsys, tmp_path):
     place = '<PlaceSimBox object_id="crate" dimensions="0.2;0.2;0.1" position_xyz="0.3;0.3;0.05"/>'
     code, summary = run_xml(capsys, tmp_path, place + '<ResetSim seed="2"/><GetObjectPose object_name="crate" pose="{p}"/>')
-    assert code == 1 and summary["reason"].startswith("no object 'crate' in the planning scene")
+    assert code == 2 and "GetObjectPose: no object 'crate' in the planning scene" in summary["reason"]
 
 
 @pytest.mark.parametrize(
@@ -161,12 +166,18 @@ def test_a_reset_takes_placed_boxes_away(capsys, tmp_path):
     [
         ('<RemoveSimBox object_id="ghost"/>', "no box 'ghost' was placed in the cell (placed: none)"),
         ('<PlaceSimBox object_id="table" dimensions="0.1;0.1;0.1" position_xyz="0.3;0.3;0.05"/>', "'table' is already an object of the planning scene: pick another name"),
-        ('<PlaceSimBox object_id="b" dimensions="0.1;0.1;0.1" position_xyz="0;0;0" reference_frame="moon"/>', "unknown frame 'moon' (known: 'world', robot links ("),
     ],
 )
 def test_bad_box_requests_fail_with_a_reason(capsys, tmp_path, node, reason):
     code, summary = run_xml(capsys, tmp_path, node)
     assert code == 1 and summary["reason"].startswith(reason), summary["reason"]
+
+
+def test_a_box_placed_at_an_unknown_frame_is_a_setup_error(capsys, tmp_path):
+    node = '<PlaceSimBox object_id="b" dimensions="0.1;0.1;0.1" position_xyz="0;0;0" reference_frame="moon"/>'
+    code, summary = run_xml(capsys, tmp_path, node)
+    assert code == 2 and summary["status"] == "ERROR" and summary["failure_kind"] == "SetupError"
+    assert "PlaceSimBox: unknown frame 'moon' (known: 'world', robot links (" in summary["reason"]
 
 
 def test_a_box_cannot_appear_inside_the_robot_or_a_cube():

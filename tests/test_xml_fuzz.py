@@ -285,9 +285,10 @@ def _numeric_ports() -> list[tuple[str, str]]:
 def _in_range(port: PortInfo) -> str:
     """A value the port accepts, for the ports a case leaves alone."""
     if port.type not in NUMERIC_TYPES:
-        literal = {PortType.BOOL: "false", PortType.ANY: "{anything}", PortType.STRING_LIST: "a"}.get(port.type, "x")
+        entry = f"{{{port.name}_entry}}"  # one entry per port: BT.CPP refuses one entry with two types
+        literal = {PortType.BOOL: "false", PortType.ANY: entry, PortType.STRING_LIST: "a"}.get(port.type, "x")
         # message and vector ports take blackboard entries only
-        return "{anything}" if port.type in MESSAGE_CLASSES or port.type in (PortType.POSE_STAMPED_LIST, PortType.ANY_LIST) else literal
+        return entry if port.type in MESSAGE_CLASSES or port.type in (PortType.POSE_STAMPED_LIST, PortType.ANY_LIST) else literal
     valid = port.valid or Range()
     low, high = valid.min, valid.max
     middle = 0.0 if low is None and high is None else (low if high is None else high if low is None else (low + high) / 2)

@@ -51,7 +51,7 @@ def objective_files(root: Path) -> list[Path]:
 
 def check(file: Path, registry: Registry, objectives_dir: Path | None = None) -> Outcome:
     try:
-        validate(file, registry, search_paths=[file.parent], objectives_dir=objectives_dir)
+        validate(file, registry, search_paths=[file.parent], objectives_dir=objectives_dir).trees_or_raise()
     except ObjectiveError as err:
         return Outcome(file, str(err))
     except Exception as err:  # a loader bug must not hide the other files' answers

@@ -11,7 +11,9 @@ cancels the controller goal: the controller brings the arm to a smooth stop.
 """
 from __future__ import annotations
 
+import enum
 from dataclasses import dataclass, field
+from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
@@ -21,6 +23,7 @@ from moveit_pro_ml_msgs.srv import GetActionChunk
 from sensor_msgs.msg import Image, JointState
 
 from runtime.behavior import Behavior, Status
+from runtime.errors import PortError, SetupError
 from runtime.bus import STATUS_ABORTED, STATUS_SUCCEEDED
 from runtime.ports import Direction
 
@@ -33,6 +36,7 @@ from .planner import (
     Arrival,
     PlanInput,
     Planned,
+    SHORT_CHUNK,
     Reject,
     ShapingConfig,
     earliest_seam_step,
@@ -59,8 +63,27 @@ GOAL_ACK_TIMEOUT_S = 5.0  # a controller that does not acknowledge a goal by the
 SCENE_WATCH_PERIOD_S = 0.05  # how often the rest of the committed motion is checked against the live scene
 
 
+class FailureKind(enum.Enum):
+    """What kind of FAILURE ended the run, besides a rejected chunk's ``checks.CheckKind``."""
+
+    MALFORMED_CHUNK = "malformed chunk"
+    POLICY_ERROR = "policy error"
+    POLICY_TIMEOUT = "policy timeout"
+    CONTROLLER = "controller"
+    GRIPPER = "gripper"
+    SCENE_CHANGED = "scene changed"
+
+
+POLICY_RUNS = "execute_policy.runs"
+"""The ``RunContext.resources`` key of the metrics of every ExecutePolicy run of the Objective:
+each node's, each time a RetryUntilSuccessful or a loop started it again."""
+
+
 @dataclass
 class RunMetrics:
+    """What one run of an ExecutePolicy node did."""
+
+    node: str = ""
     chunks: int = 0
     steps_executed: int = 0
     stall_seconds: float = 0.0
@@ -69,6 +92,8 @@ class RunMetrics:
     latency_estimate_s: float = 0.0
     """What the last request was timed for (``timing.LatencyEstimate``)."""
     warnings: list[str] = field(default_factory=list)
+    message: str = ""
+    rejection_reason: str = ""
 
     def as_dict(self) -> dict[str, Any]:
         lat = np.asarray(self.latencies) if self.latencies else np.zeros(1)
@@ -82,7 +107,28 @@ class RunMetrics:
             "latency_max_s": round(float(lat.max()), 4),
             "latency_estimate_s": round(self.latency_estimate_s, 4),
             "warnings": list(self.warnings),
+            "message": self.message,
+            "rejection_reason": self.rejection_reason,
         }
+
+
+def summarise_runs(runs: list[RunMetrics]) -> dict[str, Any]:
+    """The ``execute_policy`` summary of every run: totals (counts and stall summed, latency
+    percentiles over every round trip, the last run's estimate, message and rejection), then
+    ``run_count`` and ``runs``, each run's own figures in the order they started."""
+    last = runs[-1] if runs else RunMetrics()
+    total = RunMetrics(
+        chunks=sum(r.chunks for r in runs),
+        steps_executed=sum(r.steps_executed for r in runs),
+        stall_seconds=sum(r.stall_seconds for r in runs),
+        rejections=sum(r.rejections for r in runs),
+        latencies=[s for r in runs for s in r.latencies],
+        latency_estimate_s=last.latency_estimate_s,
+        warnings=[w for r in runs for w in r.warnings],
+        message=last.message,
+        rejection_reason=last.rejection_reason,
+    )
+    return {**total.as_dict(), "run_count": len(runs), "runs": [{"node": r.node, **r.as_dict()} for r in runs]}
 
 
 class ExecutePolicy(Behavior):
@@ -101,11 +147,23 @@ class ExecutePolicy(Behavior):
         "checked against limits and the planning scene, and streamed to the admittance controller."
     )
 
+    def check_literals(self) -> None:
+        """The port combinations ``config.validate`` refuses (image_topics and image_names of
+        different lengths, a gripper action without its joint, ...), at load time when written as literals."""
+        bindings = [self.bindings[name] for name in cfg.COMBINED_PORTS]
+        if any(b.key is not None for b in bindings):
+            return  # known when the node runs: then a SetupError
+        values = {b.info.name: tuple(b.literal) if isinstance(b.literal, list) else b.literal for b in bindings}
+        try:
+            cfg.validate(SimpleNamespace(**values))
+        except cfg.ConfigError as err:
+            raise PortError(str(err), self.location, self.xml_id) from None
+
     # -- lifecycle ---------------------------------------------------------------------------
     def initialise(self) -> None:
         self.phase = Phase.STARTUP
-        self.metrics = RunMetrics()
-        self.error: str | None = None
+        self.metrics = RunMetrics(node=self.name)
+        self.context.resources.setdefault(POLICY_RUNS, []).append(self.metrics)
         self.message = ""
         self.rejection = ""
         self.started_at = self.context.clock.now()
@@ -136,9 +194,8 @@ class ExecutePolicy(Behavior):
             self.config = self._read_config()
             cfg.validate(self.config)
             self.safety: MotionSafety = make_safety(self.context.scene, self.config.joint_group_name, self.config.gripper_joint_name or None)
-        except (cfg.ConfigError, SafetyError) as err:
-            self.error = str(err)
-            return
+        except (cfg.ConfigError, SafetyError) as err:  # the Objective does not fit this robot: ERROR, never retried
+            raise SetupError(str(err)) from None
         c, bus = self.config, self.context.bus
         self.shaping = ShapingConfig(c.dt, c.committed_action_steps, c.policy_tracking_weight, c.num_interpolation_points,
                                      self.safety.limits.max_acceleration)
@@ -150,37 +207,33 @@ class ExecutePolicy(Behavior):
         self.cameras = [bus.create_subscription(t, Image, reliable=False) for t in c.image_topics]
 
     def update(self) -> Status:
-        if self.error is not None:
-            return self._finish(Status.FAILURE, self.error)
         try:
             if self.phase is Phase.STARTUP:
                 return self._startup()
             if self.phase is Phase.WARMUP:
                 return self._warmup()
             return self._stream()
-        except (ObservationError, SafetyError) as err:
-            return self._stop(Status.FAILURE, str(err))
+        except (ObservationError, SafetyError) as err:  # e.g. joint states without the group's joints
+            raise SetupError(str(err)) from None
 
     def terminate(self, new_status: Status) -> None:
         if new_status is Status.INVALID and getattr(self, "phase", Phase.DONE) is not Phase.DONE:
             self._cancel_goals()
-            self.message = "halted: goals cancelled, robot stopped"
+            self.message = self.metrics.message = "halted: goals cancelled, robot stopped"
             self.context.events.emit("policy_halted", self.name)
             self.phase = Phase.DONE
         self._close_subscriptions()
 
     def run_summary(self) -> dict[str, Any]:
-        data = self.metrics.as_dict() if hasattr(self, "metrics") else {}
-        data["message"] = getattr(self, "message", "")
-        data["rejection_reason"] = getattr(self, "rejection", "")
-        return {"execute_policy": data}
+        """Every ExecutePolicy run of the Objective (``POLICY_RUNS``): totals and each run."""
+        return {"execute_policy": summarise_runs(self.context.resources.get(POLICY_RUNS, []))}
 
     # -- phases ------------------------------------------------------------------------------
     def _startup(self) -> Status:
         c, now = self.config, self.context.clock.now()
         missing = []
         if not self.policy.service_is_ready():
-            missing.append(f"policy service '{c.policy_service_name}' (start the adapter before running the Objective)")
+            missing.append(f"policy service '{c.policy_service_name}' ({self._policy_hint()})")
         if not self.controller.server_is_ready():
             missing.append(f"controller action '{c.controller_action_name}'")
         if self.gripper is not None and not self.gripper.server_is_ready():
@@ -196,8 +249,8 @@ class ExecutePolicy(Behavior):
                 missing.append(f"a frame on camera topic '{topic}' (subscribed best-effort, so a reliable or a "
                                "best-effort publisher matches; is the camera driver publishing there?)")
         if missing:
-            if timed_out:
-                return self._finish(Status.FAILURE, f"not available after {STARTUP_WAIT_S:.0f} s: " + "; ".join(missing))
+            if timed_out:  # the Objective names what this robot does not have: ERROR, never retried
+                raise SetupError(f"not available after {STARTUP_WAIT_S:.0f} s: " + "; ".join(missing))
             return Status.RUNNING
         self.rules = self.safety.snapshot()
         self._send_request(new_episode=True, request_step=0, frozen=0, frames=frames)
@@ -214,7 +267,8 @@ class ExecutePolicy(Behavior):
                 flight.future.cancel()
                 return self._finish(
                     Status.FAILURE,
-                    f"warming up the policy service '{c.policy_service_name}' timed out after {c.policy_call_timeout:g} s "
+                    kind=FailureKind.POLICY_TIMEOUT,
+                    message=f"warming up the policy service '{c.policy_service_name}' timed out after {c.policy_call_timeout:g} s "
                     "(raise policy_call_timeout, or make the server finish its own warmup before it reports ready)",
                 )
             return Status.RUNNING
@@ -222,9 +276,10 @@ class ExecutePolicy(Behavior):
         try:
             response = flight.future.result()
         except Exception as exc:  # a transport failure of the warmup call
-            return self._finish(Status.FAILURE, f"warming up the policy service '{c.policy_service_name}' failed: {exc}")
+            return self._finish(Status.FAILURE, f"warming up the policy service '{c.policy_service_name}' failed: {exc}",
+                                FailureKind.POLICY_ERROR)
         if response.status == GetActionChunk.Response.ERROR or response.status == GetActionChunk.Response.UNKNOWN:
-            return self._finish(Status.FAILURE, self._status_reason(response, "warmup"))
+            return self._finish(Status.FAILURE, self._status_reason(response, "warmup"), FailureKind.POLICY_ERROR)
         self.latency.update(now - flight.sent_at_s)
         self._note_chunk_size(response)
         self._check_sizing("measured latency")
@@ -241,7 +296,7 @@ class ExecutePolicy(Behavior):
         self._stream_gripper(now)
         problem = follow_goals(self.gripper_goals, self.config.gripper_command_action_name)
         if problem is not None:
-            return self._stop(Status.FAILURE, problem)
+            return self._stop(Status.FAILURE, problem, FailureKind.GRIPPER)
         self._track_progress(now)
         state = stream_state(self.held, self.request)
         if state is StreamState.HOLDING:
@@ -282,7 +337,8 @@ class ExecutePolicy(Behavior):
             gripper, free_at = self._gripper_now(), None
         collision = self.safety.first_collision(self.rules, _samples_from(samples, now), self.config.link_padding, gripper, free_at)
         if collision is not None:
-            return self._stop(Status.FAILURE, f"the planning scene changed: {collision} in the remaining path; robot stopped")
+            return self._stop(Status.FAILURE, f"the planning scene changed: {collision} in the remaining path; robot stopped",
+                              FailureKind.SCENE_CHANGED)
         self.checked_scene = scene_state
         self.free_samples = FreeSamples(samples, gripper, version)
         return None
@@ -328,14 +384,16 @@ class ExecutePolicy(Behavior):
                 flight.future.cancel()
                 return self._stop(
                     Status.FAILURE,
-                    f"the policy service '{c.policy_service_name}' did not answer within policy_call_timeout = {c.policy_call_timeout:g} s",
+                    kind=FailureKind.POLICY_TIMEOUT,
+                    message=f"the policy service '{c.policy_service_name}' did not answer within policy_call_timeout = {c.policy_call_timeout:g} s",
                 )
             return None
         self.request = None
         try:
             response = flight.future.result()
         except Exception as exc:
-            return self._stop(Status.FAILURE, f"calling the policy service '{c.policy_service_name}' failed: {exc}")
+            return self._stop(Status.FAILURE, f"calling the policy service '{c.policy_service_name}' failed: {exc}",
+                              FailureKind.POLICY_ERROR)
         self.latency.update(now - flight.sent_at_s)
         self.metrics.latencies.append(now - flight.sent_at_s)
         self._note_chunk_size(response)
@@ -343,17 +401,17 @@ class ExecutePolicy(Behavior):
         if response.status == GetActionChunk.Response.NO_MORE_ACTIONS:
             return self._stop(Status.SUCCESS, f"the policy has no more actions: {response.message}".rstrip(": "))
         if response.status != GetActionChunk.Response.CHUNK_PRODUCED:
-            return self._stop(Status.FAILURE, self._status_reason(response, f"chunk {self.metrics.chunks + 1}"))
+            return self._stop(Status.FAILURE, self._status_reason(response, f"chunk {self.metrics.chunks + 1}"), FailureKind.POLICY_ERROR)
         self.metrics.chunks += 1
         self._check_period(response.native_control_period)
         try:
             chunk = read_chunk(response.chunk, self.safety.group_joints, c.gripper_joint_name or None)
             chunk = Chunk(chunk.arm, self.safety.settle_gripper_column(chunk.gripper))
         except ChunkError as err:
-            return self._reject(f"chunk {self.metrics.chunks} rejected: {err}")
+            return self._reject(f"chunk {self.metrics.chunks} rejected: {err}", FailureKind.MALFORMED_CHUNK.value)
         problem = cfg.committed_window_problem(c.committed_action_steps, chunk.steps) if self.metrics.chunks == 1 else None
         if problem is not None:
-            return self._reject(f"chunk 1 rejected: {problem}")
+            return self._reject(f"chunk 1 rejected: {problem}", SHORT_CHUNK)
         self.late_retries = 0
         return self._plan_and_send(HeldChunk(chunk, response, flight), now)
 
@@ -380,7 +438,7 @@ class ExecutePolicy(Behavior):
                             goal_takes_effect_s(now, self.context.tick_period_s, self.goal_latency_s)),
         ))
         if isinstance(plan, Reject):
-            return self._reject(plan.reason)
+            return self._reject(plan.reason, plan.kind)
         if not isinstance(plan, Planned):  # Wait
             self.held = held
             return None
@@ -395,7 +453,7 @@ class ExecutePolicy(Behavior):
         self.metrics.stall_seconds += plan.stall_s
         # Kept until the controller accepts the seam: a goal refused only for arriving late is
         # planned again from the same chunk (see _retry_late_goal).
-        self.rollback = Rollback(held, self._committed(), self.goal, plan.stall_s)
+        self.rollback = Rollback(held, self._committed(), self.goal, plan.stall_s, window.index, plan.takes_over_s)
         self.checked_scene = self._scene_state()  # what the samples were checked against
         self.goal = Goal.send(self.controller, self._goal(samples, plan.takes_over_s), now)
         self.committed = plan.committed
@@ -428,14 +486,15 @@ class ExecutePolicy(Behavior):
         if goal.state is GoalState.SENT:
             if not goal.send_future.done():
                 if self.context.clock.now() - goal.sent_at_s > GOAL_ACK_TIMEOUT_S:
-                    return self._stop(Status.FAILURE, f"the controller '{name}' did not acknowledge a goal within {GOAL_ACK_TIMEOUT_S:g} s")
+                    return self._stop(Status.FAILURE, f"the controller '{name}' did not acknowledge a goal within {GOAL_ACK_TIMEOUT_S:g} s",
+                                      FailureKind.CONTROLLER)
                 return None
             # arrival, not when we looked
             self.goal_latency_s = max(self.goal_latency_s, goal.send_future.ready_at - goal.sent_at_s)
         self.goal = goal.advance()
         if self.goal.state is GoalState.REJECTED:
             self.goal = Goal()  # nothing of it is playing
-            return self._stop(Status.FAILURE, f"the controller '{name}' rejected the goal")
+            return self._stop(Status.FAILURE, f"the controller '{name}' rejected the goal", FailureKind.CONTROLLER)
         if self.goal.state is GoalState.ENDED and goal.state is not GoalState.ENDED:  # its result came now
             outcome = self.goal.outcome
             if outcome.status == STATUS_ABORTED or outcome.result.error_code not in (0,):
@@ -443,9 +502,9 @@ class ExecutePolicy(Behavior):
                     return None
                 if self._retry_late_goal(outcome.result):
                     return None
-                return self._stop(Status.FAILURE, f"the controller aborted the motion: {outcome.result.error_string}")
+                return self._stop(Status.FAILURE, f"the controller aborted the motion: {outcome.result.error_string}", FailureKind.CONTROLLER)
             if outcome.status != STATUS_SUCCEEDED:
-                return self._stop(Status.FAILURE, f"the controller ended the motion: {outcome.result.error_string}")
+                return self._stop(Status.FAILURE, f"the controller ended the motion: {outcome.result.error_string}", FailureKind.CONTROLLER)
         return None
 
     def _retry_late_goal(self, result: Any) -> bool:
@@ -464,13 +523,15 @@ class ExecutePolicy(Behavior):
         self.context.events.emit("chunk_rolled_back", self.name, stall_s=sent.stall_s)
         if sent.goal.state is GoalState.PLAYING:  # still playing (or its result is waiting to be read)
             self.goal = sent.goal
+        late = (f"chunk {sent.chunk_index}'s goal reached the controller after t={sent.takes_over_s:.2f} s, the moment "
+                f"it was meant to take over, so the controller went on with what it was playing")
         if self.held is not None:
             # A newer chunk arrived while this goal was unanswered: it takes over from what the
             # arm actually does, and the refused one is dropped.
-            self._warn(f"the controller received a goal after its seam ({result.error_string}); the next chunk takes over")
+            self._warn(f"{late}; the next chunk, already here, is planned from what the arm is doing")
             return True
         self.held = sent.held  # planned again next tick
-        self._warn(f"the controller received a goal after its seam ({result.error_string}); planning the chunk again")
+        self._warn(f"{late}; the chunk is planned again from what the arm is doing")
         return True
 
     def _queue_gripper(self, chunk: Chunk, window: Window) -> None:
@@ -501,23 +562,27 @@ class ExecutePolicy(Behavior):
         self.metrics.steps_executed = max(self.metrics.steps_executed, committed.grid.steps_executed_by(now))
 
     # -- endings -----------------------------------------------------------------------------
-    def _reject(self, reason: str) -> Status:
+    def _reject(self, reason: str, kind: str) -> Status:
+        """End the run with a rejected chunk; ``kind`` is a ``CheckKind``'s value, ``SHORT_CHUNK``
+        or ``FailureKind.MALFORMED_CHUNK``'s."""
         self.metrics.rejections += 1
-        self.rejection = reason
-        self.context.events.emit("chunk_rejected", self.name, reason=reason)
-        return self._stop(Status.FAILURE, reason)
+        self.rejection = self.metrics.rejection_reason = reason
+        self.context.events.emit("chunk_rejected", self.name, reason=reason, failure_kind=kind)
+        return self._stop(Status.FAILURE, reason, kind)
 
-    def _stop(self, status: Status, message: str) -> Status:
+    def _stop(self, status: Status, message: str, kind: FailureKind | str | None = None) -> Status:
         stall_s = stall_at_stop_s(self.committed, self.context.clock.now())
         self.metrics.stall_seconds += stall_s
         self._cancel_goals()
-        return self._finish(status, message, stall_s)
+        return self._finish(status, message, kind, stall_s)
 
-    def _finish(self, status: Status, message: str, stall_s: float = 0.0) -> Status:
-        """End the run; ``stall_s``: how long the arm had been waiting for a chunk when it ended."""
+    def _finish(self, status: Status, message: str, kind: FailureKind | str | None = None, stall_s: float = 0.0) -> Status:
+        """End the run with ``status``; a FAILURE says its ``kind`` (``Behavior.failure_kind``);
+        ``stall_s``: how long the arm had been waiting for a chunk when it ended."""
         self.phase = Phase.DONE
-        self.message = message
+        self.message = self.metrics.message = message
         self.feedback_message = message
+        self.failure_kind = kind.value if isinstance(kind, FailureKind) else kind
         self._write_outputs()
         self.context.events.emit("policy_finished", self.name, status=status.value, message=message, stall_s=stall_s)
         if status is Status.SUCCESS:
@@ -568,6 +633,14 @@ class ExecutePolicy(Behavior):
         if not joint or state is None or joint not in state.name:
             return None
         return float(state.position[list(state.name).index(joint)])
+
+    def _policy_hint(self) -> str:
+        """What to do about a missing policy service, in the mode this run is in."""
+        served = getattr(self.context.bus, "served", None)
+        if not callable(served):  # a ROS 2 graph: the adapter serves the policy
+            return "start the adapter (`objective adapter`) before running the Objective"
+        names = ", ".join(sorted(served())) or "none"
+        return f"in this run the world serves the policy chosen with --policy; services here: {names}"
 
     def _status_reason(self, response: Any, what: str) -> str:
         names = {0: "UNKNOWN", 1: "CHUNK_PRODUCED", 2: "NO_MORE_ACTIONS", 3: "ERROR"}

@@ -1,10 +1,11 @@
 """Where a point is checked: the chunk's values against the joints' position limits, and every
 densified point against the position, velocity and acceleration limits and the planning scene
 (self-collision, and world collision with ``link_padding``). Each check returns why the points
-fail as a sentence naming the run's policy step, or None.
+fail, a ``CheckFailure`` (its kind, and a sentence naming the run's policy step), or None.
 """
 from __future__ import annotations
 
+import enum
 from dataclasses import dataclass
 from typing import Any
 
@@ -16,6 +17,37 @@ from .shaping import Samples
 from .stream import StepGrid, Window
 
 
+class CheckKind(enum.Enum):
+    """Which check a point failed: what an evaluation groups rejected chunks by."""
+
+    POSITION_LIMIT = "position limit"
+    VELOCITY_LIMIT = "velocity limit"
+    ACCELERATION_LIMIT = "acceleration limit"
+    SELF_COLLISION = "self collision"
+    WORLD_COLLISION = "world collision"
+
+    @classmethod
+    def of_limit(cls, quantity: str) -> CheckKind:
+        """The kind of a ``LimitViolation`` of ``quantity`` (position, velocity, acceleration)."""
+        return cls(f"{quantity} limit")
+
+    @classmethod
+    def of_collision(cls, kind: str) -> CheckKind:
+        """The kind of a ``CollisionResult`` of ``kind`` (self, world)."""
+        return cls(f"{kind} collision")
+
+
+@dataclass(frozen=True)
+class CheckFailure:
+    """Why points fail a check: its kind and the sentence that says where (``str()`` gives it)."""
+
+    kind: CheckKind
+    message: str
+
+    def __str__(self) -> str:
+        return self.message
+
+
 @dataclass(frozen=True)
 class PointChecks:
     safety: MotionSafety
@@ -24,26 +56,28 @@ class PointChecks:
     gripper_position: float | None  # of the gripper joint now: the collision geometry's fingers
     grid: StepGrid
 
-    def values(self, chunk: Chunk, window: Window) -> str | None:
+    def values(self, chunk: Chunk, window: Window) -> CheckFailure | None:
         """The values the window is built from, as the policy sent them (the gripper column too)."""
         last = window.end_step - window.request_step + 1
         outside = self.safety.first_value_out_of_limits(chunk.arm[:last], None if chunk.gripper is None else chunk.gripper[:last])
-        return None if outside is None else f"{outside} (policy step {window.request_step + outside.step} of the run)"
+        if outside is None:
+            return None
+        return CheckFailure(CheckKind.of_limit(outside.quantity), f"{outside} (policy step {window.request_step + outside.step} of the run)")
 
-    def limits(self, samples: Samples, window: Window) -> str | None:
+    def limits(self, samples: Samples, window: Window) -> CheckFailure | None:
         violation = self.safety.first_limit_violation(samples)
         if violation is None:
             return None
         step = window.request_step + int(np.floor((violation.time - self.grid.time(window.request_step)) / self.grid.dt + 1e-9))
-        return f"densified {violation} (policy step {step} of the run)"
+        return CheckFailure(CheckKind.of_limit(violation.quantity), f"densified {violation} (policy step {step} of the run)")
 
-    def path(self, samples: Samples, window: Window) -> str | None:
+    def path(self, samples: Samples, window: Window) -> CheckFailure | None:
         """Limits first, then collisions."""
         violation = self.limits(samples, window)
         if violation is not None:
             return violation
         return self.collision(samples)
 
-    def collision(self, samples: Samples) -> str | None:
+    def collision(self, samples: Samples) -> CheckFailure | None:
         hit = self.safety.first_collision(self.rules, samples, self.link_padding_m, self.gripper_position)
-        return None if hit is None else f"densified {hit}"
+        return None if hit is None else CheckFailure(CheckKind.of_collision(hit.kind), f"densified {hit}")

@@ -12,8 +12,10 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from runtime.errors import ObjectiveError
 
-class ChunkError(ValueError):
+
+class ChunkError(ObjectiveError, ValueError):
     """The chunk breaks the contract; the message says how."""
 
 

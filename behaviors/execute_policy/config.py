@@ -3,14 +3,22 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Any
 
-from runtime.ports import InputPort, OutputPort, PortType, Range
+from control_msgs.action import GripperCommand
+from moveit_pro_controllers_msgs.action import FollowJointTrajectoryWithAdmittance
+from moveit_pro_ml_msgs.srv import GetActionChunk
+
+from runtime.ports import InputPort, NameKind, Names, OutputPort, PortType, Range
+from runtime.errors import ObjectiveError
 
 DEFAULT_CONTROLLER_ACTION = "/joint_trajectory_admittance_controller/follow_joint_trajectory"
 
 PORTS = (
-    InputPort("policy_service_name", PortType.STRING, description="GetActionChunk service that serves the policy."),
-    InputPort("joint_group_name", PortType.STRING, description="SRDF joint group the policy commands; must resolve to one tip."),
+    InputPort("policy_service_name", PortType.STRING, description="GetActionChunk service that serves the policy.",
+              names=Names(NameKind.SERVICE, GetActionChunk)),
+    InputPort("joint_group_name", PortType.STRING, description="SRDF joint group the policy commands; must resolve to one tip.",
+              names=Names(NameKind.JOINT_GROUP)),
     InputPort("total_action_steps", PortType.UINT, description="Run length in policy steps; the motion lasts total_action_steps * dt seconds.", valid=Range(1, 1_000_000)),
     InputPort("prompt", PortType.STRING, "", "Task instruction passed to the policy."),
     InputPort("dt", PortType.FLOAT, 0.05, "Seconds per policy step: 1 / the rate the policy was trained at.", valid=Range(0.001, 10.0, "s")),
@@ -21,10 +29,14 @@ PORTS = (
     InputPort("policy_uses_real_time_chunking", PortType.BOOL, False, "Send the unexecuted tail of the previous policy_action_chunk for RTC guidance."),
     InputPort("policy_call_timeout", PortType.FLOAT, 3.0, "Seconds allowed for one service round trip, warmup included.", valid=Range(0.0, 600.0, "s", min_open=True)),
     InputPort("goal_path_tolerance", PortType.FLOAT, 0.01, "Radians of deviation the controller accepts along the path and where chunks join.", valid=Range(0.0, math.pi, "rad")),
-    InputPort("absolute_force_torque_threshold", PortType.FLOAT_LIST, "45;45;45;10;10;10", "Per-axis abort limits Fx;Fy;Fz;Tx;Ty;Tz (N, Nm).", valid=Range(0.0, 100_000.0, "N or Nm", min_open=True)),
-    InputPort("controller_action_name", PortType.STRING, DEFAULT_CONTROLLER_ACTION, "The admittance controller's FollowJointTrajectoryWithAdmittance action."),
-    InputPort("gripper_command_action_name", PortType.STRING, "", "GripperCommand action; set together with gripper_joint_name."),
-    InputPort("gripper_joint_name", PortType.STRING, "", "Single-DOF gripper joint appended to the observation and streamed from the chunk."),
+    InputPort("absolute_force_torque_threshold", PortType.FLOAT_LIST, "45;45;45;10;10;10", "Per-axis abort limits Fx;Fy;Fz;Tx;Ty;Tz (N, Nm).", valid=Range(0.0, 100_000.0, "N or Nm", min_open=True),
+              length=6),
+    InputPort("controller_action_name", PortType.STRING, DEFAULT_CONTROLLER_ACTION, "The admittance controller's FollowJointTrajectoryWithAdmittance action.",
+              names=Names(NameKind.ACTION, FollowJointTrajectoryWithAdmittance)),
+    InputPort("gripper_command_action_name", PortType.STRING, "", "GripperCommand action; set together with gripper_joint_name.",
+              names=Names(NameKind.ACTION, GripperCommand)),
+    InputPort("gripper_joint_name", PortType.STRING, "", "Single-DOF gripper joint appended to the observation and streamed from the chunk.",
+              names=Names(NameKind.JOINT)),
     InputPort("guidance_horizon", PortType.UINT, 0, "RTC: steps past the frozen prefix kept close to the previous chunk; 0 = the server's setting.", valid=Range(0, 10_000)),
     InputPort("image_topics", PortType.STRING_LIST, "", "Camera topics (sensor_msgs/Image), ';'-separated."),
     InputPort("image_names", PortType.STRING_LIST, "", "Names the policy knows the cameras by, index-aligned with image_topics."),
@@ -36,7 +48,7 @@ PORTS = (
 )
 
 
-class ConfigError(ValueError):
+class ConfigError(ObjectiveError, ValueError):
     pass
 
 
@@ -68,8 +80,14 @@ class PolicyRunConfig:
         return bool(self.gripper_joint_name)
 
 
-def validate(config: PolicyRunConfig) -> None:
-    """Raise ConfigError naming the port(s) when the combination cannot run."""
+COMBINED_PORTS = ("gripper_command_action_name", "gripper_joint_name", "image_topics", "image_names",
+                  "absolute_force_torque_threshold")
+"""The ports ``validate`` checks together (the rest is checked port by port)."""
+
+
+def validate(config: PolicyRunConfig | Any) -> None:
+    """Raise ConfigError naming the port(s) when the combination cannot run (``config``: anything
+    with the ``COMBINED_PORTS`` as attributes)."""
     if bool(config.gripper_command_action_name) != bool(config.gripper_joint_name):
         given, missing = (
             ("gripper_joint_name", "gripper_command_action_name")

@@ -7,8 +7,10 @@ import numpy as np
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 
+from runtime.errors import ObjectiveError
 
-class ObservationError(ValueError):
+
+class ObservationError(ObjectiveError, ValueError):
     pass
 
 

@@ -16,18 +16,22 @@ from typing import Protocol
 
 import numpy as np
 
+from .checks import CheckFailure
 from .chunk import Chunk
 from .shaping import NO_TAIL, ChunkMotion, Samples, Tail, densify, fit_chunk, join_at_seam, plan_tail, runout_chunk_steps
 from .states import Committed, GoalState
 from .stream import StepGrid, Window, WindowError, drained_seconds
 
+SHORT_CHUNK = "chunk too short"
+"""The kind of a rejected chunk with nothing left to execute after its seam (``WindowError``)."""
+
 
 class Checks(Protocol):
     """The point checks a plan must pass; each returns why it fails, or None."""
 
-    def values(self, chunk: Chunk, window: Window) -> str | None: ...
-    def limits(self, samples: Samples, window: Window) -> str | None: ...
-    def path(self, samples: Samples, window: Window) -> str | None: ...
+    def values(self, chunk: Chunk, window: Window) -> CheckFailure | None: ...
+    def limits(self, samples: Samples, window: Window) -> CheckFailure | None: ...
+    def path(self, samples: Samples, window: Window) -> CheckFailure | None: ...
 
 
 @dataclass(frozen=True)
@@ -77,6 +81,8 @@ class Wait:
 @dataclass(frozen=True)
 class Reject:
     reason: str
+    kind: str
+    """What kind of rejection (a ``CheckKind``'s value, or ``SHORT_CHUNK``)."""
 
 
 @dataclass(frozen=True)
@@ -114,10 +120,10 @@ def _plan(inp: PlanInput, from_rest: Arrival | None) -> Planned | Wait | Reject:
                                   runout_reserve=runout_chunk_steps(nominal_runout_s(c), c.dt),
                                   arrival_step=window_arrival_step(from_rest, grid, inp.earliest_seam_step))
     except WindowError as err:
-        return Reject(f"chunk {index} rejected: {err}")
+        return Reject(f"chunk {index} rejected: {err}", SHORT_CHUNK)
     outside = inp.checks.values(chunk, window)
     if outside is not None:
-        return Reject(f"chunk {index} rejected: {outside}")
+        return Reject(f"chunk {index} rejected: {outside}", outside.kind.value)
     seam_time = grid.time(window.seam_step)
     if previous is not None and seam_time > previous.rest_time + 1e-9 and inp.goal is not GoalState.ENDED:
         # Too late to join the motion the controller is still playing (its runout included): a
@@ -143,7 +149,7 @@ def _plan(inp: PlanInput, from_rest: Arrival | None) -> Planned | Wait | Reject:
     # A chunk over the limits on its own is the policy's; the join is planned within them.
     reason = inp.checks.limits(densify(motion.chunk_alone(), c.num_interpolation_points), window)
     if reason is not None:
-        return Reject(f"chunk {index} rejected: {reason}")
+        return Reject(f"chunk {index} rejected: {reason}", reason.kind.value)
     samples = densify(motion, c.num_interpolation_points)
     reason = inp.checks.path(samples, window)
     for shorter in shorter_tails(tail) if reason is not None else ():
@@ -156,7 +162,7 @@ def _plan(inp: PlanInput, from_rest: Arrival | None) -> Planned | Wait | Reject:
             motion, samples, reason, tail = candidate, candidate_samples, None, shorter
             break
     if reason is not None:
-        return Reject(f"chunk {index} rejected: {reason}")
+        return Reject(f"chunk {index} rejected: {reason}", reason.kind.value)
     stall = drained_seconds(None if previous is None else previous.full_speed_end, seam_time)
     new_grid = grid.commit(window, tail, chunk.steps)
     return Planned(window, seam_time, Committed(new_grid, motion, samples), stall, takes_over)

@@ -87,6 +87,8 @@ class Rollback:
     committed: Committed
     goal: Goal
     stall_s: float  # the stall its plan counted: a rollback takes it back
+    chunk_index: int = 0
+    takes_over_s: float = 0.0  # when the chunk's goal was meant to take over (its stamp)
 
 
 def stream_state(held: HeldChunk | None, request: InFlight | None) -> StreamState:

@@ -12,6 +12,8 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from runtime.errors import ObjectiveError
+
 from .shaping import NO_TAIL, RUNOUT_SLOWDOWN, Tail, runout_warp
 
 
@@ -76,7 +78,7 @@ def drained_seconds(motion_end: float | None, until: float) -> float:
     return 0.0 if motion_end is None else max(0.0, until - motion_end)
 
 
-class WindowError(ValueError):
+class WindowError(ObjectiveError, ValueError):
     pass
 
 

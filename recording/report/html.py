@@ -66,9 +66,14 @@ def _summary_table(recording: Recording) -> str:
         ("seed", started["data"].get("seed") if started else None),
     ]
     policy = s.get("execute_policy") or {}
-    for key in ("chunks", "steps_executed", "stall_seconds", "rejections", "latency_p50_s", "latency_p95_s",
+    for key in ("run_count", "chunks", "steps_executed", "stall_seconds", "rejections", "latency_p50_s", "latency_p95_s",
                 "latency_max_s", "message", "rejection_reason"):
-        pairs.append((f"ExecutePolicy {key.replace('_', ' ')}", policy.get(key)))
+        pairs.append((f"ExecutePolicy {key.replace('_', ' ').replace('run count', 'runs')}", policy.get(key)))
+    runs = policy.get("runs") or []
+    for i, run in enumerate(runs if len(runs) > 1 else [], start=1):
+        pairs.append((f"ExecutePolicy run {i} ({run.get('node')})",
+                      f"{run.get('chunks')} chunks, {run.get('steps_executed')} steps, "
+                      f"{run.get('stall_seconds')} s stalled: {run.get('message')}"))
     for warning in policy.get("warnings") or []:
         pairs.append(("ExecutePolicy warning", warning))
     return f"<table>{_rows(pairs)}</table>"

@@ -24,6 +24,7 @@ from typing import Sequence
 
 import numpy as np
 import yaml
+from ..errors import OptionError
 
 
 @dataclass(frozen=True)
@@ -152,26 +153,26 @@ def load_joint_limits(path: str | os.PathLike, position_limits: dict[str, tuple[
         doc = yaml.safe_load(f) or {}
     table = doc.get("joint_limits", {})
     if not isinstance(table, dict):
-        raise ValueError(f"{path}: 'joint_limits' must be a mapping of joint name -> limits")
+        raise OptionError(f"{path}: 'joint_limits' must be a mapping of joint name -> limits")
     unknown = set(table) - set(position_limits)
     if unknown:
-        raise ValueError(f"{path}: joint_limits names joints the model does not have: {sorted(unknown)}")
+        raise OptionError(f"{path}: joint_limits names joints the model does not have: {sorted(unknown)}")
     out = []
     for name, (lower, upper) in position_limits.items():
         entry = table.get(name) or {}
         if not isinstance(entry, dict):
-            raise ValueError(f"{path}: joint_limits.{name} must be a mapping")
+            raise OptionError(f"{path}: joint_limits.{name} must be a mapping")
 
         def number(key: str) -> float:
             try:
                 value = float(entry[key])
             except KeyError:
-                raise ValueError(f"{path}: joint_limits.{name} sets has_{key.split('_')[1]}_limits but no {key}") from None
+                raise OptionError(f"{path}: joint_limits.{name} sets has_{key.split('_')[1]}_limits but no {key}") from None
             except (TypeError, ValueError):
-                raise ValueError(f"{path}: joint_limits.{name}.{key} is not a number: {entry[key]!r}") from None
+                raise OptionError(f"{path}: joint_limits.{name}.{key} is not a number: {entry[key]!r}") from None
             if key.startswith("max_v") or key.startswith("max_a"):
                 if value <= 0:
-                    raise ValueError(f"{path}: joint_limits.{name}.{key} must be positive, got {value}")
+                    raise OptionError(f"{path}: joint_limits.{name}.{key} must be positive, got {value}")
             return value
 
         if entry.get("has_position_limits"):

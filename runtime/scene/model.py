@@ -24,11 +24,12 @@ import yaml
 
 from .hulls import with_convex_hulls
 from .srdf import Srdf, SrdfGroup, parse_srdf
+from ..errors import ObjectiveError
 
 WORLD_LINK = "universe"
 
 
-class GroupError(ValueError):
+class GroupError(ObjectiveError, ValueError):
     """A joint group that is unknown or cannot be used as asked (e.g. it has two tips)."""
 
 

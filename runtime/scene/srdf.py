@@ -13,8 +13,10 @@ from pathlib import Path
 
 from lxml import etree
 
+from ..errors import ObjectiveError
 
-class SrdfError(ValueError):
+
+class SrdfError(ObjectiveError, ValueError):
     """A malformed SRDF; the message names the file and line."""
 
 

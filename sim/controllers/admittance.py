@@ -57,6 +57,7 @@ from moveit_pro_controllers_msgs.action import FollowJointTrajectoryWithAdmittan
 from runtime.timestamps import time_msg, to_seconds
 from runtime.bus import Bus, ServerGoalHandle
 from runtime.clock import Clock
+from runtime.errors import ObjectiveError
 
 from ..hardware import Hardware
 from .base import FT_STATE_INTERFACES, Controller, ControllersConfig, arm_command_interfaces, arm_state_interfaces
@@ -78,7 +79,7 @@ Action = FollowJointTrajectoryWithAdmittance
 Result = FollowJointTrajectoryWithAdmittance.Result
 
 
-class GoalError(ValueError):
+class GoalError(ObjectiveError, ValueError):
     """A goal that cannot be executed, with the error_code to report."""
 
     def __init__(self, code: int, message: str) -> None:

@@ -23,12 +23,13 @@ import numpy as np
 
 from runtime import seam_blend
 from runtime.seam_blend import blend_offset
+from runtime.errors import ObjectiveError
 
 TIME_EPS = 1e-6  # seconds: stamps travel as integer nanoseconds, rounded on both sides
 """Seconds within which two instants are the same (seam exactly at a point, at the end)."""
 
 
-class SeamError(ValueError):
+class SeamError(ObjectiveError, ValueError):
     """A new trajectory cannot take over from the current one at the requested seam."""
 
 

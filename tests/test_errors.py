@@ -1,0 +1,119 @@
+"""One root error: the user's mistakes (ERROR, exit 2, "error:") apart from the project's bugs
+("internal error:", pointing at the crash report); failures grouped by their kind, not their text."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from types import SimpleNamespace
+
+import pytest
+
+import runtime.runner as runner
+from runtime.cli import main
+from runtime.errors import INTERNAL, InternalError, ObjectiveError, ObjectiveRuntimeError, OptionError, SetupError
+from tests.data.nodes import make_registry
+
+
+@pytest.fixture(scope="module")
+def registry():
+    return make_registry()
+
+
+def robot_tree(tmp_path: Path) -> Path:
+    path = tmp_path / "t.xml"
+    path.write_text('<root BTCPP_format="4">\n  <BehaviorTree ID="T">\n    <Robot/>\n  </BehaviorTree>\n</root>\n')
+    return path
+
+
+def with_world(monkeypatch, create) -> None:
+    """Install ``create`` as the only world, named ``w``."""
+    point = SimpleNamespace(name="w", load=lambda: create)
+    monkeypatch.setattr(runner, "entry_points", lambda group: [point])
+
+
+def test_every_error_class_of_the_project_derives_from_the_root():
+    from behaviors.execute_policy.chunk import ChunkError
+    from behaviors.execute_policy.config import ConfigError
+    from behaviors.poses import FrameError
+    from policy.wire import WireError
+    from runtime.ports import ConversionError
+    from runtime.scene.model import GroupError
+    from sim.controllers.admittance import GoalError
+
+    for cls in (ChunkError, ConfigError, FrameError, WireError, ConversionError, GroupError, GoalError, OptionError,
+                SetupError):
+        assert issubclass(cls, ObjectiveError) and issubclass(cls, ObjectiveRuntimeError), cls
+    assert issubclass(InternalError, ObjectiveRuntimeError) and not issubclass(InternalError, ObjectiveError)
+
+
+def test_a_world_that_refuses_an_option_is_bad_input(registry, tmp_path, monkeypatch, capsys):
+    def create(options):
+        raise OptionError("option 'image_size' must be a whole number, got 'big'")
+
+    with_world(monkeypatch, create)
+    code = main(["run", str(robot_tree(tmp_path)), "--world", "w", "--json"], registry=registry)
+    out, err = capsys.readouterr()
+    assert code == 2
+    assert err == "error: world 'w': option 'image_size' must be a whole number, got 'big'\n"
+    assert json.loads(out.splitlines()[-1])["failure_kind"] == "OptionError"
+
+
+def test_a_bug_in_a_world_is_an_internal_error_never_the_users_mistake(registry, tmp_path, monkeypatch, capsys):
+    def create(options):
+        return [][0] if options else None  # a bug: IndexError; a ValueError would be one just the same
+
+    def create_value_error(options):
+        raise ValueError("could not broadcast input array from shape (3,) into shape (4,)")
+
+    for broken in (create, create_value_error):
+        with_world(monkeypatch, broken)
+        monkeypatch.chdir(tmp_path)
+        code = main(["run", str(robot_tree(tmp_path)), "--world", "w", "--json"], registry=registry)
+        out, err = capsys.readouterr()
+        summary = json.loads(out.splitlines()[-1])
+        assert code == 2 and summary["failure_kind"] == INTERNAL
+        assert err.startswith("internal error: an unexpected ") and "Traceback" not in err
+        assert err.rstrip().endswith("(a bug: please report it with that file)")
+        assert "the full traceback is in build/logs/objective-" in err
+
+
+def test_a_world_option_that_is_not_a_number_is_bad_input_not_a_crash():
+    from sim.world import number_option
+
+    with pytest.raises(OptionError, match=r"^option 'image_size' must be a whole number, got 'big'$"):
+        number_option({"image_size": "big"}, "image_size", 224, int)
+    assert number_option({"image_size": "64"}, "image_size", 224, int) == 64
+    assert number_option({}, "camera_rate_hz", 10.0) == 10.0
+
+
+def test_a_rejected_chunk_says_which_check_it_failed():
+    from behaviors.execute_policy.checks import CheckFailure, CheckKind
+
+    assert CheckKind.of_limit("velocity") is CheckKind.VELOCITY_LIMIT
+    assert CheckKind.of_collision("world") is CheckKind.WORLD_COLLISION
+    failure = CheckFailure(CheckKind.ACCELERATION_LIMIT, "densified step 3: joint j acceleration 9 exceeds the limit 5")
+    assert f"chunk 6 rejected: {failure}" == "chunk 6 rejected: densified step 3: joint j acceleration 9 exceeds the limit 5"
+
+
+def test_evaluation_groups_failures_by_their_kind_not_their_text():
+    from evaluation.episode import WORKER_LOST, EpisodeRecord, EpisodeStatus
+    from evaluation.stats import failure_groups
+
+    def failed(seed: int, reason: str, kind: str | None, node: str | None = "ExecutePolicy") -> EpisodeRecord:
+        return EpisodeRecord(seed=seed, status=EpisodeStatus.FAILURE, reason=reason, failing_node=node, failure_kind=kind)
+
+    records = [
+        failed(1, "chunk 6 rejected: densified step 3: joint shoulder_lift_joint velocity 3.2 exceeds 3.1", "velocity limit"),
+        failed(2, "chunk 9 rejected: densified step 7: joint wrist_1_joint velocity 3.4 exceeds 3.1", "velocity limit"),
+        failed(3, "chunk 6 rejected: densified step 3: joint shoulder_lift_joint acceleration 12 exceeds 10", "acceleration limit"),
+        failed(4, "cube 0.02 m off", None, "top cube on bottom cube"),
+        EpisodeRecord.error(5, "its worker died (signal SIGABRT); 2 attempts, each lost its worker", kind=WORKER_LOST),
+    ]
+    groups = failure_groups(records)
+    assert [(g["failure_kind"], g["reason"], g["seeds"]) for g in groups] == [
+        ("velocity limit", "velocity limit", [1, 2]),
+        ("worker lost", "worker lost", [5]),
+        ("acceleration limit", "acceleration limit", [3]),
+        (None, "cube 0.02 m off", [4]),
+    ]
+    assert groups[0]["example"].startswith("chunk 6 rejected: densified step 3: joint shoulder_lift_joint velocity")
