@@ -1,7 +1,8 @@
 """Property: whatever chunks a policy sends, nothing unsafe reaches the controller.
 
-Random chunks (values near and beyond the joint limits, NaN/inf, wrong shapes, wrong/permuted/
-duplicated names, huge steps, motions into the table, arms starting next to a limit) go through
+Random chunks (values near and beyond the joint limits, NaN/inf, wrong shapes, lengths up to and
+beyond ``MAX_CHUNK_STEPS``, wrong/permuted/duplicated names, huge steps, motions into the table,
+arms starting next to a limit) go through
 the real ExecutePolicy (loaded from XML, ticked by the real runner) on an in-process bus, against
 a recording controller. Checked on every run:
 
@@ -35,6 +36,7 @@ from moveit_pro_ml_msgs.srv import GetActionChunk
 from sensor_msgs.msg import JointState
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
+from behaviors.execute_policy.chunk import MAX_CHUNK_STEPS
 from behaviors.execute_policy.shaping import Samples
 from behaviors.safety import make_safety
 from runtime.bus import FixedLatency
@@ -161,7 +163,7 @@ def chunk_spec(draw: Any) -> dict[str, Any]:
     """A recipe for one chunk; built against the observed state when the policy is called."""
     return {
         "kind": draw(st.sampled_from(KINDS)),
-        "steps": draw(st.one_of(st.integers(1, 60), st.sampled_from([0, 1, 2, 3, 50]))),
+        "steps": draw(st.one_of(st.integers(1, 60), st.sampled_from([0, 1, 2, 3, 50, 1000, MAX_CHUNK_STEPS + 1]))),
         "velocity": draw(st.lists(st.floats(-2.0, 2.0), min_size=6, max_size=6)),
         "joint": draw(st.integers(0, 5)),
         "at": draw(st.floats(0.0, 1.0)),

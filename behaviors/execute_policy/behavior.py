@@ -106,6 +106,9 @@ class ExecutePolicy(Behavior):
     )
 
     # -- lifecycle ---------------------------------------------------------------------------
+    def setup(self, **kwargs: Any) -> None:
+        import scipy.linalg  # noqa: F401  (the chunk fit's banded solver: loaded here, not in the first chunk's tick)
+
     def initialise(self) -> None:
         self.phase = Phase.STARTUP
         self.metrics = RunMetrics()
