@@ -55,6 +55,10 @@ MAX_ATTRIBUTE_CHARS = 65536
 MAX_ATTRIBUTES = 1000
 """Attributes per element: lxml reads an element's attribute values in time quadratic in their count."""
 MAX_NODES = 20000
+MAX_TREE_DEPTH = 150
+"""Nodes on the longest path from the root to a leaf once SubTrees are expanded (a SubTree node
+counts as one): ticking one level takes a few Python frames, so deeper trees would stop on
+Python's recursion limit in the middle of a run."""
 """Bound on nodes after SubTree expansion: nested SubTrees used several times grow exponentially."""
 
 METADATA_ATTRIBUTES = frozenset({"_description", "_favorite", "_collapsed", "_uid", "_fullpath", "_external"})
@@ -458,22 +462,27 @@ class _Builder:
         return None
 
     # -- construction ---
-    def build_tree(self, tree: TreeDef, blackboard: Blackboard, stack: list[tuple[str, str]]) -> py_trees.behaviour.Behaviour:
+    def build_tree(self, tree: TreeDef, blackboard: Blackboard, stack: list[tuple[str, str]], depth: int = 0) -> py_trees.behaviour.Behaviour:
         children = _elements(tree.element)
         if len(children) != 1:
             raise LoadError(f"a BehaviorTree has exactly one root node, got {len(children)}", tree.location, tree.id)
-        return self.build_node(children[0], tree.document, tree.location.file, blackboard, stack)
+        return self.build_node(children[0], tree.document, tree.location.file, blackboard, stack, depth)
 
     def build_node(
-        self, element: Any, doc: Document, file: str, blackboard: Blackboard, stack: list[tuple[str, str]]
+        self, element: Any, doc: Document, file: str, blackboard: Blackboard, stack: list[tuple[str, str]], depth: int = 0
     ) -> py_trees.behaviour.Behaviour:
-        """Build ``element`` (written in ``file``, part of ``doc``) and its children."""
+        """Build ``element`` (written in ``file``, part of ``doc``, with ``depth`` ancestors) and its children."""
         loc = SourceLocation(file, element.sourceline or 0)
         tag = element.tag
         if len(self.nodes) >= MAX_NODES:
             raise LoadError(f"the tree has more than {MAX_NODES} nodes after expanding SubTrees", loc, str(tag))
+        if depth >= MAX_TREE_DEPTH:
+            trees = [tid for _, tid in stack]
+            chain = " -> ".join(trees if len(trees) <= 6 else [*trees[:3], "...", *trees[-3:]])
+            raise LoadError(f"the tree nests more than {MAX_TREE_DEPTH} nodes deep after expanding SubTrees "
+                            f"({len(trees)} trees deep: {chain})", loc, str(tag))
         if tag == "SubTree":
-            return self.build_subtree(element, doc, blackboard, stack, loc)
+            return self.build_subtree(element, doc, blackboard, stack, loc, depth)
         attrs = dict(element.attrib)
         if tag in EXPLICIT_TAGS:
             node_id = attrs.pop("ID", None)
@@ -513,11 +522,11 @@ class _Builder:
         if problem:
             raise LoadError(problem, loc, node_id)
         for child_el in children:
-            node.add_child(self.build_node(child_el, doc, file, blackboard, stack))
+            node.add_child(self.build_node(child_el, doc, file, blackboard, stack, depth + 1))
         return self._with_conditions(node, conditions, loc, node_id)
 
     def build_subtree(
-        self, element: Any, doc: Document, blackboard: Blackboard, stack: list[tuple[str, str]], loc: SourceLocation
+        self, element: Any, doc: Document, blackboard: Blackboard, stack: list[tuple[str, str]], loc: SourceLocation, depth: int
     ) -> py_trees.behaviour.Behaviour:
         attrs = dict(element.attrib)
         tree_id = attrs.pop("ID", None)
@@ -566,7 +575,7 @@ class _Builder:
         node.child_blackboard = child_bb
         node.remapping, node.literals, node.autoremap = remapping, literals, autoremap
         self.nodes.append(LoadedNode(node, tree_id, NodeKind.SUBTREE, loc, dict(ports)))
-        node.add_child(self.build_tree(tree, child_bb, [*stack, key]))
+        node.add_child(self.build_tree(tree, child_bb, [*stack, key], depth + 1))
         return self._with_conditions(node, conditions, loc, tree_id)
 
     # -- helpers ---
