@@ -26,6 +26,10 @@ from .waiting import Deadline, when_ready
 
 DEFAULT_CONTROLLER = "/joint_trajectory_admittance_controller/follow_joint_trajectory"
 SAMPLE_PERIOD = 0.02
+NO_MOTION_S = 1e-6
+"""Seconds below which a planned motion has no length: the arm is already at the goal, and
+the motion is the goal alone (one point at time 0), which succeeds at once without a goal
+to the controller (a controller refuses points that share one ``time_from_start``)."""
 JERK_PER_ACCELERATION = 10.0  # 1/s: max jerk = 10 x max acceleration
 
 
@@ -41,7 +45,8 @@ def plan_point_to_point(
     acceleration_scale: float,
     period: float = SAMPLE_PERIOD,
 ) -> Samples:
-    """Rest-to-rest, time-optimal, jerk-limited motion from ``start`` to ``goal``, sampled."""
+    """Rest-to-rest, time-optimal, jerk-limited motion from ``start`` to ``goal``, sampled;
+    one point at time 0 when the arm is already at ``goal`` (see ``NO_MOTION_S``)."""
     for name, value in (("velocity_scaling", velocity_scale), ("acceleration_scaling", acceleration_scale)):
         if not 0 < value <= 1:
             raise PlanningError(f"{name} must be in (0, 1], got {value}")
@@ -57,6 +62,8 @@ def plan_point_to_point(
     result = otg.calculate(inp, trajectory)
     if result not in (Result.Working, Result.Finished):
         raise PlanningError(f"ruckig could not plan the motion: {result}")
+    if trajectory.duration < NO_MOTION_S:
+        return Samples.at_rest(goal)
     count = max(2, int(np.ceil(trajectory.duration / period)) + 1)
     times = np.linspace(0.0, trajectory.duration, count)
     states = [trajectory.at_time(t) for t in times]
@@ -123,6 +130,8 @@ class _MoveToJoints(SendsTrajectoryGoal):
             )
         except (PlanningError, SafetyError) as err:
             return self.fail(str(err))
+        if samples.duration_s == 0:
+            return Status.SUCCESS
         outside = self.safety.first_limit_violation(samples)
         if outside is not None:
             return self.fail(f"the motion is outside the joint limits: {outside}")

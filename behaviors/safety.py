@@ -13,11 +13,23 @@ from runtime.errors import ObjectiveError
 from .execute_policy.shaping import Samples
 
 
-GRIPPER_TARGET_TOLERANCE_RAD = 0.01
-"""A gripper target this close outside the gripper joint's limits is taken as the limit: a learned
-policy's gripper output is continuous and lands a hair beyond the range (-0.0002 rad from a
-LeRobot policy for "open"), where the fingers cannot go anyway. Further out it is the policy's
-error, and the chunk is rejected like an arm joint out of its limits."""
+GRIPPER_BAND_FRACTION = 0.1
+"""A gripper target at most this fraction of the gripper joint's range outside the range (0.08 rad
+on the cell's 0..0.8 rad) is clamped into it: a learned policy's gripper output is continuous and
+lands a little beyond the range (-0.056 rad from a LeRobot regression head for "open"), where the
+fingers cannot go anyway. Further out it is the policy's error, and the chunk is rejected like an
+arm joint out of its limits."""
+
+
+@dataclass(frozen=True)
+class SettledColumn:
+    """A chunk's gripper column after ``MotionSafety.settle_gripper_column``."""
+
+    values: np.ndarray | None
+    clamped: int
+    """How many targets were moved into the range."""
+    farthest_rad: float
+    """The largest distance outside the range among them (0 when none)."""
 
 
 class SafetyError(ObjectiveError, ValueError):
@@ -40,15 +52,31 @@ class MotionSafety:
         """Collision rules and attachments now; checks with it ignore later rule changes."""
         return self.scene.snapshot()
 
-    def settle_gripper_column(self, gripper: np.ndarray | None) -> np.ndarray | None:
-        """The gripper column with targets at most ``GRIPPER_TARGET_TOLERANCE_RAD`` outside the
-        gripper joint's limits moved onto the limit; values further out (or NaN) are left as
-        they are, for the limit check to reject."""
-        if gripper is None or self.gripper_joint is None:
-            return gripper
+    def gripper_band_rad(self) -> float:
+        """How far outside its range a gripper target is clamped (``GRIPPER_BAND_FRACTION``)."""
         limit = self.chunk_limits[self.gripper_joint]
-        near = (gripper >= limit.lower - GRIPPER_TARGET_TOLERANCE_RAD) & (gripper <= limit.upper + GRIPPER_TARGET_TOLERANCE_RAD)
-        return np.where(near, np.clip(gripper, limit.lower, limit.upper), gripper)
+        return GRIPPER_BAND_FRACTION * (limit.upper - limit.lower)
+
+    def settle_gripper_column(self, gripper: np.ndarray | None) -> SettledColumn:
+        """The gripper column with targets within ``gripper_band_rad`` outside the gripper
+        joint's limits clamped into them; values further out (or NaN) are left as they are, for
+        the limit check to reject."""
+        if gripper is None or self.gripper_joint is None:
+            return SettledColumn(gripper, 0, 0.0)
+        limit, band = self.chunk_limits[self.gripper_joint], self.gripper_band_rad()
+        outside = np.maximum(limit.lower - gripper, gripper - limit.upper)
+        near = (outside > 0) & (outside <= band)
+        if not near.any():
+            return SettledColumn(gripper, 0, 0.0)
+        settled = np.where(near, np.clip(gripper, limit.lower, limit.upper), gripper)
+        return SettledColumn(settled, int(near.sum()), float(outside[near].max()))
+
+    def first_gripper_target_out_of_limits(self, gripper: np.ndarray | None, dt_s: float) -> LimitViolation | None:
+        """The first step of a column of gripper targets ``dt_s`` apart outside the gripper
+        joint's position limits, or asking it for more velocity or acceleration than they allow."""
+        if gripper is None or self.gripper_joint is None or len(gripper) == 0:
+            return None
+        return self.chunk_limits.subset([self.gripper_joint]).check_steps(gripper[:, None], dt_s)
 
     def first_limit_violation(self, samples: Samples) -> LimitViolation | None:
         """The earliest sample of a motion outside the group's position, velocity or

@@ -41,11 +41,17 @@ def unknown_links(scene: Any, names: list[str]) -> list[str]:
 
 
 class SetCollisionRule(SceneBehavior):
-    """Allow (or forbid again) contact between a scene object and robot links."""
+    """Allow (or forbid again) contact between a scene object and robot links.
 
-    description = "Allow or forbid contact between a planning-scene object (or * for all) and robot links or a group."
+    ``*`` stands for the objects the task may handle that are in the scene when the rule is set
+    (``PlanningScene.handled_objects``): never the fixed ones such as the table, which a rule
+    must name, and never an object that appears later, which stays an obstacle to every link.
+    """
+
+    description = ("Allow or forbid contact between a planning-scene object and robot links or a group; * stands for "
+                   "every object in the scene now except the fixed ones (the table), which must be named.")
     ports = (
-        InputPort("object_name", PortType.STRING, description="Planning-scene object, e.g. cube_blue, or * for every world object."),
+        InputPort("object_name", PortType.STRING, description="Planning-scene object, e.g. cube_blue, or * for every object in the scene now but the fixed ones (the table)."),
         InputPort("link_names", PortType.STRING_LIST, description="Robot links (';'-separated), a group name such as gripper, or an attached object."),
         InputPort("allow", PortType.BOOL, True, "true: contact is allowed; false: contact counts as a collision again."),
     )
@@ -66,8 +72,10 @@ class SetCollisionRule(SceneBehavior):
         if unknown:
             return self.fail(f"unknown robot link or group {', '.join(repr(n) for n in unknown)} ({describe_links(scene)})")
         allow = self.get_input("allow")
-        (scene.allow if allow else scene.disallow)(obj, links)
-        self.feedback_message = f"{'allowed' if allow else 'forbade'} contact between {obj} and {', '.join(links)}"
+        objects = scene.handled_objects if obj == ANY_OBJECT else [obj]
+        for name in objects:
+            (scene.allow if allow else scene.disallow)(name, links)
+        self.feedback_message = f"{'allowed' if allow else 'forbade'} contact between {', '.join(objects) or 'no object'} and {', '.join(links)}"
         return Status.SUCCESS
 
 

@@ -28,7 +28,7 @@ from runtime.timestamps import time_msg
 
 from .action_goal import Goal, GoalState
 from .execute_policy.shaping import Samples
-from .motion import DEFAULT_CONTROLLER, PlanningError
+from .motion import DEFAULT_CONTROLLER, NO_MOTION_S, PlanningError
 from .poses import FrameError, ReadsRobotState, RobotState, matrix_to_pose, pose_in_world
 from .safety import MotionSafety, SafetyError, make_safety
 from .trajectory_goal import GOAL_TIME_TOLERANCE_S, SendsTrajectoryGoal, admittance_goal, trajectory_msg
@@ -112,9 +112,11 @@ def _piece_caps(path: np.ndarray, limits: JointLimits, velocity_scale: float, ac
 def resample(timing: PathTiming, path: np.ndarray, rate_hz: float) -> Samples:
     """The timed path at ``rate_hz``: along each piece the speed changes at a constant rate, so
     the position there follows ``s = v0 t + a t^2 / 2``; velocities and accelerations are
-    finite differences (zero at both ends)."""
+    finite differences (zero at both ends). A path of no length is its last point alone."""
     times, speeds = timing.times, timing.speeds
     duration = float(times[-1])
+    if duration < NO_MOTION_S:
+        return Samples.at_rest(path[-1])
     count = max(2, int(np.ceil(duration * rate_hz)) + 1)
     t = np.linspace(0.0, duration, count)
     piece = np.clip(np.searchsorted(times, t, side="right") - 1, 0, len(path) - 2)
@@ -448,10 +450,14 @@ class ExecuteTrajectory(ReadsRobotState, SendsTrajectoryGoal):
                 goal = self._goal()
             except (PlanningError, SafetyError, FrameError) as err:
                 return self.fail(str(err))
+            if goal is None:
+                return Status.SUCCESS
             self.goal = Goal.send(self.client, goal)
         return self.follow_goal("trajectory")
 
     def _goal(self) -> Any:
+        """The controller goal for the checked trajectory; None when it has no length (the arm
+        is already at its only point, so there is nothing to send)."""
         safety = make_safety(self.context.scene, self.get_input("planning_group_name"), None)
         msg = self.get_input("joint_trajectory_msg")
         samples = from_trajectory_msg(msg, safety.group_joints)
@@ -466,6 +472,8 @@ class ExecuteTrajectory(ReadsRobotState, SendsTrajectoryGoal):
         problem = check_motion(safety, samples, self.get_input("link_padding"), 0.05)
         if problem:
             raise PlanningError(f"the trajectory {problem}")
+        if samples.duration_s < NO_MOTION_S:
+            return None
         tolerances = self.get_input("path_position_tolerance")
         threshold = self.get_input("absolute_force_torque_threshold")
         if tolerances and min(tolerances) <= 0:

@@ -9,7 +9,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from runtime.cli import log_to_stderr, positive_float
+from runtime.cli import log_to_stderr, positive_float, tcp_port
 from runtime.command import EXIT_BAD_INPUT, EXIT_FAILURE, EXIT_SUCCESS, Command
 from runtime.registry import Registry
 
@@ -26,7 +26,7 @@ def _serve_arguments(serve: argparse.ArgumentParser) -> None:
     serve.add_argument("--checkpoint", type=Path, metavar="DIR", help="LeRobot checkpoint folder (--backend lerobot)")
     serve.add_argument("--replay-file", type=Path, metavar="FILE", help="chunks as JSON lines (--backend replay)")
     serve.add_argument("--host", default="127.0.0.1", help="address to bind (default 127.0.0.1: loopback only)")
-    serve.add_argument("--port", type=int, default=0, help="port (default 0: pick a free one, printed at start)")
+    serve.add_argument("--port", type=tcp_port, default=0, help="port (default 0: pick a free one, printed at start)")
     serve.add_argument("--insecure-no-key", action="store_true",
                        help="serve /infer without a bearer key when POLICY_SERVER_KEY is unset")
     serve.add_argument("--max-body-bytes", type=int, default=32 * 1024 * 1024, metavar="N",

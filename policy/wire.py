@@ -41,6 +41,7 @@ import base64
 import binascii
 import json
 import math
+import reprlib
 from typing import Any
 
 import numpy as np
@@ -57,6 +58,8 @@ CONTENT_TYPE = "application/json"
 _DTYPES = {"uint8": np.dtype("u1"), "float32": np.dtype("<f4"), "float64": np.dtype("<f8")}
 _FLOAT_DTYPES = ("float32", "float64")
 _MAX_NDIM = 3
+_MAX_DIMENSION = 2**31 - 1
+"""The largest length of one array dimension (a frame, a chunk: far below it)."""
 
 _REQUEST_FIELDS = {
     "version", "prompt", "joint_names", "joint_positions", "stamp", "image_names", "images",
@@ -96,9 +99,9 @@ def decode_array(obj: Any, field: str, dtypes: tuple[str, ...] = ("uint8", "floa
     if (
         not isinstance(shape, list)
         or len(shape) > _MAX_NDIM
-        or not all(isinstance(n, int) and not isinstance(n, bool) and n >= 0 for n in shape)
+        or not all(isinstance(n, int) and not isinstance(n, bool) and 0 <= n <= _MAX_DIMENSION for n in shape)
     ):
-        raise WireError(f"'{field}' shape must be a list of at most {_MAX_NDIM} non-negative integers, got {shape!r}")
+        raise WireError(f"'{field}' shape must be a list of at most {_MAX_NDIM} integers from 0 to {_MAX_DIMENSION}, got {_clipped(shape)}")
     if not isinstance(data, str):
         raise WireError(f"'{field}' data must be a base64 string")
     try:
@@ -109,7 +112,10 @@ def decode_array(obj: Any, field: str, dtypes: tuple[str, ...] = ("uint8", "floa
     expected = math.prod(shape) * itemsize
     if len(raw) != expected:
         raise WireError(f"'{field}' has {len(raw)} bytes of data, expected {expected} for shape {shape} of {dtype}")
-    array = np.frombuffer(raw, dtype=_DTYPES[dtype]).reshape(shape)
+    try:
+        array = np.frombuffer(raw, dtype=_DTYPES[dtype]).reshape(shape)
+    except ValueError:  # numpy refuses shapes whose dimensions multiply past its index range, even with a zero among them
+        raise WireError(f"'{field}' shape {shape} is too large") from None
     if dtype in _FLOAT_DTYPES and not np.all(np.isfinite(array)):
         raise WireError(f"'{field}' has non-finite values")
     return array
@@ -149,9 +155,9 @@ def decode_request(body: bytes) -> PolicyRequest:
     positions = decode_array(obj["joint_positions"], "joint_positions", _FLOAT_DTYPES).astype(float)
     if positions.shape != (len(names),):
         raise WireError(f"'joint_positions' has shape {list(positions.shape)}, expected [{len(names)}] (one per joint name)")
-    stamp = obj["stamp"]
-    if isinstance(stamp, bool) or not isinstance(stamp, (int, float)) or not math.isfinite(stamp) or stamp < 0:
-        raise WireError(f"'stamp' must be a finite number of seconds >= 0, got {stamp!r}")
+    stamp = _finite_float(obj["stamp"])
+    if stamp is None or stamp < 0:
+        raise WireError(f"'stamp' must be a finite number of seconds >= 0, got {_clipped(obj['stamp'])}")
     image_names, images = obj["image_names"], obj["images"]
     if not isinstance(image_names, list) or not all(isinstance(n, str) and n for n in image_names):
         raise WireError("'image_names' must be a list of camera names")
@@ -224,9 +230,9 @@ def decode_response(body: bytes) -> PolicyResponse:
     if status is None:
         raise WireError(f"'status' must be one of {', '.join(statuses)}, got {obj['status']!r}")
     message = _typed(obj, "message", str, "a string")
-    period = obj["native_control_period"]
-    if isinstance(period, bool) or not isinstance(period, (int, float)) or not math.isfinite(period) or period < 0:
-        raise WireError(f"'native_control_period' must be a finite number >= 0, got {period!r}")
+    period = _finite_float(obj["native_control_period"])
+    if period is None or period < 0:
+        raise WireError(f"'native_control_period' must be a finite number >= 0, got {_clipped(obj['native_control_period'])}")
     actions = obj["actions"]
     if actions is not None:
         actions = decode_array(actions, "actions", _FLOAT_DTYPES).astype(float)
@@ -262,6 +268,26 @@ def read_error(body: bytes) -> str:
 # --------------------------------------------------------------------------------------------
 # Helpers
 # --------------------------------------------------------------------------------------------
+def _finite_float(value: Any) -> float | None:
+    """``value`` as a float when it is a finite JSON number (an integer too large for a float,
+    such as 10**400, is not), else None."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        return None
+    try:
+        number = float(value)
+    except OverflowError:
+        return None
+    return number if math.isfinite(number) else None
+
+
+def _clipped(value: Any, limit: int = 60) -> str:
+    """``repr(value)`` cut to ``limit`` characters, for a message about a value of any size."""
+    short = reprlib.Repr()
+    short.maxlong, short.maxlist, short.maxother = limit, 8, limit
+    text = short.repr(value)
+    return text if len(text) <= limit else text[:limit] + "..."
+
+
 def _optional(array: Any, dtype: type) -> dict[str, Any] | None:
     return None if array is None else encode_array(np.asarray(array, dtype=dtype))
 

@@ -56,7 +56,7 @@ def parse_set(text: str) -> tuple[str, str]:
     return name.strip(), value
 
 
-def _port(text: str) -> int:
+def tcp_port(text: str) -> int:
     if not text.isascii() or not text.isdigit() or int(text) > 65535:
         raise argparse.ArgumentTypeError(f"expected a TCP port number (0-65535), got {text!r}")
     return int(text)
@@ -112,7 +112,7 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
                      help="an option of the world, e.g. urdf=robot.urdf for --world robot (repeatable)")
     run.add_argument("--record", type=Path, metavar="DIR",
                      help="record the run into DIR: run.mcap, events.jsonl, plots, camera video, tree.svg, report.html")
-    run.add_argument("--live", type=_port, nargs="?", const=8765, metavar="PORT",
+    run.add_argument("--live", type=tcp_port, nargs="?", const=8765, metavar="PORT",
                      help="serve the run's topics to Foxglove on ws://127.0.0.1:PORT while it runs (default 8765; 0 = any free port)")
     run.add_argument("--tick-hz", type=positive_float, default=100.0, help=argparse.SUPPRESS)
     add_paths(run)

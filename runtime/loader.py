@@ -55,6 +55,10 @@ MAX_ATTRIBUTE_CHARS = 65536
 MAX_ATTRIBUTES = 1000
 """Attributes per element: lxml reads an element's attribute values in time quadratic in their count."""
 MAX_NODES = 20000
+MAX_TREE_DEPTH = 150
+"""Nodes on the longest path from the root to a leaf once SubTrees are expanded (a SubTree node
+counts as one): ticking one level takes a few Python frames, so deeper trees would stop on
+Python's recursion limit in the middle of a run."""
 """Bound on nodes after SubTree expansion: nested SubTrees used several times grow exponentially."""
 
 METADATA_ATTRIBUTES = frozenset({"_description", "_favorite", "_collapsed", "_uid", "_fullpath", "_external"})
@@ -497,22 +501,27 @@ class _Builder:
         return None
 
     # -- construction ---
-    def build_tree(self, tree: TreeDef, blackboard: Blackboard, stack: list[tuple[str, str]]) -> py_trees.behaviour.Behaviour:
+    def build_tree(self, tree: TreeDef, blackboard: Blackboard, stack: list[tuple[str, str]], depth: int = 0) -> py_trees.behaviour.Behaviour:
         children = _elements(tree.element)
         if len(children) != 1:
             raise LoadError(f"a BehaviorTree has exactly one root node, got {len(children)}", tree.location, tree.id)
-        return self.build_node(children[0], tree.document, tree.location.file, blackboard, stack)
+        return self.build_node(children[0], tree.document, tree.location.file, blackboard, stack, depth)
 
     def build_node(
-        self, element: Any, doc: Document, file: str, blackboard: Blackboard, stack: list[tuple[str, str]]
+        self, element: Any, doc: Document, file: str, blackboard: Blackboard, stack: list[tuple[str, str]], depth: int = 0
     ) -> py_trees.behaviour.Behaviour:
-        """Build ``element`` (written in ``file``, part of ``doc``) and its children."""
+        """Build ``element`` (written in ``file``, part of ``doc``, with ``depth`` ancestors) and its children."""
         loc = SourceLocation(file, element.sourceline or 0)
         tag = element.tag
         if len(self.nodes) >= MAX_NODES:
             raise LoadError(f"the tree has more than {MAX_NODES} nodes after expanding SubTrees", loc, str(tag))
+        if depth >= MAX_TREE_DEPTH:
+            trees = [tid for _, tid in stack]
+            chain = " -> ".join(trees if len(trees) <= 6 else [*trees[:3], "...", *trees[-3:]])
+            raise LoadError(f"the tree nests more than {MAX_TREE_DEPTH} nodes deep after expanding SubTrees "
+                            f"({len(trees)} trees deep: {chain})", loc, str(tag))
         if tag == "SubTree":
-            return self.build_subtree(element, doc, blackboard, stack, loc)
+            return self.build_subtree(element, doc, blackboard, stack, loc, depth)
         attrs = dict(element.attrib)
         if tag in EXPLICIT_TAGS:
             node_id = attrs.pop("ID", None)
@@ -553,17 +562,17 @@ class _Builder:
         if problem:
             raise LoadError(problem, loc, node_id)
         for child_el in children:
-            child = self._build_child(child_el, doc, file, blackboard, stack)
+            child = self._build_child(child_el, doc, file, blackboard, stack, depth + 1)
             if child is not None:
                 node.add_child(child)
         return self._with_conditions(node, conditions, loc, node_id)
 
     def _build_child(
-        self, element: Any, doc: Document, file: str, blackboard: Blackboard, stack: list[tuple[str, str]]
+        self, element: Any, doc: Document, file: str, blackboard: Blackboard, stack: list[tuple[str, str]], depth: int
     ) -> py_trees.behaviour.Behaviour | None:
         """``build_node``; with ``collect``, an error is kept and the child left out (None)."""
         try:
-            return self.build_node(element, doc, file, blackboard, stack)
+            return self.build_node(element, doc, file, blackboard, stack, depth)
         except ObjectiveError as err:
             if not self.collect:
                 raise
@@ -595,7 +604,7 @@ class _Builder:
             )
 
     def build_subtree(
-        self, element: Any, doc: Document, blackboard: Blackboard, stack: list[tuple[str, str]], loc: SourceLocation
+        self, element: Any, doc: Document, blackboard: Blackboard, stack: list[tuple[str, str]], loc: SourceLocation, depth: int
     ) -> py_trees.behaviour.Behaviour:
         attrs = dict(element.attrib)
         tree_id = attrs.pop("ID", None)
@@ -648,7 +657,7 @@ class _Builder:
         first_error = len(self.errors)
         self.calls.append((loc, tree_id))
         try:
-            node.add_child(self.build_tree(tree, child_bb, [*stack, key]))
+            node.add_child(self.build_tree(tree, child_bb, [*stack, key], depth + 1))
         except ObjectiveError as err:
             raise err.inside_subtree(loc, tree_id) from None
         finally:

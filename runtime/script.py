@@ -32,8 +32,9 @@ Where this module differs from BT.CPP 4.8.2, on purpose:
   left (its bug #1029, fixed upstream in PR #1069).
 - comparisons, ``&& || !`` give Python booleans (BT.CPP gives 1.0 / 0.0); ``true`` is ``True``
   (BT.CPP stores the integer 1). Both behave the same in arithmetic and conditions.
-- ``..`` accepts two numbers too, and writes numbers the way the rest of the runtime does
-  (``2.5``, ``3.0``; BT.CPP writes ``2.500000``); ``x / 0`` is an error, not ``inf``.
+- ``..`` accepts two numbers too (BT.CPP refuses them); it writes a double as BT.CPP does
+  (``'x=' .. 2.5`` is ``x=2.500000``) but a comparison's result as ``true`` / ``false``;
+  ``x / 0`` is an error, not ``inf``; a string longer than ``MAX_STRING_CHARS`` is an error.
 - ``a .. b + c`` means ``a .. (b + c)``; BT.CPP 4.8 refuses to mix them without parentheses.
 
 Names ``and``, ``or`` and ``not`` are not operators in BT.CPP; using them gets an error that says
@@ -54,6 +55,10 @@ MAX_SOURCE_CHARS = 10_000
 
 MAX_DEPTH = 200
 """Deepest nesting accepted: parentheses, ternary branches and stacked prefix operators."""
+
+MAX_STRING_CHARS = 1_000_000
+"""Longest string a script may build (``..``, ``+``, ``+=``): a script that doubles a string in
+a loop stops here with an error instead of filling the memory."""
 
 FLOAT_EPSILON = 1.1920928955078125e-07
 """``==`` on numbers tolerates this absolute difference (BT.CPP uses float's epsilon)."""
@@ -226,14 +231,23 @@ def _describe(value: Any) -> str:
 
 
 def _text(value: Any) -> str:
-    """How ``..`` writes a value: strings as they are, numbers as the runtime writes them."""
+    """How ``..`` writes a value: strings as they are, integers as digits, doubles with six
+    decimals as BT.CPP's ``std::to_string`` does (``2.500000``)."""
     if isinstance(value, str):
         return value
     if _is_bool(value):
         return "true" if value else "false"
     if _is_integral(value):
         return str(int(value))
-    return to_xml_string(float(value))
+    return f"{float(value):f}"
+
+
+def _joined(first: str, second: str, column: int | None) -> str:
+    """``first + second``, or ScriptError when that is longer than ``MAX_STRING_CHARS``."""
+    length = len(first) + len(second)
+    if length > MAX_STRING_CHARS:
+        raise ScriptError(f"the string would be {length} characters long; scripts build strings of at most {MAX_STRING_CHARS}", column)
+    return first + second
 
 
 def _string_as_number(text: str) -> float | None:
@@ -348,9 +362,9 @@ class Unary(Node):
         return ~int(value)
 
 
-def _arithmetic(op: str, lhs: Any, rhs: Any) -> Any:
+def _arithmetic(op: str, lhs: Any, rhs: Any, column: int | None = None) -> Any:
     if op == "+" and isinstance(lhs, str) and isinstance(rhs, str):
-        return lhs + rhs
+        return _joined(lhs, rhs, column)
     if not (_is_number(lhs) and _is_number(rhs)):
         return NotImplemented
     a, b = float(lhs), float(rhs)
@@ -404,7 +418,7 @@ class Chain(Node):
                 if not (isinstance(value, str) or _is_number(value)) or not (isinstance(rhs, str) or _is_number(rhs)):
                     result = NotImplemented
                 else:
-                    result = _text(value) + _text(rhs)
+                    result = _joined(_text(value), _text(rhs), column)
             elif op in "&|^":
                 result = _bitwise(op, value, rhs)
                 if result is NotImplemented:
@@ -413,7 +427,7 @@ class Chain(Node):
                     )
             else:
                 try:
-                    result = _arithmetic(op, value, rhs)
+                    result = _arithmetic(op, value, rhs, column)
                 except ZeroDivisionError:
                     raise ScriptError(f"division by zero: {described} / {node.operand(rhs)}", column) from None
             if result is NotImplemented:
@@ -583,7 +597,7 @@ class Assign(Node):
             raise ScriptError(f"entry '{key}' is empty (None); '{self.op}' needs a value to update", self.column)
         if op == "+" and isinstance(current, str):
             if isinstance(value, str):
-                return current + value
+                return _joined(current, value, self.column)
             raise ScriptError(f"'+=' on the string entry '{key}' needs a string, got {_describe(value)}", self.column)
         if not (_is_number(current) and _is_number(value)):
             raise ScriptError(

@@ -74,7 +74,7 @@ def make_cell_scene(
     limits = load_joint_limits(JOINT_LIMITS_PATH, {j: (lo, hi) for j, lo, hi in zip(joints, lower, upper)})
     scene = PlanningScene(robot, "manipulator", GRIPPER_DRIVER_JOINT, limits=limits)
     hx, hy, hz = TABLE_HALF_SIZE
-    scene.add_object("table", Box((2 * hx, 2 * hy, 2 * hz)), pose_matrix((TABLE_CENTER_XY[0], TABLE_CENTER_XY[1], TABLE_TOP_Z - hz)))
+    scene.add_object("table", Box((2 * hx, 2 * hy, 2 * hz)), pose_matrix((TABLE_CENTER_XY[0], TABLE_CENTER_XY[1], TABLE_TOP_Z - hz)), fixed=True)
     scene.allow("table", ["base", "shoulder_link"])
     for color in CUBE_COLORS:
         pos, quat = cube_poses[color]

@@ -76,7 +76,7 @@ class PlacedBoxes:
         quat_xyzw = Rotation.from_matrix(matrix[:3, :3]).as_quat()
         cell.place_box(name, np.array(size), matrix[:3, 3].copy(), np.roll(quat_xyzw, 1))
         if mirror:
-            scene.add_object(name, Box(size), matrix)
+            scene.add_object(name, Box(size), matrix, fixed=True)
         elif mirrored_before:
             scene.remove_object(name)
         box = self.boxes[name] = PlacedBox(name, size, matrix, mirror)

@@ -313,6 +313,26 @@ def test_deep_nesting_is_refused(registry, tmp_path, empty_lib):
     assert error_of(registry, path, empty_lib) == f"{path}:1: elements nest deeper than 200 levels"
 
 
+def _subtree_chain(tmp_path: Path, subtrees: int) -> Path:
+    trees = "".join(f'<BehaviorTree ID="T{i}"><SubTree ID="T{i + 1}"/></BehaviorTree>' for i in range(subtrees))
+    return write(tmp_path, f'<root BTCPP_format="4" main_tree_to_execute="T0">{trees}<BehaviorTree ID="T{subtrees}"><AlwaysSuccess/></BehaviorTree></root>')
+
+
+@pytest.mark.parametrize("subtrees", [150, 200, 500])
+def test_a_subtree_chain_deeper_than_the_limit_is_refused_at_load(registry, tmp_path, empty_lib, subtrees):
+    """On main a chain of 200 SubTrees validated and then stopped the run with RecursionError,
+    and 500 crashed the loader."""
+    path = _subtree_chain(tmp_path, subtrees)
+    assert error_of(registry, path, empty_lib) == (
+        f"{path}:1: {'AlwaysSuccess' if subtrees == 150 else 'SubTree'}: the tree nests more than 150 nodes deep after "
+        "expanding SubTrees (151 trees deep: T0 -> T1 -> T2 -> ... -> T148 -> T149 -> T150)"
+    )
+
+
+def test_a_subtree_chain_at_the_limit_runs(registry, tmp_path, empty_lib):
+    assert run_to_end(load(registry, _subtree_chain(tmp_path, 149), empty_lib)) is Status.SUCCESS
+
+
 def test_huge_attribute_is_refused(registry, tmp_path, empty_lib):
     path = write(tmp_path, f'<root BTCPP_format="4"><BehaviorTree ID="T"><LogMessage message="{"a" * 70000}"/></BehaviorTree></root>')
     assert error_of(registry, path, empty_lib) == f"{path}:1: attribute 'message' is 70000 characters long (limit 65536)"

@@ -278,3 +278,41 @@ def test_move_to_waypoint_jtc_names_the_controllers_when_asked_for_a_plain_jtc(r
     result = run_xml(registry, tmp_path, '<SubTree ID="Move to Waypoint (JTC)" waypoint_name="Home" controller_names="joint_trajectory_controller"/>')
     assert result.status == "FAILURE"
     assert result.reason.startswith("unknown controllers: joint_trajectory_controller (known: ")
+
+
+# -- a motion to where the arm already is ---------------------------------------------------------
+HOME_ONCE = '<SubTree ID="Move to Waypoint" waypoint_name="Home"/>'
+AT_HOME_AGAIN = """
+  <SubTree ID="Move to Waypoint" waypoint_name="Home"/>
+  <SubTree ID="Move to Waypoint (JTC)" waypoint_name="Home"/>
+  <CreatePoseStamped reference_frame="tcp" pose_stamped="{p}"/>
+  <ResetPoseStampedVector vector="{path}"/>
+  <PushBackVector input_vector="{path}" element="{p}" output_vector="{path}"/>
+  <PlanCartesianPath path="{path}"/>
+  <ExecuteTrajectory/>"""
+
+
+@pytest.mark.parametrize("world", ["kinematic", "vla_sim"])
+def test_a_motion_to_where_the_arm_already_is_succeeds_at_once(registry, tmp_path, world):
+    """Home, then Home again through both SubTrees and a Cartesian path to where the TCP is. On
+    the kinematic cell the arm is exactly at Home: every motion after the first has no length
+    and succeeds without moving the clock on (on main the controller refused it: "time_from_start
+    must increase"). On MuJoCo the arm rests ~3 mrad from Home, so they are short motions."""
+    results = []
+    for body in (HOME_ONCE, HOME_ONCE + AT_HOME_AGAIN):
+        path = tmp_path / "tree.xml"
+        path.write_text(f'<root BTCPP_format="4" main_tree_to_execute="Main"><BehaviorTree ID="Main"><Sequence>{body}</Sequence></BehaviorTree></root>')
+        results.append(run_file(path, registry, RunOptions(world=world, max_seconds=30.0)))
+    once, again = results
+    assert (again.status, again.failing_node, again.reason) == ("SUCCESS", None, "")
+    assert again.sim_seconds - once.sim_seconds <= (0.05 if world == "kinematic" else 1.0)
+
+
+def test_a_plan_to_the_current_position_is_one_point_at_time_zero():
+    from behaviors.motion import plan_point_to_point
+
+    limits = JointLimits((JointLimit("a", -1, 1, 2.0, 4.0), JointLimit("b", -1, 1, 2.0, 4.0)))
+    samples = plan_point_to_point(np.array([0.2, -0.3]), np.array([0.2, -0.3]), limits, 0.5, 0.5)
+    assert (samples.duration_s, samples.positions.tolist()) == (0.0, [[0.2, -0.3]])
+    timing = time_path(np.array([[0.2, -0.3], [0.2, -0.3]]), {1}, limits, 0.5, 0.5)
+    assert resample(timing, np.array([[0.2, -0.3], [0.2, -0.3]]), 100.0).times.tolist() == [0.0]

@@ -21,6 +21,7 @@ from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
 import policy.node as node_mod
 import policy.server as server_mod
+from behaviors.execute_policy.chunk import MAX_CHUNK_STEPS
 from runtime.bus import FixedLatency
 from runtime.loader import load_tree
 from runtime.registry import Registry
@@ -200,6 +201,10 @@ def _renamed(request):
     return response
 
 
+def _too_long(request):
+    return moving_chunk(request, steps=MAX_CHUNK_STEPS + 1)
+
+
 def _one_step(request):
     response = moving_chunk(request, steps=1)
     return response
@@ -233,6 +238,7 @@ def _jump(request):
         (_ragged, "FAILURE", "chunk 2 rejected: step 7 has 3 positions for 6 joint names"),
         (_renamed, "FAILURE", "chunk 2 rejected: joint names do not match the joint group"),
         (_one_step, "FAILURE", "chunk 2 rejected: chunk 2 has 1 steps but takes over at its step"),
+        (_too_long, "FAILURE", f"chunk 2 rejected: chunk has {MAX_CHUNK_STEPS + 1} points, more than the {MAX_CHUNK_STEPS} one chunk may carry"),
         (_status(R.UNKNOWN), "FAILURE", "the policy answered UNKNOWN for the chunk 2"),
         (_status(R.ERROR), "FAILURE", "the policy answered ERROR for the chunk 2"),
         (_status(42), "FAILURE", "the policy answered status 42 for the chunk 2"),
@@ -240,7 +246,7 @@ def _jump(request):
         (_raises, "FAILURE", f"calling the policy service '{SERVICE}' failed: adapter crashed"),
         (_jump, "FAILURE", "chunk 2 rejected: densified step"),
     ],
-    ids=["inf", "empty", "ragged", "renamed", "one-step", "unknown", "error", "status-42", "no-more-actions", "raises", "jump"],
+    ids=["inf", "empty", "ragged", "renamed", "one-step", "too-long", "unknown", "error", "status-42", "no-more-actions", "raises", "jump"],
 )
 def test_malformed_answer_stops_the_arm_with_the_reason(registry, fault, status, message):
     out = run_with_faults(registry, Policy(fault_at=2, fault=fault), FixedLatency(0.1))

@@ -1,12 +1,15 @@
 """Property: whatever chunks a policy sends, nothing unsafe reaches the controller.
 
-Random chunks (values near and beyond the joint limits, NaN/inf, wrong shapes, wrong/permuted/
-duplicated names, huge steps, motions into the table, arms starting next to a limit) go through
+Random chunks (values near and beyond the joint limits, NaN/inf, wrong shapes, lengths up to and
+beyond ``MAX_CHUNK_STEPS``, wrong/permuted/duplicated names, huge steps, motions into the table,
+arms starting next to a limit) go through
 the real ExecutePolicy (loaded from XML, ticked by the real runner) on an in-process bus, against
 a recording controller. Checked on every run:
 
 - every gripper goal that reached the gripper controller is within the gripper joint's position
-  limits (runs with a gripper configured carry a gripper column: in range, beyond it, non-finite);
+  limits (runs with a gripper configured carry a gripper column: in range, beyond it, non-finite,
+  held, ramped or alternating step by step), and no two goals ask the gripper for more than its
+  velocity limit over the policy steps between them;
 - every point of every goal that reached the controller is within the position limits and its
   stated velocity and acceleration are within the velocity and acceleration limits (the motion
   *between* densified points is not checked, which is why samples are never more than 10 ms
@@ -33,6 +36,7 @@ from moveit_pro_ml_msgs.srv import GetActionChunk
 from sensor_msgs.msg import JointState
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
+from behaviors.execute_policy.chunk import MAX_CHUNK_STEPS
 from behaviors.execute_policy.shaping import Samples
 from behaviors.safety import make_safety
 from runtime.bus import FixedLatency
@@ -82,6 +86,7 @@ class RecordingWorld:
     name: str = "recording"
     goals: list[Goal] = field(default_factory=list)
     gripper_goals: list[float] = field(default_factory=list)
+    gripper_goal_times: list[float] = field(default_factory=list)
 
     def start(self, context: Any) -> None:
         self.context = context
@@ -115,6 +120,7 @@ class RecordingWorld:
     def _on_gripper_goal(self, handle: Any) -> bool:
         position = float(handle.request.command.position)
         self.gripper_goals.append(position)
+        self.gripper_goal_times.append(self.context.clock.now())
         handle.succeed(GripperCommand.Result(position=position, reached_goal=True))
         return True
 
@@ -157,7 +163,7 @@ def chunk_spec(draw: Any) -> dict[str, Any]:
     """A recipe for one chunk; built against the observed state when the policy is called."""
     return {
         "kind": draw(st.sampled_from(KINDS)),
-        "steps": draw(st.one_of(st.integers(1, 60), st.sampled_from([0, 1, 2, 3, 50]))),
+        "steps": draw(st.one_of(st.integers(1, 60), st.sampled_from([0, 1, 2, 3, 50, 1000, MAX_CHUNK_STEPS + 1]))),
         "velocity": draw(st.lists(st.floats(-2.0, 2.0), min_size=6, max_size=6)),
         "joint": draw(st.integers(0, 5)),
         "at": draw(st.floats(0.0, 1.0)),
@@ -169,18 +175,21 @@ def chunk_spec(draw: Any) -> dict[str, Any]:
         "gripper": draw(st.one_of(st.floats(0.0, 0.8), st.floats(-1.0, 2.0),
                                   st.sampled_from([80.0, 50.0, 1.2, 0.8 + 1e-6, -1e-6, -0.5, float("nan"), float("inf")]))),
         "gripper_ramp": draw(st.booleans()),
+        "gripper_alternate": draw(st.one_of(st.just(0.0), st.floats(0.0, 0.8))),
     }
 
 
 def build_chunk(spec: dict[str, Any], observed: np.ndarray, dt: float, gripper: bool = False) -> tuple[list[str], list[list[float]]]:
     """The chunk's names and rows; with ``gripper`` the arm part plus a gripper column that holds
-    ``spec["gripper"]`` (or ramps to it from open)."""
+    ``spec["gripper"]`` (or ramps to it from open), every other step moved by
+    ``spec["gripper_alternate"]`` (up to 16 rad/s at dt 0.05)."""
     names, rows = _arm_chunk(spec, observed[:6], dt)
     if not gripper or not rows:
         return names, rows
     steps = len(rows)
     value = spec.get("gripper", 0.0)
     column = np.linspace(0.0, value, steps) if spec.get("gripper_ramp") and np.isfinite(value) else np.full(steps, value)
+    column = column - spec.get("gripper_alternate", 0.0) * (np.arange(steps) % 2)
     return names + [GRIPPER_DRIVER_JOINT], [list(r) + [float(g)] for r, g in zip(rows, column)]
 
 
@@ -244,7 +253,9 @@ class Outcome:
     rejection: str
     goals: list[Goal]
     snapshot_scene: Any
+    dt: float
     gripper_goals: list[float] = field(default_factory=list)
+    gripper_goal_times: list[float] = field(default_factory=list)
 
 
 def run_chunks(specs: list[dict[str, Any]], start: np.ndarray, dt: float, points: int, gripper: bool = False) -> Outcome:
@@ -272,8 +283,8 @@ def run_chunks(specs: list[dict[str, Any]], start: np.ndarray, dt: float, points
     context.bus.create_service(SERVICE, GetActionChunk, serve)
     context.bus.set_latency(SERVICE, FixedLatency(0.05))
     result = run_tree(loaded, context, options, world=world)
-    return Outcome(result.status, result.reason, result.blackboard.get("rejection", ""), world.goals, context.scene,
-                   world.gripper_goals)
+    return Outcome(result.status, result.reason, result.blackboard.get("rejection", ""), world.goals, context.scene, dt,
+                   world.gripper_goals, world.gripper_goal_times)
 
 
 def assert_nothing_unsafe_reached_the_controller(out: Outcome) -> None:
@@ -294,6 +305,10 @@ def assert_nothing_unsafe_reached_the_controller(out: Outcome) -> None:
     gripper = out.snapshot_scene.limits[GRIPPER_DRIVER_JOINT]
     for position in out.gripper_goals:
         assert gripper.lower - tol <= position <= gripper.upper + tol, f"gripper goal {position} reached the gripper controller"
+    for (t0, g0), (t1, g1) in zip(zip(out.gripper_goal_times, out.gripper_goals), zip(out.gripper_goal_times[1:], out.gripper_goals[1:])):
+        steps = max(round((t1 - t0) / out.dt), 1)  # goals go out at the first tick after their step's time
+        assert abs(g1 - g0) <= gripper.max_velocity * steps * out.dt + 1e-6, (
+            f"gripper goals {g0} then {g1} {steps} step(s) apart: faster than {gripper.max_velocity} rad/s")
     assert out.status in ("SUCCESS", "FAILURE")
     if out.status == "FAILURE" and "rejected" in out.reason:
         assert out.rejection == out.reason and len(out.rejection) > len("chunk 1 rejected: ")
@@ -392,3 +407,21 @@ def test_a_gripper_column_out_of_range_never_reaches_the_gripper_controller():
     # The column ramps from open to 50 rad: its step 1 (1.2821 rad) is the first beyond 0.8 rad.
     assert out.rejection == (f"chunk 1 rejected: step 1: joint {GRIPPER_DRIVER_JOINT} position 1.2821 rad exceeds "
                              "the limit 0.8000 rad (policy step 2 of the run)")
+
+
+def test_a_gripper_column_faster_than_the_gripper_never_reaches_it_and_a_seam_joins_at_its_speed():
+    """The property's rate half can fail: open and closed every step (8 rad/s) is rejected before
+    any goal reaches the gripper (on main every one was streamed); a chunk that holds 0.8 rad
+    after one that held 0.0 is taken over at the gripper's 2 rad/s, 0.2 rad a step."""
+    smooth = {"kind": "smooth", "steps": 40, "velocity": [0.2] * 6, "joint": 0, "at": 0.5, "size": 0.0,
+              "bad": float("nan"), "names": "permuted", "width": 0, "seed": 0, "gripper": 0.8, "gripper_ramp": False,
+              "gripper_alternate": 0.8}
+    out = run_chunks([smooth], READY, 0.1, 50, gripper=True)
+    assert out.status == "FAILURE" and out.gripper_goals == [] and out.goals == []
+    assert out.rejection == (f"chunk 1 rejected: step 1: joint {GRIPPER_DRIVER_JOINT} velocity -8.0000 rad/s exceeds "
+                             "the limit -2.0000 rad/s (policy step 2 of the run)")
+    held = {**smooth, "gripper_alternate": 0.0}
+    out = run_chunks([{**held, "gripper": 0.0}, held], READY, 0.1, 50, gripper=True)
+    assert out.status == "SUCCESS", out.reason
+    assert out.gripper_goals[:5] == pytest.approx([0.0, 0.2, 0.4, 0.6, 0.8])
+    assert_nothing_unsafe_reached_the_controller(out)

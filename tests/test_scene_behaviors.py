@@ -109,12 +109,21 @@ def test_allow_a_group_then_forbid_it_again(context, scene):
     assert not any(scene.is_allowed("cube_blue", link) for link in gripper_links)
 
 
-def test_star_allows_every_object_for_listed_links(context, scene):
+def test_star_allows_the_objects_in_the_scene_now_but_never_the_table(context, scene):
+    scene.disallow("cube_red", "gripper")  # the cell's default lets the gripper touch the cubes
     node = make_node(SetCollisionRule, context, object_name="*", link_names="gripper_left_pad;gripper_right_pad")
     assert tick(node) is Status.SUCCESS
-    for obj in ("cube_red", "cube_green", "cube_blue", "table"):
+    assert node.feedback_message == "allowed contact between cube_blue, cube_green, cube_red and gripper_left_pad, gripper_right_pad"
+    for obj in ("cube_red", "cube_green", "cube_blue"):
         assert scene.is_allowed(obj, "gripper_left_pad") and scene.is_allowed(obj, "gripper_right_pad")
-    assert not scene.is_allowed("table", "wrist_3_link")
+    assert not scene.is_allowed("table", "gripper_left_pad")  # fixed: a rule must name it
+    scene.add_object("box", Box((0.1, 0.1, 0.1)), np.eye(4))
+    assert not scene.is_allowed("box", "gripper_left_pad")  # appeared after the rule: an obstacle
+    forbid = make_node(SetCollisionRule, context, object_name="*", link_names="gripper", allow="false")
+    assert tick(forbid) is Status.SUCCESS
+    assert not any(scene.is_allowed(obj, "gripper_left_pad") for obj in ("cube_red", "cube_green", "cube_blue", "box"))
+    named = make_node(SetCollisionRule, context, object_name="table", link_names="gripper_left_pad")
+    assert tick(named) is Status.SUCCESS and scene.is_allowed("table", "gripper_left_pad")
 
 
 def test_allowed_contact_changes_what_the_collision_check_reports(context, scene):

@@ -16,7 +16,7 @@ from runtime.clock import SimClock
 from runtime.errors import LoadError, PortError, ScriptRunError, SourceLocation
 from runtime.events import EventLog
 from runtime.registry import Registry
-from runtime.script import MAX_DEPTH, MAX_SOURCE_CHARS, ScriptError, compile_script, evaluate_condition
+from runtime.script import MAX_DEPTH, MAX_SOURCE_CHARS, MAX_STRING_CHARS, ScriptError, compile_script, evaluate_condition
 from runtime.script_nodes import NODES, Script, ScriptCondition, SetBlackboard, compile_at_load
 
 
@@ -102,8 +102,8 @@ def test_strings_holding_numbers_compare_numerically_with_numbers():
 def test_string_concatenation():
     assert run("'x' .. 'y'") == "xy"
     assert run("'n=' .. 3") == "n=3"
-    assert run("'v=' .. 2.5") == "v=2.5"
-    assert run("'sum=' .. 1 + 2") == "sum=3.0"  # '..' binds looser than arithmetic
+    assert run("'v=' .. 2.5") == "v=2.500000"  # as BT.CPP writes a double
+    assert run("'sum=' .. 1 + 2") == "sum=3.000000"  # '..' binds looser than arithmetic
     assert run("'a' + 'b'") == "ab"
     assert run("name .. '!'", name="hi") == "hi!"
     assert run("'ok=' .. (1 < 2)") == "ok=true"
@@ -506,13 +506,28 @@ def test_numbers_match_btcpp(code):
         ("r := 'a' + 'b'", "ab"),
         ("r := 1 ? 'yes' : 'no'", "yes"),
         ("r := s .. '!'", "hi!"),
+        ("r := 'x=' .. 2.5", "x=2.500000"),
+        ("r := 'x=' .. d", "x=2.500000"),
+        ("r := 'x=' .. (1 + 2)", "x=3.000000"),
+        ("r := 'x=' .. (0 - 1e-9)", "x=-0.000000"),
+        ("r := 'x=' .. 123456789.125", "x=123456789.125000"),
+        ("r := 'x=' .. i", "x=7"),
     ],
 )
 def test_strings_match_btcpp(code, expected):
-    status, bt_board = btcpp_run(code, s="hi")
+    status, bt_board = btcpp_run(code, s="hi", d=2.5, i=7)
     assert status == "SUCCESS"
     assert bt_board.get_string("r") == expected
-    assert run(code, s="hi") == expected
+    assert run(code, s="hi", d=2.5, i=7) == expected
+
+
+@pytest.mark.parametrize("doubling", ["s = s .. s", "s = s + s", "s += s"])
+def test_a_string_doubled_past_the_limit_is_an_error_not_a_full_memory(doubling):
+    """On main a script doubling a string reached 6.9 GB."""
+    script = "s := 'ab'; " + "; ".join([doubling] * 20)  # the 19th doubling makes 2^20 characters
+    with pytest.raises(ScriptError, match=rf"^the string would be 1048576 characters long; scripts build strings of at most {MAX_STRING_CHARS} at column \d+$"):
+        run(script)
+    assert len(run("s := 'ab'; " + "; ".join([doubling] * 18))) == 2**19  # below the limit
 
 
 def test_integer_entries_stay_integers_in_both():

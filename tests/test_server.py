@@ -228,6 +228,13 @@ def _request_json(**changes) -> bytes:
      "bad request: 'images' must be a list index-aligned with 'image_names': 1 images for 2 names"),
     (_request_json(frozen_prefix_steps=-1), "bad request: 'frozen_prefix_steps' must be an integer in [0, 2^32), got -1"),
     (_request_json(joint_positions=encode_array(np.array([np.nan] * 7))), "bad request: 'joint_positions' has non-finite values"),
+    # absurd sizes and numbers: on main a 500 with a traceback
+    (_request_json(joint_positions={"dtype": "float64", "shape": [0, 10**30], "data": ""}),
+     "bad request: 'joint_positions' shape must be a list of at most 3 integers from 0 to 2147483647, got [0, 1000000000000000000000000000000]"),
+    (_request_json(previous_action_chunk={"dtype": "float64", "shape": [0, 2**31 - 1, 2**31 - 1], "data": ""}),
+     "bad request: 'previous_action_chunk' shape [0, 2147483647, 2147483647] is too large"),
+    (_request_json(stamp=10**400), "bad request: 'stamp' must be a finite number of seconds >= 0, got 1000000000"),
+    (_request_json(stamp=-1), "bad request: 'stamp' must be a finite number of seconds >= 0, got -1"),
 ])
 def test_bad_request_shapes_are_400_with_the_reason(serve, body, reason):
     backend = FakeBackend(chunk_answer)
@@ -493,6 +500,17 @@ def test_a_keyless_server_is_refused_off_loopback(host):
 ])
 def test_start_warnings_match_the_configuration(config, warnings):
     assert exposure_warnings(config) == warnings
+
+
+@pytest.mark.parametrize("port", ["70000", "-1", "３０", "1_000"])
+def test_serve_refuses_a_port_that_is_not_one_with_a_usage_error(capsys, port):
+    """On main 70000 and -1 reached the socket and printed an unexpected OverflowError."""
+    from runtime.cli import main
+
+    with pytest.raises(SystemExit) as exit_info:
+        main(["serve", "--backend", "replay", f"--port={port}"])
+    assert exit_info.value.code == 2
+    assert capsys.readouterr().err.endswith(f"objective serve: error: argument --port: expected a TCP port number (0-65535), got '{port}'\n")
 
 
 def test_serve_refuses_a_keyless_server_on_all_interfaces(tmp_path):

@@ -3,6 +3,8 @@ embedded oracle, with a replay of recorded chunks, and with a bad policy spec.""
 from __future__ import annotations
 
 import json
+import re
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -10,6 +12,8 @@ import pytest
 from runtime.cli import main
 from policy.replay import RecordedChunk, write_replay
 from sim.robot_model import ARM_JOINTS, GRIPPER_DRIVER_JOINT, load_waypoints
+
+OBJECTIVES = Path(__file__).resolve().parent.parent / "objectives"
 
 
 def run_cli(capsys, *args: str) -> tuple[int, dict]:
@@ -81,3 +85,76 @@ def test_unknown_policy_spec_is_bad_input(capsys):
     assert main(["run", "objectives/stack_cubes.xml", "--world", "kinematic", "--policy", "bogus"]) == 2
     assert ("world 'kinematic': policy 'bogus' is unknown (expected oracle, replay:FILE, lerobot:DIR, "
             "FILE.py:FACTORY, MODULE:FACTORY, http(s)://HOST:PORT or none)") in capsys.readouterr().err
+
+
+# -- a policy that drives the gripper straight down into the table --------------------------------
+POLICY_OBJECTIVES = sorted(
+    str(p.relative_to(OBJECTIVES.parent)) for p in OBJECTIVES.rglob("*.xml") if "policy_service_name=" in p.read_text()
+)
+
+
+def straight_down_policy():
+    """GetActionChunk answers that move the TCP straight down 2 cm a step (0.2 m/s) from where
+    the arm is (IK along the line), gripper as observed."""
+    from moveit_pro_ml_msgs.srv import GetActionChunk
+    from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
+
+    from runtime.scene.kinematics import IkSolver, frame_pose
+    from sim.planning import make_cell_scene
+
+    cube = (np.array([0.3, 0.3, 0.015]), np.array([1.0, 0.0, 0.0, 0.0]))
+    scene = make_cell_scene({"red": cube, "green": cube, "blue": cube})
+    solver = IkSolver(scene.robot, "manipulator", "tcp", None)
+    layout = scene.layout("manipulator", None)
+
+    def answer(request):
+        names = list(request.robot_state.name)
+        state = np.array(request.robot_state.position)
+        arm = state[: len(ARM_JOINTS)]
+        tcp = frame_pose(scene.robot, layout(arm), "tcp")
+        rows, q = [], arm
+        for k in range(50):
+            target = tcp.copy()
+            target[2, 3] = tcp[2, 3] - 0.02 * k
+            solution = solver.solve(target, [q], random_restarts=0)
+            q = solution.positions if solution.success else q
+            rows.append(np.append(q, state[len(ARM_JOINTS):]))
+        response = GetActionChunk.Response(status=GetActionChunk.Response.CHUNK_PRODUCED, native_control_period=0.1)
+        response.chunk = JointTrajectory(joint_names=names, points=[JointTrajectoryPoint(positions=r.tolist()) for r in rows])
+        return response
+
+    return answer
+
+
+def test_every_shipped_objective_that_runs_a_policy_is_listed():
+    assert POLICY_OBJECTIVES == [
+        "objectives/examples/obstacle_appears.xml",
+        "objectives/moveit_pro/stack_cubes_with_the_vla_policy.xml",
+        "objectives/stack_cubes.xml",
+        "objectives/stack_cubes_lerobot.xml",
+        "objectives/stack_cubes_until_check.xml",
+    ]
+
+
+@pytest.mark.parametrize("objective", POLICY_OBJECTIVES)
+def test_a_policy_driving_the_gripper_into_the_table_is_rejected_before_it_moves(objective):
+    """Only the contacts a task needs are allowed: the gripper may touch the cubes, never the
+    table, so the first chunk of a straight-down policy is refused naming a gripper link and
+    the table, and the arm never leaves Home."""
+    from moveit_pro_ml_msgs.srv import GetActionChunk
+
+    from runtime.loader import load_tree
+    from runtime.registry import Registry
+    from runtime.runner import RunOptions, make_context, run_tree
+    from sim.kinematic import KinematicWorld
+
+    options = RunOptions(seed=0, max_seconds=30.0, world="kinematic")
+    context = make_context(options)
+    world = KinematicWorld({"seed": 0, "policy": "none"})
+    loaded = load_tree(OBJECTIVES.parent / objective, Registry.from_entry_points(), context)
+    context.bus.create_service("/get_action_chunk", GetActionChunk, straight_down_policy())
+    result = run_tree(loaded, context, options, world=world)
+    assert (result.status, result.failing_node) == ("FAILURE", "ExecutePolicy"), result.reason
+    assert re.match(r"chunk 1 rejected: densified step \d+ \(t=[0-9.]+ s\): world collision gripper_\w+ vs table: ", result.reason), result.reason
+    home = load_waypoints()["Home"]
+    np.testing.assert_allclose(world.cell.arm, [home[j] for j in ARM_JOINTS], atol=1e-6)

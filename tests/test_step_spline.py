@@ -1,11 +1,13 @@
 """ExecutePolicy's chunk spline is scipy's smoothing spline, evaluated without scipy.
 
-``fit_chunk`` builds the smoothing spline as a cached linear map of the chunk and evaluates it
-piece by piece; scipy's ``make_smoothing_spline`` (and ``make_interp_spline`` for chunks of fewer
+``fit_chunk`` solves the smoothing spline's banded system for the chunk (time and memory linear
+in its steps) and evaluates it piece by piece; scipy's ``make_smoothing_spline`` (and ``make_interp_spline`` for chunks of fewer
 than 5 steps, what ``fit_chunk`` used before) is the reference: same values and derivatives,
 inside the chunk and beyond both ends.
 """
 from __future__ import annotations
+
+import tracemalloc
 
 import numpy as np
 import pytest
@@ -76,7 +78,7 @@ def test_pentadiagonal_solve_matches_the_dense_matrix(size):
     assert np.allclose(dense @ solve_pentadiagonal(d0, d1, d2, rhs), rhs, atol=1e-12)
 
 
-def test_the_map_is_reused_per_length_and_weight_and_each_chunk_gets_its_own_fit():
+def test_each_chunk_gets_its_own_fit():
     a, b = _chunk(1, 50, 6, 1.0), _chunk(2, 50, 6, 1.0)
     fit_a, fit_b = smoothing_spline(a, 1.0 / 300.0), smoothing_spline(b, 1.0 / 300.0)
     k = np.arange(50.0)
@@ -101,3 +103,27 @@ def test_bad_requests_say_what_is_wrong():
         interpolating_polynomial(np.zeros((0, 2)))
     with pytest.raises(ValueError, match=r"must be \(steps, joints\), got shape \(20,\)"):
         fit_chunk(np.zeros(20), 300.0)
+
+
+def _fit_peak_bytes(steps: int) -> int:
+    chunk = _chunk(5, steps, 7, 1.0)
+    fit_chunk(chunk[:10], 300.0)  # the solver's imports are not the fit's memory
+    tracemalloc.start()
+    try:
+        spline = fit_chunk(chunk, 300.0)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert np.max(np.abs(spline(np.arange(float(steps))) - chunk)) < 0.05
+    return peak
+
+
+def test_a_long_chunk_is_fitted_in_memory_linear_in_its_steps():
+    """A 2,000-step chunk fits in under 2 MB (a few copies of its 112 kB of values; the dense
+    n x n map took 320 MB and was cached), and 10,000 steps (``MAX_CHUNK_STEPS``) take about
+    five times as much, not 25 times."""
+    from behaviors.execute_policy.chunk import MAX_CHUNK_STEPS
+
+    peak_2000 = _fit_peak_bytes(2000)
+    assert peak_2000 < 2_000_000
+    assert _fit_peak_bytes(MAX_CHUNK_STEPS) < 6 * peak_2000

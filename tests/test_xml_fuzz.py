@@ -153,6 +153,9 @@ NASTY = {
     "subtree_fanout": lambda t: "<root BTCPP_format=\"4\" main_tree_to_execute=\"L0\">" + "".join(
         f'<BehaviorTree ID="L{i}"><Sequence>' + f'<SubTree ID="L{i + 1}"/>' * 4 + "</Sequence></BehaviorTree>" for i in range(12)
     ) + '<BehaviorTree ID="L12"><AlwaysSuccess/></BehaviorTree></root>',
+    "subtree_chain": lambda t: '<root BTCPP_format="4" main_tree_to_execute="C0">' + "".join(
+        f'<BehaviorTree ID="C{i}"><SubTree ID="C{i + 1}"/></BehaviorTree>' for i in range(500)
+    ) + '<BehaviorTree ID="C500"><AlwaysSuccess/></BehaviorTree></root>',
 }
 
 
@@ -226,6 +229,7 @@ EXPECTED = {
     "huge_file": "Objectives are limited to 5242880 bytes",
     "just_past_the_depth_limit": "elements nest deeper than 200 levels",
     "many_attributes": "<AlwaysSuccess> has 100000 attributes (limit 1000)",
+    "subtree_chain": "the tree nests more than 150 nodes deep after expanding SubTrees (151 trees deep: C0 -> C1 -> C2 -> ...",
 }
 
 
@@ -242,7 +246,7 @@ def test_refusals_say_what_was_refused(registry, tmp_path, case):
 @pytest.mark.timeout(BOUND_S)
 def test_cli_exits_2_without_a_traceback_on_hostile_files(tmp_path):
     files = []
-    for case in ("deep_nesting", "billion_laughs", "external_entity", "huge_attribute", "xinclude", "subtree_recursion"):
+    for case in ("deep_nesting", "billion_laughs", "external_entity", "huge_attribute", "xinclude", "subtree_recursion", "subtree_chain"):
         path = tmp_path / f"{case}.xml"
         path.write_text(NASTY[case](tmp_path / "absent"), encoding="utf-8")
         files.append(str(path))

@@ -30,7 +30,7 @@ from runtime.ports import Direction
 from . import config as cfg
 from .checks import PointChecks
 from .chunk import Chunk, ChunkError, read_chunk, read_policy_chunk
-from .gripper import GripperGoal, follow_goals
+from .gripper import GripperGoal, follow_goals, join_targets
 from .observation import ObservationError, policy_tail, robot_state
 from .planner import (
     Arrival,
@@ -88,6 +88,8 @@ class RunMetrics:
     steps_executed: int = 0
     stall_seconds: float = 0.0
     rejections: int = 0
+    gripper_clamped: int = 0
+    """Gripper targets a little outside the gripper's range, clamped into it."""
     latencies: list[float] = field(default_factory=list)
     latency_estimate_s: float = 0.0
     """What the last request was timed for (``timing.LatencyEstimate``)."""
@@ -102,6 +104,7 @@ class RunMetrics:
             "steps_executed": self.steps_executed,
             "stall_seconds": round(self.stall_seconds, 4),
             "rejections": self.rejections,
+            "gripper_clamped": self.gripper_clamped,
             "latency_p50_s": round(float(np.percentile(lat, 50)), 4),
             "latency_p95_s": round(float(np.percentile(lat, 95)), 4),
             "latency_max_s": round(float(lat.max()), 4),
@@ -160,6 +163,9 @@ class ExecutePolicy(Behavior):
             raise PortError(str(err), self.location, self.xml_id) from None
 
     # -- lifecycle ---------------------------------------------------------------------------
+    def setup(self, **kwargs: Any) -> None:
+        import scipy.linalg  # noqa: F401  (the chunk fit's banded solver: loaded here, not in the first chunk's tick)
+
     def initialise(self) -> None:
         self.phase = Phase.STARTUP
         self.metrics = RunMetrics(node=self.name)
@@ -185,6 +191,7 @@ class ExecutePolicy(Behavior):
         self.policy_chunk: np.ndarray | None = None
         self.policy_chunk_request_step = 0
         self.gripper_schedule: list[tuple[float, float]] = []
+        self.gripper_plan: dict[int, float] = {}  # the last window's gripper targets, by run step
         self.gripper_sent: float | None = None
         self.gripper_goals: list[GripperGoal] = []
         self.warned_period = False
@@ -406,9 +413,9 @@ class ExecutePolicy(Behavior):
         self._check_period(response.native_control_period)
         try:
             chunk = read_chunk(response.chunk, self.safety.group_joints, c.gripper_joint_name or None)
-            chunk = Chunk(chunk.arm, self.safety.settle_gripper_column(chunk.gripper))
         except ChunkError as err:
             return self._reject(f"chunk {self.metrics.chunks} rejected: {err}", FailureKind.MALFORMED_CHUNK.value)
+        chunk = Chunk(chunk.arm, self._settle_gripper(chunk.gripper))
         problem = cfg.committed_window_problem(c.committed_action_steps, chunk.steps) if self.metrics.chunks == 1 else None
         if problem is not None:
             return self._reject(f"chunk 1 rejected: {problem}", SHORT_CHUNK)
@@ -539,7 +546,12 @@ class ExecutePolicy(Behavior):
             return
         grid = self._committed().grid
         steps = range(window.seam_step, window.end_step + grid.tail.extension_steps)  # the arm plays the extension too
-        self.gripper_schedule = [(grid.time(s), float(chunk.gripper[s - window.request_step])) for s in steps]
+        earlier = [s for s in self.gripper_plan if s < window.seam_step]  # the target in effect before the seam
+        before = self.gripper_plan[max(earlier)] if earlier else self.gripper_sent
+        limit = self.safety.chunk_limits[self.safety.gripper_joint]
+        targets = join_targets(before, [float(chunk.gripper[s - window.request_step]) for s in steps], limit.max_velocity * grid.dt)
+        self.gripper_plan = dict(zip(steps, targets))
+        self.gripper_schedule = [(grid.time(s), target) for s, target in self.gripper_plan.items()]
 
     def _stream_gripper(self, now: float) -> None:
         target = None
@@ -673,6 +685,20 @@ class ExecutePolicy(Behavior):
                 f"{period / self.config.dt:.2f}x as fast as trained (the chunk is not retimed)"
             )
         self.warned_period = True
+
+    def _settle_gripper(self, gripper: np.ndarray | None) -> np.ndarray | None:
+        """The gripper column clamped into its range where it is a little outside
+        (``safety.GRIPPER_BAND_FRACTION``): counted, and warned about once per run."""
+        settled = self.safety.settle_gripper_column(gripper)
+        if settled.clamped and not self.metrics.gripper_clamped:
+            limit = self.safety.chunk_limits[self.safety.gripper_joint]
+            self._warn(
+                f"the policy's gripper column leaves the range {limit.lower:.4f}..{limit.upper:.4f} rad by up to "
+                f"{settled.farthest_rad:.4f} rad (within the {self.safety.gripper_band_rad():.4f} rad band): such values are "
+                "clamped into the range and counted (gripper_clamped); further out a chunk is rejected"
+            )
+        self.metrics.gripper_clamped += settled.clamped
+        return settled.values
 
     def _warn(self, text: str) -> None:
         self.metrics.warnings.append(text)

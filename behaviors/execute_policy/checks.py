@@ -6,7 +6,7 @@ fail, a ``CheckFailure`` (its kind, and a sentence naming the run's policy step)
 from __future__ import annotations
 
 import enum
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -57,9 +57,16 @@ class PointChecks:
     grid: StepGrid
 
     def values(self, chunk: Chunk, window: Window) -> CheckFailure | None:
-        """The values the window is built from, as the policy sent them (the gripper column too)."""
+        """The values the window is built from, as the policy sent them (the gripper column
+        too), against the position limits; then the gripper column from the seam on, every step
+        of which may be streamed, against the gripper's position, velocity and acceleration
+        limits (its join to the target before the seam is ``gripper.join_targets``')."""
         last = window.end_step - window.request_step + 1
         outside = self.safety.first_value_out_of_limits(chunk.arm[:last], None if chunk.gripper is None else chunk.gripper[:last])
+        if outside is None and chunk.gripper is not None:
+            seam = window.seam_step - window.request_step
+            rates = self.safety.first_gripper_target_out_of_limits(chunk.gripper[seam:], self.grid.dt)
+            outside = None if rates is None else replace(rates, step=rates.step + seam)
         if outside is None:
             return None
         return CheckFailure(CheckKind.of_limit(outside.quantity), f"{outside} (policy step {window.request_step + outside.step} of the run)")

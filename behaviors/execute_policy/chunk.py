@@ -4,6 +4,7 @@ Without a gripper, each point's positions go to the joint group's joints in list
 chunk's ``joint_names`` must be exactly the group's joints in that order. With a gripper, values
 are matched by name: the names must be the group's joints plus exactly the configured gripper
 joint, in any order. Every value must be finite and every point must have one value per name.
+A chunk has at most ``MAX_CHUNK_STEPS`` points.
 """
 from __future__ import annotations
 
@@ -13,6 +14,12 @@ from typing import Any, Sequence
 import numpy as np
 
 from runtime.errors import ObjectiveError
+
+MAX_CHUNK_STEPS = 10_000
+"""The most points one chunk may carry: 1,000 s at 10 Hz, 200 times the 50 steps of SmolVLA or
+pi0. Planning costs time and memory linear in a chunk's steps (``step_spline``); the cap keeps
+one answer from holding a tick for long (a 10,000-step chunk is read and planned in well under a
+second) and names the policy's mistake."""
 
 
 class ChunkError(ObjectiveError, ValueError):
@@ -41,6 +48,8 @@ def read_chunk(
     points = list(trajectory.points)
     if not points:
         raise ChunkError("chunk has no points")
+    if len(points) > MAX_CHUNK_STEPS:
+        raise ChunkError(f"chunk has {len(points)} points, more than the {MAX_CHUNK_STEPS} one chunk may carry")
     group = list(group_joints)
     if gripper_joint is None:
         if names != group:

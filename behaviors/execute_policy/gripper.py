@@ -1,7 +1,9 @@
 """The gripper column's goals and what their answers mean. Decisions are pure functions.
 
 The chunk's gripper column is streamed to a ``control_msgs/GripperCommand`` action, one goal
-per change of target. Every goal is followed until it ends: a goal the controller refuses, or
+per change of target. A chunk's column was checked against the gripper's limits on its own; where
+it takes over from the previous chunk's at the seam, ``join_targets`` moves from the target in
+effect toward it no faster than the gripper's velocity limit, as the arm's blend does. Every goal is followed until it ends: a goal the controller refuses, or
 one it aborts short of its target without having stalled, ends the run. A goal that ends with
 ``stalled`` (the fingers stopped on an object: a grasp) is normal, whether the controller
 reports it as succeeded or, like ros2_controllers' GripperActionController without
@@ -15,6 +17,19 @@ from typing import Any
 from runtime.bus import STATUS_ABORTED, STATUS_CANCELED, STATUS_SUCCEEDED
 
 from ..action_goal import Goal, GoalState
+
+
+def join_targets(before: float | None, targets: list[float], max_step_rad: float) -> list[float]:
+    """``targets`` (one per step) taken over from ``before`` (the target one step earlier; None:
+    nothing streamed yet) with no step larger than ``max_step_rad``: the first targets move toward
+    the column at that rate until they meet it, then follow it."""
+    joined, previous = [], before
+    for target in targets:
+        if previous is not None:
+            target = min(max(target, previous - max_step_rad), previous + max_step_rad)
+        joined.append(target)
+        previous = target
+    return joined
 
 
 @dataclass

@@ -34,6 +34,16 @@ class Samples:
     def __len__(self) -> int:
         return len(self.times)
 
+    @property
+    def duration_s(self) -> float:
+        return float(self.times[-1] - self.times[0])
+
+    @classmethod
+    def at_rest(cls, position: np.ndarray) -> Samples:
+        """A motion of no length: ``position`` alone, at time 0."""
+        q = np.asarray(position, dtype=float).reshape(1, -1)
+        return cls(np.zeros(1), q, np.zeros_like(q), np.zeros_like(q))
+
 
 def fit_chunk(positions: np.ndarray, tracking_weight: float) -> StepSpline:
     """Smoothing spline through a (N, J) chunk, parameterised by step index.

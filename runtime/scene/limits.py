@@ -132,6 +132,17 @@ class JointLimits:
         time = None if times is None else float(np.asarray(times)[step])
         return LimitViolation(step, time, self.joints[column].name, quantity, value, limit)
 
+    def check_steps(self, positions: np.ndarray, dt_s: float, tolerance: float = 1e-9) -> LimitViolation | None:
+        """``check`` for targets one step of ``dt_s`` apart (a policy's column of gripper goals):
+        the velocity into step k is ``(q_k - q_(k-1)) / dt_s`` (from step 1 on), the
+        acceleration at step k the second difference over ``dt_s^2`` (from step 2 on), each
+        reported at the step that asks for it."""
+        q = self._as_rows(positions, "positions")
+        velocities, accelerations = np.zeros_like(q), np.zeros_like(q)
+        velocities[1:] = np.diff(q, axis=0) / dt_s
+        accelerations[2:] = np.diff(q, 2, axis=0) / (dt_s * dt_s)
+        return self.check(q, velocities, accelerations, tolerance=tolerance)
+
     def _as_rows(self, values: np.ndarray, what: str) -> np.ndarray:
         a = np.atleast_2d(np.asarray(values, dtype=float))
         if a.shape[1] != len(self.joints):

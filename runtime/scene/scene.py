@@ -87,6 +87,7 @@ class PlanningScene:
         self._default = (group, gripper_joint)
         self.layout(group, gripper_joint)  # fail early on a bad group or gripper joint
         self._objects: dict[str, WorldObject] = {}
+        self._fixed: set[str] = set()
         self._rules: dict[tuple[str, str], bool] = {}
         self._attachments: dict[str, Attachment] = {}
         self._structure = 0  # bumped when the set of world objects changes
@@ -134,8 +135,11 @@ class PlanningScene:
         return lay(Q)
 
     # -- world objects --------------------------------------------------------------------
-    def add_object(self, name: str, shape: Shape, pose: np.ndarray) -> None:
-        """Add (or replace) a world object; ``pose`` is a 4x4 matrix in the world frame."""
+    def add_object(self, name: str, shape: Shape, pose: np.ndarray, fixed: bool = False) -> None:
+        """Add (or replace) a world object; ``pose`` is a 4x4 matrix in the world frame.
+
+        ``fixed`` marks the cell's furniture (a table, a welded box): an object the task never
+        handles, so ``handled_objects`` leaves it out."""
         if not name or name == ANY:
             raise ValueError(f"invalid object name {name!r}")
         make_geometry(shape)  # validate now, not at the next check
@@ -143,6 +147,7 @@ class PlanningScene:
             if name in self._attachments:
                 raise ValueError(f"object {name!r} is attached to {self._attachments[name].link!r}; detach it first")
             self._objects[name] = WorldObject(name, shape, _pose_tuple(pose))
+            (self._fixed.add if fixed else self._fixed.discard)(name)
             self._structure += 1
 
     @property
@@ -165,6 +170,7 @@ class PlanningScene:
         with self._lock:
             self._object(name)
             del self._objects[name]
+            self._fixed.discard(name)
             self._structure += 1
 
     def object_pose(self, name: str) -> np.ndarray:
@@ -175,6 +181,13 @@ class PlanningScene:
     def objects(self) -> dict[str, WorldObject]:
         with self._lock:
             return dict(self._objects)
+
+    @property
+    def handled_objects(self) -> list[str]:
+        """The world objects a task may handle, sorted: every one but the fixed ones (the
+        table). What an Objective's ``SetCollisionRule object_name="*"`` stands for."""
+        with self._lock:
+            return sorted(n for n in self._objects if n not in self._fixed)
 
     def _object(self, name: str) -> WorldObject:
         try:
