@@ -9,11 +9,14 @@ from __future__ import annotations
 
 import json
 import os
+import subprocess
 from pathlib import Path
 
 import pytest
 
-from evaluation.config import WorkerSpec
+import runtime.report.worker as report_worker
+from evaluation.config import RecordMode, WorkerSpec
+from evaluation.episode import EpisodeStatus
 from evaluation.policies import parse_policy
 from evaluation.worker import EpisodeWorker
 from runtime.cli import main
@@ -136,6 +139,67 @@ def test_a_kept_physics_world_runs_a_seed_as_a_fresh_one():
     assert a.seeded_view() == b.seeded_view()
 
 
+def recording_workers() -> list[int]:
+    """The pids of this process's children that are recording workers."""
+    children = []
+    for task in Path("/proc/self/task").iterdir():
+        children += (task / "children").read_text().split()
+    return [int(pid) for pid in children
+            if b"runtime.report.worker" in Path(f"/proc/{pid}/cmdline").read_bytes()]
+
+
+@pytest.fixture
+def slow_recording_worker(monkeypatch):
+    """Recording workers that start 2 s late: the run is over long before they wrote run.mcap."""
+    popen = subprocess.Popen
+
+    def late(args, **kwargs):
+        if list(args[1:]) == ["-m", "runtime.report.worker"]:
+            args = [args[0], "-c", "import runpy, time; time.sleep(2); "
+                    "runpy.run_module('runtime.report.worker', run_name='__main__', alter_sys=True)"]
+        return popen(args, **kwargs)
+
+    monkeypatch.setattr(report_worker.subprocess, "Popen", late)
+
+
+def test_a_failed_episode_keeps_its_reason_and_a_whole_recording_however_late_the_recording_worker(
+        tmp_path, slow_recording_worker):
+    """``--record failures``: the report is rendered only once the worker wrote the recording, so a
+    failing episode stays a FAILURE with its reason, its recording moved out of ``.partial-*``; a
+    successful episode's recording is removed and its worker stopped."""
+    spec = WorkerSpec(objective=STACK, world="kinematic", policy=parse_policy("oracle"), max_seconds=2.0,
+                      record=RecordMode.FAILURES)
+    worker = EpisodeWorker(spec, "w", tmp_path / "recordings")
+    worker.warm_up()
+    try:
+        record = worker.run(0)
+    finally:
+        worker.close()
+    assert record.status is EpisodeStatus.FAILURE, record.reason
+    assert record.reason.startswith("stopped after --max-seconds 2 s of clock time while ")
+    assert record.recording == "recordings/seed-0" and "recording_errors" not in record.run
+    kept = tmp_path / "recordings" / "seed-0"
+    assert (kept / "run.mcap").stat().st_size > 0 and (kept / "report.html").is_file()
+    summary = json.loads((kept / "events.jsonl").read_text().splitlines()[-1])
+    assert summary["kind"] == "run_summary" and summary["data"]["status"] == "FAILURE"
+    assert sorted(p.name for p in (tmp_path / "recordings").iterdir()) == ["seed-0"]
+    assert recording_workers() == []
+
+
+def test_a_successful_episode_leaves_no_recording_and_no_recording_worker(tmp_path, fault_plugin):
+    spec = WorkerSpec(objective=faults_objective(tmp_path), policy=parse_policy("oracle"), record=RecordMode.FAILURES)
+    worker = EpisodeWorker(spec, "w", tmp_path / "recordings")
+    worker.warm_up()
+    try:
+        records = [worker.run(seed) for seed in (0, 1)]
+    finally:
+        worker.close()
+    assert [r.status for r in records] == [EpisodeStatus.SUCCESS] * 2
+    assert [r.recording for r in records] == [None, None]
+    assert list((tmp_path / "recordings").iterdir()) == []
+    assert recording_workers() == []
+
+
 def layout_xy(seed: int) -> dict:
     from sim.layouts import layout
 
@@ -228,3 +292,4 @@ def test_a_running_inference_server_serves_every_worker_with_its_key_from_the_en
     line = episodes(tmp_path / "eval")[0]
     assert line["run"]["execute_policy"]["chunks"] == 2
     assert line["failing_node"] == "top cube on bottom cube"
+
