@@ -42,12 +42,15 @@ from .errors import ObjectiveError
 if TYPE_CHECKING:
     from .recording.live import LiveOptions
 from .events import EventLog
-from .interrupt import Interrupted, StopRequest, exit_code_for, signal_name
+from .interrupt import Interrupted, StopRequest, exit_code_for, held_back, signal_name
 from .loader import LoadedTree, load_tree
 from .registry import WORLD_GROUP, Registry, default_world_name
 
 Progress = Callable[[float, int, str], None]
 """Called after every tick with (clock seconds, ticks so far, name of the running node)."""
+RECORDING_END_TIMEOUT_S = 30.0
+"""Wall-clock bound on the recording worker writing the end of an interrupted run's recording
+(what it received, the MCAP summary section, ``metadata.yaml``); past it, it is stopped."""
 
 
 @dataclass
@@ -559,16 +562,19 @@ def _run_recorded(loaded: LoadedTree, context: RunContext, options: RunOptions, 
     except BaseException as err:  # the run did not start (e.g. no such world): say so in the recording
         end = RunEnd.INTERRUPTED if isinstance(err, KeyboardInterrupt) else RunEnd.ERROR
         try:
-            recorder.finish({"status": end.value, "reason": str(err) or type(err).__name__})
+            with held_back(stop):
+                recorder.finish({"status": end.value, "reason": str(err) or type(err).__name__})
         finally:
-            worker.close()
+            worker.close(RECORDING_END_TIMEOUT_S)
         raise
-    recorder.finish(result.to_json())
-    if stop is not None:
-        stop.urgent = True  # the run is over: a signal now stops the rendering at once
     try:
+        with held_back(stop):  # a signal now waits until the summary and the end are sent
+            recorder.finish(result.to_json())
+            if stop is not None:
+                stop.urgent = True  # the run is over: a signal now stops the rendering at once
         worker.render(options.record_dir, context.logger)
     except KeyboardInterrupt:
+        worker.close(RECORDING_END_TIMEOUT_S)  # it finishes the recording's files, renders nothing
         context.logger.warning("recording %s: the report was not rendered (interrupted); "
                                "`objective report %s` renders it", options.record_dir, options.record_dir)
     except Exception as err:  # the run itself is over and recorded: its result stands

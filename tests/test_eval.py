@@ -9,7 +9,10 @@ from __future__ import annotations
 
 import json
 import os
+import signal
 import subprocess
+import sys
+import time
 from pathlib import Path
 
 import pytest
@@ -293,3 +296,66 @@ def test_a_running_inference_server_serves_every_worker_with_its_key_from_the_en
     assert line["run"]["execute_policy"]["chunks"] == 2
     assert line["failing_node"] == "top cube on bottom cube"
 
+
+# -- signals and concurrent evaluations ---------------------------------------------------------
+EXE = Path(sys.executable).parent / "objective"
+BOUND_S = 120.0
+
+
+def start_eval(objective: Path, out: Path, *args: str) -> subprocess.Popen:
+    return subprocess.Popen([str(EXE), "eval", str(objective), "--record", "none", "--out", str(out), *args],
+                            cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+
+def wait_for_episodes(out: Path, count: int, proc: subprocess.Popen) -> None:
+    deadline = time.monotonic() + BOUND_S
+    while not ((out / "episodes.jsonl").exists() and len(episodes(out)) >= count):
+        if proc.poll() is not None or time.monotonic() > deadline:
+            proc.kill()
+            raise AssertionError(f"no {count} episodes within {BOUND_S} s: {proc.communicate()[1]}")
+        time.sleep(0.1)
+
+
+def ended(proc: subprocess.Popen) -> tuple[int, str, str]:
+    try:
+        out, err = proc.communicate(timeout=BOUND_S)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        raise AssertionError(f"`objective eval` did not end within {BOUND_S} s: {proc.communicate()[1]}") from None
+    return proc.returncode, out, err
+
+
+def test_a_second_evaluation_of_a_busy_out_is_refused_and_sigterm_keeps_the_episodes_so_far(tmp_path, capsys, fault_plugin):
+    objective = faults_objective(tmp_path, hang=1)  # seed 0 succeeds, seed 1 hangs until stopped
+    out = tmp_path / "eval"
+    first = start_eval(objective, out, "--episodes", "4", "--episode-timeout", "600", "--json")
+    wait_for_episodes(out, 1, first)
+    code = main(["eval", str(objective), "--episodes", "4", "--record", "none", "--episode-timeout", "5", "--out", str(out)])
+    err = capsys.readouterr().err
+    assert code == 2
+    assert f"--out {out} is in use by another evaluation (pid {first.pid}); wait for it to end, or use another --out" in err
+    first.send_signal(signal.SIGTERM)
+    code, stdout, err = ended(first)
+    assert code == 143, err
+    assert "interrupted by SIGTERM: the finished episodes are kept; run the same command again to resume" in err
+    assert "Traceback" not in err
+    summary = json.loads((out / "summary.json").read_text())
+    assert (summary["interrupted"], summary["episodes"], summary["requested"], summary["complete"]) == ("SIGTERM", 1, 4, False)
+    assert json.loads(stdout.strip().splitlines()[-1]) == summary
+    assert [line["seed"] for line in episodes(out)] == [0]
+
+
+def test_evaluations_started_together_on_one_out_run_each_seed_once(tmp_path, fault_plugin):
+    """Three `objective eval` of the same DIR at once: one runs the seeds, the others are refused
+    (or, started after it ended, find every seed done)."""
+    objective = faults_objective(tmp_path, fail=2)
+    out = tmp_path / "eval"
+    procs = [start_eval(objective, out, "--episodes", "4") for _ in range(3)]
+    results = [ended(proc) for proc in procs]
+    codes = sorted(code for code, _, _ in results)
+    assert all(code in (0, 2) for code in codes) and codes.count(0) >= 1, results
+    for code, _, err in results:
+        assert "Traceback" not in err
+        if code == 2:
+            assert "is in use by another evaluation (pid " in err
+    assert sorted(line["seed"] for line in episodes(out)) == [0, 1, 2, 3]
