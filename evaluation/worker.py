@@ -36,8 +36,10 @@ def recording_name(seed: int) -> str:
     return f"seed-{seed}"
 
 
-def _render(worker: Any, directory: Path) -> dict[str, str]:
-    """Render the report of the finished recording in ``directory``; the artifacts that failed.
+def _render(worker: Any, directory: Path) -> dict[str, Any]:
+    """Render the report of the finished recording in ``directory``; what the episode's record
+    notes of it: ``recording_errors`` (the artifacts that failed), ``recording_incomplete`` (why
+    the recording is not whole: a full disk).
 
     The recording worker renders it once it has written every file of the recording (it takes
     the request after the recording's end, ``RENDER_TIMEOUT`` bounds the wait), so the report
@@ -47,8 +49,13 @@ def _render(worker: Any, directory: Path) -> dict[str, str]:
     try:
         report = worker.render(directory)
     except ObjectiveError as err:
-        return {"recording": str(err)}
-    return {k: str(v) for k, v in report.errors.items()}
+        return {"recording_errors": {"recording": str(err)}}
+    notes: dict[str, Any] = {}
+    if report.errors:
+        notes["recording_errors"] = {k: str(v) for k, v in report.errors.items()}
+    if report.partial:
+        notes["recording_incomplete"] = "; ".join(report.partial)
+    return notes
 
 
 class KeptWorld:
@@ -177,14 +184,12 @@ class EpisodeWorker:
                 worker.close()  # stopped before its files are removed
                 shutil.rmtree(scratch, ignore_errors=True)
                 return record
-            errors = _render(worker, scratch)
+            record.run.update(_render(worker, scratch))
         finally:
             worker.close()
         shutil.rmtree(final, ignore_errors=True)
         scratch.rename(final)
         record.recording = f"{RECORDINGS_DIR}/{final.name}"
-        if errors:
-            record.run["recording_errors"] = errors
         return record
 
     # -- options ---

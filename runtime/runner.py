@@ -544,7 +544,9 @@ def _run_recorded(loaded: LoadedTree, context: RunContext, options: RunOptions, 
     then the report rendered into ``options.record_dir``.
 
     The recording is finished whatever ended the run (its summary says how). A signal while the
-    report renders stops the rendering; ``objective report DIR`` renders it later.
+    report renders stops the rendering; ``objective report DIR`` renders it later. A recording
+    that could not be written whole (a full disk) leaves the run's result as it is, with
+    ``recording_incomplete`` saying why.
     """
     from .recording import Recorder
 
@@ -572,7 +574,10 @@ def _run_recorded(loaded: LoadedTree, context: RunContext, options: RunOptions, 
             recorder.finish(result.to_json())
             if stop is not None:
                 stop.urgent = True  # the run is over: a signal now stops the rendering at once
-        worker.render(options.record_dir, context.logger)
+        report = worker.render(options.record_dir, context.logger)
+        incomplete = "; ".join(report.partial) or recorder.incomplete
+        if incomplete:  # (a full disk: the run went on, its recording stopped)
+            result.extra["recording_incomplete"] = incomplete
     except KeyboardInterrupt:
         worker.close(RECORDING_END_TIMEOUT_S)  # it finishes the recording's files, renders nothing
         context.logger.warning("recording %s: the report was not rendered (interrupted); "
