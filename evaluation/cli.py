@@ -86,6 +86,8 @@ def summary_lines(summary: dict[str, Any], out: Path) -> list[str]:
 
 
 def cmd_eval(args: argparse.Namespace, registry: Any) -> int:
+    from runtime.interrupt import StopRequest, stop_on_signals
+
     from .evaluate import evaluate
     from .progress import ProgressBar
 
@@ -96,11 +98,16 @@ def cmd_eval(args: argparse.Namespace, registry: Any) -> int:
         bar.append(ProgressBar(sys.stderr, config.episodes, resumed))
         return bar[0]
 
+    stop = StopRequest(urgent=True)  # SIGINT/SIGTERM stop it at once: the finished episodes are kept and summarised
     try:
-        outcome = evaluate(config, registry, progress if sys.stderr.isatty() else None)
+        with stop_on_signals(stop):
+            outcome = evaluate(config, registry, progress if sys.stderr.isatty() else None, stop)
     finally:
         if bar:
             bar[0].clear()
+    if outcome.interrupted:
+        print(f"interrupted by {outcome.summary['interrupted']}: the finished episodes are kept; "
+              "run the same command again to resume", file=sys.stderr)
     for line in summary_lines(outcome.summary, config.out):
         print(line, file=sys.stderr)
     if args.json:

@@ -1,11 +1,13 @@
 """``evaluate``: an evaluation from its config to ``episodes.jsonl``, ``summary.json`` and ``report.html``."""
 from __future__ import annotations
 
+import signal
 import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from runtime.interrupt import StopRequest, exit_code_for, held_back, signal_name
 from runtime.loader import validate
 from runtime.registry import Registry
 
@@ -21,14 +23,19 @@ from .store import EvalStore
 class EvalOutcome:
     directory: Path
     summary: dict[str, Any]
-    interrupted: bool = False
+    signum: int | None = None
+    """The signal that interrupted the evaluation (None: it ran to its end)."""
+
+    @property
+    def interrupted(self) -> bool:
+        return self.signum is not None
 
     @property
     def exit_code(self) -> int:
         """0: every requested episode finished (successes and failures alike); 1: some ended ERROR;
-        130: interrupted (run the command again to resume)."""
-        if self.interrupted:
-            return 130
+        130 / 143: interrupted by SIGINT / SIGTERM (run the command again to resume)."""
+        if self.signum is not None:
+            return exit_code_for(self.signum)
         return 1 if self.summary["errors"] else 0
 
 
@@ -40,12 +47,15 @@ def make_executor(config: EvalConfig) -> Executor:
     return LocalExecutor(config.spec, config.workers, config.out, config.episode_timeout_s)
 
 
-def evaluate(config: EvalConfig, registry: Registry, progress: Any = None) -> EvalOutcome:
+def evaluate(config: EvalConfig, registry: Registry, progress: Any = None, stop: StopRequest | None = None) -> EvalOutcome:
     """Run the episodes of ``config`` not yet in its DIR and summarise all of them.
 
     ``progress(store_records)`` builds a callable told about every finished episode (the CLI's
-    bar). Raises ObjectiveError for bad input: options, the Objective (``file:line: Node: what``),
-    a DIR made by another Objective or policy, a world or policy the workers cannot load.
+    bar). ``stop``: where SIGINT/SIGTERM handlers note the signal that interrupts it (it is
+    raised as ``KeyboardInterrupt``); the summary of the episodes so far is written either way
+    and names it. Raises ObjectiveError for bad input: options, the Objective (``file:line:
+    Node: what``), a DIR made by another Objective or policy or in use by another evaluation, a
+    world or policy the workers cannot load.
     """
     config.check()
     spec = config.spec
@@ -54,22 +64,39 @@ def evaluate(config: EvalConfig, registry: Registry, progress: Any = None) -> Ev
     store = EvalStore(config.out, ident)
     resumed = sum(1 for seed in config.seeds if seed in store.records)
     started = time.monotonic()
-    interrupted = False
+    signum: int | None = None
     try:
-        if resumed < config.episodes:
-            tell: Progress | None = progress([store.records[s] for s in config.seeds if s in store.records]) if progress else None
-            executor = make_executor(config)
-            try:
-                interrupted = run_episodes(config, executor, store, tell).interrupted
-            finally:
-                executor.close()
-    except KeyboardInterrupt:
-        interrupted = True
+        try:
+            if resumed < config.episodes:
+                tell: Progress | None = progress([store.records[s] for s in config.seeds if s in store.records]) if progress else None
+                executor = make_executor(config)
+                try:
+                    if run_episodes(config, executor, store, tell).interrupted:
+                        signum = _signal(stop)
+                finally:
+                    executor.close()
+        except KeyboardInterrupt:
+            signum = _signal(stop)
+        with held_back(stop):  # the summary is written whole, whatever signal arrives meanwhile
+            summary = _summarise(config, store, ident, resumed, started, signum)
     finally:
         store.close()
+    return EvalOutcome(config.out, summary, signum)
+
+
+def _signal(stop: StopRequest | None) -> int:
+    """The signal that interrupted the evaluation (SIGINT when nobody noted one)."""
+    return (stop.signum if stop is not None else None) or signal.SIGINT
+
+
+def _summarise(config: EvalConfig, store: EvalStore, ident: dict[str, Any], resumed: int, started: float,
+               signum: int | None) -> dict[str, Any]:
+    """Write ``summary.json`` and ``report.html`` of the episodes in ``store``; the summary."""
+    spec = config.spec
     records = [store.records[s] for s in config.seeds if s in store.records]
     summary = summarise(records, config.episodes)
     summary.update({
+        "interrupted": signal_name(signum) if signum is not None else None,
         "seeds": [config.seed_start, config.seed_start + config.episodes - 1],
         "resumed": resumed,
         "executor": config.executor.value,
@@ -82,4 +109,4 @@ def evaluate(config: EvalConfig, registry: Registry, progress: Any = None) -> Ev
     })
     store.write_summary(summary)
     write_report(config.out, summary, records, ident)
-    return EvalOutcome(config.out, summary, interrupted)
+    return summary

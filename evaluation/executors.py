@@ -279,5 +279,6 @@ class LocalExecutor(SlotPool):
                 except (BrokenPipeError, OSError):
                     pass
         for slot in self.slots:
-            slot.process.join(timeout=5)
+            if slot.state is not SlotState.RUNNING:  # a running episode is stopped at once (interrupted)
+                slot.process.join(timeout=5)
             self._stop(slot)

@@ -1,5 +1,6 @@
 """An evaluation's directory: ``eval.json`` (what made it), ``episodes.jsonl`` (one line per
-finished episode, appended as each finishes) and ``summary.json``.
+finished episode, appended as each finishes), ``summary.json``, and ``eval.lock``, held while an
+evaluation runs there (a second evaluation of the same DIR is refused, naming the first's pid).
 
 ``episodes.jsonl`` is the source of truth: a resumed evaluation reads it and skips its seeds. A
 last line cut short (the machine stopped mid-write) is not an episode; it is dropped when the
@@ -7,10 +8,11 @@ file is next opened for appending, so the file always holds complete lines only.
 """
 from __future__ import annotations
 
+import fcntl
 import json
 import os
 from pathlib import Path
-from typing import Any, TextIO
+from typing import Any, BinaryIO, TextIO
 
 from runtime.errors import ObjectiveError
 
@@ -20,6 +22,8 @@ from .episode import EpisodeRecord
 MANIFEST_FILE = "eval.json"
 EPISODES_FILE = "episodes.jsonl"
 SUMMARY_FILE = "summary.json"
+LOCK_FILE = "eval.lock"
+"""Held by the evaluation running in DIR: a second one on the same DIR is refused."""
 
 
 def read_episodes(path: Path) -> tuple[dict[int, EpisodeRecord], int]:
@@ -51,6 +55,15 @@ class EvalStore:
             out.mkdir(parents=True, exist_ok=True)
         except OSError as err:
             raise ObjectiveError(f"--out {out}: cannot create it ({err.strerror})") from None
+        self._lock = _lock(out)
+        try:
+            self._open(identity)
+        except BaseException:
+            self._lock.close()
+            raise
+
+    def _open(self, identity: dict[str, Any]) -> None:
+        out = self.out
         manifest = out / MANIFEST_FILE
         episodes = out / EPISODES_FILE
         if manifest.exists():
@@ -86,9 +99,31 @@ class EvalStore:
         return path
 
     def close(self) -> None:
+        """Close ``episodes.jsonl`` and let another evaluation open DIR."""
         if self._file is not None:
             self._file.close()
             self._file = None
+        self._lock.close()
+
+
+def _lock(out: Path) -> BinaryIO:
+    """Hold ``DIR/eval.lock`` (an exclusive ``flock``, released when the file is closed or the
+    process ends, however it ends) and write this process's pid into it; ObjectiveError naming
+    the holder's pid when another evaluation holds it."""
+    path = out / LOCK_FILE
+    handle = open(path, "a+b")
+    try:
+        fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        handle.seek(0)
+        holder = handle.read().decode(errors="replace").strip() or "unknown"
+        handle.close()
+        raise ObjectiveError(f"--out {out} is in use by another evaluation (pid {holder}); wait for it to end, "
+                             "or use another --out") from None
+    handle.truncate(0)
+    handle.write(f"{os.getpid()}\n".encode())
+    handle.flush()
+    return handle
 
 
 def _write_json(path: Path, data: dict[str, Any]) -> None:

@@ -36,6 +36,28 @@ def recording_name(seed: int) -> str:
     return f"seed-{seed}"
 
 
+def _render(worker: Any, directory: Path) -> dict[str, Any]:
+    """Render the report of the finished recording in ``directory``; what the episode's record
+    notes of it: ``recording_errors`` (the artifacts that failed), ``recording_incomplete`` (why
+    the recording is not whole: a full disk).
+
+    The recording worker renders it once it has written every file of the recording (it takes
+    the request after the recording's end, ``RENDER_TIMEOUT`` bounds the wait), so the report
+    never reads a ``run.mcap`` still being written. A recording that cannot be read is noted
+    with the episode: the episode's own outcome stands.
+    """
+    try:
+        report = worker.render(directory)
+    except ObjectiveError as err:
+        return {"recording_errors": {"recording": str(err)}}
+    notes: dict[str, Any] = {}
+    if report.errors:
+        notes["recording_errors"] = {k: str(v) for k, v in report.errors.items()}
+    if report.partial:
+        notes["recording_incomplete"] = "; ".join(report.partial)
+    return notes
+
+
 class KeptWorld:
     """The world of one episode as the runner sees it: the worker's world, put back to the
     episode's seed when the run starts, and left open when the run ends (the worker closes it)."""
@@ -142,30 +164,32 @@ class EpisodeWorker:
     def _run_recorded(self, seed: int, loaded: Any, context: Any, options: RunOptions, world: Any) -> EpisodeRecord:
         """The run with a Recorder on its bus; kept (with its report) or deleted per ``--record``."""
         from recording import Recorder
-        from recording.report import render_report
 
         assert self.recordings is not None
         final = self.recordings / recording_name(seed)
         scratch = self.recordings / f".partial-{recording_name(seed)}"
         shutil.rmtree(scratch, ignore_errors=True)
         recorder = Recorder(scratch, context, list(loaded.root.iterate()), loaded)
+        worker = recorder.worker  # writes the recording, then renders its report
         try:
-            result: RunResult = run_tree(loaded, context, options, world=world)
-        except BaseException:
-            recorder.close()
-            shutil.rmtree(scratch, ignore_errors=True)
-            raise
-        recorder.finish(result.to_json())
-        record = EpisodeRecord.from_result(seed, result)
-        if not self.spec.record.keeps(result.status):
-            shutil.rmtree(scratch, ignore_errors=True)
-            return record
-        report = render_report(scratch)
+            try:
+                result: RunResult = run_tree(loaded, context, options, world=world)
+            except BaseException:
+                recorder.close()
+                shutil.rmtree(scratch, ignore_errors=True)
+                raise
+            recorder.finish(result.to_json())
+            record = EpisodeRecord.from_result(seed, result)
+            if not self.spec.record.keeps(result.status):
+                worker.close()  # stopped before its files are removed
+                shutil.rmtree(scratch, ignore_errors=True)
+                return record
+            record.run.update(_render(worker, scratch))
+        finally:
+            worker.close()
         shutil.rmtree(final, ignore_errors=True)
         scratch.rename(final)
         record.recording = f"{RECORDINGS_DIR}/{final.name}"
-        if report.errors:
-            record.run["recording_errors"] = {k: str(v) for k, v in report.errors.items()}
         return record
 
     # -- options ---

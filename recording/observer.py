@@ -13,10 +13,14 @@ from typing import Any
 
 from runtime.errors import ObjectiveError
 from runtime.extras import missing_module_message
+from runtime.interrupt import held_back
 from runtime.runner import RunEnd
 
 NEEDED_MODULES = ("mcap", "mcap_ros2")
 """What a recording needs beyond the core (the ``[record]`` extra); ``--live`` needs foxglove too."""
+RECORDING_END_TIMEOUT_S = 30.0
+"""Wall-clock bound on the recording worker writing the end of an interrupted run's recording
+(what it received, the MCAP summary section, ``metadata.yaml``); past it, it is stopped."""
 
 
 def attach(loaded: Any, context: Any, options: Any) -> "RecordingObserver | None":
@@ -51,26 +55,35 @@ class RecordingObserver:
         self.logger = logger
         self.worker = recorder.worker if record_dir is not None else None  # writes the recording, renders the report
 
-    def aborted(self, error: BaseException) -> None:
+    def aborted(self, error: BaseException, stop: Any) -> None:
         if self.worker is None:
             self.recorder.close()
             return
         end = RunEnd.INTERRUPTED if isinstance(error, KeyboardInterrupt) else RunEnd.ERROR
         try:
-            self.recorder.finish({"status": end.value, "reason": str(error) or type(error).__name__})
+            with held_back(stop):  # a signal now waits until the summary and the end are sent
+                self.recorder.finish({"status": end.value, "reason": str(error) or type(error).__name__})
         finally:
-            self.worker.close()
+            self.worker.close(RECORDING_END_TIMEOUT_S)
 
     def finished(self, result: Any, stop: Any) -> None:
+        """The summary and the end of the recording (a signal meanwhile waits), then the report. A
+        recording that could not be written whole (a full disk) leaves the run's result as it is,
+        with ``recording_incomplete`` saying why."""
         if self.worker is None:
             self.recorder.close()
             return
-        self.recorder.finish(result.to_json())
-        if stop is not None:
-            stop.urgent = True  # the run is over: a signal now stops the rendering at once
         try:
-            self.worker.render(self.record_dir, self.logger)
+            with held_back(stop):  # a signal now waits until the summary and the end are sent
+                self.recorder.finish(result.to_json())
+                if stop is not None:
+                    stop.urgent = True  # the run is over: a signal now stops the rendering at once
+            report = self.worker.render(self.record_dir, self.logger)
+            incomplete = "; ".join(report.partial) or self.recorder.incomplete
+            if incomplete:  # (a full disk: the run went on, its recording stopped)
+                result.extra["recording_incomplete"] = incomplete
         except KeyboardInterrupt:
+            self.worker.close(RECORDING_END_TIMEOUT_S)  # it finishes the recording's files, renders nothing
             self.logger.warning("recording %s: the report was not rendered (interrupted); "
                                 "`objective report %s` renders it", self.record_dir, self.record_dir)
         except Exception as err:  # the run itself is over and recorded: its result stands

@@ -22,16 +22,22 @@ the run, ``run.mcap`` ends at the last chunk the worker flushed (it is read as p
 writing ``events.jsonl`` itself, starting with the lines the worker did not get and a warning
 that says what happened; the report is then rendered here.
 
+A recording that cannot be written (a full disk) never stops the run: whichever process writes
+it stops writing, and the run's summary, written into room kept for it from the start
+(``recording.reserve``), says the recording is incomplete and why
+(``recording_incomplete``).
+
 The report (plots, video, tree, page) is rendered from these two files alone
 (``recording.report``), so ``objective report DIR`` can redo it after the run.
 """
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import os
 from pathlib import Path
-from typing import Any, Iterable, TextIO
+from typing import Any, Callable, Iterable, TextIO
 
 from runtime.crash import CRASH_LOG
 from runtime.errors import ObjectiveError
@@ -43,6 +49,7 @@ from .event_messages import event_message, stamp_of
 from .files import EVENTS_FILE, MCAP_FILE, REPORT_FILES
 from .handoff import Handoff
 from .mcap_writer import LATCHED_QOS, McapRos2Writer, to_nanoseconds, wall_clock_origin_ns
+from .reserve import append_line, release, reserve, why_not_written
 from .scene_view import ROBOT_MARKERS_TOPIC, SCENE_MARKERS_TOPIC, TF_STATIC_TOPIC, SceneView
 
 
@@ -87,23 +94,32 @@ def node_record(index: int, node: Any, ids: dict[int, int], tree: Any) -> dict[s
 
 
 class Tee:
-    """Writes each message to several sinks (the MCAP file and a live view)."""
+    """Writes each message to several sinks (the MCAP file and a live view); a sink whose write
+    fails (``OSError``: a full disk) is dropped and ``on_error`` told."""
 
     def __init__(self, sinks: list[Any]) -> None:
         self.sinks = sinks
         self.qos: dict[str, Any] = {}
+        self.on_error: Callable[[OSError], None] = lambda err: None
         for sink in sinks:
             sink.qos = self.qos
 
     def flush_if_due(self) -> None:
-        for sink in self.sinks:
+        for sink in list(self.sinks):
             flush = getattr(sink, "flush_if_due", None)
             if flush is not None:
-                flush()
+                self._guarded(sink, flush)
 
     def write(self, topic: str, msg: Any, seconds: float) -> None:
-        for sink in self.sinks:
-            sink.write(topic, msg, seconds)
+        for sink in list(self.sinks):
+            self._guarded(sink, lambda: sink.write(topic, msg, seconds))
+
+    def _guarded(self, sink: Any, write: Callable[[], None]) -> None:
+        try:
+            write()
+        except OSError as err:
+            self.sinks.remove(sink)
+            self.on_error(err)
 
     def close(self) -> None:
         for sink in self.sinks:
@@ -130,9 +146,12 @@ class Recorder:
         self._events: TextIO | None = None
         self._lines: list[str] | None = None
         """Every line sent to the worker (while it writes ``events.jsonl``)."""
+        self.incomplete: str | None = None
+        """Why this process stopped writing the recording (a full disk); the run goes on."""
         if self.directory is not None:
             sinks.insert(0, self._open(self.directory))
         self.sink = Tee(sinks)
+        self.sink.on_error = self._stop_writing
         self.sink.qos.update({topic: LATCHED_QOS for topic in (TF_STATIC_TOPIC, ROBOT_MARKERS_TOPIC, SCENE_MARKERS_TOPIC)})
         self.bus = RecordingBus(context.bus, self.sink, joint_states_hz)
         context.bus = self.bus
@@ -158,6 +177,7 @@ class Recorder:
             for name in (*REPORT_FILES, BAG_METADATA_FILE, CRASH_LOG):  # a previous run's files must not pass for this run's
                 (directory / name).unlink(missing_ok=True)
             (directory / EVENTS_FILE).write_bytes(b"")
+            reserve(directory)
             self.worker = ReportWorker()
             self.worker.start()  # it also imports the report's libraries while the run goes on
             self.handoff = self.worker.record(directory, self.clock_origin_ns)
@@ -177,24 +197,48 @@ class Recorder:
         worker never wrote it, this process writes it from now on."""
         assert self.directory is not None and self.worker is not None and self._lines is not None
         self.worker.close()
-        events = self.directory / EVENTS_FILE
-        scratch = events.with_name(EVENTS_FILE + ".new")
-        scratch.write_text("".join(self._lines), encoding="utf-8")
-        os.replace(scratch, events)
-        self._lines = None
-        self._events = open(events, "a", encoding="utf-8", buffering=1)
-        mcap = self.directory / MCAP_FILE
-        now = self.context.clock.now()
-        if mcap.is_file() and mcap.stat().st_size > 0:
-            what = f"{MCAP_FILE} ends at the last chunk it wrote (partial)"
-        else:
-            self.writer = McapRos2Writer(mcap, self.clock_origin_ns)
-            self.writer.qos = self.sink.qos
-            self.sink.sinks[self.sink.sinks.index(self.handoff)] = self.writer
-            self.view.tf_here()  # the worker computed /tf from the joint states
-            what = f"{MCAP_FILE} holds what was recorded from {now:.2f} s on (partial)"
+        lines, self._lines = self._lines, None
+        try:
+            events = self.directory / EVENTS_FILE
+            scratch = events.with_name(EVENTS_FILE + ".new")
+            scratch.write_text("".join(lines), encoding="utf-8")
+            os.replace(scratch, events)
+            self._events = open(events, "a", encoding="utf-8", buffering=1)
+            mcap = self.directory / MCAP_FILE
+            now = self.context.clock.now()
+            if mcap.is_file() and mcap.stat().st_size > 0:
+                what = f"{MCAP_FILE} ends at the last chunk it wrote (partial)"
+            else:
+                self.writer = McapRos2Writer(mcap, self.clock_origin_ns)
+                self.writer.qos = self.sink.qos
+                self.sink.sinks[self.sink.sinks.index(self.handoff)] = self.writer
+                self.view.tf_here()  # the worker computed /tf from the joint states
+                what = f"{MCAP_FILE} holds what was recorded from {now:.2f} s on (partial)"
+        except OSError as err:
+            self._stop_writing(err)
+            return
         self._write({"time": now, "kind": "warning", "source": "recorder",
                      "data": {"message": f"recording: {lost}: {what}; {EVENTS_FILE} is whole"}})
+
+    def _stop_writing(self, err: OSError) -> None:
+        """This process cannot write the recording (a full disk): it stops writing, the run goes
+        on, and the summary, written into the room kept for it (``recording.reserve``),
+        says why the recording is incomplete."""
+        assert self.directory is not None
+        if self.incomplete is None:
+            self.incomplete = why_not_written(err, str(self.directory), self.context.clock.now())
+        release(self.directory)
+        writer, self.writer = self.writer, None
+        if writer is not None:
+            if writer in self.sink.sinks:
+                self.sink.sinks.remove(writer)
+            writer.closed = True
+            with contextlib.suppress(OSError):
+                writer._stream.close()
+        events, self._events = self._events, None
+        if events is not None:
+            with contextlib.suppress(OSError):
+                events.close()
 
     def stamp(self, seconds: float) -> Any:
         """A ROS time stamp for ``seconds`` of the runtime clock (wall-clock based, like log times)."""
@@ -208,7 +252,10 @@ class Recorder:
             self._lines.append(line)  # kept until the end, in case the worker is lost
             self.handoff.event(line, note)
         elif self._events is not None:
-            self._events.write(line)
+            try:
+                self._events.write(line)
+            except OSError as err:
+                self._stop_writing(err)
         return record
 
     def _on_event(self, event: Event) -> None:
@@ -240,7 +287,11 @@ class Recorder:
         self.stop()
         if self.handoff is not None:
             self.handoff.send()  # a worker lost by now is noted before the summary, which stays the last line
-        self._write({"time": self.context.clock.now(), "kind": "run_summary", "source": "runner", "data": summary})
+        if self.incomplete is not None:
+            summary = {**summary, "recording_incomplete": self.incomplete}
+        record = self._write({"time": self.context.clock.now(), "kind": "run_summary", "source": "runner", "data": summary})
+        if self.incomplete is not None and self.directory is not None:
+            append_line(self.directory / EVENTS_FILE, json.dumps(record, allow_nan=False) + "\n")
         self.close()
 
     def close(self) -> None:
@@ -253,6 +304,9 @@ class Recorder:
                 w = self.writer
                 (self.directory / BAG_METADATA_FILE).write_text(
                     bag_metadata_yaml(MCAP_FILE, w.topics, w.counts, w.first_ns, w.last_ns), encoding="utf-8")
+                release(self.directory)
+        except OSError as err:
+            self._stop_writing(err)
         finally:
             if self._events is not None:
                 self._events.close()

@@ -10,9 +10,14 @@ Crash safety as in the run before: ``events.jsonl`` gets each batch as it arrive
 chunk is closed and flushed every ``FLUSH_INTERVAL_S``. If the run dies (end of file without
 ``END``), everything received is flushed and the files are left as a killed run leaves them: no
 run summary, no MCAP summary section (``objective report`` renders them as partial).
+
+A write that fails (a full disk) stops the recording, never the run: the files keep what they
+hold, the frames that follow are read and dropped, and the run's summary is still written, with
+``recording_incomplete`` saying why (``objective report`` says the recording is incomplete).
 """
 from __future__ import annotations
 
+import contextlib
 import json
 from pathlib import Path
 from typing import Any
@@ -26,6 +31,7 @@ from .event_messages import event_message
 from .handoff import MESSAGE_HEADER, Frame
 from .mcap_writer import LATCHED_QOS, McapRos2Writer, OfferedQos, SerializedMessage, to_nanoseconds
 from .files import EVENTS_FILE, MCAP_FILE
+from .reserve import append_line, release, why_not_written
 from .schema import type_name
 from .tf_model import TF_STATIC_TOPIC, TF_TOPIC, TF_TYPE, TfModel, TfWriter
 
@@ -36,8 +42,9 @@ class RecordingSession:
     def __init__(self, directory: Path | str, clock_origin_ns: int) -> None:
         self.directory = Path(directory)
         self.clock_origin_ns = clock_origin_ns
-        self.writer = McapRos2Writer(self.directory / MCAP_FILE, clock_origin_ns)
-        self._events = open(self.directory / EVENTS_FILE, "ab")  # the run created it empty
+        self.incomplete: str | None = None
+        """Why the recording stopped before the run did (a write failed: a full disk)."""
+        self._summary: dict[str, Any] | None = None
         self._lines = bytearray()
         self._channels: dict[int, tuple[int, str, str]] = {}
         """The run's channel id -> (MCAP channel id, topic, type name)."""
@@ -52,8 +59,23 @@ class RecordingSession:
         """Topic -> MCAP channel id: one channel per topic, whether the run or this worker writes
         it (``/tf`` comes from the run for a robot a ``TfModel`` cannot describe)."""
         self.ended = False
+        try:
+            self.writer = McapRos2Writer(self.directory / MCAP_FILE, clock_origin_ns)
+            self._events = open(self.directory / EVENTS_FILE, "ab")  # the run created it empty
+        except OSError as err:
+            self._stop_writing(err)
 
     def take(self, kind: Frame, payload: bytes) -> None:
+        """One frame of the run's; a write that fails stops the recording (``_stop_writing``)."""
+        if self.incomplete is not None:
+            self._take_after_stop(kind, payload)
+            return
+        try:
+            self._take(kind, payload)
+        except OSError as err:
+            self._stop_writing(err)
+
+    def _take(self, kind: Frame, payload: bytes) -> None:
         if kind is Frame.MESSAGE:
             channel, log_time_ns = MESSAGE_HEADER.unpack_from(payload)
             mcap_channel, topic, name = self._channels[channel]
@@ -70,6 +92,8 @@ class RecordingSession:
             self._lines += payload
             record = json.loads(payload)
             add_event(record, self.recording)
+            if record.get("kind") == "run_summary":
+                self._summary = record
             if kind is Frame.EVENT:
                 self._event_message(record)
         elif kind is Frame.TF_MODEL:
@@ -119,9 +143,14 @@ class RecordingSession:
 
     def flush_if_due(self) -> None:
         """After each read from the pipe: ``/tf``, the events to their file, the MCAP chunk when due."""
-        self._write_tf()
-        self._write_lines()
-        self.writer.flush_if_due()
+        if self.incomplete is not None:
+            return
+        try:
+            self._write_tf()
+            self._write_lines()
+            self.writer.flush_if_due()
+        except OSError as err:
+            self._stop_writing(err)
 
     def _write_lines(self) -> None:
         if self._lines:
@@ -141,12 +170,57 @@ class RecordingSession:
         w.close()
         (self.directory / BAG_METADATA_FILE).write_text(
             bag_metadata_yaml(MCAP_FILE, w.topics, w.counts, w.first_ns, w.last_ns), encoding="utf-8")
-        self.contents.finish()
-        mark_unfinished(self.recording)
+        release(self.directory)
+        self._finish_data()
 
     def abandon(self) -> None:
         """The run died: everything received goes to the files, which stay partial."""
-        self._write_tf()
-        self._write_lines()
-        self._events.close()
-        self.writer.flush()
+        if self.incomplete is not None:
+            return
+        try:
+            self._write_tf()
+            self._write_lines()
+            self._events.close()
+            self.writer.flush()
+        except OSError as err:
+            self._stop_writing(err)
+
+    # -- a recording that cannot be written ---
+    def _stop_writing(self, err: OSError) -> None:
+        """A write failed (a full disk): stop recording, keep what the files hold (``run.mcap`` reads
+        up to its last whole chunk), and keep draining the run's frames so the run goes on. The
+        run's summary is still written, into the room kept for it (``recording.reserve``),
+        saying why the recording is incomplete."""
+        self.incomplete = why_not_written(err, str(self.directory), self.contents.end_time_s())
+        release(self.directory)
+        self._lines.clear()
+        self._tf_due.clear()
+        for stream in (getattr(getattr(self, "writer", None), "_stream", None), getattr(self, "_events", None)):
+            if stream is not None:
+                with contextlib.suppress(OSError):
+                    stream.close()
+        if self._summary is not None:
+            self._write_summary(self._summary)
+        if self.ended:  # (it failed finishing the files)
+            self._finish_data()
+
+    def _take_after_stop(self, kind: Frame, payload: bytes) -> None:
+        """Only the run's summary is written now; the end marks the recording incomplete."""
+        if kind in (Frame.EVENT, Frame.NOTE):
+            record = json.loads(payload)
+            if record.get("kind") == "run_summary":
+                self._write_summary(record)
+        elif kind is Frame.END and not self.ended:
+            self.ended = True
+            self._finish_data()
+
+    def _finish_data(self) -> None:
+        self.contents.finish()
+        mark_unfinished(self.recording)
+
+    def _write_summary(self, record: dict[str, Any]) -> None:
+        record["data"]["recording_incomplete"] = self.incomplete
+        add_event(record, self.recording)
+        self._summary = None
+        append_line(self.directory / EVENTS_FILE, json.dumps(record) + "\n")
+

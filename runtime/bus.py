@@ -112,6 +112,9 @@ class Subscription(Protocol):
     name: str
     latest: Any
     count: int
+    received_at: float | None
+    """Runtime clock seconds when ``latest`` arrived (None before the first message): its age is
+    ``clock.now() - received_at``, whatever clock its publisher stamped it with."""
 
     def has_publishers(self) -> bool: ...
 
@@ -384,9 +387,11 @@ class _InProcessSubscription:
         self.callback, self.reliable = callback, reliable
         self._latest: Any = None
         self.count = 0
+        self.received_at: float | None = None
 
     def _deliver(self, msg: Any) -> None:
         self._latest = msg
+        self.received_at = self.bus.clock.now()
         self.count += 1
         if self.callback is not None:
             self.callback(msg)
@@ -398,6 +403,7 @@ class _InProcessSubscription:
             msg = lazy.produce()
             if msg is not None:
                 self._latest = msg
+                self.received_at = self.bus.clock.now()
                 self.count += 1
         return self._latest
 

@@ -203,6 +203,8 @@ def cmd_run(args: argparse.Namespace, registry: Registry, stop: StopRequest | No
     print(run_outcome_line(result), file=sys.stderr)
     if args.record is not None:
         print(f"recorded to {args.record}/ (open {args.record / 'report.html'})", file=sys.stderr)
+        if result.extra.get("recording_incomplete"):
+            print(f"partial recording: {printable(result.extra['recording_incomplete'])}", file=sys.stderr)
     if args.json:
         print(json.dumps(result.to_json(), default=str))
     return result.exit_code

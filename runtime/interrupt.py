@@ -5,7 +5,8 @@ sets ``StopRequest.signum``; the runner looks at it before every tick, halts the
 nodes get ``terminate(INVALID)``: goals cancelled, the robot stopped), finishes the recording
 and reports ``INTERRUPTED``. A signal that arrives when waiting would be pointless raises
 ``Interrupted`` at once instead: a second signal (the first one is not being honoured fast
-enough), or any signal once ``StopRequest.urgent`` is set (the tick loop is over).
+enough), or any signal once ``StopRequest.urgent`` is set (the tick loop is over). Inside
+``StopRequest.held_back`` (a recording's end) a signal waits until the step is done.
 
 The exit code of an interrupted run is the shell's: 128 + the signal number (130 for SIGINT,
 143 for SIGTERM).
@@ -47,16 +48,41 @@ class StopRequest:
 
     signum: int | None = None
     urgent: bool = False
+    held: int | None = None
+    """A signal that arrived inside ``held_back`` (handled on the way out)."""
+    holding: bool = False
 
     @property
     def requested(self) -> bool:
         return self.signum is not None
 
     def on_signal(self, signum: int, frame: Any = None) -> None:
+        if self.holding:
+            self.held = signum
+            return
         if self.urgent or self.signum is not None:
             self.signum = self.signum or signum
             raise Interrupted(signum)
         self.signum = signum
+
+    @contextlib.contextmanager
+    def held_back(self) -> Iterator[None]:
+        """Inside, a signal is only noted; on the way out it is handled as if it arrived then
+        (``Interrupted`` when it must stop what runs). For steps that must not be cut in half:
+        the end of a recording, a summary being written."""
+        self.holding = True
+        try:
+            yield
+        finally:
+            self.holding = False
+        signum, self.held = self.held, None
+        if signum is not None:
+            self.on_signal(signum)
+
+
+def held_back(stop: StopRequest | None) -> contextlib.AbstractContextManager[None]:
+    """``stop.held_back()``, or nothing without a ``StopRequest``."""
+    return stop.held_back() if stop is not None else contextlib.nullcontext()
 
 
 @contextlib.contextmanager

@@ -30,7 +30,7 @@ class RunObserver(Protocol):
     def finished(self, result: Any, stop: "StopRequest | None") -> None:
         """The run ended with ``result`` (a ``RunResult``); ``stop`` still reaches signals meanwhile."""
 
-    def aborted(self, error: BaseException) -> None:
+    def aborted(self, error: BaseException, stop: "StopRequest | None") -> None:
         """The run raised ``error`` before it had a result; the runner raises it on afterwards."""
 
 

@@ -565,7 +565,7 @@ def run_file(
         result = run_tree(loaded, context, options, progress, stop=stop)
     except BaseException as err:  # the run did not start (e.g. no such world): the observers say so
         for observer in observers:
-            observer.aborted(err)
+            observer.aborted(err, stop)
         raise
     for observer in observers:
         observer.finished(result, stop)

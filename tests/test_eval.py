@@ -9,11 +9,17 @@ from __future__ import annotations
 
 import json
 import os
+import signal
+import subprocess
+import sys
+import time
 from pathlib import Path
 
 import pytest
 
-from evaluation.config import WorkerSpec
+import recording.report.worker as report_worker
+from evaluation.config import RecordMode, WorkerSpec
+from evaluation.episode import EpisodeStatus
 from evaluation.policies import parse_policy
 from evaluation.worker import EpisodeWorker
 from runtime.cli import main
@@ -137,6 +143,67 @@ def test_a_kept_physics_world_runs_a_seed_as_a_fresh_one():
     assert a.seeded_view() == b.seeded_view()
 
 
+def recording_workers() -> list[int]:
+    """The pids of this process's children that are recording workers."""
+    children = []
+    for task in Path("/proc/self/task").iterdir():
+        children += (task / "children").read_text().split()
+    return [int(pid) for pid in children
+            if b"recording.report.worker" in Path(f"/proc/{pid}/cmdline").read_bytes()]
+
+
+@pytest.fixture
+def slow_recording_worker(monkeypatch):
+    """Recording workers that start 2 s late: the run is over long before they wrote run.mcap."""
+    popen = subprocess.Popen
+
+    def late(args, **kwargs):
+        if list(args[1:]) == ["-m", "recording.report.worker"]:
+            args = [args[0], "-c", "import runpy, time; time.sleep(2); "
+                    "runpy.run_module('recording.report.worker', run_name='__main__', alter_sys=True)"]
+        return popen(args, **kwargs)
+
+    monkeypatch.setattr(report_worker.subprocess, "Popen", late)
+
+
+def test_a_failed_episode_keeps_its_reason_and_a_whole_recording_however_late_the_recording_worker(
+        tmp_path, slow_recording_worker):
+    """``--record failures``: the report is rendered only once the worker wrote the recording, so a
+    failing episode stays a FAILURE with its reason, its recording moved out of ``.partial-*``; a
+    successful episode's recording is removed and its worker stopped."""
+    spec = WorkerSpec(objective=STACK, world="kinematic", policy=parse_policy("oracle"), max_seconds=2.0,
+                      record=RecordMode.FAILURES)
+    worker = EpisodeWorker(spec, "w", tmp_path / "recordings")
+    worker.warm_up()
+    try:
+        record = worker.run(0)
+    finally:
+        worker.close()
+    assert record.status is EpisodeStatus.FAILURE, record.reason
+    assert record.reason.startswith("stopped after --max-seconds 2 s of clock time while ")
+    assert record.recording == "recordings/seed-0" and "recording_errors" not in record.run
+    kept = tmp_path / "recordings" / "seed-0"
+    assert (kept / "run.mcap").stat().st_size > 0 and (kept / "report.html").is_file()
+    summary = json.loads((kept / "events.jsonl").read_text().splitlines()[-1])
+    assert summary["kind"] == "run_summary" and summary["data"]["status"] == "FAILURE"
+    assert sorted(p.name for p in (tmp_path / "recordings").iterdir()) == ["seed-0"]
+    assert recording_workers() == []
+
+
+def test_a_successful_episode_leaves_no_recording_and_no_recording_worker(tmp_path, fault_plugin):
+    spec = WorkerSpec(objective=faults_objective(tmp_path), policy=parse_policy("oracle"), record=RecordMode.FAILURES)
+    worker = EpisodeWorker(spec, "w", tmp_path / "recordings")
+    worker.warm_up()
+    try:
+        records = [worker.run(seed) for seed in (0, 1)]
+    finally:
+        worker.close()
+    assert [r.status for r in records] == [EpisodeStatus.SUCCESS] * 2
+    assert [r.recording for r in records] == [None, None]
+    assert list((tmp_path / "recordings").iterdir()) == []
+    assert recording_workers() == []
+
+
 def layout_xy(seed: int) -> dict:
     from sim.layouts import layout
 
@@ -230,3 +297,67 @@ def test_a_running_inference_server_serves_every_worker_with_its_key_from_the_en
     line = episodes(tmp_path / "eval")[0]
     assert line["run"]["execute_policy"]["chunks"] == 2
     assert line["failing_node"] == "top cube on bottom cube"
+
+
+# -- signals and concurrent evaluations ---------------------------------------------------------
+EXE = Path(sys.executable).parent / "objective"
+BOUND_S = 120.0
+
+
+def start_eval(objective: Path, out: Path, *args: str) -> subprocess.Popen:
+    return subprocess.Popen([str(EXE), "eval", str(objective), "--record", "none", "--out", str(out), *args],
+                            cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+
+def wait_for_episodes(out: Path, count: int, proc: subprocess.Popen) -> None:
+    deadline = time.monotonic() + BOUND_S
+    while not ((out / "episodes.jsonl").exists() and len(episodes(out)) >= count):
+        if proc.poll() is not None or time.monotonic() > deadline:
+            proc.kill()
+            raise AssertionError(f"no {count} episodes within {BOUND_S} s: {proc.communicate()[1]}")
+        time.sleep(0.1)
+
+
+def ended(proc: subprocess.Popen) -> tuple[int, str, str]:
+    try:
+        out, err = proc.communicate(timeout=BOUND_S)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        raise AssertionError(f"`objective eval` did not end within {BOUND_S} s: {proc.communicate()[1]}") from None
+    return proc.returncode, out, err
+
+
+def test_a_second_evaluation_of_a_busy_out_is_refused_and_sigterm_keeps_the_episodes_so_far(tmp_path, capsys, fault_plugin):
+    objective = faults_objective(tmp_path, hang=1)  # seed 0 succeeds, seed 1 hangs until stopped
+    out = tmp_path / "eval"
+    first = start_eval(objective, out, "--episodes", "4", "--episode-timeout", "600", "--json")
+    wait_for_episodes(out, 1, first)
+    code = main(["eval", str(objective), "--episodes", "4", "--record", "none", "--episode-timeout", "5", "--out", str(out)])
+    err = capsys.readouterr().err
+    assert code == 2
+    assert f"--out {out} is in use by another evaluation (pid {first.pid}); wait for it to end, or use another --out" in err
+    first.send_signal(signal.SIGTERM)
+    code, stdout, err = ended(first)
+    assert code == 143, err
+    assert "interrupted by SIGTERM: the finished episodes are kept; run the same command again to resume" in err
+    assert "Traceback" not in err
+    summary = json.loads((out / "summary.json").read_text())
+    assert (summary["interrupted"], summary["episodes"], summary["requested"], summary["complete"]) == ("SIGTERM", 1, 4, False)
+    assert json.loads(stdout.strip().splitlines()[-1]) == summary
+    assert [line["seed"] for line in episodes(out)] == [0]
+
+
+def test_evaluations_started_together_on_one_out_run_each_seed_once(tmp_path, fault_plugin):
+    """Three `objective eval` of the same DIR at once: one runs the seeds, the others are refused
+    (or, started after it ended, find every seed done)."""
+    objective = faults_objective(tmp_path, fail=2)
+    out = tmp_path / "eval"
+    procs = [start_eval(objective, out, "--episodes", "4") for _ in range(3)]
+    results = [ended(proc) for proc in procs]
+    codes = sorted(code for code, _, _ in results)
+    assert all(code in (0, 2) for code in codes) and codes.count(0) >= 1, results
+    for code, _, err in results:
+        assert "Traceback" not in err
+        if code == 2:
+            assert "is in use by another evaluation (pid " in err
+    assert sorted(line["seed"] for line in episodes(out)) == [0, 1, 2, 3]

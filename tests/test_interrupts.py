@@ -178,3 +178,37 @@ def test_a_recording_killed_with_sigkill_opens_as_partial(tmp_path):
 
     recording = load_recording(record)
     assert recording.joints is not None and recording.joints.times[-1] > 0.5
+
+
+def test_a_second_sigint_while_the_recording_finishes_keeps_its_summary_and_end(tmp_path, monkeypatch, capsys):
+    """Ctrl-C stops the run; a second one arrives while the recording is being finished: it waits
+    until the summary and the recording's end are written, then only stops the report."""
+    from runtime import runner
+    from runtime.cli import main
+    from recording import Recorder
+
+    tree = tmp_path / "wait.xml"
+    tree.write_text('<root BTCPP_format="4"><BehaviorTree ID="Wait"><Wait name="hold" seconds="100000"/>'
+                    "</BehaviorTree></root>")
+    run_tree, finish_recording = runner.run_tree, Recorder.finish
+
+    def run_after_ctrl_c(*args, **kwargs):
+        os.kill(os.getpid(), signal.SIGINT)  # the first: the run stops before its first tick
+        return run_tree(*args, **kwargs)
+
+    def finish_after_ctrl_c(self, summary):
+        os.kill(os.getpid(), signal.SIGINT)  # the second, as the recording finishes
+        finish_recording(self, summary)
+
+    monkeypatch.setattr(runner, "run_tree", run_after_ctrl_c)
+    monkeypatch.setattr(Recorder, "finish", finish_after_ctrl_c)
+    record = tmp_path / "rec"
+    code = main(["run", str(tree), "--record", str(record), "--json"])
+    out, err = capsys.readouterr()
+    assert code == 130, err
+    assert json.loads(out.strip().splitlines()[-1])["status"] == "INTERRUPTED"
+    assert "the report was not rendered (interrupted)" in err and "Traceback" not in err
+    assert events(record)[-1]["kind"] == "run_summary" and events(record)[-1]["data"]["status"] == "INTERRUPTED"
+    assert (record / "metadata.yaml").is_file()  # the worker wrote the recording's end
+    code, report_err = report(record)
+    assert code == 0 and "partial" not in report_err

@@ -95,9 +95,9 @@ class Outcome:
 
 
 def run_with_faults(registry: Registry, handler: Callable[[Any], Any] | None, latency: Any,
-                    before: Callable[[Any, KinematicWorld], None] | None = None) -> Outcome:
+                    before: Callable[[Any, KinematicWorld], None] | None = None, ports: str = "") -> Outcome:
     """ExecutePolicy under ForceSuccess, then a 1 s Wait so the stop after a failure can be seen."""
-    node = (f'<ExecutePolicy policy_service_name="{SERVICE}" joint_group_name="manipulator" {BASE} '
+    node = (f'<ExecutePolicy policy_service_name="{SERVICE}" joint_group_name="manipulator" {BASE} {ports} '
             'status_message="{message}"/>')
     xml = ('<root BTCPP_format="4"><BehaviorTree ID="T"><Sequence>'
            '<SwitchController activate_controllers="joint_trajectory_admittance_controller" deactivate_controllers="velocity_force_controller"/>'
@@ -125,6 +125,57 @@ def run_with_faults(registry: Registry, handler: Callable[[Any], Any] | None, la
         summary=result.extra.get("execute_policy", {}),
         first_window_end=next((e.data["seam_time"] + e.data["steps"] * 0.1 for e in context.events.of_kind("chunk_executed")), 0.0),
     )
+
+
+# -- stale observations ----------------------------------------------------------------------
+class Silent:
+    """A publisher that has stopped."""
+
+    def publish(self, msg: Any) -> None:
+        pass
+
+
+def publisher_stopping_at(topic: str, at_s: float, published: list[float]) -> Callable[[Any, KinematicWorld], None]:
+    """``topic`` (the world's joint states, or a camera driver of the test's own publishing every
+    tick) goes silent at ``at_s`` of clock time; ``published`` gets the time of each message."""
+    from policy.images import rgb_to_image
+    from sensor_msgs.msg import Image
+
+    def before(context: Any, world: KinematicWorld) -> None:
+        camera = None if topic == "/joint_states" else context.bus.create_publisher(topic, Image, reliable=False)
+        frame = rgb_to_image(np.full((4, 6, 3), 200, np.uint8))
+        step_to = world.step_to
+
+        def step_then_publish(t: float) -> None:
+            if t >= at_s - 1e-9 and camera is None:
+                world.joint_states = Silent()
+            step_to(t)
+            if t < at_s - 1e-9:
+                published.append(t)
+                if camera is not None:
+                    camera.publish(frame)
+
+        world.step_to = step_then_publish
+
+    return before
+
+
+@pytest.mark.parametrize("topic, ports, limit_s", [
+    ("/joint_states", "", 0.5),  # the default: 5 * dt
+    ("/thermal_camera/color", 'image_topics="/thermal_camera/color" image_names="thermal" max_observation_age="0.8"', 0.8),
+])
+def test_a_publisher_that_stops_mid_run_stops_the_robot_naming_its_topic(registry, topic, ports, limit_s):
+    """Its last message ages; the first request that would feed the policy one older than the
+    bound stops the run (the arm at rest, no goal executing) instead."""
+    published: list[float] = []
+    out = run_with_faults(registry, Policy(), FixedLatency(0.1), publisher_stopping_at(topic, 3.0, published), ports)
+    assert out.status == "FAILURE"
+    age = out.finished_at - published[-1]
+    assert age > limit_s and out.requested_at[-1] < 3.0 + limit_s  # the first request after it went stale
+    assert out.message == (f"the newest message on '{topic}' is {age:.2f} s old, more than max_observation_age = "
+                           f"{limit_s:.2f} s: its publisher stopped or fell behind; the policy is not fed an old world, "
+                           "robot stopped")
+    out.assert_stopped_cleanly()
 
 
 # -- latency ---------------------------------------------------------------------------------

@@ -263,3 +263,50 @@ def test_a_failing_execute_policy_s_cancel_reaches_the_hosted_controller(ros_env
     assert served == [True]
     assert "BusClosed" not in capfd.readouterr().err
     assert time.monotonic() - started < 15.0
+
+
+def test_a_camera_that_stops_publishing_over_ros_stops_the_run_naming_its_topic(ros_env):
+    """A camera driver of another node publishes at 20 Hz and stops once the policy has answered
+    two chunks: the next request would feed the policy a frame older than max_observation_age
+    (5 * dt = 0.5 s), so the run stops there, naming the topic."""
+    import threading
+
+    from sensor_msgs.msg import Image
+
+    from policy.images import rgb_to_image
+
+    camera = RosBus(WallClock(), node_name="thermal_camera_driver")
+    publisher = camera.create_publisher("/thermal_camera/color", Image, reliable=False)
+    frame = rgb_to_image(np.full((4, 6, 3), 200, np.uint8))
+    stopped = threading.Event()
+
+    def drive() -> None:
+        while not stopped.wait(0.05):
+            publisher.publish(frame)
+
+    driver = threading.Thread(target=drive, daemon=True)
+    requests: list[Any] = []
+
+    def policy(request: Any) -> Any:
+        requests.append(request)
+        if len(requests) == 3:  # the warmup and two chunks: the camera stops
+            stopped.set()
+        response = R(status=R.CHUNK_PRODUCED, native_control_period=0.1)
+        position = [float(v) for v in request.robot_state.position]
+        response.chunk = JointTrajectory(joint_names=list(request.robot_state.name),
+                                         points=[JointTrajectoryPoint(positions=position) for _ in range(30)])
+        return response
+
+    driver.start()
+    started = time.monotonic()
+    try:
+        result = run_policy_over_ros(policy, 'total_action_steps="80" image_topics="/thermal_camera/color" image_names="thermal"')
+    finally:
+        stopped.set()
+        driver.join(timeout=5)
+        camera.close()
+    assert result.status == "FAILURE", result.reason
+    assert result.reason.startswith("the newest message on '/thermal_camera/color' is ")
+    assert result.reason.endswith(" s old, more than max_observation_age = 0.50 s: its publisher stopped or fell "
+                                  "behind; the policy is not fed an old world, robot stopped")
+    assert len(requests) == 3 and time.monotonic() - started < 20.0

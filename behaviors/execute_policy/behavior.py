@@ -31,7 +31,7 @@ from . import config as cfg
 from .checks import PointChecks
 from .chunk import Chunk, ChunkError, read_chunk, read_policy_chunk
 from .gripper import GripperGoal, follow_goals, join_targets
-from .observation import ObservationError, policy_tail, robot_state
+from .observation import ObservationError, policy_tail, robot_state, stale_observation
 from .planner import (
     Arrival,
     PlanInput,
@@ -373,6 +373,12 @@ class ExecutePolicy(Behavior):
         request.robot_state = robot_state(self.joint_states.latest, self.safety.group_joints, c.gripper_joint_name or None, c.joint_states_topic)
         request.image_names = list(c.image_names)
         request.images = frames if frames is not None else [sub.latest for sub in self.cameras]
+        stale = stale_observation(self.context.clock.now(), [
+            (c.joint_states_topic, self.joint_states.received_at),
+            *zip(c.image_topics, (sub.received_at for sub in self.cameras)),
+        ], c.observation_age_limit_s)
+        if stale is not None:
+            raise ObservationError(stale)
         request.new_episode = new_episode
         request.frozen_prefix_steps = frozen
         request.guidance_horizon = c.guidance_horizon

@@ -41,11 +41,18 @@ PORTS = (
     InputPort("image_topics", PortType.STRING_LIST, "", "Camera topics (sensor_msgs/Image), ';'-separated."),
     InputPort("image_names", PortType.STRING_LIST, "", "Names the policy knows the cameras by, index-aligned with image_topics."),
     InputPort("joint_states_topic", PortType.STRING, "/joint_states", "sensor_msgs/JointState topic (reliable QoS)."),
+    InputPort("max_observation_age", PortType.FLOAT, 0.0, "Seconds since it arrived after which a camera frame or joint state is too old to feed the policy: the run stops, naming the topic; 0 = 5 * dt.", valid=Range(0.0, 600.0, "s")),
     OutputPort("steps_executed", PortType.UINT, "Policy steps executed."),
     OutputPort("chunks_received", PortType.UINT, "Chunks received with CHUNK_PRODUCED (the warmup's excluded)."),
     OutputPort("rejection_reason", PortType.STRING, "Why a chunk was rejected (empty when none was)."),
     OutputPort("status_message", PortType.STRING, "The run's final message."),
 )
+
+
+OBSERVATION_AGE_STEPS = 5
+"""Policy steps (``dt``) an observation may have aged when it is fed to the policy, by default: a
+publisher that stopped is found within half a second at 10 Hz, while a camera at a third of the
+policy's rate still passes."""
 
 
 class ConfigError(ObjectiveError, ValueError):
@@ -74,10 +81,16 @@ class PolicyRunConfig:
     image_topics: tuple[str, ...]
     image_names: tuple[str, ...]
     joint_states_topic: str
+    max_observation_age: float
 
     @property
     def has_gripper(self) -> bool:
         return bool(self.gripper_joint_name)
+
+    @property
+    def observation_age_limit_s(self) -> float:
+        """``max_observation_age``, or ``OBSERVATION_AGE_STEPS`` policy steps when it is 0."""
+        return self.max_observation_age or OBSERVATION_AGE_STEPS * self.dt
 
 
 COMBINED_PORTS = ("gripper_command_action_name", "gripper_joint_name", "image_topics", "image_names",

@@ -37,6 +37,17 @@ def robot_state(joint_state: Any, joints: Sequence[str], gripper_joint: str | No
     return state
 
 
+def stale_observation(now_s: float, received_at: Sequence[tuple[str, float | None]], limit_s: float) -> str | None:
+    """Why the observations ``(topic, runtime clock seconds it arrived)`` cannot be fed to the
+    policy: the first one older than ``limit_s``, named by its topic; None when all are fresh."""
+    for topic, at_s in received_at:
+        if at_s is not None and now_s - at_s > limit_s + 1e-9:
+            return (f"the newest message on '{topic}' is {now_s - at_s:.2f} s old, more than max_observation_age = "
+                    f"{limit_s:.2f} s: its publisher stopped or fell behind; the policy is not fed an old world, "
+                    "robot stopped")
+    return None
+
+
 def policy_tail(policy_chunk: np.ndarray | None, offset: int) -> Float64MultiArray:
     """The unexecuted tail of a policy chunk from step ``offset``, step dimension first."""
     msg = Float64MultiArray()

@@ -67,8 +67,7 @@ def render_report(directory: Path | str, logger: logging.Logger | None = None, r
     for name, render in steps:
         _render_one(report, name, render)
     html_path = directory / HTML_FILE
-    html_path.write_text(report_html(recording, report.files), encoding="utf-8")
-    report.files["html"] = html_path
+    _render_one(report, "html", lambda: _write_text(html_path, report_html(recording, report.files)))
     log_errors(report, logger)
     return report
 
@@ -78,6 +77,11 @@ def log_errors(report: Report, logger: logging.Logger | None) -> None:
     if logger is not None:
         for name, error in report.errors.items():
             logger.warning("recording %s: the %s artifact could not be rendered: %s", report.directory, name, error)
+
+
+def _write_text(path: Path, text: str) -> Path:
+    path.write_text(text, encoding="utf-8")
+    return path
 
 
 def _render_one(report: Report, name: str, render: Callable[[], Path]) -> None:

@@ -321,14 +321,16 @@ def read_mcap(path: Path, recording: Recording) -> None:
                 contents.add(channel.topic, schema.name if schema is not None else "", message.log_time, message.data)
         except EndOfFile:
             end = contents.end_time_s()
-            recording.partial.append(f"{path.name} ends early{f' at {end:.2f} s' if end is not None else ''}: "
-                                     "the recorder did not close it")
+            why = "its last whole chunk" if (recording.summary or {}).get("recording_incomplete") else "the recorder did not close it"
+            recording.partial.append(f"{path.name} ends early{f' at {end:.2f} s' if end is not None else ''}: {why}")
     contents.finish()
 
 
 def mark_unfinished(recording: Recording) -> None:
     if recording.summary is None:
         recording.partial.insert(0, f"{EVENTS_FILE} has no run summary: the run was killed before it finished")
+    elif recording.summary.get("recording_incomplete"):
+        recording.partial.insert(0, f"the recording is incomplete: {recording.summary['recording_incomplete']}")
 
 
 def load_recording(directory: Path | str) -> Recording:

@@ -106,12 +106,24 @@ class ReportWorker:
         log_errors(report, logger)
         return report
 
-    def close(self) -> None:
-        """Stop the worker if it is still there (a run that ended without a report)."""
+    def close(self, finish_s: float = 0.0) -> None:
+        """Stop the worker if it is still there (a run that ended without a report): it first gets
+        ``finish_s`` seconds to write what it received and exit (end of file: no report)."""
         process, self.process = self.process, None
-        if process is not None and process.poll() is None:
+        if process is None or process.poll() is not None:
+            return
+        if finish_s > 0 and process.stdin is not None:
+            with contextlib.suppress(OSError):
+                process.stdin.close()
+            with contextlib.suppress(subprocess.TimeoutExpired):
+                process.wait(finish_s)
+        if process.poll() is None:
             process.kill()
-            process.communicate()
+        process.wait()
+        for pipe in (process.stdin, process.stdout):
+            if pipe is not None:
+                with contextlib.suppress(OSError):
+                    pipe.close()
 
     def _ask(self, directory: Path, timeout: float) -> dict[str, Any] | None:
         from ..handoff import Frame, WorkerLost, json_frame, write_all

@@ -217,6 +217,8 @@ class _RosSubscription:
         self.callback, self.reliable = callback, reliable
         self.latest: Any = None
         self.count = 0
+        self.received_at: float | None = None
+        """Runtime clock seconds when ``latest`` arrived."""
         # Its own mutually exclusive group: deliveries to one subscription never overlap, so
         # ``count`` needs no lock.
         self._subscription = bus.node.create_subscription(
@@ -224,6 +226,7 @@ class _RosSubscription:
         )
 
     def _deliver(self, msg: Any) -> None:
+        self.received_at = self.bus.clock.now()  # (before ``latest``: a reader never takes a new message for an old one)
         self.latest = msg
         self.count += 1
         if self.callback is not None:
