@@ -22,7 +22,7 @@ setup: $(STAMP)
 $(STAMP): pyproject.toml runtime/build_interfaces.py $(shell find runtime/ros/interfaces -type f 2>/dev/null)
 	@test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
-	$(PY) -m pip install --quiet -e '.[ros-build,test]'
+	$(PY) -m pip install --quiet -e '.[ros-build,test,monitor]'
 	$(PY) -m runtime.build_interfaces --build-dir build/interfaces
 	@touch $(STAMP)
 

@@ -47,10 +47,18 @@ class StopRequest:
 
     signum: int | None = None
     urgent: bool = False
+    cause: str | None = None
+    """Who asked the run to stop when it was not a signal (``cancel``); the run's reason says it."""
 
     @property
     def requested(self) -> bool:
         return self.signum is not None
+
+    def cancel(self, cause: str) -> None:
+        """Stop the run at the next tick as SIGINT does (halted, INTERRUPTED), for ``cause``
+        (e.g. "cancelled by an action client") rather than a signal; callable from any thread."""
+        self.cause = cause
+        self.signum = signal.SIGINT
 
     def on_signal(self, signum: int, frame: Any = None) -> None:
         if self.urgent or self.signum is not None:

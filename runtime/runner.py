@@ -28,7 +28,7 @@ import time
 from dataclasses import dataclass, field
 from importlib.metadata import entry_points
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Callable, Iterable
+from typing import TYPE_CHECKING, Any, Callable, Iterable, Protocol, Sequence
 
 import py_trees
 
@@ -48,6 +48,19 @@ from .registry import WORLD_GROUP, Registry, default_world_name
 
 Progress = Callable[[float, int, str], None]
 """Called after every tick with (clock seconds, ticks so far, name of the running node)."""
+
+
+class RunObserver(Protocol):
+    """Watches a run from outside (the Groot2 monitor, the Objective server's feedback)."""
+
+    def started(self, loaded: LoadedTree) -> None:
+        """Before the first tick."""
+
+    def ticked(self, now_s: float, visited: list[Visit]) -> None:
+        """After every tick: the clock, and every node the tick visited with the status it reported."""
+
+    def stopped(self) -> None:
+        """After the tree finished or was halted, before the world and the bus close."""
 
 
 @dataclass
@@ -326,6 +339,8 @@ class Breakoff:
 
     signum: int | None = None
     error: BaseException | None = None
+    cause: str | None = None
+    """Who asked to stop, when it was not a signal (``StopRequest.cancel``)."""
 
     @property
     def end(self) -> RunEnd:
@@ -347,6 +362,7 @@ def run_tree(
     progress: Progress | None = None,
     world: Any = None,
     stop: StopRequest | None = None,
+    observers: Sequence[RunObserver] = (),
 ) -> RunResult:
     """Tick ``loaded`` (bound to ``context``) to completion and summarise the run.
 
@@ -397,9 +413,11 @@ def run_tree(
             for node in nodes:
                 node.setup()
             context.events.emit("run_started", loaded.tree_id, seed=options.seed)
+            for observer in observers:
+                observer.started(loaded)
             while True:
                 if stop is not None and stop.signum is not None:
-                    breakoff = Breakoff(signum=stop.signum)
+                    breakoff = Breakoff(signum=stop.signum, cause=stop.cause)
                     break
                 if options.max_seconds is not None and clock.now() + period > options.max_seconds + 1e-9:
                     timed_out = True
@@ -418,6 +436,8 @@ def run_tree(
                 if progress is not None:
                     tip = root.tip()
                     progress(clock.now(), ticks, tip.name if tip is not None else "")
+                for observer in observers:
+                    observer.ticked(clock.now(), visited)
                 if status is not Status.RUNNING:
                     if status is Status.FAILURE:
                         blame = _failing(root, visited)
@@ -446,6 +466,8 @@ def run_tree(
         finally:
             try:
                 statuses.halted()
+                for observer in observers:
+                    observer.stopped()
                 if world is not None:
                     try:
                         summary_world = world.summary()
@@ -494,7 +516,8 @@ def _describe_breakoff(result: RunResult, breakoff: Breakoff, running: list[py_t
         result.signum = int(breakoff.signum)
         where = ", ".join(f"'{n.name}'" + _at(loaded, n) for n in running)
         halted = f"; halted {where} (RUNNING)" if where else ""
-        result.reason = f"interrupted by {signal_name(breakoff.signum)} at {result.sim_seconds:.2f} s{halted}"
+        cause = breakoff.cause or f"interrupted by {signal_name(breakoff.signum)}"
+        result.reason = f"{cause} at {result.sim_seconds:.2f} s{halted}"
         return
     error, culprit_name = breakoff.error, None
     assert error is not None
@@ -525,18 +548,25 @@ def run_file(
     objectives_dir: Path | None = None,
     progress: Progress | None = None,
     stop: StopRequest | None = None,
+    observers: Sequence[RunObserver] = (),
 ) -> RunResult:
     """Load ``source`` and run it: what ``objective run`` does (``stop``: see ``runtime.interrupt``)."""
     options.check()
     context = make_context(options)
     loaded = load_tree(source, registry, context, tree_id, search_paths, objectives_dir)
+    return run_loaded(loaded, context, options, progress, stop, observers)
+
+
+def run_loaded(loaded: LoadedTree, context: RunContext, options: RunOptions, progress: Progress | None = None,
+               stop: StopRequest | None = None, observers: Sequence[RunObserver] = ()) -> RunResult:
+    """Run a loaded tree, recorded when ``options`` asks for it (``run_file`` after the loading)."""
     if options.record_dir is None and options.live is None:
-        return run_tree(loaded, context, options, progress, stop=stop)
-    return _run_recorded(loaded, context, options, progress, stop)
+        return run_tree(loaded, context, options, progress, stop=stop, observers=observers)
+    return _run_recorded(loaded, context, options, progress, stop, observers)
 
 
 def _run_recorded(loaded: LoadedTree, context: RunContext, options: RunOptions, progress: Progress | None,
-                  stop: StopRequest | None) -> RunResult:
+                  stop: StopRequest | None, observers: Sequence[RunObserver]) -> RunResult:
     """``run_tree`` with a ``Recorder`` on the bus (into ``options.record_dir`` and/or served live),
     then the report rendered into ``options.record_dir``.
 
@@ -550,12 +580,12 @@ def _run_recorded(loaded: LoadedTree, context: RunContext, options: RunOptions, 
         context.logger.info("live view: in Foxglove, open a Foxglove WebSocket connection to %s", recorder.live.url)
     if options.record_dir is None:
         try:
-            return run_tree(loaded, context, options, progress, stop=stop)
+            return run_tree(loaded, context, options, progress, stop=stop, observers=observers)
         finally:
             recorder.close()
     worker = recorder.worker  # writes the recording, then renders the report
     try:
-        result = run_tree(loaded, context, options, progress, stop=stop)
+        result = run_tree(loaded, context, options, progress, stop=stop, observers=observers)
     except BaseException as err:  # the run did not start (e.g. no such world): say so in the recording
         end = RunEnd.INTERRUPTED if isinstance(err, KeyboardInterrupt) else RunEnd.ERROR
         try:
