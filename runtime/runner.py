@@ -460,7 +460,8 @@ def run_tree(
             if _halt(root) and options.ros:
                 from .ros.run import deliver_pending
 
-                deliver_pending(bus)  # let the cancels of a halted run reach the graph
+                # let the cancels of a halted run reach the graph, and the hosted controllers act on them
+                deliver_pending(bus, None if world is None else lambda: world.step_to(clock.now()))
         except Exception as err:  # a node's terminate() broke: still close the world and the bus
             breakoff = breakoff or Breakoff(error=err)
         finally:
