@@ -401,6 +401,8 @@ class Groot2Server:
                 continue
             except self._zmq.ZMQError:
                 return
+            if not self.connected:
+                _log.info("Groot2: a client connected to %s", self.url)
             self._last_request = time.monotonic()
             try:
                 reply = self.answer(request)

@@ -254,3 +254,23 @@ def test_objective_run_groot2_serves_and_a_taken_port_is_an_error(tmp_path):
                           capture_output=True, text=True, timeout=60)
     assert proc.returncode == 0, proc.stderr
     assert "Groot2: connect to 127.0.0.1 (port " in proc.stderr
+
+
+def test_without_the_monitor_extra_groot2_says_what_to_install(monkeypatch):
+    from runtime.errors import ObjectiveError
+
+    monkeypatch.setitem(sys.modules, "zmq", None)  # as if pyzmq were not installed
+    with pytest.raises(ObjectiveError, match=r"^--groot2 needs the monitor extra \(zmq is not installed\): "
+                                             r"pip install 'objective-runtime\[monitor\]'$"):
+        Groot2Server(Groot2Options(port=0))
+
+
+def test_before_any_tree_a_request_gets_an_error_reply():
+    with Groot2Server(Groot2Options(port=0)) as server:
+        assert not server.connected
+        client = Client(server.port)
+        try:
+            assert client.ask(header("T")) == [b"error", b"no tree is running yet"]
+            assert server.connected  # any request is Groot2's heartbeat
+        finally:
+            client.close()

@@ -282,6 +282,26 @@ def test_cancel_mid_policy_stops_the_arm(serve, client):
     assert arm_speed(states[-1]) < 1e-6, list(states[-1].velocity)  # the last state the cell published: at rest
 
 
+def test_groot2_on_the_server_shows_each_run(ros_env, registry, client, library):
+    from runtime.groot2 import Groot2Options, Groot2Server
+    from tests.test_groot2 import Client as GrootClient, header
+
+    with Groot2Server(Groot2Options(port=0)) as groot2:
+        server = ObjectiveServer(ServerOptions(library, RunOptions(), groot2=groot2), registry)
+        groot = GrootClient(groot2.port)
+        try:
+            assert groot.ask(header("T")) == [b"error", b"no tree is running yet"]
+            status, _ = client().run("Wait and Greet")
+            assert status == GoalStatus.STATUS_SUCCEEDED
+            tree = groot.ask(header("T"))[1].decode()
+            assert '<BehaviorTree ID="Wait and Greet" _fullpath="">' in tree and '<Wait name="wait" _uid="2"' in tree
+            statuses = groot.ask(header("S"))[1]
+            assert statuses == bytes.fromhex("01000c" "02000c" "03000c")  # all idle after SUCCESS
+        finally:
+            groot.close()
+            server.close()
+
+
 def test_the_command_serves_until_sigterm(ros_env, library):
     env = dict(os.environ)
     proc = subprocess.Popen([sys.executable, "-m", "runtime.cli", "server", str(library)], cwd=REPO, env=env,
