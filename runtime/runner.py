@@ -142,6 +142,8 @@ class RunResult:
     failing_location: str | None = None
     signum: int | None = None
     """The signal that interrupted the run (INTERRUPTED only)."""
+    stopped_by: str | None = None
+    """Who stopped the run when no signal did (``StopRequest.cancel``; INTERRUPTED only)."""
     running_nodes: list[str] = field(default_factory=list)
     """Leaves that were RUNNING when the run was interrupted or broke off, halted since."""
     log_file: str | None = None
@@ -166,7 +168,9 @@ class RunResult:
             "ticks": self.ticks,
             "blackboard": self.blackboard,
         }
-        if self.status == RunEnd.INTERRUPTED.value:
+        if self.stopped_by is not None:
+            summary["stopped_by"] = self.stopped_by
+        elif self.status == RunEnd.INTERRUPTED.value:
             summary["signal"] = signal_name(self.signum or signal.SIGINT)
         if self.status in (RunEnd.INTERRUPTED.value, RunEnd.ERROR.value):
             summary["running_nodes"] = list(self.running_nodes)
@@ -517,6 +521,7 @@ def _describe_breakoff(result: RunResult, breakoff: Breakoff, running: list[py_t
         result.signum = int(breakoff.signum)
         where = ", ".join(f"'{n.name}'" + _at(loaded, n) for n in running)
         halted = f"; halted {where} (RUNNING)" if where else ""
+        result.stopped_by = breakoff.cause
         cause = breakoff.cause or f"interrupted by {signal_name(breakoff.signum)}"
         result.reason = f"{cause} at {result.sim_seconds:.2f} s{halted}"
         return

@@ -226,7 +226,9 @@ def test_one_objective_at_a_time_a_second_client_is_rejected_and_cancel_halts(se
     assert result.status == "INTERRUPTED"
     assert result.reason.startswith("cancelled by a client of /do_objective at ")
     assert "halted 'Wait'" in result.reason
-    assert json.loads(result.summary_json)["running_nodes"] == ["Wait"]
+    summary = json.loads(result.summary_json)
+    assert summary["running_nodes"] == ["Wait"]
+    assert summary["stopped_by"] == "cancelled by a client of /do_objective" and "signal" not in summary
     # the server is free again: the second client's goal runs
     status, result = second.run("Wait and Greet")
     assert (status, result.status) == (GoalStatus.STATUS_SUCCEEDED, "SUCCESS")
