@@ -28,9 +28,10 @@ size and requests missing their second part get the same error replies BehaviorT
 Groot2's requests are its heartbeat: ``connected`` says whether one arrived in the last
 ``HEARTBEAT_S`` seconds.
 
-Statuses follow BehaviorTree.CPP's codes: IDLE 0, RUNNING 1, SUCCESS 2, FAILURE 3, SKIPPED 4,
-and 10 + the previous status for a node that went back to IDLE (a finished or halted node), so
-Groot2 shows where the run went. The runner calls ``update`` after every tick; the server
+Statuses follow BehaviorTree.CPP's codes: IDLE 0, RUNNING 1, SUCCESS 2, FAILURE 3, and 10 +
+the previous status for a node that went back to IDLE (a finished or halted node), so Groot2
+shows where the run went; a skipped node keeps its code, as BehaviorTree.CPP reports no change
+for it. The runner calls ``update`` after every tick; the server
 thread answers from that snapshot and never touches the tree's statuses itself.
 
 Needs the ``monitor`` extra (``pip install 'objective-runtime[monitor]'``: pyzmq, msgpack).
@@ -218,29 +219,34 @@ def _model(xml_id: str, kind: NodeKind, cls: type) -> ET.Element:
 # ------------------------------------------------------------------------------------------------
 # Statuses
 # ------------------------------------------------------------------------------------------------
-def _skipped(node: py_trees.behaviour.Behaviour) -> bool:
-    guard = node.parent
-    return bool(getattr(node, "skipped", False) or (getattr(guard, "transparent", False) and guard.skipped))
-
-
-def status_code(node: py_trees.behaviour.Behaviour, reported: Status | None, previous: int, tree_running: bool) -> int:
+def status_code(node: py_trees.behaviour.Behaviour, reported: Status | None, previous: int) -> int:
     """The status byte of ``node`` after a tick.
 
     ``reported`` is the status the node reported in that tick (None if it was not ticked) and
     ``previous`` its byte before. A RUNNING, SUCCESS or FAILURE node shows that status; a node
-    skipped while the tree runs shows SKIPPED; a node that is idle again (its parent finished or
-    halted it) shows 10 + the status it had, as BehaviorTree.CPP reports a node back to IDLE.
+    that is idle again (its parent finished or halted it) shows 10 + the status it had, as
+    BehaviorTree.CPP reports a node back to IDLE. A skipped node keeps its byte: BehaviorTree.CPP
+    reports no change for it.
     """
     code = _CODES.get(node.status)
     if code is not None:
         return int(code)
-    if _skipped(node):
-        return int(Code.SKIPPED) if tree_running else IDLE_AFTER + int(Code.SKIPPED)
     if reported in _CODES:
         return IDLE_AFTER + int(_CODES[reported])
     if Code.RUNNING <= previous <= Code.SKIPPED:
         return IDLE_AFTER + previous
     return previous
+
+
+def reported_statuses(visited: Iterable[Visit]) -> dict[int, Status]:
+    """The status each node reported in a tick, by ``id``; a node a condition guard decided
+    (``_successIf`` ...) without ticking it reports the guard's result, as in BehaviorTree.CPP."""
+    reported: dict[int, Status] = {}
+    for node, status, _ in visited:
+        reported[id(node)] = status
+        if getattr(node, "transparent", False):
+            reported.setdefault(id(_unwrap(node)), status)
+    return reported
 
 
 def status_buffer(uids: list[int], codes: list[int]) -> bytes:
@@ -360,9 +366,8 @@ class Groot2Server:
         tree = self._tree
         if tree is None:
             return
-        reported = {id(node): status for node, status, _ in visited}
-        running = tree.nodes[0][1].status is Status.RUNNING
-        codes = [status_code(node, reported.get(id(node)), previous, running)
+        reported = reported_statuses(visited)
+        codes = [status_code(node, reported.get(id(node)), previous)
                  for (_, node), previous in zip(tree.nodes, self._codes)]
         if codes == self._codes:
             return

@@ -34,10 +34,20 @@ XML = """<root BTCPP_format="4" main_tree_to_execute="Main">
       <RunOnce>
         <AlwaysSuccess/>
       </RunOnce>
+      <AlwaysFailure _skipIf="x == 3"/>
+      <ReactiveSequence>
+        <AlwaysSuccess _successIf="x == 3"/>
+        <Inverter><AlwaysFailure/></Inverter>
+      </ReactiveSequence>
       <Parallel success_count="1">
         <AlwaysSuccess/>
       </Parallel>
       <Sleep msec="50"/>
+      <ForceSuccess>
+        <Timeout msec="20">
+          <Sleep msec="1000"/>
+        </Timeout>
+      </ForceSuccess>
     </Sequence>
   </BehaviorTree>
   <BehaviorTree ID="Sub">
@@ -128,6 +138,10 @@ def same_element(a: ET.Element, b: ET.Element) -> bool:
     return (a.tag, a.attrib) == (b.tag, b.attrib) and len(a) == len(b) and all(map(same_element, a, b))
 
 
+def status_codes(buffer: bytes) -> dict[int, int]:
+    return dict(struct.unpack("<HB", buffer[i:i + 3]) for i in range(0, len(buffer), 3))
+
+
 def reply_header(reply: list[bytes]) -> tuple[bytes, int]:
     """The request part of a reply's header, and the length of the tree id after it."""
     return reply[0][:6], len(reply[0]) - 6
@@ -162,8 +176,8 @@ def test_statuses_before_during_and_after_a_run_are_behaviortree_cpps(both):
     server.update(tick.visited)
     mine, real = ours.ask(header("S"))[1], theirs.ask(header("S"))[1]
     assert mine == real
-    codes = {uid: code for uid, code in (struct.unpack("<HB", mine[i:i + 3]) for i in range(0, len(mine), 3))}
-    assert codes[1] == 1 and codes[max(codes)] == 1  # the Sequence and the Sleep are RUNNING
+    codes = status_codes(mine)
+    assert codes[1] == 1 and codes[20] == 1 and codes[23] == 0  # the Sequence and the first Sleep are RUNNING
 
     # To the end: every node idle again, showing what it did (10 + status).
     assert tree.tick_while_running() == btcpp.NodeStatus.SUCCESS
@@ -176,7 +190,9 @@ def test_statuses_before_during_and_after_a_run_are_behaviortree_cpps(both):
     assert tick.status is Status.SUCCESS
     mine, real = ours.ask(header("S"))[1], theirs.ask(header("S"))[1]
     assert mine == real
-    assert set(mine[2::3]) == {12, 13}  # IDLE after SUCCESS, and the AlwaysFailure's IDLE after FAILURE
+    # IDLE after SUCCESS, the AlwaysFailures' and the Timeout's IDLE after FAILURE, the skipped node
+    # never left IDLE, the Sleep the Timeout halted IDLE after RUNNING
+    assert set(mine[2::3]) == {0, 11, 12, 13} and status_codes(mine)[23] == 11
 
 
 def test_blackboards_are_behaviortree_cpps(both):
