@@ -28,7 +28,7 @@ from sensor_msgs.msg import JointState  # noqa: E402
 from std_srvs.srv import Trigger  # noqa: E402
 
 from objective_server_msgs.action import DoObjective  # noqa: E402
-from objective_server_msgs.msg import BlackboardEntry, PortOverride  # noqa: E402
+from objective_server_msgs.msg import KeyValue, PortOverride  # noqa: E402
 from objective_server_msgs.srv import ListObjectives  # noqa: E402
 from runtime.registry import Registry  # noqa: E402
 from runtime.ros.objective_server import ObjectiveServer, ServerOptions  # noqa: E402
@@ -111,7 +111,7 @@ class Client:
     def send(self, name: str, ports: list[tuple[str, str, str]] = (), board: dict[str, str] | None = None) -> Any:
         goal = DoObjective.Goal(objective_name=name)
         goal.port_overrides = [PortOverride(node=n, port=p, value=v) for n, p, v in ports]
-        goal.blackboard_overrides = [BlackboardEntry(name=k, value=v) for k, v in (board or {}).items()]
+        goal.blackboard_overrides = [KeyValue(key=k, value=v) for k, v in (board or {}).items()]
         future = self.action.send_goal_async(goal, feedback_callback=lambda m: self.feedback.append(m.feedback))
         return wait(future, what="the goal response")
 

@@ -195,7 +195,7 @@ class ObjectiveServer:
             stop = self._stop = self._stop or StopRequest()
         try:
             outcome = self.run(request.objective_name, [PortOverride(o.node, o.port, o.value) for o in request.port_overrides],
-                               {e.name: e.value for e in request.blackboard_overrides}, stop,
+                               {e.key: e.value for e in request.blackboard_overrides}, stop,
                                goal_handle.publish_feedback)
         finally:
             with self._lock:
