@@ -253,15 +253,16 @@ def status_buffer(uids: list[int], codes: list[int]) -> bytes:
     return b"".join(struct.pack("<HB", uid, code) for uid, code in zip(uids, codes))
 
 
-def blackboard_dump(boards: dict[str, "Blackboard"], request: str) -> dict[str, dict[str, Any]]:
-    """``{name: {entry: value}}`` for the ``;``-separated names in ``request`` that exist.
+def blackboard_dump(boards: dict[str, "Blackboard"], request: str) -> dict[str, dict[str, Any] | None]:
+    """``{name: {entry: value}}`` for the ``;``-separated names in ``request`` that exist; an
+    empty blackboard is None (JSON null), as BehaviorTree.CPP exports it.
 
     Values that MessagePack cannot carry (a pose, a message) are sent as their text."""
-    out: dict[str, dict[str, Any]] = {}
+    out: dict[str, dict[str, Any] | None] = {}
     for name in request.split(";"):
         board = boards.get(name)
         if board is not None:
-            out[name] = {key: _plain(value) for key, value in sorted(board.local_entries().items())}
+            out[name] = {key: _plain(value) for key, value in sorted(board.local_entries().items())} or None
     return out
 
 

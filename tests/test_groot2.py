@@ -290,3 +290,49 @@ def test_before_any_tree_a_request_gets_an_error_reply():
             assert server.connected  # any request is Groot2's heartbeat
         finally:
             client.close()
+
+
+NESTED = """<root BTCPP_format="4" main_tree_to_execute="Outer">
+  <BehaviorTree ID="Outer">
+    <Sequence>
+      <SubTree ID="Middle" name="mid"/>
+      <Precondition if="false" else="SUCCESS">
+        <Sleep msec="{never}"/>
+      </Precondition>
+    </Sequence>
+  </BehaviorTree>
+  <BehaviorTree ID="Middle">
+    <Sequence>
+      <SubTree ID="Inner"/>
+      <SubTree ID="Inner" name="again"/>
+    </Sequence>
+  </BehaviorTree>
+  <BehaviorTree ID="Inner">
+    <Script code="depth := 2"/>
+  </BehaviorTree>
+</root>"""
+
+
+def test_nested_subtrees_and_unset_entries_are_behaviortree_cpps(registry):
+    context = make_context(RunOptions())
+    loaded = load_tree(NESTED, registry, context)
+    tree = btcpp.BehaviorTreeFactory().create_tree_from_text(NESTED)
+    port = free_pair()
+    publisher = btcpp.Groot2Publisher(tree, port)
+    with Groot2Server(Groot2Options(port=0)) as server:
+        ours, theirs = Client(server.port), Client(port)
+        try:
+            tree.tick_while_running()
+            run_tree(loaded, context, RunOptions(), observers=[server.observer()])
+            mine, real = tree_part(ours.ask(header("T"))[1]), tree_part(theirs.ask(header("T"))[1])
+            assert [t.get("_fullpath") for t in mine] == ["", "mid", "mid/Inner::4", "mid/again"]
+            assert all(map(same_element, mine, real)) and len(mine) == len(real)
+            assert ours.ask(header("S"))[1] == theirs.ask(header("S"))[1]
+            names = b"Outer;mid;mid/Inner::4;mid/again"
+            dump = msgpack.unpackb(ours.ask(header("B"), names)[1])
+            assert dump == msgpack.unpackb(theirs.ask(header("B"), names)[1])
+            assert dump["Outer"] == {"never": None}  # declared by the port, never written
+        finally:
+            ours.close()
+            theirs.close()
+    del publisher
