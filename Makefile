@@ -26,7 +26,7 @@ $(STAMP): pyproject.toml runtime/build_interfaces.py $(shell find runtime/ros/in
 	@test -x $(PY) || test -n "$(PYTHON)" || { echo "make: no Python 3.12 found (python3.12, ~/.pyenv/versions/3.12.1); name one with PYTHON=..."; exit 2; }
 	@test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
-	$(PY) -m pip install --quiet -e '.[sim,record,ros,ros-build,test]'
+	$(PY) -m pip install --quiet -e '.[sim,record,ros,ros-build,test,monitor]'
 	$(PY) -m runtime.build_interfaces --build-dir build/interfaces
 	@touch $(STAMP)
 

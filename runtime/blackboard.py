@@ -111,5 +111,9 @@ class Blackboard:
         """The entries stored on this blackboard (not its parent's) that hold a value."""
         return iter(sorted((k, v) for k, v in self._entries.items() if v is not None))
 
+    def local_entries(self) -> dict[str, Any]:
+        """Every entry stored on this blackboard, declared ones (None) included: a copy."""
+        return dict(self._entries)
+
     def __repr__(self) -> str:
         return f"Blackboard({dict(self._entries)!r}, remapping={self.remapping!r}, autoremap={self.autoremap})"

@@ -72,6 +72,26 @@ def positive_float(text: str) -> float:
     return value
 
 
+def add_groot2_arguments(parser: argparse.ArgumentParser) -> None:
+    """``--groot2 [PORT]`` and ``--groot2-host``: live monitoring in Groot2 (``runtime.groot2``)."""
+    parser.add_argument("--groot2", type=_port, nargs="?", const=1667, metavar="PORT",
+                        help="serve the running tree to Groot2 (BehaviorTree.CPP's protocol) on PORT and PORT+1 "
+                             "(default 1667; 0 = any free pair); needs the monitor extra")
+    parser.add_argument("--groot2-host", default="127.0.0.1", metavar="ADDRESS",
+                        help="interface Groot2 connects to (default 127.0.0.1; 0.0.0.0 = every interface)")
+
+
+def groot2_server(args: argparse.Namespace) -> Any:
+    """The Groot2 server ``--groot2`` asks for (a context manager), or a null context."""
+    if args.groot2 is None:
+        return contextlib.nullcontext()
+    from .groot2 import Groot2Options, Groot2Server
+
+    server = Groot2Server(Groot2Options(port=args.groot2, host=args.groot2_host))
+    logging.getLogger("objective").info("Groot2: connect to %s (port %d)", server.host, server.port)
+    return server
+
+
 def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     """The CLI's parser. Installed commands (``objective.commands``) are loaded unless ``command``
     is one of the engine's own: ``objective run`` imports no plug-in command's module."""
@@ -114,6 +134,7 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
                      help="record the run into DIR: run.mcap, events.jsonl, plots, camera video, tree.svg, report.html")
     run.add_argument("--live", type=tcp_port, nargs="?", const=8765, metavar="PORT",
                      help="serve the run's topics to Foxglove on ws://127.0.0.1:PORT while it runs (default 8765; 0 = any free port)")
+    add_groot2_arguments(run)
     run.add_argument("--tick-hz", type=positive_float, default=100.0, help=argparse.SUPPRESS)
     add_paths(run)
 
@@ -196,7 +217,10 @@ def cmd_run(args: argparse.Namespace, registry: Registry, stop: StopRequest | No
         options.check()
         logging.getLogger("objective").info("running %s", graph_description(options.ros_node_name))
     try:
-        result = run_file(args.file, registry, options, args.tree, args.path, args.objectives_dir, progress, stop)
+        with groot2_server(args) as groot2:
+            watchers = [] if groot2 is None else [groot2.watcher()]
+            result = run_file(args.file, registry, options, args.tree, args.path, args.objectives_dir, progress, stop,
+                              watchers)
     finally:
         if progress is not None:
             progress.clear()

@@ -51,10 +51,18 @@ class StopRequest:
     held: int | None = None
     """A signal that arrived inside ``held_back`` (handled on the way out)."""
     holding: bool = False
+    cause: str | None = None
+    """Who asked the run to stop when it was not a signal (``cancel``); the run's reason says it."""
 
     @property
     def requested(self) -> bool:
         return self.signum is not None
+
+    def cancel(self, cause: str) -> None:
+        """Stop the run at the next tick as SIGINT does (halted, INTERRUPTED), for ``cause``
+        (e.g. "cancelled by an action client") rather than a signal; callable from any thread."""
+        self.cause = cause
+        self.signum = signal.SIGINT
 
     def on_signal(self, signum: int, frame: Any = None) -> None:
         if self.holding:

@@ -28,7 +28,7 @@ import time
 from dataclasses import dataclass, field
 from importlib.metadata import entry_points
 from pathlib import Path
-from typing import Any, Callable, Iterable
+from typing import Any, Callable, Iterable, Protocol, Sequence
 
 import py_trees
 
@@ -47,6 +47,19 @@ from .world_check import check_tree
 
 Progress = Callable[[float, int, str], None]
 """Called after every tick with (clock seconds, ticks so far, name of the running node)."""
+
+
+class TickWatcher(Protocol):
+    """Told of every tick of a run (the Groot2 monitor, the Objective server's feedback)."""
+
+    def started(self, loaded: LoadedTree) -> None:
+        """Before the first tick."""
+
+    def ticked(self, now_s: float, visited: list[Visit]) -> None:
+        """After every tick: the clock, and every node the tick visited with the status it reported."""
+
+    def stopped(self) -> None:
+        """After the tree finished or was halted, before the world and the bus close."""
 
 
 @dataclass
@@ -139,6 +152,8 @@ class RunResult:
     failing_location: str | None = None
     signum: int | None = None
     """The signal that interrupted the run (INTERRUPTED only)."""
+    stopped_by: str | None = None
+    """Who stopped the run when no signal did (``StopRequest.cancel``; INTERRUPTED only)."""
     running_nodes: list[str] = field(default_factory=list)
     """Leaves that were RUNNING when the run was interrupted or broke off, halted since."""
     log_file: str | None = None
@@ -169,7 +184,9 @@ class RunResult:
         }
         if self.failure_kind is not None:
             summary["failure_kind"] = self.failure_kind
-        if self.status == RunEnd.INTERRUPTED.value:
+        if self.stopped_by is not None:
+            summary["stopped_by"] = self.stopped_by
+        elif self.status == RunEnd.INTERRUPTED.value:
             summary["signal"] = signal_name(self.signum or signal.SIGINT)
         if self.status in (RunEnd.INTERRUPTED.value, RunEnd.ERROR.value):
             summary["running_nodes"] = list(self.running_nodes)
@@ -345,6 +362,8 @@ class Breakoff:
 
     signum: int | None = None
     error: BaseException | None = None
+    cause: str | None = None
+    """Who asked to stop, when it was not a signal (``StopRequest.cancel``)."""
 
     @property
     def end(self) -> RunEnd:
@@ -366,6 +385,7 @@ def run_tree(
     progress: Progress | None = None,
     world: Any = None,
     stop: StopRequest | None = None,
+    watchers: Sequence[TickWatcher] = (),
 ) -> RunResult:
     """Tick ``loaded`` (bound to ``context``) to completion and summarise the run.
 
@@ -417,9 +437,11 @@ def run_tree(
             for node in nodes:
                 node.setup()
             context.events.emit("run_started", loaded.tree_id, seed=options.seed)
+            for watcher in watchers:
+                watcher.started(loaded)
             while True:
                 if stop is not None and stop.signum is not None:
-                    breakoff = Breakoff(signum=stop.signum)
+                    breakoff = Breakoff(signum=stop.signum, cause=stop.cause)
                     break
                 if options.max_seconds is not None and clock.now() + period > options.max_seconds + 1e-9:
                     timed_out = True
@@ -438,6 +460,8 @@ def run_tree(
                 if progress is not None:
                     tip = root.tip()
                     progress(clock.now(), ticks, tip.name if tip is not None else "")
+                for watcher in watchers:
+                    watcher.ticked(clock.now(), visited)
                 if status is not Status.RUNNING:
                     if status is Status.FAILURE:
                         blame = _failing(root, visited)
@@ -460,12 +484,15 @@ def run_tree(
             if _halt(root) and options.ros:
                 from .ros.run import deliver_pending
 
-                deliver_pending(bus)  # let the cancels of a halted run reach the graph
+                # let the cancels of a halted run reach the graph, and the hosted controllers act on them
+                deliver_pending(bus, None if world is None else lambda: world.step_to(clock.now()))
         except Exception as err:  # a node's terminate() broke: still close the world and the bus
             breakoff = breakoff or Breakoff(error=err)
         finally:
             try:
                 statuses.halted()
+                for watcher in watchers:
+                    watcher.stopped()
                 if world is not None:
                     try:
                         summary_world = world.summary()
@@ -514,7 +541,9 @@ def _describe_breakoff(result: RunResult, breakoff: Breakoff, running: list[py_t
         result.signum = int(breakoff.signum)
         where = ", ".join(f"'{n.name}'" + _at(loaded, n) for n in running)
         halted = f"; halted {where} (RUNNING)" if where else ""
-        result.reason = f"interrupted by {signal_name(breakoff.signum)} at {result.sim_seconds:.2f} s{halted}"
+        result.stopped_by = breakoff.cause
+        cause = breakoff.cause or f"interrupted by {signal_name(breakoff.signum)}"
+        result.reason = f"{cause} at {result.sim_seconds:.2f} s{halted}"
         return
     error, culprit_name = breakoff.error, None
     assert error is not None
@@ -551,18 +580,26 @@ def run_file(
     objectives_dir: Path | None = None,
     progress: Progress | None = None,
     stop: StopRequest | None = None,
+    watchers: Sequence[TickWatcher] = (),
 ) -> RunResult:
     """Load ``source`` and run it: what ``objective run`` does (``stop``: see ``runtime.interrupt``)."""
     options.check()
     context = make_context(options)
     loaded = load_tree(source, registry, context, tree_id, search_paths, objectives_dir)
+    return run_loaded(loaded, context, options, progress, stop, watchers)
+
+
+def run_loaded(loaded: LoadedTree, context: RunContext, options: RunOptions, progress: Progress | None = None,
+               stop: StopRequest | None = None, watchers: Sequence[TickWatcher] = ()) -> RunResult:
+    """Run a loaded tree (``run_file`` after the loading), with the run observers the options ask
+    for (``runtime.observer``: the recording, the live view) and ``watchers`` told of every tick."""
     if not options.observed:
-        return run_tree(loaded, context, options, progress, stop=stop)
+        return run_tree(loaded, context, options, progress, stop=stop, watchers=watchers)
     from .observer import attach_observers
 
     observers = attach_observers(loaded, context, options)
     try:
-        result = run_tree(loaded, context, options, progress, stop=stop)
+        result = run_tree(loaded, context, options, progress, stop=stop, watchers=watchers)
     except BaseException as err:  # the run did not start (e.g. no such world): the observers say so
         for observer in observers:
             observer.aborted(err, stop)

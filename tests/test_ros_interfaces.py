@@ -194,4 +194,5 @@ def test_packages_build_in_dependency_order(tmp_path):
 def test_every_interface_package_is_described_by_its_manifest():
     tool = _load_build_tool()
     names = sorted(tool.read_package(d).name for d in tool.INTERFACES_DIR.iterdir() if (d / "package.xml").is_file())
-    assert names == ["control_msgs", "controller_manager_msgs", "moveit_pro_controllers_msgs", "moveit_pro_ml_msgs", "tf2_msgs"]
+    assert names == ["control_msgs", "controller_manager_msgs", "moveit_pro_controllers_msgs", "moveit_pro_ml_msgs",
+                     "objective_server_msgs", "tf2_msgs"]

@@ -95,6 +95,7 @@ def test_the_interface_sources_and_their_builder_ship(installed, outside):
     for package, source in [("moveit_pro_ml_msgs", "srv/GetActionChunk.srv"),
                             ("moveit_pro_controllers_msgs", "action/FollowJointTrajectoryWithAdmittance.action"),
                             ("control_msgs", "msg/GripperCommand.msg"),
-                            ("controller_manager_msgs", "srv/SwitchController.srv")]:
+                            ("controller_manager_msgs", "srv/SwitchController.srv"),
+                            ("objective_server_msgs", "action/DoObjective.action")]:
         for name in ("package.xml", "CMakeLists.txt", source):
             assert (interfaces / package / name).is_file(), f"{package}/{name} is not in the wheel"

@@ -23,14 +23,16 @@ from __future__ import annotations
 
 import os
 import time
-from typing import Any
+from typing import Any, Callable
 
 from runtime.clock import WallClock
 
 DEFAULT_NODE_NAME = "objective_runtime"
 HALT_GRACE_S = 0.25
 """Wall time the runner keeps serving after halting a tree, so cancel requests leave the node
-(and hosted controllers, which serve in ``spin_once``, act on them) before it is destroyed."""
+(and hosted controllers, which serve in ``spin_once`` and run in the world's steps, act on them:
+the simulated cell's controllers bring a cancelled trajectory to rest within 0.2 s) before it
+is destroyed."""
 EXECUTOR_THREADS = 12
 """Executor threads of the runner's node. Each active action goal holds one (the controller's
 trajectory goal and the gripper goal, from both the client and the server side, since the hosted
@@ -51,10 +53,13 @@ def graph_description(node_name: str = DEFAULT_NODE_NAME) -> str:
     return f"on ROS 2 as node /{node_name} (ROS_DOMAIN_ID={domain}, ROS_AUTOMATIC_DISCOVERY_RANGE={scope})"
 
 
-def deliver_pending(bus: Any, seconds: float = HALT_GRACE_S) -> None:
-    """Keep spinning ``bus`` for ``seconds`` of wall time (after a halt, before closing)."""
+def deliver_pending(bus: Any, step_world: Callable[[], None] | None = None, seconds: float = HALT_GRACE_S) -> None:
+    """Keep spinning ``bus`` for ``seconds`` of wall time (after a halt, before closing), stepping
+    the hosted world (``step_world``) too, so its controllers bring the arm to rest on the cancels."""
     deadline = time.monotonic() + seconds
     while True:
+        if step_world is not None:
+            step_world()
         bus.spin_once()
         if time.monotonic() >= deadline:
             return
