@@ -72,6 +72,9 @@ class RunOptions:
     """Run on real ROS 2 (``runtime.ros.run``): a RosBus node, paced by a WallClock (implies
     ``realtime``); the world serves no policy of its own unless ``world_options`` names one."""
     ros_node_name: str = "objective_runtime"
+    use_sim_time: bool = False
+    """With ``ros``: start the clock at the time the graph's ``/clock`` reads (a simulated robot's
+    own clock, ``objective sim-robot``), so the stamps sent to its controllers are on its time."""
     log_dir: Path | None = None
     """Where the traceback of an unexpected exception goes: the recording directory when
     recording, else this (None: ``build/logs/`` under the working directory)."""
@@ -95,6 +98,8 @@ class RunOptions:
         for name in self.sets:
             if not name or name.strip() != name:
                 raise ObjectiveError(f"--set needs name=value with a non-empty name, got {name!r}")
+        if self.use_sim_time and not self.ros:
+            raise ObjectiveError("--use-sim-time follows the ROS graph's /clock: it needs --ros")
         if self.ros and self.policy_latency is not None:
             raise ObjectiveError(
                 "--policy-latency models latency on the in-process bus; with --ros the policy's latency is real"
@@ -167,10 +172,17 @@ class RunResult:
 def make_context(options: RunOptions) -> RunContext:
     """Clock, bus and event log for one run: in-process, or a RosBus node with ``options.ros``."""
     if options.ros:
-        from .ros.run import make_ros_bus  # rclpy is imported only for ROS runs
+        from .ros.run import make_ros_bus, sync_to_graph_clock  # rclpy is imported only for ROS runs
 
         wall = WallClock()
-        return RunContext(clock=wall, bus=make_ros_bus(wall, options.ros_node_name), events=EventLog(wall), seed=options.seed)
+        bus = make_ros_bus(wall, options.ros_node_name)
+        if options.use_sim_time:
+            try:
+                sync_to_graph_clock(bus, wall)
+            except BaseException:
+                bus.close()
+                raise
+        return RunContext(clock=wall, bus=bus, events=EventLog(wall), seed=options.seed)
     clock = WallClock() if options.realtime else SimClock()
     bus = InProcessBus(clock)
     return RunContext(clock=clock, bus=bus, events=EventLog(clock), seed=options.seed)
