@@ -306,7 +306,8 @@ def _halt(root: py_trees.behaviour.Behaviour) -> bool:
 
 @dataclass
 class Pacing:
-    """How well a wall-clock run kept its tick rate: ticks whose work took longer than a period.
+    """How well a wall-clock run kept its tick rate: ticks whose work took longer than a period,
+    and the wall time between the starts of consecutive ticks.
 
     The clock never makes up for lost ticks (``WallClock.advance``), so a late tick only delays
     that tick; these numbers say whether the world or the tree was too slow for real time.
@@ -315,14 +316,27 @@ class Pacing:
     period: float
     late_ticks: int = 0
     worst_tick_s: float = 0.0
+    intervals_s: list[float] = field(default_factory=list)
+    _last_start: float | None = None
 
-    def record(self, seconds: float) -> None:
+    def record(self, started_s: float, ended_s: float) -> None:
+        """One tick's work, from ``started_s`` to ``ended_s`` (``time.monotonic()``)."""
+        seconds = ended_s - started_s
         self.worst_tick_s = max(self.worst_tick_s, seconds)
         if seconds > self.period:
             self.late_ticks += 1
+        if self._last_start is not None:
+            self.intervals_s.append(started_s - self._last_start)
+        self._last_start = started_s
 
     def as_dict(self) -> dict[str, Any]:
-        return {"late_ticks": self.late_ticks, "worst_tick_s": round(self.worst_tick_s, 4), "period_s": self.period}
+        out: dict[str, Any] = {"late_ticks": self.late_ticks, "worst_tick_s": round(self.worst_tick_s, 4), "period_s": self.period}
+        if self.intervals_s:
+            ordered = sorted(self.intervals_s)
+            for name, q in (("p50", 0.5), ("p99", 0.99)):
+                out[f"interval_{name}_s"] = round(ordered[min(int(q * len(ordered)), len(ordered) - 1)], 4)
+            out["interval_max_s"] = round(ordered[-1], 4)
+        return out
 
 
 def outcome(status: Status, timed_out: bool) -> RunEnd:
@@ -426,7 +440,7 @@ def run_tree(
                 status, visited = tick.status, tick.visited
                 statuses.update(visited)
                 if pacing is not None:
-                    pacing.record(time.monotonic() - tick_start)
+                    pacing.record(tick_start, time.monotonic())
                 if progress is not None:
                     tip = root.tip()
                     progress(clock.now(), ticks, tip.name if tip is not None else "")

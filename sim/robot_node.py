@@ -90,7 +90,7 @@ def run_sim_robot(options: SimRobotOptions, stop: StopRequest) -> dict[str, Any]
             world.step_to(clock.now())
             bus.spin_once()
             clock_publisher.publish(Clock(clock=time_msg(world.cell.t)))
-            pacing.record(time.monotonic() - started)
+            pacing.record(started, time.monotonic())
             ticks += 1
         deliver_pending(bus)
         summary = world.summary()

@@ -174,6 +174,7 @@ class ExecutePolicy(Behavior):
         data = self.metrics.as_dict() if hasattr(self, "metrics") else {}
         data["message"] = getattr(self, "message", "")
         data["rejection_reason"] = getattr(self, "rejection", "")
+        data["goal_latency_max_s"] = round(getattr(self, "goal_latency_s", 0.0), 4)
         return {"execute_policy": data}
 
     # -- phases ------------------------------------------------------------------------------
