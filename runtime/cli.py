@@ -120,6 +120,8 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
                      help="run on real ROS 2 as node /objective_runtime (implies --realtime); the world's topics, "
                           "controllers and cameras are served on ROS 2 and the policy comes from an adapter "
                           "(--policy none unless given)")
+    run.add_argument("--use-sim-time", action="store_true",
+                     help="with --ros: take the clock from the graph's /clock (a simulated robot's, objective sim-robot)")
     run.add_argument("--json", action="store_true", help="print a JSON summary as the last line of stdout")
     run.add_argument("--world", metavar="NAME", help="world for trees that need one (default: the installation's, vla_sim here)")
     run.add_argument("--max-seconds", type=positive_float, metavar="S", help="fail after S seconds of clock time")
@@ -198,6 +200,7 @@ def cmd_run(args: argparse.Namespace, registry: Registry, stop: StopRequest | No
         seed=args.seed,
         realtime=args.realtime or args.ros,
         ros=args.ros,
+        use_sim_time=args.use_sim_time,
         tick_hz=args.tick_hz,
         max_seconds=args.max_seconds,
         world=args.world,

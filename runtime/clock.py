@@ -48,6 +48,12 @@ class WallClock:
     def now(self) -> float:
         return time.monotonic() - self._start
 
+    def sync(self, now: float) -> None:
+        """Read ``now`` at this instant and go on from there (a run that follows another
+        process's clock, such as a simulated robot's ``/clock``)."""
+        self._start = time.monotonic() - now
+        self._target = now
+
     def advance(self, dt: float) -> None:
         self._target = max(self._target + dt, self.now() - dt)  # never accumulate a backlog
         delay = self._target - self.now()

@@ -4,7 +4,9 @@ For running Objectives against a real ROS 2 graph (``objective run --ros --realt
 the robot's drivers and controllers live elsewhere; this world only gives the behaviors a
 planning scene to check motions against. Options (``--world-option KEY=VALUE``):
 
-``urdf`` (required), ``srdf`` (required), ``joint_limits`` (MoveIt-style YAML; without it only
+``urdf`` (or ``mjcf``: the robot as MuJoCo XML, e.g. what ``objective sim-robot --describe`` writes;
+one of the two is required), ``srdf`` (required), ``couplings`` (YAML of joints that follow
+another, for a model without URDF ``<mimic>``), ``joint_limits`` (MoveIt-style YAML; without it only
 position limits are known and velocity/acceleration are unbounded, which ExecutePolicy refuses),
 ``group`` (default ``manipulator``), ``gripper_joint``, ``package_dirs`` (``;``-separated, for
 ``package://`` meshes), ``waypoints`` (YAML ``waypoints: {Name: {joints: [...], positions: [...]}}``).
@@ -20,8 +22,8 @@ from .behavior import RunContext
 from .scene import PlanningScene, RobotModel, load_joint_limits
 from .errors import OptionError
 
-OPTIONS = ("seed", "realtime", "policy_latency", "record_dir", "policy", "urdf", "srdf", "joint_limits",
-           "group", "gripper_joint", "package_dirs", "waypoints")
+OPTIONS = ("seed", "realtime", "policy_latency", "record_dir", "policy", "urdf", "mjcf", "srdf", "couplings",
+           "joint_limits", "group", "gripper_joint", "package_dirs", "waypoints")
 
 
 def _existing(options: dict[str, Any], key: str) -> Path:
@@ -52,9 +54,15 @@ class RobotDescriptionWorld:
         unknown = sorted(set(options) - set(OPTIONS))
         if unknown:
             raise OptionError(f"unknown options {', '.join(unknown)} (known: {', '.join(OPTIONS[4:])})")
-        urdf, srdf = _existing(options, "urdf"), _existing(options, "srdf")
-        dirs = [d for d in str(options.get("package_dirs") or "").split(";") if d]
-        self.robot = RobotModel.from_urdf(urdf, srdf, package_dirs=dirs)
+        if options.get("urdf") and options.get("mjcf"):
+            raise OptionError("options 'urdf' and 'mjcf' both describe the robot: give one of them")
+        srdf = _existing(options, "srdf")
+        couplings = _existing(options, "couplings") if options.get("couplings") else ()
+        if options.get("mjcf"):
+            self.robot = RobotModel.from_mjcf(_existing(options, "mjcf"), srdf, couplings=couplings)
+        else:
+            dirs = [d for d in str(options.get("package_dirs") or "").split(";") if d]
+            self.robot = RobotModel.from_urdf(_existing(options, "urdf"), srdf, package_dirs=dirs, couplings=couplings)
         self.group = str(options.get("group") or "manipulator")
         self.gripper_joint = options.get("gripper_joint") or None
         limits = None

@@ -86,6 +86,9 @@ class RunOptions:
     """Run on real ROS 2 (``runtime.ros.run``): a RosBus node, paced by a WallClock (implies
     ``realtime``); the world serves no policy of its own unless ``world_options`` names one."""
     ros_node_name: str = "objective_runtime"
+    use_sim_time: bool = False
+    """With ``ros``: start the clock at the time the graph's ``/clock`` reads (a simulated robot's
+    own clock, ``objective sim-robot``), so the stamps sent to its controllers are on its time."""
     log_dir: Path | None = None
     """Where the traceback of an unexpected exception goes: the recording directory when
     recording, else this (None: ``build/logs/`` under the working directory)."""
@@ -114,6 +117,8 @@ class RunOptions:
         for name in self.sets:
             if not name or name.strip() != name:
                 raise ObjectiveError(f"--set needs name=value with a non-empty name, got {name!r}")
+        if self.use_sim_time and not self.ros:
+            raise ObjectiveError("--use-sim-time follows the ROS graph's /clock: it needs --ros")
         if self.ros and self.policy_latency is not None:
             raise ObjectiveError(
                 "--policy-latency models latency on the in-process bus; with --ros the policy's latency is real"
@@ -200,10 +205,17 @@ class RunResult:
 def make_context(options: RunOptions) -> RunContext:
     """Clock, bus and event log for one run: in-process, or a RosBus node with ``options.ros``."""
     if options.ros:
-        from .ros.run import make_ros_bus  # rclpy is imported only for ROS runs
+        from .ros.run import make_ros_bus, sync_to_graph_clock  # rclpy is imported only for ROS runs
 
         wall = WallClock()
-        return RunContext(clock=wall, bus=make_ros_bus(wall, options.ros_node_name), events=EventLog(wall), seed=options.seed)
+        bus = make_ros_bus(wall, options.ros_node_name)
+        if options.use_sim_time:
+            try:
+                sync_to_graph_clock(bus, wall)
+            except BaseException:
+                bus.close()
+                raise
+        return RunContext(clock=wall, bus=bus, events=EventLog(wall), seed=options.seed)
     clock = WallClock() if options.realtime else SimClock()
     bus = InProcessBus(clock)
     return RunContext(clock=clock, bus=bus, events=EventLog(clock), seed=options.seed)
@@ -330,7 +342,8 @@ def _halt(root: py_trees.behaviour.Behaviour) -> bool:
 
 @dataclass
 class Pacing:
-    """How well a wall-clock run kept its tick rate: ticks whose work took longer than a period.
+    """How well a wall-clock run kept its tick rate: ticks whose work took longer than a period,
+    and the wall time between the starts of consecutive ticks.
 
     The clock never makes up for lost ticks (``WallClock.advance``), so a late tick only delays
     that tick; these numbers say whether the world or the tree was too slow for real time.
@@ -339,14 +352,27 @@ class Pacing:
     period: float
     late_ticks: int = 0
     worst_tick_s: float = 0.0
+    intervals_s: list[float] = field(default_factory=list)
+    _last_start: float | None = None
 
-    def record(self, seconds: float) -> None:
+    def record(self, started_s: float, ended_s: float) -> None:
+        """One tick's work, from ``started_s`` to ``ended_s`` (``time.monotonic()``)."""
+        seconds = ended_s - started_s
         self.worst_tick_s = max(self.worst_tick_s, seconds)
         if seconds > self.period:
             self.late_ticks += 1
+        if self._last_start is not None:
+            self.intervals_s.append(started_s - self._last_start)
+        self._last_start = started_s
 
     def as_dict(self) -> dict[str, Any]:
-        return {"late_ticks": self.late_ticks, "worst_tick_s": round(self.worst_tick_s, 4), "period_s": self.period}
+        out: dict[str, Any] = {"late_ticks": self.late_ticks, "worst_tick_s": round(self.worst_tick_s, 4), "period_s": self.period}
+        if self.intervals_s:
+            ordered = sorted(self.intervals_s)
+            for name, q in (("p50", 0.5), ("p99", 0.99)):
+                out[f"interval_{name}_s"] = round(ordered[min(int(q * len(ordered)), len(ordered) - 1)], 4)
+            out["interval_max_s"] = round(ordered[-1], 4)
+        return out
 
 
 def outcome(status: Status, timed_out: bool) -> RunEnd:
@@ -456,7 +482,7 @@ def run_tree(
                 status, visited = tick.status, tick.visited
                 statuses.update(visited)
                 if pacing is not None:
-                    pacing.record(time.monotonic() - tick_start)
+                    pacing.record(tick_start, time.monotonic())
                 if progress is not None:
                     tip = root.tip()
                     progress(clock.now(), ticks, tip.name if tip is not None else "")

@@ -45,3 +45,46 @@ def _record_demos(args: argparse.Namespace, registry: Registry) -> int:
 
 RECORD_DEMOS = Command("record oracle demonstrations in the cell as a local LeRobot dataset (needs `make lerobot`)",
                        _arguments, _record_demos)
+
+
+def _sim_robot_arguments(robot: argparse.ArgumentParser) -> None:
+    robot.add_argument("--world", default="vla_sim", metavar="NAME", help="the cell to host: vla_sim (default) or kinematic")
+    robot.add_argument("--seed", type=int, default=0, help="seed of the cubes' layout")
+    robot.add_argument("--world-option", action="append", type=_key_value, default=[], metavar="KEY=VALUE",
+                       help="an option of the world, as for `objective run` (repeatable)")
+    robot.add_argument("--node-name", default="sim_robot", metavar="NAME", help="the ROS 2 node (default sim_robot)")
+    robot.add_argument("--describe", type=Path, metavar="DIR",
+                       help="write the robot's description (MJCF, SRDF, limits, couplings, waypoints) into DIR "
+                            "for `objective run --world robot`, print its options and exit")
+
+
+def _key_value(text: str) -> tuple[str, str]:
+    key, sep, value = text.partition("=")
+    if not sep or not key:
+        raise argparse.ArgumentTypeError(f"expected KEY=VALUE, got {text!r}")
+    return key, value
+
+
+def _sim_robot(args: argparse.Namespace, registry: Registry) -> int:
+    from runtime.errors import ObjectiveError
+    from runtime.interrupt import StopRequest, stop_on_signals
+
+    from .robot_node import SimRobotOptions, describe, print_summary, run_sim_robot
+
+    if args.describe is not None:
+        options = describe(args.describe)
+        print(" ".join(f"--world-option {option}" for option in options))
+        return EXIT_SUCCESS
+    options = SimRobotOptions(world=args.world, seed=args.seed, world_options=dict(args.world_option), node_name=args.node_name)
+    with stop_on_signals(StopRequest()) as stop:
+        try:
+            summary = run_sim_robot(options, stop)
+        except (ObjectiveError, ValueError) as err:
+            print(f"error: {err}", file=sys.stderr)
+            return EXIT_BAD_INPUT
+    print_summary(summary)
+    return EXIT_SUCCESS  # a stop signal is how a robot's process ends
+
+
+SIM_ROBOT = Command("host the simulated cell alone on ROS 2, a robot for `objective run --ros --world robot`",
+                    _sim_robot_arguments, _sim_robot)

@@ -69,10 +69,30 @@ def number_option(options: dict[str, Any], key: str, default: float, kind: type 
         return kind(value)
     except (TypeError, ValueError):
         raise OptionError(f"option '{key}' must be {'a whole number' if kind is int else 'a number'}, got {value!r}") from None
+class CellClock:
+    """The simulated robot's own clock: the time of the cell's next control step.
+
+    The controllers read it when a goal, a command or a switch arrives, so whatever arrives is
+    applied at the next control step, on the robot's time. With ``--realtime`` the runtime clock
+    (wall time) runs ahead of the cell between two world steps, by however long the tick's work
+    took; a goal stamped "now" on the wall clock would otherwise start, and be trimmed, at an
+    instant the control loop has not reached, and the steps in between would jump the command.
+    On a ``SimClock`` the two agree after every world step.
+    """
+
+    def __init__(self, cell: Cell) -> None:
+        self.cell = cell
+
+    def now(self) -> float:
+        return self.cell.t
+
+    def advance(self, dt: float) -> None:
+        raise RuntimeError("the cell's clock moves only when the world steps the cell (CellWorld.step_to)")
 
 
 class CellWorld:
-    """A cell's services on the bus, stepped at 500 Hz of the runtime clock."""
+    """A cell's services on the bus, stepped at 500 Hz of the runtime clock; its controllers
+    run on the cell's own clock (``CellClock``)."""
 
     def __init__(self, name: str, options: dict[str, Any], make_cell: Callable[[np.ndarray, int], Cell]) -> None:
         unknown = sorted(set(options) - set(COMMON_OPTIONS))
@@ -97,7 +117,7 @@ class CellWorld:
     def start(self, context: RunContext) -> None:
         self.context = context
         bus = context.bus
-        self.controllers = make_controllers(bus, self.cell, context.clock)
+        self.controllers = make_controllers(bus, self.cell, CellClock(self.cell))
         reliable = bool(self.options.get("joint_states_reliable", True))
         self.joint_states = bus.create_publisher("/joint_states", JointState, reliable=reliable)
         rate = number_option(self.options, "camera_rate_hz", 10.0)  # used on real ROS only

@@ -172,6 +172,28 @@ def test_lazy_publisher_publishes_at_its_rate_only_while_subscribed(buses, names
     assert sub.latest.data.startswith("frame")
 
 
+def test_an_owner_served_lazy_publisher_publishes_in_spin_once_at_its_rate(buses, names):
+    """With serve_in_spin_once no executor thread produces frames: the owner does, when due, on
+    its own thread; subscribed or not, a spin between two due times produces nothing."""
+    pub_bus, sub_bus = buses("cell", serve_in_spin_once=True), buses("runtime")
+    produced = []
+
+    def produce():
+        produced.append(threading.current_thread())
+        return String(data=f"frame{len(produced)}")
+
+    pub_bus.create_lazy_publisher(names("color"), String, produce, reliable=False, rate_hz=5.0)
+    sub = sub_bus.create_subscription(names("color"), String, reliable=False)
+    time.sleep(0.5)
+    assert produced == []  # nobody spun the owner: nothing produced, whoever subscribes
+    wait_for(lambda: sub.count >= 2, pub_bus, timeout=5, what="two frames")
+    assert set(produced) == {threading.main_thread()}
+    before = len(produced)
+    pub_bus.spin_once()
+    pub_bus.spin_once()
+    assert len(produced) == before  # 200 ms apart at 5 Hz: not due again yet
+
+
 # --------------------------------------------------------------------------------------------
 # Actions
 # --------------------------------------------------------------------------------------------

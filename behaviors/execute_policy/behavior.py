@@ -93,6 +93,8 @@ class RunMetrics:
     latencies: list[float] = field(default_factory=list)
     latency_estimate_s: float = 0.0
     """What the last request was timed for (``timing.LatencyEstimate``)."""
+    goal_latency_max_s: float = 0.0
+    """The longest a controller goal took from sending to its acceptance."""
     warnings: list[str] = field(default_factory=list)
     message: str = ""
     rejection_reason: str = ""
@@ -109,6 +111,7 @@ class RunMetrics:
             "latency_p95_s": round(float(np.percentile(lat, 95)), 4),
             "latency_max_s": round(float(lat.max()), 4),
             "latency_estimate_s": round(self.latency_estimate_s, 4),
+            "goal_latency_max_s": round(self.goal_latency_max_s, 4),
             "warnings": list(self.warnings),
             "message": self.message,
             "rejection_reason": self.rejection_reason,
@@ -125,8 +128,10 @@ def summarise_runs(runs: list[RunMetrics]) -> dict[str, Any]:
         steps_executed=sum(r.steps_executed for r in runs),
         stall_seconds=sum(r.stall_seconds for r in runs),
         rejections=sum(r.rejections for r in runs),
+        gripper_clamped=sum(r.gripper_clamped for r in runs),
         latencies=[s for r in runs for s in r.latencies],
         latency_estimate_s=last.latency_estimate_s,
+        goal_latency_max_s=max((r.goal_latency_max_s for r in runs), default=0.0),
         warnings=[w for r in runs for w in r.warnings],
         message=last.message,
         rejection_reason=last.rejection_reason,
@@ -504,6 +509,7 @@ class ExecutePolicy(Behavior):
                 return None
             # arrival, not when we looked
             self.goal_latency_s = max(self.goal_latency_s, goal.send_future.ready_at - goal.sent_at_s)
+            self.metrics.goal_latency_max_s = self.goal_latency_s
         self.goal = goal.advance()
         if self.goal.state is GoalState.REJECTED:
             self.goal = Goal()  # nothing of it is playing

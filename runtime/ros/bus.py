@@ -250,8 +250,12 @@ class _LazyPublisher:
             raise ValueError(f"lazy publisher '{name}': rate_hz must be > 0, got {rate_hz}")
         self.bus, self.name, self.produce = bus, name, produce
         self.publisher = _RosPublisher(bus, name, msg_type, reliable)
+        self.period_s = 1.0 / rate_hz
         self._busy = threading.Lock()  # skip a tick rather than queue frames behind a slow produce()
-        self._timer = bus.node.create_timer(1.0 / rate_hz, self._tick, callback_group=MutuallyExclusiveCallbackGroup())
+        self._timer = self._start_timer()
+
+    def _start_timer(self) -> Any:
+        return self.bus.node.create_timer(self.period_s, self._tick, callback_group=MutuallyExclusiveCallbackGroup())
 
     def _tick(self) -> None:
         if self.publisher.subscriber_count() == 0 or not self._busy.acquire(blocking=False):
@@ -266,8 +270,40 @@ class _LazyPublisher:
             self._busy.release()
 
     def destroy(self) -> None:
-        self.bus.node.destroy_timer(self._timer)
+        if self._timer is not None:
+            self.bus.node.destroy_timer(self._timer)
         self.bus.node.destroy_publisher(self.publisher._publisher)
+
+
+class _OwnerLazyPublisher(_LazyPublisher):
+    """A lazy publisher of a ``serve_in_spin_once`` bus: published by the owner in ``spin_once``
+    when due, with no executor timer (``produce`` must run on the owner's thread anyway, so a
+    timer would only wake an executor thread to wait for the owner)."""
+
+    due_at_s = 0.0
+    """``time.monotonic()`` from which the next message is due."""
+    cost_s = 0.0
+    """Wall time the last ``produce()`` took: what publishing this one costs a spin."""
+
+    def _start_timer(self) -> None:
+        return None
+
+    def publish(self, now_s: float) -> None:
+        """Publish one message (when someone subscribes) and schedule the next, never a burst."""
+        self.due_at_s = max(self.due_at_s + self.period_s, now_s)
+        if self.publisher.subscriber_count() == 0:
+            return
+        started = time.monotonic()
+        msg = self.produce()
+        self.cost_s = time.monotonic() - started
+        if msg is not None:
+            self.publisher.publish(msg)
+
+
+LAZY_BUDGET_S = 0.004
+"""Wall time one ``spin_once`` may spend on lazy topics beyond the most overdue one, which is
+always published: the others that would overrun it wait for the next spin (a camera frame costs
+more than a tick has to spare on a CPU renderer, so frames of several cameras go one per tick)."""
 
 
 # --------------------------------------------------------------------------------------------
@@ -654,11 +690,14 @@ class RosBus:
 
         On ROS nobody can read a topic lazily, so a camera publishes at its frame rate; ticks
         with no subscriber (or while the previous ``produce()`` still runs) are skipped.
-        ``produce`` may return None to publish nothing this tick.
+        ``produce`` may return None to publish nothing this tick. With ``serve_in_spin_once``
+        the owner publishes what is due in ``spin_once`` (within ``LAZY_BUDGET_S``), else a
+        timer on an executor thread does.
         """
         if name in self._lazy:
             raise ValueError(f"lazy publisher '{name}' already exists")
-        self._lazy[name] = _LazyPublisher(self, name, msg_type, produce, reliable, rate_hz)
+        kind = _OwnerLazyPublisher if self.serve_in_spin_once else _LazyPublisher
+        self._lazy[name] = kind(self, name, msg_type, produce, reliable, rate_hz)
 
     def destroy_publisher(self, name: str) -> None:
         for pub in self._publishers.pop(name, []):
@@ -712,6 +751,19 @@ class RosBus:
         for _ in range(len(self._queue)):
             self._queue.popleft()()
         self._serve_cancels()
+        if self.serve_in_spin_once:
+            self._publish_due()
+
+    def _publish_due(self) -> None:
+        """Publish the owner's lazy topics that are due, most overdue first, within ``LAZY_BUDGET_S``."""
+        now = time.monotonic()
+        due = sorted((p for p in self._lazy.values() if isinstance(p, _OwnerLazyPublisher) and p.due_at_s <= now),
+                     key=lambda p: p.due_at_s)
+        budget_end = now + LAZY_BUDGET_S
+        for k, publisher in enumerate(due):
+            if k and time.monotonic() + publisher.cost_s > budget_end:
+                return
+            publisher.publish(now)
 
     def _serve_cancels(self) -> None:
         for _ in range(len(self._cancel_calls)):

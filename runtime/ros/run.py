@@ -46,6 +46,38 @@ def make_ros_bus(clock: WallClock, node_name: str = DEFAULT_NODE_NAME) -> Any:
     return RosBus(clock, node_name=node_name, serve_in_spin_once=True, num_threads=EXECUTOR_THREADS)
 
 
+CLOCK_TOPIC = "/clock"
+CLOCK_WAIT_S = 10.0
+"""Wall time ``--use-sim-time`` waits for the first ``/clock`` message."""
+
+
+def sync_to_graph_clock(bus: Any, clock: WallClock, timeout_s: float = CLOCK_WAIT_S) -> float:
+    """Set ``clock`` to the time the graph's ``/clock`` reads (``--use-sim-time``); returns it.
+
+    Read once: from then on the run's clock goes on at wall-clock rate, as a simulated robot
+    paced to the wall clock does. ObjectiveError when nothing publishes ``/clock`` in time."""
+    from rosgraph_msgs.msg import Clock
+
+    from runtime.errors import ObjectiveError
+    from runtime.timestamps import to_seconds
+
+    subscription = bus.create_subscription(CLOCK_TOPIC, Clock, reliable=False)
+    try:
+        deadline = time.monotonic() + timeout_s
+        while subscription.latest is None:
+            if time.monotonic() >= deadline:
+                raise ObjectiveError(
+                    f"--use-sim-time: nothing published {CLOCK_TOPIC} within {timeout_s:g} s "
+                    "(start the simulated robot first: objective sim-robot)"
+                )
+            time.sleep(0.01)
+        now = to_seconds(subscription.latest.clock)
+        clock.sync(now)
+        return now
+    finally:
+        bus.destroy_subscription(subscription)
+
+
 def graph_description(node_name: str = DEFAULT_NODE_NAME) -> str:
     """One line saying where the run lives on ROS 2, for the start-up log."""
     domain = os.environ.get("ROS_DOMAIN_ID", "0")

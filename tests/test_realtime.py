@@ -1,0 +1,197 @@
+"""Real time: the simulated robot runs on its own clock, whatever the runtime clock says.
+
+With ``--realtime`` (so ``--ros`` and ``--live``) the runtime clock is the wall clock, which runs
+ahead of the cell between two world steps by however long a tick's work took. A goal that
+arrives then is applied at the cell's next control step, never at the wall-clock instant: the
+commanded motion stays continuous, within the joints' velocity limits, loaded machine or not.
+"""
+from __future__ import annotations
+
+import subprocess
+import sys
+from dataclasses import dataclass, field
+
+import numpy as np
+import pytest
+from builtin_interfaces.msg import Duration
+from moveit_pro_controllers_msgs.action import FollowJointTrajectoryWithAdmittance
+from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
+
+from runtime.behavior import RunContext
+from runtime.bus import FixedLatency, InProcessBus
+from runtime.clock import SimClock
+from runtime.events import EventLog
+from runtime.registry import Registry
+from runtime.runner import RunOptions, run_file
+from sim.controllers import TRAJECTORY_ACTION, TRAJECTORY_CONTROLLER, VELOCITY_CONTROLLER
+from sim.kinematic import KinematicWorld
+from sim.robot_model import ARM_JOINTS
+from sim.world import CONTROL_PERIOD
+
+Action = FollowJointTrajectoryWithAdmittance
+ARM_VELOCITY_LIMIT = np.pi
+"""rad/s, every UR5e joint (sim/config/joint_limits.yaml)."""
+F_T_THRESHOLD_N = 45.0
+"""The force threshold stack_cubes.xml gives ExecutePolicy."""
+
+
+@dataclass
+class CommandLog:
+    """Every arm command the cell received, with the cell's time of the control step."""
+
+    times: list[float] = field(default_factory=list)
+    positions: list[np.ndarray] = field(default_factory=list)
+
+    def attach(self, cell) -> None:
+        command = cell.command_arm
+
+        def logged(position, velocity=None):
+            self.times.append(cell.t)
+            self.positions.append(np.asarray(position, dtype=float).copy())
+            command(position, velocity)
+
+        cell.command_arm = logged
+
+    def worst_velocity(self) -> tuple[float, float]:
+        """The largest |change of the command| per control step over the step (rad/s), and when."""
+        q = np.array(self.positions)
+        rates = np.abs(np.diff(q, axis=0)).max(axis=1) / CONTROL_PERIOD
+        k = int(np.argmax(rates))
+        return float(rates[k]), self.times[k + 1]
+
+
+def _moving_goal(start: np.ndarray, velocity: float, seconds: float, stamp_s: float = 0.0, ramp_s: float = 0.0) -> Action.Goal:
+    """Every arm joint from ``start`` for ``seconds``, points 10 ms apart: at ``velocity`` rad/s,
+    reached from rest at a constant acceleration over the first ``ramp_s`` seconds."""
+    trajectory = JointTrajectory(joint_names=list(ARM_JOINTS))
+    if stamp_s:
+        nanos = int(round(stamp_s * 1e9))
+        trajectory.header.stamp.sec, trajectory.header.stamp.nanosec = nanos // 1_000_000_000, nanos % 1_000_000_000
+    for t in np.arange(0.0, seconds + 1e-9, 0.01):
+        if t < ramp_s:
+            rate, distance = velocity * t / ramp_s, velocity * t * t / (2 * ramp_s)
+        else:
+            rate, distance = velocity, velocity * (t - ramp_s / 2)
+        nanos = int(round(t * 1e9))
+        trajectory.points.append(JointTrajectoryPoint(
+            positions=(start + distance).tolist(), velocities=[rate] * 6,
+            time_from_start=Duration(sec=nanos // 1_000_000_000, nanosec=nanos % 1_000_000_000),
+        ))
+    return Action.Goal(joint_trajectory=trajectory, path_tolerance=0.3, goal_time_tolerance=0.5)
+
+
+def test_a_goal_arriving_while_the_runtime_clock_runs_ahead_is_stitched_at_the_cells_time():
+    runtime_clock = SimClock()
+    bus = InProcessBus(runtime_clock, default_latency=FixedLatency(0.0))
+    context = RunContext(clock=runtime_clock, bus=bus, events=EventLog(runtime_clock))
+    world = KinematicWorld({"seed": 0, "policy": "none"})
+    world.start(context)
+    outcome = world.controllers.switch([TRAJECTORY_CONTROLLER], [VELOCITY_CONTROLLER])
+    assert outcome.ok, outcome.message
+    log = CommandLog()
+    log.attach(world.cell)
+    client = bus.create_action_client(TRAJECTORY_ACTION, Action)
+
+    def step_to(t: float) -> None:
+        while runtime_clock.now() < t - 1e-9:
+            runtime_clock.advance(0.01)
+            world.step_to(runtime_clock.now())
+
+    step_to(0.5)
+    first = client.send_goal_async(_moving_goal(world.cell.arm_position(), 0.5, 2.0, ramp_s=0.5)).result()
+    assert first.accepted
+    step_to(1.0)
+    # The tick's work took 60 ms: the wall clock reads 1.06 s, the cell's next control step is at 1.0 s.
+    runtime_clock.advance(0.06)
+    assert world.cell.t == pytest.approx(1.0)
+    second = client.send_goal_async(_moving_goal(world.cell.arm_position(), 0.5, 1.0)).result()
+    bus.spin_once()
+    assert second.accepted
+    assert world.controllers[TRAJECTORY_CONTROLLER].reference.end_time == pytest.approx(1.0 + 1.0)  # seam at 1.0 s
+    world.step_to(runtime_clock.now())
+    step_to(1.5)
+
+    worst, at = log.worst_velocity()
+    assert worst == pytest.approx(0.5, abs=0.01), f"the command moved at {worst:.2f} rad/s at t={at:.3f} s"
+    assert second.get_result_async().done() is False  # still executing, never aborted
+
+
+def test_a_stamp_behind_the_wall_clock_but_ahead_of_the_cell_is_a_future_seam():
+    """Stamps are read on the cell's clock: one the wall clock has passed but the control loop has
+    not reached yet is still a seam to come, not an OLD_HEADER_TIMESTAMP."""
+    runtime_clock = SimClock()
+    bus = InProcessBus(runtime_clock, default_latency=FixedLatency(0.0))
+    context = RunContext(clock=runtime_clock, bus=bus, events=EventLog(runtime_clock))
+    world = KinematicWorld({"seed": 0, "policy": "none"})
+    world.start(context)
+    assert world.controllers.switch([TRAJECTORY_CONTROLLER], [VELOCITY_CONTROLLER]).ok
+    client = bus.create_action_client(TRAJECTORY_ACTION, Action)
+    for _ in range(50):
+        runtime_clock.advance(0.01)
+        world.step_to(runtime_clock.now())
+    runtime_clock.advance(0.05)  # wall 0.55 s, cell 0.5 s
+    handle = client.send_goal_async(_moving_goal(world.cell.arm_position(), 0.0, 0.5, stamp_s=0.52)).result()
+    result = handle.get_result_async()
+    bus.spin_once()
+    assert handle.accepted and not result.done()
+    assert world.controllers[TRAJECTORY_CONTROLLER].reference.end_time == pytest.approx(0.52 + 0.5)
+
+
+@pytest.fixture(scope="module")
+def registry() -> Registry:
+    return Registry.from_entry_points()
+
+
+# -- under CPU load -------------------------------------------------------------------------------
+BUSY_LOOP = "import time, sys\nend = time.monotonic() + float(sys.argv[1])\nwhile time.monotonic() < end:\n    pass\n"
+
+
+def busy_processes(count: int, seconds: float) -> list[subprocess.Popen]:
+    """``count`` processes that each spin a core for at most ``seconds`` (kill them when done)."""
+    return [subprocess.Popen([sys.executable, "-c", BUSY_LOOP, str(seconds)]) for _ in range(count)]
+
+
+def stop(processes: list[subprocess.Popen]) -> None:
+    for process in processes:
+        process.kill()
+    for process in processes:
+        process.wait(timeout=10)
+
+
+def _loaded_realtime_run(registry: Registry, world: str, max_seconds: float) -> tuple[dict, CommandLog]:
+    import runtime.runner as runner
+
+    log = CommandLog()
+    create = runner.create_world
+
+    def create_logged(name, options):
+        created = create(name, options)
+        log.attach(created.cell)
+        return created
+
+    load = busy_processes(2, max_seconds + 30.0)
+    try:
+        runner.create_world = create_logged
+        result = run_file("objectives/stack_cubes.xml", registry,
+                          RunOptions(seed=1, realtime=True, world=world, max_seconds=max_seconds))
+    finally:
+        runner.create_world = create
+        stop(load)
+    return result.to_json(), log
+
+
+@pytest.mark.parametrize("world", ["kinematic"])
+def test_under_cpu_load_the_realtime_command_stays_within_the_velocity_limits(registry, world):
+    summary, log = _loaded_realtime_run(registry, world, max_seconds=6.0)
+    assert summary["ticks"] > 0 and len(log.positions) > 100, summary["reason"]
+    worst, at = log.worst_velocity()
+    assert worst <= ARM_VELOCITY_LIMIT * 1.01, f"the command moved at {worst:.2f} rad/s at t={at:.3f} s"
+
+
+@pytest.mark.slow
+def test_under_cpu_load_a_realtime_vla_sim_run_keeps_its_velocity_and_force_bounds(registry):
+    summary, log = _loaded_realtime_run(registry, "vla_sim", max_seconds=14.0)
+    worst, at = log.worst_velocity()
+    assert worst <= ARM_VELOCITY_LIMIT * 1.01, f"the command moved at {worst:.2f} rad/s at t={at:.3f} s"
+    assert summary["world"]["peak_force_n"] < F_T_THRESHOLD_N, summary["reason"]
+    assert summary["status"] != "FAILURE" or "--max-seconds" in summary["reason"], summary["reason"]

@@ -1,0 +1,113 @@
+"""The cell as a robot on the graph: four processes, as on a real arm.
+
+    objective sim-robot                       the simulated cell alone on ROS 2 (+ /clock)
+    objective serve --backend oracle          HTTP inference server
+    objective adapter --infer-url URL         /get_action_chunk -> POST /infer
+    objective run FILE --ros --use-sim-time --world robot --world-option mjcf=...   the runtime
+
+The runtime hosts no cell: it loads the robot's description (``objective sim-robot --describe``)
+as its planning scene and drives the robot's controllers over ROS 2, its clock taken from the
+robot's ``/clock``. The kinematic cell keeps the default run short on a shared machine.
+"""
+from __future__ import annotations
+
+import json
+import subprocess
+from dataclasses import dataclass
+from pathlib import Path
+
+import pytest
+
+from runtime.cli import main
+from sim.robot_node import describe
+from tests.test_ros_e2e import ONE_CHUNK, env, policy, read_line, start, stop  # noqa: F401 (fixtures)
+
+pytestmark = [pytest.mark.ros, pytest.mark.timeout(240)]
+
+REPO = Path(__file__).resolve().parent.parent
+
+
+@dataclass
+class SimRobot:
+    process: subprocess.Popen
+    world_options: list[str]
+    """``--world-option`` values of ``--world robot`` for this robot's description."""
+
+    def finish(self) -> dict:
+        """Stop the robot (SIGTERM) and return its JSON summary."""
+        out, err = stop(self.process)
+        assert self.process.returncode == 0, err
+        return json.loads(out.strip().splitlines()[-1])
+
+
+def start_robot(env: dict[str, str], description: Path, world: str = "kinematic", seed: int = 0) -> SimRobot:
+    process = start("sim-robot", "--world", world, "--seed", str(seed), env=env)
+    read_line(process, r"serving on ROS 2 as node /sim_robot", timeout=90)
+    return SimRobot(process, describe(description))
+
+
+@pytest.fixture(scope="module")
+def robot(env, tmp_path_factory):  # noqa: F811
+    running = start_robot(env, tmp_path_factory.mktemp("cell"))
+    yield running
+    if running.process.poll() is None:
+        stop(running.process)
+
+
+def run_on_robot(path: Path | str, env: dict[str, str], robot: SimRobot, timeout: float) -> dict:  # noqa: F811
+    options = [arg for option in robot.world_options for arg in ("--world-option", option)]
+    runner = start("run", str(path), "--ros", "--use-sim-time", "--world", "robot", *options, "--json", env=env)
+    try:
+        out, err = runner.communicate(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        _, err = stop(runner)
+        raise AssertionError(f"{path} did not finish within {timeout} s; stderr:\n{err}")
+    assert runner.returncode == 0, err
+    return json.loads(out.strip().splitlines()[-1])
+
+
+def test_one_chunk_drives_the_simulated_robot_from_another_process(env, policy, robot, tmp_path):  # noqa: F811
+    path = tmp_path / "one_chunk.xml"
+    path.write_text(ONE_CHUNK)
+    summary = run_on_robot(path, env, robot, timeout=120)
+    assert summary["status"] == "SUCCESS", summary["reason"]
+    assert summary["world"]["robot"].endswith("robot.xml")  # the runtime hosted no cell
+    result = summary["execute_policy"]
+    assert result["steps_executed"] == 10 and result["chunks"] == 1 and result["rejections"] == 0
+    # The run's clock started at the robot's /clock, which had been running since the robot started.
+    assert summary["sim_seconds"] > summary["wall_seconds"]
+
+
+@pytest.mark.slow
+def test_four_processes_stack_the_cubes(env, policy, tmp_path):  # noqa: F811
+    robot = start_robot(env, tmp_path / "cell")
+    try:
+        stack = tmp_path / "stack.xml"  # the check reads cube poses the robot world's scene does not hold
+        stack.write_text("\n".join(line for line in (REPO / "objectives/stack_cubes.xml").read_text().splitlines()
+                                   if 'SubTree ID="Check if One Cube Is on Another"' not in line))
+        summary = run_on_robot(stack, env, robot, timeout=180)
+    finally:
+        robot_summary = robot.finish()
+    assert summary["status"] == "SUCCESS", summary["reason"]
+    assert summary["execute_policy"]["steps_executed"] == 300
+    blue, green = robot_summary["world"]["cubes"]["blue"], robot_summary["world"]["cubes"]["green"]
+    assert abs(blue[0] - green[0]) < 0.015 and abs(blue[1] - green[1]) < 0.015
+    assert abs(blue[2] - green[2] - 0.03) < 0.01
+
+
+def test_use_sim_time_needs_ros(capsys):
+    code = main(["run", "objectives/cell/open_gripper.xml", "--use-sim-time", "--world", "kinematic"])
+    assert code == 2
+    assert "--use-sim-time follows the ROS graph's /clock: it needs --ros" in capsys.readouterr().err
+
+
+def test_use_sim_time_without_a_clock_on_the_graph_names_what_to_start():
+    from runtime.clock import WallClock
+    from runtime.errors import ObjectiveError
+    from runtime.ros import RosBus
+    from runtime.ros.run import sync_to_graph_clock
+
+    clock = WallClock()
+    with RosBus(clock, node_name="no_clock_here") as bus:
+        with pytest.raises(ObjectiveError, match=r"nothing published /clock within 0.3 s \(start the simulated robot first"):
+            sync_to_graph_clock(bus, clock, timeout_s=0.3)
