@@ -27,6 +27,10 @@ class SourceLocation:
         return f"{self.file}:{self.line}" if self.line else self.file
 
 
+MAX_NAMED_CALLS = 4
+"""The most SubTree calls an error's message names one by one (``inside_subtree``)."""
+
+
 class ObjectiveRuntimeError(Exception):
     """The root of every error the project raises on purpose (see the module's docstring).
 
@@ -51,9 +55,17 @@ class ObjectiveRuntimeError(Exception):
 
     def inside_subtree(self: E, caller: SourceLocation, subtree: str) -> E:
         """This error with the SubTree call its node is inside named first, where the user wrote it:
-        ``caller.xml:7: SubTree 'Move to Waypoint': objectives/move_to_waypoint.xml:18: ...``."""
+        ``caller.xml:7: SubTree 'Move to Waypoint': objectives/move_to_waypoint.xml:18: ...``.
+        Of a chain longer than ``MAX_NAMED_CALLS`` the outermost two calls and the innermost one
+        are named, the others counted."""
+        if not self.callers:
+            self._inside = self.args[0]
         self.callers = ((caller, subtree), *self.callers)
-        return self.within(f"{caller}: SubTree '{subtree}'")
+        calls = [f"{where}: SubTree '{tree}'" for where, tree in self.callers]
+        if len(calls) > MAX_NAMED_CALLS:
+            calls = [*calls[:2], f"({len(calls) - 3} more SubTree calls)", calls[-1]]
+        self.args = (": ".join([*calls, self._inside]),)
+        return self
 
     def within(self: E, where: str) -> E:
         """This error with ``where`` it happened said first: ``world 'vla_sim': <error>``."""

@@ -320,10 +320,11 @@ def _subtree_chain(tmp_path: Path, subtrees: int) -> Path:
 
 @pytest.mark.parametrize("subtrees", [150, 200, 500])
 def test_a_subtree_chain_deeper_than_the_limit_is_refused_at_load(registry, tmp_path, empty_lib, subtrees):
-    """On main a chain of 200 SubTrees validated and then stopped the run with RecursionError,
-    and 500 crashed the loader."""
+    """A chain of SubTrees deeper than the limit is bad input at load (no RecursionError, no crash
+    of the loader); the message names the outermost calls and the innermost one, the rest counted."""
     path = _subtree_chain(tmp_path, subtrees)
     assert error_of(registry, path, empty_lib) == (
+        f"{path}:1: SubTree 'T1': {path}:1: SubTree 'T2': (147 more SubTree calls): {path}:1: SubTree 'T150': "
         f"{path}:1: {'AlwaysSuccess' if subtrees == 150 else 'SubTree'}: the tree nests more than 150 nodes deep after "
         "expanding SubTrees (151 trees deep: T0 -> T1 -> T2 -> ... -> T148 -> T149 -> T150)"
     )
