@@ -269,6 +269,26 @@ def test_execute_trajectory_refuses_a_trajectory_over_the_velocity_or_accelerati
     assert controller.goals == []  # nothing reached the controller
 
 
+def test_execute_trajectory_refuses_positions_alone_that_move_faster_than_the_limit(robot):
+    from behaviors.trajectories import ExecuteTrajectory
+    from tests.test_pose_behaviors import RecordingController
+
+    context = make_context(cell_scene())
+    controller = RecordingController(context)
+    # No velocities: shoulder_pan_joint goes 0.4 rad in 0.1 s between points 1 and 2, 4 rad/s at least.
+    path = np.tile(HOME, (3, 1)) + np.outer([0.0, 0.05, 0.45], [1, 0, 0, 0, 0, 0])
+    message = trajectory_msg(Samples(np.array([0.0, 0.5, 0.6]), path, None, None), ARM_JOINTS)
+    blackboard = Blackboard()
+    blackboard.set("joint_trajectory_msg", message)
+    node = make_node(ExecuteTrajectory, context, blackboard)
+    publish_joint_states(context, HOME)
+    assert tick(node) is Status.FAILURE
+    assert node.feedback_message == ("the trajectory moves faster than a joint limit from point 1 to point 2 (t=0.600 s): "
+                                     "joint shoulder_pan_joint velocity 4.0000 rad/s exceeds the limit 3.1416 rad/s "
+                                     "(the mean over that interval)")
+    assert controller.goals == []
+
+
 def test_retrieve_waypoint_lists_the_known_waypoints(registry, tmp_path):
     result = run_xml(registry, tmp_path, '<RetrieveWaypoint name="r" waypoint_name="Look at table" waypoint_joint_state="{w}"/>')
     assert (result.status, result.reason) == ("FAILURE", "unknown waypoint 'Look at table' (known: Home, Observe, Ready)")
