@@ -11,6 +11,14 @@ from .action_goal import Goal, GoalState
 from .waiting import Deadline, when_ready
 
 
+def gripper_command(position: float, max_effort_n: float) -> GripperCommand.Goal:
+    """A GripperCommand goal: move the gripper joint to ``position`` with at most ``max_effort_n``."""
+    goal = GripperCommand.Goal()
+    goal.command.position = float(position)
+    goal.command.max_effort = float(max_effort_n)
+    return goal
+
+
 class MoveGripperAction(Behavior):
     """Send the gripper to ``position`` and wait. SUCCESS when it gets there, or when it stalls
     on an object (a closed grasp); FAILURE when the action aborts or the timeout passes."""
@@ -38,10 +46,7 @@ class MoveGripperAction(Behavior):
             ready = when_ready(self.client.server_is_ready, self.deadline, f"gripper action '{self.action}'")
             if ready is not True:
                 return self.fail(ready) if isinstance(ready, str) else Status.RUNNING
-            goal = GripperCommand.Goal()
-            goal.command.position = self.get_input("position")
-            goal.command.max_effort = self.get_input("max_effort")
-            self.goal = Goal.send(self.client, goal)
+            self.goal = Goal.send(self.client, gripper_command(self.get_input("position"), self.get_input("max_effort")))
         self.goal = self.goal.advance()
         if self.goal.state is GoalState.REJECTED:
             return self.fail(f"gripper action '{self.action}' rejected the goal")

@@ -141,6 +141,7 @@ def resample_within(timing: PathTiming, path: np.ndarray, rate_hz: float, limits
     for _ in range(5):
         with np.errstate(divide="ignore", invalid="ignore"):
             ratio = max(float(np.max(np.abs(samples.velocities) / limits.max_velocity)),
+                        float(np.max(np.abs(mean_velocities(samples)) / limits.max_velocity, initial=0.0)),
                         float(np.sqrt(np.max(np.abs(samples.accelerations) / limits.max_acceleration))))
         if ratio <= 1.0:
             break
@@ -225,12 +226,26 @@ def subdivide(samples: Samples, step_rad: float) -> Samples:
     return Samples(np.array(times), np.array(rows), zeros, zeros)
 
 
+def mean_velocities(samples: Samples) -> np.ndarray:
+    """Each joint's mean velocity from every point to the next ((N - 1, J)): whatever the
+    controller plays between two points, it moves at least this fast somewhere between them (a
+    trajectory of positions alone says nothing more)."""
+    steps, dt = np.diff(samples.positions, axis=0), np.diff(samples.times)[:, None]
+    return np.divide(steps, dt, out=np.zeros_like(steps), where=dt > 0)
+
+
 def check_motion(safety: MotionSafety, samples: Samples, padding_m: float, check_step_rad: float) -> str | None:
-    """The first point of a motion outside the position, velocity or acceleration limits, or
-    else its first collision, as a sentence; or None."""
+    """The first point of a motion outside the position, velocity or acceleration limits, or the
+    first interval between two points whose mean velocity exceeds a limit, or else its first
+    collision, as a sentence; or None."""
     outside = safety.first_limit_violation(samples)
     if outside is not None:
         return f"breaks a joint limit at point {outside.step} (t={outside.time:.3f} s): {outside.what}"
+    if len(samples) > 1:
+        fast = safety.limits.check(samples.positions[1:], mean_velocities(samples), times=samples.times[1:])
+        if fast is not None:
+            return (f"moves faster than a joint limit from point {fast.step} to point {fast.step + 1} "
+                    f"(t={fast.time:.3f} s): {fast.what} (the mean over that interval)")
     collision = safety.first_collision(safety.snapshot(), subdivide(samples, check_step_rad), padding_m)
     return None if collision is None else f"collides: {collision}"
 

@@ -21,8 +21,9 @@ GOAL_TIME_TOLERANCE_S = 1.0
 
 
 def trajectory_msg(samples: Samples, joints: Sequence[str], stamp_s: float = 0.0) -> JointTrajectory:
-    """``samples`` (on the clock when ``stamp_s`` > 0, else from the start) as a trajectory
-    stamped ``stamp_s``: 0 means "start now"."""
+    """``samples`` as a trajectory stamped ``stamp_s`` (0: start now), each point at its sample
+    time less the stamp: samples on the clock for a stamped trajectory, timed from its start for
+    one that starts now."""
     msg = JointTrajectory(joint_names=list(joints))
     msg.header.stamp = time_msg(stamp_s)
     msg.points = trajectory_points(samples.times - stamp_s, samples.positions, samples.velocities, samples.accelerations)

@@ -247,26 +247,43 @@ def test_validate_trajectory_finds_a_collision_with_the_table(robot):
     assert blackboard.get("why") == node.feedback_message.removeprefix("the trajectory ")
 
 
-@pytest.mark.parametrize("quantity, value, expected", [
-    ("velocities", 5.0, "joint shoulder_pan_joint velocity 5.0000 rad/s exceeds the limit 3.1416 rad/s"),
-    ("accelerations", -20.0, "joint shoulder_pan_joint acceleration -20.0000 rad/s^2 exceeds the limit -5.0000 rad/s^2"),
-])
-def test_execute_trajectory_refuses_a_trajectory_over_the_velocity_or_acceleration_limits(robot, quantity, value, expected):
+def execute_from_blackboard(samples: Samples) -> tuple[str, list]:
+    """ExecuteTrajectory on ``samples`` (as a message on the blackboard) with the arm at Home:
+    its status message, and the goals the controller received."""
     from behaviors.trajectories import ExecuteTrajectory
     from tests.test_pose_behaviors import RecordingController
 
     context = make_context(cell_scene())
     controller = RecordingController(context)
-    path = np.tile(HOME, (3, 1)) + np.outer([0.0, 0.05, 0.1], [1, 0, 0, 0, 0, 0])
-    derivatives = {"velocities": np.zeros_like(path), "accelerations": np.zeros_like(path)}
-    derivatives[quantity][1, 0] = value  # point 1 of shoulder_pan_joint, as the blackboard holds it
     blackboard = Blackboard()
-    blackboard.set("joint_trajectory_msg", trajectory_msg(Samples(np.array([0.0, 0.5, 1.0]), path, **derivatives), ARM_JOINTS))
+    blackboard.set("joint_trajectory_msg", trajectory_msg(samples, ARM_JOINTS))
     node = make_node(ExecuteTrajectory, context, blackboard)
     publish_joint_states(context, HOME)
     assert tick(node) is Status.FAILURE
-    assert node.feedback_message == f"the trajectory breaks a joint limit at point 1 (t=0.500 s): {expected}"
-    assert controller.goals == []  # nothing reached the controller
+    return node.feedback_message, controller.goals
+
+
+@pytest.mark.parametrize("quantity, value, expected", [
+    ("velocities", 5.0, "joint shoulder_pan_joint velocity 5.0000 rad/s exceeds the limit 3.1416 rad/s"),
+    ("accelerations", -20.0, "joint shoulder_pan_joint acceleration -20.0000 rad/s^2 exceeds the limit -5.0000 rad/s^2"),
+])
+def test_execute_trajectory_refuses_a_trajectory_over_the_velocity_or_acceleration_limits(robot, quantity, value, expected):
+    path = np.tile(HOME, (3, 1)) + np.outer([0.0, 0.05, 0.1], [1, 0, 0, 0, 0, 0])
+    derivatives = {"velocities": np.zeros_like(path), "accelerations": np.zeros_like(path)}
+    derivatives[quantity][1, 0] = value  # point 1 of shoulder_pan_joint, as the blackboard holds it
+    message, goals = execute_from_blackboard(Samples(np.array([0.0, 0.5, 1.0]), path, **derivatives))
+    assert message == f"the trajectory breaks a joint limit at point 1 (t=0.500 s): {expected}"
+    assert goals == []  # nothing reached the controller
+
+
+def test_execute_trajectory_refuses_positions_alone_that_move_faster_than_the_limit(robot):
+    # No velocities: shoulder_pan_joint goes 0.4 rad in 0.1 s between points 1 and 2, 4 rad/s at least.
+    path = np.tile(HOME, (3, 1)) + np.outer([0.0, 0.05, 0.45], [1, 0, 0, 0, 0, 0])
+    message, goals = execute_from_blackboard(Samples(np.array([0.0, 0.5, 0.6]), path, None, None))
+    assert message == ("the trajectory moves faster than a joint limit from point 1 to point 2 (t=0.600 s): "
+                       "joint shoulder_pan_joint velocity 4.0000 rad/s exceeds the limit 3.1416 rad/s "
+                       "(the mean over that interval)")
+    assert goals == []
 
 
 def test_retrieve_waypoint_lists_the_known_waypoints(registry, tmp_path):

@@ -50,6 +50,7 @@ from .states import Committed, FreeSamples, HeldChunk, InFlight, Phase, Rollback
 from .stream import StepGrid, Window
 from .timing import LatencyEstimate, SizingRisk, frozen_prefix_steps, prefetch_margin, sizing_risk, sizing_warning
 from ..action_goal import Goal, GoalState
+from ..gripper import gripper_command
 from ..safety import MotionSafety, SafetyError, make_safety
 from ..trajectory_goal import admittance_goal, trajectory_msg
 
@@ -573,10 +574,7 @@ class ExecutePolicy(Behavior):
             return
         if self.gripper_sent is not None and abs(target - self.gripper_sent) < GRIPPER_DEADBAND_RAD:
             return
-        goal = GripperCommand.Goal()
-        goal.command.position = target
-        goal.command.max_effort = GRIPPER_MAX_EFFORT_N
-        self.gripper_goals.append(GripperGoal(target, Goal.send(self.gripper, goal, now)))
+        self.gripper_goals.append(GripperGoal(target, Goal.send(self.gripper, gripper_command(target, GRIPPER_MAX_EFFORT_N), now)))
         self.gripper_sent = target
 
     def _track_progress(self, now: float) -> None:
