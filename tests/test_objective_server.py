@@ -238,6 +238,17 @@ def test_one_objective_at_a_time_a_second_client_is_rejected_and_cancel_halts(se
     assert (answer.success, answer.message) == (False, "no Objective is running")
 
 
+def test_two_goals_sent_at_once_one_runs(serve, client, library):
+    serve(library, realtime=True)
+    a, b = client("a"), client("b")
+    futures = [c.action.send_goal_async(DoObjective.Goal(objective_name="Long Wait")) for c in (a, b)]
+    handles = [wait(f, what="the goal responses") for f in futures]
+    assert sorted(h.accepted for h in handles) == [False, True]
+    accepted = next(h for h in handles if h.accepted)
+    wait(accepted.cancel_goal_async(), what="the cancel response")
+    assert wait(accepted.get_result_async(), what="the result").status == GoalStatus.STATUS_CANCELED
+
+
 def test_cancel_objective_service_halts_the_running_objective(serve, client, library):
     serve(library, realtime=True)
     c = client()
