@@ -18,7 +18,7 @@ import zmq
 import behaviortreepy as btcpp
 from runtime.behavior import Status
 from runtime.controls import tick_tree
-from runtime.groot2 import HOOKS_REFUSED, Groot2Options, Groot2Server
+from runtime.groot2 import HOOKS_REFUSED, Groot2Options, Groot2Server, monitored_tree
 from runtime.loader import load_tree
 from runtime.registry import Registry
 from runtime.runner import RunOptions, make_context, run_tree
@@ -336,3 +336,19 @@ def test_nested_subtrees_and_unset_entries_are_behaviortree_cpps(registry):
             ours.close()
             theirs.close()
     del publisher
+
+
+def test_a_message_on_the_blackboard_is_sent_as_its_fields(registry):
+    from geometry_msgs.msg import PoseStamped
+
+    from runtime.groot2 import blackboard_dump
+
+    loaded = load_tree(NESTED, registry, make_context(RunOptions()))
+    pose = PoseStamped()
+    pose.header.frame_id = "world"
+    pose.pose.position.x = 0.5
+    loaded.blackboard.set("goal", pose)
+    dump = blackboard_dump(monitored_tree(loaded).blackboards, "Outer")
+    assert dump["Outer"]["goal"]["header"]["frame_id"] == "world"
+    assert dump["Outer"]["goal"]["pose"]["position"] == {"x": 0.5, "y": 0.0, "z": 0.0}
+    assert msgpack.unpackb(msgpack.packb(dump)) == dump
