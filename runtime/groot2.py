@@ -13,7 +13,8 @@ full tree           T     the tree as XML: every node with its ``_uid``, every S
                           instance as a ``<BehaviorTree _fullpath=...>``, a TreeNodesModel
 status              S     3 bytes per node: its uid (uint16, little-endian), its status
 blackboard          B     MessagePack of ``{name: {entry: value}}`` for the ``;``-separated
-                          blackboard names (a tree's ID, or a SubTree's ``_fullpath``)
+                          blackboard names (a tree's ID, or a SubTree's ``_fullpath``);
+                          a ROS message as a map of its fields
 hooks dump          D     ``[]``: there are no hooks
 remove/disable all  A, X  the header alone (nothing to remove)
 toggle recording    r     ``start``: the wall time in microseconds; ``stop``: the header
@@ -257,7 +258,7 @@ def blackboard_dump(boards: dict[str, "Blackboard"], request: str) -> dict[str, 
     """``{name: {entry: value}}`` for the ``;``-separated names in ``request`` that exist; an
     empty blackboard is None (JSON null), as BehaviorTree.CPP exports it.
 
-    Values that MessagePack cannot carry (a pose, a message) are sent as their text."""
+    Values are sent as ``_plain`` makes them (a ROS message as a map of its fields)."""
     out: dict[str, dict[str, Any] | None] = {}
     for name in request.split(";"):
         board = boards.get(name)
@@ -267,12 +268,17 @@ def blackboard_dump(boards: dict[str, "Blackboard"], request: str) -> dict[str, 
 
 
 def _plain(value: Any) -> Any:
+    """``value`` as MessagePack carries it: numbers, text, lists; a ROS message as a map of its
+    fields (``{"pose": {"position": {"x": ...}}}``); anything else as its text."""
     if value is None or isinstance(value, (bool, int, float, str)):
         return value
     if hasattr(value, "tolist"):
         return value.tolist()
-    if isinstance(value, (list, tuple)) and all(isinstance(v, (bool, int, float, str)) for v in value):
-        return list(value)
+    if isinstance(value, (list, tuple)):
+        return [_plain(v) for v in value]
+    fields = getattr(value, "get_fields_and_field_types", None)
+    if callable(fields):
+        return {name: _plain(getattr(value, name)) for name in fields()}
     return str(value)
 
 

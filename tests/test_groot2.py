@@ -6,9 +6,11 @@ equal (the tree id in the reply header is random in both and is compared for sha
 from __future__ import annotations
 
 import json
+import signal
 import struct
 import subprocess
 import sys
+import time
 import xml.etree.ElementTree as ET
 
 import msgpack
@@ -18,7 +20,7 @@ import zmq
 import behaviortreepy as btcpp
 from runtime.behavior import Status
 from runtime.controls import tick_tree
-from runtime.groot2 import HOOKS_REFUSED, Groot2Options, Groot2Server
+from runtime.groot2 import HOOKS_REFUSED, Groot2Options, Groot2Server, monitored_tree
 from runtime.loader import load_tree
 from runtime.registry import Registry
 from runtime.runner import RunOptions, make_context, run_tree
@@ -266,10 +268,32 @@ def test_objective_run_groot2_serves_and_a_taken_port_is_an_error(tmp_path):
         assert "Traceback" not in proc.stderr
     finally:
         blocker.destroy(linger=0)
-    proc = subprocess.run([sys.executable, "-m", "runtime.cli", "run", str(tree), "--groot2", "0"],
-                          capture_output=True, text=True, timeout=60)
-    assert proc.returncode == 0, proc.stderr
-    assert "Groot2: connect to 127.0.0.1 (port " in proc.stderr
+    # A realtime run watched mid-run: the tree, then its Wait RUNNING; SIGINT still halts it.
+    tree.write_text('<root BTCPP_format="4"><BehaviorTree ID="T"><Sequence><Wait name="long" seconds="30"/>'
+                    "</Sequence></BehaviorTree></root>")
+    proc = subprocess.Popen([sys.executable, "-m", "runtime.cli", "run", str(tree), "--realtime", "--groot2", "0"],
+                            stderr=subprocess.PIPE, text=True)
+    try:
+        lines = [proc.stderr.readline()]
+        while "Groot2: connect to" not in lines[-1] and lines[-1] and len(lines) < 20:
+            lines.append(proc.stderr.readline())
+        line = lines[-1]
+        assert line.startswith("[INFO] Groot2: connect to 127.0.0.1 (port "), lines
+        client = Client(int(line.rsplit("port ", 1)[1].rstrip(")\n")))
+        try:
+            deadline = time.monotonic() + 20
+            while client.ask(header("S"))[0] == b"error" or status_codes(client.ask(header("S"))[1]) != {1: 1, 2: 1}:
+                assert time.monotonic() < deadline, "the run never showed its Wait RUNNING"
+                time.sleep(0.05)
+            assert '<Wait name="long" _uid="2" seconds="30"' in client.ask(header("T"))[1].decode()
+        finally:
+            client.close()
+        proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate(timeout=20)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 130 and "Traceback" not in err, err
 
 
 def test_without_the_monitor_extra_groot2_says_what_to_install(monkeypatch):
@@ -336,3 +360,19 @@ def test_nested_subtrees_and_unset_entries_are_behaviortree_cpps(registry):
             ours.close()
             theirs.close()
     del publisher
+
+
+def test_a_message_on_the_blackboard_is_sent_as_its_fields(registry):
+    from geometry_msgs.msg import PoseStamped
+
+    from runtime.groot2 import blackboard_dump
+
+    loaded = load_tree(NESTED, registry, make_context(RunOptions()))
+    pose = PoseStamped()
+    pose.header.frame_id = "world"
+    pose.pose.position.x = 0.5
+    loaded.blackboard.set("goal", pose)
+    dump = blackboard_dump(monitored_tree(loaded).blackboards, "Outer")
+    assert dump["Outer"]["goal"]["header"]["frame_id"] == "world"
+    assert dump["Outer"]["goal"]["pose"]["position"] == {"x": 0.5, "y": 0.0, "z": 0.0}
+    assert msgpack.unpackb(msgpack.packb(dump)) == dump

@@ -29,7 +29,7 @@ from std_srvs.srv import Trigger  # noqa: E402
 
 from objective_server_msgs.action import DoObjective  # noqa: E402
 from objective_server_msgs.msg import KeyValue, PortOverride  # noqa: E402
-from objective_server_msgs.srv import ListObjectives  # noqa: E402
+from objective_server_msgs.srv import ExecuteObjective, ListObjectives  # noqa: E402
 from runtime.registry import Registry  # noqa: E402
 from runtime.ros.objective_server import ObjectiveServer, ServerOptions  # noqa: E402
 from runtime.runner import RunOptions  # noqa: E402
@@ -238,6 +238,17 @@ def test_one_objective_at_a_time_a_second_client_is_rejected_and_cancel_halts(se
     assert (answer.success, answer.message) == (False, "no Objective is running")
 
 
+def test_two_goals_sent_at_once_one_runs(serve, client, library):
+    serve(library, realtime=True)
+    a, b = client("a"), client("b")
+    futures = [c.action.send_goal_async(DoObjective.Goal(objective_name="Long Wait")) for c in (a, b)]
+    handles = [wait(f, what="the goal responses") for f in futures]
+    assert sorted(h.accepted for h in handles) == [False, True]
+    accepted = next(h for h in handles if h.accepted)
+    wait(accepted.cancel_goal_async(), what="the cancel response")
+    assert wait(accepted.get_result_async(), what="the result").status == GoalStatus.STATUS_CANCELED
+
+
 def test_cancel_objective_service_halts_the_running_objective(serve, client, library):
     serve(library, realtime=True)
     c = client()
@@ -302,6 +313,22 @@ def test_groot2_on_the_server_shows_each_run(ros_env, registry, client, library)
         finally:
             groot.close()
             server.close()
+
+
+def test_execute_objective_starts_one_and_answers_at_once(serve, client, library):
+    serve(library, realtime=True)
+    c = client()
+    execute = c.node.create_client(ExecuteObjective, "/execute_objective")
+    answer = c.call(execute, ExecuteObjective.Request(objective_name="Nope"))
+    assert not answer.success and answer.message.startswith("no Objective named 'Nope'")
+    answer = c.call(execute, ExecuteObjective.Request(objective_name="Long Wait"))
+    assert (answer.success, answer.message) == (True, "started 'Long Wait'")
+    assert c.call(c.list, ListObjectives.Request()).running == "Long Wait"
+    answer = c.call(execute, ExecuteObjective.Request(objective_name="Wait and Greet"))
+    assert (answer.success, answer.message) == (False, "'Long Wait' is running: cancel it first")
+    assert not c.send("Wait and Greet").accepted
+    assert c.call(c.cancel_all, Trigger.Request()).success
+    wait_for(lambda: c.call(c.list, ListObjectives.Request()).running == "", what="the run to end")
 
 
 def test_the_command_serves_until_sigterm(ros_env, library):

@@ -9,12 +9,15 @@ The node ``/objective_server`` serves, as MoveIt Pro's Objective server does:
   (ExecutePolicy: chunks, stalls, ...). Result: the status, the reason, the failing node and
   the ``objective run --json`` summary. A cancelled goal halts the tree as SIGINT halts
   ``objective run`` (goals cancelled, the arm stopped) and ends CANCELED with status INTERRUPTED.
+- ``/execute_objective`` (``objective_server_msgs/srv/ExecuteObjective``): start one the same
+  way and answer at once (the end is logged).
 - ``/cancel_objective`` (``std_srvs/srv/Trigger``): cancel whatever runs.
 - ``/list_objectives`` (``objective_server_msgs/srv/ListObjectives``): every Objective of the
   library with its description and ports, and the one running now.
 
-One Objective at a time: a goal that arrives while another runs is rejected (the server logs
-which one runs; ``/list_objectives`` says it too). A goal whose name, overrides or Objective
+One Objective at a time: a goal that arrives while another runs is rejected, and
+``/execute_objective`` answers ``success: false`` (the server logs which one runs;
+``/list_objectives`` says it too). A goal whose name, overrides or Objective
 are wrong is accepted and aborted at once with status ERROR and the reason, so the client
 learns what is wrong. Each run is a run of ``runtime.runner`` with the server's options (world,
 ``--ros``, ``--realtime``, ...): exactly what ``objective run FILE`` with those options does.
@@ -37,7 +40,7 @@ from std_srvs.srv import Trigger
 
 from objective_server_msgs.action import DoObjective
 from objective_server_msgs.msg import ObjectiveInfo, ObjectivePort
-from objective_server_msgs.srv import ListObjectives
+from objective_server_msgs.srv import ExecuteObjective, ListObjectives
 from runtime.controls import Visit
 from runtime.crash import describe_crash, write_traceback
 from runtime.errors import ObjectiveError
@@ -49,6 +52,7 @@ from runtime.runner import RunEnd, TickWatcher, RunOptions, RunResult, make_cont
 
 NODE_NAME = "objective_server"
 ACTION_NAME = "/do_objective"
+EXECUTE_SERVICE = "/execute_objective"
 CANCEL_SERVICE = "/cancel_objective"
 LIST_SERVICE = "/list_objectives"
 FEEDBACK_PERIOD_S = 0.1
@@ -150,6 +154,7 @@ class ObjectiveServer:
             self.node, DoObjective, ACTION_NAME, execute_callback=self._execute, goal_callback=self._on_goal,
             cancel_callback=self._on_cancel, callback_group=group,
         )
+        self.node.create_service(ExecuteObjective, EXECUTE_SERVICE, self._execute_service, callback_group=group)
         self.node.create_service(Trigger, CANCEL_SERVICE, self._cancel_service, callback_group=group)
         self.node.create_service(ListObjectives, LIST_SERVICE, self._list_service, callback_group=group)
         self.executor = MultiThreadedExecutor(num_threads=4, context=self.context)
@@ -163,16 +168,39 @@ class ObjectiveServer:
         except Exception:  # the context was shut down under the executor: the server is closing
             pass
 
-    # -- goals -------------------------------------------------------------------------------
-    def _on_goal(self, request: Any) -> GoalResponse:
+    # -- requests ----------------------------------------------------------------------------
+    def _reserve(self, name: str) -> str | None:
+        """Take the one run slot for ``name`` and return None; when another Objective holds it,
+        return that one's name."""
         with self._lock:
             if self._running is not None:
-                _log.warning("rejected a goal for '%s': '%s' is running (one Objective at a time)",
-                             request.objective_name, self._running)
-                return GoalResponse.REJECT
-            self._running = request.objective_name
+                _log.warning("refused to start '%s': '%s' is running (one Objective at a time)", name, self._running)
+                return self._running
+            self._running = name
             self._idle.clear()
-        return GoalResponse.ACCEPT
+        return None
+
+    def _run_reserved(self, request: Any, publish: Callable[[Any], None]) -> Outcome:
+        """Run what ``request`` (a DoObjective goal or an ExecuteObjective request) asks for in the
+        slot ``_reserve`` took, then free the slot."""
+        with self._lock:
+            stop = self._stop = self._stop or StopRequest()
+        try:
+            outcome = self.run(request.objective_name,
+                               [PortOverride(o.node, o.port, o.value) for o in request.port_overrides],
+                               {e.key: e.value for e in request.blackboard_overrides}, stop, publish)
+        finally:
+            self._release()
+        _log.info("%s: %s%s", request.objective_name, outcome.status, f": {outcome.reason}" if outcome.reason else "")
+        return outcome
+
+    def _release(self) -> None:
+        with self._lock:
+            self._running, self._stop = None, None
+            self._idle.set()
+
+    def _on_goal(self, request: Any) -> GoalResponse:
+        return GoalResponse.REJECT if self._reserve(request.objective_name) else GoalResponse.ACCEPT
 
     def _on_cancel(self, goal_handle: Any) -> CancelResponse:
         return CancelResponse.ACCEPT if self.cancel(CANCELLED) else CancelResponse.REJECT
@@ -190,18 +218,7 @@ class ObjectiveServer:
             return True
 
     def _execute(self, goal_handle: Any) -> Any:
-        request = goal_handle.request
-        with self._lock:
-            stop = self._stop = self._stop or StopRequest()
-        try:
-            outcome = self.run(request.objective_name, [PortOverride(o.node, o.port, o.value) for o in request.port_overrides],
-                               {e.key: e.value for e in request.blackboard_overrides}, stop,
-                               goal_handle.publish_feedback)
-        finally:
-            with self._lock:
-                self._running, self._stop = None, None
-                self._idle.set()
-        _log.info("%s: %s%s", request.objective_name, outcome.status, f": {outcome.reason}" if outcome.reason else "")
+        outcome = self._run_reserved(goal_handle.request, goal_handle.publish_feedback)
         if outcome.status == RunEnd.INTERRUPTED.value and goal_handle.is_cancel_requested:
             goal_handle.canceled()
         elif outcome.status in (RunEnd.SUCCESS.value, RunEnd.SKIPPED.value):
@@ -243,6 +260,22 @@ class ObjectiveServer:
             return Outcome.error(str(err))
 
     # -- services ----------------------------------------------------------------------------
+    def _execute_service(self, request: Any, response: Any) -> Any:
+        running = self._reserve(request.objective_name)
+        if running is not None:
+            response.success, response.message = False, f"'{running}' is running: cancel it first"
+            return response
+        try:
+            self.library.find(request.objective_name)
+        except ObjectiveError as err:
+            self._release()
+            response.success, response.message = False, str(err)
+            return response
+        threading.Thread(target=self._run_reserved, args=(request, lambda feedback: None),
+                         name=f"objective {request.objective_name}", daemon=True).start()
+        response.success, response.message = True, f"started '{request.objective_name}'"
+        return response
+
     def _cancel_service(self, request: Any, response: Any) -> Any:
         response.success = self.cancel(CANCELLED_BY_SERVICE)
         response.message = "cancelled" if response.success else "no Objective is running"
