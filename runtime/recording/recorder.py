@@ -238,9 +238,7 @@ class Recorder:
         if writer is not None:
             if writer in self.sink.sinks:
                 self.sink.sinks.remove(writer)
-            writer.closed = True
-            with contextlib.suppress(OSError):
-                writer._stream.close()
+            writer.abandon()
         events, self._events = self._events, None
         if events is not None:
             with contextlib.suppress(OSError):
