@@ -176,6 +176,7 @@ class EpisodeWorker:
                 result: RunResult = run_tree(loaded, context, options, world=world)
             except BaseException:
                 recorder.close()
+                worker.close()
                 shutil.rmtree(scratch, ignore_errors=True)
                 raise
             recorder.finish(result.to_json())

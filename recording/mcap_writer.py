@@ -185,3 +185,12 @@ class McapRos2Writer:
             self._writer.finish()
         finally:
             self._stream.close()
+
+    def abandon(self) -> None:
+        """Stop writing (a write failed: a full disk): the file keeps its whole chunks, readable as
+        a partial recording; the open chunk and the summary section are not written."""
+        self.closed = True
+        try:
+            self._stream.close()
+        except OSError:
+            pass  # (what the stream still buffered had no room either)

@@ -100,7 +100,7 @@ class Tee:
     def __init__(self, sinks: list[Any]) -> None:
         self.sinks = sinks
         self.qos: dict[str, Any] = {}
-        self.on_error: Callable[[OSError], None] = lambda err: None
+        self.on_error: Callable[[Any, OSError], None] = lambda sink, err: None
         for sink in sinks:
             sink.qos = self.qos
 
@@ -119,7 +119,7 @@ class Tee:
             write()
         except OSError as err:
             self.sinks.remove(sink)
-            self.on_error(err)
+            self.on_error(sink, err)
 
     def close(self) -> None:
         for sink in self.sinks:
@@ -151,7 +151,7 @@ class Recorder:
         if self.directory is not None:
             sinks.insert(0, self._open(self.directory))
         self.sink = Tee(sinks)
-        self.sink.on_error = self._stop_writing
+        self.sink.on_error = self._sink_failed
         self.sink.qos.update({topic: LATCHED_QOS for topic in (TF_STATIC_TOPIC, ROBOT_MARKERS_TOPIC, SCENE_MARKERS_TOPIC)})
         self.bus = RecordingBus(context.bus, self.sink, joint_states_hz)
         context.bus = self.bus
@@ -220,6 +220,12 @@ class Recorder:
         self._write({"time": now, "kind": "warning", "source": "recorder",
                      "data": {"message": f"recording: {lost}: {what}; {EVENTS_FILE} is whole"}})
 
+    def _sink_failed(self, sink: Any, err: OSError) -> None:
+        if sink is self.live:
+            self.context.logger.warning("live view: stopped serving the run (%s)", err)
+        else:
+            self._stop_writing(err)
+
     def _stop_writing(self, err: OSError) -> None:
         """This process cannot write the recording (a full disk): it stops writing, the run goes
         on, and the summary, written into the room kept for it (``recording.reserve``),
@@ -232,9 +238,7 @@ class Recorder:
         if writer is not None:
             if writer in self.sink.sinks:
                 self.sink.sinks.remove(writer)
-            writer.closed = True
-            with contextlib.suppress(OSError):
-                writer._stream.close()
+            writer.abandon()
         events, self._events = self._events, None
         if events is not None:
             with contextlib.suppress(OSError):

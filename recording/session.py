@@ -195,10 +195,11 @@ class RecordingSession:
         release(self.directory)
         self._lines.clear()
         self._tf_due.clear()
-        for stream in (getattr(getattr(self, "writer", None), "_stream", None), getattr(self, "_events", None)):
-            if stream is not None:
-                with contextlib.suppress(OSError):
-                    stream.close()
+        if getattr(self, "writer", None) is not None:
+            self.writer.abandon()
+        if getattr(self, "_events", None) is not None:
+            with contextlib.suppress(OSError):
+                self._events.close()
         if self._summary is not None:
             self._write_summary(self._summary)
         if self.ended:  # (it failed finishing the files)

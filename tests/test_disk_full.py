@@ -17,6 +17,10 @@ from pathlib import Path
 
 import pytest
 
+from evaluation.config import RecordMode, WorkerSpec
+from evaluation.episode import EpisodeStatus
+from evaluation.policies import parse_policy
+from evaluation.worker import EpisodeWorker
 from runtime.cli import main
 from recording.mcap_writer import McapRos2Writer
 from recording.report.worker import ReportWorker
@@ -98,3 +102,16 @@ def test_a_full_disk_under_this_process_writing_the_recording_stops_the_recordin
     record = tmp_path / "rec"
     code, summary, err = run_recorded(capsys, record)
     assert_recorded_incomplete(capsys, code, summary, err, record)
+
+
+def test_an_evaluated_episode_on_a_full_disk_keeps_its_outcome_and_notes_the_incomplete_recording(small_disk):
+    spec = WorkerSpec(objective=STACK, world="kinematic", policy=parse_policy("oracle"), record=RecordMode.ALL)
+    worker = EpisodeWorker(spec, "w", small_disk("700k") / "recordings")
+    worker.warm_up()
+    try:
+        record = worker.run(0)
+    finally:
+        worker.close()
+    assert record.status is EpisodeStatus.SUCCESS, record.reason
+    assert record.recording == "recordings/seed-0"
+    assert record.run["recording_incomplete"].startswith(f"the recording is incomplete: {ENOSPC_TEXT}")

@@ -161,20 +161,21 @@ def publisher_stopping_at(topic: str, at_s: float, published: list[float]) -> Ca
 
 
 @pytest.mark.parametrize("topic, ports, limit_s", [
-    ("/joint_states", "", 0.5),  # the default: 5 * dt
+    ("/joint_states", "", 1.0),  # the default: 10 * dt
     ("/thermal_camera/color", 'image_topics="/thermal_camera/color" image_names="thermal" max_observation_age="0.8"', 0.8),
 ])
 def test_a_publisher_that_stops_mid_run_stops_the_robot_naming_its_topic(registry, topic, ports, limit_s):
     """Its last message ages; the first request that would feed the policy one older than the
     bound stops the run (the arm at rest, no goal executing) instead."""
     published: list[float] = []
-    out = run_with_faults(registry, Policy(), FixedLatency(0.1), publisher_stopping_at(topic, 3.0, published), ports)
+    out = run_with_faults(registry, Policy(), FixedLatency(0.1), publisher_stopping_at(topic, 2.5, published), ports)
     assert out.status == "FAILURE"
     age = out.finished_at - published[-1]
-    assert age > limit_s and out.requested_at[-1] < 3.0 + limit_s  # the first request after it went stale
+    assert age > limit_s and out.requested_at[-1] < 2.5 + limit_s  # the first request after it went stale
     assert out.message == (f"the newest message on '{topic}' is {age:.2f} s old, more than max_observation_age = "
                            f"{limit_s:.2f} s: its publisher stopped or fell behind; the policy is not fed an old world, "
                            "robot stopped")
+    assert out.summary["oldest_observation_s"] == pytest.approx(age, abs=1e-4)
     out.assert_stopped_cleanly()
 
 

@@ -96,6 +96,8 @@ class RunMetrics:
     """What the last request was timed for (``timing.LatencyEstimate``)."""
     goal_latency_max_s: float = 0.0
     """The longest a controller goal took from sending to its acceptance."""
+    oldest_observation_s: float = 0.0
+    """The age of the oldest camera frame or joint state fed to the policy (see ``max_observation_age``)."""
     warnings: list[str] = field(default_factory=list)
     message: str = ""
     rejection_reason: str = ""
@@ -113,6 +115,7 @@ class RunMetrics:
             "latency_max_s": round(float(lat.max()), 4),
             "latency_estimate_s": round(self.latency_estimate_s, 4),
             "goal_latency_max_s": round(self.goal_latency_max_s, 4),
+            "oldest_observation_s": round(self.oldest_observation_s, 4),
             "warnings": list(self.warnings),
             "message": self.message,
             "rejection_reason": self.rejection_reason,
@@ -133,6 +136,7 @@ def summarise_runs(runs: list[RunMetrics]) -> dict[str, Any]:
         latencies=[s for r in runs for s in r.latencies],
         latency_estimate_s=last.latency_estimate_s,
         goal_latency_max_s=max((r.goal_latency_max_s for r in runs), default=0.0),
+        oldest_observation_s=max((r.oldest_observation_s for r in runs), default=0.0),
         warnings=[w for r in runs for w in r.warnings],
         message=last.message,
         rejection_reason=last.rejection_reason,
@@ -379,10 +383,11 @@ class ExecutePolicy(Behavior):
         request.robot_state = robot_state(self.joint_states.latest, self.safety.group_joints, c.gripper_joint_name or None, c.joint_states_topic)
         request.image_names = list(c.image_names)
         request.images = frames if frames is not None else [sub.latest for sub in self.cameras]
-        stale = stale_observation(self.context.clock.now(), [
-            (c.joint_states_topic, self.joint_states.received_at),
-            *zip(c.image_topics, (sub.received_at for sub in self.cameras)),
-        ], c.observation_age_limit_s)
+        now = self.context.clock.now()
+        received = [(c.joint_states_topic, self.joint_states.received_at),
+                    *zip(c.image_topics, (sub.received_at for sub in self.cameras))]
+        self.metrics.oldest_observation_s = max([self.metrics.oldest_observation_s] + [now - at for _, at in received if at is not None])
+        stale = stale_observation(now, received, c.observation_age_limit_s)
         if stale is not None:
             raise ObservationError(stale)
         request.new_episode = new_episode
@@ -391,7 +396,6 @@ class ExecutePolicy(Behavior):
         if c.policy_uses_real_time_chunking and self.policy_chunk is not None and not new_episode:
             request.previous_action_chunk = policy_tail(self.policy_chunk, request_step - self.policy_chunk_request_step)
             request.previous_anchor_state = self.previous_anchor
-        now = self.context.clock.now()
         self.request = InFlight(self.policy.call_async(request), now, request_step, frozen, request.robot_state)
         self.context.events.emit("chunk_requested", self.name, request_step=request_step, frozen_prefix_steps=frozen)
 
