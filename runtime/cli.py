@@ -74,7 +74,7 @@ def positive_float(text: str) -> float:
 
 def add_groot2_arguments(parser: argparse.ArgumentParser) -> None:
     """``--groot2 [PORT]`` and ``--groot2-host``: live monitoring in Groot2 (``runtime.groot2``)."""
-    parser.add_argument("--groot2", type=_port, nargs="?", const=1667, metavar="PORT",
+    parser.add_argument("--groot2", type=tcp_port, nargs="?", const=1667, metavar="PORT",
                         help="serve the running tree to Groot2 (BehaviorTree.CPP's protocol) on PORT and PORT+1 "
                              "(default 1667; 0 = any free pair); needs the monitor extra")
     parser.add_argument("--groot2-host", default="127.0.0.1", metavar="ADDRESS",
@@ -146,7 +146,7 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     val.add_argument("--world", metavar="NAME",
                      help="also check what the world knows: frames, objects, joint groups and joints, waypoints, "
                           "services and actions and their types (the world is started; nothing moves)")
-    val.add_argument("--world-option", action="append", type=_parse_set, default=[], metavar="KEY=VALUE",
+    val.add_argument("--world-option", action="append", type=parse_set, default=[], metavar="KEY=VALUE",
                      help="an option of the world, as for `objective run` (repeatable)")
     add_paths(val)
 
