@@ -588,8 +588,8 @@ class _Builder:
                 continue
             port_type = binding.info.type
             raise PortError(
-                f"port '{port}' ({port_type.value}) is wired to blackboard entry '{{{binding.key}}}', which port "
-                f"'{first.port}' of {first.node} ({first.location}) made a {first.type.value}: BehaviorTree.CPP "
+                f"port '{port}' ({port_type.value}) is wired to blackboard entry '{{{binding.key}}}', whose type is "
+                f"{first.type.value} (port '{first.port}' of {first.node} at {first.location}): BehaviorTree.CPP "
                 "refuses one entry with two types (use another entry, or ports of one type)",
                 loc, node_id,
             )
@@ -851,5 +851,12 @@ def validate(
         for error in builder.errors:  # a SubTree used by several trees has its errors once
             if all(str(error) != str(seen) for seen in result.errors):
                 result.errors.append(error)
+    result.errors.sort(key=_written_at)
     return result
+
+
+def _written_at(error: ObjectiveRuntimeError) -> tuple[str, int]:
+    """Where the user wrote what an error is about: the outermost SubTree call, else the node."""
+    where = error.callers[0][0] if error.callers else error.location
+    return (where.file, where.line) if where is not None else ("", 0)
 

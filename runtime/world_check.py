@@ -176,5 +176,6 @@ def _listing(names: Iterable[str], most: int = 12) -> str:
 
 
 def _type_name(interface: type) -> str:
+    """``control_msgs/action/GripperCommand``: the package, the kind of interface and the name."""
     module = interface.__module__.split(".")
-    return f"{module[0]}/{module[-1].lstrip('_')}/{interface.__name__}" if len(module) > 1 else interface.__name__
+    return f"{module[0]}/{module[1]}/{interface.__name__}" if len(module) > 2 else interface.__name__
