@@ -549,6 +549,11 @@ class InProcessBus:
         """Every service served on this bus now, with its type."""
         return {name: srv_type for name, (srv_type, _) in self._services.items()}
 
+    def call_now(self, name: str, request: Any) -> Any:
+        """The answer of service ``name`` to ``request``, at once and without a latency: for
+        looking at the world before the clock starts (``runtime.world_check``)."""
+        return self._services[name][1](request)
+
     # -- topics ---
     def create_publisher(self, name: str, msg_type: type, reliable: bool = True) -> Publisher:
         pub = _InProcessPublisher(self, name, msg_type, reliable)

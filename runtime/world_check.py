@@ -35,6 +35,7 @@ class WorldFacts:
     waypoints: frozenset[str] | None = None
     services: dict[str, type] | None = None
     actions: dict[str, type] | None = None
+    controllers: frozenset[str] | None = None
     listed_frames: tuple[str, ...] = field(default=())
     """The frames a message lists: objects, world, robot links (the model's other frames are not listed)."""
 
@@ -57,7 +58,7 @@ class WorldFacts:
             facts["waypoints"] = frozenset(context.resources["waypoints"])
         bus = context.bus
         if callable(getattr(bus, "served", None)) and callable(getattr(bus, "action_servers", None)):
-            facts.update(services=bus.served(), actions=bus.action_servers())
+            facts.update(services=bus.served(), actions=bus.action_servers(), controllers=_controllers(bus))
         return cls(**facts)
 
     def problem(self, names: Names, value: str) -> str | None:
@@ -75,7 +76,7 @@ class WorldFacts:
             return None
         known = {
             NameKind.FRAME: self.frames, NameKind.OBJECT: self.objects, NameKind.JOINT_GROUP: self.groups,
-            NameKind.JOINT: self.joints, NameKind.WAYPOINT: self.waypoints,
+            NameKind.JOINT: self.joints, NameKind.WAYPOINT: self.waypoints, NameKind.CONTROLLER: self.controllers,
         }[kind]
         if known is None or value in known:
             return None
@@ -104,9 +105,10 @@ def _named(nodes: Iterable[Any]) -> Iterator[tuple[Any, str, Names, str]]:
     """(record, port, what it names, value) for each name a port gives before the first tick."""
     for record in nodes:
         node = record.node
+        lenient = node.lenient_names() if callable(getattr(node, "lenient_names", None)) else ()
         for port, binding in getattr(node, "bindings", {}).items():
             names = binding.info.names
-            if names is None or binding.info.direction is Direction.OUTPUT:
+            if names is None or binding.info.direction is Direction.OUTPUT or port in lenient:
                 continue
             try:
                 value = node.get_input(port)
@@ -158,6 +160,15 @@ def started_world(name: str, options: dict[str, Any]) -> Iterator[StartedWorld]:
             context.bus.close()
 
 
+def _controllers(bus: Any) -> frozenset[str] | None:
+    """The controllers an in-process controller manager lists (None when none is served)."""
+    listers = [name for name, srv_type in bus.served().items() if srv_type.__name__ == "ListControllers"]
+    if len(listers) != 1:
+        return None
+    srv_type = bus.served()[listers[0]]
+    return frozenset(c.name for c in bus.call_now(listers[0], srv_type.Request()).controller)
+
+
 def _model_frames(robot: Any) -> Iterable[str]:
     model = getattr(robot, "model", None)
     frames = getattr(model, "frames", None)
@@ -165,7 +176,7 @@ def _model_frames(robot: Any) -> Iterable[str]:
 
 
 def _hint(value: str, known: Iterable[str]) -> str:
-    close = difflib.get_close_matches(value, sorted(known), n=1, cutoff=0.6)
+    close = difflib.get_close_matches(value, sorted(known), n=1, cutoff=0.75)
     return f" (did you mean '{close[0]}'?)" if close else ""
 
 

@@ -141,3 +141,18 @@ def test_a_missing_policy_service_is_explained_for_the_mode_the_run_is_in():
 
     assert hint(object()) == "start the adapter (`objective adapter`) before running the Objective"  # a ROS 2 graph
     assert hint(InProcessBus(SimClock())) == "in this run the world serves the policy chosen with --policy; services here: none"
+
+
+def test_an_unknown_controller_the_tree_computes_ends_the_run_as_error(tmp_path):
+    from runtime.registry import Registry
+    from runtime.runner import RunOptions, run_file
+
+    path = tmp_path / "switch.xml"
+    path.write_text("""<root BTCPP_format="4"><BehaviorTree ID="Main"><RetryUntilSuccessful num_attempts="3"><Sequence>
+      <Script code="name := 'joint_trajectory_controller'"/>
+      <SwitchController activate_controllers="{name}" strictness="STRICT"/>
+    </Sequence></RetryUntilSuccessful></BehaviorTree></root>""")
+    result = run_file(path, Registry.from_entry_points(), RunOptions(world="kinematic", max_seconds=10.0))
+    assert (result.status, result.failure_kind, result.failing_node) == ("ERROR", "SetupError", "SwitchController")
+    assert result.reason == (f"{path}:3: SwitchController: unknown controllers: joint_trajectory_controller (known: "
+                             "joint_trajectory_admittance_controller, robotiq_gripper_controller, velocity_force_controller)")

@@ -106,7 +106,7 @@ def test_validate_with_a_world_reports_every_name_it_lacks(registry, tmp_path, c
         "port 'waypoint_name': unknown waypoint 'Hme' (did you mean 'Home'?) (waypoints: Home, Observe, Ready)"
     )
     assert errors[1].startswith(f"error: {path}:5: CheckObjectStacked: port 'top_object_name': unknown frame "
-                                "'cube_purple' (did you mean 'cube_red'?) (frames: cube_blue, cube_green, cube_red, table, world, ")
+                                "'cube_purple' (frames: cube_blue, cube_green, cube_red, table, world, ")
     assert errors[2] == (f"error: {path}:6: ExecutePolicy: image_topics has 2 entries and image_names has 1; "
                          "they must be index-aligned")
     assert len(errors) == 3  # the broken ExecutePolicy is left out; fix it and its names are checked:
