@@ -23,7 +23,7 @@ from pathlib import Path
 from typing import Any
 
 from runtime.bus import parse_latency
-from runtime.errors import ObjectiveError
+from runtime.errors import ObjectiveError, OptionError
 
 HTTP_TIMEOUT_S = 10.0
 """Wall-clock deadline of one call to an inference server (the shipped Objectives' policy_call_timeout)."""
@@ -80,7 +80,7 @@ def parse_policy(text: str | None) -> PolicySpec:
 def check_latency(spec: str) -> None:
     try:
         parse_latency(spec)
-    except ValueError as err:
+    except OptionError as err:
         raise ObjectiveError(f"--policy-latency: {err}") from None
 
 
