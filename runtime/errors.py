@@ -104,6 +104,9 @@ class LoadError(ObjectiveError):
 class PortError(ObjectiveError):
     """A port value is missing, unknown or of the wrong type."""
 
+    every: tuple[PortError, ...] = ()
+    """When a node's ports have several problems: all of them, this one first."""
+
 
 class ScriptRunError(ObjectiveError):
     """A script failed while the tree ran: BT.CPP throws there, so the run stops as an error (exit 2).

@@ -567,7 +567,7 @@ class _Builder:
         except ObjectiveError as err:
             if not self.collect:
                 raise
-            self.errors.append(err)
+            self.errors.extend(getattr(err, "every", ()) or [err])  # a node's port problems, each
             return None
 
     def _check_entry_types(self, node: Any, blackboard: Blackboard, loc: SourceLocation, node_id: str) -> None:
@@ -650,7 +650,9 @@ class _Builder:
         try:
             node.add_child(self.build_tree(tree, child_bb, [*stack, key]))
         except ObjectiveError as err:
-            raise err.inside_subtree(loc, tree_id) from None
+            for each in getattr(err, "every", ()) or [err]:
+                each.inside_subtree(loc, tree_id)
+            raise
         finally:
             self.calls.pop()
             for kept in self.errors[first_error:]:
@@ -842,7 +844,7 @@ def validate(
         try:
             loaded = _build(builder, doc, tree)
         except ObjectiveError as err:  # the tree's root itself is broken
-            builder.errors.append(err)
+            builder.errors.extend(getattr(err, "every", ()) or [err])
             loaded = None
         if loaded is not None:
             result.trees.append(loaded)

@@ -37,7 +37,7 @@ def test_every_error_of_a_file_is_reported_at_its_line(registry, tmp_path, capsy
     path = write(tmp_path, """<Sequence>
   <Sequense/>
   <Sleep msec="fast"/>
-  <MoveGripperAction/>
+  <MoveGripperAction max_effort="-1" speed="2"/>
   <AlwaysSuccess/>
 </Sequence>""")
     code, errors, out = validate_cli(capsys, str(path))
@@ -45,7 +45,9 @@ def test_every_error_of_a_file_is_reported_at_its_line(registry, tmp_path, capsy
     assert errors == [
         f"error: {path}:4: Sequense: unknown node 'Sequense'; did you mean 'Sequence' or 'AsyncSequence'?",
         f"error: {path}:5: Sleep: port 'msec' expects a non-negative integer, got 'fast'",
+        f"error: {path}:6: MoveGripperAction: unknown port 'speed' (ports: gripper_command_action_name, max_effort, position, timeout)",
         f"error: {path}:6: MoveGripperAction: missing required port 'position'",
+        f"error: {path}:6: MoveGripperAction: port 'max_effort' must be in [0, 10000] N, got -1.0",
     ]
 
 
