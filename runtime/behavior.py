@@ -160,8 +160,8 @@ def make_bindings(
 ) -> dict[str, PortBinding]:
     """Check XML attribute values against ``cls.ports`` and convert the literals.
 
-    Every port is checked: the PortError raised is the first problem, and its ``every`` holds
-    them all (``objective validate`` reports each).
+    Every port is checked: the PortError raised is the first problem, and its ``also`` holds
+    the others (``objective validate`` reports each).
     """
     infos = cls.port_info()
     problems: list[PortError] = []
@@ -176,7 +176,7 @@ def make_bindings(
         except PortError as err:
             problems.append(err)
     if problems:
-        problems[0].every = tuple(problems)
+        problems[0].also = tuple(problems[1:])
         raise problems[0]
     return bindings
 

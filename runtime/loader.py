@@ -526,7 +526,8 @@ class _Builder:
             hint = _suggest(node_id, [s.id for s in self.registry.specs()])
             if node_id in doc.trees or (not hint and self.library.find(node_id, loc) is not None):
                 hint = f"; '{node_id}' is a BehaviorTree: use <SubTree ID=\"{node_id}\"/>"
-            raise LoadError(f"unknown node '{node_id}'{hint or ' (objective behaviors lists the registered nodes)'}", loc, node_id)
+            error = LoadError(f"unknown node '{node_id}'{hint or ' (objective behaviors lists the registered nodes)'}", loc, node_id)
+            raise self._look_into(element, doc, file, blackboard, stack, error)
         cls = spec.cls
         if tag in EXPLICIT_TAGS and cls.kind not in EXPLICIT_TAGS[tag]:
             raise LoadError(f"'{node_id}' is a {cls.kind.value} node, not a{'n' if tag[0] in 'AE' else ''} {tag}", loc, node_id)
@@ -540,6 +541,8 @@ class _Builder:
         try:
             node = cls(name)
             node.bind(self.context, blackboard, values, loc, node_id)
+        except ObjectiveError as err:
+            raise self._look_into(element, doc, file, blackboard, stack, err) from None
         except ObjectiveRuntimeError:
             raise
         except Exception as err:  # a bug in the node's class: one paragraph, the traceback in a file
@@ -558,6 +561,18 @@ class _Builder:
                 node.add_child(child)
         return self._with_conditions(node, conditions, loc, node_id)
 
+    def _look_into(self, element: Any, doc: Document, file: str, blackboard: Blackboard, stack: list[tuple[str, str]],
+                   error: E) -> E:
+        """``error`` of a node that cannot be built; with ``collect``, its children are built for
+        their errors only, which the error carries (``also``) to be reported after its own."""
+        if self.collect:
+            first = len(self.errors)
+            for child_el in _elements(element):
+                self._build_child(child_el, doc, file, blackboard, stack)
+            error.also = (*error.also, *self.errors[first:])
+            del self.errors[first:]
+        return error
+
     def _build_child(
         self, element: Any, doc: Document, file: str, blackboard: Blackboard, stack: list[tuple[str, str]]
     ) -> py_trees.behaviour.Behaviour | None:
@@ -567,7 +582,7 @@ class _Builder:
         except ObjectiveError as err:
             if not self.collect:
                 raise
-            self.errors.extend(getattr(err, "every", ()) or [err])  # a node's port problems, each
+            self.errors.extend([err, *err.also])
             return None
 
     def _check_entry_types(self, node: Any, blackboard: Blackboard, loc: SourceLocation, node_id: str) -> None:
@@ -650,7 +665,7 @@ class _Builder:
         try:
             node.add_child(self.build_tree(tree, child_bb, [*stack, key]))
         except ObjectiveError as err:
-            for each in getattr(err, "every", ()) or [err]:
+            for each in (err, *err.also):
                 each.inside_subtree(loc, tree_id)
             raise
         finally:
@@ -844,7 +859,7 @@ def validate(
         try:
             loaded = _build(builder, doc, tree)
         except ObjectiveError as err:  # the tree's root itself is broken
-            builder.errors.extend(getattr(err, "every", ()) or [err])
+            builder.errors.extend([err, *err.also])
             loaded = None
         if loaded is not None:
             result.trees.append(loaded)
@@ -853,7 +868,7 @@ def validate(
         for error in builder.errors:  # a SubTree used by several trees has its errors once
             if all(str(error) != str(seen) for seen in result.errors):
                 result.errors.append(error)
-    result.errors.sort(key=_written_at)
+    result.errors.sort(key=_written_at)  # stable: a node's own error before its children's on its line
     return result
 
 

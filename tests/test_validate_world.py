@@ -35,7 +35,7 @@ def validate_cli(capsys, *args: str) -> tuple[int, list[str], str]:
 
 def test_every_error_of_a_file_is_reported_at_its_line(registry, tmp_path, capsys):
     path = write(tmp_path, """<Sequence>
-  <Sequense/>
+  <Sequense><Sleep msec="slow"/></Sequense>
   <Sleep msec="fast"/>
   <MoveGripperAction max_effort="-1" speed="2"/>
   <AlwaysSuccess/>
@@ -44,6 +44,7 @@ def test_every_error_of_a_file_is_reported_at_its_line(registry, tmp_path, capsy
     assert (code, out) == (2, "")
     assert errors == [
         f"error: {path}:4: Sequense: unknown node 'Sequense'; did you mean 'Sequence' or 'AsyncSequence'?",
+        f"error: {path}:4: Sleep: port 'msec' expects a non-negative integer, got 'slow'",  # inside the broken node
         f"error: {path}:5: Sleep: port 'msec' expects a non-negative integer, got 'fast'",
         f"error: {path}:6: MoveGripperAction: unknown port 'speed' (ports: gripper_command_action_name, max_effort, position, timeout)",
         f"error: {path}:6: MoveGripperAction: missing required port 'position'",
