@@ -125,8 +125,10 @@ def test_the_report_shows_every_policy_run(tmp_path):
 
     runs = [{"node": "policy", "chunks": 1, "steps_executed": 19, "stall_seconds": 0.0, "message": "the policy answered ERROR"},
             {"node": "policy", "chunks": 3, "steps_executed": 60, "stall_seconds": 0.2, "message": "executed 60 steps"}]
-    summary = {"status": "SUCCESS", "execute_policy": {"run_count": 2, "chunks": 4, "steps_executed": 79, "runs": runs}}
+    summary = {"status": "FAILURE", "failure_kind": "velocity limit",
+               "execute_policy": {"run_count": 2, "chunks": 4, "steps_executed": 79, "runs": runs}}
     table = _summary_table(Recording(tmp_path, summary=summary))
+    assert "<th>kind of failure</th><td>velocity limit</td>" in table
     assert "<th>ExecutePolicy runs</th><td>2</td>" in table and "<th>ExecutePolicy chunks</th><td>4</td>" in table
     assert "<th>ExecutePolicy run 1 (policy)</th><td>1 chunks, 19 steps, 0.0 s stalled: the policy answered ERROR</td>" in table
 
