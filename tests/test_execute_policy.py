@@ -216,6 +216,7 @@ def test_a_wrong_service_name_under_retry_waits_once_and_ends_as_error(registry)
         "/controller_manager/switch_controller, /get_action_chunk, /velocity_force_controller/zero_fts)"
     )
     assert run.policy.requests == [] and run.summary["run_count"] == 1
+    assert run.summary["message"] == run.result.blackboard["message"] == run.result.reason.removeprefix("<string>:1: ExecutePolicy: ")
 
 
 def test_a_frame_typo_inside_a_retry_runs_the_policy_zero_times(registry):
