@@ -23,6 +23,7 @@ from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
 from runtime.behavior import Behavior, Status
 from runtime.bus import STATUS_SUCCEEDED
+from runtime.errors import SetupError
 from runtime.ports import InputPort, NameKind, Names, OutputPort, PortType, Range
 from runtime.scene import JointLimits
 from runtime.scene.kinematics import frame_pose, solve_ik
@@ -522,7 +523,7 @@ class RetrieveWaypoint(Behavior):
         waypoints = self.context.resources.get("waypoints") or {}
         name = self.get_input("waypoint_name")
         if name not in waypoints:
-            return self.fail(f"unknown waypoint '{name}' (known: {', '.join(sorted(waypoints)) or 'none are defined'})")
+            raise SetupError(f"unknown waypoint '{name}' (known: {', '.join(sorted(waypoints)) or 'none are defined'})")
         try:
             joints = make_safety(self.context.scene, self.get_input("joint_group_name"), None).group_joints
         except SafetyError as err:

@@ -261,3 +261,10 @@ def test_move_to_waypoint_jtc_names_the_controllers_when_asked_for_a_plain_jtc(r
         "objectives/move_to_waypoint_jtc.xml:14: SwitchController: port 'activate_controllers': unknown controller "
         "'joint_trajectory_controller' (did you mean 'joint_trajectory_admittance_controller'?) (controllers: "
         "joint_trajectory_admittance_controller, robotiq_gripper_controller, velocity_force_controller)")
+
+
+def test_a_waypoint_name_the_tree_computes_is_checked_when_read(registry, tmp_path):
+    result = run_xml(registry, tmp_path, "<Sequence><Script code=\"w := 'Look at table'\"/>"
+                                         '<RetrieveWaypoint name="r" waypoint_name="{w}" waypoint_joint_state="{j}"/></Sequence>')
+    assert (result.status, result.failure_kind) == ("ERROR", "SetupError")
+    assert result.reason.endswith("RetrieveWaypoint 'r': unknown waypoint 'Look at table' (known: Home, Observe, Ready)")
