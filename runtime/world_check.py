@@ -1,9 +1,10 @@
 """What an Objective names in the world, checked against the world before anything moves.
 
 A port declared with ``names=Names(kind)`` (``runtime.ports``) names a frame, a planning-scene
-object, a joint group or joint, a waypoint, a service or an action. ``check_names`` reads every
-such port whose value is known before the first tick (a literal, or a blackboard entry a SubTree
-port or ``--set`` filled) and says, for each, what the world does not have, as a ``SetupError``
+object, a joint group or joint, a waypoint, a controller, a service or an action.
+``check_names`` reads every such port whose value is known before the first tick (a literal, or a
+blackboard entry a SubTree port or ``--set`` filled) and says, for each, what the world does not
+have, as a ``SetupError``
 at the node's ``file:line`` (and the line of each SubTree call it is inside). The runner calls it
 once the world has started (so a typo ends the run as ERROR before the first tick), and
 ``objective validate --world`` reports every problem of a file. Values a script computes are known
@@ -20,7 +21,7 @@ from .behavior import RunContext
 from .errors import PortError, SetupError
 from .ports import Direction, NameKind, Names, PortType
 
-WORLD_FRAMES = frozenset({"world", "map"})
+WORLD_FRAMES = frozenset({"world"})
 
 
 @dataclass(frozen=True)
