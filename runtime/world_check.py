@@ -4,11 +4,11 @@ A port declared with ``names=Names(kind)`` (``runtime.ports``) names a frame, a 
 object, a joint group or joint, a waypoint, a controller, a service or an action.
 ``check_names`` reads every such port whose value is known before the first tick (a literal, or a
 blackboard entry a SubTree port or ``--set`` filled) and says, for each, what the world does not
-have, as a ``SetupError``
-at the node's ``file:line`` (and the line of each SubTree call it is inside). The runner calls it
-once the world has started (so a typo ends the run as ERROR before the first tick), and
-``objective validate --world`` reports every problem of a file. Values a script computes are known
-only when the node reads them; behaviors raise a ``SetupError`` for them then.
+have, as a ``SetupError`` at the node's ``file:line`` (and the line of each SubTree call it is
+inside). The runner calls it once the world has started (so a typo ends the run as ERROR before
+the first tick), and ``objective validate --world`` reports every problem of a file. Values a
+script computes are known only when the node reads them; behaviors raise a ``SetupError`` for
+them then.
 """
 from __future__ import annotations
 
