@@ -19,6 +19,7 @@ from controller_manager_msgs.msg import ControllerState
 from controller_manager_msgs.srv import ListControllers, SwitchController as SwitchSrv
 
 from runtime.behavior import Behavior, Status
+from runtime.errors import SetupError
 from runtime.ports import InputPort, NameKind, Names, PortType, Range
 from runtime.timestamps import duration_msg
 
@@ -89,8 +90,10 @@ class SwitchController(Behavior):
     needs_world = True
     description = "Activate and deactivate ros2_control controllers (already-active ones are skipped)."
     ports = (
-        InputPort("activate_controllers", PortType.STRING_LIST, "", "Controllers to activate, ';'-separated."),
-        InputPort("deactivate_controllers", PortType.STRING_LIST, "", "Controllers to deactivate, ';'-separated."),
+        InputPort("activate_controllers", PortType.STRING_LIST, "", "Controllers to activate, ';'-separated.",
+                  names=Names(NameKind.CONTROLLER)),
+        InputPort("deactivate_controllers", PortType.STRING_LIST, "", "Controllers to deactivate, ';'-separated.",
+                  names=Names(NameKind.CONTROLLER)),
         InputPort("strictness", PortType.STRING, "STRICT", "STRICT (2): all or nothing; BEST_EFFORT (1): switch what can be switched."),
         InputPort("timeout", PortType.FLOAT, 3.0, "Seconds to wait for the controller manager and the switch; 0 or negative: no limit (MoveIt Pro writes -1).",
                   valid=Range(-3600.0, 3600.0, "s")),
@@ -102,6 +105,13 @@ class SwitchController(Behavior):
         InputPort("controller_switch_action_name", PortType.STRING, "/controller_manager/switch_controller", "SwitchController service.",
                   names=Names(NameKind.SERVICE, SwitchSrv)),
     )
+
+    def lenient_names(self) -> tuple[str, ...]:
+        """BEST_EFFORT switches what it can: unknown controllers are no error then (``runtime.world_check``),
+        nor when the strictness is known only when the node runs."""
+        strictness = self.bindings["strictness"]
+        strict = strictness.key is None and STRICTNESS.get(str(strictness.literal).strip().upper()) == SwitchSrv.Request.STRICT
+        return () if strict else ("activate_controllers", "deactivate_controllers")
 
     def initialise(self) -> None:
         self.error = None
@@ -148,8 +158,8 @@ class SwitchController(Behavior):
             states = list(self.future.result().controller)
             known = {c.name for c in states}
             unknown = [c for c in self.activate + self.deactivate if c not in known]
-            if unknown and self.strictness == SwitchSrv.Request.STRICT:
-                return self.fail(f"unknown controllers: {', '.join(unknown)} (known: {', '.join(sorted(known))})")
+            if unknown and self.strictness == SwitchSrv.Request.STRICT:  # an error of the setup: ERROR, never retried
+                raise SetupError(f"unknown controllers: {', '.join(unknown)} (known: {', '.join(sorted(known))})")
             plan = plan_switch(states, self.activate, self.deactivate, *self.automatic)
             if plan.empty:
                 self.feedback_message = "controllers already in the requested state"

@@ -12,7 +12,7 @@ import numpy as np
 from geometry_msgs.msg import PoseStamped
 
 from runtime.behavior import Behavior, Status
-from runtime.ports import InputPort, OutputPort, PortType
+from runtime.ports import InputPort, NameKind, Names, OutputPort, PortType
 
 from .poses import NO_SCENE, FrameError, SceneBehavior, frame_in_world, matrix_to_pose, pose_in_world, pose_to_matrix
 
@@ -32,7 +32,7 @@ class TransformPoseFrame(SceneBehavior):
     )
     ports = (
         InputPort("input_pose", PortType.POSE_STAMPED, description="The pose to re-express."),
-        InputPort("target_frame_id", PortType.STRING, "world", "Frame to express it in."),
+        InputPort("target_frame_id", PortType.STRING, "world", "Frame to express it in.", names=Names(NameKind.FRAME)),
         OutputPort("output_pose", PortType.POSE_STAMPED, "The same pose in target_frame_id."),
     )
 

@@ -12,7 +12,7 @@ import math
 
 import numpy as np
 
-from runtime.ports import InputPort, PortType, Range
+from runtime.ports import InputPort, NameKind, Names, PortType, Range
 from runtime.scene.kinematics import solve_ik
 
 from .motion import PlanningError, _MoveToJoints
@@ -25,7 +25,7 @@ class MoveToPose(_MoveToJoints):
     description = "Move a joint group so a robot frame (default: the TCP) reaches a pose (IK from the current state, then a checked joint motion)."
     ports = (
         InputPort("target_pose", PortType.ANY, description="Where tip_frame should go (geometry_msgs/PoseStamped), e.g. {grasp_pose}."),
-        InputPort("tip_frame", PortType.STRING, "tcp", "Robot frame placed at the target (a link or a site such as tcp)."),
+        InputPort("tip_frame", PortType.STRING, "tcp", "Robot frame placed at the target (a link or a site such as tcp).", names=Names(NameKind.FRAME)),
         InputPort("position_tolerance", PortType.FLOAT, 0.0005, "Largest IK position error accepted (m).", valid=Range(0.0, 1.0, "m", min_open=True)),
         InputPort("orientation_tolerance", PortType.FLOAT, 0.005, "Largest IK orientation error accepted (rad).", valid=Range(0.0, math.pi, "rad", min_open=True)),
     ) + _MoveToJoints.common_ports

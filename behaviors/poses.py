@@ -321,7 +321,7 @@ class TransformPose(SceneBehavior):
     description = "Apply an offset (in the pose's own axes) to a PoseStamped and express it in another frame."
     ports = (
         InputPort("input_pose", PortType.ANY, description="The pose to transform (geometry_msgs/PoseStamped), e.g. {cube_pose}."),
-        InputPort("target_frame_id", PortType.STRING, WORLD_FRAME, "Frame to express the result in."),
+        InputPort("target_frame_id", PortType.STRING, WORLD_FRAME, "Frame to express the result in.", names=Names(NameKind.FRAME)),
         InputPort("translation_xyz", PortType.FLOAT_LIST, "0;0;0", "Offset x;y;z (m) in the input pose's own axes.", valid=Range(-100.0, 100.0, "m")),
         InputPort("quaternion_xyzw", PortType.FLOAT_LIST, "0;0;0;1", "Rotation offset x;y;z;w in the input pose's own axes.", valid=Range(-1.0, 1.0)),
         InputPort("visualize_pose", PortType.BOOL, False, f"Also draw the result on {MARKER_TOPIC} (visualization_msgs/MarkerArray: axes x red, y green, z blue)."),

@@ -16,7 +16,7 @@ from geometry_msgs.msg import PoseStamped
 from sensor_msgs.msg import JointState
 
 from runtime.behavior import Behavior, Status
-from runtime.ports import InputPort, OutputPort, PortType
+from runtime.ports import InputPort, NameKind, Names, OutputPort, PortType
 from runtime.timestamps import time_msg
 
 from .poses import NO_SCENE, WORLD_FRAME, FrameError, SceneBehavior, frame_in_world, matrix_to_pose
@@ -84,7 +84,7 @@ class GetJointState(Behavior):
     description: ClassVar[str] = "Write the joint state of a planning group's joints from a scene captured by GetCurrentPlanningScene."
     ports = (
         InputPort("planning_scene", PortType.ANY, "{planning_scene}", "A scene from GetCurrentPlanningScene."),
-        InputPort("planning_group_name", PortType.STRING, "manipulator", "SRDF joint group whose joints are written."),
+        InputPort("planning_group_name", PortType.STRING, "manipulator", "SRDF joint group whose joints are written.", names=Names(NameKind.JOINT_GROUP)),
         OutputPort("joint_state", PortType.JOINT_STATE, "The group's joint positions.", default="{joint_state}"),
         OutputPort("joint_positions", PortType.FLOAT_LIST, "The same positions as a vector of numbers, for GetElementOfVector and Scripts (not in MoveIt Pro)."),
     )

@@ -11,7 +11,7 @@ from __future__ import annotations
 from typing import Any
 
 from runtime.behavior import Status
-from runtime.ports import InputPort, PortType
+from runtime.ports import InputPort, NameKind, Names, PortType
 
 from .poses import NO_SCENE, FrameError, SceneBehavior
 
@@ -84,8 +84,8 @@ class AttachObject(SceneBehavior):
 
     description = "Attach a planning-scene object to a robot link (it then moves with the link in every check)."
     ports = (
-        InputPort("object_name", PortType.STRING, description="World object to attach, e.g. cube_blue."),
-        InputPort("link_name", PortType.STRING, "gripper_base", "Robot link that carries it."),
+        InputPort("object_name", PortType.STRING, description="World object to attach, e.g. cube_blue.", names=Names(NameKind.OBJECT)),
+        InputPort("link_name", PortType.STRING, "gripper_base", "Robot link that carries it.", names=Names(NameKind.FRAME)),
         InputPort("touch_links", PortType.STRING_LIST, "", "Links or groups it may touch while carried, e.g. gripper (the fingers)."),
     )
 

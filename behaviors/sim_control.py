@@ -92,7 +92,7 @@ class PlaceSimBox(ChecksPorts, ReadsRobotState, Behavior):
                   valid=Range(-100.0, 100.0, "m"), length=3),
         InputPort("orientation_xyzw", PortType.FLOAT_LIST, "0;0;0;1", "Orientation quaternion x;y;z;w in reference_frame.",
                   valid=Range(-1.0, 1.0), length=4),
-        InputPort("reference_frame", PortType.STRING, "world", "world, a robot frame (e.g. tcp) or a planning-scene object."),
+        InputPort("reference_frame", PortType.STRING, "world", "world, a robot frame (e.g. tcp) or a planning-scene object.", names=Names(NameKind.FRAME)),
         InputPort("add_to_planning_scene", PortType.BOOL, True, "true: the planning scene gets it too (as the cubes); false: only the physics knows it."),
     )
     checked = {

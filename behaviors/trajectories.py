@@ -21,7 +21,8 @@ from sensor_msgs.msg import JointState
 from trajectory_msgs.msg import JointTrajectory
 
 from runtime.behavior import Behavior, Status
-from runtime.ports import InputPort, OutputPort, PortType, Range
+from runtime.errors import SetupError
+from runtime.ports import InputPort, NameKind, Names, OutputPort, PortType, Range
 from runtime.scene import JointLimits
 from runtime.scene.kinematics import frame_pose, solve_ik
 from runtime.timestamps import time_msg
@@ -317,8 +318,8 @@ class PlanCartesianPath(ReadsRobotState, Behavior):
     )
     ports = (
         InputPort("path", PortType.POSE_STAMPED_LIST, description="Waypoints for the tip (PoseStamped, any known frame)."),
-        InputPort("planning_group_name", PortType.STRING, "manipulator", "SRDF joint group to move."),
-        InputPort("tip_links", PortType.STRING_LIST, "tcp", "Robot frame that follows the path (one)."),
+        InputPort("planning_group_name", PortType.STRING, "manipulator", "SRDF joint group to move.", names=Names(NameKind.JOINT_GROUP)),
+        InputPort("tip_links", PortType.STRING_LIST, "tcp", "Robot frame that follows the path (one).", names=Names(NameKind.FRAME)),
         InputPort("tip_offset", PortType.FLOAT_LIST, "0;0;0;0;0;0", "Offset x;y;z;roll;pitch;yaw (m, rad) of the followed point in the tip frame.", valid=Range(-10, 10, "m, rad")),
         InputPort("position_only", PortType.BOOL, False, "Follow positions only; the orientation is free."),
         InputPort("blending_radius", PortType.FLOAT, 0.02, "Accepted for compatibility; the path stops at each waypoint (no blending).", valid=Range(0, 1, "m")),
@@ -390,7 +391,7 @@ class ValidateTrajectory(Behavior):
     )
     ports = (
         InputPort("joint_trajectory_msg", PortType.JOINT_TRAJECTORY, "{joint_trajectory_msg}", "The trajectory to check."),
-        InputPort("planning_group_name", PortType.STRING, "manipulator", "SRDF joint group the trajectory moves."),
+        InputPort("planning_group_name", PortType.STRING, "manipulator", "SRDF joint group the trajectory moves.", names=Names(NameKind.JOINT_GROUP)),
         InputPort("planning_scene_msg", PortType.ANY, "", "Accepted for compatibility; the run's current planning scene is used."),
         InputPort("cartesian_space_step", PortType.FLOAT, 0.02, "Accepted for compatibility (checks are spaced by joint_space_step).", valid=Range(0.0001, 1, "m")),
         InputPort("joint_space_step", PortType.FLOAT, 0.05, "Largest joint step (rad) between checked states.", valid=Range(0.001, 3.15, "rad")),
@@ -426,8 +427,8 @@ class ExecuteTrajectory(ReadsRobotState, SendsTrajectoryGoal):
     ports = (
         InputPort("joint_trajectory_msg", PortType.JOINT_TRAJECTORY, "{joint_trajectory_msg}", "The trajectory, e.g. from PlanCartesianPath."),
         InputPort("execution_pipeline", PortType.STRING, "jtac", "jtac: FollowJointTrajectoryWithAdmittance (jtc is not in this cell)."),
-        InputPort("controller_action_name", PortType.STRING, DEFAULT_CONTROLLER, "The controller's action."),
-        InputPort("planning_group_name", PortType.STRING, "manipulator", "SRDF joint group the trajectory moves (for the checks)."),
+        InputPort("controller_action_name", PortType.STRING, DEFAULT_CONTROLLER, "The controller's action.", names=Names(NameKind.ACTION, FollowTrajectory)),
+        InputPort("planning_group_name", PortType.STRING, "manipulator", "SRDF joint group the trajectory moves (for the checks).", names=Names(NameKind.JOINT_GROUP)),
         InputPort("path_position_tolerance", PortType.FLOAT_LIST, "0.1", "Tracking error (rad) before the controller aborts (one value, or one per joint: the smallest is used).", valid=Range(0, 10, "rad", min_open=True)),
         InputPort("goal_position_tolerance", PortType.FLOAT_LIST, "0.01", "Accepted for compatibility (the controller checks path_position_tolerance).", valid=Range(0, 10, "rad")),
         InputPort("goal_duration_tolerance", PortType.FLOAT, -1.0, "Seconds the goal may run late (-1: the controller's default of 1 s).", valid=Range(-1, 3600, "s")),
@@ -513,8 +514,8 @@ class RetrieveWaypoint(Behavior):
 
     description: ClassVar[str] = "Write a named waypoint of the cell (sim/config/waypoints.yaml) as a JointState of a group's joints."
     ports = (
-        InputPort("waypoint_name", PortType.STRING, description="Name of the waypoint, e.g. Home."),
-        InputPort("joint_group_name", PortType.STRING, "manipulator", "SRDF joint group whose joints are written."),
+        InputPort("waypoint_name", PortType.STRING, description="Name of the waypoint, e.g. Home.", names=Names(NameKind.WAYPOINT)),
+        InputPort("joint_group_name", PortType.STRING, "manipulator", "SRDF joint group whose joints are written.", names=Names(NameKind.JOINT_GROUP)),
         OutputPort("waypoint_joint_state", PortType.JOINT_STATE, "The waypoint's positions for the group's joints."),
         OutputPort("joint_positions", PortType.FLOAT_LIST, "The same positions as a vector of numbers (not in MoveIt Pro)."),
     )
@@ -524,7 +525,7 @@ class RetrieveWaypoint(Behavior):
         waypoints = self.context.resources.get("waypoints") or {}
         name = self.get_input("waypoint_name")
         if name not in waypoints:
-            return self.fail(f"unknown waypoint '{name}' (known: {', '.join(sorted(waypoints)) or 'none are defined'})")
+            raise SetupError(f"unknown waypoint '{name}' (known: {', '.join(sorted(waypoints)) or 'none are defined'})")
         try:
             joints = make_safety(self.context.scene, self.get_input("joint_group_name"), None).group_joints
         except SafetyError as err:

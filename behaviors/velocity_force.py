@@ -19,7 +19,7 @@ from std_msgs.msg import Float64MultiArray
 
 from runtime.behavior import Behavior, Status
 from runtime.decorators import elapsed
-from runtime.ports import InputPort, PortType, Range
+from runtime.ports import InputPort, NameKind, Names, PortType, Range
 from runtime.scene.kinematics import frame_jacobian, frame_pose
 
 from .poses import FrameError, ReadsRobotState
@@ -83,8 +83,8 @@ class PublishVelocityForceCommand(ReadsRobotState, Behavior):
         InputPort("publish_rate", PortType.UINT, 50, "Commands per second of run-clock time (Hz).", valid=Range(1, 1000, "Hz")),
         InputPort("velocity_force_controller_command_topic", PortType.STRING, "/velocity_force_controller/command",
                   "The controller's command topic; joint velocities go to its namespace's /commands."),
-        InputPort("planning_group_name", PortType.STRING, "manipulator", "SRDF joint group the controller moves."),
-        InputPort("tip_link", PortType.STRING, "tcp", "Robot frame the twist moves (not in MoveIt Pro, where the controller sets it)."),
+        InputPort("planning_group_name", PortType.STRING, "manipulator", "SRDF joint group the controller moves.", names=Names(NameKind.JOINT_GROUP)),
+        InputPort("tip_link", PortType.STRING, "tcp", "Robot frame the twist moves (not in MoveIt Pro, where the controller sets it).", names=Names(NameKind.FRAME)),
     )
 
     def initialise(self) -> None:

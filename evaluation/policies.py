@@ -17,7 +17,7 @@ from typing import Any
 from policy.specs import PolicyKind, PolicySpec, PolicySpecError
 from policy.specs import parse_policy as parse_policy_spec
 from runtime.bus import parse_latency
-from runtime.errors import ObjectiveError
+from runtime.errors import ObjectiveError, OptionError
 
 __all__ = ["PolicyHost", "PolicyKind", "PolicySpec", "check_latency", "parse_policy", "policy_digest"]
 
@@ -33,7 +33,7 @@ def parse_policy(text: str | None) -> PolicySpec:
 def check_latency(spec: str) -> None:
     try:
         parse_latency(spec)
-    except ValueError as err:
+    except OptionError as err:
         raise ObjectiveError(f"--policy-latency: {err}") from None
 
 

@@ -32,7 +32,7 @@ from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 from trajectory_msgs.msg import JointTrajectoryPoint
 
 from runtime.timestamps import duration_msg, time_msg, to_seconds
-from runtime.errors import ObjectiveError
+from runtime.errors import ObjectiveError, OptionError
 
 from .backend import PolicyBackend, PolicyRequest, PolicyResponse, PolicyStatus
 from .images import image_to_rgb, rgb_to_image
@@ -280,7 +280,7 @@ class PolicyAdapter:
 
     def __init__(self, backend: PolicyBackend, log_every: int = 50, logger: logging.Logger | None = None) -> None:
         if log_every <= 0:
-            raise ValueError(f"log_every must be positive, got {log_every}")
+            raise OptionError(f"log_every must be positive, got {log_every}")
         self.backend = backend
         self.log_every = log_every
         self.log = logger or logging.getLogger("policy.adapter")

@@ -11,6 +11,7 @@ from pathlib import Path
 
 from runtime.cli import log_to_stderr, positive_float, tcp_port
 from runtime.command import EXIT_BAD_INPUT, EXIT_FAILURE, EXIT_SUCCESS, Command
+from runtime.errors import ObjectiveError
 from runtime.registry import Registry
 
 
@@ -69,7 +70,7 @@ def _serve(args: argparse.Namespace, registry: Registry) -> int:
             serve_forever(server, stop)
         finally:
             restore()
-    except (ValueError, OSError) as err:
+    except (ObjectiveError, OSError) as err:  # a bug is no bad input: it reaches the CLI's crash report
         print(f"error: {err}", file=sys.stderr)
         return EXIT_BAD_INPUT
     return EXIT_SUCCESS
@@ -98,7 +99,7 @@ def _adapter(args: argparse.Namespace, registry: Registry) -> int:
             ca_file=args.ca_file, client_cert=args.client_cert, client_key=args.client_key, log_every=args.log_every,
         )
         return run_adapter_node(config)
-    except ValueError as err:
+    except ObjectiveError as err:
         print(f"error: {err}", file=sys.stderr)
         return EXIT_BAD_INPUT
 
@@ -137,7 +138,7 @@ def _smoke_test(args: argparse.Namespace, registry: Registry) -> int:
             synthetic_joints=args.synthetic_joints, urdf=args.urdf, srdf=args.srdf,
         )
         report = run_smoke_test(config)
-    except ValueError as err:
+    except ObjectiveError as err:
         print(f"error: {err}", file=sys.stderr)
         return EXIT_BAD_INPUT
     print(report.table())

@@ -36,7 +36,7 @@ from pathlib import Path
 from typing import Any
 from urllib.parse import urlsplit
 
-from runtime.errors import ObjectiveError
+from runtime.errors import ObjectiveError, OptionError
 
 from .backend import PolicyRequest, PolicyResponse
 from .wire import CONTENT_TYPE, WireError, decode_response, encode_request, read_error
@@ -147,9 +147,9 @@ class ClientConfig:
 
     def __post_init__(self) -> None:
         if not self.timeout > 0:
-            raise ValueError(f"timeout must be positive, got {self.timeout}")
+            raise OptionError(f"timeout must be positive, got {self.timeout}")
         if self.client_key is not None and self.client_cert is None:
-            raise ValueError("a client key needs its client certificate (--client-cert)")
+            raise OptionError("a client key needs its client certificate (--client-cert)")
 
 
 class HttpBackend:

@@ -51,6 +51,8 @@ from typing import Any, Callable
 
 import numpy as np
 
+from runtime.errors import OptionError
+
 from .backend import PolicyBackend, PolicyRequest
 from .factory import build_backend, is_factory_spec
 from .http_client import is_loopback
@@ -79,7 +81,7 @@ def execution_horizon(frozen_prefix_steps: int, guidance_horizon: int, default_g
     robot is already executing.
     """
     if frozen_prefix_steps < 0 or guidance_horizon < 0 or default_guidance < 0:
-        raise ValueError("frozen_prefix_steps, guidance_horizon and default_guidance must be >= 0")
+        raise OptionError("frozen_prefix_steps, guidance_horizon and default_guidance must be >= 0")
     width = guidance_horizon if guidance_horizon > 0 else default_guidance
     return frozen_prefix_steps + width
 
@@ -116,7 +118,7 @@ def parse_warmup_images(text: str) -> tuple[tuple[str, int, int], ...]:
         name, sep, size = item.partition("=")
         height, x, width = size.lower().partition("x")
         if not sep or not name.strip() or not x or not height.isdigit() or not width.isdigit() or not int(height) or not int(width):
-            raise ValueError(f"warmup image {item!r}: expected name=HEIGHTxWIDTH, e.g. scene=224x224")
+            raise OptionError(f"warmup image {item!r}: expected name=HEIGHTxWIDTH, e.g. scene=224x224")
         specs.append((name.strip(), int(height), int(width)))
     return tuple(specs)
 
@@ -138,22 +140,22 @@ class ServerConfig:
 
     def __post_init__(self) -> None:
         if not self.key and not self.insecure_no_key:
-            raise ValueError(
+            raise OptionError(
                 f"no bearer key: set {KEY_ENV} (the adapter sends the same key), or pass "
                 "--insecure-no-key to serve /infer to any process on this machine"
             )
         if not self.key and not is_loopback(self.host) and self.tls_client_ca is None:
-            raise ValueError(
+            raise OptionError(
                 f"refusing to serve /infer without a bearer key on {self.host}, which is not a loopback address: "
                 f"anyone who can reach the port could drive the robot; set {KEY_ENV}, or require client "
                 "certificates (--tls-client-ca), or bind 127.0.0.1"
             )
         if self.max_body_bytes <= 0:
-            raise ValueError(f"max_body_bytes must be positive, got {self.max_body_bytes}")
+            raise OptionError(f"max_body_bytes must be positive, got {self.max_body_bytes}")
         if (self.tls_cert is None) != (self.tls_key is None):
-            raise ValueError("--tls-cert and --tls-key go together")
+            raise OptionError("--tls-cert and --tls-key go together")
         if self.tls_client_ca is not None and self.tls_cert is None:
-            raise ValueError("--tls-client-ca needs --tls-cert and --tls-key")
+            raise OptionError("--tls-client-ca needs --tls-cert and --tls-key")
 
 
 def exposure_warnings(config: ServerConfig) -> list[str]:
@@ -436,9 +438,9 @@ def replay_backend(options: BackendOptions) -> PolicyBackend:
     from .replay import ReplayBackend
 
     if options.replay_file is None:
-        raise ValueError("--backend replay needs --replay-file FILE (chunks as JSON lines)")
+        raise OptionError("--backend replay needs --replay-file FILE (chunks as JSON lines)")
     if not options.replay_file.is_file():
-        raise ValueError(f"--replay-file {options.replay_file}: no such file")
+        raise OptionError(f"--replay-file {options.replay_file}: no such file")
     return ReplayBackend(options.replay_file)
 
 
@@ -447,9 +449,9 @@ def lerobot_backend(options: BackendOptions) -> PolicyBackend:
     from .lerobot_backend import make_lerobot_backend
 
     if options.checkpoint is None:
-        raise ValueError("--backend lerobot needs --checkpoint DIR (a LeRobot checkpoint folder)")
+        raise OptionError("--backend lerobot needs --checkpoint DIR (a LeRobot checkpoint folder)")
     if not options.checkpoint.is_dir():
-        raise ValueError(f"--checkpoint {options.checkpoint}: no such directory")
+        raise OptionError(f"--checkpoint {options.checkpoint}: no such directory")
     return make_lerobot_backend(options.checkpoint, guidance_horizon=options.default_guidance or None)
 
 
@@ -470,8 +472,8 @@ def make_backend(name: str, options: BackendOptions) -> PolicyBackend:
     if not found and is_factory_spec(name):
         return build_backend(name, options)
     if not found:
-        raise ValueError(f"unknown backend {name!r} (known: {', '.join(backend_names()) or 'none installed'}; "
-                         "or your own factory as FILE.py:NAME or MODULE:NAME)")
+        raise OptionError(f"unknown backend {name!r} (known: {', '.join(backend_names()) or 'none installed'}; "
+                          "or your own factory as FILE.py:NAME or MODULE:NAME)")
     factory: Callable[[BackendOptions], PolicyBackend] = found[0].load()
     return factory(options)
 

@@ -29,6 +29,8 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 
+from runtime.errors import OptionError
+
 PASS, FAIL, INFO, SKIP = "PASS", "FAIL", "info", "skip"
 SYNTHETIC_SIZE = 224
 
@@ -58,29 +60,29 @@ class SmokeConfig:
     def __post_init__(self) -> None:
         if self.synthetic_images:
             if not self.image_names:
-                raise ValueError("--synthetic-images needs --image-names (one frame per name)")
+                raise OptionError("--synthetic-images needs --image-names (one frame per name)")
             if self.image_topics and len(self.image_topics) != len(self.image_names):
-                raise ValueError(f"{len(self.image_topics)} image topics but {len(self.image_names)} image names")
+                raise OptionError(f"{len(self.image_topics)} image topics but {len(self.image_names)} image names")
         elif len(self.image_topics) != len(self.image_names):
-            raise ValueError(
+            raise OptionError(
                 f"{len(self.image_topics)} image topics but {len(self.image_names)} image names: "
                 "the lists are index-aligned, one name per topic"
             )
         if len(set(self.image_names)) != len(self.image_names):
-            raise ValueError(f"image names must be unique: {';'.join(self.image_names)}")
+            raise OptionError(f"image names must be unique: {';'.join(self.image_names)}")
         if self.expected_steps is not None and self.expected_steps < 1:
-            raise ValueError(f"--expected-steps must be at least 1, got {self.expected_steps}")
+            raise OptionError(f"--expected-steps must be at least 1, got {self.expected_steps}")
         if not self.timeout > 0 or not self.wait > 0:
-            raise ValueError("--timeout and --wait must be positive")
+            raise OptionError("--timeout and --wait must be positive")
         if (self.urdf is None) != (self.srdf is None):
-            raise ValueError("--urdf and --srdf go together (the robot description --joint-group is read from)")
+            raise OptionError("--urdf and --srdf go together (the robot description --joint-group is read from)")
         if self.joints and (self.joint_group or self.urdf):
-            raise ValueError("--joints names the joints itself: leave out --joint-group, --urdf and --srdf")
+            raise OptionError("--joints names the joints itself: leave out --joint-group, --urdf and --srdf")
         if not self.joints and not (self.joint_group and self.urdf):
-            raise ValueError("name the joints the policy commands, base to tip: --joints 'a;b;...', "
+            raise OptionError("name the joints the policy commands, base to tip: --joints 'a;b;...', "
                              "or --joint-group NAME with the robot description --urdf FILE --srdf FILE")
         if len(set(self.joints)) != len(self.joints):
-            raise ValueError(f"--joints names a joint twice: {';'.join(self.joints)}")
+            raise OptionError(f"--joints names a joint twice: {';'.join(self.joints)}")
 
 
 @dataclass
@@ -206,10 +208,10 @@ def group_joints(config: SmokeConfig) -> tuple[str, ...]:
         try:
             joints = tuple(RobotModel.from_urdf(config.urdf, config.srdf).group(config.joint_group).joints)
         except GroupError as exc:
-            raise ValueError(str(exc)) from None
+            raise OptionError(str(exc)) from None
     if config.gripper_joint and config.gripper_joint in joints:
         where = f"the group '{config.joint_group}'" if config.joint_group else "--joints"
-        raise ValueError(f"gripper joint '{config.gripper_joint}' is in {where}: it must be outside it")
+        raise OptionError(f"gripper joint '{config.gripper_joint}' is in {where}: it must be outside it")
     return joints
 
 

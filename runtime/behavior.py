@@ -158,46 +158,60 @@ def make_bindings(
     location: SourceLocation | None,
     xml_id: str,
 ) -> dict[str, PortBinding]:
-    """Check XML attribute values against ``cls.ports`` and convert the literals."""
+    """Check XML attribute values against ``cls.ports`` and convert the literals.
+
+    Every port is checked: the PortError raised is the first problem, and its ``also`` holds
+    the others (``objective validate`` reports each).
+    """
     infos = cls.port_info()
+    problems: list[PortError] = []
     for name in values:
         if name not in infos:
             known = ", ".join(sorted(infos)) or "none"
-            raise PortError(f"unknown port '{name}' (ports: {known})", location, xml_id)
+            problems.append(PortError(f"unknown port '{name}' (ports: {known})", location, xml_id))
     bindings: dict[str, PortBinding] = {}
     for name, info in infos.items():
-        if name in values:
-            raw = values[name]
-        elif info.required:
-            raise PortError(f"missing required port '{name}'", location, xml_id)
-        else:
-            # an output's default, if any, is the "{key}" it writes when the XML leaves it unset
-            raw = info.default if info.direction is not Direction.OUTPUT or isinstance(info.default, str) else None
-        if raw is None:
-            bindings[name] = PortBinding(info)
-            continue
         try:
-            key = parse_reference(raw, name) if isinstance(raw, str) else None
-        except ValueError as err:
-            raise PortError(f"port '{name}': {err}", location, xml_id) from None
-        if key is not None:
-            bindings[name] = PortBinding(info, key=key)
-            continue
-        if info.direction is Direction.OUTPUT:
-            raise PortError(
-                f"output port '{name}' must name a blackboard entry like '{{{name}}}', got {raw!r}",
-                location,
-                xml_id,
-            )
-        try:
-            literal = convert(raw, info.type)
-        except ConversionError as err:
-            raise PortError(f"port '{name}' {err}", location, xml_id) from None
-        problem = range_problem(info, literal)
-        if problem is not None:
-            raise PortError(f"port '{name}' {problem}", location, xml_id)
-        bindings[name] = PortBinding(info, literal=literal)
+            bindings[name] = _binding(name, info, values, location, xml_id)
+        except PortError as err:
+            problems.append(err)
+    if problems:
+        problems[0].also = tuple(problems[1:])
+        raise problems[0]
     return bindings
+
+
+def _binding(name: str, info: PortInfo, values: dict[str, str], location: SourceLocation | None, xml_id: str) -> PortBinding:
+    """Port ``name``'s binding from its XML value (or its default); PortError if it has none that works."""
+    if name in values:
+        raw = values[name]
+    elif info.required:
+        raise PortError(f"missing required port '{name}'", location, xml_id)
+    else:
+        # an output's default, if any, is the "{key}" it writes when the XML leaves it unset
+        raw = info.default if info.direction is not Direction.OUTPUT or isinstance(info.default, str) else None
+    if raw is None:
+        return PortBinding(info)
+    try:
+        key = parse_reference(raw, name) if isinstance(raw, str) else None
+    except ValueError as err:
+        raise PortError(f"port '{name}': {err}", location, xml_id) from None
+    if key is not None:
+        return PortBinding(info, key=key)
+    if info.direction is Direction.OUTPUT:
+        raise PortError(
+            f"output port '{name}' must name a blackboard entry like '{{{name}}}', got {raw!r}",
+            location,
+            xml_id,
+        )
+    try:
+        literal = convert(raw, info.type)
+    except ConversionError as err:
+        raise PortError(f"port '{name}' {err}", location, xml_id) from None
+    problem = range_problem(info, literal)
+    if problem is not None:
+        raise PortError(f"port '{name}' {problem}", location, xml_id)
+    return PortBinding(info, literal=literal)
 
 
 class Behavior(NodeMixin, py_trees.behaviour.Behaviour):

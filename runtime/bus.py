@@ -20,6 +20,7 @@ from dataclasses import dataclass
 from typing import Any, Callable, Generic, Protocol, TypeVar
 
 from .clock import Clock
+from .errors import OptionError
 
 T = TypeVar("T")
 
@@ -277,7 +278,7 @@ def read_latency_trace(path: str) -> TraceLatency:
             lines = f.read().splitlines()
     except (OSError, UnicodeDecodeError) as err:
         reason = err.strerror if isinstance(err, OSError) and err.strerror else str(err)
-        raise ValueError(f"latency trace '{path}' cannot be read: {reason}") from None
+        raise OptionError(f"latency trace '{path}' cannot be read: {reason}") from None
     seconds = []
     for number, line in enumerate(lines, 1):
         text = line.split("#", 1)[0].strip()
@@ -286,12 +287,12 @@ def read_latency_trace(path: str) -> TraceLatency:
         try:
             value = float(text)
         except ValueError:
-            raise ValueError(f"{path}:{number}: '{text}' is not a number of seconds") from None
+            raise OptionError(f"{path}:{number}: '{text}' is not a number of seconds") from None
         if not math.isfinite(value) or value < 0:
-            raise ValueError(f"{path}:{number}: a latency must be a finite number of seconds >= 0, got '{text}'")
+            raise OptionError(f"{path}:{number}: a latency must be a finite number of seconds >= 0, got '{text}'")
         seconds.append(value)
     if not seconds:
-        raise ValueError(f"latency trace '{path}' is empty: it needs one latency in seconds per line")
+        raise OptionError(f"latency trace '{path}' is empty: it needs one latency in seconds per line")
     return TraceLatency(seconds, path)
 
 
@@ -306,14 +307,14 @@ def parse_latency(spec: str, seed: int = 0) -> LatencyModel:
         try:
             mean, sd = (float(v) for v in text.split(":", 1)[1].split(","))
         except ValueError:
-            raise ValueError(f"latency '{spec}': expected lognormal:MEAN,SD in seconds, e.g. lognormal:0.3,0.1") from None
+            raise OptionError(f"latency '{spec}': expected lognormal:MEAN,SD in seconds, e.g. lognormal:0.3,0.1") from None
         return LognormalLatency(mean, sd, seed)
     try:
         seconds = float(text)
     except ValueError:
-        raise ValueError(f"latency '{spec}': expected seconds (e.g. 0.3), 'measured', lognormal:MEAN,SD or trace:FILE") from None
+        raise OptionError(f"latency '{spec}': expected seconds (e.g. 0.3), 'measured', lognormal:MEAN,SD or trace:FILE") from None
     if not seconds >= 0:
-        raise ValueError(f"latency '{spec}': must be a number of seconds >= 0")
+        raise OptionError(f"latency '{spec}': must be a number of seconds >= 0")
     return FixedLatency(seconds)
 
 
@@ -554,6 +555,11 @@ class InProcessBus:
     def served(self) -> dict[str, type]:
         """Every service served on this bus now, with its type."""
         return {name: srv_type for name, (srv_type, _) in self._services.items()}
+
+    def call_now(self, name: str, request: Any) -> Any:
+        """The answer of service ``name`` to ``request``, at once and without a latency: for
+        looking at the world before the clock starts (``runtime.world_check``)."""
+        return self._services[name][1](request)
 
     # -- topics ---
     def create_publisher(self, name: str, msg_type: type, reliable: bool = True) -> Publisher:

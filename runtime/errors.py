@@ -40,6 +40,8 @@ class ObjectiveRuntimeError(Exception):
 
     callers: tuple[tuple[SourceLocation, str], ...] = ()
     """The SubTree calls the node is inside, outermost first: (where the call is written, the SubTree's ID)."""
+    also: tuple[ObjectiveRuntimeError, ...] = ()
+    """Errors found with this one (the node's other ports, its children), reported after it."""
 
     def __init__(self, what: str, location: SourceLocation | None = None, node: str | None = None) -> None:
         self.what = what

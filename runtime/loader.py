@@ -535,7 +535,8 @@ class _Builder:
             hint = _suggest(node_id, [s.id for s in self.registry.specs()])
             if node_id in doc.trees or (not hint and self.library.find(node_id, loc) is not None):
                 hint = f"; '{node_id}' is a BehaviorTree: use <SubTree ID=\"{node_id}\"/>"
-            raise LoadError(f"unknown node '{node_id}'{hint or ' (objective behaviors lists the registered nodes)'}", loc, node_id)
+            error = LoadError(f"unknown node '{node_id}'{hint or ' (objective behaviors lists the registered nodes)'}", loc, node_id)
+            raise self._look_into(element, doc, file, blackboard, stack, error)
         cls = spec.cls
         if tag in EXPLICIT_TAGS and cls.kind not in EXPLICIT_TAGS[tag]:
             raise LoadError(f"'{node_id}' is a {cls.kind.value} node, not a{'n' if tag[0] in 'AE' else ''} {tag}", loc, node_id)
@@ -549,6 +550,8 @@ class _Builder:
         try:
             node = cls(name)
             node.bind(self.context, blackboard, values, loc, node_id)
+        except ObjectiveError as err:
+            raise self._look_into(element, doc, file, blackboard, stack, err) from None
         except ObjectiveRuntimeError:
             raise
         except Exception as err:  # a bug in the node's class: one paragraph, the traceback in a file
@@ -567,6 +570,18 @@ class _Builder:
                 node.add_child(child)
         return self._with_conditions(node, conditions, loc, node_id)
 
+    def _look_into(self, element: Any, doc: Document, file: str, blackboard: Blackboard, stack: list[tuple[str, str]],
+                   error: E) -> E:
+        """``error`` of a node that cannot be built; with ``collect``, its children are built for
+        their errors only, which the error carries (``also``) to be reported after its own."""
+        if self.collect:
+            first = len(self.errors)
+            for child_el in _elements(element):
+                self._build_child(child_el, doc, file, blackboard, stack)
+            error.also = (*error.also, *self.errors[first:])
+            del self.errors[first:]
+        return error
+
     def _build_child(
         self, element: Any, doc: Document, file: str, blackboard: Blackboard, stack: list[tuple[str, str]], depth: int
     ) -> py_trees.behaviour.Behaviour | None:
@@ -576,7 +591,7 @@ class _Builder:
         except ObjectiveError as err:
             if not self.collect:
                 raise
-            self.errors.append(err)
+            self.errors.extend([err, *err.also])
             return None
 
     def _check_entry_types(self, node: Any, blackboard: Blackboard, loc: SourceLocation, node_id: str) -> None:
@@ -597,8 +612,8 @@ class _Builder:
                 continue
             port_type = binding.info.type
             raise PortError(
-                f"port '{port}' ({port_type.value}) is wired to blackboard entry '{{{binding.key}}}', which port "
-                f"'{first.port}' of {first.node} ({first.location}) made a {first.type.value}: BehaviorTree.CPP "
+                f"port '{port}' ({port_type.value}) is wired to blackboard entry '{{{binding.key}}}', whose type is "
+                f"{first.type.value} (port '{first.port}' of {first.node} at {first.location}): BehaviorTree.CPP "
                 "refuses one entry with two types (use another entry, or ports of one type)",
                 loc, node_id,
             )
@@ -659,7 +674,9 @@ class _Builder:
         try:
             node.add_child(self.build_tree(tree, child_bb, [*stack, key], depth + 1))
         except ObjectiveError as err:
-            raise err.inside_subtree(loc, tree_id) from None
+            for each in (err, *err.also):
+                each.inside_subtree(loc, tree_id)
+            raise
         finally:
             self.calls.pop()
             for kept in self.errors[first_error:]:
@@ -851,7 +868,7 @@ def validate(
         try:
             loaded = _build(builder, doc, tree)
         except ObjectiveError as err:  # the tree's root itself is broken
-            builder.errors.append(err)
+            builder.errors.extend([err, *err.also])
             loaded = None
         if loaded is not None:
             result.trees.append(loaded)
@@ -860,5 +877,12 @@ def validate(
         for error in builder.errors:  # a SubTree used by several trees has its errors once
             if all(str(error) != str(seen) for seen in result.errors):
                 result.errors.append(error)
+    result.errors.sort(key=_written_at)  # stable: a node's own error before its children's on its line
     return result
+
+
+def _written_at(error: ObjectiveRuntimeError) -> tuple[str, int]:
+    """Where the user wrote what an error is about: the outermost SubTree call, else the node."""
+    where = error.callers[0][0] if error.callers else error.location
+    return (where.file, where.line) if where is not None else ("", 0)
 

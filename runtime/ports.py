@@ -117,6 +117,8 @@ class NameKind(enum.Enum):
     WAYPOINT = "waypoint"
     SERVICE = "service"
     ACTION = "action"
+    CONTROLLER = "controller"
+    """A ros2_control controller the controller manager lists."""
 
 
 @dataclass(frozen=True)

@@ -37,13 +37,24 @@ def _existing(options: dict[str, Any], key: str) -> Path:
 
 
 def load_waypoints_yaml(path: Path) -> dict[str, dict[str, float]]:
-    doc = yaml.safe_load(path.read_text()) or {}
+    """``waypoints: {Name: {joints: [...], positions: [...]}}``; OptionError naming what is wrong."""
+    try:
+        doc = yaml.safe_load(path.read_text()) or {}
+    except yaml.YAMLError as err:
+        raise OptionError(f"{path}: not YAML: {err}") from None
+    waypoints = doc.get("waypoints") if isinstance(doc, dict) else None
+    if not isinstance(waypoints or {}, dict):
+        raise OptionError(f"{path}: 'waypoints' must be a mapping of name -> joints and positions")
     out: dict[str, dict[str, float]] = {}
-    for name, entry in (doc.get("waypoints") or {}).items():
+    for name, entry in (waypoints or {}).items():
+        entry = entry if isinstance(entry, dict) else {}
         joints, positions = entry.get("joints"), entry.get("positions")
         if not isinstance(joints, list) or not isinstance(positions, list) or len(joints) != len(positions):
             raise OptionError(f"{path}: waypoint '{name}' needs equally long 'joints' and 'positions' lists")
-        out[str(name)] = {str(j): float(p) for j, p in zip(joints, positions)}
+        try:
+            out[str(name)] = {str(j): float(p) for j, p in zip(joints, positions)}
+        except (TypeError, ValueError):
+            raise OptionError(f"{path}: waypoint '{name}': positions must be numbers, got {positions}") from None
     return out
 
 

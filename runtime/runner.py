@@ -37,7 +37,7 @@ from .bus import InProcessBus, parse_latency
 from .clock import SimClock, WallClock
 from .controls import SKIPPED, Visit, is_skipped, tick_tree
 from .crash import CRASH_LOG, culprit, describe_crash, write_traceback
-from .errors import ObjectiveError, ObjectiveRuntimeError, error_kind
+from .errors import ObjectiveError, ObjectiveRuntimeError, OptionError, error_kind
 from .events import EventLog
 from .extras import missing_module_message
 from .interrupt import Interrupted, StopRequest, exit_code_for, signal_name
@@ -112,7 +112,7 @@ class RunOptions:
         if self.policy_latency is not None:
             try:
                 parse_latency(self.policy_latency, self.seed)
-            except ValueError as err:
+            except OptionError as err:
                 raise ObjectiveError(f"--policy-latency: {err}") from None
         for name in self.sets:
             if not name or name.strip() != name:

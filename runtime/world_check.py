@@ -1,13 +1,14 @@
 """What an Objective names in the world, checked against the world before anything moves.
 
 A port declared with ``names=Names(kind)`` (``runtime.ports``) names a frame, a planning-scene
-object, a joint group or joint, a waypoint, a service or an action. ``check_names`` reads every
-such port whose value is known before the first tick (a literal, or a blackboard entry a SubTree
-port or ``--set`` filled) and says, for each, what the world does not have, as a ``SetupError``
-at the node's ``file:line`` (and the line of each SubTree call it is inside). The runner calls it
-once the world has started (so a typo ends the run as ERROR before the first tick), and
-``objective validate --world`` reports every problem of a file. Values a script computes are known
-only when the node reads them; behaviors raise a ``SetupError`` for them then.
+object, a joint group or joint, a waypoint, a controller, a service or an action.
+``check_names`` reads every such port whose value is known before the first tick (a literal, or a
+blackboard entry a SubTree port or ``--set`` filled) and says, for each, what the world does not
+have, as a ``SetupError`` at the node's ``file:line`` (and the line of each SubTree call it is
+inside). The runner calls it once the world has started (so a typo ends the run as ERROR before
+the first tick), and ``objective validate --world`` reports every problem of a file. Values a
+script computes are known only when the node reads them; behaviors raise a ``SetupError`` for
+them then.
 """
 from __future__ import annotations
 
@@ -20,7 +21,7 @@ from .behavior import RunContext
 from .errors import PortError, SetupError
 from .ports import Direction, NameKind, Names, PortType
 
-WORLD_FRAMES = frozenset({"world", "map"})
+WORLD_FRAMES = frozenset({"world"})
 
 
 @dataclass(frozen=True)
@@ -35,6 +36,7 @@ class WorldFacts:
     waypoints: frozenset[str] | None = None
     services: dict[str, type] | None = None
     actions: dict[str, type] | None = None
+    controllers: frozenset[str] | None = None
     listed_frames: tuple[str, ...] = field(default=())
     """The frames a message lists: objects, world, robot links (the model's other frames are not listed)."""
 
@@ -57,7 +59,7 @@ class WorldFacts:
             facts["waypoints"] = frozenset(context.resources["waypoints"])
         bus = context.bus
         if callable(getattr(bus, "served", None)) and callable(getattr(bus, "action_servers", None)):
-            facts.update(services=bus.served(), actions=bus.action_servers())
+            facts.update(services=bus.served(), actions=bus.action_servers(), controllers=_controllers(bus))
         return cls(**facts)
 
     def problem(self, names: Names, value: str) -> str | None:
@@ -75,7 +77,7 @@ class WorldFacts:
             return None
         known = {
             NameKind.FRAME: self.frames, NameKind.OBJECT: self.objects, NameKind.JOINT_GROUP: self.groups,
-            NameKind.JOINT: self.joints, NameKind.WAYPOINT: self.waypoints,
+            NameKind.JOINT: self.joints, NameKind.WAYPOINT: self.waypoints, NameKind.CONTROLLER: self.controllers,
         }[kind]
         if known is None or value in known:
             return None
@@ -104,9 +106,10 @@ def _named(nodes: Iterable[Any]) -> Iterator[tuple[Any, str, Names, str]]:
     """(record, port, what it names, value) for each name a port gives before the first tick."""
     for record in nodes:
         node = record.node
+        lenient = node.lenient_names() if callable(getattr(node, "lenient_names", None)) else ()
         for port, binding in getattr(node, "bindings", {}).items():
             names = binding.info.names
-            if names is None or binding.info.direction is Direction.OUTPUT:
+            if names is None or binding.info.direction is Direction.OUTPUT or port in lenient:
                 continue
             try:
                 value = node.get_input(port)
@@ -158,6 +161,15 @@ def started_world(name: str, options: dict[str, Any]) -> Iterator[StartedWorld]:
             context.bus.close()
 
 
+def _controllers(bus: Any) -> frozenset[str] | None:
+    """The controllers an in-process controller manager lists (None when none is served)."""
+    listers = [name for name, srv_type in bus.served().items() if srv_type.__name__ == "ListControllers"]
+    if len(listers) != 1:
+        return None
+    srv_type = bus.served()[listers[0]]
+    return frozenset(c.name for c in bus.call_now(listers[0], srv_type.Request()).controller)
+
+
 def _model_frames(robot: Any) -> Iterable[str]:
     model = getattr(robot, "model", None)
     frames = getattr(model, "frames", None)
@@ -165,7 +177,7 @@ def _model_frames(robot: Any) -> Iterable[str]:
 
 
 def _hint(value: str, known: Iterable[str]) -> str:
-    close = difflib.get_close_matches(value, sorted(known), n=1, cutoff=0.6)
+    close = difflib.get_close_matches(value, sorted(known), n=1, cutoff=0.75)
     return f" (did you mean '{close[0]}'?)" if close else ""
 
 
@@ -176,5 +188,6 @@ def _listing(names: Iterable[str], most: int = 12) -> str:
 
 
 def _type_name(interface: type) -> str:
+    """``control_msgs/action/GripperCommand``: the package, the kind of interface and the name."""
     module = interface.__module__.split(".")
-    return f"{module[0]}/{module[-1].lstrip('_')}/{interface.__name__}" if len(module) > 1 else interface.__name__
+    return f"{module[0]}/{module[1]}/{interface.__name__}" if len(module) > 2 else interface.__name__

@@ -9,6 +9,7 @@ import sys
 from pathlib import Path
 
 from runtime.command import EXIT_BAD_INPUT, EXIT_FAILURE, EXIT_SUCCESS, Command
+from runtime.errors import ObjectiveError
 from runtime.registry import Registry
 
 
@@ -32,7 +33,7 @@ def _record_demos(args: argparse.Namespace, registry: Registry) -> int:
             episodes=args.episodes, seed=args.seed, out=args.out, world=args.world, image_size=args.image_size,
             total_steps=args.steps, prompt=args.prompt, keep_failed=args.keep_failed, overwrite=args.overwrite,
         ))
-    except ValueError as err:
+    except ObjectiveError as err:
         print(f"error: {err}", file=sys.stderr)
         return EXIT_BAD_INPUT
     except RuntimeError as err:

@@ -39,6 +39,8 @@ import numpy as np
 
 from policy.backend import PolicyRequest, PolicyResponse
 
+from runtime.errors import OptionError
+
 LOG = logging.getLogger("objective.demos")
 
 DEFAULT_PROMPT = "stack the blue cube on the green cube"
@@ -229,12 +231,12 @@ def record_demos(options: DemoOptions) -> DemoSummary:
     from sim.oracle import parse_prompt
 
     if options.episodes < 1:
-        raise ValueError(f"--episodes must be >= 1, got {options.episodes}")
+        raise OptionError(f"--episodes must be >= 1, got {options.episodes}")
     top, bottom = parse_prompt(options.prompt)
     out = Path(options.out)
     if out.exists():
         if not options.overwrite:
-            raise ValueError(f"{out} already exists (pass --overwrite to replace it)")
+            raise OptionError(f"{out} already exists (pass --overwrite to replace it)")
         shutil.rmtree(out)
     world_name = options.world or default_world()
     registry = Registry.from_entry_points()

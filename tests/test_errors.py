@@ -117,3 +117,44 @@ def test_evaluation_groups_failures_by_their_kind_not_their_text():
         (None, "cube 0.02 m off", [4]),
     ]
     assert groups[0]["example"].startswith("chunk 6 rejected: densified step 3: joint shoulder_lift_joint velocity")
+
+
+def test_the_report_shows_every_policy_run(tmp_path):
+    from runtime.report.data import Recording
+    from runtime.report.html import _summary_table
+
+    runs = [{"node": "policy", "chunks": 1, "steps_executed": 19, "stall_seconds": 0.0, "message": "the policy answered ERROR"},
+            {"node": "policy", "chunks": 3, "steps_executed": 60, "stall_seconds": 0.2, "message": "executed 60 steps"}]
+    summary = {"status": "FAILURE", "failure_kind": "velocity limit",
+               "execute_policy": {"run_count": 2, "chunks": 4, "steps_executed": 79, "runs": runs}}
+    table = _summary_table(Recording(tmp_path, summary=summary))
+    assert "<th>kind of failure</th><td>velocity limit</td>" in table
+    assert "<th>ExecutePolicy runs</th><td>2</td>" in table and "<th>ExecutePolicy chunks</th><td>4</td>" in table
+    assert "<th>ExecutePolicy run 1 (policy)</th><td>1 chunks, 19 steps, 0.0 s stalled: the policy answered ERROR</td>" in table
+
+
+def test_a_missing_policy_service_is_explained_for_the_mode_the_run_is_in():
+    from behaviors.execute_policy.behavior import ExecutePolicy
+    from runtime.bus import InProcessBus
+    from runtime.clock import SimClock
+
+    def hint(bus) -> str:
+        return ExecutePolicy._policy_hint(SimpleNamespace(context=SimpleNamespace(bus=bus)))
+
+    assert hint(object()) == "start the adapter (`objective adapter`) before running the Objective"  # a ROS 2 graph
+    assert hint(InProcessBus(SimClock())) == "in this run the world serves the policy chosen with --policy; services here: none"
+
+
+def test_an_unknown_controller_the_tree_computes_ends_the_run_as_error(tmp_path):
+    from runtime.registry import Registry
+    from runtime.runner import RunOptions, run_file
+
+    path = tmp_path / "switch.xml"
+    path.write_text("""<root BTCPP_format="4"><BehaviorTree ID="Main"><RetryUntilSuccessful num_attempts="3"><Sequence>
+      <Script code="name := 'joint_trajectory_controller'"/>
+      <SwitchController activate_controllers="{name}" strictness="STRICT"/>
+    </Sequence></RetryUntilSuccessful></BehaviorTree></root>""")
+    result = run_file(path, Registry.from_entry_points(), RunOptions(world="kinematic", max_seconds=10.0))
+    assert (result.status, result.failure_kind, result.failing_node) == ("ERROR", "SetupError", "SwitchController")
+    assert result.reason == (f"{path}:3: SwitchController: unknown controllers: joint_trajectory_controller (known: "
+                             "joint_trajectory_admittance_controller, robotiq_gripper_controller, velocity_force_controller)")

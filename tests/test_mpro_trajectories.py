@@ -288,13 +288,19 @@ def test_execute_trajectory_refuses_positions_alone_that_move_faster_than_the_li
 
 def test_retrieve_waypoint_lists_the_known_waypoints(registry, tmp_path):
     result = run_xml(registry, tmp_path, '<RetrieveWaypoint name="r" waypoint_name="Look at table" waypoint_joint_state="{w}"/>')
-    assert (result.status, result.reason) == ("FAILURE", "unknown waypoint 'Look at table' (known: Home, Observe, Ready)")
+    assert (result.status, result.ticks) == ("ERROR", 0)  # a waypoint the cell lacks: an error of the setup
+    assert result.reason.endswith("RetrieveWaypoint 'r': port 'waypoint_name': unknown waypoint 'Look at table' "
+                                  "(waypoints: Home, Observe, Ready)")
 
 
 def test_move_to_waypoint_jtc_names_the_controllers_when_asked_for_a_plain_jtc(registry, tmp_path):
     result = run_xml(registry, tmp_path, '<SubTree ID="Move to Waypoint (JTC)" waypoint_name="Home" controller_names="joint_trajectory_controller"/>')
-    assert result.status == "FAILURE"
-    assert result.reason.startswith("unknown controllers: joint_trajectory_controller (known: ")
+    assert (result.status, result.ticks) == ("ERROR", 0)  # a controller the cell lacks: an error of the setup
+    assert result.reason.endswith(
+        "objectives/move_to_waypoint_jtc.xml:14: SwitchController: port 'activate_controllers': unknown controller "
+        "'joint_trajectory_controller' (did you mean 'joint_trajectory_admittance_controller'?) (controllers: "
+        "joint_trajectory_admittance_controller, robotiq_gripper_controller, velocity_force_controller)")
+
 
 
 # -- a motion to where the arm already is ---------------------------------------------------------
@@ -333,3 +339,10 @@ def test_a_plan_to_the_current_position_is_one_point_at_time_zero():
     assert (samples.duration_s, samples.positions.tolist()) == (0.0, [[0.2, -0.3]])
     timing = time_path(np.array([[0.2, -0.3], [0.2, -0.3]]), {1}, limits, 0.5, 0.5)
     assert resample(timing, np.array([[0.2, -0.3], [0.2, -0.3]]), 100.0).times.tolist() == [0.0]
+
+
+def test_a_waypoint_name_the_tree_computes_is_checked_when_read(registry, tmp_path):
+    result = run_xml(registry, tmp_path, "<Sequence><Script code=\"w := 'Look at table'\"/>"
+                                         '<RetrieveWaypoint name="r" waypoint_name="{w}" waypoint_joint_state="{j}"/></Sequence>')
+    assert (result.status, result.failure_kind) == ("ERROR", "SetupError")
+    assert result.reason.endswith("RetrieveWaypoint 'r': unknown waypoint 'Look at table' (known: Home, Observe, Ready)")

@@ -62,3 +62,10 @@ def test_missing_description_is_bad_input(robot_files, capsys, drop, message):
     args.remove("--world-option")
     assert main(args) == 2
     assert message in capsys.readouterr().err
+
+
+def test_a_urdf_its_parser_refuses_is_bad_input_not_a_bug(robot_files, capsys):
+    (robot_files / "robot.urdf").write_text('<robot name="x"><joint name="j" type="revolute"><parent link="a"/></joint></robot>')
+    assert main(world_args(robot_files)) == 2
+    err = capsys.readouterr().err
+    assert f"\nerror: world 'robot': {robot_files / 'robot.urdf'}: " in f"\n{err}" and "internal error" not in err

@@ -177,7 +177,8 @@ def test_a_box_placed_at_an_unknown_frame_is_a_setup_error(capsys, tmp_path):
     node = '<PlaceSimBox object_id="b" dimensions="0.1;0.1;0.1" position_xyz="0;0;0" reference_frame="moon"/>'
     code, summary = run_xml(capsys, tmp_path, node)
     assert code == 2 and summary["status"] == "ERROR" and summary["failure_kind"] == "SetupError"
-    assert "PlaceSimBox: unknown frame 'moon' (known: 'world', robot links (" in summary["reason"]
+    assert summary["ticks"] == 0  # found before anything moves
+    assert "PlaceSimBox: port 'reference_frame': unknown frame 'moon' (frames: cube_blue, cube_green, cube_red, table, world, base, " in summary["reason"]
 
 
 def test_a_box_cannot_appear_inside_the_robot_or_a_cube():

@@ -212,7 +212,7 @@ class ExecutePolicy(Behavior):
             cfg.validate(self.config)
             self.safety: MotionSafety = make_safety(self.context.scene, self.config.joint_group_name, self.config.gripper_joint_name or None)
         except (cfg.ConfigError, SafetyError) as err:  # the Objective does not fit this robot: ERROR, never retried
-            raise SetupError(str(err)) from None
+            raise self._setup_error(str(err)) from None
         c, bus = self.config, self.context.bus
         self.shaping = ShapingConfig(c.dt, c.committed_action_steps, c.policy_tracking_weight, c.num_interpolation_points,
                                      self.safety.limits.max_acceleration)
@@ -231,7 +231,7 @@ class ExecutePolicy(Behavior):
                 return self._warmup()
             return self._stream()
         except (ObservationError, SafetyError) as err:  # e.g. joint states without the group's joints
-            raise SetupError(str(err)) from None
+            raise self._setup_error(str(err)) from None
 
     def terminate(self, new_status: Status) -> None:
         if new_status is Status.INVALID and getattr(self, "phase", Phase.DONE) is not Phase.DONE:
@@ -267,7 +267,7 @@ class ExecutePolicy(Behavior):
                                "best-effort publisher matches; is the camera driver publishing there?)")
         if missing:
             if timed_out:  # the Objective names what this robot does not have: ERROR, never retried
-                raise SetupError(f"not available after {STARTUP_WAIT_S:.0f} s: " + "; ".join(missing))
+                raise self._setup_error(f"not available after {STARTUP_WAIT_S:.0f} s: " + "; ".join(missing))
             return Status.RUNNING
         self.rules = self.safety.snapshot()
         self._send_request(new_episode=True, request_step=0, frozen=0, frames=frames)
@@ -614,6 +614,16 @@ class ExecutePolicy(Behavior):
         if status is Status.SUCCESS:
             self.context.logger.info("%s: %s", self.name, message)
         return status
+
+    def _setup_error(self, what: str) -> SetupError:
+        """End this run for a mistake of the setup (goals cancelled, the message kept for the
+        summary): the error to raise, which ends the whole run as ERROR."""
+        self._cancel_goals()
+        self.phase = Phase.DONE
+        self.message = self.metrics.message = what
+        self._write_outputs()
+        self.context.events.emit("policy_finished", self.name, status="ERROR", message=what)
+        return SetupError(what)
 
     def _cancel_goals(self) -> None:
         self.goal = self.goal.cancel()

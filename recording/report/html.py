@@ -60,6 +60,7 @@ def _summary_table(recording: Recording) -> str:
         ("status", s.get("status", "unknown (the run did not finish)")),
         ("failing node", s.get("failing_node")),
         ("reason", s.get("reason")),
+        ("kind of failure", s.get("failure_kind")),
         ("clock time", f"{s['sim_seconds']:.2f} s" if "sim_seconds" in s else None),
         ("wall time", f"{s['wall_seconds']:.2f} s" if "wall_seconds" in s else None),
         ("ticks", s.get("ticks")),
@@ -81,7 +82,7 @@ def _summary_table(recording: Recording) -> str:
 
 def _extras(recording: Recording) -> str:
     s = recording.summary or {}
-    known = {"status", "failing_node", "reason", "sim_seconds", "wall_seconds", "ticks", "execute_policy"}
+    known = {"status", "failing_node", "reason", "failure_kind", "sim_seconds", "wall_seconds", "ticks", "execute_policy"}
     rest = {k: v for k, v in s.items() if k not in known}
     if not rest:
         return ""

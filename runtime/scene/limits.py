@@ -160,9 +160,12 @@ def load_joint_limits(path: str | os.PathLike, position_limits: dict[str, tuple[
 
     Every joint in ``position_limits`` gets an entry; the YAML may not name unknown joints.
     """
-    with open(path) as f:
-        doc = yaml.safe_load(f) or {}
-    table = doc.get("joint_limits", {})
+    try:
+        with open(path) as f:
+            doc = yaml.safe_load(f) or {}
+    except yaml.YAMLError as err:
+        raise OptionError(f"{path}: not YAML: {err}") from None
+    table = doc.get("joint_limits", {}) if isinstance(doc, dict) else None
     if not isinstance(table, dict):
         raise OptionError(f"{path}: 'joint_limits' must be a mapping of joint name -> limits")
     unknown = set(table) - set(position_limits)

@@ -33,6 +33,10 @@ class GroupError(ObjectiveError, ValueError):
     """A joint group that is unknown or cannot be used as asked (e.g. it has two tips)."""
 
 
+class DescriptionError(ObjectiveError, ValueError):
+    """A robot description file (URDF) its parser refuses; the message names the file."""
+
+
 @dataclass(frozen=True)
 class JointCoupling:
     """``joint = multiplier * driver + offset``: a joint moved by another (mimic, linkage)."""
@@ -192,8 +196,11 @@ class RobotModel:
         if not path.is_file():
             raise FileNotFoundError(f"URDF file not found: {path}")
         dirs = [str(d) for d in package_dirs] or [str(path.parent)]
-        model = pin.buildModelFromUrdf(str(path))
-        geometry = pin.buildGeomFromUrdf(model, str(path), pin.COLLISION, package_dirs=dirs)
+        try:
+            model = pin.buildModelFromUrdf(str(path))
+            geometry = pin.buildGeomFromUrdf(model, str(path), pin.COLLISION, package_dirs=dirs)
+        except (ValueError, RuntimeError) as err:  # pinocchio's URDF parser: the file, not a bug here
+            raise DescriptionError(f"{path}: {str(err).strip().splitlines()[0]}") from None
         explicit = _couplings(couplings)
         named = {c.joint for c in explicit}
         mimic = tuple(c for c in _urdf_mimics(path) if c.joint not in named)
