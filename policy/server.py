@@ -27,13 +27,19 @@ cleartext, which is only acceptable on loopback; ``exposure_warnings`` says at s
 configuration exposes. ``--tls-cert/--tls-key`` serve HTTPS instead (``--tls-client-ca``
 also requires client certificates) for a server on another machine.
 
-One inference at a time (a lock): backends keep per-episode state and are not thread-safe.
-Health checks never wait for that lock. Each request is logged on one line with its status and
+One inference at a time (a lock): backends keep per-episode state and are not thread-safe. The
+lock covers the request's decoding too, and at most ``BODIES_AT_ONCE`` bodies are read at a time
+(the other clients wait with their bodies unread), so however many large requests arrive,
+one thread parses while the rest wait without the GIL: ``GET /health`` never waits for the lock
+and answers within a few switch intervals. A request's line and headers must arrive within
+``ServerConfig.header_deadline_s`` of its first byte (a client dripping a byte every few seconds is cut off
+with a ``408`` before its key is read). Each request is logged on one line with its status and
 latency.
 """
 from __future__ import annotations
 
 import hmac
+import io
 import json
 import logging
 import os
@@ -67,6 +73,8 @@ CELL_JOINTS = (
 LOADING, READY, ERROR = "loading", "ready", "error"
 SOCKET_TIMEOUT_S = 30.0
 """A client that stops sending mid-body is dropped after this, so it cannot hold a thread forever."""
+BODIES_AT_ONCE = 4
+"""Request bodies read at the same time (at most this many times ``max_body_bytes`` in memory)."""
 DRAIN_S = 2.0
 
 log = logging.getLogger("policy.server")
@@ -132,6 +140,8 @@ class ServerConfig:
     """The bearer key; None only with ``insecure_no_key``."""
     insecure_no_key: bool = False
     max_body_bytes: int = DEFAULT_MAX_BODY_BYTES
+    header_deadline_s: float = 10.0
+    """Seconds from a request's first byte to the end of its headers; later, ``408`` and closed."""
     warmup: WarmupSpec = field(default_factory=WarmupSpec)
     tls_cert: Path | None = None
     tls_key: Path | None = None
@@ -152,6 +162,8 @@ class ServerConfig:
             )
         if self.max_body_bytes <= 0:
             raise OptionError(f"max_body_bytes must be positive, got {self.max_body_bytes}")
+        if not 0 < self.header_deadline_s < float("inf"):
+            raise OptionError(f"header_deadline_s must be a positive number of seconds, got {self.header_deadline_s}")
         if (self.tls_cert is None) != (self.tls_key is None):
             raise OptionError("--tls-cert and --tls-key go together")
         if self.tls_client_ca is not None and self.tls_cert is None:
@@ -192,6 +204,7 @@ class InferenceServer:
         self.message = "loading the backend"
         self.requests = 0
         self._infer_lock = threading.Lock()
+        self.intake = threading.BoundedSemaphore(BODIES_AT_ONCE)
         self._httpd: ThreadingHTTPServer | None = None
         self._port: int | None = None
         self._threads: list[threading.Thread] = []
@@ -267,15 +280,15 @@ class InferenceServer:
         return hmac.compare_digest(token.strip().encode("utf-8"), self.config.key.encode("utf-8"))
 
     def infer(self, body: bytes) -> Reply:
-        """Decode, run the backend (one at a time), encode."""
+        """Decode and run the backend, one request at a time; encode."""
         if self.status != READY:
             return _error(503, f"policy server is not ready: {self.message}" if self.status == ERROR
                           else f"policy server is still loading ({self.message})")
-        try:
-            request = decode_request(body)
-        except WireError as exc:
-            return _error(400, f"bad request: {exc}")
         with self._infer_lock:
+            try:
+                request = decode_request(body)
+            except WireError as exc:
+                return _error(400, f"bad request: {exc}")
             self.requests += 1
             try:
                 response = self.backend.infer(request)
@@ -305,6 +318,41 @@ def _error(code: int, reason: str) -> Reply:
     return Reply(code, error_body(reason), reason)
 
 
+class _DeadlineReader(io.RawIOBase):
+    """The connection's bytes, read with a deadline: ``start_deadline`` bounds the time until
+    ``clear_deadline`` (the headers of one request); otherwise each read waits at most
+    ``SOCKET_TIMEOUT_S``. ``TimeoutError`` when time is up."""
+
+    def __init__(self, sock: socket.socket) -> None:
+        super().__init__()
+        self.sock = sock
+        self.deadline: float | None = None
+        self.expired = False
+
+    def readable(self) -> bool:
+        return True
+
+    def start_deadline(self, seconds: float) -> None:
+        self.deadline, self.expired = time.monotonic() + seconds, False
+
+    def clear_deadline(self) -> None:
+        self.deadline, self.expired = None, False
+
+    def readinto(self, buffer: Any) -> int:
+        wait = SOCKET_TIMEOUT_S
+        if self.deadline is not None:
+            wait = min(wait, self.deadline - time.monotonic())
+            if wait <= 0:
+                self.expired = True
+                raise TimeoutError("the request's headers did not arrive in time")
+        self.sock.settimeout(wait)
+        try:
+            return self.sock.recv_into(buffer)
+        except TimeoutError:
+            self.expired = self.deadline is not None
+            raise
+
+
 class _Handler(BaseHTTPRequestHandler):
     protocol_version = "HTTP/1.1"
     default_request_version = "HTTP/1.0"
@@ -313,6 +361,40 @@ class _Handler(BaseHTTPRequestHandler):
     timeout = SOCKET_TIMEOUT_S
     server_version = "objective-inference/1"
     app: InferenceServer  # set on the per-server subclass
+
+    def setup(self) -> None:
+        super().setup()
+        self.reader = _DeadlineReader(self.connection)
+        self.rfile = io.BufferedReader(self.reader)
+
+    def handle_one_request(self) -> None:
+        """One request; its line and headers must arrive within ``header_deadline_s`` of its
+        first byte (an idle keep-alive connection waits up to ``SOCKET_TIMEOUT_S`` as before)."""
+        self.reader.clear_deadline()
+        try:
+            self.rfile.peek(1)  # the first byte of the next request (or the end of the connection)
+        except (TimeoutError, OSError):
+            self.close_connection = True
+            return
+        self.reader.start_deadline(self.app.config.header_deadline_s)
+        super().handle_one_request()
+        if self.reader.expired:
+            self.close_connection = True
+            reason = f"the request line and headers did not arrive within {self.app.config.header_deadline_s:g} s"
+            body = error_body(reason)
+            head = (f"HTTP/1.1 408 Request Timeout\r\nContent-Type: {CONTENT_TYPE}\r\nContent-Length: {len(body)}\r\n"
+                    "Connection: close\r\n\r\n")
+            try:
+                self.wfile.write(head.encode("ascii") + body)
+            except OSError:
+                pass
+            log.info("%s request timed out: %s", self.address_string(), reason)
+
+    def parse_request(self) -> bool:
+        """http.server's parsing; the headers are in, so the body is read without the deadline."""
+        parsed = super().parse_request()
+        self.reader.clear_deadline()
+        return parsed
 
     def do_GET(self) -> None:  # noqa: N802 (http.server's naming)
         started = time.monotonic()
@@ -339,15 +421,16 @@ class _Handler(BaseHTTPRequestHandler):
         if length > limit:
             reason = f"request body of {length} bytes exceeds the limit of {limit} bytes"
             return self._refuse(_error(413, reason), started, length)
-        body = self.rfile.read(length)
-        if len(body) != length:
-            self.close_connection = True
-            return self._send(_error(400, f"request body ended after {len(body)} of {length} bytes"), started)
-        try:
-            reply = self.app.infer(body)
-        except Exception as exc:  # a bug here must still answer, never drop the connection
-            log.exception("POST /infer failed")
-            reply = _error(500, f"policy server failed: {type(exc).__name__}: {exc}")
+        with self.app.intake:
+            body = self.rfile.read(length)
+            if len(body) != length:
+                self.close_connection = True
+                return self._send(_error(400, f"request body ended after {len(body)} of {length} bytes"), started)
+            try:
+                reply = self.app.infer(body)
+            except Exception as exc:  # a bug here must still answer, never drop the connection
+                log.exception("POST /infer failed")
+                reply = _error(500, f"policy server failed: {type(exc).__name__}: {exc}")
         self._send(reply, started)
 
     def _refuse(self, reply: Reply, started: float, length: int | None, authenticate: bool = False) -> None:
@@ -363,16 +446,17 @@ class _Handler(BaseHTTPRequestHandler):
         if not length:
             return
         budget = min(length, 2 * self.app.config.max_body_bytes)
-        deadline = time.monotonic() + DRAIN_S
+        self.reader.start_deadline(DRAIN_S)
         try:
-            while budget > 0 and time.monotonic() < deadline:
-                self.connection.settimeout(max(0.01, deadline - time.monotonic()))
+            while budget > 0:
                 piece = self.rfile.read1(min(budget, 1 << 16))
                 if not piece:
                     break
                 budget -= len(piece)
-        except OSError:
+        except OSError:  # TimeoutError included: DRAIN_S is over
             pass
+        finally:
+            self.reader.clear_deadline()
 
     def _send(self, reply: Reply, started: float, authenticate: bool = False) -> None:
         self.send_response(reply.code)
@@ -402,6 +486,7 @@ def _make_httpd(app: InferenceServer) -> ThreadingHTTPServer:
         address_family = socket.AF_INET6 if ":" in config.host else socket.AF_INET
         daemon_threads = True
         allow_reuse_address = True
+        request_queue_size = 64  # connections the kernel holds while the accepting thread waits for the GIL
 
         def handle_error(self, request: Any, client_address: Any) -> None:
             """One log line, not socketserver's traceback on stderr (a client that hung up)."""

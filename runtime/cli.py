@@ -346,7 +346,7 @@ def cmd_show(args: argparse.Namespace, registry: Registry) -> int:
     from .loader import throwaway_context, load_tree
 
     tree = load_tree(args.file, registry, throwaway_context(), args.tree, args.path, args.objectives_dir)
-    print("\n".join(printable(line) for line in tree_text(tree).splitlines()))
+    print("\n".join(printable(line) for line in tree_text(tree).split("\n")))  # not splitlines(): it splits at U+2028 too
     return EXIT_SUCCESS
 
 

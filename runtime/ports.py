@@ -268,13 +268,20 @@ class ConversionError(ObjectiveError, ValueError):
     """A value does not fit its port type; the message says what was expected and what came."""
 
 
+def _plain_number(text: str) -> str:
+    """``text`` when it is written with ASCII characters and no underscores, as BT.CPP reads
+    numbers; Python's own ``int``/``float`` would also take "٣٠", "３０" and "1_000"."""
+    if not text.isascii() or "_" in text:
+        raise ValueError(text)
+    return text
+
+
 def _float(text: str) -> float:
-    value = float(text)
-    return value
+    return float(_plain_number(text))
 
 
 def _int(text: str) -> int:
-    text = text.strip()
+    text = _plain_number(text).strip()
     try:
         return int(text, 0) if text.lower().startswith(("0x", "-0x")) else int(text)
     except ValueError:

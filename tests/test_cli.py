@@ -419,6 +419,20 @@ def test_control_and_bidi_characters_from_an_objective_are_escaped_everywhere(cl
     assert BIDI not in out  # JSON escapes it: \u202e
 
 
+@pytest.mark.parametrize("separator", ["\u2028", "\u2029", "\x85"])
+def test_a_line_separator_in_a_node_name_cannot_forge_a_line_of_objective_show(cli, tmp_path, separator):
+    """On main `show` split its text with str.splitlines(), which also splits at U+2028, U+2029,
+    NEL: a name could print a line of its own that looked like another node."""
+    forged = f"a{separator}    Action AlwaysSuccess  (elsewhere.xml:1)"
+    path = tree_file(tmp_path, f'<Sequence name="{forged}"><AlwaysSuccess/></Sequence>')
+    code, out, err = cli("show", str(path))
+    assert code == 0
+    lines = out.rstrip("\n").split("\n")
+    assert len(lines) == 3 and not any(line.lstrip().startswith("Action AlwaysSuccess  (elsewhere") for line in lines)
+    escaped = {"\u2028": "\\u2028", "\u2029": "\\u2029", "\x85": "\\x85"}[separator]
+    assert f'"a{escaped}    Action AlwaysSuccess  (elsewhere.xml:1)"' in lines[1]
+
+
 def test_printable_escapes_only_what_a_terminal_would_act_on():
     from runtime.terminal import printable
 

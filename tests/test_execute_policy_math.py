@@ -172,9 +172,10 @@ def test_policy_chunk_layout_step_first_offset_zero():
     arr = Float64MultiArray(data=[float(i) for i in range(6)])
     arr.layout.dim = [MultiArrayDimension(label="step", size=3, stride=6), MultiArrayDimension(label="action", size=2, stride=2)]
     assert read_policy_chunk(arr).tolist() == [[0, 1], [2, 3], [4, 5]]
-    arr.layout.data_offset = 1
-    assert read_policy_chunk(arr) is None
     assert read_policy_chunk(Float64MultiArray()) is None
+    arr.layout.data_offset = 1  # the guide reads it as empty, RTC off in silence: here it is refused
+    with pytest.raises(ChunkError, match="policy_action_chunk has data_offset 1: lay it out as"):
+        read_policy_chunk(arr)
 
 
 def test_timing_rules():

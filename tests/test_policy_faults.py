@@ -17,6 +17,7 @@ from typing import Any, Callable
 import numpy as np
 import pytest
 from moveit_pro_ml_msgs.srv import GetActionChunk
+from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
 import policy.node as node_mod
@@ -96,7 +97,8 @@ class Outcome:
 
 def run_with_faults(registry: Registry, handler: Callable[[Any], Any] | None, latency: Any,
                     before: Callable[[Any, KinematicWorld], None] | None = None, ports: str = "") -> Outcome:
-    """ExecutePolicy under ForceSuccess, then a 1 s Wait so the stop after a failure can be seen."""
+    """ExecutePolicy (``BASE`` and ``ports``) under ForceSuccess, then a 1 s Wait so the stop
+    after a failure can be seen."""
     node = (f'<ExecutePolicy policy_service_name="{SERVICE}" joint_group_name="manipulator" {BASE} {ports} '
             'status_message="{message}"/>')
     xml = ('<root BTCPP_format="4"><BehaviorTree ID="T"><Sequence>'
@@ -307,6 +309,76 @@ def test_malformed_answer_stops_the_arm_with_the_reason(registry, fault, status,
     # Decided when the answer lands, one tick after it is due.
     assert out.finished_at - out.requested_at[2] == pytest.approx(0.1, abs=2 * TICK)
     out.assert_stopped_cleanly()
+
+
+def _with_policy_chunk(data: list[float], sizes: list[int], offset: int = 0) -> Callable[[Any], Any]:
+    def answer(request):
+        response = moving_chunk(request)
+        response.policy_action_chunk = Float64MultiArray(data=data)
+        response.policy_action_chunk.layout.dim = [MultiArrayDimension(size=n) for n in sizes]
+        response.policy_action_chunk.layout.data_offset = offset
+        return response
+
+    return answer
+
+
+def _with_period(period: float) -> Callable[[Any], Any]:
+    def answer(request):
+        response = moving_chunk(request)
+        response.native_control_period = period
+        return response
+
+    return answer
+
+
+RTC = 'policy_uses_real_time_chunking="true"'
+LAY_OUT = "lay it out as (steps, action dims), steps first, with data_offset 0"
+
+
+@pytest.mark.parametrize("fault, ports, message", [
+    # on main each was taken in silence: NaN went back to the policy as its previous chunk, the
+    # others turned the carryover off or were ignored
+    (_with_policy_chunk([0.0, float("nan"), 0.0, 0.0], [2, 2]), RTC,
+     "chunk 2 rejected: policy_action_chunk step 0 dim 1 is not finite (nan)"),
+    (_with_policy_chunk([0.0] * 4, [2, 2], offset=1), RTC, f"chunk 2 rejected: policy_action_chunk has data_offset 1: {LAY_OUT}"),
+    (_with_policy_chunk([0.0] * 4, [3, 2]), RTC,
+     f"chunk 2 rejected: policy_action_chunk has 4 values but its layout gives sizes [3, 2]: {LAY_OUT}"),
+    (_with_policy_chunk([0.0] * 4, []), RTC, f"chunk 2 rejected: policy_action_chunk has 4 values but its layout gives sizes []: {LAY_OUT}"),
+    (_with_period(-0.1), "", "chunk 2 rejected: native_control_period is -0.1 s: answer the seconds per step the policy was "
+                             "trained at, or 0 when it has no training rate"),
+    (_with_period(float("nan")), "", "chunk 2 rejected: native_control_period is nan s"),
+], ids=["nan-policy-chunk", "offset", "sizes", "no-dims", "negative-period", "nan-period"])
+def test_a_malformed_rtc_echo_or_period_stops_the_arm_with_the_reason(registry, fault, ports, message):
+    out = run_with_faults(registry, Policy(fault_at=2, fault=fault), FixedLatency(0.1), ports=ports)
+    assert out.status == "FAILURE"
+    assert out.message.startswith(message), out.message
+    out.assert_stopped_cleanly()
+
+
+def test_rtc_without_a_policy_action_chunk_warns_once(registry):
+    out = run_with_faults(registry, Policy(), FixedLatency(0.1), ports=RTC)
+    assert out.status == "SUCCESS", out.message
+    assert [w for w in out.summary["warnings"] if "policy_action_chunk" in w] == [
+        "policy_uses_real_time_chunking is true but chunk 1 carries no policy_action_chunk: the policy gets no "
+        "previous_action_chunk back, so real-time chunking does nothing (send it, or set policy_uses_real_time_chunking=\"false\" "
+        "for a policy without a denoising loop, such as the scripted oracle)"
+    ]
+
+
+@pytest.mark.parametrize("offset_rad, warned", [(0.8, True), (0.15, False)])
+def test_a_first_chunk_far_from_the_arm_warns_naming_the_joint(registry, offset_rad, warned):
+    """0.8 rad on every joint was blended in without a word on main."""
+    def far(request):
+        response = moving_chunk(request)
+        for point in response.chunk.points:
+            point.positions = [p - offset_rad * (j < 6) for j, p in enumerate(point.positions)]
+        return response
+
+    out = run_with_faults(registry, Policy(fault_at=1, fault=far), FixedLatency(0.1))
+    assert out.status == "SUCCESS", out.message
+    expected = [f"chunk 1 starts {offset_rad:.3f} rad from where the arm was at its request (joint shoulder_pan_joint; more than "
+                "0.2 rad): it is blended in, but check the policy's joint order, units and the state it was given"]
+    assert [w for w in out.summary["warnings"] if w.startswith("chunk 1 starts")] == (expected if warned else [])
 
 
 def test_a_chunk_a_million_radians_away_is_reported_by_the_value_the_policy_sent(registry):

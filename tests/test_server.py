@@ -156,6 +156,80 @@ def test_health_answers_while_an_inference_runs():
         server.stop()
 
 
+def test_health_answers_while_many_large_requests_decode(serve, monkeypatch):
+    """20 authenticated 5.8 MB requests at once: they are decoded one at a time (on main all at
+    once, and /health waited for the GIL behind them: 2.2 s with 40), at most BODIES_AT_ONCE
+    bodies are held, every request is answered, and every /health answers "ready" meanwhile."""
+    import policy.server as server_module
+
+    decoding, most = [0], [0]
+    decode = server_module.decode_request
+
+    def counted(body):
+        decoding[0] += 1
+        most[0] = max(most[0], decoding[0])
+        try:
+            return decode(body)
+        finally:
+            decoding[0] -= 1
+
+    monkeypatch.setattr(server_module, "decode_request", counted)
+    server = serve(FakeBackend(chunk_answer))
+    big = encode_request(observation(images={"scene": np.random.default_rng(0).integers(0, 255, (1200, 1200, 3), dtype=np.uint8)}))
+    codes: list[int] = []
+    posts = [threading.Thread(target=lambda: codes.append(call(server, "POST", "/infer", big)[0])) for _ in range(20)]
+    for thread in posts:
+        thread.start()
+    health: list[tuple[int, str, float]] = []
+    while any(thread.is_alive() for thread in posts) and len(health) < 200:
+        started = time.monotonic()
+        code, answer, _ = call(server, "GET", "/health", key=None)
+        health.append((code, answer["status"], time.monotonic() - started))
+    for thread in posts:
+        thread.join(30)
+    assert codes == [200] * 20 and most[0] == 1
+    assert health and all(code == 200 and status == "ready" for code, status, _ in health)
+    assert max(seconds for _, _, seconds in health) < 2.0  # a loose bound: the machine may be loaded
+
+
+def test_a_client_dripping_its_headers_is_cut_off_at_the_deadline(serve):
+    """A byte every 0.2 s kept a connection open forever on main, before its key was read."""
+    server = serve(FakeBackend(chunk_answer), header_deadline_s=1.0)
+    started = time.monotonic()
+    answer = b""
+    with socket.create_connection(("127.0.0.1", server.port), timeout=5) as sock:
+        sock.sendall(b"POST /infer HTTP/1.1\r\n")
+        try:
+            while time.monotonic() - started < 5.0 and not answer:
+                sock.sendall(b"X")
+                time.sleep(0.2)
+                sock.setblocking(False)
+                try:
+                    answer = sock.recv(4096)
+                except BlockingIOError:
+                    pass
+                finally:
+                    sock.setblocking(True)
+        except (BrokenPipeError, ConnectionResetError):
+            pass
+    assert answer.startswith(b"HTTP/1.1 408 "), answer
+    assert b"the request line and headers did not arrive within 1 s" in answer
+    assert time.monotonic() - started < 2.5
+
+
+def test_an_idle_keep_alive_connection_outlives_the_header_deadline(serve):
+    server = serve(FakeBackend(chunk_answer), header_deadline_s=0.5)
+    conn = http.client.HTTPConnection("127.0.0.1", server.port, timeout=5)
+    try:
+        for _ in range(2):
+            conn.request("GET", "/health")
+            response = conn.getresponse()
+            assert response.status == 200 and json.loads(response.read())["status"] == "ready"
+            time.sleep(1.0)  # idle longer than the deadline: it counts from a request's first byte
+    finally:
+        conn.close()
+
+
 def test_warmup_images_option_is_parsed_with_clear_errors():
     assert parse_warmup_images("scene=224x224; wrist=480x640") == (("scene", 224, 224), ("wrist", 480, 640))
     with pytest.raises(ValueError, match="warmup image 'scene=224': expected name=HEIGHTxWIDTH"):

@@ -57,6 +57,13 @@ def test_fit_chunk_equals_scipy_make_smoothing_spline(seed, steps, joints, track
     assert spline.last_step == reference.t[-1] == steps - 1
 
 
+def test_a_long_chunk_is_still_scipy_s_smoothing_spline():
+    steps = 3000
+    chunk = _chunk(9, steps, 7, 1.0)
+    reference = make_smoothing_spline(np.arange(steps, dtype=float), chunk, lam=1.0 / 300.0, axis=0)
+    _assert_same_function(reference, fit_chunk(chunk, 300.0), steps)
+
+
 @pytest.mark.parametrize("steps", [1, 2, 3, 4])
 def test_short_chunks_are_interpolated_as_make_interp_spline_did(steps):
     chunk = _chunk(steps, steps, 3, 1.0)

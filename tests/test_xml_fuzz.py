@@ -268,8 +268,11 @@ ABSURD = [
     "inf", "-inf", "nan", "NaN", "1e309", "-1e309", "1e-300", "-1e-300", "1e300", "-1e300", "-1", "0", "-0",
     "1000000000", "99999999999999999999999999", "1" + "0" * 5000, "0x7fffffffffffffff", "4.5", "1e-3",
     "nan;1;1;1;1;1", "1;1;1;1;1;inf", "1e309;45;45;10;10;10", "-1;-1;-1;-1;-1;-1", "1e300;1e300;1e300;1e300;1e300;1e300",
+    "٣٠", "３０", "1_000", "1;1;1;1;1;１",
 ]
 NON_FINITE = {"inf", "-inf", "nan", "NaN", "1e309", "-1e309"}
+NOT_PLAIN_NUMBERS = {"٣٠", "３０", "1_000", "1;1;1;1;1;１"}
+"""Digits Python reads but BT.CPP does not (non-ASCII digits, underscores): always refused."""
 
 
 def _registered() -> Registry:
@@ -340,6 +343,8 @@ def test_absurd_numbers_in_every_numeric_port_are_accepted_or_refused_by_name(re
         else:  # accepted: then it is a value the port's declared range allows
             assert range_problem(port, convert(value, port.type)) is None, value
         if port.type in (PortType.FLOAT, PortType.FLOAT_LIST) and any(v in NON_FINITE for v in value.split(";")):
+            assert code == 2, f"{node_id}.{port_name} accepted {value!r}"
+        if value in NOT_PLAIN_NUMBERS:
             assert code == 2, f"{node_id}.{port_name} accepted {value!r}"
 
 

@@ -29,7 +29,7 @@ from runtime.ports import Direction
 
 from . import config as cfg
 from .checks import PointChecks
-from .chunk import Chunk, ChunkError, read_chunk, read_policy_chunk
+from .chunk import Chunk, ChunkError, period_problem, read_chunk, read_policy_chunk
 from .gripper import GripperGoal, follow_goals, join_targets
 from .observation import ObservationError, policy_tail, robot_state, stale_observation
 from .planner import (
@@ -57,6 +57,8 @@ from ..trajectory_goal import admittance_goal, trajectory_msg
 STARTUP_WAIT_S = 5.0
 GRIPPER_MAX_EFFORT_N = 60.0  # the 2F-85 holds a 30 mm cube well below its 235 N maximum
 GRIPPER_DEADBAND_RAD = 0.01  # of the driver joint: smaller changes are not re-sent
+FIRST_CHUNK_GAP_RAD = 0.2
+"""A first chunk whose step 0 is further than this from the arm (on any joint) is warned about."""
 MAX_LATE_RETRIES = 3
 LATE_GOAL_CODES = (FollowTrajectory.Result.OLD_HEADER_TIMESTAMP, FollowTrajectory.Result.SEAM_AFTER_TRAJECTORY_END)
 """The controller's answers to a goal that reached it after its seam (decided by code, not text)."""
@@ -205,6 +207,7 @@ class ExecutePolicy(Behavior):
         self.gripper_sent: float | None = None
         self.gripper_goals: list[GripperGoal] = []
         self.warned_period = False
+        self.warned_no_policy_chunk = False
         self.warned_sizing = SizingRisk.COVERED  # the worst sizing risk warned about so far
         self.chunk_steps: int | None = None  # the policy's chunk size, once an answer showed it
         try:
@@ -426,15 +429,26 @@ class ExecutePolicy(Behavior):
         if response.status != GetActionChunk.Response.CHUNK_PRODUCED:
             return self._stop(Status.FAILURE, self._status_reason(response, f"chunk {self.metrics.chunks + 1}"), FailureKind.POLICY_ERROR)
         self.metrics.chunks += 1
+        period = period_problem(response.native_control_period)
+        if period is not None:
+            return self._reject(f"chunk {self.metrics.chunks} rejected: {period}", FailureKind.MALFORMED_CHUNK.value)
         self._check_period(response.native_control_period)
         try:
             chunk = read_chunk(response.chunk, self.safety.group_joints, c.gripper_joint_name or None)
+            policy_chunk = read_policy_chunk(response.policy_action_chunk) if c.policy_uses_real_time_chunking else None
         except ChunkError as err:
             return self._reject(f"chunk {self.metrics.chunks} rejected: {err}", FailureKind.MALFORMED_CHUNK.value)
+        if c.policy_uses_real_time_chunking and policy_chunk is None and not self.warned_no_policy_chunk:
+            self.warned_no_policy_chunk = True
+            self._warn(f"policy_uses_real_time_chunking is true but chunk {self.metrics.chunks} carries no policy_action_chunk: "
+                       "the policy gets no previous_action_chunk back, so real-time chunking does nothing (send it, or set "
+                       "policy_uses_real_time_chunking=\"false\" for a policy without a denoising loop, such as the scripted oracle)")
         chunk = Chunk(chunk.arm, self._settle_gripper(chunk.gripper))
         problem = cfg.committed_window_problem(c.committed_action_steps, chunk.steps) if self.metrics.chunks == 1 else None
         if problem is not None:
             return self._reject(f"chunk 1 rejected: {problem}", SHORT_CHUNK)
+        if self.metrics.chunks == 1:
+            self._check_first_chunk_start(chunk, flight.anchor)
         self.late_retries = 0
         return self._plan_and_send(HeldChunk(chunk, response, flight), now)
 
@@ -481,8 +495,8 @@ class ExecutePolicy(Behavior):
         self.goal = Goal.send(self.controller, self._goal(samples, plan.takes_over_s), now)
         self.committed = plan.committed
         self._queue_gripper(held.chunk, window)
-        policy_chunk = read_policy_chunk(held.response.policy_action_chunk)
-        if c.policy_uses_real_time_chunking:
+        if c.policy_uses_real_time_chunking:  # read (and checked) when the answer came in
+            policy_chunk = read_policy_chunk(held.response.policy_action_chunk)
             self.policy_chunk, self.policy_chunk_request_step = policy_chunk, window.request_step
             self.previous_anchor = held.flight.anchor
         self.context.events.emit(
@@ -709,6 +723,18 @@ class ExecutePolicy(Behavior):
                 f"{period / self.config.dt:.2f}x as fast as trained (the chunk is not retimed)"
             )
         self.warned_period = True
+
+    def _check_first_chunk_start(self, chunk: Chunk, anchor: Any) -> None:
+        """Warn when the first chunk starts far from where the arm was at its request
+        (``FIRST_CHUNK_GAP_RAD``): it is blended in, but such a gap is usually a wrong joint
+        order, unit or robot state."""
+        at_request = np.asarray(anchor.position[:chunk.arm.shape[1]], dtype=float)
+        gap = np.abs(chunk.arm[0] - at_request)
+        if float(gap.max()) > FIRST_CHUNK_GAP_RAD:
+            joint = self.safety.group_joints[int(np.argmax(gap))]
+            self._warn(f"chunk 1 starts {float(gap.max()):.3f} rad from where the arm was at its request (joint {joint}; "
+                       f"more than {FIRST_CHUNK_GAP_RAD} rad): it is blended in, but check the policy's joint order, "
+                       "units and the state it was given")
 
     def _settle_gripper(self, gripper: np.ndarray | None) -> np.ndarray | None:
         """The gripper column clamped into its range where it is a little outside

@@ -8,6 +8,7 @@ A chunk has at most ``MAX_CHUNK_STEPS`` points.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Any, Sequence
 
@@ -96,21 +97,34 @@ def read_chunk(
 
 
 def read_policy_chunk(array: Any) -> np.ndarray | None:
-    """A ``std_msgs/Float64MultiArray`` as (steps, dims), or None when empty.
+    """A ``std_msgs/Float64MultiArray`` as (steps, dims), or None when it is empty (no data).
 
-    The layout must put the step dimension first with ``data_offset`` 0; anything else is
-    treated as empty, as the contract says.
-    """
+    The layout must put the step dimension first with ``data_offset`` 0, and its sizes must
+    account for every value; every value must be finite. Anything else is a ``ChunkError``: the
+    policy means real-time chunking to work, and an echo read as empty would turn it off in
+    silence."""
     data = np.asarray(array.data, dtype=float)
-    if data.size == 0 or array.layout.data_offset != 0:
+    if data.size == 0:
         return None
-    dims = list(array.layout.dim)
-    if len(dims) >= 2:
-        steps, width = int(dims[0].size), int(dims[1].size)
-    elif len(dims) == 1:
-        steps, width = int(dims[0].size), data.size // max(1, int(dims[0].size))
-    else:
+    layout = array.layout
+    fix = "lay it out as (steps, action dims), steps first, with data_offset 0"
+    if layout.data_offset != 0:
+        raise ChunkError(f"policy_action_chunk has data_offset {layout.data_offset}: {fix}")
+    dims = [int(d.size) for d in layout.dim]
+    if len(dims) == 1:
+        dims.append(data.size // max(1, dims[0]))
+    if len(dims) != 2 or dims[0] * dims[1] != data.size or dims[0] == 0:
+        raise ChunkError(f"policy_action_chunk has {data.size} values but its layout gives sizes {dims}: {fix}")
+    bad = ~np.isfinite(data)
+    if bad.any():
+        step, column = divmod(int(np.argmax(bad)), dims[1])
+        raise ChunkError(f"policy_action_chunk step {step} dim {column} is not finite ({data[step * dims[1] + column]})")
+    return data.reshape(dims[0], dims[1])
+
+
+def period_problem(period_s: float) -> str | None:
+    """Why a ``native_control_period`` is not one, or None (0 means no training rate to report)."""
+    if math.isfinite(period_s) and period_s >= 0:
         return None
-    if steps * width != data.size or steps == 0:
-        return None
-    return data.reshape(steps, width)
+    return (f"native_control_period is {period_s:g} s: answer the seconds per step the policy was trained at, "
+            "or 0 when it has no training rate")

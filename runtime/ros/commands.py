@@ -10,7 +10,7 @@ import logging
 import time
 from pathlib import Path
 
-from runtime.cli import _parse_set, add_groot2_arguments, groot2_server, positive_float
+from runtime.cli import parse_set, add_groot2_arguments, groot2_server, positive_float
 from runtime.command import EXIT_SUCCESS, Command
 from runtime.interrupt import StopRequest, stop_on_signals
 from runtime.registry import Registry
@@ -21,7 +21,7 @@ def _arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--path", action="append", type=Path, default=[], metavar="DIR",
                         help="another directory of *.xml to find SubTrees in (after DIR); repeatable")
     parser.add_argument("--world", metavar="NAME", help="world for Objectives that need one (default: the installation's)")
-    parser.add_argument("--world-option", action="append", type=_parse_set, default=[], metavar="KEY=VALUE",
+    parser.add_argument("--world-option", action="append", type=parse_set, default=[], metavar="KEY=VALUE",
                         help="an option of the world (repeatable)")
     parser.add_argument("--policy", metavar="SPEC", help="policy the world serves in headless runs: oracle, replay:FILE or none")
     parser.add_argument("--seed", type=int, default=0, help="seed of every run's world")
