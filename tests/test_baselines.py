@@ -38,7 +38,7 @@ def test_the_lerobot_baseline_runs_lerobot_s_own_queue_code_where_lerobot_is_ins
     try:
         queue = LeRobotQueue()
     except ImportError:
-        pytest.skip("lerobot is not installed (make lerobot)")
+        pytest.skip("lerobot is not in this venv (make lerobot builds .venv-lerobot on Python 3.11; make test runs this file there)")
     from lerobot.async_inference.robot_client import RobotClient
 
     merges: list[int] = []
