@@ -10,7 +10,7 @@ checkout's files. Three installations:
 - ``core``: ``pip install 'WHEEL[ros]'`` into a fresh venv, as a robot computer without a ROS
   install does: the core and the PyPI ROS wheels, no mujoco, matplotlib, foxglove or mcap
   (slow); and, in the default suite, the same core from a view of this venv's packages without
-  the [sim] and [record] extras.
+  the [sim] and [record] extras, and views with one of the two.
 - ``sourced ROS`` (slow): the ROS 2 wheels in a prefix of their own, supplied through
   ``PYTHONPATH`` and ``LD_LIBRARY_PATH`` as ``source /opt/ros/jazzy/setup.bash`` supplies them;
   ``pip install WHEEL`` must pull no second rclpy.
@@ -140,16 +140,29 @@ def extras_top_levels(*extras: str) -> set[str]:
     return tops
 
 
-def core_view(site: Path) -> Path:
+def core_view(site: Path, without: tuple[str, ...] = ("sim", "record")) -> Path:
     """This venv's site-packages as ``site`` (symlinks) without the project and without what the
-    [sim] and [record] extras installed: the core's dependencies and the ROS wheels, nothing more."""
+    extras ``without`` installed (by default: the core's dependencies and the ROS wheels only)."""
     here = Path(sysconfig.get_paths()["purelib"])
-    left_out = extras_top_levels("sim", "record") | {"objective_runtime-0.1.0.dist-info"}
+    left_out = extras_top_levels(*without) | {"objective_runtime-0.1.0.dist-info"}
     site.mkdir(parents=True)
     for entry in here.iterdir():
         if entry.name not in left_out and not entry.name.startswith("__editable__"):
             (site / entry.name).symlink_to(entry)
     return site
+
+
+def viewed(wheel: Path, work: Path, without: tuple[str, ...]) -> tuple[Path, dict[str, str]]:
+    """The wheel ``--no-deps`` in a fresh venv whose dependencies are ``core_view(without)``;
+    its bin/ and the variables its commands need."""
+    venv = _fresh_venv(work / "venv")
+    done = _pip(venv, "install", "--no-deps", "--quiet", str(wheel), cwd=work)
+    assert done.returncode == 0, done.stderr[-3000:]
+    view = core_view(work / "view" / "site-packages", without)
+    (venv / "lib" / PYTHON / "site-packages" / "zz_dependencies.pth").write_text(
+        f"import site; site.addsitedir({str(view)!r})\n")
+    # This venv's ROS wheels keep their libraries in its lib/ (its bootstrapper's path).
+    return venv / "bin", {"LD_LIBRARY_PATH": os.environ.get("LD_LIBRARY_PATH", ""), "_ROS_WHEELS_BOOTSTRAP_COMPLETE": "1"}
 
 
 @pytest.fixture(scope="module", params=["view", pytest.param("pip", marks=pytest.mark.slow)])
@@ -160,16 +173,9 @@ def core(wheel, request, tmp_path_factory) -> tuple[Path, dict[str, str]]:
     packages from an overlay prefix. ``view``: the wheel ``--no-deps``, its dependencies from a
     view of this venv's site-packages without the [sim] and [record] extras (seconds)."""
     work = tmp_path_factory.mktemp(f"core-{request.param}")
-    venv = _fresh_venv(work / "venv")
     if request.param == "view":
-        done = _pip(venv, "install", "--no-deps", "--quiet", str(wheel), cwd=work)
-        assert done.returncode == 0, done.stderr[-3000:]
-        view = core_view(work / "view" / "site-packages")
-        (venv / "lib" / PYTHON / "site-packages" / "zz_dependencies.pth").write_text(
-            f"import site; site.addsitedir({str(view)!r})\n")
-        # This venv's ROS wheels keep their libraries in its lib/ (its bootstrapper's path).
-        return venv / "bin", {"LD_LIBRARY_PATH": os.environ.get("LD_LIBRARY_PATH", ""),
-                              "_ROS_WHEELS_BOOTSTRAP_COMPLETE": "1"}
+        return viewed(wheel, work, without=("sim", "record"))
+    venv = _fresh_venv(work / "venv")
     done = _pip(venv, "install", "--quiet", f"{wheel}[ros]", cwd=work)
     assert done.returncode == 0, done.stderr[-3000:]
     return venv / "bin", interface_overlay(work / "overlay")
@@ -308,6 +314,27 @@ def test_the_core_serves_and_adapts_your_policy_from_one_file(core, outside):
     proc = serve_adapt_and_smoke_test(bin_dir, outside, overlay)
     assert proc.returncode == 0, proc.stdout + proc.stderr
     assert proc.stdout.splitlines()[-1] == "VERDICT: PASS"
+
+
+# -- the core with one extra ------------------------------------------------------------------
+def test_the_sim_extra_alone_runs_the_cell_and_names_the_record_extra(wheel, tmp_path_factory, outside):
+    bin_dir, env = viewed(wheel, tmp_path_factory.mktemp("sim-only"), without=("record",))
+    proc = _run([str(bin_dir / "objective"), "run", "stack_cubes.xml", "--world", "kinematic", "--json"], cwd=outside, env=env)
+    assert proc.returncode == 0, proc.stderr
+    assert json.loads(proc.stdout.strip().splitlines()[-1])["status"] == "SUCCESS"
+    proc = _run([str(bin_dir / "objective"), "run", "stack_cubes.xml", "--world", "kinematic", "--record", "rec"],
+                cwd=outside, env=env)
+    assert proc.returncode == 2 and "error: --record/--live: mcap is not installed: it comes with the [record] extra" in proc.stderr
+
+
+def test_the_record_extra_alone_records_a_run_without_the_cell(wheel, tmp_path_factory, outside):
+    bin_dir, env = viewed(wheel, tmp_path_factory.mktemp("record-only"), without=("sim",))
+    (outside / "wait.xml").write_text('<root BTCPP_format="4"><BehaviorTree ID="W"><Wait seconds="0.5"/></BehaviorTree></root>')
+    proc = _run([str(bin_dir / "objective"), "run", "wait.xml", "--record", "rec"], cwd=outside, env=env)
+    assert proc.returncode == 0, proc.stderr
+    assert (outside / "rec" / "run.mcap").is_file() and (outside / "rec" / "report.html").is_file()
+    proc = _run([str(bin_dir / "objective"), "report", "rec"], cwd=outside, env=env)
+    assert proc.returncode == 0 and str(Path("rec") / "report.html") in proc.stdout, proc.stderr
 
 
 # -- beside a sourced ROS 2 --------------------------------------------------------------------
