@@ -21,6 +21,7 @@ export ROS_LOG_DIR ?= $(CURDIR)/build/ros_log
 # them), and compileall writes them regardless. Only changed modules are compiled again (~0.1 s).
 setup: $(STAMP)
 	@$(PY) -m compileall -q runtime behaviors policy sim evaluation recording
+	@$(PY) -c 'import sys; sys.version_info[:2] == (3, 12) or print(f"make: note: $(VENV) runs Python {sys.version.split()[0]}, not 3.12: `make clean setup` builds it on 3.12")'
 
 $(STAMP): pyproject.toml runtime/build_interfaces.py $(shell find runtime/ros/interfaces -type f 2>/dev/null)
 	@test -x $(PY) || test -n "$(PYTHON)" || { echo "make: no Python 3.12 found (python3.12, ~/.pyenv/versions/3.12.1); name one with PYTHON=..."; exit 2; }
