@@ -21,6 +21,7 @@ export ROS_LOG_DIR ?= $(CURDIR)/build/ros_log
 # them), and compileall writes them regardless. Only changed modules are compiled again (~0.1 s).
 setup: $(STAMP)
 	@$(PY) -m compileall -q runtime behaviors policy sim evaluation recording
+	@$(PY) -c 'import sys; sys.version_info[:2] == (3, 12) or print(f"make: note: $(VENV) runs Python {sys.version.split()[0]}, not 3.12: `make clean setup` builds it on 3.12")'
 
 $(STAMP): pyproject.toml runtime/build_interfaces.py $(shell find runtime/ros/interfaces -type f 2>/dev/null)
 	@test -x $(PY) || test -n "$(PYTHON)" || { echo "make: no Python 3.12 found (python3.12, ~/.pyenv/versions/3.12.1); name one with PYTHON=..."; exit 2; }
@@ -30,24 +31,37 @@ $(STAMP): pyproject.toml runtime/build_interfaces.py $(shell find runtime/ros/in
 	$(PY) -m runtime.build_interfaces --build-dir build/interfaces
 	@touch $(STAMP)
 
-# Optional LeRobot extra (torch CPU + lerobot 0.4.4); see requirements/lerobot.txt for why the order
-# and --no-deps matter: torch==2.13.0 is the local CPU wheel and nothing may pull another torch.
-LEROBOT_STAMP := $(VENV)/.lerobot-stamp
-LEROBOT_PIP := $(PY) -m pip install --quiet -c requirements/lerobot-constraints.txt
+# Optional LeRobot extra, in a venv of its own on Python 3.11 (.venv-lerobot): the only CPU torch
+# wheel here is the local torch 2.13.0+cpu for cp311 (PyPI's cp312 torch is the CUDA build: its
+# import needs libcudnn from gigabytes of nvidia packages), and nothing may pull another torch.
+# The project (with its interface packages) is installed into it too; see requirements/lerobot.txt
+# for why the order and --no-deps matter. `make test` runs the LeRobot tests there when it exists.
+LEROBOT_PYTHON ?= $(firstword $(shell for p in python3.11 $(HOME)/.pyenv/versions/3.11.7/bin/python3.11; do \
+	$$p -c 'import sys' 2>/dev/null && command -v $$p; done))
+LEROBOT_VENV := .venv-lerobot
+LPY := $(LEROBOT_VENV)/bin/python
+LEROBOT_STAMP := $(LEROBOT_VENV)/.lerobot-stamp
+LEROBOT_PIP := $(LPY) -m pip install --quiet -c requirements/lerobot-constraints.txt
+LEROBOT_TESTS := tests/test_lerobot_backend.py tests/test_baselines.py
 
 lerobot: $(LEROBOT_STAMP)
 
-$(LEROBOT_STAMP): $(STAMP) requirements/lerobot.txt requirements/lerobot-constraints.txt policy/lerobot_compat.py
+$(LEROBOT_STAMP): pyproject.toml requirements/lerobot.txt requirements/lerobot-constraints.txt policy/lerobot_compat.py runtime/build_interfaces.py $(shell find runtime/ros/interfaces -type f 2>/dev/null)
+	@test -x $(LPY) || test -n "$(LEROBOT_PYTHON)" || { echo "make: no Python 3.11 found (python3.11, ~/.pyenv/versions/3.11.7); name one with LEROBOT_PYTHON=..."; exit 2; }
+	@test -x $(LPY) || $(LEROBOT_PYTHON) -m venv $(LEROBOT_VENV)
+	$(LPY) -m pip install --quiet --upgrade pip
 	$(LEROBOT_PIP) torch==2.13.0
+	set -o pipefail; $(LEROBOT_PIP) -e '.[sim,record,ros,ros-build,test]' 2>&1 | { grep -v "is ignored: it is neither" || true; }
+	$(LPY) -m runtime.build_interfaces --build-dir build/interfaces-lerobot
 	$(LEROBOT_PIP) --no-deps torchvision==0.28.0 lerobot==0.4.4
 	set -o pipefail; $(LEROBOT_PIP) -r requirements/lerobot.txt 2>&1 | { grep -v "is ignored: it is neither" || true; }
-	HF_HUB_OFFLINE=1 $(PY) -c "from policy.lerobot_compat import ensure_torchvision; print('torchvision ops:', ensure_torchvision()); import lerobot.policies.smolvla.modeling_smolvla, lerobot.async_inference.robot_client"
+	HF_HUB_OFFLINE=1 $(LPY) -c "from policy.lerobot_compat import ensure_torchvision; print('torchvision ops:', ensure_torchvision()); import lerobot.policies.smolvla.modeling_smolvla, lerobot.async_inference.robot_client"
 	@touch $@
 
 # The demo's tiny SmolVLA: records oracle demonstrations (build/demos/stack_cubes, reused when
 # present), trains on CPU for a few minutes (seeded), saves build/policies/tiny_smolvla.
 lerobot-policy: lerobot
-	HF_HUB_OFFLINE=1 $(PY) tools/train_tiny_smolvla.py --episodes 12 --seed 0 --steps 1500 --minutes 8
+	HF_HUB_OFFLINE=1 $(LPY) tools/train_tiny_smolvla.py --episodes 12 --seed 0 --steps 1500 --minutes 8
 
 # Headless Chromium (Debian's package) for the report's browser test; skipped when absent.
 chromium:
@@ -72,6 +86,8 @@ demo: setup
 
 test: setup
 	$(PY) -m pytest -q
+	@if test -f $(LEROBOT_STAMP); then echo "== $(LEROBOT_TESTS) in $(LEROBOT_VENV) (Python 3.11, make lerobot)"; \
+		$(LPY) -m pytest -q $(LEROBOT_TESTS); fi
 
 test-all: setup
 	$(PY) -m pytest -q -m ''
@@ -81,4 +97,4 @@ bench: setup
 	for b in benchmarks/*.py; do echo "== $$b"; $(PY) $$b || exit 1; done
 
 clean:
-	rm -rf $(VENV) build
+	rm -rf $(VENV) $(LEROBOT_VENV) build

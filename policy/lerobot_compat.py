@@ -58,7 +58,7 @@ def ensure_torchvision() -> str:
         return "fallback" if _operator_library is not None else "native"
     spec = importlib.util.find_spec("torchvision")
     if spec is None or not spec.submodule_search_locations:
-        raise ImportError("torchvision is not installed: run `make lerobot`")
+        raise ImportError("torchvision is not installed: run `make lerobot` and use .venv-lerobot (Python 3.11)")
     native = Path(next(iter(spec.submodule_search_locations))) / "_C.so"
     if native.is_file():
         try:

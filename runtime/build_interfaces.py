@@ -16,7 +16,8 @@ Two steps:
    directories of the machine the wheels were built on (``/opt/python/cp311-cp311/...``), and
    CMake refuses imported targets whose include directories do not exist. We point them at this
    interpreter's headers and this venv's numpy headers.
-2. For each package, in dependency order: configure, build and install with cmake (build
+2. For each package, in dependency order (leaving out a package a sourced ROS install already
+   has, found in ``AMENT_PREFIX_PATH``, unless it is named): configure, build and install with cmake (build
    directory ``<build-dir>/<pkg>``, by default ``<venv>/build/objective-interfaces``), unless its sources are unchanged since the last
    successful build (hash stamp) and its Python types still load (the venv may have been
    recreated since).
@@ -197,6 +198,18 @@ def build_package(pkg: Package, prefix: Path, env: dict[str, str], build_dir: Pa
     run_step(pkg, "install", ["cmake", "--install", str(build)], env, log)
 
 
+def provided_elsewhere(name: str, prefix: Path, environ: dict[str, str]) -> Path | None:
+    """The prefix of a sourced ROS (``AMENT_PREFIX_PATH``, other than this venv) that already has
+    the package ``name`` in its ament index; building it here would hide that one."""
+    for entry in environ.get("AMENT_PREFIX_PATH", "").split(os.pathsep):
+        other = Path(entry) if entry else None
+        if other is None or other.resolve() == prefix.resolve():
+            continue
+        if (other / "share" / "ament_index" / "resource_index" / "packages" / name).is_file():
+            return other
+    return None
+
+
 def build_env(prefix: Path) -> dict[str, str]:
     env = dict(os.environ)
     env["PATH"] = f"{prefix / 'bin'}{os.pathsep}{env.get('PATH', '')}"
@@ -251,6 +264,11 @@ def build(args: argparse.Namespace, registry: object = None) -> int:
         toolchain = f"{sys.version}|{prefix}|{hashlib.sha256(Path(__file__).read_bytes()).hexdigest()}"
         for pkg in packages:
             if args.packages and pkg.name not in args.packages:
+                continue
+            elsewhere = provided_elsewhere(pkg.name, prefix, dict(os.environ))
+            if elsewhere is not None and pkg.name not in args.packages:
+                print(f"{pkg.name}: skipped, {elsewhere} has it (name it to build this copy, which would hide that one)",
+                      flush=True)
                 continue
             start = time.monotonic()
             digest = source_hash(pkg, toolchain)

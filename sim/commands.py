@@ -44,7 +44,7 @@ def _record_demos(args: argparse.Namespace, registry: Registry) -> int:
     return EXIT_SUCCESS
 
 
-RECORD_DEMOS = Command("record oracle demonstrations in the cell as a local LeRobot dataset (needs `make lerobot`)",
+RECORD_DEMOS = Command("record oracle demonstrations in the cell as a local LeRobot dataset (needs `make lerobot`: .venv-lerobot/bin/objective)",
                        _arguments, _record_demos)
 
 

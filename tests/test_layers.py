@@ -4,7 +4,8 @@ layers its package may use.
     runtime     the engine: imports only itself
     behaviors   -> runtime
     policy      -> runtime                     (runs beside a real robot: nothing simulated)
-    recording   -> runtime                     (``--record``/``--live`` and the report; attached to
+    recording   -> runtime                     (``--record``/``--live`` and the report, one package whose
+                                                modules import one another in no circle; attached to
                                                 the runner as a run observer, ``runtime.observer``)
     sim         -> runtime, behaviors, policy   (the worked example)
     evaluation  -> all of the above
@@ -163,3 +164,43 @@ def test_a_private_name_of_another_package_is_named(tmp_path):
     (tmp_path / "runtime" / "cli.py").write_text("from .loader import _private_helper\n")
     assert layer_violations(tmp_path) == [
         "evaluation/cli.py:1: evaluation imports runtime.cli: _parse_set (a private name of runtime)"]
+
+
+def import_cycles(root: Path, package: str) -> list[list[str]]:
+    """The groups of ``package``'s modules that import one another in a circle (lazy imports count)."""
+    modules = {}
+    for path in sorted((root / package).rglob("*.py")):
+        module = ".".join(path.relative_to(root).with_suffix("").parts)
+        modules[module.removesuffix(".__init__")] = (path, module)
+    graph = {}
+    for name, (path, module) in modules.items():
+        imported: set[str] = set()
+        for _, target, names in imported_names(path, module):
+            imported |= {t for t in (target, *(f"{target}.{n}" for n in names)) if t in modules and t != name}
+        graph[name] = imported
+    reach = {name: _reachable(graph, name) for name in graph}
+    groups = {tuple(sorted(m for m in reach[name] if name in reach[m])) for name in graph if name in reach[name]}
+    return sorted(list(group) for group in groups)
+
+
+def _reachable(graph: dict[str, set[str]], start: str) -> set[str]:
+    reach, stack = set(), [start]
+    while stack:
+        for nxt in graph[stack.pop()]:
+            if nxt not in reach:
+                reach.add(nxt)
+                stack.append(nxt)
+    return reach
+
+
+def test_the_recording_and_its_report_import_each_other_in_no_circle():
+    assert len(list((ROOT / "recording" / "report").glob("*.py"))) >= 5
+    assert import_cycles(ROOT, "recording") == []
+
+
+def test_a_circle_is_found(tmp_path):
+    (tmp_path / "recording" / "report").mkdir(parents=True)
+    (tmp_path / "recording" / "session.py").write_text("from .report.data import load\n")
+    (tmp_path / "recording" / "report" / "data.py").write_text("def f():\n    from ..session import Session\n")
+    (tmp_path / "recording" / "files.py").write_text("import json\n")
+    assert import_cycles(tmp_path, "recording") == [["recording.report.data", "recording.session"]]

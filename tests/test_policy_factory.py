@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import textwrap
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -137,3 +138,19 @@ def test_run_policy_takes_an_inference_server(capsys, policy_dir):
         server.stop()
     assert code == 1 and summary["failing_node"] == "top cube on bottom cube"
     assert summary["execute_policy"]["chunks"] == 4
+
+
+def test_a_factory_file_travels_to_a_ray_worker_as_its_file(policy_dir, tmp_path):
+    """``objective eval --executor ray`` ships FILE.py of ``FILE.py:NAME`` and names the copy."""
+    from evaluation.config import WorkerSpec
+    from evaluation.policies import parse_policy as eval_policy
+    from evaluation.ray_executor import pack_inputs, unpack_inputs
+
+    spec = WorkerSpec(objective=Path("objectives/stack_cubes.xml").resolve(), world="kinematic",
+                      policy=eval_policy(f"{policy_dir}/my_policy.py:make"))
+    inputs = pack_inputs(spec)
+    assert inputs["policy"] == {"my_policy.py": HOLD.encode()}
+    local = unpack_inputs(spec, inputs, tmp_path / "node")
+    assert local.policy.kind is PolicyKind.FACTORY
+    assert local.policy.text == f"{tmp_path / 'node' / 'policy' / 'my_policy.py'}:make"
+    assert (tmp_path / "node" / "policy" / "my_policy.py").read_text() == HOLD
