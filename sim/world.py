@@ -22,7 +22,7 @@ from runtime.joint_states import joint_state
 from runtime.timestamps import time_msg
 
 from .cell_model import CAMERA_NAMES, CUBE_COLORS, CellOptions
-from .controllers import TRAJECTORY_CONTROLLER, make_controllers
+from .controllers import TRAJECTORY_CONTROLLER, ControllersConfig, JtcParams, make_controllers
 from .embedded_policy import serve_embedded_policy
 from .hardware import Hardware
 from .planning import CubeContact, make_cell_scene, sync_cubes
@@ -56,7 +56,20 @@ class Cell(Hardware, Protocol):
 
 
 COMMON_OPTIONS = ("seed", "realtime", "policy_latency", "record_dir", "policy", "start", "joint_states_reliable",
-                  "image_size", "encoding", "camera_rate_hz", "cube_contact")
+                  "image_size", "encoding", "camera_rate_hz", "cube_contact", "allow_trajectory_replacement")
+
+
+def option_flag(options: dict[str, Any], name: str, default: bool) -> bool:
+    """A yes/no world option: a bool, or "true"/"false" as ``--world-option NAME=VALUE`` gives it."""
+    value = options.get(name, default)
+    if isinstance(value, bool):
+        return value
+    text = str(value).strip().lower()
+    if text in ("true", "1", "yes"):
+        return True
+    if text in ("false", "0", "no"):
+        return False
+    raise ValueError(f"option '{name}' must be true or false, got '{value}'")
 
 
 class CellWorld:
@@ -78,6 +91,11 @@ class CellWorld:
             raise ValueError(f"unknown start waypoint '{start}' (waypoints: {', '.join(self.waypoints)})")
         self.start_arm = np.array([self.waypoints[start][j] for j in ARM_JOINTS])
         self.cube_contact = CubeContact.parse(options.get("cube_contact") or CubeContact.GRIPPER)
+        # The cell's JTC streams from what it commands (interpolate_from_desired_state), as a JTC
+        # that plays streamed goals should; the replacement mode is a world option.
+        replacement = option_flag(options, "allow_trajectory_replacement", True)
+        self.controllers_config = ControllersConfig(
+            joint_trajectory=JtcParams(allow_trajectory_replacement=replacement, interpolate_from_desired_state=True))
         self.cell = make_cell(self.start_arm, self.seed)
         self.boxes = PlacedBoxes()
 
@@ -85,13 +103,13 @@ class CellWorld:
     def start(self, context: RunContext) -> None:
         self.context = context
         bus = context.bus
-        self.controllers = make_controllers(bus, self.cell, context.clock)
+        self.controllers = make_controllers(bus, self.cell, context.clock, self.controllers_config)
         reliable = bool(self.options.get("joint_states_reliable", True))
         self.joint_states = bus.create_publisher("/joint_states", JointState, reliable=reliable)
         rate = float(self.options.get("camera_rate_hz") or 10.0)  # used on real ROS only
         for name, topic in CAMERA_TOPICS.items():
             bus.create_lazy_publisher(topic, Image, functools.partial(self._camera_frame, name), rate_hz=rate)
-        from .sensor_topics import SensorTopics  # camera infos and the wrist wrench
+        from .sensor_topics import SensorTopics  # camera infos
 
         self.sensor_topics = SensorTopics(bus, self.cell, rate)
         for color in CUBE_COLORS:  # the remote oracle's privileged view
