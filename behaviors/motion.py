@@ -1,15 +1,15 @@
 """MoveToJointState and MoveToWaypoint: a time-optimal point-to-point motion within the limits.
 
 The motion is planned with ruckig (jerk-limited, time-optimal, from rest to rest), sampled,
-checked against the planning scene before anything moves, and sent to the admittance
-controller as one trajectory goal.
+checked against the planning scene before anything moves, and sent to the trajectory controller
+as one goal: the admittance controller's or a stock JTC's, whichever type is served under
+``controller_action_name`` (``controller_link``).
 """
 from __future__ import annotations
 
 import math
 
 import numpy as np
-from moveit_pro_controllers_msgs.action import FollowJointTrajectoryWithAdmittance as FollowTrajectory
 from ruckig import InputParameter, Result, Ruckig, Trajectory
 from sensor_msgs.msg import JointState
 from trajectory_msgs.msg import JointTrajectory
@@ -20,6 +20,7 @@ from runtime.ports import InputPort, PortType, Range
 from runtime.trajectory_points import trajectory_points
 
 from runtime.scene import JointLimits
+from .controller_link import ControllerLink, GoalTolerances, trajectory_goal
 from .execute_policy.shaping import Samples
 from .safety import SafetyError, make_safety
 from .waiting import Deadline, when_ready
@@ -68,15 +69,11 @@ def plan_point_to_point(
     return Samples(times, p, v, a)
 
 
-def trajectory_goal(samples: Samples, joints: tuple[str, ...], path_tolerance: float) -> FollowTrajectory.Goal:
-    """A controller goal that starts now and plays ``samples``."""
-    goal = FollowTrajectory.Goal()
+def start_now_trajectory(samples: Samples, joints: tuple[str, ...]) -> JointTrajectory:
+    """A trajectory that starts now (zero stamp) and plays ``samples``."""
     trajectory = JointTrajectory(joint_names=list(joints))
     trajectory.points = trajectory_points(samples.times, samples.positions, samples.velocities, samples.accelerations)
-    goal.joint_trajectory = trajectory
-    goal.path_tolerance = path_tolerance
-    goal.goal_time_tolerance = 1.0
-    return goal
+    return trajectory
 
 
 class _MoveToJoints(Behavior):
@@ -89,7 +86,8 @@ class _MoveToJoints(Behavior):
         InputPort("acceleration_scaling_factor", PortType.FLOAT, 0.5, "Fraction of the joint acceleration limits, in (0, 1].", valid=Range(0.0, 1.0, min_open=True)),
         InputPort("link_padding", PortType.FLOAT, 0.01, "Meters of clearance required from world objects.", valid=Range(0.0, 0.5, "m")),
         InputPort("path_tolerance", PortType.FLOAT, 0.1, "Radians of tracking error before the controller aborts.", valid=Range(0.0, math.pi, "rad", min_open=True)),
-        InputPort("controller_action_name", PortType.STRING, DEFAULT_CONTROLLER, "FollowJointTrajectoryWithAdmittance action."),
+        InputPort("controller_action_name", PortType.STRING, DEFAULT_CONTROLLER,
+                  "The trajectory controller's action: FollowJointTrajectoryWithAdmittance or control_msgs FollowJointTrajectory."),
         InputPort("joint_states_topic", PortType.STRING, "/joint_states", "Where the start state is read."),
         InputPort("timeout", PortType.FLOAT, 5.0, "Seconds to wait for the controller and the joint states.", valid=Range(0.0, 3600.0, "s", min_open=True)),
     )
@@ -107,7 +105,7 @@ class _MoveToJoints(Behavior):
             return
         bus = self.context.bus
         self.action = self.get_input("controller_action_name")
-        self.client = bus.create_action_client(self.action, FollowTrajectory)
+        self.controller = ControllerLink(bus, self.action, self.location, self.xml_id)
         self.topic = self.get_input("joint_states_topic")
         self.joint_states = bus.create_subscription(self.topic, JointState)
         self.deadline = Deadline(self, self.get_input("timeout"))
@@ -133,7 +131,7 @@ class _MoveToJoints(Behavior):
         return Status.SUCCESS
 
     def _plan_and_send(self) -> Status:
-        ready = when_ready(self.client.server_is_ready, self.deadline, f"controller action '{self.action}'")
+        ready = when_ready(self.controller.ready, self.deadline, f"controller action '{self.action}'")
         if ready is not True:
             return self.fail(ready) if isinstance(ready, str) else Status.RUNNING
         state = self.joint_states.latest
@@ -157,7 +155,8 @@ class _MoveToJoints(Behavior):
         collision = self.safety.first_collision(self.safety.snapshot(), samples, self.get_input("link_padding"))
         if collision is not None:
             return self.fail(f"the motion would collide: {collision}")
-        self.goal_future = self.client.send_goal_async(trajectory_goal(samples, joints, self.get_input("path_tolerance")))
+        goal = trajectory_goal(self.controller.kind, start_now_trajectory(samples, joints), GoalTolerances(self.get_input("path_tolerance"), 1.0))
+        self.goal_future = self.controller.client.send_goal_async(goal)
         return Status.RUNNING
 
     def terminate(self, new_status: Status) -> None:

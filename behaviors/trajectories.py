@@ -17,7 +17,6 @@ from typing import Any, ClassVar
 
 import numpy as np
 import yaml
-from moveit_pro_controllers_msgs.action import FollowJointTrajectoryWithAdmittance as FollowTrajectory
 from sensor_msgs.msg import JointState
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
@@ -28,6 +27,7 @@ from runtime.scene import JointLimits
 from runtime.scene.kinematics import frame_pose, solve_ik
 from runtime.timestamps import duration_msg, time_msg
 
+from .controller_link import ControllerKind, ControllerLink, GoalTolerances, trajectory_goal
 from .execute_policy.shaping import Samples
 from .motion import DEFAULT_CONTROLLER, PlanningError
 from .poses import FrameError, ReadsRobotState, RobotState, matrix_to_pose, pose_in_world
@@ -402,18 +402,23 @@ class Phase(enum.Enum):
     EXECUTING = 3
 
 
+PIPELINE_ACTIONS = {"jtac": DEFAULT_CONTROLLER, "jtc": JTC_ACTION}
+"""MoveIt Pro's execution pipelines and the controller action each one uses by default."""
+
+
 class ExecuteTrajectory(ReadsRobotState, Behavior):
-    """MoveIt Pro's ExecuteTrajectory, on the admittance controller (execution_pipeline jtac)."""
+    """MoveIt Pro's ExecuteTrajectory, on the admittance controller or a stock JTC."""
 
     needs_world = True
     description: ClassVar[str] = (
-        "Execute a joint trajectory on the trajectory admittance controller after checking it starts where the arm is, "
-        "within the limits and collision-free; fails when the controller aborts. Only execution_pipeline 'jtac' exists in this cell."
+        "Execute a joint trajectory on the trajectory controller (the admittance controller or a stock JTC, whichever type "
+        "controller_action_name serves) after checking it starts where the arm is, within the limits and collision-free; "
+        "fails when the controller aborts."
     )
     ports = (
         InputPort("joint_trajectory_msg", PortType.JOINT_TRAJECTORY, "{joint_trajectory_msg}", "The trajectory, e.g. from PlanCartesianPath."),
-        InputPort("execution_pipeline", PortType.STRING, "jtac", "jtac: FollowJointTrajectoryWithAdmittance (jtc is not in this cell)."),
-        InputPort("controller_action_name", PortType.STRING, DEFAULT_CONTROLLER, "The controller's action."),
+        InputPort("execution_pipeline", PortType.STRING, "jtac", "jtac (admittance controller) or jtc (joint_trajectory_controller): picks the default controller_action_name."),
+        InputPort("controller_action_name", PortType.STRING, "", "The controller's action (empty: the pipeline's, /joint_trajectory_admittance_controller/... or /joint_trajectory_controller/...)."),
         InputPort("planning_group_name", PortType.STRING, "manipulator", "SRDF joint group the trajectory moves (for the checks)."),
         InputPort("path_position_tolerance", PortType.FLOAT_LIST, "0.1", "Tracking error (rad) before the controller aborts (one value, or one per joint: the smallest is used).", valid=Range(0, 10, "rad", min_open=True)),
         InputPort("goal_position_tolerance", PortType.FLOAT_LIST, "0.01", "Accepted for compatibility (the controller checks path_position_tolerance).", valid=Range(0, 10, "rad")),
@@ -429,31 +434,28 @@ class ExecuteTrajectory(ReadsRobotState, Behavior):
         self.phase = Phase.CONNECT
         self.goal_future = self.result_future = self.handle = None
         pipeline = self.get_input("execution_pipeline").strip().lower()
-        if pipeline != "jtac":
-            self.error = (
-                f"execution_pipeline '{pipeline}' is not available: this cell has only the trajectory admittance controller "
-                "(execution_pipeline 'jtac')"
-            )
+        if pipeline not in PIPELINE_ACTIONS:
+            self.error = f"execution_pipeline '{pipeline}' is not available (pipelines: {', '.join(PIPELINE_ACTIONS)})"
             return
         if self.is_port_set("admittance_parameters_msg"):
             self.error = "admittance_parameters_msg is not supported: the cell's controller keeps its own admittance parameters"
             return
-        self.action = self.get_input("controller_action_name")
-        self.client = self.context.bus.create_action_client(self.action, FollowTrajectory)
+        self.action = self.get_input("controller_action_name") or PIPELINE_ACTIONS[pipeline]
+        self.controller = ControllerLink(self.context.bus, self.action, self.location, self.xml_id)
         self.deadline = Deadline(self, self.get_input("timeout"))
 
     def update(self) -> Status:
         if self.error:
             return self.fail(self.error)
         if self.phase is Phase.CONNECT:
-            ready = when_ready(self.client.server_is_ready, self.deadline, f"controller action '{self.action}'")
+            ready = when_ready(self.controller.ready, self.deadline, f"controller action '{self.action}'")
             if ready is not True:
                 return self.fail(ready) if isinstance(ready, str) else Status.RUNNING
             try:
                 goal = self._goal()
             except (PlanningError, SafetyError, FrameError) as err:
                 return self.fail(str(err))
-            self.goal_future = self.client.send_goal_async(goal)
+            self.goal_future = self.controller.client.send_goal_async(goal)
             self.phase = Phase.SENT
         if self.phase is Phase.SENT:
             if not self.goal_future.done():
@@ -492,13 +494,13 @@ class ExecuteTrajectory(ReadsRobotState, Behavior):
             raise PlanningError(f"path_position_tolerance must be positive, got {tolerances}")
         if threshold and len(threshold) != 6:
             raise PlanningError(f"absolute_force_torque_threshold needs 6 values (Fx;Fy;Fz;Tx;Ty;Tz), got {len(threshold)}")
-        goal = FollowTrajectory.Goal()
-        goal.joint_trajectory = to_trajectory_msg(samples, safety.group_joints, 0.0)
-        goal.path_tolerance = float(min(tolerances)) if tolerances else 0.1
+        if threshold and self.controller.kind is ControllerKind.JTC:
+            raise PlanningError(f"absolute_force_torque_threshold needs the admittance controller: '{self.action}' is a "
+                                "joint_trajectory_controller, whose goal has no force-torque abort")
         duration_tolerance = self.get_input("goal_duration_tolerance")
-        goal.goal_time_tolerance = 1.0 if duration_tolerance < 0 else float(duration_tolerance)
-        goal.absolute_force_torque_threshold = [float(v) for v in threshold]
-        return goal
+        tolerances = GoalTolerances(float(min(tolerances)) if tolerances else 0.1, 1.0 if duration_tolerance < 0 else float(duration_tolerance),
+                                    tuple(float(v) for v in threshold))
+        return trajectory_goal(self.controller.kind, to_trajectory_msg(samples, safety.group_joints, 0.0), tolerances)
 
     def terminate(self, new_status: Status) -> None:
         if new_status is Status.INVALID and getattr(self, "handle", None) is not None:

@@ -28,6 +28,8 @@ from runtime.timestamps import time_msg
 from runtime.trajectory_points import trajectory_points
 
 from . import config as cfg
+from ..controller_link import ControllerKind, ControllerLink, GoalTolerances, jtc_stream_points, trajectory_goal
+from ..wrench_watch import WrenchWatch
 from .checks import PointChecks
 from .chunk import Chunk, ChunkError, read_chunk, read_policy_chunk
 from .gripper import GripperGoal, follow_goals
@@ -144,11 +146,12 @@ class ExecutePolicy(Behavior):
         self.shaping = ShapingConfig(c.dt, c.committed_action_steps, c.policy_tracking_weight, c.num_interpolation_points,
                                      self.safety.limits.max_acceleration)
         self.policy = bus.create_client(c.policy_service_name, GetActionChunk)
-        self.controller = bus.create_action_client(c.controller_action_name, FollowTrajectory)
+        self.controller = ControllerLink(bus, c.controller_action_name, self.location, self.xml_id)
         self.gripper = bus.create_action_client(c.gripper_command_action_name, GripperCommand) if c.has_gripper else None
         self.joint_states = bus.create_subscription(c.joint_states_topic, JointState, reliable=True)
         # Best-effort matches both kinds of camera driver (most publish best-effort sensor-data QoS).
         self.cameras = [bus.create_subscription(t, Image, reliable=False) for t in c.image_topics]
+        self.wrench = WrenchWatch(bus, c.wrench_topic, c.absolute_force_torque_threshold) if c.wrench_topic else None
 
     def update(self) -> Status:
         if self.error is not None:
@@ -182,12 +185,14 @@ class ExecutePolicy(Behavior):
         missing = []
         if not self.policy.service_is_ready():
             missing.append(f"policy service '{c.policy_service_name}' (start the adapter before running the Objective)")
-        if not self.controller.server_is_ready():
+        if not self.controller.ready():  # a name served with another type is an ERROR here
             missing.append(f"controller action '{c.controller_action_name}'")
         if self.gripper is not None and not self.gripper.server_is_ready():
             missing.append(f"gripper action '{c.gripper_command_action_name}'")
         if self.joint_states.latest is None:
             missing.append(f"joint states on '{c.joint_states_topic}' (the publisher must use reliable QoS)")
+        if self.wrench is not None and not self.wrench.has_reading:
+            missing.append(f"a reading on wrench topic '{c.wrench_topic}' (is force_torque_sensor_broadcaster active?)")
         timed_out = now - self.started_at >= STARTUP_WAIT_S
         if missing and not timed_out:
             return Status.RUNNING  # the cameras are looked at once the rest is there (a read may render a frame)
@@ -236,9 +241,12 @@ class ExecutePolicy(Behavior):
 
     def _stream(self) -> Status:
         now = self.context.clock.now()
-        status = self._watch_controller()
+        status = self._watch_controller()  # first: an abort the controller already made is the reason
         if status is not None:
             return status
+        crossing = self.wrench.crossing() if self.wrench is not None else None
+        if crossing is not None:
+            return self._stop(Status.FAILURE, f"force-torque threshold exceeded on '{self.config.wrench_topic}': {crossing}; goal cancelled, robot stopped")
         self._stream_gripper(now)
         problem = follow_goals(self.gripper_goals, self.config.gripper_command_action_name)
         if problem is not None:
@@ -398,7 +406,7 @@ class ExecutePolicy(Behavior):
         # planned again from the same chunk (see _retry_late_goal).
         self.rollback = Rollback(held, self._committed(), self.goal, plan.stall_s)
         self.checked_scene = self._scene_state()  # what the samples were checked against
-        self.goal = self.goal.sent(self.controller.send_goal_async(self._goal(samples, plan.takes_over_s)), now)
+        self.goal = self.goal.sent(self.controller.client.send_goal_async(self._goal(samples, plan.takes_over_s, now)), now)
         self.committed = plan.committed
         self._queue_gripper(held.chunk, window)
         policy_chunk = read_policy_chunk(held.response.policy_action_chunk)
@@ -417,18 +425,24 @@ class ExecutePolicy(Behavior):
             latency=self.metrics.latencies[-1],
         )
 
-    def _goal(self, samples: Samples, seam_time_s: float) -> Any:
+    def _goal(self, samples: Samples, seam_time_s: float, now: float) -> Any:
+        """The controller goal for ``samples`` (from the seam on): stamped at the seam for the
+        admittance controller; for a JTC, led by the motion already sent from where the arm will
+        be when the goal lands (``controller_link.jtc_stream_points``)."""
         c = self.config
-        goal = FollowTrajectory.Goal()
+        stamp_s, seam_index = seam_time_s, None
+        if self.controller.kind is ControllerKind.JTC:
+            lands_s = goal_takes_effect_s(now, self.context.tick_period_s, self.goal_latency_s)
+            jtc = jtc_stream_points(self._committed().samples, samples, lands_s)
+            stamp_s, samples, seam_index = jtc.stamp_s, jtc.samples, jtc.seam_index
         trajectory = JointTrajectory()
-        trajectory.header.stamp = time_msg(seam_time_s)
+        trajectory.header.stamp = time_msg(stamp_s)
         trajectory.joint_names = list(self.safety.group_joints)
-        trajectory.points = trajectory_points(samples.times - seam_time_s, samples.positions, samples.velocities, samples.accelerations)
-        goal.joint_trajectory = trajectory
-        goal.path_tolerance = c.goal_path_tolerance
-        goal.goal_time_tolerance = max(0.5, 5 * c.dt)
-        goal.absolute_force_torque_threshold = list(c.absolute_force_torque_threshold)
-        return goal
+        trajectory.points = trajectory_points(samples.times - stamp_s, samples.positions, samples.velocities, samples.accelerations)
+        if seam_index is not None:
+            trajectory.points[seam_index].accelerations = []
+        tolerances = GoalTolerances(c.goal_path_tolerance, max(0.5, 5 * c.dt), tuple(c.absolute_force_torque_threshold))
+        return trajectory_goal(self.controller.kind, trajectory, tolerances)
 
     # -- controller and gripper --------------------------------------------------------------
     def _watch_controller(self) -> Status | None:
@@ -561,11 +575,13 @@ class ExecutePolicy(Behavior):
         destroy = getattr(bus, "destroy_subscription", None)
         if destroy is None:
             return
-        for sub in [getattr(self, "joint_states", None), *getattr(self, "cameras", [])]:
+        wrench = getattr(self, "wrench", None)
+        for sub in [getattr(self, "joint_states", None), *getattr(self, "cameras", []), wrench.subscription if wrench else None]:
             if sub is not None:
                 destroy(sub)
         self.cameras = []
         self.joint_states = None
+        self.wrench = None
 
     # -- small helpers -----------------------------------------------------------------------
     def _committed(self) -> Committed:

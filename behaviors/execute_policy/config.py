@@ -22,13 +22,14 @@ PORTS = (
     InputPort("policy_call_timeout", PortType.FLOAT, 3.0, "Seconds allowed for one service round trip, warmup included.", valid=Range(0.0, 600.0, "s", min_open=True)),
     InputPort("goal_path_tolerance", PortType.FLOAT, 0.01, "Radians of deviation the controller accepts along the path and where chunks join.", valid=Range(0.0, math.pi, "rad")),
     InputPort("absolute_force_torque_threshold", PortType.FLOAT_LIST, "45;45;45;10;10;10", "Per-axis abort limits Fx;Fy;Fz;Tx;Ty;Tz (N, Nm).", valid=Range(0.0, 100_000.0, "N or Nm", min_open=True)),
-    InputPort("controller_action_name", PortType.STRING, DEFAULT_CONTROLLER_ACTION, "The admittance controller's FollowJointTrajectoryWithAdmittance action."),
+    InputPort("controller_action_name", PortType.STRING, DEFAULT_CONTROLLER_ACTION, "The trajectory controller's action: the admittance controller's FollowJointTrajectoryWithAdmittance or a joint_trajectory_controller's control_msgs FollowJointTrajectory (the type served decides)."),
     InputPort("gripper_command_action_name", PortType.STRING, "", "GripperCommand action; set together with gripper_joint_name."),
     InputPort("gripper_joint_name", PortType.STRING, "", "Single-DOF gripper joint appended to the observation and streamed from the chunk."),
     InputPort("guidance_horizon", PortType.UINT, 0, "RTC: steps past the frozen prefix kept close to the previous chunk; 0 = the server's setting.", valid=Range(0, 10_000)),
     InputPort("image_topics", PortType.STRING_LIST, "", "Camera topics (sensor_msgs/Image), ';'-separated."),
     InputPort("image_names", PortType.STRING_LIST, "", "Names the policy knows the cameras by, index-aligned with image_topics."),
     InputPort("joint_states_topic", PortType.STRING, "/joint_states", "sensor_msgs/JointState topic (reliable QoS)."),
+    InputPort("wrench_topic", PortType.STRING, "", "geometry_msgs/WrenchStamped topic (e.g. /force_torque_sensor_broadcaster/wrench) watched against absolute_force_torque_threshold: the first reading over it stops the run; empty: not watched."),
     OutputPort("steps_executed", PortType.UINT, "Policy steps executed."),
     OutputPort("chunks_received", PortType.UINT, "Chunks received with CHUNK_PRODUCED (the warmup's excluded)."),
     OutputPort("rejection_reason", PortType.STRING, "Why a chunk was rejected (empty when none was)."),
@@ -62,6 +63,7 @@ class PolicyRunConfig:
     image_topics: tuple[str, ...]
     image_names: tuple[str, ...]
     joint_states_topic: str
+    wrench_topic: str
 
     @property
     def has_gripper(self) -> bool:
