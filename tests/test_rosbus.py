@@ -358,3 +358,16 @@ def test_a_goal_finished_inside_on_goal_reaches_the_client(buses, names):
     result = sent.result().get_result_async()
     wait_for(result.done, client_bus, what="the result")
     assert result.result().status == STATUS_ABORTED and result.result().result.position == 0.03
+
+
+def test_the_action_type_served_under_a_name_is_read_from_the_graph(buses, names):
+    from control_msgs.action import FollowJointTrajectory
+
+    server, client = buses("type_server"), buses("type_reader")
+    jtc, gripper = names("jtc/follow_joint_trajectory"), names("gripper_cmd")
+    server.create_action_server(jtc, FollowJointTrajectory, lambda handle: False)
+    server.create_action_server(gripper, GripperCommand, lambda handle: False)
+    wait_for(lambda: client.action_types(jtc) != [] and client.action_types(gripper) != [], client, what="both actions on the graph")
+    assert client.action_types(jtc) == ["control_msgs/action/FollowJointTrajectory"]
+    assert client.action_types(gripper) == ["control_msgs/action/GripperCommand"]
+    assert client.action_types(names("nobody")) == []
