@@ -371,3 +371,29 @@ def test_the_action_type_served_under_a_name_is_read_from_the_graph(buses, names
     assert client.action_types(jtc) == ["control_msgs/action/FollowJointTrajectory"]
     assert client.action_types(gripper) == ["control_msgs/action/GripperCommand"]
     assert client.action_types(names("nobody")) == []
+
+
+@pytest.mark.parametrize("reliable", [True, False])
+def test_the_wrench_watch_hears_reliable_and_best_effort_publishers_over_ros(buses, names, reliable):
+    from geometry_msgs.msg import WrenchStamped
+
+    from behaviors.wrench_watch import WrenchWatch
+
+    sensor, runtime_bus = buses("ft_sensor"), buses("ft_watcher")
+    topic = names("force_torque_sensor_broadcaster/wrench")
+    publisher = sensor.create_publisher(topic, WrenchStamped, reliable=reliable)
+    watch = WrenchWatch(runtime_bus, topic, (45.0, 45.0, 45.0, 10.0, 10.0, 10.0))
+    calm, push = WrenchStamped(), WrenchStamped()
+    push.wrench.force.z = -61.2
+
+    def published_and_heard(msg: WrenchStamped) -> Callable[[], bool]:
+        def check() -> bool:
+            publisher.publish(msg)
+            return watch.has_reading
+        return check
+
+    wait_for(published_and_heard(calm), runtime_bus, what="a reading through the QoS match")
+    assert watch.crossing() is None
+    publisher.publish(push)
+    wait_for(lambda: watch.crossing() is not None, runtime_bus, what="the push")
+    assert watch.crossing() == "Fz = -61.20 N exceeds the absolute threshold 45.00 N"

@@ -457,7 +457,8 @@ class ExecutePolicy(Behavior):
             handle = goal.send_future.result()
             if not handle.accepted:
                 self.goal = Goal()  # nothing of it is playing
-                return self._stop(Status.FAILURE, f"the controller '{name}' rejected the goal")
+                why = " (a joint_trajectory_controller gives its reason only in its own log)" if self.controller.kind is ControllerKind.JTC else ""
+                return self._stop(Status.FAILURE, f"the controller '{name}' rejected the goal{why}")
             self.goal = goal = goal.accepted(handle)
         if goal.state is GoalState.PLAYING and goal.result_future.done():
             outcome = goal.result_future.result()
