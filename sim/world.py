@@ -22,7 +22,7 @@ from runtime.joint_states import joint_state
 from runtime.timestamps import time_msg
 
 from .cell_model import CAMERA_NAMES, CUBE_COLORS, CellOptions
-from .controllers import TRAJECTORY_CONTROLLER, ControllersConfig, JtcParams, make_controllers
+from .controllers import JTC_CONTROLLER, TRAJECTORY_CONTROLLER, ControllersConfig, JtcParams, make_controllers
 from .embedded_policy import serve_embedded_policy
 from .hardware import Hardware
 from .planning import CubeContact, make_cell_scene, sync_cubes
@@ -167,9 +167,10 @@ class CellWorld:
         if self.boxes.boxes:
             summary["boxes"] = self.boxes.summary()
         controllers = getattr(self, "controllers", None)  # absent when the world never started
-        if controllers is not None:  # what the F/T thresholds were compared with
-            summary["peak_force_n"] = round(controllers[TRAJECTORY_CONTROLLER].peak_force_n, 2)
-            summary["peak_torque_nm"] = round(controllers[TRAJECTORY_CONTROLLER].peak_torque_nm, 3)
+        if controllers is not None:  # what the F/T thresholds were compared with, on either trajectory controller
+            arms = (controllers[TRAJECTORY_CONTROLLER], controllers[JTC_CONTROLLER])
+            summary["peak_force_n"] = round(max(c.peak_force_n for c in arms), 2)
+            summary["peak_torque_nm"] = round(max(c.peak_torque_nm for c in arms), 3)
         return summary
 
     def close(self) -> None:

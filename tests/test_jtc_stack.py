@@ -37,6 +37,7 @@ def assert_stacked(result: RunResult) -> None:
     cubes = result.extra["world"]["cubes"]
     offset = np.array(cubes["blue"]) - np.array(cubes["green"])
     assert np.linalg.norm(offset - [0.0, 0.0, CUBE]) < 0.015, cubes
+    assert 0 < result.extra["world"]["peak_force_n"] < 45.0  # measured on the JTC too, below the default threshold
 
 
 @pytest.mark.parametrize("replacement", ["true", "false"])

@@ -184,6 +184,10 @@ class JointTrajectoryController(ArmController):
         self._last_feedback = -math.inf
         self.last_rejection = ""
         """Why the last goal or topic message was refused ("" if none was)."""
+        self.peak_force_n = 0.0
+        """Largest |force| (N, vector norm) at the wrist sensor while playing a trajectory (the
+        cell's measurement for the run summary; a JTC reads no wrench)."""
+        self.peak_torque_nm = 0.0
         bus.create_action_server(self.action_name, FollowJointTrajectory, self._on_goal, self._on_cancel)
         bus.create_subscription(self.topic, JointTrajectory, self._on_topic)
 
@@ -270,6 +274,9 @@ class JointTrajectoryController(ArmController):
         self.hardware.command_arm(desired.position, desired.velocity)
 
     def _supervise(self, t: float, desired: TrajectoryState) -> None:
+        fx, fy, fz, tx, ty, tz = np.asarray(self.hardware.wrench(), dtype=float).tolist()
+        self.peak_force_n = max(self.peak_force_n, math.hypot(fx, fy, fz))
+        self.peak_torque_nm = max(self.peak_torque_nm, math.hypot(tx, ty, tz))
         actual = self._measured_state()
         position_error = desired.position - actual.position
         velocity_error = desired.velocity - actual.velocity
