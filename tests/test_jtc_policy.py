@@ -129,3 +129,11 @@ def test_an_object_appearing_in_the_path_stops_the_arm_on_the_jtc(registry):
     assert run.result.status == "FAILURE"
     assert run.result.reason.startswith("the planning scene changed:") and "intruder" in run.result.reason
     assert not run.world.controllers["joint_trajectory_controller"].executing
+
+
+def test_move_to_waypoint_on_an_action_of_another_type_is_an_error_too(registry, tmp_path):
+    from tests.test_mpro_trajectories import run_xml
+
+    result = run_xml(registry, tmp_path, '<MoveToWaypoint waypoint_name="Home" controller_action_name="/robotiq_gripper_controller/gripper_cmd"/>')
+    assert result.status == "ERROR"
+    assert "controller action '/robotiq_gripper_controller/gripper_cmd' is served with type control_msgs/action/GripperCommand; expected " in result.reason
