@@ -1,8 +1,8 @@
-"""Streaming quality under latency: ExecutePolicy against two baselines, on the sim clock.
+"""Streaming quality under latency: ExecutePolicy against three baselines, on the sim clock.
 
 Same policy (``benchmarks.baselines.TaskPolicy``: a 10 s smooth task path with per-chunk phase and
 position disagreement and per-step jitter, seeded by call index), same latency traces (call
-``i`` takes ``trace[i]``; fixed, and heavy-tailed lognormal with sd = mean), three executors:
+``i`` takes ``trace[i]``; fixed, and heavy-tailed lognormal with sd = mean), four executors:
 
 - ``ours``: ExecutePolicy on the ``kinematic`` world (real behavior, controllers, planning-scene
   checks); its commanded stream is recorded at the 500 Hz control loop and read at the policy
@@ -11,6 +11,9 @@ position disagreement and per-step jitter, seeded by call index), same latency t
   stream at the policy ticks). ``lerobot_aggregate`` runs LeRobot's own queue code where lerobot
   is installed (``make lerobot``) and a reimplementation otherwise: the ``implementation`` column
   says which.
+- ``jtc_newest_wins``: ros2_controllers' approach (``benchmarks.baselines.run_jtc_newest_wins``):
+  positions-only chunks, newest wins, a C2 spline through each chunk started at the last
+  command's velocity, merged at arrival by the cell's JTC model; no checks.
 
 Every executor plays ``total_action_steps`` = 110 policy steps (dt 0.1 s, committed window 20
 steps = 2 s; chunks of 50 steps). Metrics (``benchmarks.baselines.stream_metrics``) are computed on the
@@ -43,6 +46,7 @@ from benchmarks.baselines import (
     TaskPolicy,
     benchmark_task,
     latency_trace,
+    run_jtc_newest_wins,
     run_lerobot_aggregate,
     run_sync,
     sample_stream,
@@ -132,7 +136,7 @@ def main() -> None:
             if kind == "lognormal" and factor == 0.0:
                 continue
             latency = factor * WINDOW
-            per_method: dict[str, list[dict[str, Any]]] = {"ours": [], "sync": [], "lerobot_aggregate": []}
+            per_method: dict[str, list[dict[str, Any]]] = {"ours": [], "sync": [], "lerobot_aggregate": [], "jtc_newest_wins": []}
             for seed in seeds:
                 trace = latency_trace(kind, latency, 200, seed)
                 make = lambda: TaskPolicy(path, DT, CHUNK, seed=seed)  # noqa: E731
@@ -140,6 +144,7 @@ def main() -> None:
                     "ours": run_ours(registry, make(), trace),
                     "sync": (run_sync(make(), trace, start, DT, COMMITTED, TOTAL), {"status": "SUCCESS"}),
                     "lerobot_aggregate": (run_lerobot_aggregate(make(), trace, start, DT, TOTAL), {"status": "SUCCESS"}),
+                    "jtc_newest_wins": (run_jtc_newest_wins(make(), trace, start, DT, TOTAL, COMMITTED), {"status": "SUCCESS"}),
                 }
                 for method, (stream, info) in streams.items():
                     entry = {"ok": info["status"] == "SUCCESS", "reason": info.get("reason", "")}
