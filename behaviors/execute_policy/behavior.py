@@ -6,7 +6,8 @@ that seeds the latency estimate), STREAM, then DONE. In STREAM each tick watches
 goal (``states.GoalState``), streams the gripper column, then does what ``states.StreamState``
 says: send the next request when it is due, read an answered one, or plan a held chunk again.
 ``planner.plan_chunk`` decides (Planned / Wait / Reject), ``checks.PointChecks`` checks every
-point, and only ``_send_goal`` sends a motion to the admittance controller. Halting the node
+point, and only ``_send_goal`` sends a motion to the trajectory controller (the admittance
+controller or a stock JTC, ``controller_link``). Halting the node
 cancels the controller goal: the controller brings the arm to a smooth stop.
 """
 from __future__ import annotations
@@ -101,7 +102,8 @@ class ExecutePolicy(Behavior):
     needs_world = True
     description = (
         "Run a learned policy served over GetActionChunk: chunks are smoothed, blended at seams, "
-        "checked against limits and the planning scene, and streamed to the admittance controller."
+        "checked against limits and the planning scene, and streamed to the trajectory controller "
+        "(MoveIt Pro's admittance controller or a stock joint_trajectory_controller)."
     )
 
     # -- lifecycle ---------------------------------------------------------------------------
