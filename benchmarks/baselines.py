@@ -387,6 +387,42 @@ def run_jtc_newest_wins(
     return Stream(dt, np.array(out), seams, call, "simulated JTC (sim.controllers.jtc_trajectory)")
 
 
+@dataclass
+class GlitchingPolicy:
+    """``policy``, except that call ``index`` answers a chunk whose joint 0 jumps by ``jump_rad``
+    from step ``from_step`` on: a policy glitch no arm may follow (0.6 rad in one 0.1 s step is
+    6 rad/s, about twice the UR5e's limit)."""
+
+    policy: TaskPolicy
+    index: int = 3
+    from_step: int = 10
+    jump_rad: float = 0.6
+
+    @property
+    def chunk_steps(self) -> int:
+        return self.policy.chunk_steps
+
+    def reset(self) -> None:
+        self.policy.reset()
+
+    def chunk(self, index: int, observed: np.ndarray) -> np.ndarray:
+        rows = self.policy.chunk(index, observed)
+        if index == self.index:
+            rows = rows.copy()
+            rows[self.from_step :, 0] += self.jump_rad
+        return rows
+
+
+def setpoints_over_limits(stream: Stream, max_velocity: float, max_acceleration: float) -> int:
+    """How many of the stream's setpoints are reached with a joint over the velocity or the
+    acceleration limit (finite differences over ``dt``)."""
+    velocity = np.diff(stream.positions, axis=0) / stream.dt
+    acceleration = np.diff(velocity, axis=0) / stream.dt
+    over = np.any(np.abs(velocity) > max_velocity, axis=1)
+    over[1:] |= np.any(np.abs(acceleration) > max_acceleration, axis=1)
+    return int(over.sum())
+
+
 # --------------------------------------------------------------------------------------------
 # Metrics of a commanded stream
 # --------------------------------------------------------------------------------------------

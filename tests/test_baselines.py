@@ -83,3 +83,15 @@ def test_the_newest_wins_baseline_streams_the_task_without_checks_or_seam_jumps_
     assert metrics.done  # the last chunk played to its end: the task's goal
     assert metrics.max_path_dev < 0.1
     assert metrics.max_vel_jump < 0.3
+
+
+def test_a_glitching_chunk_reaches_the_arm_over_the_limits_through_the_unchecked_baselines():
+    import math
+
+    from benchmarks.baselines import GlitchingPolicy, TaskPolicy, benchmark_task, run_jtc_newest_wins, run_sync, setpoints_over_limits
+
+    path = benchmark_task(np.zeros(6))
+    trace = [0.5] * 200
+    for run in (lambda p: run_sync(p, trace, np.zeros(6), 0.1, 20, 110), lambda p: run_jtc_newest_wins(p, trace, np.zeros(6), 0.1, 110, 20)):
+        clean = setpoints_over_limits(run(TaskPolicy(path, 0.1, 50, seed=0)), math.pi, 5.0)
+        assert setpoints_over_limits(run(GlitchingPolicy(TaskPolicy(path, 0.1, 50, seed=0))), math.pi, 5.0) > clean
