@@ -1,15 +1,15 @@
 """MoveToJointState and MoveToWaypoint: a time-optimal point-to-point motion within the limits.
 
 The motion is planned with ruckig (jerk-limited, time-optimal, from rest to rest), sampled,
-checked against the planning scene before anything moves, and sent to the admittance
-controller as one trajectory goal.
+checked against the planning scene before anything moves, and sent to the trajectory controller
+as one goal: the admittance controller's or a stock JTC's, whichever type is served under
+``controller_action_name`` (``controller_link``).
 """
 from __future__ import annotations
 
 import math
 
 import numpy as np
-from moveit_pro_controllers_msgs.action import FollowJointTrajectoryWithAdmittance as FollowTrajectory
 from ruckig import InputParameter, Result, Ruckig, Trajectory
 from sensor_msgs.msg import JointState
 
@@ -19,9 +19,10 @@ from runtime.ports import InputPort, NameKind, Names, PortType, Range
 from runtime.scene import JointLimits
 from runtime.errors import ObjectiveError, SetupError
 from .action_goal import Goal, GoalState
+from .controller_link import CONTROLLER_ACTION_TYPES, ControllerLink, GoalTolerances, trajectory_goal
 from .execute_policy.shaping import Samples
 from .safety import SafetyError, make_safety
-from .trajectory_goal import SendsTrajectoryGoal, admittance_goal, trajectory_msg
+from .trajectory_goal import GOAL_TIME_TOLERANCE_S, SendsTrajectoryGoal, trajectory_msg
 from .waiting import Deadline, when_ready
 
 DEFAULT_CONTROLLER = "/joint_trajectory_admittance_controller/follow_joint_trajectory"
@@ -81,8 +82,9 @@ class _MoveToJoints(SendsTrajectoryGoal):
         InputPort("acceleration_scaling_factor", PortType.FLOAT, 0.5, "Fraction of the joint acceleration limits, in (0, 1].", valid=Range(0.0, 1.0, min_open=True)),
         InputPort("link_padding", PortType.FLOAT, 0.01, "Meters of clearance required from world objects.", valid=Range(0.0, 0.5, "m")),
         InputPort("path_tolerance", PortType.FLOAT, 0.1, "Radians of tracking error before the controller aborts.", valid=Range(0.0, math.pi, "rad", min_open=True)),
-        InputPort("controller_action_name", PortType.STRING, DEFAULT_CONTROLLER, "FollowJointTrajectoryWithAdmittance action.",
-                  names=Names(NameKind.ACTION, FollowTrajectory)),
+        InputPort("controller_action_name", PortType.STRING, DEFAULT_CONTROLLER,
+                  "The trajectory controller's action: FollowJointTrajectoryWithAdmittance or control_msgs FollowJointTrajectory.",
+                  names=Names(NameKind.ACTION, CONTROLLER_ACTION_TYPES)),
         InputPort("joint_states_topic", PortType.STRING, "/joint_states", "Where the start state is read."),
         InputPort("timeout", PortType.FLOAT, 5.0, "Seconds to wait for the controller and the joint states.", valid=Range(0.0, 3600.0, "s", min_open=True)),
     )
@@ -98,7 +100,7 @@ class _MoveToJoints(SendsTrajectoryGoal):
             raise SetupError(str(err)) from None
         bus = self.context.bus
         self.action = self.get_input("controller_action_name")
-        self.client = bus.create_action_client(self.action, FollowTrajectory)
+        self.controller = ControllerLink(bus, self.action, self.location, self.xml_id)
         self.topic = self.get_input("joint_states_topic")
         self.joint_states = bus.create_subscription(self.topic, JointState)
         self.deadline = Deadline(self, self.get_input("timeout"))
@@ -109,7 +111,7 @@ class _MoveToJoints(SendsTrajectoryGoal):
         return self.follow_goal("motion")
 
     def _plan_and_send(self) -> Status:
-        ready = when_ready(self.client.server_is_ready, self.deadline, f"controller action '{self.action}'")
+        ready = when_ready(self.controller.ready, self.deadline, f"controller action '{self.action}'")
         if ready is not True:
             return self.fail(ready) if isinstance(ready, str) else Status.RUNNING
         state = self.joint_states.latest
@@ -138,7 +140,9 @@ class _MoveToJoints(SendsTrajectoryGoal):
         collision = self.safety.first_collision(self.safety.snapshot(), samples, self.get_input("link_padding"))
         if collision is not None:
             return self.fail(f"the motion would collide: {collision}")
-        self.goal = Goal.send(self.client, admittance_goal(trajectory_msg(samples, joints), self.get_input("path_tolerance")))
+        goal = trajectory_goal(self.controller.kind, trajectory_msg(samples, joints),
+                               GoalTolerances(self.get_input("path_tolerance"), GOAL_TIME_TOLERANCE_S))
+        self.goal = Goal.send(self.controller.client, goal)
         return Status.RUNNING
 
     def terminate(self, new_status: Status) -> None:

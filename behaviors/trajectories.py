@@ -16,7 +16,6 @@ from typing import Any, ClassVar
 
 import numpy as np
 import yaml
-from moveit_pro_controllers_msgs.action import FollowJointTrajectoryWithAdmittance as FollowTrajectory
 from sensor_msgs.msg import JointState
 from trajectory_msgs.msg import JointTrajectory
 
@@ -28,11 +27,12 @@ from runtime.scene.kinematics import frame_pose, solve_ik
 from runtime.timestamps import time_msg
 
 from .action_goal import Goal, GoalState
+from .controller_link import CONTROLLER_ACTION_TYPES, ControllerKind, ControllerLink, GoalTolerances, trajectory_goal
 from .execute_policy.shaping import Samples
 from .motion import DEFAULT_CONTROLLER, NO_MOTION_S, PlanningError
 from .poses import FrameError, ReadsRobotState, RobotState, matrix_to_pose, pose_in_world
 from .safety import MotionSafety, SafetyError, make_safety
-from .trajectory_goal import GOAL_TIME_TOLERANCE_S, SendsTrajectoryGoal, admittance_goal, trajectory_msg
+from .trajectory_goal import GOAL_TIME_TOLERANCE_S, SendsTrajectoryGoal, trajectory_msg
 from .waiting import Deadline, when_ready
 
 JTC_ACTION = "/joint_trajectory_controller/follow_joint_trajectory"
@@ -416,18 +416,24 @@ class ValidateTrajectory(Behavior):
         return Status.SUCCESS
 
 
+PIPELINE_ACTIONS = {"jtac": DEFAULT_CONTROLLER, "jtc": JTC_ACTION}
+"""MoveIt Pro's execution pipelines and the controller action each one uses by default."""
+
+
 class ExecuteTrajectory(ReadsRobotState, SendsTrajectoryGoal):
-    """MoveIt Pro's ExecuteTrajectory, on the admittance controller (execution_pipeline jtac)."""
+    """MoveIt Pro's ExecuteTrajectory, on the admittance controller or a stock JTC."""
 
     needs_world = True
     description: ClassVar[str] = (
-        "Execute a joint trajectory on the trajectory admittance controller after checking it starts where the arm is, "
-        "within the limits and collision-free; fails when the controller aborts. Only execution_pipeline 'jtac' exists in this cell."
+        "Execute a joint trajectory on the trajectory controller (the admittance controller or a stock JTC, whichever type "
+        "controller_action_name serves) after checking it starts where the arm is, within the limits and collision-free; "
+        "fails when the controller aborts."
     )
     ports = (
         InputPort("joint_trajectory_msg", PortType.JOINT_TRAJECTORY, "{joint_trajectory_msg}", "The trajectory, e.g. from PlanCartesianPath."),
-        InputPort("execution_pipeline", PortType.STRING, "jtac", "jtac: FollowJointTrajectoryWithAdmittance (jtc is not in this cell)."),
-        InputPort("controller_action_name", PortType.STRING, DEFAULT_CONTROLLER, "The controller's action.", names=Names(NameKind.ACTION, FollowTrajectory)),
+        InputPort("execution_pipeline", PortType.STRING, "jtac", "jtac (admittance controller) or jtc (joint_trajectory_controller): picks the default controller_action_name."),
+        InputPort("controller_action_name", PortType.STRING, "", "The controller's action (empty: the pipeline's, /joint_trajectory_admittance_controller/... or /joint_trajectory_controller/...).",
+                  names=Names(NameKind.ACTION, CONTROLLER_ACTION_TYPES)),
         InputPort("planning_group_name", PortType.STRING, "manipulator", "SRDF joint group the trajectory moves (for the checks).", names=Names(NameKind.JOINT_GROUP)),
         InputPort("path_position_tolerance", PortType.FLOAT_LIST, "0.1", "Tracking error (rad) before the controller aborts (one value, or one per joint: the smallest is used).", valid=Range(0, 10, "rad", min_open=True)),
         InputPort("goal_position_tolerance", PortType.FLOAT_LIST, "0.01", "Accepted for compatibility (the controller checks path_position_tolerance).", valid=Range(0, 10, "rad")),
@@ -442,24 +448,21 @@ class ExecuteTrajectory(ReadsRobotState, SendsTrajectoryGoal):
         self.error: str | None = None
         self.goal = Goal()
         pipeline = self.get_input("execution_pipeline").strip().lower()
-        if pipeline != "jtac":
-            self.error = (
-                f"execution_pipeline '{pipeline}' is not available: this cell has only the trajectory admittance controller "
-                "(execution_pipeline 'jtac')"
-            )
+        if pipeline not in PIPELINE_ACTIONS:
+            self.error = f"execution_pipeline '{pipeline}' is not available (pipelines: {', '.join(PIPELINE_ACTIONS)})"
             return
         if self.is_port_set("admittance_parameters_msg"):
             self.error = "admittance_parameters_msg is not supported: the cell's controller keeps its own admittance parameters"
             return
-        self.action = self.get_input("controller_action_name")
-        self.client = self.context.bus.create_action_client(self.action, FollowTrajectory)
+        self.action = self.get_input("controller_action_name") or PIPELINE_ACTIONS[pipeline]
+        self.controller = ControllerLink(self.context.bus, self.action, self.location, self.xml_id)
         self.deadline = Deadline(self, self.get_input("timeout"))
 
     def update(self) -> Status:
         if self.error:
             return self.fail(self.error)
         if self.goal.state is GoalState.NONE:
-            ready = when_ready(self.client.server_is_ready, self.deadline, f"controller action '{self.action}'")
+            ready = when_ready(self.controller.ready, self.deadline, f"controller action '{self.action}'")
             if ready is not True:
                 return self.fail(ready) if isinstance(ready, str) else Status.RUNNING
             try:
@@ -468,7 +471,7 @@ class ExecuteTrajectory(ReadsRobotState, SendsTrajectoryGoal):
                 return self.fail(str(err))
             if goal is None:
                 return Status.SUCCESS
-            self.goal = Goal.send(self.client, goal)
+            self.goal = Goal.send(self.controller.client, goal)
         return self.follow_goal("trajectory")
 
     def _goal(self) -> Any:
@@ -496,13 +499,14 @@ class ExecuteTrajectory(ReadsRobotState, SendsTrajectoryGoal):
             raise PlanningError(f"path_position_tolerance must be positive, got {tolerances}")
         if threshold and len(threshold) != 6:
             raise PlanningError(f"absolute_force_torque_threshold needs 6 values (Fx;Fy;Fz;Tx;Ty;Tz), got {len(threshold)}")
+        if threshold and self.controller.kind is ControllerKind.JTC:
+            raise PlanningError(f"absolute_force_torque_threshold needs the admittance controller: '{self.action}' is a "
+                                "joint_trajectory_controller, whose goal has no force-torque abort")
         duration_tolerance = self.get_input("goal_duration_tolerance")
-        return admittance_goal(
-            trajectory_msg(samples, safety.group_joints),
-            min(tolerances) if tolerances else 0.1,
-            GOAL_TIME_TOLERANCE_S if duration_tolerance < 0 else duration_tolerance,
-            threshold,
-        )
+        tolerances = GoalTolerances(float(min(tolerances)) if tolerances else 0.1,
+                                    GOAL_TIME_TOLERANCE_S if duration_tolerance < 0 else float(duration_tolerance),
+                                    tuple(float(v) for v in threshold))
+        return trajectory_goal(self.controller.kind, trajectory_msg(samples, safety.group_joints), tolerances)
 
     def terminate(self, new_status: Status) -> None:
         if new_status is Status.INVALID:

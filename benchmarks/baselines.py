@@ -20,6 +20,16 @@ takes ``trace[i]`` seconds) as ExecutePolicy does in the benchmark.
   ``_aggregate_action_queues`` and ``_ready_to_send_observation``); without it, a reimplementation
   (``ReimplementedQueue``). The stream says which ran.
 
+- ``run_jtc_newest_wins``: ros2_controllers' way (a VLA streamer publishing positions-only chunks
+  to a ``joint_trajectory_controller`` with ``positions_upsampling``, ros2_controllers #2491, as
+  ros2_control_demos' example_19 does): an observation every ``request_every`` ticks (the committed
+  window of the others), one call in flight; each arriving chunk wins at once. Its
+  points are timed ``(i + 1) * dt`` from the arrival, joined by the C2 cubic spline through them
+  whose start velocity is clamped to the last command (the follow-up to #2491; #2491 itself starts
+  at rest) and which ends at rest, and merged into the playing trajectory at arrival (#2419: a
+  bridge point from the old spline, then the new points). No limit or collision check. The
+  controller is the simulated cell's JTC model (``sim.controllers.jtc_trajectory``).
+
 ``TaskPolicy`` answers with chunks of a smooth task path, starting from where the observed state
 lies on the path (like a real policy, it sees only the observation), with realistic
 chunk-to-chunk disagreement: a per-chunk phase offset, a per-chunk position offset and small
@@ -31,6 +41,8 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
+
+from sim.controllers.jtc_trajectory import JtcPoints, JtcTrajectory, merge_at_arrival
 
 
 # --------------------------------------------------------------------------------------------
@@ -322,6 +334,93 @@ def run_lerobot_aggregate(
             call += 1
         tick += 1
     return Stream(dt, np.array(out), seams, call, queue.implementation)
+
+
+def cubic_spline_velocities(times: np.ndarray, positions: np.ndarray, start_velocity: np.ndarray) -> np.ndarray:
+    """Knot velocities of the C2 cubic spline through ``positions`` (N x J) at ``times``, with
+    ``start_velocity`` at the first knot and rest at the last: the tridiagonal system of JTC's
+    ``fill_cubic_spline_velocities`` (continuous acceleration at every interior knot)."""
+    n, joints = positions.shape
+    if n < 2:
+        return np.zeros_like(positions)
+    h = np.diff(times)
+    matrix = np.zeros((n, n))
+    rhs = np.zeros((n, joints))
+    matrix[0, 0] = matrix[-1, -1] = 1.0
+    rhs[0] = start_velocity
+    for i in range(1, n - 1):
+        matrix[i, i - 1], matrix[i, i], matrix[i, i + 1] = 1 / h[i - 1], 2 * (1 / h[i - 1] + 1 / h[i]), 1 / h[i]
+        rhs[i] = 3 * ((positions[i + 1] - positions[i]) / h[i] ** 2 + (positions[i] - positions[i - 1]) / h[i - 1] ** 2)
+    return np.linalg.solve(matrix, rhs)
+
+
+def run_jtc_newest_wins(
+    policy: TaskPolicy, trace: list[float], start: np.ndarray, dt: float, total_steps: int, request_every: int
+) -> Stream:
+    """ros2_controllers' newest-wins streaming into a JTC (see the module docstring): chunks are
+    asked for during ``total_steps`` ticks from the first chunk's arrival, then the last one plays
+    to its end."""
+    policy.reset()
+    current = JtcTrajectory.hold(0.0, np.asarray(start, dtype=float))
+    q = np.asarray(start, dtype=float).copy()
+    in_flight = (trace[0], policy.chunk(0, q))
+    out, seams = [q.copy()], []
+    call, played, tick, asked = 1, 0, 0, 0
+    while played < total_steps or in_flight is not None or tick * dt < current.end_time:
+        tick += 1
+        now = tick * dt
+        if in_flight is not None and in_flight[0] <= now + 1e-9:
+            arrival, chunk = in_flight
+            in_flight = None
+            state = current.sample(arrival)
+            times = dt * np.arange(1, len(chunk) + 1)
+            velocities = cubic_spline_velocities(times, chunk, state.velocity)
+            current = merge_at_arrival(current, JtcPoints.build(times, chunk, velocities), 0.0, arrival, state)
+            seams.append(len(out))
+        q = current.sample(now).position
+        out.append(q.copy())
+        if seams:
+            played += 1
+        if in_flight is None and played < total_steps and tick - asked >= request_every:
+            in_flight = (now + trace[call % len(trace)], policy.chunk(call, q))
+            call, asked = call + 1, tick
+    return Stream(dt, np.array(out), seams, call, "simulated JTC (sim.controllers.jtc_trajectory)")
+
+
+@dataclass
+class GlitchingPolicy:
+    """``policy``, except that call ``index`` answers a chunk whose joint 0 jumps by ``jump_rad``
+    from step ``from_step`` on: a policy glitch no arm may follow (0.6 rad in one 0.1 s step is
+    6 rad/s, about twice the UR5e's limit)."""
+
+    policy: TaskPolicy
+    index: int = 3
+    from_step: int = 10
+    jump_rad: float = 0.6
+
+    @property
+    def chunk_steps(self) -> int:
+        return self.policy.chunk_steps
+
+    def reset(self) -> None:
+        self.policy.reset()
+
+    def chunk(self, index: int, observed: np.ndarray) -> np.ndarray:
+        rows = self.policy.chunk(index, observed)
+        if index == self.index:
+            rows = rows.copy()
+            rows[self.from_step :, 0] += self.jump_rad
+        return rows
+
+
+def setpoints_over_limits(stream: Stream, max_velocity: float, max_acceleration: float) -> int:
+    """How many of the stream's setpoints are reached with a joint over the velocity or the
+    acceleration limit (finite differences over ``dt``)."""
+    velocity = np.diff(stream.positions, axis=0) / stream.dt
+    acceleration = np.diff(velocity, axis=0) / stream.dt
+    over = np.any(np.abs(velocity) > max_velocity, axis=1)
+    over[1:] |= np.any(np.abs(acceleration) > max_acceleration, axis=1)
+    return int(over.sum())
 
 
 # --------------------------------------------------------------------------------------------

@@ -1,8 +1,8 @@
-"""Streaming quality under latency: ExecutePolicy against two baselines, on the sim clock.
+"""Streaming quality under latency: ExecutePolicy against three baselines, on the sim clock.
 
 Same policy (``benchmarks.baselines.TaskPolicy``: a 10 s smooth task path with per-chunk phase and
 position disagreement and per-step jitter, seeded by call index), same latency traces (call
-``i`` takes ``trace[i]``; fixed, and heavy-tailed lognormal with sd = mean), three executors:
+``i`` takes ``trace[i]``; fixed, and heavy-tailed lognormal with sd = mean), four executors:
 
 - ``ours``: ExecutePolicy on the ``kinematic`` world (real behavior, controllers, planning-scene
   checks); its commanded stream is recorded at the 500 Hz control loop and read at the policy
@@ -11,6 +11,9 @@ position disagreement and per-step jitter, seeded by call index), same latency t
   stream at the policy ticks). ``lerobot_aggregate`` runs LeRobot's own queue code where lerobot
   is installed (``make lerobot``) and a reimplementation otherwise: the ``implementation`` column
   says which.
+- ``jtc_newest_wins``: ros2_controllers' approach (``benchmarks.baselines.run_jtc_newest_wins``):
+  positions-only chunks, newest wins, a C2 spline through each chunk started at the last
+  command's velocity, merged at arrival by the cell's JTC model; no checks.
 
 Every executor plays ``total_action_steps`` = 110 policy steps (dt 0.1 s, committed window 20
 steps = 2 s; chunks of 50 steps). Metrics (``benchmarks.baselines.stream_metrics``) are computed on the
@@ -23,6 +26,7 @@ seeds whose run succeeded (``ok_runs`` of ``runs``; ``failures`` lists why the o
 from __future__ import annotations
 
 import argparse
+import math
 import statistics
 from dataclasses import asdict
 from typing import Any
@@ -39,13 +43,16 @@ from runtime.loader import load_tree
 from runtime.registry import Registry
 from runtime.runner import RunOptions, make_context, run_tree
 from benchmarks.baselines import (
+    GlitchingPolicy,
     Stream,
     TaskPolicy,
     benchmark_task,
     latency_trace,
+    run_jtc_newest_wins,
     run_lerobot_aggregate,
     run_sync,
     sample_stream,
+    setpoints_over_limits,
     stream_metrics,
 )
 from sim.kinematic import KinematicWorld
@@ -61,7 +68,7 @@ XML = f"""<root BTCPP_format="4"><BehaviorTree ID="T"><Sequence>
 </Sequence></BehaviorTree></root>"""
 
 
-def run_ours(registry: Registry, policy: TaskPolicy, trace: list[float]) -> tuple[Stream | None, dict[str, Any]]:
+def run_ours(registry: Registry, policy: TaskPolicy | GlitchingPolicy, trace: list[float]) -> tuple[Stream | None, dict[str, Any]]:
     """ExecutePolicy on the kinematic world; the commanded stream on the policy tick grid."""
     options = RunOptions(seed=0, max_seconds=120.0, world="kinematic")
     context = make_context(options)
@@ -132,7 +139,7 @@ def main() -> None:
             if kind == "lognormal" and factor == 0.0:
                 continue
             latency = factor * WINDOW
-            per_method: dict[str, list[dict[str, Any]]] = {"ours": [], "sync": [], "lerobot_aggregate": []}
+            per_method: dict[str, list[dict[str, Any]]] = {"ours": [], "sync": [], "lerobot_aggregate": [], "jtc_newest_wins": []}
             for seed in seeds:
                 trace = latency_trace(kind, latency, 200, seed)
                 make = lambda: TaskPolicy(path, DT, CHUNK, seed=seed)  # noqa: E731
@@ -140,6 +147,7 @@ def main() -> None:
                     "ours": run_ours(registry, make(), trace),
                     "sync": (run_sync(make(), trace, start, DT, COMMITTED, TOTAL), {"status": "SUCCESS"}),
                     "lerobot_aggregate": (run_lerobot_aggregate(make(), trace, start, DT, TOTAL), {"status": "SUCCESS"}),
+                    "jtc_newest_wins": (run_jtc_newest_wins(make(), trace, start, DT, TOTAL, COMMITTED), {"status": "SUCCESS"}),
                 }
                 for method, (stream, info) in streams.items():
                     entry = {"ok": info["status"] == "SUCCESS", "reason": info.get("reason", "")}
@@ -155,6 +163,38 @@ def main() -> None:
     ]
     columns = ["method", "latency", "latency_s", "ok_runs", "reached_goal", "stall_fraction", "task_time_s", "motion_time_s", "max_vel_jump", "max_acc_jump", "rms_jerk", "max_path_dev", "implementation"]
     report("bench_streaming: executors under policy latency (sim clock)", rows, columns, notes)
+    report("bench_streaming: an unsafe chunk (call 3 jumps joint 0 by 0.6 rad)", unsafe_rows(registry, start, path, seeds),
+           ["method", "latency_s", "runs", "ended", "setpoints_over_limits"],
+           [f"setpoints at the policy ticks over the UR5e's limits ({MAX_VELOCITY:.3g} rad/s, {MAX_ACCELERATION:g} rad/s^2), "
+            "summed over the seeds; 'ended': runs that stopped on the chunk"])
+
+
+MAX_VELOCITY, MAX_ACCELERATION = math.pi, 5.0  # sim/config/joint_limits.yaml, every arm joint
+
+
+def unsafe_rows(registry: Registry, start: np.ndarray, path: Any, seeds: list[int]) -> list[dict[str, Any]]:
+    """Each executor fed the same glitching policy at 0.95 s fixed latency: how many setpoints over
+    the limits reach the arm."""
+    latency = 0.475 * WINDOW
+    rows = []
+    for method in ("ours", "sync", "lerobot_aggregate", "jtc_newest_wins"):
+        over = ended = 0
+        for seed in seeds:
+            trace = latency_trace("fixed", latency, 200, seed)
+            policy = GlitchingPolicy(TaskPolicy(path, DT, CHUNK, seed=seed))
+            if method == "ours":
+                stream, info = run_ours(registry, policy, trace)
+                ended += info["status"] == "FAILURE"
+            elif method == "sync":
+                stream = run_sync(policy, trace, start, DT, COMMITTED, TOTAL)
+            elif method == "lerobot_aggregate":
+                stream = run_lerobot_aggregate(policy, trace, start, DT, TOTAL)
+            else:
+                stream = run_jtc_newest_wins(policy, trace, start, DT, TOTAL, COMMITTED)
+            over += 0 if stream is None else setpoints_over_limits(stream, MAX_VELOCITY, MAX_ACCELERATION)
+        rows.append({"bench": "streaming_unsafe", "method": method, "latency_s": round(latency, 4), "runs": len(seeds),
+                     "ended": ended, "setpoints_over_limits": over})
+    return rows
 
 
 def _row(method: str, kind: str, latency: float, entries: list[dict[str, Any]]) -> dict[str, Any]:

@@ -259,7 +259,8 @@ class RecordingBus:
 
     def _goal(self, name: str, goal: Any, future: Any) -> None:
         now = self.clock.now()
-        trajectory = getattr(goal, "joint_trajectory", None)
+        # the admittance goal's joint_trajectory, control_msgs FollowJointTrajectory's trajectory
+        trajectory = getattr(goal, "joint_trajectory", None) or getattr(goal, "trajectory", None)
         if trajectory is not None:  # (first: the goal's CDR reuses its bytes)
             self.writer.write(f"{controller_namespace(name)}/joint_trajectory", trajectory, now)
         self.writer.write(f"{name}/goal", goal, now)

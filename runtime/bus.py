@@ -187,11 +187,20 @@ class Bus(Protocol):
 
     def create_action_client(self, name: str, action_type: type) -> ActionClient: ...
 
+    def action_types(self, name: str) -> list[str]:
+        """The types served under action ``name``, as ``pkg/action/Type`` (empty: not served)."""
+        ...
+
     def spin_once(self) -> None:
         """Deliver what is due now (callbacks of matured futures, queued messages)."""
         ...
 
     def close(self) -> None: ...
+
+
+def interface_type_name(interface: type, kind: str) -> str:
+    """ROS's name of a generated interface class: ``pkg/<kind>/Type`` (e.g. ``control_msgs/action/GripperCommand``)."""
+    return f"{interface.__module__.split('.')[0]}/{kind}/{interface.__name__}"
 
 
 # Action goal states, as in action_msgs/GoalStatus.
@@ -624,6 +633,9 @@ class InProcessBus:
     def action_servers(self) -> dict[str, type]:
         """Every action served on this bus now, with its type."""
         return {name: server.action_type for name, server in self._action_servers.items()}
+    def action_types(self, name: str) -> list[str]:
+        server = self._action_servers.get(name)
+        return [] if server is None else [interface_type_name(server.action_type, "action")]
 
     # -- delivery ---
     def spin_once(self) -> None:

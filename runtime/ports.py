@@ -128,8 +128,9 @@ class Names:
     An empty value means "none" and is not checked."""
 
     kind: NameKind
-    interface: type | None = None
-    """For a service or an action: the ROS 2 type it must have (e.g. ``GetActionChunk``)."""
+    interface: type | tuple[type, ...] | None = None
+    """For a service or an action: the ROS 2 type it must have (e.g. ``GetActionChunk``), or the
+    types it may have (a trajectory controller's action: either interface)."""
     creates: bool = False
     """The node creates the object it names (AddCollisionBox, PlaceSimBox): later nodes may name it."""
 

@@ -71,9 +71,10 @@ class WorldFacts:
                 return None
             if value not in offered:
                 return f"no {kind.value} '{value}'{_hint(value, offered)} ({kind.value}s: {_listing(sorted(offered))})"
-            if names.interface is not None and offered[value] is not names.interface:
+            allowed = names.interface if isinstance(names.interface, tuple) else (names.interface,)
+            if names.interface is not None and offered[value] not in allowed:
                 return (f"{kind.value} '{value}' is a {_type_name(offered[value])}, not a "
-                        f"{_type_name(names.interface)}")
+                        f"{' or a '.join(_type_name(t) for t in allowed)}")
             return None
         known = {
             NameKind.FRAME: self.frames, NameKind.OBJECT: self.objects, NameKind.JOINT_GROUP: self.groups,

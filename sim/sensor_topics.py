@@ -1,7 +1,7 @@
-"""The cell's sensor topics besides joint states and camera frames: each camera's
-``sensor_msgs/CameraInfo`` and the wrist force-torque sensor's ``geometry_msgs/WrenchStamped``.
+"""The cell's sensor topics besides joint states, camera frames and the wrench (which the
+``force_torque_sensor_broadcaster`` controller publishes): each camera's ``sensor_msgs/CameraInfo``.
 
-Both are lazy topics, like the camera frames: a message is produced when someone reads it (in
+They are lazy topics, like the camera frames: a message is produced when someone reads it (in
 process) or at ``rate_hz`` (on real ROS 2).
 """
 from __future__ import annotations
@@ -10,7 +10,6 @@ import functools
 import math
 from typing import Any
 
-from geometry_msgs.msg import WrenchStamped
 from sensor_msgs.msg import CameraInfo
 
 from runtime.timestamps import time_msg
@@ -18,8 +17,6 @@ from runtime.timestamps import time_msg
 from .cell_model import CAMERA_FOVY_DEG, CAMERA_NAMES
 
 CAMERA_INFO_TOPICS = {name: f"/{name}_camera/camera_info" for name in CAMERA_NAMES}
-WRENCH_TOPIC = "/force_torque_sensor_broadcaster/wrench"
-WRENCH_RATE_HZ = 100.0
 
 
 def pinhole_camera_info(frame_id: str, width: int, height: int, fovy_deg: float) -> CameraInfo:
@@ -36,14 +33,13 @@ def pinhole_camera_info(frame_id: str, width: int, height: int, fovy_deg: float)
 
 
 class SensorTopics:
-    """Serves the camera infos and the wrench of ``cell`` (a ``sim.world.Cell``) on ``bus``."""
+    """Serves the camera infos of ``cell`` (a ``sim.world.Cell``) on ``bus``."""
 
     def __init__(self, bus: Any, cell: Any, camera_rate_hz: float) -> None:
         self.cell = cell
         self.frame_shapes: dict[str, tuple[int, int]] = {}
         for name, topic in CAMERA_INFO_TOPICS.items():
             bus.create_lazy_publisher(topic, CameraInfo, functools.partial(self.camera_info, name), rate_hz=camera_rate_hz)
-        bus.create_lazy_publisher(WRENCH_TOPIC, WrenchStamped, self.wrench, rate_hz=WRENCH_RATE_HZ)
 
     def camera_info(self, camera: str) -> CameraInfo:
         if camera not in self.frame_shapes:  # the size of the frames the cell renders
@@ -52,14 +48,3 @@ class SensorTopics:
         info = pinhole_camera_info(f"{camera}_camera", width, height, CAMERA_FOVY_DEG[camera])
         info.header.stamp = time_msg(self.cell.t)
         return info
-
-    def wrench(self) -> WrenchStamped:
-        """The wrist sensor's reading: the wrench the environment applies to the tool, about the
-        sensor, in world axes (hence frame ``world``), the gripper's weight removed."""
-        fx, fy, fz, tx, ty, tz = (float(v) for v in self.cell.wrench())
-        msg = WrenchStamped()
-        msg.header.frame_id = "world"
-        msg.header.stamp = time_msg(self.cell.t)
-        msg.wrench.force.x, msg.wrench.force.y, msg.wrench.force.z = fx, fy, fz
-        msg.wrench.torque.x, msg.wrench.torque.y, msg.wrench.torque.z = tx, ty, tz
-        return msg

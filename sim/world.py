@@ -23,7 +23,7 @@ from runtime.timestamps import time_msg
 from runtime.errors import OptionError
 
 from .cell_model import CAMERA_NAMES, CUBE_COLORS, CellOptions
-from .controllers import TRAJECTORY_CONTROLLER, make_controllers
+from .controllers import JTC_CONTROLLER, TRAJECTORY_CONTROLLER, ControllersConfig, JtcParams, make_controllers
 from .embedded_policy import serve_embedded_policy
 from .hardware import Hardware
 from .planning import CubeContact, make_cell_scene, sync_cubes
@@ -57,7 +57,20 @@ class Cell(Hardware, Protocol):
 
 
 COMMON_OPTIONS = ("seed", "realtime", "policy_latency", "record_dir", "policy", "start", "joint_states_reliable",
-                  "image_size", "encoding", "camera_rate_hz", "cube_contact")
+                  "image_size", "encoding", "camera_rate_hz", "cube_contact", "allow_trajectory_replacement")
+
+
+def option_flag(options: dict[str, Any], name: str, default: bool) -> bool:
+    """A yes/no world option: a bool, or "true"/"false" as ``--world-option NAME=VALUE`` gives it."""
+    value = options.get(name, default)
+    if isinstance(value, bool):
+        return value
+    text = str(value).strip().lower()
+    if text in ("true", "1", "yes"):
+        return True
+    if text in ("false", "0", "no"):
+        return False
+    raise OptionError(f"option '{name}' must be true or false, got '{value}'")
 
 
 def number_option(options: dict[str, Any], key: str, default: float, kind: type = float) -> Any:
@@ -69,6 +82,8 @@ def number_option(options: dict[str, Any], key: str, default: float, kind: type 
         return kind(value)
     except (TypeError, ValueError):
         raise OptionError(f"option '{key}' must be {'a whole number' if kind is int else 'a number'}, got {value!r}") from None
+
+
 class CellClock:
     """The simulated robot's own clock: the time of the cell's next control step.
 
@@ -110,6 +125,11 @@ class CellWorld:
             raise OptionError(f"unknown start waypoint '{start}' (waypoints: {', '.join(self.waypoints)})")
         self.start_arm = np.array([self.waypoints[start][j] for j in ARM_JOINTS])
         self.cube_contact = CubeContact.parse(options.get("cube_contact") or CubeContact.GRIPPER)
+        # The cell's JTC streams from what it commands (interpolate_from_desired_state), as a JTC
+        # that plays streamed goals should; the replacement mode is a world option.
+        replacement = option_flag(options, "allow_trajectory_replacement", True)
+        self.controllers_config = ControllersConfig(
+            joint_trajectory=JtcParams(allow_trajectory_replacement=replacement, interpolate_from_desired_state=True))
         self.cell = make_cell(self.start_arm, self.seed)
         self.boxes = PlacedBoxes()
 
@@ -117,13 +137,13 @@ class CellWorld:
     def start(self, context: RunContext) -> None:
         self.context = context
         bus = context.bus
-        self.controllers = make_controllers(bus, self.cell, CellClock(self.cell))
+        self.controllers = make_controllers(bus, self.cell, CellClock(self.cell), self.controllers_config)
         reliable = bool(self.options.get("joint_states_reliable", True))
         self.joint_states = bus.create_publisher("/joint_states", JointState, reliable=reliable)
         rate = number_option(self.options, "camera_rate_hz", 10.0)  # used on real ROS only
         for name, topic in CAMERA_TOPICS.items():
             bus.create_lazy_publisher(topic, Image, functools.partial(self._camera_frame, name), rate_hz=rate)
-        from .sensor_topics import SensorTopics  # camera infos and the wrist wrench
+        from .sensor_topics import SensorTopics  # camera infos
 
         self.sensor_topics = SensorTopics(bus, self.cell, rate)
         for color in CUBE_COLORS:  # the remote oracle's privileged view
@@ -181,9 +201,10 @@ class CellWorld:
         if self.boxes.boxes:
             summary["boxes"] = self.boxes.summary()
         controllers = getattr(self, "controllers", None)  # absent when the world never started
-        if controllers is not None:  # what the F/T thresholds were compared with
-            summary["peak_force_n"] = round(controllers[TRAJECTORY_CONTROLLER].peak_force_n, 2)
-            summary["peak_torque_nm"] = round(controllers[TRAJECTORY_CONTROLLER].peak_torque_nm, 3)
+        if controllers is not None:  # what the F/T thresholds were compared with, on either trajectory controller
+            arms = (controllers[TRAJECTORY_CONTROLLER], controllers[JTC_CONTROLLER])
+            summary["peak_force_n"] = round(max(c.peak_force_n for c in arms), 2)
+            summary["peak_torque_nm"] = round(max(c.peak_torque_nm for c in arms), 3)
         return summary
 
     def close(self) -> None:

@@ -357,12 +357,17 @@ def test_list_controllers_reports_the_start_state_and_claimed_interfaces(cell):
     by_name = {c.name: c for c in response.controller}
     assert {n: c.state for n, c in by_name.items()} == {
         "joint_trajectory_admittance_controller": "inactive",
+        "joint_trajectory_controller": "inactive",
         "velocity_force_controller": "active",
         "robotiq_gripper_controller": "active",
+        "force_torque_sensor_broadcaster": "active",
     }
     assert "shoulder_pan_joint/position" in by_name["velocity_force_controller"].claimed_interfaces
     assert by_name["joint_trajectory_admittance_controller"].claimed_interfaces == []
     assert by_name["robotiq_gripper_controller"].claimed_interfaces == ["robotiq_85_left_knuckle_joint/position"]
+    assert by_name["joint_trajectory_controller"].type == "joint_trajectory_controller/JointTrajectoryController"
+    assert by_name["force_torque_sensor_broadcaster"].claimed_interfaces == []
+    assert by_name["force_torque_sensor_broadcaster"].required_state_interfaces[0] == "wrist_ft_sensor/force.x"
 
 
 def test_strict_switch_fails_whole_on_an_unknown_controller(cell):

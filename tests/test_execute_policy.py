@@ -589,8 +589,9 @@ def test_chunk_into_the_table_is_rejected_for_padding(registry):
     assert run.result.reason.startswith("chunk 1 rejected: densified step")
 
 
-def test_object_appearing_in_the_remaining_path_stops_the_robot(registry):
-    turn = np.array([0.3, 0.0, 0.0, 0.0, 0.0, 0.0])
+def box_appears_ahead(turn: np.ndarray) -> Callable[[Any, KinematicWorld], None]:
+    """A ``run_policy`` hook: one second in, a box appears in the planning scene where the
+    gripper will be 0.5 s later on a motion turning the joints at ``turn`` rad/s."""
 
     def drop_a_box_at_one_second(context, world):
         step_to = world.step_to
@@ -598,14 +599,18 @@ def test_object_appearing_in_the_remaining_path_stops_the_robot(registry):
         def step(t):
             step_to(t)
             if t >= 1.0 and "intruder" not in context.scene.objects:
-                # Where the gripper will be 0.5 s from now, on the committed motion.
                 q = world.cell.arm + turn * 0.5
                 tip = context.scene.link_pose(np.append(q, world.cell.gripper), "gripper_base")
                 context.scene.add_object("intruder", Box((0.12, 0.12, 0.12)), pose_matrix(tip[:3, 3]))
 
         world.step_to = step
 
-    run = run_policy(registry, BASE, ScriptedPolicy(hold(velocity=turn)), before=drop_a_box_at_one_second)
+    return drop_a_box_at_one_second
+
+
+def test_object_appearing_in_the_remaining_path_stops_the_robot(registry):
+    turn = np.array([0.3, 0.0, 0.0, 0.0, 0.0, 0.0])
+    run = run_policy(registry, BASE, ScriptedPolicy(hold(velocity=turn)), before=box_appears_ahead(turn))
     assert run.result.status == "FAILURE"
     assert run.result.reason.startswith("the planning scene changed:")
     assert "intruder" in run.result.reason and run.result.reason.endswith("in the remaining path; robot stopped")

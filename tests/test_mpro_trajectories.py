@@ -200,31 +200,31 @@ def test_execute_trajectory_refuses_a_trajectory_planned_from_elsewhere(registry
     assert result.reason.endswith("from the arm's current position (joint wrist_1_joint; at most 0.01 rad): plan it from where the arm is")
 
 
-def test_execute_trajectory_names_the_missing_jtc_pipeline(registry, tmp_path):
+def test_execute_trajectory_names_an_unknown_pipeline(registry, tmp_path):
     result = run_xml(registry, tmp_path, """<Sequence>
       <CreatePoseStamped pose_stamped="{p}"/>
-      <ExecuteTrajectory name="jtc" execution_pipeline="jtc"/>
+      <ExecuteTrajectory name="ompl" execution_pipeline="ompl"/>
     </Sequence>""")
-    assert (result.status, result.failing_node) == ("FAILURE", "jtc")
-    assert result.reason == (
-        "execution_pipeline 'jtc' is not available: this cell has only the trajectory admittance controller (execution_pipeline 'jtac')"
-    )
+    assert (result.status, result.failing_node) == ("FAILURE", "ompl")
+    assert result.reason == "execution_pipeline 'ompl' is not available (pipelines: jtac, jtc)"
 
 
-def test_a_planned_trajectory_validates_executes_and_moves_the_arm(registry, tmp_path):
+@pytest.mark.parametrize("controller, pipeline", [("joint_trajectory_admittance_controller", "jtac"), ("joint_trajectory_controller", "jtc")])
+def test_a_planned_trajectory_validates_executes_and_moves_the_arm(registry, tmp_path, controller, pipeline):
     result = run_xml(registry, tmp_path, """<Sequence>
-      <SubTree ID="Move to Waypoint (JTC)" waypoint_name="Home"/>
+      <SubTree ID="Move to Waypoint (JTC)" waypoint_name="Home" controller_names="CONTROLLER"
+               controller_action_server="/CONTROLLER/follow_joint_trajectory"/>
       <RetrieveWaypoint waypoint_name="Home" waypoint_joint_state="{home}"/>
       <CreatePoseStamped position_xyz="0;0.45;0.12" orientation_xyzw="0.7071068;0.7071068;0;0" pose_stamped="{p}"/>
       <ResetPoseStampedVector vector="{path}"/>
       <PushBackVector input_vector="{path}" element="{p}" output_vector="{path}"/>
       <PlanCartesianPath path="{path}"/>
       <ValidateTrajectory name="planned one"/>
-      <ExecuteTrajectory/>
+      <ExecuteTrajectory execution_pipeline="PIPELINE"/>
       <GetCurrentPlanningScene/>
       <GetJointState joint_positions="{q}"/>
       <GetElementOfVector vector_in="{q}" index="2" element="{elbow}"/>
-    </Sequence>""")
+    </Sequence>""".replace("CONTROLLER", controller).replace("PIPELINE", pipeline))
     assert (result.status, result.reason) == ("SUCCESS", "")
     # the elbow opened: the TCP went 18 cm down from Home
     assert result.blackboard["elbow"] > HOME[2] + 0.2
@@ -293,14 +293,12 @@ def test_retrieve_waypoint_lists_the_known_waypoints(registry, tmp_path):
                                   "(waypoints: Home, Observe, Ready)")
 
 
-def test_move_to_waypoint_jtc_names_the_controllers_when_asked_for_a_plain_jtc(registry, tmp_path):
-    result = run_xml(registry, tmp_path, '<SubTree ID="Move to Waypoint (JTC)" waypoint_name="Home" controller_names="joint_trajectory_controller"/>')
+def test_move_to_waypoint_jtc_names_the_controllers_when_asked_for_an_unknown_one(registry, tmp_path):
+    result = run_xml(registry, tmp_path, '<SubTree ID="Move to Waypoint (JTC)" waypoint_name="Home" controller_names="scaled_joint_trajectory_controller"/>')
     assert (result.status, result.ticks) == ("ERROR", 0)  # a controller the cell lacks: an error of the setup
-    assert result.reason.endswith(
-        "objectives/move_to_waypoint_jtc.xml:14: SwitchController: port 'activate_controllers': unknown controller "
-        "'joint_trajectory_controller' (did you mean 'joint_trajectory_admittance_controller'?) (controllers: "
-        "joint_trajectory_admittance_controller, robotiq_gripper_controller, velocity_force_controller)")
-
+    assert ("objectives/move_to_waypoint_jtc.xml:14: SwitchController: port 'activate_controllers': unknown controller "
+            "'scaled_joint_trajectory_controller'") in result.reason
+    assert "joint_trajectory_controller, " in result.reason  # the cell's controllers are listed
 
 
 # -- a motion to where the arm already is ---------------------------------------------------------

@@ -115,7 +115,7 @@ def test_zero_fts_tares_the_wrist_sensor_through_call_trigger_service():
     from runtime.bus import InProcessBus
     from runtime.clock import SimClock
     from runtime.events import EventLog
-    from sim.sensor_topics import WRENCH_TOPIC
+    from sim.controllers import WRENCH_TOPIC
     from sim.world import create_kinematic
 
     clock = SimClock()

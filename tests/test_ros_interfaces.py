@@ -131,6 +131,74 @@ def test_gripper_command_matches_upstream_control_msgs():
     assert (back.command.position, back.command.max_effort) == (0.04, 20.0)
 
 
+CONTROL_MSGS_JAZZY = {
+    "action": ["ExecuteMotionPrimitiveSequence", "FollowJointTrajectory", "GripperCommand", "JointTrajectory",
+               "ParallelGripperCommand", "PointHead", "SingleJointPosition"],
+    "msg": ["AdmittanceControllerState", "BatteryStateArray", "DynamicInterfaceGroupValues", "DynamicInterfaceValues",
+            "DynamicJointState", "Float64Values", "GripperCommand", "InterfaceValue", "JointComponentTolerance",
+            "JointControllerState", "JointJog", "JointTolerance", "JointTrajectoryControllerState", "Keys",
+            "MecanumDriveControllerState", "MotionArgument", "MotionPrimitive", "MotionPrimitiveSequence", "MultiDOFCommand",
+            "MultiDOFStateStamped", "PidState", "SingleDOFState", "SingleDOFStateStamped", "SpeedScalingFactor",
+            "SteeringControllerStatus", "VDA5050SafetyState"],
+    "srv": ["QueryCalibrationState", "QueryTrajectoryState", "SetOdometry"],
+}
+"""Every interface of ros-controls/control_msgs 5.8.0, the ROS 2 Jazzy release."""
+
+
+def test_control_msgs_is_the_whole_jazzy_release():
+    import importlib
+
+    for kind, names in CONTROL_MSGS_JAZZY.items():
+        module = importlib.import_module(f"control_msgs.{kind}")
+        for name in names:
+            assert hasattr(module, name), f"control_msgs/{kind}/{name} is missing"
+    package = Path(__file__).resolve().parent.parent / "runtime" / "ros" / "interfaces" / "control_msgs"
+    shipped = {kind: sorted(f.stem for f in (package / kind).iterdir()) for kind in CONTROL_MSGS_JAZZY}
+    assert shipped == CONTROL_MSGS_JAZZY
+
+
+def test_follow_joint_trajectory_matches_upstream_control_msgs():
+    from builtin_interfaces.msg import Duration
+    from control_msgs.action import FollowJointTrajectory
+    from control_msgs.msg import JointComponentTolerance, JointTolerance
+    from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
+
+    assert FollowJointTrajectory.Goal.get_fields_and_field_types() == {
+        "trajectory": "trajectory_msgs/JointTrajectory",
+        "multi_dof_trajectory": "trajectory_msgs/MultiDOFJointTrajectory",
+        "path_tolerance": "sequence<control_msgs/JointTolerance>",
+        "component_path_tolerance": "sequence<control_msgs/JointComponentTolerance>",
+        "goal_tolerance": "sequence<control_msgs/JointTolerance>",
+        "component_goal_tolerance": "sequence<control_msgs/JointComponentTolerance>",
+        "goal_time_tolerance": "builtin_interfaces/Duration",
+    }
+    R = FollowJointTrajectory.Result
+    assert (R.SUCCESSFUL, R.INVALID_GOAL, R.INVALID_JOINTS, R.OLD_HEADER_TIMESTAMP, R.PATH_TOLERANCE_VIOLATED,
+            R.GOAL_TOLERANCE_VIOLATED) == (0, -1, -2, -3, -4, -5)
+    assert R.get_fields_and_field_types() == {"error_code": "int32", "error_string": "string"}
+    assert list(FollowJointTrajectory.Feedback.get_fields_and_field_types()) == [
+        "header", "joint_names", "desired", "actual", "error",
+        "multi_dof_joint_names", "multi_dof_desired", "multi_dof_actual", "multi_dof_error",
+    ]
+    assert JointTolerance.get_fields_and_field_types() == {
+        "name": "string", "position": "double", "velocity": "double", "acceleration": "double"}
+    assert (JointComponentTolerance.X_AXIS, JointComponentTolerance.ROTATION) == (1, 5)
+    goal = FollowJointTrajectory.Goal(
+        trajectory=JointTrajectory(joint_names=["a"], points=[JointTrajectoryPoint(positions=[0.5], velocities=[0.0])]),
+        path_tolerance=[JointTolerance(name="a", position=0.3)], goal_time_tolerance=Duration(sec=1))
+    back = round_trip(goal)
+    assert back.trajectory.points[0].positions[0] == 0.5 and back.path_tolerance[0].position == 0.3
+    assert back.goal_time_tolerance.sec == 1
+
+
+def test_control_msgs_constants_and_defaults_match_upstream():
+    from control_msgs.msg import MotionPrimitive, VDA5050SafetyState
+
+    assert (MotionPrimitive.UNKNOWN, MotionPrimitive.LINEAR_JOINT, MotionPrimitive.CIRCULAR_CARTESIAN) == (-1, 0, 51)
+    assert MotionPrimitive().type == -1
+    assert VDA5050SafetyState.AUTO_ACK == "autoAck"
+
+
 def test_controller_manager_interfaces_match_upstream_jazzy():
     from controller_manager_msgs.msg import ChainConnection, ControllerState
     from controller_manager_msgs.srv import ListControllers, SwitchController

@@ -123,8 +123,10 @@ def test_the_hosted_cell_is_on_ros_while_the_run_lasts(ros_env, observer, tmp_pa
                                                     what="the controller list").controller}
         assert states == {
             "joint_trajectory_admittance_controller": "inactive",
+            "joint_trajectory_controller": "inactive",
             "velocity_force_controller": "active",
             "robotiq_gripper_controller": "active",
+            "force_torque_sensor_broadcaster": "active",
         }
         # the gripper closes on the runner's side and the observer sees it move
         wait_for(lambda: joint_states.latest.position[-1] > 0.4, observer, what="the gripper to close")

@@ -380,3 +380,96 @@ def test_a_goal_finished_inside_on_goal_reaches_the_client(buses, names):
     result = sent.result().get_result_async()
     wait_for(result.done, client_bus, what="the result")
     assert result.result().status == STATUS_ABORTED and result.result().result.position == 0.03
+
+
+def test_the_action_type_served_under_a_name_is_read_from_the_graph(buses, names):
+    from control_msgs.action import FollowJointTrajectory
+
+    server, client = buses("type_server"), buses("type_reader")
+    jtc, gripper = names("jtc/follow_joint_trajectory"), names("gripper_cmd")
+    server.create_action_server(jtc, FollowJointTrajectory, lambda handle: False)
+    server.create_action_server(gripper, GripperCommand, lambda handle: False)
+    wait_for(lambda: client.action_types(jtc) != [] and client.action_types(gripper) != [], client, what="both actions on the graph")
+    assert client.action_types(jtc) == ["control_msgs/action/FollowJointTrajectory"]
+    assert client.action_types(gripper) == ["control_msgs/action/GripperCommand"]
+    assert client.action_types(names("nobody")) == []
+
+
+@pytest.mark.parametrize("reliable", [True, False])
+def test_the_wrench_watch_hears_reliable_and_best_effort_publishers_over_ros(buses, names, reliable):
+    from geometry_msgs.msg import WrenchStamped
+
+    from behaviors.wrench_watch import WrenchWatch
+
+    sensor, runtime_bus = buses("ft_sensor"), buses("ft_watcher")
+    topic = names("force_torque_sensor_broadcaster/wrench")
+    publisher = sensor.create_publisher(topic, WrenchStamped, reliable=reliable)
+    watch = WrenchWatch(runtime_bus, topic, (45.0, 45.0, 45.0, 10.0, 10.0, 10.0))
+    calm, push = WrenchStamped(), WrenchStamped()
+    push.wrench.force.z = -61.2
+
+    def published_and_heard(msg: WrenchStamped) -> Callable[[], bool]:
+        def check() -> bool:
+            publisher.publish(msg)
+            return watch.has_reading
+        return check
+
+    wait_for(published_and_heard(calm), runtime_bus, what="a reading through the QoS match")
+    assert watch.crossing() is None
+    publisher.publish(push)
+    wait_for(lambda: watch.crossing() is not None, runtime_bus, what="the push")
+    assert watch.crossing() == "Fz = -61.20 N exceeds the absolute threshold 45.00 N"
+
+
+def test_the_cell_s_jtc_and_broadcaster_serve_over_ros(buses, names):
+    """The simulated joint_trajectory_controller and force_torque_sensor_broadcaster on a RosBus
+    node (as a process hosting the cell serves them): a goal from another node plays and succeeds,
+    the wrench is published, and the controller manager lists both."""
+    import numpy as np
+    from control_msgs.action import FollowJointTrajectory
+    from controller_manager_msgs.srv import ListControllers
+    from geometry_msgs.msg import WrenchStamped
+    from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
+
+    from runtime.timestamps import duration_msg
+    from sim.controllers import JTC_ACTION, JTC_CONTROLLER, LIST_SERVICE, VELOCITY_CONTROLLER, WRENCH_TOPIC, make_controllers
+    from tests.test_controllers import ARM, HOME, FakeHardware
+
+    cell_bus, client_bus = buses("cell"), buses("runtime")
+    clock = cell_bus.clock
+    hardware = FakeHardware(clock)
+    manager = make_controllers(cell_bus, hardware, clock)
+    manager.switch([JTC_CONTROLLER], [VELOCITY_CONTROLLER])
+    hardware.external_wrench = np.array([0.0, 0.0, -3.0, 0.0, 0.0, 0.0])
+    client = client_bus.create_action_client(JTC_ACTION, FollowJointTrajectory)
+    wrench = client_bus.create_subscription(WRENCH_TOPIC, WrenchStamped, reliable=False)
+    lister = client_bus.create_client(LIST_SERVICE, ListControllers)
+    wait_for(lambda: client.server_is_ready() and lister.service_is_ready(), client_bus, what="the cell's endpoints")
+    target = HOME + 0.05
+    goal = FollowJointTrajectory.Goal(trajectory=JointTrajectory(joint_names=list(ARM), points=[
+        JointTrajectoryPoint(positions=target.tolist(), velocities=[0.0] * 6, time_from_start=duration_msg(0.2))]))
+    sent = client.send_goal_async(goal)
+
+    def step() -> None:  # the cell's control loop, on the wall clock
+        t = clock.now()
+        manager.update(t, 0.002)
+        hardware.step(0.002)
+
+    def stepping(condition: Callable[[], bool]) -> Callable[[], bool]:
+        def check() -> bool:
+            step()
+            cell_bus.spin_once()
+            return condition()
+        return check
+
+    wait_for(stepping(sent.done), client_bus, what="the goal accepted")
+    result = sent.result().get_result_async()
+    wait_for(stepping(result.done), client_bus, what="the goal's result")
+    assert result.result().result.error_string == "Goal successfully reached!"
+    np.testing.assert_allclose(hardware.q, target, atol=1e-6)
+    wait_for(stepping(lambda: wrench.latest is not None), client_bus, what="a wrench reading")
+    assert wrench.latest.wrench.force.z == -3.0
+    listed = lister.call_async(ListControllers.Request())
+    wait_for(stepping(listed.done), client_bus, what="list_controllers")
+    states = {c.name: c.state for c in listed.result().controller}
+    assert states["joint_trajectory_controller"] == "active" and states["force_torque_sensor_broadcaster"] == "active"

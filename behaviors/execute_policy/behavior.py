@@ -6,7 +6,8 @@ that seeds the latency estimate), STREAM, then DONE. In STREAM each tick watches
 goal (``action_goal.GoalState``), streams the gripper column, then does what ``states.StreamState``
 says: send the next request when it is due, read an answered one, or plan a held chunk again.
 ``planner.plan_chunk`` decides (Planned / Wait / Reject), ``checks.PointChecks`` checks every
-point, and only ``_send_goal`` sends a motion to the admittance controller. Halting the node
+point, and only ``_send_goal`` sends a motion to the trajectory controller (the admittance
+controller or a stock JTC, ``controller_link``). Halting the node
 cancels the controller goal: the controller brings the arm to a smooth stop.
 """
 from __future__ import annotations
@@ -28,6 +29,8 @@ from runtime.bus import STATUS_ABORTED, STATUS_SUCCEEDED
 from runtime.ports import Direction
 
 from . import config as cfg
+from ..controller_link import ControllerKind, ControllerLink, GoalTolerances, jtc_stream_points, trajectory_goal
+from ..wrench_watch import WrenchWatch
 from .checks import PointChecks
 from .chunk import Chunk, ChunkError, period_problem, read_chunk, read_policy_chunk
 from .gripper import GripperGoal, follow_goals, join_targets
@@ -52,7 +55,7 @@ from .timing import LatencyEstimate, SizingRisk, frozen_prefix_steps, prefetch_m
 from ..action_goal import Goal, GoalState
 from ..gripper import gripper_command
 from ..safety import MotionSafety, SafetyError, make_safety
-from ..trajectory_goal import admittance_goal, trajectory_msg
+from ..trajectory_goal import trajectory_msg
 
 STARTUP_WAIT_S = 5.0
 GRIPPER_MAX_EFFORT_N = 60.0  # the 2F-85 holds a 30 mm cube well below its 235 N maximum
@@ -159,7 +162,8 @@ class ExecutePolicy(Behavior):
     needs_world = True
     description = (
         "Run a learned policy served over GetActionChunk: chunks are smoothed, blended at seams, "
-        "checked against limits and the planning scene, and streamed to the admittance controller."
+        "checked against limits and the planning scene, and streamed to the trajectory controller "
+        "(MoveIt Pro's admittance controller or a stock joint_trajectory_controller)."
     )
 
     def check_literals(self) -> None:
@@ -220,11 +224,12 @@ class ExecutePolicy(Behavior):
         self.shaping = ShapingConfig(c.dt, c.committed_action_steps, c.policy_tracking_weight, c.num_interpolation_points,
                                      self.safety.limits.max_acceleration)
         self.policy = bus.create_client(c.policy_service_name, GetActionChunk)
-        self.controller = bus.create_action_client(c.controller_action_name, FollowTrajectory)
+        self.controller = ControllerLink(bus, c.controller_action_name, self.location, self.xml_id)
         self.gripper = bus.create_action_client(c.gripper_command_action_name, GripperCommand) if c.has_gripper else None
         self.joint_states = bus.create_subscription(c.joint_states_topic, JointState, reliable=True)
         # Best-effort matches both kinds of camera driver (most publish best-effort sensor-data QoS).
         self.cameras = [bus.create_subscription(t, Image, reliable=False) for t in c.image_topics]
+        self.wrench = WrenchWatch(bus, c.wrench_topic, c.absolute_force_torque_threshold) if c.wrench_topic else None
 
     def update(self) -> Status:
         try:
@@ -254,12 +259,14 @@ class ExecutePolicy(Behavior):
         missing = []
         if not self.policy.service_is_ready():
             missing.append(f"policy service '{c.policy_service_name}' ({self._policy_hint()})")
-        if not self.controller.server_is_ready():
+        if not self.controller.ready():  # a name served with another type is an ERROR here
             missing.append(f"controller action '{c.controller_action_name}'")
         if self.gripper is not None and not self.gripper.server_is_ready():
             missing.append(f"gripper action '{c.gripper_command_action_name}'")
         if self.joint_states.latest is None:
             missing.append(f"joint states on '{c.joint_states_topic}' (the publisher must use reliable QoS)")
+        if self.wrench is not None and not self.wrench.has_reading:
+            missing.append(f"a reading on wrench topic '{c.wrench_topic}' (is force_torque_sensor_broadcaster active?)")
         timed_out = now - self.started_at >= STARTUP_WAIT_S
         if missing and not timed_out:
             return Status.RUNNING  # the cameras are looked at once the rest is there (a read may render a frame)
@@ -310,9 +317,12 @@ class ExecutePolicy(Behavior):
 
     def _stream(self) -> Status:
         now = self.context.clock.now()
-        status = self._watch_controller()
+        status = self._watch_controller()  # first: an abort the controller already made is the reason
         if status is not None:
             return status
+        crossing = self.wrench.crossing() if self.wrench is not None else None
+        if crossing is not None:
+            return self._stop(Status.FAILURE, f"force-torque threshold exceeded on '{self.config.wrench_topic}': {crossing}; goal cancelled, robot stopped")
         self._stream_gripper(now)
         problem = follow_goals(self.gripper_goals, self.config.gripper_command_action_name)
         if problem is not None:
@@ -492,7 +502,7 @@ class ExecutePolicy(Behavior):
         # planned again from the same chunk (see _retry_late_goal).
         self.rollback = Rollback(held, self._committed(), self.goal, plan.stall_s, window.index, plan.takes_over_s)
         self.checked_scene = self._scene_state()  # what the samples were checked against
-        self.goal = Goal.send(self.controller, self._goal(samples, plan.takes_over_s), now)
+        self.goal = Goal.send(self.controller.client, self._goal(samples, plan.takes_over_s, now), now)
         self.committed = plan.committed
         self._queue_gripper(held.chunk, window)
         if c.policy_uses_real_time_chunking:  # read (and checked) when the answer came in
@@ -512,10 +522,21 @@ class ExecutePolicy(Behavior):
             stall_s=plan.stall_s,
         )
 
-    def _goal(self, samples: Samples, seam_time_s: float) -> Any:
+    def _goal(self, samples: Samples, seam_time_s: float, now: float) -> Any:
+        """The controller goal for ``samples`` (from the seam on): stamped at the seam for the
+        admittance controller; for a JTC, led by the motion already sent from where the arm will
+        be when the goal lands (``controller_link.jtc_stream_points``)."""
         c = self.config
-        return admittance_goal(trajectory_msg(samples, self.safety.group_joints, seam_time_s), c.goal_path_tolerance,
-                               max(0.5, 5 * c.dt), c.absolute_force_torque_threshold)
+        stamp_s, seam_index = seam_time_s, None
+        if self.controller.kind is ControllerKind.JTC:
+            lands_s = goal_takes_effect_s(now, self.context.tick_period_s, self.goal_latency_s)
+            jtc = jtc_stream_points(self._committed().samples, samples, lands_s)
+            stamp_s, samples, seam_index = jtc.stamp_s, jtc.samples, jtc.seam_index
+        trajectory = trajectory_msg(samples, self.safety.group_joints, stamp_s)
+        if seam_index is not None:
+            trajectory.points[seam_index].accelerations = []
+        tolerances = GoalTolerances(c.goal_path_tolerance, max(0.5, 5 * c.dt), tuple(c.absolute_force_torque_threshold))
+        return trajectory_goal(self.controller.kind, trajectory, tolerances)
 
     # -- controller and gripper --------------------------------------------------------------
     def _watch_controller(self) -> Status | None:
@@ -532,7 +553,8 @@ class ExecutePolicy(Behavior):
         self.goal = goal.advance()
         if self.goal.state is GoalState.REJECTED:
             self.goal = Goal()  # nothing of it is playing
-            return self._stop(Status.FAILURE, f"the controller '{name}' rejected the goal", FailureKind.CONTROLLER)
+            why = " (a joint_trajectory_controller gives its reason only in its own log)" if self.controller.kind is ControllerKind.JTC else ""
+            return self._stop(Status.FAILURE, f"the controller '{name}' rejected the goal{why}", FailureKind.CONTROLLER)
         if self.goal.state is GoalState.ENDED and goal.state is not GoalState.ENDED:  # its result came now
             outcome = self.goal.outcome
             if outcome.status == STATUS_ABORTED or outcome.result.error_code not in (0,):
@@ -662,11 +684,13 @@ class ExecutePolicy(Behavior):
         destroy = getattr(bus, "destroy_subscription", None)
         if destroy is None:
             return
-        for sub in [getattr(self, "joint_states", None), *getattr(self, "cameras", [])]:
+        wrench = getattr(self, "wrench", None)
+        for sub in [getattr(self, "joint_states", None), *getattr(self, "cameras", []), wrench.subscription if wrench else None]:
             if sub is not None:
                 destroy(sub)
         self.cameras = []
         self.joint_states = None
+        self.wrench = None
 
     # -- small helpers -----------------------------------------------------------------------
     def _committed(self) -> Committed:

@@ -5,7 +5,7 @@ import math
 from dataclasses import dataclass
 from typing import Any
 
-from control_msgs.action import GripperCommand
+from control_msgs.action import FollowJointTrajectory, GripperCommand
 from moveit_pro_controllers_msgs.action import FollowJointTrajectoryWithAdmittance
 from moveit_pro_ml_msgs.srv import GetActionChunk
 
@@ -31,8 +31,8 @@ PORTS = (
     InputPort("goal_path_tolerance", PortType.FLOAT, 0.01, "Radians of deviation the controller accepts along the path and where chunks join.", valid=Range(0.0, math.pi, "rad")),
     InputPort("absolute_force_torque_threshold", PortType.FLOAT_LIST, "45;45;45;10;10;10", "Per-axis abort limits Fx;Fy;Fz;Tx;Ty;Tz (N, Nm).", valid=Range(0.0, 100_000.0, "N or Nm", min_open=True),
               length=6),
-    InputPort("controller_action_name", PortType.STRING, DEFAULT_CONTROLLER_ACTION, "The admittance controller's FollowJointTrajectoryWithAdmittance action.",
-              names=Names(NameKind.ACTION, FollowJointTrajectoryWithAdmittance)),
+    InputPort("controller_action_name", PortType.STRING, DEFAULT_CONTROLLER_ACTION, "The trajectory controller's action: the admittance controller's FollowJointTrajectoryWithAdmittance or a joint_trajectory_controller's control_msgs FollowJointTrajectory (the type served decides).",
+              names=Names(NameKind.ACTION, (FollowJointTrajectoryWithAdmittance, FollowJointTrajectory))),
     InputPort("gripper_command_action_name", PortType.STRING, "", "GripperCommand action; set together with gripper_joint_name.",
               names=Names(NameKind.ACTION, GripperCommand)),
     InputPort("gripper_joint_name", PortType.STRING, "", "Single-DOF gripper joint appended to the observation and streamed from the chunk.",
@@ -42,6 +42,7 @@ PORTS = (
     InputPort("image_names", PortType.STRING_LIST, "", "Names the policy knows the cameras by, index-aligned with image_topics."),
     InputPort("joint_states_topic", PortType.STRING, "/joint_states", "sensor_msgs/JointState topic (reliable QoS)."),
     InputPort("max_observation_age", PortType.FLOAT, 0.0, "Seconds since it arrived after which a camera frame or joint state is too old to feed the policy: the run stops, naming the topic; 0 = 10 * dt.", valid=Range(0.0, 600.0, "s")),
+    InputPort("wrench_topic", PortType.STRING, "", "geometry_msgs/WrenchStamped topic (e.g. /force_torque_sensor_broadcaster/wrench) watched against absolute_force_torque_threshold: the first reading over it stops the run; empty: not watched."),
     OutputPort("steps_executed", PortType.UINT, "Policy steps executed."),
     OutputPort("chunks_received", PortType.UINT, "Chunks received with CHUNK_PRODUCED (the warmup's excluded)."),
     OutputPort("rejection_reason", PortType.STRING, "Why a chunk was rejected (empty when none was)."),
@@ -82,6 +83,7 @@ class PolicyRunConfig:
     image_names: tuple[str, ...]
     joint_states_topic: str
     max_observation_age: float
+    wrench_topic: str
 
     @property
     def has_gripper(self) -> bool:

@@ -38,7 +38,7 @@ import rclpy
 from action_msgs.srv import CancelGoal
 from rclpy.action import ActionClient as _RclpyActionClient
 from rclpy.action import ActionServer as _RclpyActionServer
-from rclpy.action import CancelResponse, GoalResponse
+from rclpy.action import CancelResponse, GoalResponse, get_action_names_and_types
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
 from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor, ShutdownException
 from rclpy.qos import QoSProfile, ReliabilityPolicy
@@ -734,6 +734,11 @@ class RosBus:
             raise ValueError(f"action server '{name}' already exists")
         self._action_servers[name] = _RosActionServer(self, name, action_type, on_goal, on_cancel)
         return name
+
+    def action_types(self, name: str) -> list[str]:
+        """The types the ROS graph serves under action ``name`` (empty: none seen yet)."""
+        qualified = name if name.startswith("/") else f"/{name}"
+        return [t for found, types in get_action_names_and_types(self.node) if found == qualified for t in types]
 
     def destroy_action_server(self, name: str) -> None:
         server = self._action_servers.pop(name, None)

@@ -7,12 +7,16 @@ with the steps that nothing reacts to planned ahead. The trajectory maths (``Tra
 ``stitch``, ``stop_trajectory``) is pure and usable on its own.
 """
 from .admittance import JointTrajectoryAdmittanceController, ParsedGoal, parse_goal
-from .base import Controller, ControllersConfig
+from .base import Controller, ControllersConfig, JtcParams
+from .broadcaster import ForceTorqueSensorBroadcaster
 from .compliance import AdmittanceParams, AdmittanceState, admittance_step, damped_pseudo_inverse
 from .gripper import GripperActionController
+from .jtc import JointTrajectoryController
 from .manager import (
     BEST_EFFORT,
+    FT_BROADCASTER,
     GRIPPER_CONTROLLER,
+    JTC_CONTROLLER,
     LIST_SERVICE,
     STRICT,
     SWITCH_SERVICE,
@@ -34,6 +38,9 @@ from .trajectory import (
 from .velocity import VelocityForceController
 
 TRAJECTORY_ACTION = f"/{TRAJECTORY_CONTROLLER}/follow_joint_trajectory"
+JTC_ACTION = f"/{JTC_CONTROLLER}/follow_joint_trajectory"
+JTC_TOPIC = f"/{JTC_CONTROLLER}/joint_trajectory"
+WRENCH_TOPIC = f"/{FT_BROADCASTER}/wrench"
 GRIPPER_ACTION = f"/{GRIPPER_CONTROLLER}/gripper_cmd"
 VELOCITY_COMMAND_TOPIC = f"/{VELOCITY_CONTROLLER}/commands"
 
@@ -44,9 +51,16 @@ __all__ = [
     "Controller",
     "ControllerManager",
     "ControllersConfig",
+    "FT_BROADCASTER",
+    "ForceTorqueSensorBroadcaster",
     "GRIPPER_ACTION",
     "GRIPPER_CONTROLLER",
     "GripperActionController",
+    "JTC_ACTION",
+    "JTC_CONTROLLER",
+    "JTC_TOPIC",
+    "JointTrajectoryController",
+    "JtcParams",
     "JointTrajectoryAdmittanceController",
     "LIST_SERVICE",
     "ParsedGoal",
@@ -61,6 +75,7 @@ __all__ = [
     "VELOCITY_COMMAND_TOPIC",
     "VELOCITY_CONTROLLER",
     "VelocityForceController",
+    "WRENCH_TOPIC",
     "admittance_step",
     "damped_pseudo_inverse",
     "make_controllers",

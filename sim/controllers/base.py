@@ -17,13 +17,28 @@ from ..hardware import Hardware
 from .compliance import AdmittanceParams
 
 
+@dataclass(frozen=True)
+class JtcParams:
+    """The JTC parameters the cell runs with (ros2_controllers' names and defaults)."""
+
+    allow_trajectory_replacement: bool = True
+    """Merge a trajectory arriving while one plays (#2419); False: replace it from the new one's stamp."""
+    stopped_velocity_tolerance: float = 0.01
+    """rad/s: ``constraints.stopped_velocity_tolerance``, the goal's velocity tolerance."""
+    goal_time: float = 0.0
+    """Seconds: ``constraints.goal_time`` (0 = no limit to settle after the last point)."""
+    interpolate_from_desired_state: bool = False
+    """A new trajectory starts from the state last commanded; False (JTC's default): from the
+    measured state, so the command steps back by the tracking error when a goal arrives."""
+
+
 @dataclass
 class ControllersConfig:
     """Tunables of the simulated controllers (defaults suit the UR5e + 2F-85 cell)."""
 
     feedback_rate: float = 20.0
     """Hz at which action feedback is published (the control loop itself runs at 500 Hz); 20 Hz is
-    ros2_controllers' JTC default ``action_monitor_rate``."""
+    ros2_controllers' JTC default ``action_monitor_rate``. Every trajectory controller uses it."""
     stop_time: float = 0.2
     """Seconds to decelerate to rest on cancel, F/T abort or path-tolerance abort."""
     goal_position_tolerance: float = 0.01
@@ -57,6 +72,8 @@ class ControllersConfig:
     """Newtons used when a GripperCommand asks for max_effort 0."""
     gripper_max_position: float = 0.8
     """Driver joint position when fully closed (0 is open)."""
+    joint_trajectory: JtcParams = field(default_factory=JtcParams)
+    """Parameters of the stock ``joint_trajectory_controller``."""
 
 
 class Controller:
@@ -123,6 +140,18 @@ class Controller:
 
     def __repr__(self) -> str:
         return f"{type(self).__name__}({self.name!r}, {'active' if self.active else 'inactive'})"
+
+
+class ArmController(Controller):
+    """A controller that commands the arm: it claims the arm joints' position and velocity."""
+
+    @property
+    def command_interfaces(self) -> tuple[str, ...]:
+        return arm_command_interfaces(self.hardware)
+
+    @property
+    def state_interfaces(self) -> tuple[str, ...]:
+        return arm_state_interfaces(self.hardware)
 
 
 def arm_command_interfaces(hardware: Hardware) -> tuple[str, ...]:

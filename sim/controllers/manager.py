@@ -1,17 +1,21 @@
 """The controller manager: which controllers run, switched with ros2_control's semantics.
 
 Serves ``/controller_manager/switch_controller`` and ``/controller_manager/list_controllers``
-(``controller_manager_msgs``). ``make_controllers`` builds the cell's three controllers:
+(``controller_manager_msgs``). ``make_controllers`` builds the cell's controllers:
 
-=====================================  ================  =====================================
+=====================================  ================  ==============================================
 controller                             at start          talks on
-=====================================  ================  =====================================
-joint_trajectory_admittance_controller inactive          action .../follow_joint_trajectory
+=====================================  ================  ==============================================
+joint_trajectory_admittance_controller inactive          action .../follow_joint_trajectory (admittance)
+joint_trajectory_controller            inactive          action .../follow_joint_trajectory (control_msgs),
+                                                         topic .../joint_trajectory
 velocity_force_controller              active            topic /velocity_force_controller/commands
 robotiq_gripper_controller             active            action .../gripper_cmd
-=====================================  ================  =====================================
+force_torque_sensor_broadcaster        active            topic /force_torque_sensor_broadcaster/wrench
+=====================================  ================  ==============================================
 
-(joint states are published by the world, not by a broadcaster here.)
+The three arm controllers claim the same command interfaces: one of them is active at a time.
+(Joint states are published by the world, not by a broadcaster here.)
 
 Switching, as ros2_control does it: deactivations happen before activations, in one control
 step. STRICT (2) refuses the whole switch on any problem, naming every problem; BEST_EFFORT (1,
@@ -36,7 +40,9 @@ from runtime.clock import Clock
 from ..hardware import Hardware
 from .admittance import JointTrajectoryAdmittanceController
 from .base import Controller, ControllersConfig
+from .broadcaster import ForceTorqueSensorBroadcaster
 from .gripper import GripperActionController
+from .jtc import JointTrajectoryController
 from .velocity import VelocityForceController
 
 SWITCH_SERVICE = "/controller_manager/switch_controller"
@@ -190,23 +196,29 @@ class ControllerManager:
 
 
 TRAJECTORY_CONTROLLER = "joint_trajectory_admittance_controller"
+JTC_CONTROLLER = "joint_trajectory_controller"
+FT_BROADCASTER = "force_torque_sensor_broadcaster"
 VELOCITY_CONTROLLER = "velocity_force_controller"
 GRIPPER_CONTROLLER = "robotiq_gripper_controller"
 
 
 def make_controllers(bus: Bus, hardware: Hardware, clock: Clock, config: ControllersConfig | None = None) -> ControllerManager:
-    """The cell's controllers on ``bus``: velocity and gripper controllers active, the trajectory one inactive."""
+    """The cell's controllers on ``bus``: the velocity and gripper controllers and the F/T
+    broadcaster active, the two trajectory controllers inactive."""
     config = config or ControllersConfig()
     manager = ControllerManager(
         bus,
         clock,
         [
             JointTrajectoryAdmittanceController(TRAJECTORY_CONTROLLER, bus, hardware, clock, config),
+            JointTrajectoryController(JTC_CONTROLLER, bus, hardware, clock, config),
             VelocityForceController(VELOCITY_CONTROLLER, bus, hardware, clock, config),
             GripperActionController(GRIPPER_CONTROLLER, bus, hardware, clock, config),
+            ForceTorqueSensorBroadcaster(FT_BROADCASTER, bus, hardware, clock, config),
         ],
     )
     t = clock.now()
     manager[VELOCITY_CONTROLLER].activate(t)
     manager[GRIPPER_CONTROLLER].activate(t)
+    manager[FT_BROADCASTER].activate(t)
     return manager

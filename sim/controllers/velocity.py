@@ -21,10 +21,10 @@ from runtime.bus import Bus
 from runtime.clock import Clock
 
 from ..hardware import Hardware
-from .base import Controller, ControllersConfig, arm_command_interfaces, arm_state_interfaces
+from .base import ArmController, ControllersConfig
 
 
-class VelocityForceController(Controller):
+class VelocityForceController(ArmController):
     type_name = "moveit_pro_controllers/VelocityForceController"
 
     def __init__(self, name: str, bus: Bus, hardware: Hardware, clock: Clock, config: ControllersConfig) -> None:
@@ -40,14 +40,6 @@ class VelocityForceController(Controller):
     def _zero_fts(self, request: Trigger.Request) -> Trigger.Response:
         self.hardware.tare_wrench()
         return Trigger.Response(success=True, message="force-torque sensor zeroed")
-
-    @property
-    def command_interfaces(self) -> tuple[str, ...]:
-        return arm_command_interfaces(self.hardware)
-
-    @property
-    def state_interfaces(self) -> tuple[str, ...]:
-        return arm_state_interfaces(self.hardware)
 
     def _on_command(self, msg: Float64MultiArray) -> None:
         if not self.active:
