@@ -536,7 +536,7 @@ class _Builder:
             if node_id in doc.trees or (not hint and self.library.find(node_id, loc) is not None):
                 hint = f"; '{node_id}' is a BehaviorTree: use <SubTree ID=\"{node_id}\"/>"
             error = LoadError(f"unknown node '{node_id}'{hint or ' (objective behaviors lists the registered nodes)'}", loc, node_id)
-            raise self._look_into(element, doc, file, blackboard, stack, error)
+            raise self._look_into(element, doc, file, blackboard, stack, error, depth)
         cls = spec.cls
         if tag in EXPLICIT_TAGS and cls.kind not in EXPLICIT_TAGS[tag]:
             raise LoadError(f"'{node_id}' is a {cls.kind.value} node, not a{'n' if tag[0] in 'AE' else ''} {tag}", loc, node_id)
@@ -551,7 +551,7 @@ class _Builder:
             node = cls(name)
             node.bind(self.context, blackboard, values, loc, node_id)
         except ObjectiveError as err:
-            raise self._look_into(element, doc, file, blackboard, stack, err) from None
+            raise self._look_into(element, doc, file, blackboard, stack, err, depth) from None
         except ObjectiveRuntimeError:
             raise
         except Exception as err:  # a bug in the node's class: one paragraph, the traceback in a file
@@ -571,13 +571,13 @@ class _Builder:
         return self._with_conditions(node, conditions, loc, node_id)
 
     def _look_into(self, element: Any, doc: Document, file: str, blackboard: Blackboard, stack: list[tuple[str, str]],
-                   error: E) -> E:
+                   error: E, depth: int) -> E:
         """``error`` of a node that cannot be built; with ``collect``, its children are built for
         their errors only, which the error carries (``also``) to be reported after its own."""
         if self.collect:
             first = len(self.errors)
             for child_el in _elements(element):
-                self._build_child(child_el, doc, file, blackboard, stack)
+                self._build_child(child_el, doc, file, blackboard, stack, depth + 1)
             error.also = (*error.also, *self.errors[first:])
             del self.errors[first:]
         return error

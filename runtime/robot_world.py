@@ -13,6 +13,7 @@ position limits are known and velocity/acceleration are unbounded, which Execute
 """
 from __future__ import annotations
 
+from importlib.metadata import entry_points
 from pathlib import Path
 from typing import Any
 
@@ -21,6 +22,9 @@ import yaml
 from .behavior import RunContext
 from .scene import PlanningScene, RobotModel, load_joint_limits
 from .errors import OptionError
+
+MJCF_LOADER_GROUP = "objective.robot_loaders"
+"""Entry points ``mjcf = module:function(path, srdf, couplings=...) -> RobotModel``."""
 
 OPTIONS = ("seed", "realtime", "policy_latency", "record_dir", "policy", "urdf", "mjcf", "srdf", "couplings",
            "joint_limits", "group", "gripper_joint", "package_dirs", "waypoints")
@@ -58,6 +62,16 @@ def load_waypoints_yaml(path: Path) -> dict[str, dict[str, float]]:
     return out
 
 
+def _load_mjcf(path: Path, srdf: Path, couplings: Any) -> RobotModel:
+    """The robot of an MJCF file, by the loader an installed package names in ``MJCF_LOADER_GROUP``
+    (the simulated cell's, ``sim.mjcf``: the engine itself reads no MJCF)."""
+    found = [ep for ep in entry_points(group=MJCF_LOADER_GROUP) if ep.name == "mjcf"]
+    if not found:
+        raise OptionError("option 'mjcf' needs an MJCF loader, which comes with the [sim] extra "
+                          "(pip install 'objective-runtime[sim]'); or describe the robot with urdf=FILE")
+    return found[0].load()(path, srdf, couplings=couplings)
+
+
 class RobotDescriptionWorld:
     name = "robot"
 
@@ -70,7 +84,7 @@ class RobotDescriptionWorld:
         srdf = _existing(options, "srdf")
         couplings = _existing(options, "couplings") if options.get("couplings") else ()
         if options.get("mjcf"):
-            self.robot = RobotModel.from_mjcf(_existing(options, "mjcf"), srdf, couplings=couplings)
+            self.robot = _load_mjcf(_existing(options, "mjcf"), srdf, couplings)
         else:
             dirs = [d for d in str(options.get("package_dirs") or "").split(";") if d]
             self.robot = RobotModel.from_urdf(_existing(options, "urdf"), srdf, package_dirs=dirs, couplings=couplings)

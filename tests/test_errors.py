@@ -120,8 +120,8 @@ def test_evaluation_groups_failures_by_their_kind_not_their_text():
 
 
 def test_the_report_shows_every_policy_run(tmp_path):
-    from runtime.report.data import Recording
-    from runtime.report.html import _summary_table
+    from recording.report.data import Recording
+    from recording.report.html import _summary_table
 
     runs = [{"node": "policy", "chunks": 1, "steps_executed": 19, "stall_seconds": 0.0, "message": "the policy answered ERROR"},
             {"node": "policy", "chunks": 3, "steps_executed": 60, "stall_seconds": 0.2, "message": "executed 60 steps"}]

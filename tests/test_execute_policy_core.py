@@ -259,27 +259,6 @@ def test_a_run_that_stops_while_the_arm_waits_counts_the_wait_as_a_stall():
 
 
 # -- the stream's states -------------------------------------------------------------------
-class FakeHandle:
-    def __init__(self):
-        self.result = object()
-
-    def get_result_async(self):
-        return self.result
-
-
-def test_goal_states_go_sent_playing_ended_and_each_transition_returns_a_new_value():
-    none = Goal()
-    sent = none.sent("send-future", 1.5)
-    handle = FakeHandle()
-    playing = sent.accepted(handle)
-    ended = playing.ended("outcome")
-    assert [g.state for g in (none, sent, playing, ended)] == [GoalState.NONE, GoalState.SENT, GoalState.PLAYING, GoalState.ENDED]
-    assert (sent.send_future, sent.sent_at_s) == ("send-future", 1.5)
-    assert (playing.handle, playing.result_future, playing.send_future) == (handle, handle.result, None)
-    assert (ended.outcome, ended.handle, ended.result_future) == ("outcome", None, None)
-    assert none.state is GoalState.NONE and sent.state is GoalState.SENT  # unchanged
-
-
 def test_stream_state_holding_comes_before_awaiting_and_scheduling():
     flight = InFlight(None, 0.0, 0, 2, None)
     held = HeldChunk(ramp(), None, flight)
@@ -291,10 +270,10 @@ def test_stream_state_holding_comes_before_awaiting_and_scheduling():
 
 def test_the_stream_is_finished_when_all_steps_are_committed_nothing_is_asked_and_the_goal_ended():
     _, last = first_plan(total_steps=20)
-    ended = Goal().sent("f", 0.0).accepted(FakeHandle()).ended("ok")
+    ended = Goal(GoalState.ENDED, outcome="ok")
     flight = InFlight(None, 0.0, 0, 2, None)
     assert stream_finished(last.committed, None, ended)
     assert not stream_finished(last.committed, flight, ended)
-    assert not stream_finished(last.committed, None, Goal().sent("f", 0.0).accepted(FakeHandle()))
+    assert not stream_finished(last.committed, None, Goal(GoalState.PLAYING, handle=object(), result_future=object()))
     _, partial = first_plan(total_steps=100)
     assert not stream_finished(partial.committed, None, ended)

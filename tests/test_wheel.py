@@ -199,7 +199,7 @@ def test_the_wheel_is_what_runs(installed, outside):
 def test_validate_finds_the_subtree_library_without_the_checkout(installed, outside):
     proc = _run([str(installed / "objective"), "validate", "stack_cubes.xml"], cwd=outside)
     assert proc.returncode == 0, proc.stderr
-    assert proc.stdout.strip() == "ok: stack_cubes.xml: Stack Cubes (15 nodes), Prepare for Policy (8 nodes)"
+    assert proc.stdout.strip() == "ok: stack_cubes.xml: Stack Cubes (16 nodes), Prepare for Policy (9 nodes)"
 
 
 def test_the_stacking_objective_runs_on_the_kinematic_world(installed, outside):

@@ -34,7 +34,7 @@ from ..wrench_watch import WrenchWatch
 from .checks import PointChecks
 from .chunk import Chunk, ChunkError, period_problem, read_chunk, read_policy_chunk
 from .gripper import GripperGoal, follow_goals, join_targets
-from .observation import ObservationError, policy_tail, robot_state, stale_observation
+from .observation import ObservationError, StaleObservation, policy_tail, robot_state, stale_observation
 from .planner import (
     Arrival,
     PlanInput,
@@ -78,6 +78,7 @@ class FailureKind(enum.Enum):
     CONTROLLER = "controller"
     GRIPPER = "gripper"
     SCENE_CHANGED = "scene changed"
+    STALE_OBSERVATION = "stale observation"
 
 
 POLICY_RUNS = "execute_policy.runs"
@@ -238,6 +239,8 @@ class ExecutePolicy(Behavior):
             if self.phase is Phase.WARMUP:
                 return self._warmup()
             return self._stream()
+        except StaleObservation as err:  # a publisher stopped: what the world did, not the setup
+            return self._stop(Status.FAILURE, str(err), FailureKind.STALE_OBSERVATION)
         except (ObservationError, SafetyError) as err:  # e.g. joint states without the group's joints
             raise self._setup_error(str(err)) from None
 
@@ -402,7 +405,7 @@ class ExecutePolicy(Behavior):
         self.metrics.oldest_observation_s = max([self.metrics.oldest_observation_s] + [now - at for _, at in received if at is not None])
         stale = stale_observation(now, received, c.observation_age_limit_s)
         if stale is not None:
-            raise ObservationError(stale)
+            raise StaleObservation(stale)
         request.new_episode = new_episode
         request.frozen_prefix_steps = frozen
         request.guidance_horizon = c.guidance_horizon

@@ -14,6 +14,11 @@ class ObservationError(ObjectiveError, ValueError):
     pass
 
 
+class StaleObservation(Exception):
+    """An observation too old to feed the policy (``stale_observation``): the world stopped
+    publishing, so the run fails (the robot stops); not a mistake of the setup."""
+
+
 def robot_state(joint_state: Any, joints: Sequence[str], gripper_joint: str | None, topic: str) -> JointState:
     """Positions of the group's joints, then the gripper joint, taken from a JointState by name."""
     index = {name: i for i, name in enumerate(joint_state.name)}
