@@ -151,10 +151,11 @@ def test_an_unknown_controller_the_tree_computes_ends_the_run_as_error(tmp_path)
 
     path = tmp_path / "switch.xml"
     path.write_text("""<root BTCPP_format="4"><BehaviorTree ID="Main"><RetryUntilSuccessful num_attempts="3"><Sequence>
-      <Script code="name := 'joint_trajectory_controller'"/>
+      <Script code="name := 'scaled_joint_trajectory_controller'"/>
       <SwitchController activate_controllers="{name}" strictness="STRICT"/>
     </Sequence></RetryUntilSuccessful></BehaviorTree></root>""")
     result = run_file(path, Registry.from_entry_points(), RunOptions(world="kinematic", max_seconds=10.0))
     assert (result.status, result.failure_kind, result.failing_node) == ("ERROR", "SetupError", "SwitchController")
-    assert result.reason == (f"{path}:3: SwitchController: unknown controllers: joint_trajectory_controller (known: "
-                             "joint_trajectory_admittance_controller, robotiq_gripper_controller, velocity_force_controller)")
+    assert result.reason == (f"{path}:3: SwitchController: unknown controllers: scaled_joint_trajectory_controller (known: "
+                             "force_torque_sensor_broadcaster, joint_trajectory_admittance_controller, joint_trajectory_controller, "
+                             "robotiq_gripper_controller, velocity_force_controller)")

@@ -64,10 +64,25 @@ def motion_start(times: np.ndarray, q: np.ndarray) -> float:
 
 
 def test_an_action_served_with_another_type_is_an_error_naming_both_types(registry):
+    """In process the world's names are checked before the first tick: the port names the action
+    and both types it may have."""
     ports = f'{BASE} controller_action_name="/robotiq_gripper_controller/gripper_cmd"'
     run = run_policy(registry, ports, ScriptedPolicy(hold()))
-    assert run.result.status == "ERROR"
+    assert (run.result.status, run.result.failure_kind) == ("ERROR", "SetupError")
     assert run.result.reason.endswith(
+        "ExecutePolicy: port 'controller_action_name': action '/robotiq_gripper_controller/gripper_cmd' is a control_msgs/action/GripperCommand, not a moveit_pro_controllers_msgs/action/FollowJointTrajectoryWithAdmittance or a control_msgs/action/FollowJointTrajectory"
+    )
+    assert run.policy.requests == []  # nothing was asked of the policy
+
+
+def test_the_controller_link_names_both_types_when_the_served_type_is_another():
+    """Over ROS 2 the graph may still be starting before the first tick: then the node's own link
+    finds the type when the action appears, and says the same."""
+    from behaviors.controller_link import ControllerTypeError, controller_kind
+
+    with pytest.raises(ControllerTypeError) as caught:
+        controller_kind("/robotiq_gripper_controller/gripper_cmd", ["control_msgs/action/GripperCommand"])
+    assert str(caught.value) == (
         "controller action '/robotiq_gripper_controller/gripper_cmd' is served with type control_msgs/action/GripperCommand; "
         "expected moveit_pro_controllers_msgs/action/FollowJointTrajectoryWithAdmittance (MoveIt Pro's admittance controller) "
         "or control_msgs/action/FollowJointTrajectory (ros2_controllers' joint_trajectory_controller)"
@@ -109,7 +124,7 @@ def test_with_the_admittance_controller_the_reason_says_which_abort_tripped(regi
 
 def test_a_wrench_topic_that_never_publishes_fails_at_start_naming_it(registry):
     run = run_policy(registry, on_jtc('wrench_topic="/nobody/wrench"'), ScriptedPolicy(hold()), prepare=False, wrap=ON_JTC)
-    assert run.result.status == "FAILURE"
+    assert (run.result.status, run.result.failure_kind) == ("ERROR", "SetupError")  # a topic the robot lacks
     assert "a reading on wrench topic '/nobody/wrench'" in run.result.reason
 
 
@@ -143,4 +158,4 @@ def test_move_to_waypoint_on_an_action_of_another_type_is_an_error_too(registry,
 
     result = run_xml(registry, tmp_path, '<MoveToWaypoint waypoint_name="Home" controller_action_name="/robotiq_gripper_controller/gripper_cmd"/>')
     assert result.status == "ERROR"
-    assert "controller action '/robotiq_gripper_controller/gripper_cmd' is served with type control_msgs/action/GripperCommand; expected " in result.reason
+    assert "port 'controller_action_name': action '/robotiq_gripper_controller/gripper_cmd' is a control_msgs/action/GripperCommand, not a moveit_pro_controllers_msgs/action/FollowJointTrajectoryWithAdmittance or a control_msgs/action/FollowJointTrajectory" in result.reason

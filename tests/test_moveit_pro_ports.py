@@ -175,8 +175,8 @@ def test_move_to_waypoint_takes_moveit_pro_s_ports_and_its_scale_factors_set_the
     [
         # What the cell does not have is an error of the setup, found before anything moves.
         ('controller_names="no_such_controller"', "ERROR", "SwitchController 'activate the trajectory controller': port "
-         "'activate_controllers': unknown controller 'no_such_controller' (controllers: joint_trajectory_admittance_controller, "
-         "robotiq_gripper_controller, velocity_force_controller)"),
+         "'activate_controllers': unknown controller 'no_such_controller' (controllers: force_torque_sensor_broadcaster, "
+         "joint_trajectory_admittance_controller, joint_trajectory_controller, robotiq_gripper_controller, velocity_force_controller)"),
         ('controller_action_server="/nowhere/follow_joint_trajectory"', "ERROR",
          "MoveToWaypoint: port 'controller_action_name': no action '/nowhere/follow_joint_trajectory' (actions: "),
         ('joint_group_name="gripper_arm"', "ERROR", "MoveToWaypoint: port 'joint_group_name': unknown joint group 'gripper_arm'"),

@@ -296,7 +296,7 @@ def test_retrieve_waypoint_lists_the_known_waypoints(registry, tmp_path):
 def test_move_to_waypoint_jtc_names_the_controllers_when_asked_for_an_unknown_one(registry, tmp_path):
     result = run_xml(registry, tmp_path, '<SubTree ID="Move to Waypoint (JTC)" waypoint_name="Home" controller_names="scaled_joint_trajectory_controller"/>')
     assert (result.status, result.ticks) == ("ERROR", 0)  # a controller the cell lacks: an error of the setup
-    assert ("objectives/move_to_waypoint_jtc.xml:14: SwitchController: port 'activate_controllers': unknown controller "
+    assert ("objectives/move_to_waypoint_jtc.xml:16: SwitchController: port 'activate_controllers': unknown controller "
             "'scaled_joint_trajectory_controller'") in result.reason
     assert "joint_trajectory_controller, " in result.reason  # the cell's controllers are listed
 

@@ -24,7 +24,7 @@ class Watcher:
     def finished(self, result: Any, stop: Any) -> None:
         self.told.append(("finished", result.status))
 
-    def aborted(self, error: BaseException) -> None:
+    def aborted(self, error: BaseException, stop: Any) -> None:
         self.told.append(("aborted", str(error)))
 
 

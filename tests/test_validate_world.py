@@ -119,7 +119,8 @@ def test_validate_with_a_world_reports_every_name_it_lacks(registry, tmp_path, c
         f"error: {path}:6: ExecutePolicy: port 'joint_group_name': unknown joint group 'manipulatr' "
         "(did you mean 'manipulator'?) (joint groups: gripper, manipulator)",
         f"error: {path}:6: ExecutePolicy: port 'controller_action_name': action '/robotiq_gripper_controller/gripper_cmd' "
-        "is a control_msgs/action/GripperCommand, not a moveit_pro_controllers_msgs/action/FollowJointTrajectoryWithAdmittance",
+        "is a control_msgs/action/GripperCommand, not a moveit_pro_controllers_msgs/action/FollowJointTrajectoryWithAdmittance "
+        "or a control_msgs/action/FollowJointTrajectory",
     ]
     assert len(errors) == 5 and errors[4].startswith(
         f"error: {path}:6: ExecutePolicy: port 'gripper_joint_name': unknown joint 'robotiq_85_left_knucle_joint' "
