@@ -53,7 +53,7 @@ from runtime.bus import (
     ActionResult,
     Future,
 )
-from runtime.clock import Clock
+from runtime.clock import Clock, next_due
 
 _SPIN_PERIOD_S = 0.1  # how often the spin thread looks at its stop flag when the graph is idle
 _QUEUE_DEPTH = 10
@@ -287,7 +287,7 @@ class _OwnerLazyPublisher(_LazyPublisher):
 
     def publish(self, now_s: float) -> None:
         """Publish one message (when someone subscribes) and schedule the next, never a burst."""
-        self.due_at_s = max(self.due_at_s + self.period_s, now_s)
+        self.due_at_s = next_due(self.due_at_s, self.period_s, now_s)
         if self.publisher.subscriber_count() == 0:
             return
         started = time.monotonic()
@@ -564,6 +564,8 @@ class RosBus:
     ``clock`` is the runtime clock (``WallClock`` on a real ROS graph); it stamps ``ready_at``
     of futures. ROS timers (lazy publishers) run on wall time.
     """
+
+    produces_on_read = False
 
     def __init__(
         self,
