@@ -380,3 +380,18 @@ def test_a_goal_finished_inside_on_goal_reaches_the_client(buses, names):
     result = sent.result().get_result_async()
     wait_for(result.done, client_bus, what="the result")
     assert result.result().status == STATUS_ABORTED and result.result().result.position == 0.03
+
+
+def test_a_node_that_serves_nothing_spins_the_events_executor_and_refuses_servers(buses, names):
+    client_bus, server_bus = buses("runtime", serves=False), buses("policy")
+    assert type(client_bus._executor).__name__ == "EventsExecutor"
+    server_bus.create_service(names("get_action_chunk"), GetActionChunk, lambda request: GetActionChunk.Response(status=1))
+    client = client_bus.create_client(names("get_action_chunk"), GetActionChunk)
+    wait_for(client.service_is_ready, what="the service")
+    future = client.call_async(GetActionChunk.Request())
+    wait_for(future.done, client_bus, what="the answer")
+    assert future.result().status == 1
+    with pytest.raises(ValueError, match=r"service '.*': this node was made to serve nothing \(RosBus\(serves=False\)"):
+        client_bus.create_service(names("other"), GetActionChunk, lambda request: request)
+    with pytest.raises(ValueError, match=r"action server '.*': this node was made to serve nothing"):
+        client_bus.create_action_server(names("gripper_cmd"), GripperCommand, lambda handle: True)

@@ -10,7 +10,10 @@ Threads, and why:
   executor spins, and our API never blocks: behaviors poll ``future.done()`` at 100 Hz. A
   multi-threaded executor is needed because an accepted action goal keeps one executor thread
   waiting until its owner finishes it (see below); size ``num_threads`` for the number of goals
-  that may be active at once, plus a few for everything else.
+  that may be active at once, plus a few for everything else. A node that serves nothing
+  (``serves=False``: clients, subscriptions, publishers only, as the runtime driving a robot
+  in another process) spins rclpy's ``EventsExecutor`` instead: one thread and a tenth or less
+  of the CPU per message (``benchmarks/bench_executors.py``); its callbacks never block.
 - The executor threads only move data: ``latest``/``count`` of subscriptions and ``done()`` of
   futures change as soon as something arrives. Callbacks you hand to the bus
   (subscription callbacks, ``feedback_callback``, ``Future.add_done_callback``) run inside
@@ -576,11 +579,13 @@ class RosBus:
         domain_id: int | None = None,
         serve_in_spin_once: bool = False,
         num_threads: int = 8,
+        serves: bool = True,
     ) -> None:
         if num_threads < 2:
             raise ValueError(f"RosBus needs num_threads >= 2 (an active goal holds one), got {num_threads}")
         self.clock = clock
         self.serve_in_spin_once = serve_in_spin_once
+        self.serves = serves
         self._queue: collections.deque[Callable[[], None]] = collections.deque()
         self._cancel_calls: collections.deque[Callable[[], None]] = collections.deque()
         """Cancel requests to this node's action servers, waiting for the owner (``_serve``)."""
@@ -593,7 +598,12 @@ class RosBus:
         try:
             self.node = rclpy.create_node(node_name, namespace=namespace, context=self.context)
             self._group = ReentrantCallbackGroup()
-            self._executor = MultiThreadedExecutor(num_threads=num_threads, context=self.context)
+            if serves:
+                self._executor = MultiThreadedExecutor(num_threads=num_threads, context=self.context)
+            else:
+                from rclpy.experimental import EventsExecutor
+
+                self._executor = EventsExecutor(context=self.context)
             self._executor.add_node(self.node)
         except Exception:
             rclpy.try_shutdown(context=self.context)
@@ -640,7 +650,13 @@ class RosBus:
         return call.value
 
     # -- services ---
+    def _check_serves(self, what: str) -> None:
+        if not self.serves:
+            raise ValueError(f"{what}: this node was made to serve nothing (RosBus(serves=False): an events "
+                             "executor, whose one thread a server's waiting callback would block)")
+
     def create_service(self, name: str, srv_type: type, handler: Callable[[Any], Any]) -> Any:
+        self._check_serves(f"service '{name}'")
         if name in self._services:
             raise ValueError(f"service '{name}' is already served")
 
@@ -729,6 +745,7 @@ class RosBus:
         on_goal: Callable[[RosServerGoalHandle], bool],
         on_cancel: Callable[[RosServerGoalHandle], bool] | None = None,
     ) -> Any:
+        self._check_serves(f"action server '{name}'")
         if name in self._action_servers:
             raise ValueError(f"action server '{name}' already exists")
         self._action_servers[name] = _RosActionServer(self, name, action_type, on_goal, on_cancel)

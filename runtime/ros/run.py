@@ -37,11 +37,13 @@ trajectory goal and the gripper goal, from both the client and the server side, 
 controllers live on the same node); the rest deliver replies, frames and discovery."""
 
 
-def make_ros_bus(clock: WallClock, node_name: str = DEFAULT_NODE_NAME) -> Any:
-    """The runner's ``RosBus``: server callbacks run in ``spin_once`` on the runner thread."""
+def make_ros_bus(clock: WallClock, node_name: str = DEFAULT_NODE_NAME, serves: bool = True) -> Any:
+    """The runner's ``RosBus``: server callbacks run in ``spin_once`` on the runner thread.
+    ``serves=False`` (a world that hosts nothing, such as ``robot``): the node only calls,
+    sends goals and subscribes, on rclpy's events executor (see ``RosBus``)."""
     from runtime.ros.bus import RosBus  # rclpy is imported only for ROS runs
 
-    return RosBus(clock, node_name=node_name, serve_in_spin_once=True, num_threads=EXECUTOR_THREADS)
+    return RosBus(clock, node_name=node_name, serve_in_spin_once=True, num_threads=EXECUTOR_THREADS, serves=serves)
 
 
 CLOCK_TOPIC = "/clock"
