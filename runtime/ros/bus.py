@@ -32,6 +32,7 @@ which callers treat as a failure).
 from __future__ import annotations
 
 import collections
+import sys
 import threading
 import time
 from dataclasses import dataclass, field
@@ -62,6 +63,22 @@ _SPIN_PERIOD_S = 0.1  # how often the spin thread looks at its stop flag when th
 _QUEUE_DEPTH = 10
 CANCEL_DELIVERY_S = 2.0
 """Bound on how long ``close()`` waits for the cancels in flight to be served and answered."""
+
+
+def _events_executor(context: rclpy.Context) -> Any:
+    """rclpy's EventsExecutor. It enables ``faulthandler`` on ``sys.stderr``, which fails where
+    that is no file (a captured stream): then on the process's own stderr."""
+    from rclpy.experimental import EventsExecutor
+
+    try:
+        sys.stderr.fileno()
+    except (AttributeError, OSError, ValueError):
+        captured, sys.stderr = sys.stderr, sys.__stderr__
+        try:
+            return EventsExecutor(context=context)
+        finally:
+            sys.stderr = captured
+    return EventsExecutor(context=context)
 
 
 class BusClosed(RuntimeError):
@@ -601,9 +618,7 @@ class RosBus:
             if serves:
                 self._executor = MultiThreadedExecutor(num_threads=num_threads, context=self.context)
             else:
-                from rclpy.experimental import EventsExecutor
-
-                self._executor = EventsExecutor(context=self.context)
+                self._executor = _events_executor(self.context)
             self._executor.add_node(self.node)
         except Exception:
             rclpy.try_shutdown(context=self.context)
@@ -766,7 +781,7 @@ class RosBus:
         """Run the callbacks that arrived since the last call (and waiting server callbacks)."""
         for _ in range(len(self._queue)):
             self._queue.popleft()()
-        self._serve_cancels()
+        self.serve_cancels()
         if self.serve_in_spin_once:
             self._publish_due()
 
@@ -781,7 +796,8 @@ class RosBus:
                 return
             publisher.publish(now)
 
-    def _serve_cancels(self) -> None:
+    def serve_cancels(self) -> None:
+        """Serve the cancel requests to this node's action servers that wait for the owner."""
         for _ in range(len(self._cancel_calls)):
             self._cancel_calls.popleft()()
 
@@ -801,7 +817,7 @@ class RosBus:
         """
         deadline = time.monotonic() + (CANCEL_DELIVERY_S if timeout_s is None else timeout_s)
         while self.context.ok():
-            self._serve_cancels()
+            self.serve_cancels()
             if not self.cancels_in_flight():
                 return True
             if time.monotonic() >= deadline:
