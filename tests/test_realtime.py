@@ -184,8 +184,8 @@ def _loaded_realtime_run(registry: Registry, world: str, max_seconds: float) -> 
 
 @pytest.mark.slow
 def test_under_cpu_load_a_realtime_vla_sim_run_keeps_its_velocity_and_force_bounds(registry):
-    """The first 14 s of seed 1 under two busy loops (stitching at the wall clock's time made the
-    command jump at 7.8 rad/s here; the deterministic test above pins the mechanism)."""
+    """The first 14 s of seed 1 under two busy loops (stitching at the wall clock's time makes the
+    command jump here, 7.8 rad/s measured; the deterministic test above pins the mechanism)."""
     summary, log = _loaded_realtime_run(registry, "vla_sim", max_seconds=14.0)
     worst, at = log.worst_velocity()
     assert worst <= ARM_VELOCITY_LIMIT * 1.01, f"the command moved at {worst:.2f} rad/s at t={at:.3f} s"
