@@ -172,6 +172,7 @@ def row(setup: str, world: str, loaded: bool, results: list[dict[str, Any]]) -> 
         "peak_force_n": median([w.get("peak_force_n", float("nan")) for w in worlds]),
         "cpu_per_run_s": round(median([r["runtime_cpu_s"] / max(r["summary"]["wall_seconds"], 1e-9) for r in results]), 3),
         "statuses": [r["summary"]["status"] for r in results],
+        "failures": [r["summary"]["reason"] for r in results if r["summary"]["status"] != "SUCCESS"],
     }
 
 

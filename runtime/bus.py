@@ -162,6 +162,10 @@ class Bus(Protocol):
     """What behaviors and worlds use to talk; see ``InProcessBus`` and ``runtime.ros.RosBus``."""
 
     clock: Clock
+    produces_on_read: bool
+    """True when a lazy topic's message is produced as a subscriber reads it (in process); False
+    when topics are pushed at a rate to readers elsewhere (ROS 2), so a frame costs whether or
+    not it is read."""
 
     def create_service(self, name: str, srv_type: type, handler: Callable[[Any], Any]) -> Any: ...
 
@@ -528,6 +532,8 @@ class _InProcessActionClient:
 
 class InProcessBus:
     """Everything in one process, on one clock. Deterministic given the latency models."""
+
+    produces_on_read = True
 
     def __init__(self, clock: Clock, default_latency: LatencyModel | None = None) -> None:
         self.clock = clock

@@ -62,3 +62,11 @@ class WallClock:
 
     def __repr__(self) -> str:
         return f"WallClock(now={self.now():.6f})"
+
+
+def next_due(due: float, period: float, now: float) -> float:
+    """When the next message of a topic published every ``period`` is due, one having been
+    published at ``now`` for ``due``: a period on, or a period from now when that is already past
+    (never a burst to catch up)."""
+    following = due + period
+    return following if following > now else now + period

@@ -118,3 +118,6 @@ class RobotDescriptionWorld:
 
 def create(options: dict[str, Any]) -> RobotDescriptionWorld:
     return RobotDescriptionWorld(options)
+
+
+create.hosts_servers = False  # type: ignore[attr-defined]  # the robot's drivers serve; the run's node only calls

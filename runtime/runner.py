@@ -208,7 +208,7 @@ def make_context(options: RunOptions) -> RunContext:
         from .ros.run import make_ros_bus, sync_to_graph_clock  # rclpy is imported only for ROS runs
 
         wall = WallClock()
-        bus = make_ros_bus(wall, options.ros_node_name)
+        bus = make_ros_bus(wall, options.ros_node_name, serves=world_hosts_servers(options.world or default_world_name()))
         if options.use_sim_time:
             try:
                 sync_to_graph_clock(bus, wall)
@@ -219,6 +219,14 @@ def make_context(options: RunOptions) -> RunContext:
     clock = WallClock() if options.realtime else SimClock()
     bus = InProcessBus(clock)
     return RunContext(clock=clock, bus=bus, events=EventLog(clock), seed=options.seed)
+
+
+def world_hosts_servers(name: str) -> bool:
+    """Whether the world registered as ``name`` serves anything on the run's bus (services,
+    actions: a simulated cell does); its factory says otherwise with ``hosts_servers = False``.
+    True for a name nobody registered (``create_world`` reports that)."""
+    available = {ep.name: ep for ep in entry_points(group=WORLD_GROUP)}
+    return name not in available or bool(getattr(available[name].load(), "hosts_servers", True))
 
 
 def create_world(name: str, options: dict[str, Any]) -> Any:

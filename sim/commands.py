@@ -49,7 +49,7 @@ RECORD_DEMOS = Command("record oracle demonstrations in the cell as a local LeRo
 
 
 def _sim_robot_arguments(robot: argparse.ArgumentParser) -> None:
-    robot.add_argument("--world", default="vla_sim", metavar="NAME", help="the cell to host: vla_sim (default) or kinematic")
+    robot.add_argument("--world", default="vla_sim", choices=("vla_sim", "kinematic"), help="the cell to host (default vla_sim)")
     robot.add_argument("--seed", type=int, default=0, help="seed of the cubes' layout")
     robot.add_argument("--world-option", action="append", type=_key_value, default=[], metavar="KEY=VALUE",
                        help="an option of the world, as for `objective run` (repeatable)")

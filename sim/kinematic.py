@@ -123,6 +123,15 @@ class KinematicCell:
     def render(self, camera: str) -> np.ndarray:
         return self.frame
 
+    def snapshot(self) -> None:
+        """Nothing to copy: every frame is the same flat gray."""
+
+    def render_snapshot(self, snapshot: None, camera: str) -> np.ndarray:
+        return self.frame
+
+    def close_snapshot_renderer(self) -> None:
+        pass
+
     def close(self) -> None:
         pass
 

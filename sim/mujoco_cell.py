@@ -6,6 +6,8 @@ pads, not welded. Rendering needs ``MUJOCO_GL=egl`` (set here before mujoco is i
 """
 from __future__ import annotations
 
+import copy
+
 import os
 
 os.environ.setdefault("MUJOCO_GL", "egl")
@@ -89,6 +91,7 @@ class MujocoCell:
         self._gripper_weight = tuple((m.body_subtreemass[self._ft_body] * m.opt.gravity).tolist())  # fixed once compiled
         self._site_jacobian = np.zeros((6, m.nv))  # mj_jacSite fills rows 0-2 (linear) and 3-5 (angular)
         self._renderer: mujoco.Renderer | None = None  # one for all cameras: each costs ~50 ms to create
+        self._snapshot_renderer: mujoco.Renderer | None = None  # the camera thread's (sim.camera_thread)
         self._frames: dict[str, tuple[float, np.ndarray]] = {}
         self.external_wrench = np.zeros(6)  # tests push the tool with this (world frame, at the F/T site)
         self._pushed = False  # whether xfrc_applied holds a push from external_wrench
@@ -253,6 +256,25 @@ class MujocoCell:
         self.renders += 1
         self._frames[camera] = (self.t, frame)
         return frame
+
+    def snapshot(self) -> mujoco.MjData:
+        """A copy of the cell's state now, for ``render_snapshot`` on another thread."""
+        return copy.copy(self.data)
+
+    def render_snapshot(self, snapshot: mujoco.MjData, camera: str) -> np.ndarray:
+        """An RGB frame of ``camera`` in the state ``snapshot`` (from ``snapshot()``), drawn with a
+        renderer of the calling thread's own (``sim.camera_thread``; close it there with
+        ``close_snapshot_renderer``)."""
+        if self._snapshot_renderer is None:
+            self._snapshot_renderer = mujoco.Renderer(self.model, self.options.image_height, self.options.image_width)
+        self._snapshot_renderer.update_scene(snapshot, camera=camera)
+        self.renders += 1
+        return self._snapshot_renderer.render().copy()
+
+    def close_snapshot_renderer(self) -> None:
+        if self._snapshot_renderer is not None:
+            self._snapshot_renderer.close()
+            self._snapshot_renderer = None
 
     def close(self) -> None:
         if self._renderer is not None:

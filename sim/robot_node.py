@@ -81,7 +81,10 @@ def run_sim_robot(options: SimRobotOptions, stop: StopRequest) -> dict[str, Any]
     pacing = Pacing(period)
     ticks = 0
     try:
-        world.start(RunContext(clock=clock, bus=bus, events=EventLog(clock), seed=options.seed))
+        try:
+            world.start(RunContext(clock=clock, bus=bus, events=EventLog(clock), seed=options.seed))
+        except ValueError as err:
+            raise ValueError(f"world '{options.world}': {err}") from None
         clock_publisher = bus.create_publisher(CLOCK_TOPIC, Clock)
         print(f"sim robot '{options.world}' (seed {options.seed}) serving on ROS 2 as node /{options.node_name}", flush=True)
         while stop.signum is None:

@@ -49,6 +49,16 @@ class Cell(Hardware, Protocol):
 
     def render(self, camera: str) -> np.ndarray: ...
 
+    def snapshot(self) -> Any:
+        """A copy of the state now, which ``render_snapshot`` draws on another thread."""
+        ...
+
+    def render_snapshot(self, snapshot: Any, camera: str) -> np.ndarray: ...
+
+    def close_snapshot_renderer(self) -> None:
+        """Release what ``render_snapshot`` set up (called on the thread that rendered)."""
+        ...
+
     def place_box(self, name: str, size_m: np.ndarray, position_m: np.ndarray, quat_wxyz: np.ndarray) -> None: ...
 
     def remove_box(self, name: str) -> None: ...
@@ -141,8 +151,15 @@ class CellWorld:
         reliable = bool(self.options.get("joint_states_reliable", True))
         self.joint_states = bus.create_publisher("/joint_states", JointState, reliable=reliable)
         rate = number_option(self.options, "camera_rate_hz", 10.0)  # used on real ROS only
-        for name, topic in CAMERA_TOPICS.items():
-            bus.create_lazy_publisher(topic, Image, functools.partial(self._camera_frame, name), rate_hz=rate)
+        self.camera_thread = None
+        if getattr(bus, "produces_on_read", True):  # in process: a frame is rendered when it is read
+            for name, topic in CAMERA_TOPICS.items():
+                bus.create_lazy_publisher(topic, Image, functools.partial(self._camera_frame, name), rate_hz=rate)
+        else:  # pushed at a rate (ROS 2): rendered off the tick's thread
+            from .camera_thread import CameraThread
+
+            publishers = {name: bus.create_publisher(topic, Image) for name, topic in CAMERA_TOPICS.items()}
+            self.camera_thread = CameraThread(self.cell, publishers, rate, self._frame_message)
         from .sensor_topics import SensorTopics  # camera infos
 
         self.sensor_topics = SensorTopics(bus, self.cell, rate)
@@ -164,6 +181,8 @@ class CellWorld:
             now += CONTROL_PERIOD
         self.controllers.advance(times, CONTROL_PERIOD, self.cell.step)
         self._publish()
+        if self.camera_thread is not None:
+            self.camera_thread.offer(self.cell.t)
         self.synced_cubes = sync_cubes(self.context.scene, self.cell.cube_poses(), self.synced_cubes)
 
     def reset(self, seed: int) -> None:
@@ -200,6 +219,9 @@ class CellWorld:
         }
         if self.boxes.boxes:
             summary["boxes"] = self.boxes.summary()
+        frames = getattr(self, "camera_thread", None)
+        if frames is not None:  # on ROS 2: frame sets published, and due sets the renderer could not keep up with
+            summary["camera_sets"] = {"published": frames.sets_published, "skipped": frames.sets_skipped}
         controllers = getattr(self, "controllers", None)  # absent when the world never started
         if controllers is not None:  # what the F/T thresholds were compared with, on either trajectory controller
             arms = (controllers[TRAJECTORY_CONTROLLER], controllers[JTC_CONTROLLER])
@@ -208,6 +230,8 @@ class CellWorld:
         return summary
 
     def close(self) -> None:
+        if getattr(self, "camera_thread", None) is not None:
+            self.camera_thread.close()
         self.cell.close()
 
     # -- publishing --------------------------------------------------------------------------
@@ -224,11 +248,13 @@ class CellWorld:
         return cube_pose_msg(color, position, quat, self.cell.t)
 
     def _camera_frame(self, camera: str) -> Image:
-        pixels = self.cell.render(camera)
+        return self._frame_message(camera, self.cell.render(camera), self.cell.t)
+
+    def _frame_message(self, camera: str, pixels: np.ndarray, t: float) -> Image:
         if self.encoding == "bgr8":
             pixels = np.ascontiguousarray(pixels[..., ::-1])
         image = rgb_to_image(pixels, encoding=self.encoding, frame_id=f"{camera}_camera")
-        image.header.stamp = time_msg(self.cell.t)
+        image.header.stamp = time_msg(t)
         return image
 
 

@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import subprocess
 import sys
+import threading
+import time
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -180,18 +182,65 @@ def _loaded_realtime_run(registry: Registry, world: str, max_seconds: float) -> 
     return result.to_json(), log
 
 
-@pytest.mark.parametrize("world", ["kinematic"])
-def test_under_cpu_load_the_realtime_command_stays_within_the_velocity_limits(registry, world):
-    summary, log = _loaded_realtime_run(registry, world, max_seconds=6.0)
-    assert summary["ticks"] > 0 and len(log.positions) > 100, summary["reason"]
-    worst, at = log.worst_velocity()
-    assert worst <= ARM_VELOCITY_LIMIT * 1.01, f"the command moved at {worst:.2f} rad/s at t={at:.3f} s"
-
-
 @pytest.mark.slow
 def test_under_cpu_load_a_realtime_vla_sim_run_keeps_its_velocity_and_force_bounds(registry):
+    """The first 14 s of seed 1 under two busy loops (stitching at the wall clock's time makes the
+    command jump here, 7.8 rad/s measured; the deterministic test above pins the mechanism)."""
     summary, log = _loaded_realtime_run(registry, "vla_sim", max_seconds=14.0)
     worst, at = log.worst_velocity()
     assert worst <= ARM_VELOCITY_LIMIT * 1.01, f"the command moved at {worst:.2f} rad/s at t={at:.3f} s"
     assert summary["world"]["peak_force_n"] < F_T_THRESHOLD_N, summary["reason"]
     assert summary["status"] != "FAILURE" or "--max-seconds" in summary["reason"], summary["reason"]
+
+
+# -- camera frames off the tick's thread (ROS 2) ---------------------------------------------------
+class _SlowCell:
+    """Renders on whichever thread asks, in ``render_s`` of wall time; records where and what."""
+
+    def __init__(self, render_s: float) -> None:
+        self.render_s, self.rendered = render_s, []
+        self.released = threading.Event()
+
+    def snapshot(self) -> float:
+        return time.monotonic()
+
+    def render_snapshot(self, snapshot: float, camera: str) -> np.ndarray:
+        self.rendered.append((threading.current_thread(), camera, snapshot))
+        time.sleep(self.render_s)
+        return np.zeros((2, 2, 3), dtype=np.uint8)
+
+    def close_snapshot_renderer(self) -> None:
+        self.released.set()
+
+
+class _Publisher:
+    def __init__(self, subscribers: int) -> None:
+        self.subscribers, self.messages = subscribers, []
+
+    def subscriber_count(self) -> int:
+        return self.subscribers
+
+    def publish(self, msg) -> None:
+        self.messages.append(msg)
+
+
+def test_camera_frames_are_rendered_off_the_owners_thread_at_most_at_their_rate():
+    from sim.camera_thread import CameraThread
+
+    cell = _SlowCell(render_s=0.05)
+    publishers = {"scene": _Publisher(1), "wrist": _Publisher(0)}
+    frames = CameraThread(cell, publishers, rate_hz=10.0, to_image=lambda camera, pixels, t: (camera, t))
+    try:
+        started = time.monotonic()
+        frames.offer(1.0)  # due: handed over at once, the owner does not wait for the render
+        assert time.monotonic() - started < 0.04
+        frames.offer(1.05)  # not due before 1.1 s
+        frames.offer(1.1)  # due, but the thread still renders the first set: skipped, not queued
+        deadline = time.monotonic() + 5.0
+        while frames.sets_published < 1 and time.monotonic() < deadline:
+            time.sleep(0.01)
+    finally:
+        frames.close()
+    assert [(thread is threading.main_thread(), camera) for thread, camera, _ in cell.rendered] == [(False, "scene")]
+    assert publishers["scene"].messages == [("scene", 1.0)] and publishers["wrist"].messages == []  # nobody on wrist
+    assert frames.sets_skipped == 1 and cell.released.is_set()

@@ -473,3 +473,16 @@ def test_the_cell_s_jtc_and_broadcaster_serve_over_ros(buses, names):
     wait_for(stepping(listed.done), client_bus, what="list_controllers")
     states = {c.name: c.state for c in listed.result().controller}
     assert states["joint_trajectory_controller"] == "active" and states["force_torque_sensor_broadcaster"] == "active"
+def test_a_node_that_serves_nothing_spins_the_events_executor_and_refuses_servers(buses, names):
+    client_bus, server_bus = buses("runtime", serves=False), buses("policy")
+    assert type(client_bus._executor).__name__ == "EventsExecutor"
+    server_bus.create_service(names("get_action_chunk"), GetActionChunk, lambda request: GetActionChunk.Response(status=1))
+    client = client_bus.create_client(names("get_action_chunk"), GetActionChunk)
+    wait_for(client.service_is_ready, what="the service")
+    future = client.call_async(GetActionChunk.Request())
+    wait_for(future.done, client_bus, what="the answer")
+    assert future.result().status == 1
+    with pytest.raises(ValueError, match=r"service '.*': this node was made to serve nothing \(RosBus\(serves=False\)"):
+        client_bus.create_service(names("other"), GetActionChunk, lambda request: request)
+    with pytest.raises(ValueError, match=r"action server '.*': this node was made to serve nothing"):
+        client_bus.create_action_server(names("gripper_cmd"), GripperCommand, lambda handle: True)

@@ -111,3 +111,20 @@ def test_use_sim_time_without_a_clock_on_the_graph_names_what_to_start():
     with RosBus(clock, node_name="no_clock_here") as bus:
         with pytest.raises(ObjectiveError, match=r"nothing published /clock within 0.3 s \(start the simulated robot first"):
             sync_to_graph_clock(bus, clock, timeout_s=0.3)
+
+
+def test_sim_robot_bad_world_options_are_bad_input(capsys):
+    code = main(["sim-robot", "--world", "kinematic", "--world-option", "camera_rate_hz=-1"])
+    assert code == 2
+    assert "error: world 'kinematic': camera_rate_hz must be > 0, got -1.0" in capsys.readouterr().err
+
+
+def test_sim_robot_describe_writes_what_the_robot_world_loads(tmp_path, capsys):
+    assert main(["sim-robot", "--describe", str(tmp_path)]) == 0
+    options = capsys.readouterr().out.split()
+    assert options[0] == "--world-option" and f"mjcf={tmp_path / 'robot.xml'}" in options
+    from runtime.robot_world import create
+
+    world = create(dict(option.split("=", 1) for option in options if option != "--world-option"))
+    assert world.limits is not None and world.gripper_joint == "robotiq_85_left_knuckle_joint"
+    assert set(world.waypoints) == {"Home", "Observe", "Ready"}

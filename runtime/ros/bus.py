@@ -10,7 +10,10 @@ Threads, and why:
   executor spins, and our API never blocks: behaviors poll ``future.done()`` at 100 Hz. A
   multi-threaded executor is needed because an accepted action goal keeps one executor thread
   waiting until its owner finishes it (see below); size ``num_threads`` for the number of goals
-  that may be active at once, plus a few for everything else.
+  that may be active at once, plus a few for everything else. A node that serves nothing
+  (``serves=False``: clients, subscriptions, publishers only, as the runtime driving a robot
+  in another process) spins rclpy's ``EventsExecutor`` instead: one thread and a tenth or less
+  of the CPU per message (``benchmarks/bench_executors.py``); its callbacks never block.
 - The executor threads only move data: ``latest``/``count`` of subscriptions and ``done()`` of
   futures change as soon as something arrives. Callbacks you hand to the bus
   (subscription callbacks, ``feedback_callback``, ``Future.add_done_callback``) run inside
@@ -29,6 +32,7 @@ which callers treat as a failure).
 from __future__ import annotations
 
 import collections
+import sys
 import threading
 import time
 from dataclasses import dataclass, field
@@ -53,12 +57,28 @@ from runtime.bus import (
     ActionResult,
     Future,
 )
-from runtime.clock import Clock
+from runtime.clock import Clock, next_due
 
 _SPIN_PERIOD_S = 0.1  # how often the spin thread looks at its stop flag when the graph is idle
 _QUEUE_DEPTH = 10
 CANCEL_DELIVERY_S = 2.0
 """Bound on how long ``close()`` waits for the cancels in flight to be served and answered."""
+
+
+def _events_executor(context: rclpy.Context) -> Any:
+    """rclpy's EventsExecutor. It enables ``faulthandler`` on ``sys.stderr``, which fails where
+    that is no file (a captured stream): then on the process's own stderr."""
+    from rclpy.experimental import EventsExecutor
+
+    try:
+        sys.stderr.fileno()
+    except (AttributeError, OSError, ValueError):
+        captured, sys.stderr = sys.stderr, sys.__stderr__
+        try:
+            return EventsExecutor(context=context)
+        finally:
+            sys.stderr = captured
+    return EventsExecutor(context=context)
 
 
 class BusClosed(RuntimeError):
@@ -290,7 +310,7 @@ class _OwnerLazyPublisher(_LazyPublisher):
 
     def publish(self, now_s: float) -> None:
         """Publish one message (when someone subscribes) and schedule the next, never a burst."""
-        self.due_at_s = max(self.due_at_s + self.period_s, now_s)
+        self.due_at_s = next_due(self.due_at_s, self.period_s, now_s)
         if self.publisher.subscriber_count() == 0:
             return
         started = time.monotonic()
@@ -568,6 +588,8 @@ class RosBus:
     of futures. ROS timers (lazy publishers) run on wall time.
     """
 
+    produces_on_read = False
+
     def __init__(
         self,
         clock: Clock,
@@ -577,11 +599,13 @@ class RosBus:
         domain_id: int | None = None,
         serve_in_spin_once: bool = False,
         num_threads: int = 8,
+        serves: bool = True,
     ) -> None:
         if num_threads < 2:
             raise ValueError(f"RosBus needs num_threads >= 2 (an active goal holds one), got {num_threads}")
         self.clock = clock
         self.serve_in_spin_once = serve_in_spin_once
+        self.serves = serves
         self._queue: collections.deque[Callable[[], None]] = collections.deque()
         self._cancel_calls: collections.deque[Callable[[], None]] = collections.deque()
         """Cancel requests to this node's action servers, waiting for the owner (``_serve``)."""
@@ -594,7 +618,10 @@ class RosBus:
         try:
             self.node = rclpy.create_node(node_name, namespace=namespace, context=self.context)
             self._group = ReentrantCallbackGroup()
-            self._executor = MultiThreadedExecutor(num_threads=num_threads, context=self.context)
+            if serves:
+                self._executor = MultiThreadedExecutor(num_threads=num_threads, context=self.context)
+            else:
+                self._executor = _events_executor(self.context)
             self._executor.add_node(self.node)
         except Exception:
             rclpy.try_shutdown(context=self.context)
@@ -641,7 +668,13 @@ class RosBus:
         return call.value
 
     # -- services ---
+    def _check_serves(self, what: str) -> None:
+        if not self.serves:
+            raise ValueError(f"{what}: this node was made to serve nothing (RosBus(serves=False): an events "
+                             "executor, whose one thread a server's waiting callback would block)")
+
     def create_service(self, name: str, srv_type: type, handler: Callable[[Any], Any]) -> Any:
+        self._check_serves(f"service '{name}'")
         if name in self._services:
             raise ValueError(f"service '{name}' is already served")
 
@@ -730,6 +763,7 @@ class RosBus:
         on_goal: Callable[[RosServerGoalHandle], bool],
         on_cancel: Callable[[RosServerGoalHandle], bool] | None = None,
     ) -> Any:
+        self._check_serves(f"action server '{name}'")
         if name in self._action_servers:
             raise ValueError(f"action server '{name}' already exists")
         self._action_servers[name] = _RosActionServer(self, name, action_type, on_goal, on_cancel)
@@ -755,7 +789,7 @@ class RosBus:
         """Run the callbacks that arrived since the last call (and waiting server callbacks)."""
         for _ in range(len(self._queue)):
             self._queue.popleft()()
-        self._serve_cancels()
+        self.serve_cancels()
         if self.serve_in_spin_once:
             self._publish_due()
 
@@ -770,7 +804,8 @@ class RosBus:
                 return
             publisher.publish(now)
 
-    def _serve_cancels(self) -> None:
+    def serve_cancels(self) -> None:
+        """Serve the cancel requests to this node's action servers that wait for the owner."""
         for _ in range(len(self._cancel_calls)):
             self._cancel_calls.popleft()()
 
@@ -790,7 +825,7 @@ class RosBus:
         """
         deadline = time.monotonic() + (CANCEL_DELIVERY_S if timeout_s is None else timeout_s)
         while self.context.ok():
-            self._serve_cancels()
+            self.serve_cancels()
             if not self.cancels_in_flight():
                 return True
             if time.monotonic() >= deadline:

@@ -1,15 +1,20 @@
 """``objective run --ros``: the runtime as a node on a real ROS 2 graph.
 
-In ROS mode the run's bus is a ``RosBus`` and its clock a ``WallClock``: every service, action
-and topic the behaviors use, and every one the hosted world (the simulated cell) serves, is a
-real ROS 2 endpoint of one node (``/objective_runtime`` by default). A policy adapter, an
-inference server or a real controller in another process is then reached exactly as the
-in-process ones are in a headless run.
+In ROS mode the run's bus is on ROS 2 and its clock a ``WallClock``: every service, action and
+topic the behaviors use, and every one the hosted world (the simulated cell) serves, is a real
+ROS 2 endpoint. The behaviors' side is node ``/objective_runtime`` (by default); a hosted world's
+servers are node ``/objective_runtime_cell`` in the same process (``HostingBus``). A policy
+adapter, an inference server or a real controller in another process is then reached exactly as
+the in-process ones are in a headless run.
 
 Why these choices:
 - ``WallClock``: the other processes on the graph live in real time (their timeouts, ROS
   timers, a policy's latency), so simulated time that runs ahead of the wall would make every
   answer look instant and every timeout meaningless. ``--ros`` therefore implies ``--realtime``.
+- Two nodes, two executors: a node that serves nothing spins rclpy's events executor (a tenth or
+  less of the CPU per message), while servers need the multi-threaded one (an accepted goal holds
+  a thread until its owner finishes it). So the behaviors' node, which only calls, sends goals
+  and subscribes, is apart from the hosted servers' node.
 - ``serve_in_spin_once=True``: the hosted world's servers (simulated controllers, the controller
   manager, camera frames) share state with the world, which the runner steps on its own thread
   (and MuJoCo renders on the thread that owns its GL context). Their callbacks therefore wait
@@ -34,16 +39,79 @@ HALT_GRACE_S = 0.25
 the simulated cell's controllers bring a cancelled trajectory to rest within 0.2 s) before it
 is destroyed."""
 EXECUTOR_THREADS = 12
-"""Executor threads of the runner's node. Each active action goal holds one (the controller's
-trajectory goal and the gripper goal, from both the client and the server side, since the hosted
-controllers live on the same node); the rest deliver replies, frames and discovery."""
+"""Executor threads of the hosted servers' node. Each active action goal holds one (the
+controller's trajectory goal and the gripper goal); the rest deliver requests and cancels."""
+CELL_NODE_SUFFIX = "_cell"
 
 
-def make_ros_bus(clock: WallClock, node_name: str = DEFAULT_NODE_NAME) -> Any:
-    """The runner's ``RosBus``: server callbacks run in ``spin_once`` on the runner thread."""
+def make_ros_bus(clock: WallClock, node_name: str = DEFAULT_NODE_NAME, serves: bool = True) -> Any:
+    """The runner's bus on ROS 2: a ``HostingBus`` when the world hosts servers (``serves``),
+    else one ``RosBus`` that serves nothing (the ``robot`` world: the robot's drivers serve)."""
     from runtime.ros.bus import RosBus  # rclpy is imported only for ROS runs
 
-    return RosBus(clock, node_name=node_name, serve_in_spin_once=True, num_threads=EXECUTOR_THREADS)
+    if serves:
+        return HostingBus(clock, node_name)
+    return RosBus(clock, node_name=node_name, serve_in_spin_once=True, serves=False)
+
+
+class HostingBus:
+    """The bus of a run that hosts a world's servers on ROS 2: services and action servers on
+    node ``<name>_cell`` (multi-threaded executor, callbacks served in ``spin_once``),
+    everything else (clients, goals sent, subscriptions, publishers) on node ``<name>`` (events
+    executor). ``spin_once`` and ``close`` handle both; the cancels the behaviors' node sends to
+    the hosted action servers are served before either node leaves the graph."""
+
+    produces_on_read = False
+
+    def __init__(self, clock: WallClock, node_name: str = DEFAULT_NODE_NAME) -> None:
+        from runtime.ros.bus import RosBus
+
+        self.clock = clock
+        self.calls = RosBus(clock, node_name=node_name, serve_in_spin_once=True, serves=False)
+        try:
+            self.servers = RosBus(clock, node_name=node_name + CELL_NODE_SUFFIX, serve_in_spin_once=True,
+                                  num_threads=EXECUTOR_THREADS)
+        except BaseException:
+            self.calls.close()
+            raise
+        self.create_service = self.servers.create_service
+        self.destroy_service = self.servers.destroy_service
+        self.create_action_server = self.servers.create_action_server
+        self.destroy_action_server = self.servers.destroy_action_server
+        self.create_client = self.calls.create_client
+        self.create_publisher = self.calls.create_publisher
+        self.create_lazy_publisher = self.calls.create_lazy_publisher
+        self.destroy_publisher = self.calls.destroy_publisher
+        self.create_subscription = self.calls.create_subscription
+        self.destroy_subscription = self.calls.destroy_subscription
+        self.create_action_client = self.calls.create_action_client
+
+    def spin_once(self) -> None:
+        self.calls.spin_once()
+        self.servers.spin_once()
+
+    def cancels_in_flight(self) -> int:
+        return self.calls.cancels_in_flight() + self.servers.cancels_in_flight()
+
+    def deliver_cancels(self, timeout_s: float | None = None) -> bool:
+        """``RosBus.deliver_cancels`` for both nodes at once: the behaviors' cancels are answered
+        only once the hosted servers' node has served them."""
+        from runtime.ros.bus import CANCEL_DELIVERY_S
+
+        deadline = time.monotonic() + (CANCEL_DELIVERY_S if timeout_s is None else timeout_s)
+        while self.cancels_in_flight():
+            self.servers.serve_cancels()
+            if time.monotonic() >= deadline:
+                return False
+            time.sleep(0.005)
+        return True
+
+    def close(self) -> None:
+        try:
+            self.deliver_cancels()
+            self.calls.close()
+        finally:
+            self.servers.close()
 
 
 CLOCK_TOPIC = "/clock"
