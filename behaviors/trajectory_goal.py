@@ -20,12 +20,13 @@ GOAL_TIME_TOLERANCE_S = 1.0
 """The controller's default: how late a goal may finish."""
 
 
-def trajectory_msg(samples: Samples, joints: Sequence[str], stamp_s: float = 0.0) -> JointTrajectory:
+def trajectory_msg(samples: Samples, joints: Sequence[str], stamp_s: float = 0.0, stamp_offset_s: float = 0.0) -> JointTrajectory:
     """``samples`` as a trajectory stamped ``stamp_s`` (0: start now), each point at its sample
     time less the stamp: samples on the clock for a stamped trajectory, timed from its start for
-    one that starts now."""
+    one that starts now. A stamp goes out in the controllers' time, ``stamp_offset_s`` later
+    (``RunContext.stamp_offset_s``)."""
     msg = JointTrajectory(joint_names=list(joints))
-    msg.header.stamp = time_msg(stamp_s)
+    msg.header.stamp = time_msg(stamp_s + stamp_offset_s if stamp_s else 0.0)
     msg.points = trajectory_points(samples.times - stamp_s, samples.positions, samples.velocities, samples.accelerations)
     return msg
 

@@ -42,7 +42,10 @@ class RunContext:
     simulated world when the run hosts one (behaviors must not reach into it: it exists for
     world-level nodes such as ResetSim and for the runner). ``resources`` holds per-run objects
     that plug-ins share, keyed by name (e.g. the cell's waypoints). ``tick_period_s`` is the clock
-    time between two ticks of the tree (the runner's ``1 / tick_hz``).
+    time between two ticks of the tree (the runner's ``1 / tick_hz``). ``stamp_offset_s`` is what
+    turns a time on ``clock`` into a stamp the robot's controllers read: 0 when they keep the run's
+    time (in process, a hosted cell, a robot on ``/clock`` with ``--use-sim-time``); on a real robot
+    over ROS 2, the ROS time (the system clock) at the run's clock zero.
     """
 
     clock: Clock
@@ -52,6 +55,7 @@ class RunContext:
     world: Any = None
     seed: int = 0
     tick_period_s: float = 0.01
+    stamp_offset_s: float = 0.0
     resources: dict[str, Any] = field(default_factory=dict)
     logger: logging.Logger = field(default_factory=lambda: logging.getLogger("objective"))
 

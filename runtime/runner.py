@@ -209,16 +209,26 @@ def make_context(options: RunOptions) -> RunContext:
 
         wall = WallClock()
         bus = make_ros_bus(wall, options.ros_node_name, serves=world_hosts_servers(options.world or default_world_name()))
+        stamp_offset_s = 0.0
         if options.use_sim_time:
             try:
                 sync_to_graph_clock(bus, wall)
             except BaseException:
                 bus.close()
                 raise
-        return RunContext(clock=wall, bus=bus, events=EventLog(wall), seed=options.seed)
+        elif not world_hosts_servers(options.world or default_world_name()):
+            stamp_offset_s = robot_time_offset_s(wall)  # a real robot's controllers stamp with ROS time
+        return RunContext(clock=wall, bus=bus, events=EventLog(wall), seed=options.seed, stamp_offset_s=stamp_offset_s)
     clock = WallClock() if options.realtime else SimClock()
     bus = InProcessBus(clock)
     return RunContext(clock=clock, bus=bus, events=EventLog(clock), seed=options.seed)
+
+
+def robot_time_offset_s(clock: Any) -> float:
+    """What to add to ``clock``'s time for the ROS time of a robot without ``/clock``: the system
+    clock, which ROS 2 nodes read when ``use_sim_time`` is off (a controller that reads a goal's
+    stamp as an instant, such as joint_trajectory_controller, compares it with that)."""
+    return time.time() - clock.now()
 
 
 def world_hosts_servers(name: str) -> bool:

@@ -254,3 +254,31 @@ def test_the_page_works_in_headless_chromium(recording, tmp_path):
     assert video["error"] is None and video["width"] > 0 and video["duration"] > 0
     assert video["time"] > 0, "the video did not play"
     assert iio.imread(io.BytesIO(shot)).shape[1] >= 1000
+
+
+def mcap_record_offsets(data: bytes) -> list[int]:
+    """Where each record of an MCAP file starts: after the 8-byte magic, a record is an opcode
+    byte, a little-endian 8-byte length and that many bytes."""
+    offsets, at = [], 8
+    while at + 9 <= len(data):
+        offsets.append(at)
+        at += 9 + int.from_bytes(data[at + 1: at + 9], "little")
+    return offsets
+
+
+@pytest.mark.parametrize("into", [1, 5, 12])
+def test_a_recording_cut_anywhere_in_a_record_reads_as_partial(recording, tmp_path, into):
+    """A run.mcap cut short (a full disk, a killed writer) inside a record's opcode and length
+    (1, 5 bytes in) or inside its body (12) reads as a partial recording up to the last whole
+    chunk, never as an error."""
+    from recording.report.data import load_recording
+
+    copy = tmp_path / "cut"
+    shutil.copytree(recording, copy)
+    mcap = copy / "run.mcap"
+    data = mcap.read_bytes()
+    offsets = mcap_record_offsets(data)
+    middle = offsets[len(offsets) // 2]
+    mcap.write_bytes(data[: middle + into])
+    loaded = load_recording(copy)
+    assert any(p.startswith("run.mcap ends early") for p in loaded.partial), loaded.partial

@@ -312,3 +312,25 @@ def test_a_camera_that_stops_publishing_over_ros_stops_the_run_naming_its_topic(
     assert result.reason.endswith(" s old, more than max_observation_age = 1.00 s: its publisher stopped or fell "
                                   "behind; the policy is not fed an old world, robot stopped")
     assert len(requests) == 3 and time.monotonic() - started < 20.0
+
+
+@pytest.mark.parametrize("world, on_ros_time", [("robot", True), ("kinematic", False)])
+def test_goal_stamps_are_in_ros_time_on_a_robot_and_in_the_run_s_time_with_a_hosted_cell(ros_env, world, on_ros_time):
+    """A real robot's controllers read a goal's stamp as an instant of ROS time (the system clock
+    without use_sim_time): a run on the `robot` world stamps its seams there; a hosted cell keeps
+    the run's own clock, so its stamps are not moved."""
+    from behaviors.execute_policy.shaping import Samples
+    from behaviors.trajectory_goal import trajectory_msg
+    from runtime.timestamps import to_seconds
+
+    context = make_context(RunOptions(ros=True, world=world))
+    try:
+        seam_s = context.clock.now() + 0.5
+        samples = Samples(np.array([seam_s, seam_s + 0.1]), np.zeros((2, 1)), np.zeros((2, 1)), np.zeros((2, 1)))
+        msg = trajectory_msg(samples, ["j"], seam_s, context.stamp_offset_s)
+        expected = time.time() + 0.5 if on_ros_time else seam_s
+        assert abs(to_seconds(msg.header.stamp) - expected) < 0.25
+        assert [to_seconds(p.time_from_start) for p in msg.points] == pytest.approx([0.0, 0.1])
+        assert to_seconds(trajectory_msg(samples, ["j"], 0.0, context.stamp_offset_s).header.stamp) == 0.0  # "start now" stays 0
+    finally:
+        context.bus.close()

@@ -535,7 +535,7 @@ class ExecutePolicy(Behavior):
             lands_s = goal_takes_effect_s(now, self.context.tick_period_s, self.goal_latency_s)
             jtc = jtc_stream_points(self._committed().samples, samples, lands_s)
             stamp_s, samples, seam_index = jtc.stamp_s, jtc.samples, jtc.seam_index
-        trajectory = trajectory_msg(samples, self.safety.group_joints, stamp_s)
+        trajectory = trajectory_msg(samples, self.safety.group_joints, stamp_s, self.context.stamp_offset_s)
         if seam_index is not None:
             trajectory.points[seam_index].accelerations = []
         tolerances = GoalTolerances(c.goal_path_tolerance, max(0.5, 5 * c.dt), tuple(c.absolute_force_torque_threshold))

@@ -8,6 +8,7 @@ mcap-ros2-support, the way Foxglove would.
 from __future__ import annotations
 
 import json
+import struct
 from collections import defaultdict
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -211,11 +212,14 @@ def clock_origin_ns(path: Path) -> int:
     """The wall-clock instant of the runtime clock's zero in a recording (0 for older files):
     the ``objective_runtime`` metadata record, written before the first message."""
     with open(path, "rb") as stream:
-        for record in StreamReader(stream, skip_magic=False).records:
-            if isinstance(record, Metadata) and record.name == METADATA_NAME:
-                return int(record.metadata.get("clock_origin_ns", "0"))
-            if isinstance(record, (Message, Chunk)):
-                return 0
+        try:
+            for record in StreamReader(stream, skip_magic=False).records:
+                if isinstance(record, Metadata) and record.name == METADATA_NAME:
+                    return int(record.metadata.get("clock_origin_ns", "0"))
+                if isinstance(record, (Message, Chunk)):
+                    return 0
+        except (EndOfFile, struct.error):  # a file cut before its first message
+            return 0
     return 0
 
 
@@ -319,7 +323,7 @@ def read_mcap(path: Path, recording: Recording) -> None:
         try:
             for schema, channel, message in NonSeekingReader(stream).iter_messages(log_time_order=False):
                 contents.add(channel.topic, schema.name if schema is not None else "", message.log_time, message.data)
-        except EndOfFile:
+        except (EndOfFile, struct.error):  # cut inside a record's opcode and length, or inside its body
             end = contents.end_time_s()
             why = "its last whole chunk" if (recording.summary or {}).get("recording_incomplete") else "the recorder did not close it"
             recording.partial.append(f"{path.name} ends early{f' at {end:.2f} s' if end is not None else ''}: {why}")

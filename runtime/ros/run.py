@@ -85,6 +85,7 @@ class HostingBus:
         self.create_subscription = self.calls.create_subscription
         self.destroy_subscription = self.calls.destroy_subscription
         self.create_action_client = self.calls.create_action_client
+        self.action_types = self.calls.action_types  # what the graph serves under a name
 
     def spin_once(self) -> None:
         self.calls.spin_once()
