@@ -79,11 +79,14 @@ def test_one_chunk_drives_the_simulated_robot_from_another_process(env, policy, 
 
 
 @pytest.mark.slow
-def test_four_processes_stack_the_cubes(env, policy, tmp_path):  # noqa: F811
+@pytest.mark.parametrize("objective", ["objectives/stack_cubes.xml", "objectives/stack_cubes_jtc.xml"])
+def test_four_processes_stack_the_cubes(env, policy, tmp_path, objective):  # noqa: F811
+    """On the admittance controller, and through the robot's stock joint_trajectory_controller
+    (with its force_torque_sensor_broadcaster watched by ExecutePolicy)."""
     robot = start_robot(env, tmp_path / "cell")
     try:
         stack = tmp_path / "stack.xml"  # the check reads cube poses the robot world's scene does not hold
-        stack.write_text("\n".join(line for line in (REPO / "objectives/stack_cubes.xml").read_text().splitlines()
+        stack.write_text("\n".join(line for line in (REPO / objective).read_text().splitlines()
                                    if 'SubTree ID="Check if One Cube Is on Another"' not in line))
         summary = run_on_robot(stack, env, robot, timeout=180)
     finally:
