@@ -20,6 +20,7 @@ from .checks import CheckFailure
 from .chunk import Chunk
 from .shaping import NO_TAIL, ChunkMotion, Samples, Tail, densify, fit_chunk, join_at_seam, plan_tail, runout_chunk_steps
 from .states import GoalState, SentMotion
+from .at_rest import Arrival, arrives_at_rest, take_over_time, window_arrival_step
 from .stream import StepGrid, Window, WindowError, drained_seconds
 
 SHORT_CHUNK = "chunk too short"
@@ -60,14 +61,6 @@ class PlanInput:
     arrival: Arrival | None = None  # when the chunk came; None: it is placed by earliest_seam_step alone
 
 
-@dataclass(frozen=True)
-class Arrival:
-    """When a chunk came, on the step grid, and the earliest instant a goal sent now takes effect."""
-
-    step: int  # the first step at or after the chunk arrived
-    goal_takes_effect_s: float  # now plus one tick and twice the goal delivery time (``goal_takes_effect_s``)
-
-
 class WaitReason(enum.Enum):
     GOAL_UNANSWERED = "the controller has not answered the previous goal"
     MOTION_ENDS_FIRST = "the motion still playing ends before the chunk could join it"
@@ -99,7 +92,7 @@ def plan_chunk(inp: PlanInput) -> Planned | Wait | Reject:
         # Whether the controller plays the previous goal decides how this chunk joins (a refused
         # goal rolls the stream back).
         return Wait(WaitReason.GOAL_UNANSWERED)
-    from_rest = inp.arrival if arrives_at_rest(inp.sent.motion, inp.arrival, inp.sent.grid) else None
+    from_rest = inp.arrival if arrives_at_rest(inp.sent.motion, inp.arrival, inp.sent.grid) else None  # see ``at_rest``
     plan = _plan(inp, from_rest)
     if isinstance(plan, Reject) and from_rest is not None:
         # A window started at the arrival step gives the start from rest a fraction of a step
@@ -166,32 +159,6 @@ def _plan(inp: PlanInput, from_rest: Arrival | None) -> Planned | Wait | Reject:
     stall = drained_seconds(None if previous is None else previous.full_speed_end, seam_time)
     new_grid = grid.with_window(window, tail, chunk.steps)
     return Planned(window, seam_time, SentMotion(new_grid, motion, samples), stall, takes_over)
-
-
-def arrives_at_rest(previous: ChunkMotion | None, arrival: Arrival | None, grid: StepGrid) -> bool:
-    """Whether the arm rests when the chunk arrives: before the first chunk, or once the
-    sent motion (its runout included) has ended by the arrival step."""
-    if arrival is None:
-        return False
-    return previous is None or previous.rest_time <= grid.time(arrival.step) + 1e-9
-
-
-def window_arrival_step(arrival: Arrival | None, grid: StepGrid, earliest_seam_step: int) -> int | None:
-    """The arrival step the window of a chunk that finds the arm at rest may start at
-    (``stream.from_rest_seam``; ``arrival`` None: the arm moves): only while its goal takes
-    effect strictly before the earliest seam step begins, so that the goal takes over within the
-    window's first step. None: the window starts at the earliest seam."""
-    if arrival is None or grid.time(earliest_seam_step) - arrival.goal_takes_effect_s <= 1e-9:
-        return None
-    return arrival.step
-
-
-def take_over_time(seam_time_s: float, arrival: Arrival | None) -> float:
-    """When the goal takes over from the motion the controller plays: at the seam, except that
-    the window of a chunk that finds the arm at rest (``arrival`` not None) may start at the
-    step the chunk arrived (``stream.from_rest_seam``) while its goal takes effect later within
-    that step. The arm rests until then, and the blend from rest catches up the fraction of a step."""
-    return seam_time_s if arrival is None else max(seam_time_s, arrival.goal_takes_effect_s)
 
 
 def state_at(motion: ChunkMotion | None, t: float, rest_position: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:

@@ -14,6 +14,7 @@ import numpy as np
 
 from runtime.errors import ObjectiveError
 
+from .at_rest import from_rest_seam
 from .shaping import NO_TAIL, RUNOUT_SLOWDOWN, Tail, runout_warp
 
 
@@ -57,19 +58,6 @@ def tail_progress(steps_since_end: int, tail_extension_steps: int, tail_runout_s
     if steps_since_end <= tail_extension_steps:
         return max(0, steps_since_end)
     return tail_extension_steps + runout_progress(steps_since_end - tail_extension_steps, tail_runout_steps)
-
-
-def from_rest_seam(earliest_seam: int, arrival_step: int | None) -> int:
-    """The step where a chunk that finds the arm at rest (the first chunk, or one after the
-    previous motion ran out) starts its window: the first step at or after the chunk arrived,
-    as both baselines play a chunk into an empty queue, unless its goal cannot take effect
-    within that step (``earliest_seam`` is later still); then the step before the earliest seam.
-    A goal that takes effect within the window's first step (one tick after the arrival, in
-    process) starts the motion from rest there (``planner.take_over_time``). ``arrival_step``
-    None (the arm is moving): the earliest seam."""
-    if arrival_step is None:
-        return earliest_seam
-    return max(0, arrival_step, earliest_seam - 1)
 
 
 def drained_seconds(motion_end: float | None, until: float) -> float:
@@ -136,7 +124,7 @@ class StepGrid:
         given the first step it can still join at (``earliest_seam``, from its arrival). A late
         chunk's window leaves ``runout_reserve`` steps of the chunk for its own runout.
         ``arrival_step`` (the first step at or after the chunk arrived; None: ``earliest_seam``)
-        places a chunk that finds the arm at rest: see ``from_rest_seam``.
+        places a chunk that finds the arm at rest: see ``at_rest.from_rest_seam``.
 
         Raises WindowError when the chunk ends before the seam.
         """

@@ -89,7 +89,7 @@ def sizing_risk(window_steps: int, dt: float, latency_s: float, chunk_steps: int
 def sizing_warning(window_steps: int, dt: float, latency_s: float, what: str, detail: str = "",
                    chunk_steps: int | None = None) -> str | None:
     """The sizing warning, with the figures, when ``latency_s`` (``what``: where the figure comes
-    from, ``detail``: how it was made) is more than the committed window covers; else None.
+    from, ``detail``: how it was made) is more than the window (``committed_action_steps``) covers; else None.
     ``chunk_steps`` (the policy's chunk size, None: not known) says whether the tail covers it."""
     risk = sizing_risk(window_steps, dt, latency_s, chunk_steps)
     if risk is SizingRisk.COVERED:
