@@ -89,7 +89,7 @@ class GripperStream:
     def reset(self) -> None:
         self.schedule: list[tuple[float, float]] = []  # (time, target), due in order
         self.plan: dict[int, float] = {}  # the last window's targets, by run step
-        self.sent: float | None = None  # the last target sent
+        self.last_target: float | None = None  # the last target sent
         self.goals: list[GripperGoal] = []
 
     def ready(self) -> bool:
@@ -102,7 +102,7 @@ class GripperStream:
             return
         steps = range(window.seam_step, window.end_step + grid.tail.extension_steps)
         earlier = [s for s in self.plan if s < window.seam_step]  # the target in effect before the seam
-        before = self.plan[max(earlier)] if earlier else self.sent
+        before = self.plan[max(earlier)] if earlier else self.last_target
         targets = join_targets(before, [float(chunk.gripper[s - window.request_step]) for s in steps], max_velocity_rad_s * grid.dt)
         self.plan = dict(zip(steps, targets))
         self.schedule = [(grid.time(s), target) for s, target in self.plan.items()]
@@ -114,10 +114,10 @@ class GripperStream:
             target = self.schedule.pop(0)[1]
         if target is None:
             return
-        if self.sent is not None and abs(target - self.sent) < GRIPPER_DEADBAND_RAD:
+        if self.last_target is not None and abs(target - self.last_target) < GRIPPER_DEADBAND_RAD:
             return
         self.goals.append(GripperGoal(target, Goal.send(self.client, gripper_command(target, GRIPPER_MAX_EFFORT_N), now_s)))
-        self.sent = target
+        self.last_target = target
 
     def follow(self) -> str | None:
         """The first problem in the answers that came (``follow_goals``), or None."""
