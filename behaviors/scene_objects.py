@@ -8,7 +8,7 @@ object). They edit the live planning scene in the tick they run; MoveIt Pro's op
 ``planning_scene`` port (edit a scene held on the blackboard instead) is not offered.
 
 A change is seen at once by every later check, and by a running ExecutePolicy, which re-checks
-the rest of its committed motion whenever the scene changes ("the planning scene changed: ...").
+the rest of its sent motion whenever the scene changes ("the planning scene changed: ...").
 These are virtual objects: the simulated cell's physics does not know them (``PlaceSimBox``
 places a box the physics does know).
 

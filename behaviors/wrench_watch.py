@@ -37,6 +37,10 @@ class WrenchWatch:
         self.first_crossing: str | None = None
         self.subscription = bus.create_subscription(topic, WrenchStamped, self._on_reading, reliable=False)
 
+    def reset(self) -> None:
+        """Forget the crossings seen so far (a new run of the behavior that watches)."""
+        self.first_crossing = None
+
     @property
     def has_reading(self) -> bool:
         return self.subscription.latest is not None

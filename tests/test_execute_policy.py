@@ -197,6 +197,27 @@ def test_every_run_of_a_retried_policy_is_counted(registry):
     assert run.result.to_json()["execute_policy"]["chunks"] == 4
 
 
+def test_a_retried_policy_builds_its_bus_clients_once(registry):
+    # Built in setup(), reset in initialise(): the second run talks through the first run's clients.
+    created: list[str] = []
+
+    def count(context, world):
+        for method in ("create_client", "create_action_client", "create_subscription"):
+            def counted(name, *args, _original=getattr(context.bus, method), **kwargs):
+                created.append(name)
+                return _original(name, *args, **kwargs)
+            setattr(context.bus, method, counted)
+
+    def answer(i, request):
+        return R(status=R.ERROR, message="lost the cube") if i == 2 else hold()(i, request)
+
+    run = run_policy(registry, BASE, ScriptedPolicy(answer), wrap=RETRY, before=count)
+    assert run.result.status == "SUCCESS", run.result.reason
+    assert run.summary["run_count"] == 2
+    assert (created.count(SERVICE), created.count("/joint_trajectory_admittance_controller/follow_joint_trajectory"),
+            created.count("/joint_states")) == (1, 1, 1)
+
+
 # -- start-up ------------------------------------------------------------------------------
 SERVICES_HERE = "/controller_manager/list_controllers, /controller_manager/switch_controller, /velocity_force_controller/zero_fts"
 

@@ -191,10 +191,10 @@ def test_timing_rules():
 def test_a_chunk_that_finds_the_arm_at_rest_plays_from_the_arms_step():
     from behaviors.execute_policy.stream import StepGrid
 
-    grid = StepGrid(origin_s=0.0, dt=0.1, committed_steps=20, total_steps=100)
+    grid = StepGrid(origin_s=0.0, dt=0.1, window_steps=20, total_steps=100)
     first = grid.plan_window(1, request_step=0, frozen=3, chunk_steps=50, earliest_seam=5)
     assert (first.seam_step, first.request_step, first.first_chunk_step) == (5, 5, 0)
-    grid = grid.commit(first)  # committed motion ends at step 25
+    grid = grid.with_window(first)  # sent motion ends at step 25
     on_time = grid.plan_window(2, request_step=22, frozen=3, chunk_steps=50, earliest_seam=24)
     assert (on_time.seam_step, on_time.first_chunk_step) == (25, 3)
     late = grid.plan_window(2, request_step=22, frozen=3, chunk_steps=50, earliest_seam=31)
@@ -268,7 +268,7 @@ def test_sizing_warning_says_whether_the_chunk_s_tail_covers_the_latency():
 # -- joining a chunk that starts away from the arm ---------------------------------------------
 def _offset_join(max_acceleration):
     """A re-planned chunk after a slow inference: it is 0.55 rad away from where the
-    committed motion is at the seam (and 0.23 rad/s slower); the window is 15 steps of 0.1 s."""
+    sent motion is at the seam (and 0.23 rad/s slower); the window is 15 steps of 0.1 s."""
     chunk = np.linspace([0.0, 0.0], [0.3, -0.1], 50)
     spline = fit_chunk(chunk, 300.0)
     k = 34.0

@@ -124,10 +124,10 @@ def validate(config: PolicyRunConfig | Any) -> None:
         )
 
 
-def committed_window_problem(committed_steps: int, chunk_steps: int) -> str | None:
+def committed_window_problem(window_steps: int, chunk_steps: int) -> str | None:
     """The guide's rule for the first chunk: ``committed_action_steps`` must be smaller than the
     policy's chunk size, or no next chunk can take over before this one runs out."""
-    if committed_steps < chunk_steps:
+    if window_steps < chunk_steps:
         return None
-    return (f"committed_action_steps ({committed_steps}) must be smaller than the policy's chunk size "
+    return (f"committed_action_steps ({window_steps}) must be smaller than the policy's chunk size "
             f"({chunk_steps} steps): set committed_action_steps to at most {max(1, chunk_steps - 1)}")

@@ -8,6 +8,9 @@ one it aborts short of its target without having stalled, ends the run. A goal t
 ``stalled`` (the fingers stopped on an object: a grasp) is normal, whether the controller
 reports it as succeeded or, like ros2_controllers' GripperActionController without
 ``allow_stalling``, as aborted. A goal preempted by the next one ends CANCELED: normal too.
+
+``GripperStream`` holds one run's gripper schedule and goals: ``queue`` plans a window's targets,
+``stream`` sends those that are due, ``follow`` reads the answers.
 """
 from __future__ import annotations
 
@@ -17,6 +20,12 @@ from typing import Any
 from runtime.bus import STATUS_ABORTED, STATUS_CANCELED, STATUS_SUCCEEDED
 
 from ..action_goal import Goal, GoalState
+from ..gripper import gripper_command
+from .chunk import Chunk
+from .stream import StepGrid, Window
+
+GRIPPER_MAX_EFFORT_N = 60.0  # the 2F-85 holds a 30 mm cube well below its 235 N maximum
+GRIPPER_DEADBAND_RAD = 0.01  # of the driver joint: smaller changes are not re-sent
 
 
 def join_targets(before: float | None, targets: list[float], max_step_rad: float) -> list[float]:
@@ -67,3 +76,53 @@ def follow_goals(goals: list[GripperGoal], action_name: str) -> str | None:
             if problem is not None:
                 return problem
     return None
+
+
+class GripperStream:
+    """The gripper column of the sent windows, streamed to the gripper action ``action_name``
+    through ``client`` (built once); ``reset`` starts a run."""
+
+    def __init__(self, client: Any, action_name: str) -> None:
+        self.client, self.action_name = client, action_name
+        self.reset()
+
+    def reset(self) -> None:
+        self.schedule: list[tuple[float, float]] = []  # (time, target), due in order
+        self.plan: dict[int, float] = {}  # the last window's targets, by run step
+        self.last_target: float | None = None  # the last target sent
+        self.goals: list[GripperGoal] = []
+
+    def ready(self) -> bool:
+        return bool(self.client.server_is_ready())
+
+    def queue(self, chunk: Chunk, window: Window, grid: StepGrid, max_velocity_rad_s: float) -> None:
+        """Plan the targets of ``window`` (the arm plays the tail's extension too), taken over from
+        the target in effect before its seam (``join_targets``)."""
+        if chunk.gripper is None:
+            return
+        steps = range(window.seam_step, window.end_step + grid.tail.extension_steps)
+        earlier = [s for s in self.plan if s < window.seam_step]  # the target in effect before the seam
+        before = self.plan[max(earlier)] if earlier else self.last_target
+        targets = join_targets(before, [float(chunk.gripper[s - window.request_step]) for s in steps], max_velocity_rad_s * grid.dt)
+        self.plan = dict(zip(steps, targets))
+        self.schedule = [(grid.time(s), target) for s, target in self.plan.items()]
+
+    def stream(self, now_s: float) -> None:
+        """Send the newest target due by ``now_s`` unless it is within ``GRIPPER_DEADBAND_RAD`` of the last one sent."""
+        target = None
+        while self.schedule and self.schedule[0][0] <= now_s + 1e-9:
+            target = self.schedule.pop(0)[1]
+        if target is None:
+            return
+        if self.last_target is not None and abs(target - self.last_target) < GRIPPER_DEADBAND_RAD:
+            return
+        self.goals.append(GripperGoal(target, Goal.send(self.client, gripper_command(target, GRIPPER_MAX_EFFORT_N), now_s)))
+        self.last_target = target
+
+    def follow(self) -> str | None:
+        """The first problem in the answers that came (``follow_goals``), or None."""
+        return follow_goals(self.goals, self.action_name)
+
+    def cancel(self) -> None:
+        """Send nothing more (the goals sent play out)."""
+        self.schedule = []

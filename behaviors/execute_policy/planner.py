@@ -1,4 +1,4 @@
-"""Where a chunk's seam is planned: a pure function from the committed state, the chunk and the
+"""Where a chunk's seam is planned: a pure function from the sent motion, the chunk and the
 time to Planned / Wait / Reject. Nothing here talks to the bus or reads the clock.
 
 ``plan_chunk`` picks the chunk's window on the step grid (``StepGrid.plan_window``), decides
@@ -19,7 +19,8 @@ import numpy as np
 from .checks import CheckFailure
 from .chunk import Chunk
 from .shaping import NO_TAIL, ChunkMotion, Samples, Tail, densify, fit_chunk, join_at_seam, plan_tail, runout_chunk_steps
-from .states import Committed, GoalState
+from .states import GoalState, SentMotion
+from .at_rest import Arrival, arrives_at_rest, take_over_time, window_arrival_step
 from .stream import StepGrid, Window, WindowError, drained_seconds
 
 SHORT_CHUNK = "chunk too short"
@@ -47,7 +48,7 @@ class ShapingConfig:
 
 @dataclass(frozen=True)
 class PlanInput:
-    committed: Committed
+    sent: SentMotion  # what the controller has been sent so far
     goal: GoalState  # of the newest goal
     chunk: Chunk
     index: int  # chunk number, 1-based
@@ -58,14 +59,6 @@ class PlanInput:
     config: ShapingConfig
     checks: Checks
     arrival: Arrival | None = None  # when the chunk came; None: it is placed by earliest_seam_step alone
-
-
-@dataclass(frozen=True)
-class Arrival:
-    """When a chunk came, on the step grid, and the earliest instant a goal sent now takes effect."""
-
-    step: int  # the first step at or after the chunk arrived
-    goal_takes_effect_s: float  # now plus one tick and twice the goal delivery time (``goal_takes_effect_s``)
 
 
 class WaitReason(enum.Enum):
@@ -89,7 +82,7 @@ class Reject:
 class Planned:
     window: Window
     seam_time_s: float  # of the window's seam step
-    committed: Committed  # after the commit: the new grid, motion and samples
+    sent: SentMotion  # once sent: the new grid, motion and samples
     stall_s: float  # the arm had left full speed (runout, then rest) this long before the seam
     takes_over_s: float  # the goal's stamp: the seam, or within its step for a first chunk (take_over_time)
 
@@ -99,7 +92,7 @@ def plan_chunk(inp: PlanInput) -> Planned | Wait | Reject:
         # Whether the controller plays the previous goal decides how this chunk joins (a refused
         # goal rolls the stream back).
         return Wait(WaitReason.GOAL_UNANSWERED)
-    from_rest = inp.arrival if arrives_at_rest(inp.committed.motion, inp.arrival, inp.committed.grid) else None
+    from_rest = inp.arrival if arrives_at_rest(inp.sent.motion, inp.arrival, inp.sent.grid) else None  # see ``at_rest``
     plan = _plan(inp, from_rest)
     if isinstance(plan, Reject) and from_rest is not None:
         # A window started at the arrival step gives the start from rest a fraction of a step
@@ -113,11 +106,11 @@ def plan_chunk(inp: PlanInput) -> Planned | Wait | Reject:
 def _plan(inp: PlanInput, from_rest: Arrival | None) -> Planned | Wait | Reject:
     """``plan_chunk`` with the window started at the arrival step (``from_rest``) or at the
     earliest seam (None)."""
-    c, grid, chunk, index = inp.config, inp.committed.grid, inp.chunk, inp.index
-    previous = inp.committed.motion
+    shaping, grid, chunk, index = inp.config, inp.sent.grid, inp.chunk, inp.index
+    previous = inp.sent.motion
     try:
         window = grid.plan_window(index, inp.request_step, inp.frozen, chunk.steps, inp.earliest_seam_step,
-                                  runout_reserve=runout_chunk_steps(nominal_runout_s(c), c.dt),
+                                  runout_reserve=runout_chunk_steps(nominal_runout_s(shaping), shaping.dt),
                                   arrival_step=window_arrival_step(from_rest, grid, inp.earliest_seam_step))
     except WindowError as err:
         return Reject(f"chunk {index} rejected: {err}", SHORT_CHUNK)
@@ -133,69 +126,43 @@ def _plan(inp: PlanInput, from_rest: Arrival | None) -> Planned | Wait | Reject:
     takes_over = take_over_time(seam_time, from_rest)
     start_p, start_v = state_at(previous, takes_over, inp.rest_position)
     motion = join_at_seam(
-        fit_chunk(chunk.arm, c.policy_tracking_weight),
-        c.dt,
+        fit_chunk(chunk.arm, shaping.policy_tracking_weight),
+        shaping.dt,
         grid.time(window.request_step),
         takes_over,
         grid.time(window.end_step),
         start_p,
         start_v,
-        blend_duration=max(c.dt, 0.5 * window.steps * c.dt),
-        max_acceleration=c.max_acceleration,
+        blend_duration=max(shaping.dt, 0.5 * window.steps * shaping.dt),
+        max_acceleration=shaping.max_acceleration,
     )
     last_window = window.tail_played + window.steps >= grid.remaining
-    tail = NO_TAIL if last_window else chunk_tail(motion, chunk, window, grid.remaining - window.tail_played - window.steps, c)
+    tail = NO_TAIL if last_window else chunk_tail(motion, chunk, window, grid.remaining - window.tail_played - window.steps, shaping)
     motion = motion.at_rest_at_end() if last_window else motion.with_tail(tail)
     # A chunk over the limits on its own is the policy's; the join is planned within them.
-    reason = inp.checks.limits(densify(motion.chunk_alone(), c.num_interpolation_points), window)
+    reason = inp.checks.limits(densify(motion.chunk_alone(), shaping.num_interpolation_points), window)
     if reason is not None:
         return Reject(f"chunk {index} rejected: {reason}", reason.kind.value)
-    samples = densify(motion, c.num_interpolation_points)
+    samples = densify(motion, shaping.num_interpolation_points)
     reason = inp.checks.path(samples, window)
     for shorter in shorter_tails(tail) if reason is not None else ():
         # The tail only keeps the arm going while the next chunk is late: where the chunk's path
         # beyond its window is unsafe but the window is not, the tail stops short of the unsafe
         # point (a shorter extension, then the runout), or the window ends without one.
         candidate = motion.with_tail(shorter)
-        candidate_samples = densify(candidate, c.num_interpolation_points)
+        candidate_samples = densify(candidate, shaping.num_interpolation_points)
         if inp.checks.path(candidate_samples, window) is None:
             motion, samples, reason, tail = candidate, candidate_samples, None, shorter
             break
     if reason is not None:
         return Reject(f"chunk {index} rejected: {reason}", reason.kind.value)
     stall = drained_seconds(None if previous is None else previous.full_speed_end, seam_time)
-    new_grid = grid.commit(window, tail, chunk.steps)
-    return Planned(window, seam_time, Committed(new_grid, motion, samples), stall, takes_over)
-
-
-def arrives_at_rest(previous: ChunkMotion | None, arrival: Arrival | None, grid: StepGrid) -> bool:
-    """Whether the arm rests when the chunk arrives: before the first chunk, or once the
-    committed motion (its runout included) has ended by the arrival step."""
-    if arrival is None:
-        return False
-    return previous is None or previous.rest_time <= grid.time(arrival.step) + 1e-9
-
-
-def window_arrival_step(arrival: Arrival | None, grid: StepGrid, earliest_seam_step: int) -> int | None:
-    """The arrival step the window of a chunk that finds the arm at rest may start at
-    (``stream.from_rest_seam``; ``arrival`` None: the arm moves): only while its goal takes
-    effect strictly before the earliest seam step begins, so that the goal takes over within the
-    window's first step. None: the window starts at the earliest seam."""
-    if arrival is None or grid.time(earliest_seam_step) - arrival.goal_takes_effect_s <= 1e-9:
-        return None
-    return arrival.step
-
-
-def take_over_time(seam_time_s: float, arrival: Arrival | None) -> float:
-    """When the goal takes over from the motion the controller plays: at the seam, except that
-    the window of a chunk that finds the arm at rest (``arrival`` not None) may start at the
-    step the chunk arrived (``stream.from_rest_seam``) while its goal takes effect later within
-    that step. The arm rests until then, and the blend from rest catches up the fraction of a step."""
-    return seam_time_s if arrival is None else max(seam_time_s, arrival.goal_takes_effect_s)
+    new_grid = grid.with_window(window, tail, chunk.steps)
+    return Planned(window, seam_time, SentMotion(new_grid, motion, samples), stall, takes_over)
 
 
 def state_at(motion: ChunkMotion | None, t: float, rest_position: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
-    """Position and velocity of the committed motion at ``t`` (at rest after it ends; at
+    """Position and velocity of the sent motion at ``t`` (at rest after it ends; at
     ``rest_position`` before the first chunk)."""
     if motion is None:
         assert rest_position is not None, "the arm's position is needed before the first chunk"
@@ -207,13 +174,13 @@ def state_at(motion: ChunkMotion | None, t: float, rest_position: np.ndarray | N
     return p[0], v[0]
 
 
-def nominal_runout_s(c: ShapingConfig) -> float:
+def nominal_runout_s(shaping: ShapingConfig) -> float:
     """How long a runout takes unless braking from the chunk's speed needs longer: a quarter of a
     window (it plays the chunk's last steps at half speed on average: time lost to a late chunk)."""
-    return 0.25 * c.committed_action_steps * c.dt
+    return 0.25 * shaping.committed_action_steps * shaping.dt
 
 
-def chunk_tail(motion: ChunkMotion, chunk: Chunk, window: Window, remaining_steps: int, c: ShapingConfig) -> Tail:
+def chunk_tail(motion: ChunkMotion, chunk: Chunk, window: Window, remaining_steps: int, shaping: ShapingConfig) -> Tail:
     """The window's tail if no chunk takes over at its end: the chunk's steps beyond the window
     at full speed, then a runout to rest at its last step (``shaping.plan_tail``). It stops a
     step short of the run's ``remaining_steps`` after the window, so a late chunk always has a
@@ -221,9 +188,9 @@ def chunk_tail(motion: ChunkMotion, chunk: Chunk, window: Window, remaining_step
     spare = min(chunk.steps - 1 - (window.end_step - window.request_step), remaining_steps - 1)
     if spare < 1:
         return NO_TAIL
-    beyond = motion.end + c.dt * np.arange(spare + 1)
+    beyond = motion.end + shaping.dt * np.arange(spare + 1)
     _, velocity, _ = motion.evaluate(beyond)  # the window's motion carried on along the chunk
-    return plan_tail(np.abs(velocity).max(axis=0), c.max_acceleration, c.dt, nominal_runout_s(c), spare)
+    return plan_tail(np.abs(velocity).max(axis=0), shaping.max_acceleration, shaping.dt, nominal_runout_s(shaping), spare)
 
 
 def shorter_tails(tail: Tail) -> list[Tail]:
@@ -261,8 +228,8 @@ def earliest_seam_step(grid: StepGrid, now_s: float, tick_period_s: float, goal_
     return grid.step_at_or_after(goal_takes_effect_s(now_s, tick_period_s, goal_latency_s))
 
 
-def stall_at_stop_s(committed: Committed | None, now_s: float) -> float:
+def stall_at_stop_s(sent: SentMotion | None, now_s: float) -> float:
     """The wait so far when the run ends while the arm waits for a chunk (a stall too)."""
-    if committed is None or committed.grid.remaining == 0 or committed.motion is None:
+    if sent is None or sent.grid.remaining == 0 or sent.motion is None:
         return 0.0
-    return drained_seconds(committed.motion.full_speed_end, now_s)
+    return drained_seconds(sent.motion.full_speed_end, now_s)

@@ -1,10 +1,10 @@
-"""From a policy chunk to a smooth, densified motion that joins the committed one at the seam.
+"""From a policy chunk to a smooth, densified motion that joins the sent one at the seam.
 
 Pure functions, no state. A chunk is a list of joint positions, one per policy step of ``dt``
 seconds, whose step 0 is the request instant. ``fit_chunk`` smooths it with a cubic smoothing
 spline (fixed smoothing, weighted by ``policy_tracking_weight``; no per-chunk cross-validation,
 which costs ~90 ms). ``ChunkMotion`` is that spline from the seam on, plus a blend offset that
-starts at the difference between the committed motion and the spline at the seam (position and
+starts at the difference between the sent motion and the spline at the seam (position and
 velocity) and decays to zero with zero slope and curvature at both ends, so the motion is C1 at
 every seam. ``densify`` samples a motion at ``num_interpolation_points`` instants: those samples
 are what the safety checks see and what the controller receives.
@@ -141,7 +141,7 @@ class ChunkMotion:
                        end_blend_duration=max(1e-6, min(self.blend_duration, self.end - self.seam)))
 
     def chunk_alone(self) -> ChunkMotion:
-        """The smoothed chunk over the same window, without the blend into the committed motion
+        """The smoothed chunk over the same window, without the blend into the sent motion
         (nor a stop or runout at the end): what the policy asked for."""
         zero = np.zeros_like(self.offset_position)
         return replace(self.bare(), offset_position=zero, offset_velocity=zero)
@@ -253,13 +253,13 @@ def join_at_seam(
     chunk_start: float,
     seam: float,
     end: float,
-    committed_position: np.ndarray,
-    committed_velocity: np.ndarray,
+    sent_position: np.ndarray,
+    sent_velocity: np.ndarray,
     blend_duration: float,
     max_acceleration: np.ndarray | None = None,
 ) -> ChunkMotion:
     """The chunk's motion from ``seam`` to ``end``, continuous in position and velocity with
-    the committed motion's state (``committed_position``, ``committed_velocity``) at the seam.
+    the sent motion's state (``sent_position``, ``sent_velocity``) at the seam.
 
     The offset between the two is blended out (``runtime.seam_blend``) over ``blend_duration``
     seconds; with ``max_acceleration`` (per joint) over longer where that would take more than
@@ -269,8 +269,8 @@ def join_at_seam(
     if not end > seam:
         raise ValueError(f"empty window: seam t={seam:.3f} s, end t={end:.3f} s")
     k = (seam - chunk_start) / dt
-    offset_p = np.asarray(committed_position, dtype=float) - spline(k)
-    offset_v = np.asarray(committed_velocity, dtype=float) - spline(k, nu=1) / dt
+    offset_p = np.asarray(sent_position, dtype=float) - spline(k)
+    offset_v = np.asarray(sent_velocity, dtype=float) - spline(k, nu=1) / dt
     if max_acceleration is not None:
         headroom = np.asarray(max_acceleration, dtype=float) - chunk_acceleration_peak(spline, dt, k)
         blend_duration = seam_blend.blend_duration(offset_p, offset_v, BLEND_SHARE * headroom, blend_duration)

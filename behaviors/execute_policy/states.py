@@ -1,5 +1,5 @@
 """ExecutePolicy's states: the run's phases, and in the STREAM phase the policy side, the
-controller side and what is committed. Immutable values; each transition returns a new one.
+controller side and the sent motion (what the controller has been sent). Immutable values; each transition returns a new one.
 
 - ``Phase``: STARTUP -> WARMUP -> STREAM -> DONE (any phase may end in DONE).
 - ``StreamState`` (policy side, what a STREAM tick does): SCHEDULING (send the next request when
@@ -7,9 +7,9 @@ controller side and what is committed. Immutable values; each transition returns
   sent to the controller, or HOLDING (the chunk cannot be planned yet) -> SCHEDULING.
 - ``action_goal.GoalState`` (controller side): NONE -> SENT -> PLAYING -> ENDED, and SENT again
   with each chunk (the arm rests where the run found it before the first, and at the end of the
-  committed motion once the last ENDED); a goal refused for arriving late rolls back to the
+  sent motion once the last ENDED); a goal refused for arriving late rolls back to the
   ``Rollback`` taken when it was sent.
-- The run succeeds when every step is committed, no request is in flight and the last goal ENDED.
+- The run succeeds when every step is sent, no request is in flight and the last goal ENDED.
 """
 from __future__ import annotations
 
@@ -39,16 +39,6 @@ class StreamState(enum.Enum):
 
 
 @dataclass(frozen=True)
-class FreeSamples:
-    """Committed samples the scene watch found collision-free: at which scene version and with
-    which gripper position (the gripper column of every checked row)."""
-
-    samples: Samples
-    gripper_position: float | None
-    scene_version: tuple[int, int]
-
-
-@dataclass(frozen=True)
 class InFlight:
     """A request the policy has not answered yet."""
 
@@ -69,9 +59,9 @@ class HeldChunk:
 
 
 @dataclass(frozen=True)
-class Committed:
-    """What the controller has been sent: the step grid with its committed windows, and the
-    committed motion and its densified samples (None before the first chunk)."""
+class SentMotion:
+    """What the controller has been sent: the step grid with the windows sent, and the motion
+    and its densified samples (None before the first chunk)."""
 
     grid: StepGrid
     motion: ChunkMotion | None = None
@@ -80,11 +70,11 @@ class Committed:
 
 @dataclass(frozen=True)
 class Rollback:
-    """A chunk sent to the controller, and the state from before it was committed: what a goal
-    refused for arriving late goes back to."""
+    """A chunk sent to the controller, and the sent motion from before it: what a goal refused
+    for arriving late goes back to."""
 
     held: HeldChunk
-    committed: Committed
+    sent: SentMotion
     goal: Goal
     stall_s: float  # the stall its plan counted: a rollback takes it back
     chunk_index: int = 0
@@ -101,6 +91,6 @@ def stream_state(held: HeldChunk | None, request: InFlight | None) -> StreamStat
     return StreamState.SCHEDULING
 
 
-def stream_finished(committed: Committed, request: InFlight | None, goal: Goal) -> bool:
-    """Every step committed, no request in flight, and the last goal's result came."""
-    return committed.grid.remaining == 0 and request is None and goal.state is GoalState.ENDED
+def stream_finished(sent: SentMotion, request: InFlight | None, goal: Goal) -> bool:
+    """Every step sent, no request in flight, and the last goal's result came."""
+    return sent.grid.remaining == 0 and request is None and goal.state is GoalState.ENDED

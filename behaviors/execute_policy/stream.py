@@ -1,8 +1,8 @@
-"""Bookkeeping of one run's step grid: requests, seams and committed windows. Pure state.
+"""Bookkeeping of one run's step grid: requests, seams and windows sent. Pure state.
 
 Step ``n`` of the run happens at ``origin_s + n * dt`` (origin_s = the first real request). A chunk
 requested at step ``r`` covers steps ``r, r+1, ...``; it takes over at its seam step and
-contributes a committed window of at most ``committed_action_steps`` steps; the next chunk
+contributes a window of at most ``committed_action_steps`` steps; the next chunk
 takes over where that window ends. Nothing here talks to the bus or the clock.
 """
 from __future__ import annotations
@@ -14,6 +14,7 @@ import numpy as np
 
 from runtime.errors import ObjectiveError
 
+from .at_rest import from_rest_seam
 from .shaping import NO_TAIL, RUNOUT_SLOWDOWN, Tail, runout_warp
 
 
@@ -59,21 +60,8 @@ def tail_progress(steps_since_end: int, tail_extension_steps: int, tail_runout_s
     return tail_extension_steps + runout_progress(steps_since_end - tail_extension_steps, tail_runout_steps)
 
 
-def from_rest_seam(earliest_seam: int, arrival_step: int | None) -> int:
-    """The step where a chunk that finds the arm at rest (the first chunk, or one after the
-    previous motion ran out) starts its window: the first step at or after the chunk arrived,
-    as both baselines play a chunk into an empty queue, unless its goal cannot take effect
-    within that step (``earliest_seam`` is later still); then the step before the earliest seam.
-    A goal that takes effect within the window's first step (one tick after the arrival, in
-    process) starts the motion from rest there (``planner.take_over_time``). ``arrival_step``
-    None (the arm is moving): the earliest seam."""
-    if arrival_step is None:
-        return earliest_seam
-    return max(0, arrival_step, earliest_seam - 1)
-
-
 def drained_seconds(motion_end: float | None, until: float) -> float:
-    """Seconds by ``until`` that the committed motion (ending at ``motion_end``; None before the
+    """Seconds by ``until`` that the sent motion (ending at ``motion_end``; None before the
     first chunk) has been drained: the arm in the runout, then at rest, waiting for a chunk."""
     return 0.0 if motion_end is None else max(0.0, until - motion_end)
 
@@ -84,18 +72,18 @@ class WindowError(ObjectiveError, ValueError):
 
 @dataclass(frozen=True)
 class StepGrid:
-    """The run's step grid and what is committed on it. Immutable: ``commit`` returns the grid
-    after a window, so the grid from before it is what a rollback goes back to."""
+    """The run's step grid and the windows sent on it. Immutable: ``with_window`` returns the
+    grid after a window, so the grid from before it is what a rollback goes back to."""
 
     origin_s: float
     dt: float
-    committed_steps: int
+    window_steps: int  # the most steps a window takes from its chunk (``committed_action_steps``)
     total_steps: int
-    committed_end: int = 0  # step where the committed motion ends (the next seam)
-    executed_until: int = 0  # steps committed so far (the windows, and the tail steps played before late seams)
-    seam_step: int = 0  # where the last committed window took over
-    tail: Tail = NO_TAIL  # what the arm plays after committed_end when no chunk takes over there
-    chunk_steps: int = 0  # steps of the last committed chunk
+    sent_end: int = 0  # step where the sent motion ends (the next seam)
+    executed_until: int = 0  # steps sent so far (the windows, and the tail steps played before late seams)
+    seam_step: int = 0  # where the last window sent took over
+    tail: Tail = NO_TAIL  # what the arm plays after sent_end when no chunk takes over there
+    chunk_steps: int = 0  # steps of the last chunk sent
 
     def time(self, step: int) -> float:
         return self.origin_s + step * self.dt
@@ -121,10 +109,10 @@ class StepGrid:
         chunk being played, and its chunk would add little beyond it: the request is then due
         once half a chunk is left, as LeRobot's async client asks (the arm pauses, but each chunk
         takes it about half a chunk further)."""
-        on_time = self.committed_end - frozen
+        on_time = self.sent_end - frozen
         if on_time >= self.seam_step or self.tail.steps == 0:
             return on_time
-        full_speed_end = self.committed_end + self.tail.extension_steps
+        full_speed_end = self.sent_end + self.tail.extension_steps
         half_chunk = self.chunk_steps // 2
         if frozen <= half_chunk + self.tail.runout_steps:
             return max(on_time, full_speed_end - frozen)
@@ -136,34 +124,34 @@ class StepGrid:
         given the first step it can still join at (``earliest_seam``, from its arrival). A late
         chunk's window leaves ``runout_reserve`` steps of the chunk for its own runout.
         ``arrival_step`` (the first step at or after the chunk arrived; None: ``earliest_seam``)
-        places a chunk that finds the arm at rest: see ``from_rest_seam``.
+        places a chunk that finds the arm at rest: see ``at_rest.from_rest_seam``.
 
         Raises WindowError when the chunk ends before the seam.
         """
-        # The chunk takes over where the committed motion ends (normally request + frozen prefix);
+        # The chunk takes over where the sent motion ends (normally request + frozen prefix);
         # the frozen prefix is only the estimate sent to the policy, so a chunk that arrives early
         # after a late request still joins there. A chunk that arrives later starts at the first
         # step it can: the first chunk from rest, a later one during the previous window's runout
         # or after it, at rest. It is played from the chunk step that matches how far the arm got
         # along the previous chunk rather than from the step the clock says, so the arm does not
         # have to catch up on steps it never moved through.
-        on_time = index > 1 and earliest_seam <= self.committed_end
+        on_time = index > 1 and earliest_seam <= self.sent_end
         if on_time:
-            seam = self.committed_end
+            seam = self.sent_end
         else:
-            seam = max(self.committed_end, from_rest_seam(earliest_seam, arrival_step))
+            seam = max(self.sent_end, from_rest_seam(earliest_seam, arrival_step))
         played = 0
         if not on_time:
             reached = 0
             if index > 1:
-                played = tail_progress(seam - self.committed_end, self.tail.extension_steps, self.tail.runout_steps)
-                reached = self.committed_end + played - request_step
+                played = tail_progress(seam - self.sent_end, self.tail.extension_steps, self.tail.runout_steps)
+                reached = self.sent_end + played - request_step
             request_step = seam - max(0, reached)  # the chunk's time line, shifted to start at the arm's state
         # A chunk with N steps has positions up to chunk step N-1: the window needs its end point.
         available = request_step + chunk_steps - 1 - seam
         if not on_time and available - runout_reserve >= 1:
             available -= runout_reserve
-        steps = min(self.committed_steps, self.remaining - played, available)
+        steps = min(self.window_steps, self.remaining - played, available)
         if steps < 1:
             raise WindowError(
                 f"chunk {index} has {chunk_steps} steps but takes over at its step {seam - request_step} "
@@ -172,14 +160,14 @@ class StepGrid:
         return Window(index, request_step, seam, steps, played)
 
     def steps_executed_by(self, t: float) -> int:
-        """Steps the arm has played by ``t``: of the committed windows (the steps after ``t`` of
+        """Steps the arm has played by ``t``: of the windows sent (the steps after ``t`` of
         the last window are not), then of the last window's tail."""
         now = self.step_at_or_before(t)
-        if now <= self.committed_end:
-            return self.executed_until - (self.committed_end - now)
-        return self.executed_until + tail_progress(now - self.committed_end, self.tail.extension_steps, self.tail.runout_steps)
+        if now <= self.sent_end:
+            return self.executed_until - (self.sent_end - now)
+        return self.executed_until + tail_progress(now - self.sent_end, self.tail.extension_steps, self.tail.runout_steps)
 
-    def commit(self, window: Window, tail: Tail = NO_TAIL, chunk_steps: int = 0) -> StepGrid:
-        """The grid once ``window`` (of a chunk of ``chunk_steps`` steps) is committed, followed by ``tail``."""
-        return replace(self, committed_end=window.end_step, executed_until=self.executed_until + window.tail_played + window.steps,
+    def with_window(self, window: Window, tail: Tail = NO_TAIL, chunk_steps: int = 0) -> StepGrid:
+        """The grid once ``window`` (of a chunk of ``chunk_steps`` steps) is sent, followed by ``tail``."""
+        return replace(self, sent_end=window.end_step, executed_until=self.executed_until + window.tail_played + window.steps,
                        seam_step=window.seam_step, tail=tail, chunk_steps=chunk_steps)

@@ -60,9 +60,9 @@ def prefetch_margin(latency_s: float, tick_period_s: float) -> float:
     return 2.0 * tick_period_s + 0.1 * latency_s
 
 
-def window_covers_latency(committed_steps: int, dt: float, latency_s: float) -> bool:
+def window_covers_latency(window_steps: int, dt: float, latency_s: float) -> bool:
     """The guide's sizing rule: ``(committed_action_steps - 1) * dt >= 2 * latency``."""
-    return (committed_steps - 1) * dt >= 2.0 * latency_s
+    return (window_steps - 1) * dt >= 2.0 * latency_s
 
 
 class SizingRisk(enum.IntEnum):
@@ -75,27 +75,27 @@ class SizingRisk(enum.IntEnum):
     PAUSES = 2
 
 
-def sizing_risk(committed_steps: int, dt: float, latency_s: float, chunk_steps: int | None) -> SizingRisk:
+def sizing_risk(window_steps: int, dt: float, latency_s: float, chunk_steps: int | None) -> SizingRisk:
     """The risk of ``latency_s`` with chunks of ``chunk_steps`` (None: not known yet). With one
     request in flight the tail keeps the arm moving while the latency is at most about half the
     chunk's duration (docs/execute-policy.md, Latency beyond the window)."""
-    if window_covers_latency(committed_steps, dt, latency_s):
+    if window_covers_latency(window_steps, dt, latency_s):
         return SizingRisk.COVERED
-    if chunk_steps is not None and chunk_steps > committed_steps and latency_s <= chunk_steps * dt / 2.0:
+    if chunk_steps is not None and chunk_steps > window_steps and latency_s <= chunk_steps * dt / 2.0:
         return SizingRisk.TAIL_COVERS
     return SizingRisk.PAUSES
 
 
-def sizing_warning(committed_steps: int, dt: float, latency_s: float, what: str, detail: str = "",
+def sizing_warning(window_steps: int, dt: float, latency_s: float, what: str, detail: str = "",
                    chunk_steps: int | None = None) -> str | None:
     """The sizing warning, with the figures, when ``latency_s`` (``what``: where the figure comes
-    from, ``detail``: how it was made) is more than the committed window covers; else None.
+    from, ``detail``: how it was made) is more than the window (``committed_action_steps``) covers; else None.
     ``chunk_steps`` (the policy's chunk size, None: not known) says whether the tail covers it."""
-    risk = sizing_risk(committed_steps, dt, latency_s, chunk_steps)
+    risk = sizing_risk(window_steps, dt, latency_s, chunk_steps)
     if risk is SizingRisk.COVERED:
         return None
     needed = math.ceil(2.0 * latency_s / dt - 1e-9) + 1
-    head = (f"(committed_action_steps - 1) * dt = {(committed_steps - 1) * dt:.3f} s is below twice the {what} "
+    head = (f"(committed_action_steps - 1) * dt = {(window_steps - 1) * dt:.3f} s is below twice the {what} "
             f"{latency_s:.3f} s{detail}")
     if chunk_steps is not None and needed >= chunk_steps:
         fix = f"covering it would take committed_action_steps = {needed}, not below the chunk's {chunk_steps} steps: a faster policy or longer chunks"
@@ -106,6 +106,6 @@ def sizing_warning(committed_steps: int, dt: float, latency_s: float, what: str,
         return (f"{head}: chunks land after their committed window ends; the arm goes on along the chunk's steps "
                 f"beyond the window meanwhile, and pauses only once the latency passes about {chunk_steps * dt / 2.0:.3f} s, "
                 f"half the {chunk_steps}-step chunk ({fix})")
-    if chunk_steps is not None and chunk_steps > committed_steps:
+    if chunk_steps is not None and chunk_steps > window_steps:
         head += f" and longer than half the {chunk_steps}-step chunk ({chunk_steps * dt / 2.0:.3f} s)"
     return f"{head}: expect pauses at chunk boundaries ({fix})"
