@@ -1,11 +1,10 @@
-"""The trajectory message and the admittance controller's goal built from sampled motion (the
-one goal builder of every behavior that sends a trajectory), and how a behavior that sends one
-trajectory goal follows it to its end."""
+"""The trajectory message built from sampled motion (what every behavior that sends a trajectory
+puts in its goal; ``controller_link.trajectory_goal`` wraps it in the goal of the controller's
+type), and how a behavior that sends one trajectory goal follows it to its end."""
 from __future__ import annotations
 
 from collections.abc import Sequence
 
-from moveit_pro_controllers_msgs.action import FollowJointTrajectoryWithAdmittance as FollowTrajectory
 from trajectory_msgs.msg import JointTrajectory
 
 from runtime.behavior import Behavior, Status
@@ -29,22 +28,6 @@ def trajectory_msg(samples: Samples, joints: Sequence[str], stamp_s: float = 0.0
     msg.header.stamp = time_msg(stamp_s + stamp_offset_s if stamp_s else 0.0)
     msg.points = trajectory_points(samples.times - stamp_s, samples.positions, samples.velocities, samples.accelerations)
     return msg
-
-
-def admittance_goal(
-    trajectory: JointTrajectory,
-    path_tolerance_rad: float,
-    goal_time_tolerance_s: float = GOAL_TIME_TOLERANCE_S,
-    force_torque_threshold: Sequence[float] = (),
-) -> FollowTrajectory.Goal:
-    """A FollowJointTrajectoryWithAdmittance goal that plays ``trajectory``; the controller aborts
-    beyond ``path_tolerance_rad`` of tracking error or the ``force_torque_threshold`` (empty: none)."""
-    goal = FollowTrajectory.Goal()
-    goal.joint_trajectory = trajectory
-    goal.path_tolerance = float(path_tolerance_rad)
-    goal.goal_time_tolerance = float(goal_time_tolerance_s)
-    goal.absolute_force_torque_threshold = [float(v) for v in force_torque_threshold]
-    return goal
 
 
 class SendsTrajectoryGoal(Behavior):
