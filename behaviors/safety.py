@@ -19,6 +19,9 @@ on the cell's 0..0.8 rad) is clamped into it: a learned policy's gripper output 
 lands a little beyond the range (-0.056 rad from a LeRobot regression head for "open"), where the
 fingers cannot go anyway. Further out it is the policy's error, and the chunk is rejected like an
 arm joint out of its limits."""
+GRIPPER_ROUNDING_RAD = 1e-6
+"""A gripper target this close outside the range is the range's end written with rounding (a
+scripted policy's 0.8 computed as 0.8000000000000002): clamped without being counted or warned."""
 
 
 @dataclass(frozen=True)
@@ -65,11 +68,12 @@ class MotionSafety:
             return SettledColumn(gripper, 0, 0.0)
         limit, band = self.chunk_limits[self.gripper_joint], self.gripper_band_rad()
         outside = np.maximum(limit.lower - gripper, gripper - limit.upper)
-        near = (outside > 0) & (outside <= band)
-        if not near.any():
+        settle = (outside > 0) & (outside <= band)
+        if not settle.any():
             return SettledColumn(gripper, 0, 0.0)
-        settled = np.where(near, np.clip(gripper, limit.lower, limit.upper), gripper)
-        return SettledColumn(settled, int(near.sum()), float(outside[near].max()))
+        settled = np.where(settle, np.clip(gripper, limit.lower, limit.upper), gripper)
+        counted = settle & (outside > GRIPPER_ROUNDING_RAD)
+        return SettledColumn(settled, int(counted.sum()), float(outside[counted].max()) if counted.any() else 0.0)
 
     def first_gripper_target_out_of_limits(self, gripper: np.ndarray | None, dt_s: float) -> LimitViolation | None:
         """The first step of a column of gripper targets ``dt_s`` apart outside the gripper

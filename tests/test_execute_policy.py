@@ -513,6 +513,15 @@ def test_a_gripper_target_a_little_outside_the_limits_is_clamped_counted_and_war
     ]
 
 
+def test_a_gripper_target_at_the_limit_but_for_rounding_is_sent_at_the_limit_without_a_word(registry):
+    """0.8 computed with rounding (a scripted policy's closed gripper) is the limit: clamped, not
+    counted and not warned about (``safety.GRIPPER_ROUNDING_RAD``)."""
+    run, goals = run_recording_gripper_goals(registry, with_gripper(0.8 + 2e-16 * 8))
+    assert run.result.status == "SUCCESS", run.result.reason
+    assert set(goals) <= {0.8} and run.summary["gripper_clamped"] == 0
+    assert [w for w in run.summary["warnings"] if "gripper column" in w] == []
+
+
 def test_a_gripper_target_beyond_the_band_is_rejected(registry):
     run = run_policy(registry, f"{BASE} {GRIPPER_PORTS}", ScriptedPolicy(with_gripper(-0.0801)))
     assert run.result.status == "FAILURE"
