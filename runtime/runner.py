@@ -236,7 +236,13 @@ def world_hosts_servers(name: str) -> bool:
     actions: a simulated cell does); its factory says otherwise with ``hosts_servers = False``.
     True for a name nobody registered (``create_world`` reports that)."""
     available = {ep.name: ep for ep in entry_points(group=WORLD_GROUP)}
-    return name not in available or bool(getattr(available[name].load(), "hosts_servers", True))
+    if name not in available:
+        return True
+    try:
+        factory = available[name].load()
+    except ImportError:  # a world of an extra that is not installed: ``create_world`` says so if the tree needs it
+        return True
+    return bool(getattr(factory, "hosts_servers", True))
 
 
 def create_world(name: str, options: dict[str, Any]) -> Any:
