@@ -79,11 +79,13 @@ def test_one_chunk_drives_the_simulated_robot_from_another_process(env, policy, 
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("objective", ["objectives/stack_cubes.xml", "objectives/stack_cubes_jtc.xml"])
-def test_four_processes_stack_the_cubes(env, policy, tmp_path, objective):  # noqa: F811
+@pytest.mark.parametrize("objective, world", [("objectives/stack_cubes.xml", "kinematic"),
+                                              ("objectives/stack_cubes_jtc.xml", "kinematic"),
+                                              ("objectives/stack_cubes_jtc.xml", "vla_sim")])
+def test_four_processes_stack_the_cubes(env, policy, tmp_path, objective, world):  # noqa: F811
     """On the admittance controller, and through the robot's stock joint_trajectory_controller
-    (with its force_torque_sensor_broadcaster watched by ExecutePolicy)."""
-    robot = start_robot(env, tmp_path / "cell")
+    (with its force_torque_sensor_broadcaster watched by ExecutePolicy), the MuJoCo cell too."""
+    robot = start_robot(env, tmp_path / "cell", world=world)
     try:
         # The robot world's scene holds the robot alone: the check reads cube poses it does not
         # hold, and the collision rules name cubes it does not have.
