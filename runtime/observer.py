@@ -18,7 +18,7 @@ from importlib.metadata import entry_points
 from typing import TYPE_CHECKING, Any, Protocol
 
 from .errors import ObjectiveError
-from .extras import missing_module_message
+from .extras import load_entry_point
 
 if TYPE_CHECKING:
     from .interrupt import StopRequest
@@ -39,10 +39,7 @@ def attach_observers(loaded: Any, context: Any, options: Any) -> list[RunObserve
     what the options ask for (the recording package or its dependencies are not installed)."""
     observers = []
     for ep in sorted(entry_points(group=OBSERVER_GROUP), key=lambda e: e.name):
-        try:
-            factory = ep.load()
-        except ModuleNotFoundError as err:
-            raise ObjectiveError(f"run observer '{ep.name}': {missing_module_message(err.name or str(err))}") from None
+        factory = load_entry_point(ep, f"run observer '{ep.name}'")
         observer = factory(loaded, context, options)
         if observer is not None:
             observers.append(observer)

@@ -22,6 +22,7 @@ import yaml
 from .behavior import RunContext
 from .scene import PlanningScene, RobotModel, load_joint_limits
 from .errors import OptionError
+from .extras import load_entry_point
 
 MJCF_LOADER_GROUP = "objective.robot_loaders"
 """Entry points ``mjcf = module:function(path, srdf, couplings=...) -> RobotModel``."""
@@ -69,7 +70,7 @@ def _load_mjcf(path: Path, srdf: Path, couplings: Any) -> RobotModel:
     if not found:
         raise OptionError("option 'mjcf' needs an MJCF loader, which comes with the [sim] extra "
                           "(pip install 'objective-runtime[sim]'); or describe the robot with urdf=FILE")
-    return found[0].load()(path, srdf, couplings=couplings)
+    return load_entry_point(found[0], "option 'mjcf'")(path, srdf, couplings=couplings)
 
 
 class RobotDescriptionWorld:

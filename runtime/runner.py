@@ -39,7 +39,7 @@ from .controls import SKIPPED, Visit, is_skipped, tick_tree
 from .crash import CRASH_LOG, culprit, describe_crash, write_traceback
 from .errors import ObjectiveError, ObjectiveRuntimeError, OptionError, error_kind
 from .events import EventLog
-from .extras import missing_module_message
+from .extras import load_entry_point
 from .interrupt import Interrupted, StopRequest, exit_code_for, signal_name
 from .loader import LoadedTree, load_tree
 from .registry import WORLD_GROUP, Registry, default_world_name
@@ -251,10 +251,7 @@ def create_world(name: str, options: dict[str, Any]) -> Any:
     if name not in available:
         known = ", ".join(sorted(available)) or "none installed"
         raise ObjectiveError(f"no world named '{name}' (worlds: {known})")
-    try:
-        create = available[name].load()
-    except ModuleNotFoundError as err:  # a world of an extra that is not installed
-        raise ObjectiveError(f"world '{name}' cannot start: {missing_module_message(err.name or str(err))}") from None
+    create = load_entry_point(available[name], f"world '{name}' cannot start")  # a world of an extra may be missing
     try:
         return create(options)
     except ObjectiveError as err:  # a world refuses the user's options with an ObjectiveError (OptionError)

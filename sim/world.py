@@ -148,7 +148,7 @@ class CellWorld:
         self.context = context
         bus = context.bus
         self.controllers = make_controllers(bus, self.cell, CellClock(self.cell), self.controllers_config)
-        reliable = bool(self.options.get("joint_states_reliable", True))
+        reliable = option_flag(self.options, "joint_states_reliable", True)
         self.joint_states = bus.create_publisher("/joint_states", JointState, reliable=reliable)
         rate = number_option(self.options, "camera_rate_hz", 10.0)  # used on real ROS only
         self.camera_thread = None
