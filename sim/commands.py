@@ -23,6 +23,8 @@ def _arguments(demos: argparse.ArgumentParser) -> None:
     demos.add_argument("--prompt", default="stack the blue cube on the green cube", help="the task, as the oracle reads it")
     demos.add_argument("--keep-failed", action="store_true", help="keep episodes whose stack check failed")
     demos.add_argument("--overwrite", action="store_true", help="replace OUT if it exists")
+    demos.add_argument("--workers", type=int, default=1, metavar="N",
+                       help="record N episodes at once, each in its own process (default 1)")
 
 
 def _record_demos(args: argparse.Namespace, registry: Registry) -> int:
@@ -32,6 +34,7 @@ def _record_demos(args: argparse.Namespace, registry: Registry) -> int:
         summary = record_demos(DemoOptions(
             episodes=args.episodes, seed=args.seed, out=args.out, world=args.world, image_size=args.image_size,
             total_steps=args.steps, prompt=args.prompt, keep_failed=args.keep_failed, overwrite=args.overwrite,
+            workers=args.workers,
         ))
     except ObjectiveError as err:
         print(f"error: {err}", file=sys.stderr)

@@ -18,16 +18,19 @@ by ExecutePolicy through the admittance controller with the shipped Objective's 
    step per chunk is not what ExecutePolicy is built for: every window would end at rest.)
 4. After the run, the frames go into the dataset (``add_frame`` / ``save_episode``), images as
    PNG (``image`` features, no video codec to depend on); episodes whose stack check failed are
-   dropped unless ``keep_failed``.
+   dropped unless ``keep_failed``. ``meta/demos.json`` lists the seeds kept and dropped.
+5. With ``workers`` > 1 the episodes run in that many spawned processes and come back in seed
+   order; the dataset is written in ``OUT.partial`` and renamed to ``OUT`` once complete.
 
 Features: ``observation.state`` and ``action`` (float32, the 6 arm joints then the gripper joint,
 the request's ``robot_state`` order), ``observation.images.<camera>`` (H x W x 3 uint8) per camera,
 and the prompt as the frame's task. ``meta/info.json`` keeps the joint names.
 
-The seeds of episode ``i`` is ``seed + i``; the same seeds give the same dataset.
+Episode ``i`` has layout seed ``seed + i``; the same seeds give the same dataset.
 """
 from __future__ import annotations
 
+import json
 import logging
 import math
 import shutil
@@ -185,6 +188,8 @@ class DemoOptions:
     keep_failed: bool = False
     """Keep episodes whose final stack check failed (default: drop them, a demonstration must succeed)."""
     overwrite: bool = False
+    workers: int = 1
+    """Processes recording episodes at once (each runs its own world)."""
 
 
 @dataclass
@@ -215,8 +220,44 @@ def dataset_features(joint_names: list[str], image_size: int, cameras: tuple[str
     return features
 
 
+@dataclass
+class EpisodeRecording:
+    """One recorded episode: its frames, how its run ended, and the joint order of its vectors."""
+
+    seed: int
+    status: str
+    reason: str
+    frames: list[DemoFrame]
+    joint_names: list[str]
+
+
+def record_episode(seed: int, options: DemoOptions, world_name: str) -> EpisodeRecording:
+    """Run the oracle once in a fresh world with layout ``seed``; its frames and status (in this process)."""
+    from runtime.loader import load_tree
+    from runtime.registry import Registry
+    from runtime.runner import RunOptions, create_world, make_context, run_tree
+    from sim.oracle import parse_prompt
+
+    top, bottom = parse_prompt(options.prompt)
+    run_options = RunOptions(seed=seed, world=world_name, policy_latency="0", sets={
+        "prompt": options.prompt, "total_steps": str(options.total_steps), "top": top, "bottom": bottom,
+    })
+    world_options = {"seed": seed, "realtime": False, "policy": "none", "policy_latency": "0",
+                     "image_size": options.image_size}
+    world = _RecordingWorld(create_world(world_name, world_options), options.prompt, options.total_steps / FPS)
+    context = make_context(run_options)
+    objectives = Path(__file__).resolve().parent.parent / "objectives"
+    loaded = load_tree(RECORD_XML, Registry.from_entry_points(), context, objectives_dir=objectives)
+    result = run_tree(loaded, context, run_options, world=world)
+    return EpisodeRecording(seed, result.status, result.reason or "", world.frames, world.joint_names)
+
+
 def record_demos(options: DemoOptions) -> DemoSummary:
-    """Record ``options.episodes`` oracle episodes into a LeRobotDataset at ``options.out``."""
+    """Record ``options.episodes`` oracle episodes into a LeRobotDataset at ``options.out``.
+
+    Episodes run in ``options.workers`` processes (each its own world); the dataset is written
+    here, in seed order, into ``OUT.partial`` and renamed to ``OUT`` only once it is complete.
+    """
     from policy.lerobot_compat import ensure_torchvision
 
     ensure_torchvision()
@@ -224,53 +265,41 @@ def record_demos(options: DemoOptions) -> DemoSummary:
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
     datasets.disable_progress_bars()
-
-    from runtime.loader import load_tree
-    from runtime.registry import Registry
-    from runtime.runner import RunOptions, create_world, make_context, run_tree
     from sim.oracle import parse_prompt
 
     if options.episodes < 1:
         raise OptionError(f"--episodes must be >= 1, got {options.episodes}")
-    top, bottom = parse_prompt(options.prompt)
+    if options.workers < 1:
+        raise OptionError(f"--workers must be >= 1, got {options.workers}")
+    parse_prompt(options.prompt)
     out = Path(options.out)
-    if out.exists():
-        if not options.overwrite:
-            raise OptionError(f"{out} already exists (pass --overwrite to replace it)")
-        shutil.rmtree(out)
+    if out.exists() and not options.overwrite:
+        raise OptionError(f"{out} already exists (pass --overwrite to replace it)")
+    partial = out.with_name(out.name + ".partial")
+    if partial.exists():
+        shutil.rmtree(partial)
     world_name = options.world or default_world()
-    registry = Registry.from_entry_points()
-    objectives = Path(__file__).resolve().parent.parent / "objectives"
     dataset = None
     dropped: list[int] = []
     kept = frames = 0
     joint_names: list[str] = []
-    for episode in range(options.episodes):
-        seed = options.seed + episode
-        run_options = RunOptions(seed=seed, world=world_name, policy_latency="0", sets={
-            "prompt": options.prompt, "total_steps": str(options.total_steps), "top": top, "bottom": bottom,
-        })
-        world_options = {"seed": seed, "realtime": False, "policy": "none", "policy_latency": "0",
-                         "image_size": options.image_size}
-        world = _RecordingWorld(create_world(world_name, world_options), options.prompt, options.total_steps / FPS)
-        context = make_context(run_options)
-        loaded = load_tree(RECORD_XML, registry, context, objectives_dir=objectives)
-        result = run_tree(loaded, context, run_options, world=world)
-        if result.status == "ERROR":  # bad input or a bug: every episode would end the same way
-            raise RuntimeError(f"episode {episode} (seed {seed}): {result.reason}")
-        episode_frames = world.frames
-        if result.status != "SUCCESS" and not options.keep_failed:
-            LOG.warning("episode %d (seed %d) dropped: %s", episode, seed, result.reason)
+    seeds = [options.seed + episode for episode in range(options.episodes)]
+    for episode, recording in enumerate(_record_all(seeds, options, world_name)):
+        seed = recording.seed
+        if recording.status == "ERROR":  # bad input or a bug: every episode would end the same way
+            raise RuntimeError(f"episode {episode} (seed {seed}): {recording.reason}")
+        if recording.status != "SUCCESS" and not options.keep_failed:
+            LOG.warning("episode %d (seed %d) dropped: %s", episode, seed, recording.reason)
             dropped.append(seed)
             continue
-        _check_frames(episode_frames, seed, options.image_size)
+        _check_frames(recording.frames, seed, options.image_size)
         if dataset is None:
-            joint_names = world.joint_names
+            joint_names = recording.joint_names
             dataset = LeRobotDataset.create(
-                repo_id="local/stack_cubes_demos", fps=FPS, root=out, robot_type="ur5e_2f85",
+                repo_id="local/stack_cubes_demos", fps=FPS, root=partial, robot_type="ur5e_2f85",
                 features=dataset_features(joint_names, options.image_size), use_videos=False,
             )
-        for frame in episode_frames:
+        for frame in recording.frames:
             dataset.add_frame({
                 "observation.state": frame.state,
                 "action": frame.action,
@@ -279,12 +308,36 @@ def record_demos(options: DemoOptions) -> DemoSummary:
             })
         dataset.save_episode()
         kept += 1
-        frames += len(episode_frames)
-        LOG.info("episode %d (seed %d): %d frames, %s", episode, seed, len(episode_frames), result.status)
+        frames += len(recording.frames)
+        LOG.info("episode %d (seed %d): %d frames, %s", episode, seed, len(recording.frames), recording.status)
     if dataset is None:
         raise RuntimeError(f"no successful episode in {options.episodes} (seeds {options.seed}..{options.seed + options.episodes - 1})")
     dataset.finalize()
+    (partial / "meta" / "demos.json").write_text(json.dumps({
+        "world": world_name, "image_size": options.image_size, "steps": options.total_steps, "prompt": options.prompt,
+        "seeds": [seed for seed in seeds if seed not in dropped], "dropped_seeds": dropped,
+    }, indent=2) + "\n", encoding="utf-8")
+    if out.exists():
+        shutil.rmtree(out)
+    partial.rename(out)
     return DemoSummary(out, world_name, kept, dropped, frames, joint_names)
+
+
+def _record_all(seeds: list[int], options: DemoOptions, world_name: str):
+    """The episodes of ``seeds``, in order: here with one worker, else in a pool of spawned processes."""
+    if options.workers == 1 or len(seeds) == 1:
+        for seed in seeds:
+            yield record_episode(seed, options, world_name)
+        return
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor
+    from functools import partial
+
+    pool = ProcessPoolExecutor(max_workers=min(options.workers, len(seeds)), mp_context=multiprocessing.get_context("spawn"))
+    try:
+        yield from pool.map(partial(record_episode, options=options, world_name=world_name), seeds)
+    finally:
+        pool.shutdown(wait=True, cancel_futures=True)
 
 
 def _check_frames(frames: list[DemoFrame], seed: int, image_size: int) -> None:

@@ -369,3 +369,33 @@ def test_record_demos_writes_a_lerobot_dataset_of_oracle_steps(tmp_path, capsys)
     assert np.abs(frame["action"].numpy() - frame["observation.state"].numpy()).max() < 0.1
     assert main(["record-demos", str(out), "--episodes", "1"]) == 2
     assert "already exists (pass --overwrite to replace it)" in capsys.readouterr().err
+
+
+@needs_lerobot
+def test_the_training_pipeline_records_trains_saves_and_evaluates_in_one_command(tmp_path):
+    """`make lerobot-policy` in miniature: record (two workers), train a few steps, save, evaluate."""
+    import json
+    import runpy
+    from pathlib import Path
+
+    train = runpy.run_path(str(Path(__file__).resolve().parent.parent / "tools" / "train_tiny_smolvla.py"))
+    dataset, out = tmp_path / "demos", tmp_path / "policy"
+    code = train["main"]([
+        "--dataset", str(dataset), "--out", str(out), "--episodes", "2", "--world", "kinematic", "--image-size", "32",
+        "--record-steps", "30", "--keep-failed", "--workers", "2", "--steps", "3", "--batch", "4",
+        "--eval-episodes", "1", "--eval-seed-start", "100",
+    ])
+    assert code == 0
+    demos = json.loads((dataset / "meta" / "demos.json").read_text())
+    assert demos["seeds"] == [0, 1] and demos["world"] == "kinematic"
+    training = json.loads((out / "objective_policy.json").read_text())["training"]
+    assert training["steps"] == 3 and training["episode_seeds"] == [0, 1] and training["seed"] == 0
+    assert training["data_sha256"] == train["dataset_hash"](dataset) and len(training["data_sha256"]) == 64
+    evaluation = json.loads((out / "evaluation.json").read_text())
+    assert evaluation["summary"]["episodes"] == 1 and "--seed-start 100" in evaluation["command"]
+    assert "--policy lerobot:" in evaluation["command"] and "--world kinematic" in evaluation["command"]
+    # The checkpoint serves: one chunk of the saved policy, in the request's joint order.
+    backend = make_lerobot_backend(out, committed_window=None)
+    backend.load()
+    response = backend.infer(PolicyRequest(PROMPT, JOINTS, np.zeros(7), frames(32), new_episode=True))
+    assert response.status == PolicyStatus.CHUNK and response.actions.shape == (50, 7)

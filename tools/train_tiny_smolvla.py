@@ -50,7 +50,16 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--minutes", type=float, default=8.0, help="stop training after this much wall time")
     parser.add_argument("--batch", type=int, default=16)
     parser.add_argument("--lr", type=float, default=5e-4)
+    parser.add_argument("--vision-width", type=int, default=64, help="width of the tiny vision tower")
+    parser.add_argument("--vision-layers", type=int, default=2, help="layers of the tiny vision tower")
     parser.add_argument("--threads", type=int, default=1, help="torch threads (one measured fastest on 2 shared cores)")
+    parser.add_argument("--workers", type=int, default=2, help="processes recording episodes at once when recording")
+    parser.add_argument("--image-size", type=int, default=128, help="camera frames when recording (square, px)")
+    parser.add_argument("--record-steps", type=int, default=250, help="policy steps per episode when recording")
+    parser.add_argument("--keep-failed", action="store_true", help="keep recorded episodes whose stack check failed")
+    parser.add_argument("--eval-episodes", type=int, default=0,
+                        help="after training, evaluate on this many held-out seeds with `objective eval` (0: none)")
+    parser.add_argument("--eval-seed-start", type=int, default=100, help="first held-out seed of the evaluation")
     return parser.parse_args(argv)
 
 
@@ -128,7 +137,8 @@ def main(argv: list[str] | None = None) -> int:
         LOG.info("recording %d episodes into %s", args.episodes, args.dataset)
         started = time.monotonic()
         summary = record_demos(DemoOptions(episodes=args.episodes, seed=args.seed, out=args.dataset, world=args.world,
-                                           overwrite=True))
+                                           image_size=args.image_size, total_steps=args.record_steps, keep_failed=args.keep_failed,
+                                           overwrite=True, workers=args.workers))
         LOG.info("recorded %d episodes, %d frames in world '%s' (%.0f s)", summary.episodes_kept, summary.frames,
                  summary.world, time.monotonic() - started)
 
@@ -139,7 +149,8 @@ def main(argv: list[str] | None = None) -> int:
     cameras = tuple(key.split(".", 2)[2] for key in meta.camera_keys)
     image_size = int(meta.features[meta.camera_keys[0]]["shape"][0])
     joint_names = list(meta.features["action"]["names"])
-    spec = TinySmolVLASpec(state_dim=len(joint_names), action_dim=len(joint_names), cameras=cameras, image_size=image_size)
+    spec = TinySmolVLASpec(state_dim=len(joint_names), action_dim=len(joint_names), cameras=cameras, image_size=image_size,
+                           vision_width=args.vision_width, vision_layers=args.vision_layers)
     stats = {key: {k: np.asarray(v, dtype=np.float32) for k, v in meta.stats[key].items() if k in ("mean", "std", "min", "max")}
              for key in ("observation.state", "action")}
     for key in stats:  # a joint that never moved (std 0) must not blow up the normalization
@@ -187,7 +198,9 @@ def main(argv: list[str] | None = None) -> int:
         "prompts": tasks,
         "training": {
             "dataset": str(args.dataset), "episodes": meta.total_episodes, "frames": meta.total_frames,
-            "steps": step, "batch": args.batch, "seed": args.seed, "seconds": round(elapsed, 1),
+            "data_sha256": dataset_hash(args.dataset), "episode_seeds": episode_seeds(args.dataset),
+            "steps": step, "batch": args.batch, "lr": args.lr, "threads": args.threads,
+            "vision_width": args.vision_width, "vision_layers": args.vision_layers, "seed": args.seed, "seconds": round(elapsed, 1),
             "final_loss": round(float(np.mean(losses[-25:])), 5),
         },
     }
@@ -199,8 +212,56 @@ def main(argv: list[str] | None = None) -> int:
     staging.rename(args.out)
     _point_at(args.out)
     LOG.info("saved %s: %d steps in %.0f s, final loss %.4f", args.out, step, elapsed, metadata["training"]["final_loss"])
-    print(json.dumps({"checkpoint": str(args.out), **metadata["training"]}))
+    result = {"checkpoint": str(args.out), **metadata["training"]}
+    if args.eval_episodes > 0:
+        result["evaluation"] = evaluate(args.out, args.eval_episodes, args.eval_seed_start, image_size, args.workers,
+                                        meta_world(args.dataset))
+    print(json.dumps(result))
     return 0
+
+
+def dataset_hash(root: Path) -> str:
+    """SHA-256 over the dataset's files (relative path and bytes, in path order): the data a checkpoint saw."""
+    import hashlib
+
+    digest = hashlib.sha256()
+    for path in sorted(p for p in root.rglob("*") if p.is_file()):
+        digest.update(str(path.relative_to(root)).encode() + b"\0")
+        digest.update(path.read_bytes())
+    return digest.hexdigest()
+
+
+def episode_seeds(root: Path) -> list[int]:
+    """The layout seeds of the recorded episodes (from ``meta/demos.json``, written by ``record-demos``)."""
+    path = root / "meta" / "demos.json"
+    return json.loads(path.read_text(encoding="utf-8"))["seeds"] if path.is_file() else []
+
+
+def meta_world(root: Path) -> str | None:
+    """The world the demonstrations were recorded in (``meta/demos.json``), where the policy is evaluated."""
+    path = root / "meta" / "demos.json"
+    return json.loads(path.read_text(encoding="utf-8"))["world"] if path.is_file() else None
+
+
+def evaluate(checkpoint: Path, episodes: int, seed_start: int, image_size: int, workers: int, world: str | None) -> dict:
+    """``objective eval`` of ``stack_cubes_lerobot.xml`` with the checkpoint on held-out seeds; writes
+    ``evaluation.json`` next to the checkpoint and returns it."""
+    import subprocess
+
+    out = checkpoint / "eval"
+    command = [sys.executable, "-m", "runtime.cli", "eval", str(ROOT / "objectives" / "stack_cubes_lerobot.xml"),
+               "--policy", f"lerobot:{checkpoint}", "--episodes", str(episodes), "--seed-start", str(seed_start),
+               "--workers", str(min(workers, episodes)), "--out", str(out), "--world-option", f"image_size={image_size}",
+               "--record", "none", "--json"] + (["--world", world] if world else [])
+    LOG.info("evaluating: %s", " ".join(command))
+    started = time.monotonic()
+    finished = subprocess.run(command, cwd=ROOT, capture_output=True, text=True)
+    if finished.returncode not in (0, 1):
+        raise RuntimeError(f"objective eval exited {finished.returncode}: {finished.stderr.strip()[-2000:]}")
+    summary = json.loads(finished.stdout.strip().splitlines()[-1])
+    evaluation = {"command": " ".join(command[1:]), "seconds": round(time.monotonic() - started), "summary": summary}
+    (checkpoint / "evaluation.json").write_text(json.dumps(evaluation, indent=2) + "\n", encoding="utf-8")
+    return evaluation
 
 
 def _point_at(folder: Path) -> None:
