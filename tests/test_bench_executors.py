@@ -158,3 +158,14 @@ def test_the_jtc_executors_refuse_the_admittance_controller(registry, node):
     assert result.status == "ERROR"
     assert f"{node} streams to a joint_trajectory_controller" in result.reason
     assert "MoveIt Pro's admittance controller" in result.reason
+
+
+@pytest.mark.parametrize("node", ["ExecuteChunksSynchronously", "ExecuteWithLeRobotQueue", "ExecuteNewestWinsOnJtc"])
+def test_a_missing_policy_service_is_an_error_before_anything_moves(registry, node):
+    """The ports name what they need (ExecutePolicy's), so the world check finds the missing service."""
+    options = RunOptions(seed=0, max_seconds=30.0, world="kinematic")
+    context = make_context(options)
+    world = KinematicWorld({"seed": 0, "policy": "none"})
+    result = run_tree(load_tree(small_xml(node), registry, context), context, options, world=world)
+    assert result.status == "ERROR" and result.sim_seconds == 0.0
+    assert f"{node}: port 'policy_service_name': no service '{SERVICE}' (services: " in result.reason

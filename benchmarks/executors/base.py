@@ -70,6 +70,12 @@ class ChunkExecutor(Behavior):
     ports = PORTS
     needs_world = True
 
+    def __init__(self, name: str) -> None:
+        super().__init__(name)
+        self.phase = Phase.DONE  # until a run starts
+        self.policy: PolicyLink | None = None  # the bus links, built on the first run
+        self.gripper: GripperStream | None = None
+
     # -- lifecycle ---------------------------------------------------------------------------
     def initialise(self) -> None:
         self.phase = Phase.STARTUP
@@ -86,6 +92,15 @@ class ChunkExecutor(Behavior):
             self.safety: MotionSafety = make_safety(self.context.scene, self.config.joint_group_name, self.config.gripper_joint_name or None)
         except (cfg.ConfigError, SafetyError) as err:
             raise SetupError(str(err)) from None
+        self.rules: Any = None
+        if self.policy is None:
+            self._connect()
+        for part in (self.policy, self.gripper, self.wrench):
+            if part is not None:
+                part.reset()
+
+    def _connect(self) -> None:
+        """The bus links, built on the first run (the Objectives name them literally)."""
         config, bus = self.config, self.context.bus
         self.policy = PolicyLink(bus.create_client(config.policy_service_name, GetActionChunk))
         self.link = ControllerLink(bus, config.controller_action_name, self.location, self.xml_id)
@@ -94,7 +109,6 @@ class ChunkExecutor(Behavior):
         self.joint_states = bus.create_subscription(config.joint_states_topic, JointState, reliable=True)
         self.cameras = [bus.create_subscription(t, Image, reliable=False) for t in config.image_topics]
         self.wrench = WrenchWatch(bus, config.wrench_topic, config.absolute_force_torque_threshold) if config.wrench_topic else None
-        self.rules: Any = None
 
     def update(self) -> Status:
         try:
@@ -298,7 +312,8 @@ class ChunkExecutor(Behavior):
         return SetupError(what)
 
     def _stop_motion(self) -> None:
-        self.policy.cancel()
+        if self.policy is not None:
+            self.policy.cancel()
         if self.phase is Phase.RUN:
             self.cancel_motion()
         if self.gripper is not None:
