@@ -200,6 +200,10 @@ class ReimplementedQueue:
     def ready(self, chunk_steps: int, threshold: float) -> bool:
         return len(self.queue) / chunk_steps <= threshold
 
+    def pending(self) -> list[np.ndarray]:
+        """The queued actions in the order they will be played."""
+        return [self.queue[step] for step in sorted(self.queue)]
+
     def pop(self) -> np.ndarray:
         step = min(self.queue)
         self.latest_action = step
@@ -249,6 +253,10 @@ class LeRobotQueue:
     def ready(self, chunk_steps: int, threshold: float) -> bool:
         assert threshold == self._chunk_size_threshold, "the threshold is the client's configuration"
         return self._client._ready_to_send_observation(self)
+
+    def pending(self) -> list[np.ndarray]:
+        """The queued actions in the order they will be played (the queue is left as it is)."""
+        return [timed.get_action().numpy() for timed in list(self.action_queue.queue)]
 
     def pop(self) -> np.ndarray:
         timed = self.action_queue.get_nowait()

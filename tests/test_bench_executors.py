@@ -1,0 +1,171 @@
+"""The benchmark executors of ``benchmarks/executors`` (synchronous, LeRobot's queue, newest-wins
+on the JTC) on the kinematic cell: each stacks the cubes with the oracle through the benchmark's
+Objective, and each ends a run it cannot execute with ExecutePolicy's reasons (a chunk the checks
+refuse, a malformed chunk, a policy that does not answer, a controller it cannot drive)."""
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import pytest
+from moveit_pro_ml_msgs.srv import GetActionChunk
+
+from benchmarks.executors import register
+from benchmarks.executors.objectives import Executor, objective_xml
+from runtime.bus import FixedLatency
+from runtime.loader import load_tree
+from runtime.registry import Registry
+from runtime.runner import RunOptions, make_context, run_tree
+from sim.kinematic import KinematicWorld
+from tests.test_execute_policy import ScriptedPolicy, chunk_response, hold
+
+SERVICE = "/get_action_chunk"
+JTC = "/joint_trajectory_controller/follow_joint_trajectory"
+TURN = np.array([0.1, 0, 0, 0, 0, 0])
+"""rad/s of the scripted policies' chunks: a start from rest in one step needs about 3.5 rad/s^2
+through the executors that do not smooth (LeRobot's queue, newest-wins), within the 5 rad/s^2 limit."""
+
+
+@pytest.fixture(scope="module")
+def registry() -> Registry:
+    registry = Registry.from_entry_points()
+    register(registry)
+    return registry
+
+
+def small_xml(node: str, ports: str = "") -> str:
+    """The executor alone on the JTC: 60 steps, no gripper, no cameras."""
+    return (f'<root BTCPP_format="4"><BehaviorTree ID="T"><Sequence>'
+            f'<SwitchController activate_controllers="joint_trajectory_controller" automatic_deactivation="true"/>'
+            f'<{node} policy_service_name="{SERVICE}" joint_group_name="manipulator" total_action_steps="60" dt="0.1" '
+            f'committed_action_steps="20" goal_path_tolerance="0.3" policy_call_timeout="3.0" controller_action_name="{JTC}" '
+            f'steps_executed="{{steps}}" chunks_received="{{chunks}}" status_message="{{message}}" {ports}/>'
+            f'</Sequence></BehaviorTree></root>')
+
+
+def run(registry: Registry, xml: str, policy: ScriptedPolicy | None = None, latency_s: float = 0.2, seed: int = 0,
+        max_seconds: float = 90.0) -> Any:
+    options = RunOptions(seed=seed, max_seconds=max_seconds, world="kinematic")
+    context = make_context(options)
+    world = KinematicWorld({"seed": seed, "policy": "none" if policy is not None else "oracle"})
+    loaded = load_tree(xml, registry, context)
+    if policy is not None:
+        context.bus.create_service(SERVICE, GetActionChunk, policy)
+    context.bus.set_latency(SERVICE, FixedLatency(latency_s))
+    return run_tree(loaded, context, options, world=world)
+
+
+@pytest.mark.parametrize("executor", [Executor.SYNC, Executor.NEWEST_WINS], ids=lambda e: e.value)
+def test_the_synchronous_and_newest_wins_executors_stack_the_cubes_with_the_oracle(registry, executor):
+    result = run(registry, objective_xml(executor), seed=3, latency_s=0.5)
+    assert (result.status, result.reason) == ("SUCCESS", "")
+    assert result.blackboard["steps_executed"] == 300
+    assert result.blackboard["policy_message"] == "executed 300 steps"
+    summary = result.extra["bench_executor"]
+    assert summary["rejections"] == 0 and summary["chunks"] >= 300 // 49
+
+
+def test_lerobots_queue_joins_the_oracles_second_chunk_with_a_jump_the_checks_refuse(registry):
+    """The oracle is a function of time; LeRobot's client tags its first observation timestep 0
+    and plays that chunk's step 0 (the observed state) at the first control step, so the first
+    chunk runs one step behind the oracle's clock and the second, tagged by the action played,
+    does not: where they are aggregated (0.3 old + 0.7 new) the knots jump by 0.7 of a step."""
+    result = run(registry, objective_xml(Executor.LEROBOT), seed=3, latency_s=0.0)
+    assert (result.status, result.failure_kind) == ("FAILURE", "acceleration limit")
+    assert result.reason.startswith("chunk 2 rejected: densified step ")
+
+
+def test_the_synchronous_executor_rests_while_the_policy_infers(registry):
+    policy = ScriptedPolicy(hold(velocity=TURN))
+    result = run(registry, small_xml("ExecuteChunksSynchronously"), policy, latency_s=1.0)
+    assert (result.status, result.blackboard["message"]) == ("SUCCESS", "executed 60 steps")
+    # Warmup, then three chunks of 20 steps, each asked for once the arm rests.
+    assert result.blackboard["chunks"] == 3 and len(policy.requests) == 4
+    assert result.extra["bench_executor"]["latency_p50_s"] == pytest.approx(1.0, abs=0.02)
+    # Each chunk starts where the last ended: 20 steps at 0.1 rad/s = 0.2 rad on joint 0.
+    starts = [r.robot_state.position[0] for r in policy.requests[1:]]
+    assert np.diff(starts) == pytest.approx([0.2, 0.2], abs=0.005)
+
+
+def test_the_lerobot_queue_asks_when_half_a_chunk_is_left(registry):
+    policy = ScriptedPolicy(hold(velocity=TURN))
+    result = run(registry, small_xml("ExecuteWithLeRobotQueue"), policy, latency_s=0.2)
+    assert (result.status, result.blackboard["message"]) == ("SUCCESS", "executed 60 steps")
+    assert result.extra["bench_executor"]["queue"]  # says whose queue ran
+    # 50-step chunks: a new observation once 25 or fewer actions are queued.
+    assert result.blackboard["chunks"] == 3
+
+
+def test_newest_wins_drags_the_arm_back_to_the_state_a_late_chunk_observed(registry):
+    """Chunk 2 starts where the arm was when it was asked for (0.2 s and a step before it
+    plays): newest-wins plays it at once, so the arm would turn back: refused."""
+    policy = ScriptedPolicy(hold(velocity=TURN))
+    result = run(registry, small_xml("ExecuteNewestWinsOnJtc"), policy, latency_s=0.2)
+    assert (result.status, result.failure_kind) == ("FAILURE", "acceleration limit")
+    assert result.reason.startswith("chunk 2 rejected: densified step 0 (t=2.450 s): joint shoulder_pan_joint acceleration -")
+    assert result.blackboard["chunks"] == 2 and len(policy.requests) == 3  # warmup, then at 0 and 2 s
+
+
+def jump_at_step_10(index: int, request: Any) -> Any:
+    """Chunks from the observed state that jump 0.6 rad on joint 0 at step 10 (6 rad/s)."""
+    rows = np.tile(np.array(request.robot_state.position), (50, 1))
+    rows[10:, 0] += 0.6
+    return chunk_response(list(request.robot_state.name), rows)
+
+
+@pytest.mark.parametrize("node", ["ExecuteChunksSynchronously", "ExecuteWithLeRobotQueue", "ExecuteNewestWinsOnJtc"])
+def test_a_chunk_the_checks_refuse_ends_the_run_with_the_reason(registry, node):
+    result = run(registry, small_xml(node), ScriptedPolicy(jump_at_step_10))
+    assert result.status == "FAILURE"
+    assert result.reason.startswith("chunk 1 rejected: densified ")
+    assert result.failure_kind in ("velocity limit", "acceleration limit")
+    assert "shoulder_pan_joint" in result.reason
+
+
+def with_rows(rows_of: Any) -> ScriptedPolicy:
+    return ScriptedPolicy(lambda i, request: rows_of(request))
+
+
+@pytest.mark.parametrize("node", ["ExecuteChunksSynchronously", "ExecuteWithLeRobotQueue", "ExecuteNewestWinsOnJtc"])
+def test_malformed_chunks_and_a_silent_policy_end_with_the_reason(registry, node):
+    def nan_rows(request: Any) -> Any:
+        rows = np.tile(np.array(request.robot_state.position), (50, 1))
+        rows[4, 2] = np.nan
+        return chunk_response(list(request.robot_state.name), rows)
+
+    result = run(registry, small_xml(node), with_rows(nan_rows))
+    assert (result.status, result.failure_kind) == ("FAILURE", "malformed chunk")
+    assert result.reason == "chunk 1 rejected: step 4 joint 'elbow_joint' is not finite (nan)"
+
+    def renamed(request: Any) -> Any:
+        names = list(request.robot_state.name)
+        names[0] = "base_joint"
+        return chunk_response(names, np.tile(np.array(request.robot_state.position), (50, 1)))
+
+    result = run(registry, small_xml(node), with_rows(renamed))
+    assert result.status == "FAILURE" and result.reason.startswith("chunk 1 rejected: joint names do not match the joint group")
+
+    result = run(registry, small_xml(node), ScriptedPolicy(hold()), latency_s=4.0)  # the warmup never answers in 3 s
+    assert (result.status, result.failure_kind) == ("FAILURE", "policy timeout")
+    assert result.reason == (f"the policy service '{SERVICE}' did not answer the warmup request within policy_call_timeout = 3 s")
+
+
+@pytest.mark.parametrize("node", ["ExecuteWithLeRobotQueue", "ExecuteNewestWinsOnJtc"])
+def test_the_jtc_executors_refuse_the_admittance_controller(registry, node):
+    xml = small_xml(node).replace(JTC, "/joint_trajectory_admittance_controller/follow_joint_trajectory").replace(
+        'activate_controllers="joint_trajectory_controller"', 'activate_controllers="joint_trajectory_admittance_controller"')
+    result = run(registry, xml, ScriptedPolicy(hold()))
+    assert result.status == "ERROR"
+    assert f"{node} streams to a joint_trajectory_controller" in result.reason
+    assert "MoveIt Pro's admittance controller" in result.reason
+
+
+@pytest.mark.parametrize("node", ["ExecuteChunksSynchronously", "ExecuteWithLeRobotQueue", "ExecuteNewestWinsOnJtc"])
+def test_a_missing_policy_service_is_an_error_before_anything_moves(registry, node):
+    """The ports name what they need (ExecutePolicy's), so the world check finds the missing service."""
+    options = RunOptions(seed=0, max_seconds=30.0, world="kinematic")
+    context = make_context(options)
+    world = KinematicWorld({"seed": 0, "policy": "none"})
+    result = run_tree(load_tree(small_xml(node), registry, context), context, options, world=world)
+    assert result.status == "ERROR" and result.sim_seconds == 0.0
+    assert f"{node}: port 'policy_service_name': no service '{SERVICE}' (services: " in result.reason
