@@ -58,10 +58,13 @@ $(LEROBOT_STAMP): pyproject.toml requirements/lerobot.txt requirements/lerobot-c
 	HF_HUB_OFFLINE=1 $(LPY) -c "from policy.lerobot_compat import ensure_torchvision; print('torchvision ops:', ensure_torchvision()); import lerobot.policies.smolvla.modeling_smolvla, lerobot.async_inference.robot_client"
 	@touch $@
 
-# The demo's tiny SmolVLA: records oracle demonstrations (build/demos/stack_cubes, reused when
-# present), trains on CPU for a few minutes (seeded), saves build/policies/tiny_smolvla.
+# The tiny SmolVLA: records 60 oracle demonstrations in two workers (build/demos/stack_cubes_60,
+# reused when present; seeds 0-59), trains 5000 seeded steps on the CPU (at most 30 minutes),
+# saves build/policies/tiny_smolvla and evaluates it on held-out seeds 100-149 (docs/lerobot.md).
 lerobot-policy: lerobot
-	HF_HUB_OFFLINE=1 $(LPY) tools/train_tiny_smolvla.py --episodes 12 --seed 0 --steps 1500 --minutes 8
+	HF_HUB_OFFLINE=1 MUJOCO_GL=egl ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST $(LPY) tools/train_tiny_smolvla.py \
+		--dataset build/demos/stack_cubes_60 --episodes 60 --workers 2 --seed 0 --steps 5000 --minutes 30 \
+		--threads 2 --eval-episodes 50 --eval-seed-start 100
 
 # Headless Chromium (Debian's package) for the report's browser test; skipped when absent.
 chromium:
