@@ -323,3 +323,48 @@ def test_a_stop_during_a_long_inference_ends_the_run_without_waiting_for_the_ans
     assert result.status == "INTERRUPTED" and "a test" in result.reason, result.reason
     assert len(backend.requests) == 1
     assert returned_at - stopped_at[0] < STOP_WAIT_S + 2.0  # not the model's ten seconds
+
+
+@pytest.mark.parametrize("latency_s, ready_s", [(0.3, 0.3), (0.05, 0.1)])
+def test_a_paced_bus_delivers_a_worker_s_answer_once_it_is_done_and_the_latency_has_passed(latency_s, ready_s):
+    """The handler finishes at 0.1 s of clock time (the test's clock, advanced by hand): the answer
+    is due at the later of that and the call's time plus the latency."""
+    from std_srvs.srv import Trigger
+
+    clock = SimClock()
+    bus = InProcessBus(clock, default_latency=FixedLatency(latency_s), paced=True)
+    release = threading.Event()
+    served_on: list[str] = []
+
+    def handler(request):
+        served_on.append(threading.current_thread().name)
+        assert release.wait(5)
+        return Trigger.Response(success=True)
+
+    bus.create_service("/infer", Trigger, handler, own_thread=True)
+    future = bus.create_client("/infer", Trigger).call_async(Trigger.Request())
+    try:
+        assert not future.done()  # the call returned before the handler finished
+        clock.advance(0.1)
+        release.set()
+        deadline = time.monotonic() + 5.0
+        while not bus._answered and time.monotonic() < deadline:
+            time.sleep(0.005)
+        bus.spin_once()
+        assert future.done() is (ready_s == 0.1) and future.ready_at == pytest.approx(ready_s)
+        clock.advance(ready_s - 0.1)
+        bus.spin_once()
+        assert future.done() and future.result().success and served_on == ["service /infer"]
+    finally:
+        bus.close()
+
+
+def test_on_a_simulated_clock_an_own_thread_service_answers_at_the_call():
+    from std_srvs.srv import Trigger
+
+    bus = InProcessBus(SimClock(), default_latency=FixedLatency(0.0))
+    served_on: list[str] = []
+    bus.create_service("/infer", Trigger, lambda request: served_on.append(threading.current_thread().name) or Trigger.Response(), own_thread=True)
+    future = bus.create_client("/infer", Trigger).call_async(Trigger.Request())
+    assert future.done() and served_on == [threading.current_thread().name]
+    bus.close()
