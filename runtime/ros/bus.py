@@ -695,6 +695,9 @@ class RosBus:
         def serve(request: Any, response: Any) -> Any:
             try:
                 answer = self._serve(handler, request, worker=worker)
+            except BusClosed:
+                self.node.get_logger().warning(f"service '{name}': the node closed before the answer; answering a default response")
+                return response
             except Exception as exc:
                 self.node.get_logger().error(f"service '{name}': handler raised {exc!r}; answering a default response")
                 return response
