@@ -336,7 +336,9 @@ class PolicyAdapter:
             self.log.info("answered NO_MORE_ACTIONS after %d chunks: %s", self.served_chunks, response.message)
 
     def serve(self, bus: Any, service_name: str = DEFAULT_SERVICE_NAME) -> PolicyAdapter:
-        """Register ``handle`` as the GetActionChunk service ``service_name`` on ``bus``."""
-        bus.create_service(service_name, GetActionChunk, self.handle)
+        """Register ``handle`` as the GetActionChunk service ``service_name`` on ``bus``, on a
+        thread of its own where the bus would run it on the thread that ticks a tree (a paced
+        run's bus, ``own_thread``): inference never holds a tick."""
+        bus.create_service(service_name, GetActionChunk, self.handle, own_thread=True)
         self.service_name = service_name
         return self

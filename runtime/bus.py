@@ -7,10 +7,15 @@ mirrors rclpy's so the ROS binding stays thin, and it never blocks: behaviors ar
 
 In-process service calls run the handler at once, but the answer is delivered on the clock
 after a latency given by a ``LatencyModel`` (by default the handler's measured wall time), so a
-slow policy is exercised deterministically while the robot keeps moving.
+slow policy is exercised deterministically while the robot keeps moving. On a bus paced by the
+wall clock (``InProcessBus(paced=True)``, ``--realtime``), a service created with
+``own_thread=True`` (a policy) runs its handler on a ``ServiceWorker`` instead, so the tick
+never waits for it; its answer is delivered in the first ``spin_once`` after both the handler
+finished and the latency model's delay since the call passed.
 """
 from __future__ import annotations
 
+import collections
 import itertools
 import math
 import random
@@ -21,6 +26,7 @@ from typing import Any, Callable, Generic, Protocol, TypeVar
 
 from .clock import Clock
 from .errors import OptionError
+from .service_worker import ServiceWorker
 
 T = TypeVar("T")
 
@@ -167,7 +173,11 @@ class Bus(Protocol):
     when topics are pushed at a rate to readers elsewhere (ROS 2), so a frame costs whether or
     not it is read."""
 
-    def create_service(self, name: str, srv_type: type, handler: Callable[[Any], Any]) -> Any: ...
+    def create_service(self, name: str, srv_type: type, handler: Callable[[Any], Any], own_thread: bool = False) -> Any:
+        """Serve ``name`` with ``handler(request) -> response``. ``own_thread``: a slow handler
+        (a policy's inference) that must never run on the thread that ticks the tree; on a paced
+        bus it runs on a ``ServiceWorker`` of its own, one request at a time."""
+        ...
 
     def create_client(self, name: str, srv_type: type) -> ServiceClient: ...
 
@@ -346,22 +356,41 @@ class _InProcessClient:
         if entry is None:
             raise RuntimeError(f"service '{self.name}' is not available")
         srv_type, handler = entry
-        start = time.perf_counter()
-        future: Future[Any]
-        try:
-            response = handler(request)
-            error: BaseException | None = None
-        except Exception as exc:  # the caller sees the failure through the future
-            response, error = None, exc
-        wall = time.perf_counter() - start
-        delay = self.bus.latency_for(self.name).delay(wall)
-        future = Future(self.bus.clock, self.bus.clock.now() + max(0.0, delay))
-        if error is not None:
-            future.set_exception(error)
-        else:
-            future.set_result(response)
-        self.bus._pending.append(future)
+        future: Future[Any] = Future(self.bus.clock)
+        called_s = self.bus.clock.now()
+        worker = self.bus._workers.get(self.name)
+        if worker is None:
+            self.bus._deliver(_run_handler(self.name, handler, request, future, called_s, self.bus.clock))
+        else:  # answered on the worker's thread, delivered in a later spin_once
+            worker.submit(lambda: self.bus._answered.append(_run_handler(self.name, handler, request, future, called_s, self.bus.clock)))
         return future
+
+
+@dataclass
+class _Answer:
+    """A handler's outcome, waiting to be delivered to the caller's future."""
+
+    service_name: str
+    future: Future[Any]
+    called_s: float
+    finished_s: float
+    wall_s: float
+    response: Any
+    error: BaseException | None
+
+
+def _run_handler(name: str, handler: Callable[[Any], Any], request: Any, future: Future[Any], called_s: float,
+                 clock: Clock) -> _Answer:
+    """Run ``handler`` on ``request``, timing it; an exception is the answer (the caller sees it
+    through the future)."""
+    start = time.perf_counter()
+    try:
+        response = handler(request)
+        error: BaseException | None = None
+    except Exception as exc:
+        response, error = None, exc
+    wall = time.perf_counter() - start
+    return _Answer(name, future, called_s, clock.now(), wall, response, error)
 
 
 class _InProcessPublisher:
@@ -535,8 +564,11 @@ class InProcessBus:
 
     produces_on_read = True
 
-    def __init__(self, clock: Clock, default_latency: LatencyModel | None = None) -> None:
+    def __init__(self, clock: Clock, default_latency: LatencyModel | None = None, paced: bool = False) -> None:
         self.clock = clock
+        self.paced = paced
+        """The clock follows the wall (``--realtime``): ``own_thread`` services answer from a
+        ``ServiceWorker``. On a simulated clock every handler runs at the call (deterministic)."""
         self.default_latency: LatencyModel = default_latency or MeasuredLatency()
         self._latency: dict[str, LatencyModel] = {}
         self._services: dict[str, tuple[type, Callable[[Any], Any]]] = {}
@@ -545,6 +577,9 @@ class InProcessBus:
         self._lazy: dict[str, _LazyTopic] = {}
         self._action_servers: dict[str, _InProcessActionServer] = {}
         self._pending: list[Future[Any]] = []
+        self._workers: dict[str, ServiceWorker] = {}
+        self._answered: collections.deque[_Answer] = collections.deque()
+        """Answers the workers finished, for ``spin_once`` to deliver on the owner's thread."""
         self._ids = itertools.count()
 
     # -- configuration ---
@@ -555,14 +590,19 @@ class InProcessBus:
         return self._latency.get(service_name, self.default_latency)
 
     # -- services ---
-    def create_service(self, name: str, srv_type: type, handler: Callable[[Any], Any]) -> Any:
+    def create_service(self, name: str, srv_type: type, handler: Callable[[Any], Any], own_thread: bool = False) -> Any:
         if name in self._services:
             raise ValueError(f"service '{name}' is already served")
         self._services[name] = (srv_type, handler)
+        if own_thread and self.paced:
+            self._workers[name] = ServiceWorker(name)
         return name
 
     def destroy_service(self, name: str) -> None:
         self._services.pop(name, None)
+        worker = self._workers.pop(name, None)
+        if worker is not None:
+            worker.close()
 
     def create_client(self, name: str, srv_type: type) -> ServiceClient:
         return _InProcessClient(self, name, srv_type)
@@ -644,7 +684,21 @@ class InProcessBus:
         return [] if server is None else [interface_type_name(server.action_type, "action")]
 
     # -- delivery ---
+    def _deliver(self, answer: _Answer) -> None:
+        """Complete the caller's future, due when the handler finished and the latency model's
+        delay since the call passed (on a simulated clock the two instants are one)."""
+        delay = self.latency_for(answer.service_name).delay(answer.wall_s)
+        future = answer.future
+        future._ready_at = max(answer.finished_s, answer.called_s + max(0.0, delay))
+        if answer.error is not None:
+            future.set_exception(answer.error)
+        else:
+            future.set_result(answer.response)
+        self._pending.append(future)
+
     def spin_once(self) -> None:
+        while self._answered:
+            self._deliver(self._answered.popleft())
         still: list[Future[Any]] = []
         for future in self._pending:
             if future.done():
@@ -654,6 +708,12 @@ class InProcessBus:
         self._pending = still
 
     def close(self) -> None:
+        """Close the services' workers (each waits at most ``STOP_WAIT_S`` for a call in
+        progress) and forget everything."""
+        for worker in self._workers.values():
+            worker.close()
+        self._workers.clear()
+        self._answered.clear()
         self._services.clear()
         self._publishers.clear()
         self._subscriptions.clear()

@@ -220,7 +220,7 @@ def make_context(options: RunOptions) -> RunContext:
             stamp_offset_s = robot_time_offset_s(wall)  # a real robot's controllers stamp with ROS time
         return RunContext(clock=wall, bus=bus, events=EventLog(wall), seed=options.seed, stamp_offset_s=stamp_offset_s)
     clock = WallClock() if options.realtime else SimClock()
-    bus = InProcessBus(clock)
+    bus = InProcessBus(clock, paced=options.realtime)
     return RunContext(clock=clock, bus=bus, events=EventLog(clock), seed=options.seed)
 
 

@@ -155,6 +155,9 @@ class CellWorld:
         if getattr(bus, "produces_on_read", True):  # in process: a frame is rendered when it is read
             for name, topic in CAMERA_TOPICS.items():
                 bus.create_lazy_publisher(topic, Image, functools.partial(self._camera_frame, name), rate_hz=rate)
+            if self.options.get("realtime"):  # a first frame makes the renderer (GL context, meshes): not in a tick
+                for name in CAMERA_TOPICS:
+                    self.cell.render(name)
         else:  # pushed at a rate (ROS 2): rendered off the tick's thread
             from .camera_thread import CameraThread
 

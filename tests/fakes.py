@@ -44,3 +44,23 @@ class FakeBackend:
         if callable(self.answer):
             return self.answer(request)
         return self.answer
+
+
+SLOW_INFER_S = 0.5
+"""How long ``slow_hold``'s every answer takes, in wall time."""
+
+
+def slow_hold(options: Any = None) -> FakeBackend:
+    """A backend factory (``tests.fakes:slow_hold``): a slow model (``SLOW_INFER_S`` of wall time
+    per answer) whose chunks hold the observed state, 30 steps of 0.1 s."""
+    import time
+
+    import numpy as np
+
+    from policy.backend import PolicyResponse
+
+    def hold(request: PolicyRequest) -> PolicyResponse:
+        time.sleep(SLOW_INFER_S)
+        return PolicyResponse.chunk(np.tile(np.asarray(request.joint_positions, dtype=float), (30, 1)), 0.1, None)
+
+    return FakeBackend(hold, name="slow hold")

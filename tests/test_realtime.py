@@ -7,6 +7,7 @@ commanded motion stays continuous, within the joints' velocity limits, loaded ma
 """
 from __future__ import annotations
 
+import random
 import subprocess
 import sys
 import threading
@@ -244,3 +245,126 @@ def test_camera_frames_are_rendered_off_the_owners_thread_at_most_at_their_rate(
     assert [(thread is threading.main_thread(), camera) for thread, camera, _ in cell.rendered] == [(False, "scene")]
     assert publishers["scene"].messages == [("scene", 1.0)] and publishers["wrist"].messages == []  # nobody on wrist
     assert frames.sets_skipped == 1 and cell.released.is_set()
+
+
+# -- a policy's inference off the tick's thread ----------------------------------------------------
+SLOW_POLICY_XML = (
+    '<root BTCPP_format="4"><BehaviorTree ID="T"><Sequence>'
+    '<SwitchController activate_controllers="joint_trajectory_admittance_controller" deactivate_controllers="velocity_force_controller"/>'
+    '<ExecutePolicy policy_service_name="/get_action_chunk" joint_group_name="manipulator" total_action_steps="20" '
+    'dt="0.1" committed_action_steps="20" goal_path_tolerance="0.3" policy_call_timeout="5.0" '
+    'steps_executed="{steps}" chunks_received="{chunks}" status_message="{message}"/>'
+    "</Sequence></BehaviorTree></root>"
+)
+
+
+@pytest.mark.timeout(90)
+@pytest.mark.parametrize("setup", ["realtime", pytest.param("ros", marks=pytest.mark.ros)])
+def test_a_slow_in_process_policy_answers_late_without_holding_a_tick(registry, setup, monkeypatch):
+    """The world's policy (``tests.fakes:slow_hold``, 0.5 s a chunk) answers from a thread of its
+    own in a paced run, in process (``--realtime``) and hosted on ROS 2 (``--ros``): no tick waits
+    for it, its chunks still arrive (late, as a remote server's would) and are executed, and the
+    thread is gone when the run is. The bound on a tick's work is generous (a loaded machine):
+    the point is 0.5 s blocked against not blocked."""
+    from runtime.loader import load_tree
+    from runtime.runner import make_context, run_tree
+    from tests.fakes import SLOW_INFER_S
+
+    if setup == "ros":
+        monkeypatch.setenv("ROS_DOMAIN_ID", str(random.randint(100, 199)))
+        monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    options = RunOptions(realtime=setup == "realtime", ros=setup == "ros", world="kinematic", max_seconds=30.0,
+                         world_options={"policy": "tests.fakes:slow_hold"})
+    context = make_context(options)
+    result = run_tree(load_tree(SLOW_POLICY_XML, registry, context), context, options)
+
+    assert result.status == "SUCCESS", result.reason
+    assert result.blackboard["steps"] == 20 and result.blackboard["chunks"] >= 1
+    assert result.extra["execute_policy"]["latency_p50_s"] >= SLOW_INFER_S  # answered late, on the wall clock
+    assert result.extra["pacing"]["worst_tick_s"] < SLOW_INFER_S / 2
+    assert not [t.name for t in threading.enumerate() if t.name.startswith("service ")]
+
+
+@pytest.mark.timeout(60)
+def test_a_stop_during_a_long_inference_ends_the_run_without_waiting_for_the_answer(registry):
+    """SIGINT (here ``StopRequest.cancel``) while the policy is inside a ten-second inference: the
+    tick is free, so the run halts at once; closing the bus waits for the inference at most
+    ``STOP_WAIT_S`` and drops its answer."""
+    from policy.adapter import PolicyAdapter
+    from runtime.interrupt import StopRequest
+    from runtime.loader import load_tree
+    from runtime.runner import make_context, run_tree
+    from runtime.service_worker import STOP_WAIT_S
+    from tests.fakes import FakeBackend
+
+    model_done = threading.Event()  # never set while the run lasts: the model answers after 10 s
+    backend = FakeBackend(RuntimeError("unreachable"), infer_gate=model_done)
+    options = RunOptions(realtime=True, world="kinematic", max_seconds=30.0, world_options={"policy": "none"})
+    context = make_context(options)
+    PolicyAdapter(backend).serve(context.bus)
+    stop = StopRequest()
+    stopped_at: list[float] = []
+
+    def stop_once_inferring() -> None:
+        while not backend.requests:
+            time.sleep(0.01)
+        time.sleep(0.2)
+        stopped_at.append(time.monotonic())
+        stop.cancel("a test")
+
+    stopper = threading.Thread(target=stop_once_inferring, daemon=True)
+    stopper.start()
+    try:
+        result = run_tree(load_tree(SLOW_POLICY_XML, registry, context), context, options, stop=stop)
+        returned_at = time.monotonic()
+    finally:
+        model_done.set()
+    stopper.join(5)
+    assert result.status == "INTERRUPTED" and "a test" in result.reason, result.reason
+    assert len(backend.requests) == 1
+    assert returned_at - stopped_at[0] < STOP_WAIT_S + 2.0  # not the model's ten seconds
+
+
+@pytest.mark.parametrize("latency_s, ready_s", [(0.3, 0.3), (0.05, 0.1)])
+def test_a_paced_bus_delivers_a_worker_s_answer_once_it_is_done_and_the_latency_has_passed(latency_s, ready_s):
+    """The handler finishes at 0.1 s of clock time (the test's clock, advanced by hand): the answer
+    is due at the later of that and the call's time plus the latency."""
+    from std_srvs.srv import Trigger
+
+    clock = SimClock()
+    bus = InProcessBus(clock, default_latency=FixedLatency(latency_s), paced=True)
+    release = threading.Event()
+    served_on: list[str] = []
+
+    def handler(request):
+        served_on.append(threading.current_thread().name)
+        assert release.wait(5)
+        return Trigger.Response(success=True)
+
+    bus.create_service("/infer", Trigger, handler, own_thread=True)
+    future = bus.create_client("/infer", Trigger).call_async(Trigger.Request())
+    try:
+        assert not future.done()  # the call returned before the handler finished
+        clock.advance(0.1)
+        release.set()
+        deadline = time.monotonic() + 5.0
+        while not bus._answered and time.monotonic() < deadline:
+            time.sleep(0.005)
+        bus.spin_once()
+        assert future.done() is (ready_s == 0.1) and future.ready_at == pytest.approx(ready_s)
+        clock.advance(ready_s - 0.1)
+        bus.spin_once()
+        assert future.done() and future.result().success and served_on == ["service /infer"]
+    finally:
+        bus.close()
+
+
+def test_on_a_simulated_clock_an_own_thread_service_answers_at_the_call():
+    from std_srvs.srv import Trigger
+
+    bus = InProcessBus(SimClock(), default_latency=FixedLatency(0.0))
+    served_on: list[str] = []
+    bus.create_service("/infer", Trigger, lambda request: served_on.append(threading.current_thread().name) or Trigger.Response(), own_thread=True)
+    future = bus.create_client("/infer", Trigger).call_async(Trigger.Request())
+    assert future.done() and served_on == [threading.current_thread().name]
+    bus.close()

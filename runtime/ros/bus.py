@@ -24,6 +24,9 @@ Threads, and why:
   ``spin_once`` (a standalone policy adapter). A server whose state is also touched by another
   thread (a simulated controller stepped by the world) passes ``serve_in_spin_once=True``: its
   callbacks then run inside ``spin_once()`` on the owner's thread, and a request waits for it.
+  A service created with ``own_thread=True`` (a hosted policy, whose inference may take a
+  second) is the exception there: its handler runs on a ``ServiceWorker`` of its own, one
+  request at a time, so the owner's tick never waits for it.
 
 ROS has no error channel for services: when a handler raises, the error is logged and the
 client receives a default-constructed response (for GetActionChunk that is status UNKNOWN,
@@ -58,6 +61,7 @@ from runtime.bus import (
     Future,
 )
 from runtime.clock import Clock, next_due
+from runtime.service_worker import ServiceWorker
 
 _SPIN_PERIOD_S = 0.1  # how often the spin thread looks at its stop flag when the graph is idle
 _QUEUE_DEPTH = 10
@@ -627,6 +631,7 @@ class RosBus:
             rclpy.try_shutdown(context=self.context)
             raise
         self._services: dict[str, Any] = {}
+        self._workers: dict[str, ServiceWorker] = {}
         self._publishers: dict[str, list[_RosPublisher]] = {}
         self._lazy: dict[str, _LazyPublisher] = {}
         self._subscriptions: list[_RosSubscription] = []
@@ -652,14 +657,18 @@ class RosBus:
         """Run ``fn(*args)`` in the next ``spin_once()`` on the owner's thread."""
         self._queue.append(lambda: fn(*args))
 
-    def _serve(self, fn: Callable[..., Any], *args: Any, cancel: bool = False) -> Any:
-        """Run a server callback: here, or on the owner's thread when ``serve_in_spin_once``.
+    def _serve(self, fn: Callable[..., Any], *args: Any, cancel: bool = False, worker: ServiceWorker | None = None) -> Any:
+        """Run a server callback: here, or on the owner's thread when ``serve_in_spin_once``
+        (on ``worker``'s thread when one is given).
 
         ``cancel``: a cancel request, which ``close()`` still serves (nothing else is)."""
         if not self.serve_in_spin_once:
             return fn(*args)
         call = _OwnerCall(fn, args)
-        (self._cancel_calls if cancel else self._queue).append(call.run)
+        if worker is not None:
+            worker.submit(call.run)
+        else:
+            (self._cancel_calls if cancel else self._queue).append(call.run)
         while not call.event.wait(_SPIN_PERIOD_S):
             if self._closing.is_set():
                 raise BusClosed("the bus closed before its owner served the request")
@@ -673,14 +682,22 @@ class RosBus:
             raise ValueError(f"{what}: this node was made to serve nothing (RosBus(serves=False): an events "
                              "executor, whose one thread a server's waiting callback would block)")
 
-    def create_service(self, name: str, srv_type: type, handler: Callable[[Any], Any]) -> Any:
+    def create_service(self, name: str, srv_type: type, handler: Callable[[Any], Any], own_thread: bool = False) -> Any:
+        """Serve ``name``; ``own_thread`` (see ``runtime.bus.Bus.create_service``) matters with
+        ``serve_in_spin_once``, where the handler would otherwise run on the owner's thread."""
         self._check_serves(f"service '{name}'")
         if name in self._services:
             raise ValueError(f"service '{name}' is already served")
+        worker = ServiceWorker(name) if own_thread and self.serve_in_spin_once else None
+        if worker is not None:
+            self._workers[name] = worker
 
         def serve(request: Any, response: Any) -> Any:
             try:
-                answer = self._serve(handler, request)
+                answer = self._serve(handler, request, worker=worker)
+            except BusClosed:
+                self.node.get_logger().warning(f"service '{name}': the node closed before the answer; answering a default response")
+                return response
             except Exception as exc:
                 self.node.get_logger().error(f"service '{name}': handler raised {exc!r}; answering a default response")
                 return response
@@ -699,6 +716,9 @@ class RosBus:
         service = self._services.pop(name, None)
         if service is not None:
             self.node.destroy_service(service)
+        worker = self._workers.pop(name, None)
+        if worker is not None:
+            worker.close()
 
     def create_client(self, name: str, srv_type: type) -> _RosClient:
         client = _RosClient(self, name, srv_type)
@@ -845,8 +865,11 @@ class RosBus:
             return
         self.deliver_cancels()
         self._closed = True
-        self._closing.set()  # releases execute callbacks and requests waiting for spin_once
+        self._closing.set()  # releases execute callbacks and requests waiting for spin_once or a service's worker
         self._thread.join()  # nothing new is handed to the worker pool after this
+        for worker in self._workers.values():
+            worker.close()
+        self._workers.clear()
         # Drain rclpy's worker pool before shutting the executor down: the executor's own
         # shutdown() neither waits for running callbacks (they may still schedule work on it) nor
         # stops its ThreadPoolExecutor, whose threads would otherwise live until interpreter exit.
