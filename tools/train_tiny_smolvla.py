@@ -55,6 +55,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--threads", type=int, default=1, help="torch threads (one measured fastest on 2 shared cores)")
     parser.add_argument("--workers", type=int, default=2, help="processes recording episodes at once when recording")
     parser.add_argument("--image-size", type=int, default=128, help="camera frames when recording (square, px)")
+    parser.add_argument("--train-size", type=int, default=None,
+                        help="train on frames resized to this size (px, as the backend resizes requests; default: the dataset's)")
     parser.add_argument("--record-steps", type=int, default=250, help="policy steps per episode when recording")
     parser.add_argument("--keep-failed", action="store_true", help="keep recorded episodes whose stack check failed")
     parser.add_argument("--eval-episodes", type=int, default=0,
@@ -76,7 +78,7 @@ class DemoTensors:
     episode, padded with the episode's last action and flagged in ``action_is_pad``, and ``task``.
     """
 
-    def __init__(self, root: Path, chunk: int) -> None:
+    def __init__(self, root: Path, chunk: int, size: int | None = None) -> None:
         import io
 
         import numpy as np
@@ -95,7 +97,7 @@ class DemoTensors:
         self.images = {}
         for key in self.meta.camera_keys:
             frames = [np.asarray(Image.open(io.BytesIO(cell["bytes"])).convert("RGB")) for cell in table.column(key).to_pylist()]
-            self.images[key] = torch.from_numpy(np.stack(frames)).permute(0, 3, 1, 2).contiguous()
+            self.images[key] = resized(torch.from_numpy(np.stack(frames)).permute(0, 3, 1, 2).contiguous(), size)
         last = np.zeros(len(episodes), dtype=np.int64)
         for episode in np.unique(episodes):
             rows = np.flatnonzero(episodes == episode)
@@ -118,6 +120,21 @@ class DemoTensors:
         for key, frames in self.images.items():
             batch[key] = frames[rows].float().div_(255.0)
         return batch
+
+
+def resized(frames, size: int | None):
+    """uint8 NCHW frames at ``size`` x ``size``: the backend's resize (bilinear, antialiased when
+    shrinking, ``LeRobotBackend._image_tensor``) done once, in blocks to bound memory."""
+    import torch
+    import torch.nn.functional as F
+
+    if size is None or tuple(frames.shape[-2:]) == (size, size):
+        return frames
+    shrinking = frames.shape[-1] > size
+    blocks = [F.interpolate(block.float().div_(255.0), size=(size, size), mode="bilinear", align_corners=False,
+                            antialias=shrinking).mul_(255.0).round_().clamp_(0, 255).to(torch.uint8)
+              for block in frames.split(1024)]
+    return torch.cat(blocks)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -143,11 +160,12 @@ def main(argv: list[str] | None = None) -> int:
                  summary.world, time.monotonic() - started)
 
     loading = time.monotonic()
-    demos = DemoTensors(args.dataset, TinySmolVLASpec().chunk_size)
+    demos = DemoTensors(args.dataset, TinySmolVLASpec().chunk_size, args.train_size)
     meta = demos.meta
     LOG.info("loaded %d frames into memory in %.1f s", len(demos), time.monotonic() - loading)
     cameras = tuple(key.split(".", 2)[2] for key in meta.camera_keys)
-    image_size = int(meta.features[meta.camera_keys[0]]["shape"][0])
+    frame_size = int(meta.features[meta.camera_keys[0]]["shape"][0])
+    image_size = args.train_size or frame_size
     joint_names = list(meta.features["action"]["names"])
     spec = TinySmolVLASpec(state_dim=len(joint_names), action_dim=len(joint_names), cameras=cameras, image_size=image_size,
                            vision_width=args.vision_width, vision_layers=args.vision_layers)
@@ -200,7 +218,7 @@ def main(argv: list[str] | None = None) -> int:
             "dataset": str(args.dataset), "episodes": meta.total_episodes, "frames": meta.total_frames,
             "data_sha256": dataset_hash(args.dataset), "episode_seeds": episode_seeds(args.dataset),
             "steps": step, "batch": args.batch, "lr": args.lr, "threads": args.threads,
-            "vision_width": args.vision_width, "vision_layers": args.vision_layers, "seed": args.seed, "seconds": round(elapsed, 1),
+            "image_size": image_size, "vision_width": args.vision_width, "vision_layers": args.vision_layers, "seed": args.seed, "seconds": round(elapsed, 1),
             "final_loss": round(float(np.mean(losses[-25:])), 5),
         },
     }
@@ -214,7 +232,7 @@ def main(argv: list[str] | None = None) -> int:
     LOG.info("saved %s: %d steps in %.0f s, final loss %.4f", args.out, step, elapsed, metadata["training"]["final_loss"])
     result = {"checkpoint": str(args.out), **metadata["training"]}
     if args.eval_episodes > 0:
-        result["evaluation"] = evaluate(args.out, args.eval_episodes, args.eval_seed_start, image_size, args.workers,
+        result["evaluation"] = evaluate(args.out, args.eval_episodes, args.eval_seed_start, frame_size, args.workers,
                                         meta_world(args.dataset))
     print(json.dumps(result))
     return 0
