@@ -24,7 +24,6 @@ import enum
 import json
 import math
 import signal
-import sys
 import time
 from dataclasses import dataclass, field
 from importlib.metadata import entry_points
@@ -362,13 +361,6 @@ def _halt(root: py_trees.behaviour.Behaviour) -> bool:
     return False
 
 
-PACED_SWITCH_INTERVAL_S = 0.0005
-"""How long another thread may hold the interpreter lock before the tick's thread gets it, in a
-paced run (Python's default is 5 ms). The world step hands the lock back and forth with the
-camera thread, the policy worker and the executor threads several times a tick; each hand-over
-may wait a whole interval (docs/performance.md, "What runs in the tick")."""
-
-
 @dataclass
 class Pacing:
     """How well a wall-clock run kept its tick rate: ticks whose work took longer than a period,
@@ -480,9 +472,6 @@ def run_tree(
         progress.attach(root)  # type: ignore[union-attr]
     pacing = Pacing(period) if options.paced else None
     wall_start = time.monotonic()
-    switch_interval_s = sys.getswitchinterval()  # restored when the run ends
-    if options.paced:
-        sys.setswitchinterval(PACED_SWITCH_INTERVAL_S)
     try:
         try:
             if world is not None:
@@ -558,7 +547,6 @@ def run_tree(
                         world.close()
             finally:
                 bus.close()
-                sys.setswitchinterval(switch_interval_s)
     wall_seconds = time.monotonic() - wall_start
 
     extra: dict[str, Any] = {}
