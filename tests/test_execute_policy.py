@@ -1025,9 +1025,32 @@ def test_a_goal_that_reaches_the_controller_after_its_seam_while_moving_is_plann
     (late,) = [w for w in run.summary["warnings"] if "reached the controller" in w]
     assert re.fullmatch(r"chunk 3's goal reached the controller after t=\d+\.\d\d s, the moment it was meant to take "
                         r"over, so the controller went on with what it was playing; the chunk is planned again from "
-                        r"what the arm is doing", late), late
+                        r"what the arm is doing \(goals are now given 50 ms more to reach the controller\)", late), late
     t, v = np.array(commanded).T
     assert np.max(np.abs(np.diff(v))) < 0.002  # rad/s per control step: no dead stop, no jump
+
+
+def test_goals_late_by_a_robot_clock_running_ahead_get_more_time_to_arrive_until_they_land(registry, monkeypatch):
+    # From goal 2 on, the controller's clock runs 0.25 s ahead of the runtime's (a robot in its own
+    # process, the runtime on its /clock): every seam planned with the measured delivery time is
+    # already past when the goal lands. Each late refusal gives goals more time (50, 100, 200 ms):
+    # the third retry lands, and the rest of the run keeps the 200 ms it learned.
+    import sim.controllers.admittance as admittance
+
+    parse, goals = admittance.parse_goal, []
+
+    def robot_ahead(request, joint_names, now, *args):
+        goal = parse(request, joint_names, now, *args)
+        goals.append(goal.seam_time - now)
+        return dataclasses.replace(goal, seam_time=goal.seam_time - 0.25) if len(goals) >= 2 else goal
+
+    monkeypatch.setattr(admittance, "parse_goal", robot_ahead)
+    run = run_policy(registry, BASE, ScriptedPolicy(hold(velocity=np.array([0.1, 0, 0, 0, 0, 0]))), latency=0.05)
+    assert run.result.status == "SUCCESS", run.result.reason
+    assert run.summary["steps_executed"] == 60
+    late = [w for w in run.summary["warnings"] if "reached the controller" in w]
+    assert [re.search(r"given (\d+) ms more", w).group(1) for w in late] == ["50", "100", "200"]
+    assert min(goals[4:]) > 0.25  # every goal after the retries is planned to land with room to spare
 
 
 def refuse_third_goal_with(monkeypatch, code: int, text: str) -> None:
@@ -1055,7 +1078,8 @@ def test_a_late_goal_planned_again_after_a_stall_counts_the_stall_once(registry,
     ports = BASE.replace('policy_call_timeout="3.0"', 'policy_call_timeout="10.0"').replace('total_action_steps="60"', 'total_action_steps="100"')
     run = run_policy(registry, ports, ScriptedPolicy(hold(velocity=np.array([0.1, 0, 0, 0, 0, 0]))), latency=SpikeAt(0.05, 2, 8.0))
     assert run.result.status == "SUCCESS", run.result.reason
-    assert len(arrivals) >= 3 and any(w.endswith("the chunk is planned again from what the arm is doing") for w in run.summary["warnings"])
+    assert len(arrivals) >= 3 and any("the chunk is planned again from what the arm is doing (goals are now given 50 ms more" in w
+                                   for w in run.summary["warnings"])
     executed = [e.data for e in run.context.events.of_kind("chunk_executed")]
     first, refused, played = executed[:3]
     assert refused["chunk"] == played["chunk"] == 2 and played["takes_over_time"] > refused["takes_over_time"]
@@ -1093,7 +1117,8 @@ def test_a_goal_answered_only_after_the_next_chunk_arrived_is_waited_for(registr
     ports = 'total_action_steps="20" dt="0.1" committed_action_steps="5" goal_path_tolerance="0.01" policy_call_timeout="3.0"'
     run = run_policy(registry, ports, ScriptedPolicy(hold(velocity=np.array([0.05, 0, 0, 0, 0, 0]))), latency=0.05)
     assert run.result.status == "SUCCESS", run.result.reason
-    assert any(w.endswith("the next chunk, already here, is planned from what the arm is doing") for w in run.summary["warnings"])
+    assert any("the next chunk, already here, is planned from what the arm is doing (goals are now given 50 ms more" in w
+               for w in run.summary["warnings"])
     second = [e.data for e in run.context.events.of_kind("chunk_executed") if e.data["chunk"] == 2]
     assert len(second) == 1 and second[0]["request_step"] == second[0]["seam_step"]  # from its step 0: the arm never moved
     assert run.summary["steps_executed"] == 20

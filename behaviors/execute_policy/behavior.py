@@ -321,7 +321,7 @@ class ExecutePolicy(Behavior):
     def _frozen(self) -> int:
         estimate_s = self.metrics.latency_estimate_s = self._policy_link().latency.seconds
         tick_s = self.context.tick_period_s
-        return frozen_prefix_steps(estimate_s, self.config.dt, prefetch_margin(estimate_s, tick_s) + 2 * self._controller().goal_latency_s)
+        return frozen_prefix_steps(estimate_s, self.config.dt, prefetch_margin(estimate_s, tick_s) + 2 * self._controller().planned_latency_s)
 
     def _maybe_request(self, now: float) -> None:
         grid = self._sent_motion().grid
@@ -405,12 +405,12 @@ class ExecutePolicy(Behavior):
             index=self.metrics.chunks,
             request_step=held.flight.request_step,
             frozen=held.flight.frozen,
-            earliest_seam_step=earliest_seam_step(grid, now, self.context.tick_period_s, controller.goal_latency_s),
+            earliest_seam_step=earliest_seam_step(grid, now, self.context.tick_period_s, controller.planned_latency_s),
             rest_position=rest_position,
             config=self.shaping,
             checks=PointChecks(self.safety, self.rules, config.link_padding, self._gripper_now(), grid),
             arrival=Arrival(grid.step_at_or_after(held.flight.future.ready_at),  # arrival, not when we looked
-                            goal_takes_effect_s(now, self.context.tick_period_s, controller.goal_latency_s)),
+                            goal_takes_effect_s(now, self.context.tick_period_s, controller.planned_latency_s)),
         ))
         if isinstance(plan, Reject):
             return self._reject(plan.reason, plan.kind)
@@ -470,13 +470,14 @@ class ExecutePolicy(Behavior):
         self.context.events.emit("chunk_rolled_back", self.name, stall_s=rollback.stall_s)
         late = (f"chunk {rollback.chunk_index}'s goal reached the controller after t={rollback.takes_over_s:.2f} s, the moment "
                 f"it was meant to take over, so the controller went on with what it was playing")
+        margin = f" (goals are now given {1000 * self._controller().late_margin_s:.0f} ms more to reach the controller)"
         if self.held is not None:
             # A newer chunk arrived while this goal was unanswered: it takes over from what the
             # arm actually does, and the refused one is dropped.
-            self._warn(f"{late}; the next chunk, already here, is planned from what the arm is doing")
+            self._warn(f"{late}; the next chunk, already here, is planned from what the arm is doing{margin}")
             return
         self.held = rollback.held  # planned again next tick
-        self._warn(f"{late}; the chunk is planned again from what the arm is doing")
+        self._warn(f"{late}; the chunk is planned again from what the arm is doing{margin}")
 
     def _track_progress(self, now: float) -> None:
         sent = self._sent_motion()

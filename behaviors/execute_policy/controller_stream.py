@@ -24,6 +24,11 @@ from .shaping import Samples
 from .states import Rollback
 
 MAX_LATE_RETRIES = 3
+LATE_MARGIN_STEP_S = 0.05
+"""What the first goal refused for arriving late adds to the delivery time seams are planned with;
+each further refusal doubles the addition (50, 100, 200 ms), kept for the rest of the run: a link
+that delivered late once (a robot whose clock runs ahead of the runtime's ``/clock``, a busy
+transport) is planned for with room to spare."""
 LATE_GOAL_CODES = (FollowTrajectory.Result.OLD_HEADER_TIMESTAMP, FollowTrajectory.Result.SEAM_AFTER_TRAJECTORY_END)
 """The controller's answers to a goal that reached it after its seam (decided by code, not text)."""
 GOAL_ACK_TIMEOUT_S = 5.0  # a controller that does not acknowledge a goal by then is gone
@@ -45,6 +50,13 @@ class ControllerStream:
         self.goal_latency_s = 0.0
         """The slowest send -> accepted of a controller goal so far: zero in process, a tick or
         more over ROS."""
+        self.late_margin_s = 0.0
+        """What late refusals added to the delivery time planned for (``LATE_MARGIN_STEP_S``)."""
+
+    @property
+    def planned_latency_s(self) -> float:
+        """The goal delivery time seams are planned with: the slowest measured, plus ``late_margin_s``."""
+        return self.goal_latency_s + self.late_margin_s
 
     def ready(self) -> bool:
         """Whether the controller's action server is up (a name served with another type is an ERROR)."""
@@ -70,7 +82,7 @@ class ControllerStream:
         be when the goal lands (``controller_link.jtc_stream_points``)."""
         stamp_s, seam_index = seam_time_s, None
         if self.link.kind is ControllerKind.JTC:
-            lands_s = goal_takes_effect_s(now_s, tick_period_s, self.goal_latency_s)
+            lands_s = goal_takes_effect_s(now_s, tick_period_s, self.planned_latency_s)
             jtc = jtc_stream_points(playing, samples, lands_s)
             stamp_s, samples, seam_index = jtc.stamp_s, jtc.samples, jtc.seam_index
         trajectory = trajectory_msg(samples, joints, stamp_s, self.stamp_offset_s)
@@ -119,6 +131,7 @@ class ControllerStream:
         if result.error_code not in LATE_GOAL_CODES or rollback is None or self.late_retries >= MAX_LATE_RETRIES:
             return None
         self.late_retries += 1
+        self.late_margin_s = max(2 * self.late_margin_s, LATE_MARGIN_STEP_S)
         if rollback.goal.state is GoalState.PLAYING:  # still playing (or its result is waiting to be read)
             self.goal = rollback.goal
         return rollback

@@ -72,10 +72,10 @@ class ExecuteChunksSynchronously(ChunkExecutor):
                                 config.num_interpolation_points, self.safety.limits.max_acceleration)
         plan = plan_chunk(PlanInput(
             sent=SentMotion(grid), goal=GoalState.NONE, chunk=held.chunk, index=held.index, request_step=0, frozen=0,
-            earliest_seam_step=earliest_seam_step(grid, now, tick_s, self.stream.goal_latency_s),
+            earliest_seam_step=earliest_seam_step(grid, now, tick_s, self.stream.planned_latency_s),
             rest_position=self.arm_position(), config=shaping,
             checks=PointChecks(self.safety, self.rules, config.link_padding, self.gripper_position(), grid),
-            arrival=Arrival(grid.step_at_or_after(held.flight.future.ready_at), goal_takes_effect_s(now, tick_s, self.stream.goal_latency_s)),
+            arrival=Arrival(grid.step_at_or_after(held.flight.future.ready_at), goal_takes_effect_s(now, tick_s, self.stream.planned_latency_s)),
         ))
         if isinstance(plan, Reject):
             return self.reject(plan.reason, plan.kind)
