@@ -299,6 +299,17 @@ def enable_rtc(config: Any, execution_horizon: int = DEFAULT_GUIDANCE_HORIZON) -
     )
 
 
+def resize_frames(frames: Any, size: tuple[int, int]) -> Any:
+    """Float NCHW frames at ``size`` (bilinear, antialiased when shrinking): how a request's frames
+    reach the checkpoint's feature size, and how the training script resizes its frames to match."""
+    import torch.nn.functional as F
+
+    if tuple(frames.shape[-2:]) == tuple(size):
+        return frames
+    shrinking = frames.shape[-2] > size[0] or frames.shape[-1] > size[1]
+    return F.interpolate(frames, size=size, mode="bilinear", align_corners=False, antialias=shrinking)
+
+
 class LeRobotBackend:
     """A LeRobot checkpoint as a ``PolicyBackend`` (see the module docstring)."""
 
@@ -490,15 +501,11 @@ class LeRobotBackend:
 
     @staticmethod
     def _image_tensor(rgb: np.ndarray, size: tuple[int, int]) -> Any:
-        """CHW float32 in [0, 1] at ``size`` (bilinear, antialiased when shrinking)."""
+        """CHW float32 in [0, 1] at ``size`` (``resize_frames``)."""
         import torch
-        import torch.nn.functional as F
 
         tensor = torch.from_numpy(np.array(rgb, copy=True)).permute(2, 0, 1).float().div_(255.0)
-        if tuple(tensor.shape[-2:]) != tuple(size):
-            shrinking = tensor.shape[-2] > size[0] or tensor.shape[-1] > size[1]
-            tensor = F.interpolate(tensor[None], size=size, mode="bilinear", align_corners=False, antialias=shrinking)[0]
-        return tensor
+        return resize_frames(tensor[None], size)[0]
 
     def _guidance(self, request: PolicyRequest) -> dict[str, Any]:
         """The RTC keyword arguments of ``predict_action_chunk`` for this request (empty without RTC)."""

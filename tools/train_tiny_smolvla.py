@@ -123,16 +123,15 @@ class DemoTensors:
 
 
 def resized(frames, size: int | None):
-    """uint8 NCHW frames at ``size`` x ``size``: the backend's resize (bilinear, antialiased when
-    shrinking, ``LeRobotBackend._image_tensor``) done once, in blocks to bound memory."""
+    """uint8 NCHW frames at ``size`` x ``size``, resized as the backend resizes requests
+    (``policy.lerobot_backend.resize_frames``), once, in blocks to bound memory."""
     import torch
-    import torch.nn.functional as F
+
+    from policy.lerobot_backend import resize_frames
 
     if size is None or tuple(frames.shape[-2:]) == (size, size):
         return frames
-    shrinking = frames.shape[-1] > size
-    blocks = [F.interpolate(block.float().div_(255.0), size=(size, size), mode="bilinear", align_corners=False,
-                            antialias=shrinking).mul_(255.0).round_().clamp_(0, 255).to(torch.uint8)
+    blocks = [resize_frames(block.float().div_(255.0), (size, size)).mul_(255.0).round_().clamp_(0, 255).to(torch.uint8)
               for block in frames.split(1024)]
     return torch.cat(blocks)
 
@@ -216,7 +215,7 @@ def main(argv: list[str] | None = None) -> int:
         "prompts": tasks,
         "training": {
             "dataset": str(args.dataset), "episodes": meta.total_episodes, "frames": meta.total_frames,
-            "data_sha256": dataset_hash(args.dataset), "episode_seeds": episode_seeds(args.dataset),
+            "data_sha256": dataset_hash(args.dataset), "episode_seeds": demos_meta(args.dataset).get("seeds", []),
             "steps": step, "batch": args.batch, "lr": args.lr, "threads": args.threads,
             "image_size": image_size, "vision_width": args.vision_width, "vision_layers": args.vision_layers, "seed": args.seed, "seconds": round(elapsed, 1),
             "final_loss": round(float(np.mean(losses[-25:])), 5),
@@ -233,7 +232,7 @@ def main(argv: list[str] | None = None) -> int:
     result = {"checkpoint": str(args.out), **metadata["training"]}
     if args.eval_episodes > 0:
         result["evaluation"] = evaluate(args.out, args.eval_episodes, args.eval_seed_start, frame_size, args.workers,
-                                        meta_world(args.dataset))
+                                        demos_meta(args.dataset).get("world"))
     print(json.dumps(result))
     return 0
 
@@ -249,16 +248,10 @@ def dataset_hash(root: Path) -> str:
     return digest.hexdigest()
 
 
-def episode_seeds(root: Path) -> list[int]:
-    """The layout seeds of the recorded episodes (from ``meta/demos.json``, written by ``record-demos``)."""
+def demos_meta(root: Path) -> dict:
+    """``meta/demos.json`` of a dataset written by ``record-demos`` (its world and episode seeds); {} without it."""
     path = root / "meta" / "demos.json"
-    return json.loads(path.read_text(encoding="utf-8"))["seeds"] if path.is_file() else []
-
-
-def meta_world(root: Path) -> str | None:
-    """The world the demonstrations were recorded in (``meta/demos.json``), where the policy is evaluated."""
-    path = root / "meta" / "demos.json"
-    return json.loads(path.read_text(encoding="utf-8"))["world"] if path.is_file() else None
+    return json.loads(path.read_text(encoding="utf-8")) if path.is_file() else {}
 
 
 def evaluate(checkpoint: Path, episodes: int, seed_start: int, image_size: int, workers: int, world: str | None) -> dict:
