@@ -24,6 +24,7 @@ import argparse
 import json
 import logging
 import math
+import os
 import sys
 import time
 from pathlib import Path
@@ -266,7 +267,9 @@ def evaluate(checkpoint: Path, episodes: int, seed_start: int, image_size: int, 
                "--record", "none", "--json"] + (["--world", world] if world else [])
     LOG.info("evaluating: %s", " ".join(command))
     started = time.monotonic()
-    finished = subprocess.run(command, cwd=ROOT, capture_output=True, text=True)
+    env = dict(os.environ)
+    env.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")  # no ROS graph beyond this machine
+    finished = subprocess.run(command, cwd=ROOT, capture_output=True, text=True, env=env)
     if finished.returncode not in (0, 1):
         raise RuntimeError(f"objective eval exited {finished.returncode}: {finished.stderr.strip()[-2000:]}")
     summary = json.loads(finished.stdout.strip().splitlines()[-1])
