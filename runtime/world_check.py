@@ -121,6 +121,20 @@ def _named(nodes: Iterable[Any]) -> Iterator[tuple[Any, str, Names, str]]:
                     yield record, port, names, str(item)
 
 
+def declared_interfaces(nodes: Iterable[Any]) -> list[type]:
+    """The ROS 2 service and action types the ports of ``nodes`` declare (``Names.interface``),
+    each once, in the order first declared: what the run may create clients of."""
+    seen: dict[type, None] = {}
+    for node in nodes:
+        for binding in getattr(node, "bindings", {}).values():
+            names = binding.info.names
+            interface = None if names is None else names.interface
+            for kind in interface if isinstance(interface, tuple) else (interface,):
+                if kind is not None:
+                    seen.setdefault(kind, None)
+    return list(seen)
+
+
 def check_tree(loaded: Any, context: RunContext) -> None:
     """Raise a ``SetupError`` when ``loaded`` names what the world started on ``context`` does not
     have: the first problem, with how many more there are (the runner, before the first tick)."""

@@ -28,7 +28,7 @@ from __future__ import annotations
 
 import os
 import time
-from typing import Any, Callable
+from typing import Any, Callable, Iterable
 
 from runtime.clock import WallClock
 
@@ -145,6 +145,16 @@ def sync_to_graph_clock(bus: Any, clock: WallClock, timeout_s: float = CLOCK_WAI
         return now
     finally:
         bus.destroy_subscription(subscription)
+
+
+def load_type_support(interfaces: Iterable[type]) -> None:
+    """Load rclpy's C type support of each message, service or action type now. rclpy loads it
+    when the first client, server or subscription of a type is created: 30-50 ms per type on
+    this project's machines, which would be a late tick when a behavior creates its client."""
+    from rclpy.type_support import check_for_type_support
+
+    for interface in interfaces:
+        check_for_type_support(interface)
 
 
 def graph_description(node_name: str = DEFAULT_NODE_NAME) -> str:

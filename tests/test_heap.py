@@ -1,0 +1,107 @@
+"""The heap of a paced loop: what set-up made is frozen while the loop runs (``runtime.heap``),
+and the ROS 2 type support a run's clients need is loaded before its first tick."""
+from __future__ import annotations
+
+import gc
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from runtime.heap import frozen_heap
+from runtime.loader import load_tree
+from runtime.registry import Registry
+from runtime.runner import RunOptions, make_context, run_tree
+from runtime.world_check import declared_interfaces
+
+WAIT_XML = """<root BTCPP_format="4"><BehaviorTree ID="Main"><Sleep msec="50"/></BehaviorTree></root>"""
+
+
+@pytest.fixture(scope="module")
+def registry() -> Registry:
+    return Registry.from_entry_points()
+
+
+@pytest.fixture
+def collector_on():
+    was_enabled = gc.isenabled()
+    gc.enable()
+    yield
+    gc.unfreeze()
+    if not was_enabled:
+        gc.disable()
+
+
+def test_the_heap_is_frozen_inside_and_given_back_after(collector_on):
+    kept = [object() for _ in range(10)]
+    with frozen_heap():
+        assert gc.get_freeze_count() > len(kept)
+        assert not any(o is kept[0] for o in gc.get_objects())  # no collection walks it
+    assert gc.get_freeze_count() == 0
+    del kept
+
+
+def test_nothing_is_frozen_when_disabled_or_when_the_caller_turned_the_collector_off(collector_on):
+    with frozen_heap(enabled=False):
+        assert gc.get_freeze_count() == 0
+    gc.disable()
+    with frozen_heap():
+        assert gc.get_freeze_count() == 0
+    assert not gc.isenabled()  # the caller's choice is kept
+
+
+class FreezeWatcher:
+    def __init__(self) -> None:
+        self.counts: list[int] = []
+
+    def started(self, loaded) -> None:
+        pass
+
+    def ticked(self, now_s, visited) -> None:
+        self.counts.append(gc.get_freeze_count())
+
+    def stopped(self) -> None:
+        pass
+
+
+@pytest.mark.parametrize("realtime", [True, False])
+def test_a_paced_run_ticks_on_a_frozen_heap_and_a_simulated_one_does_not(registry, collector_on, realtime):
+    options = RunOptions(realtime=realtime, max_seconds=5.0)
+    context = make_context(options)
+    watcher = FreezeWatcher()
+    result = run_tree(load_tree(WAIT_XML, registry, context), context, options, watchers=[watcher])
+
+    assert result.status == "SUCCESS", result.reason
+    assert len(watcher.counts) >= 3
+    if realtime:
+        assert min(watcher.counts) > 10_000  # everything set-up made, the interpreter's own included
+    else:
+        assert max(watcher.counts) == 0
+    assert gc.get_freeze_count() == 0  # given back when the run ended
+
+
+def test_the_interfaces_a_tree_declares_are_each_listed_once(registry):
+    from control_msgs.action import FollowJointTrajectory, GripperCommand
+    from moveit_pro_controllers_msgs.action import FollowJointTrajectoryWithAdmittance
+    from moveit_pro_ml_msgs.srv import GetActionChunk
+
+    context = make_context(RunOptions())
+    loaded = load_tree(Path(__file__).parent.parent / "objectives" / "stack_cubes.xml", registry, context)
+    interfaces = declared_interfaces(loaded.root.iterate())
+    assert len(interfaces) == len(set(interfaces))
+    assert {GetActionChunk, FollowJointTrajectoryWithAdmittance, FollowJointTrajectory, GripperCommand} <= set(interfaces)
+
+
+@pytest.mark.ros
+def test_type_support_is_loaded_before_any_client_exists():
+    """In a fresh interpreter: nothing has loaded GripperCommand's C type support until
+    ``load_type_support`` does."""
+    code = (
+        "from control_msgs.action import GripperCommand\n"
+        "from runtime.ros.run import load_type_support\n"
+        "assert GripperCommand._TYPE_SUPPORT is None\n"
+        "load_type_support([GripperCommand])\n"
+        "assert GripperCommand._TYPE_SUPPORT is not None\n"
+    )
+    subprocess.run([sys.executable, "-c", code], check=True, timeout=60)
