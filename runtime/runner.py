@@ -40,7 +40,7 @@ from .crash import CRASH_LOG, culprit, describe_crash, write_traceback
 from .errors import ObjectiveError, ObjectiveRuntimeError, OptionError, error_kind
 from .events import EventLog
 from .extras import load_entry_point
-from .heap import frozen_heap
+from .heap import PacedHeap
 from .interrupt import Interrupted, StopRequest, exit_code_for, signal_name
 from .loader import LoadedTree, load_tree
 from .registry import WORLD_GROUP, Registry, default_world_name
@@ -491,8 +491,7 @@ def run_tree(
             context.events.emit("run_started", loaded.tree_id, seed=options.seed)
             for watcher in watchers:
                 watcher.started(loaded)
-            # A full collection mid-run is a late tick: what set-up made is kept out of it.
-            with frozen_heap(pacing is not None):
+            with PacedHeap(pacing is not None) as heap:  # garbage is collected between ticks
                 while True:
                     if stop is not None and stop.signum is not None:
                         breakoff = Breakoff(signum=stop.signum, cause=stop.cause)
@@ -516,6 +515,7 @@ def run_tree(
                         progress(clock.now(), ticks, tip.name if tip is not None else "")
                     for watcher in watchers:
                         watcher.ticked(clock.now(), visited)
+                    heap.between_ticks()
                     if status is not Status.RUNNING:
                         if status is Status.FAILURE:
                             blame = _failing(root, visited)

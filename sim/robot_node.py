@@ -29,7 +29,7 @@ from typing import Any
 from runtime.behavior import RunContext
 from runtime.clock import WallClock
 from runtime.events import EventLog
-from runtime.heap import frozen_heap
+from runtime.heap import PacedHeap
 from runtime.interrupt import StopRequest
 from runtime.runner import Pacing, create_world
 from runtime.timestamps import time_msg
@@ -88,7 +88,7 @@ def run_sim_robot(options: SimRobotOptions, stop: StopRequest) -> dict[str, Any]
             raise ValueError(f"world '{options.world}': {err}") from None
         clock_publisher = bus.create_publisher(CLOCK_TOPIC, Clock)
         print(f"sim robot '{options.world}' (seed {options.seed}) serving on ROS 2 as node /{options.node_name}", flush=True)
-        with frozen_heap():
+        with PacedHeap() as heap:  # garbage is collected between ticks
             while stop.signum is None:
                 clock.advance(period)
                 started = time.monotonic()
@@ -96,6 +96,7 @@ def run_sim_robot(options: SimRobotOptions, stop: StopRequest) -> dict[str, Any]
                 bus.spin_once()
                 clock_publisher.publish(Clock(clock=time_msg(world.cell.t)))
                 pacing.record(started, time.monotonic())
+                heap.between_ticks()
                 ticks += 1
         deliver_pending(bus)
         summary = world.summary()

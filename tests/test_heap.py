@@ -1,5 +1,5 @@
-"""The heap of a paced loop: what set-up made is frozen while the loop runs (``runtime.heap``),
-and the ROS 2 type support a run's clients need is loaded before its first tick."""
+"""The heap of a paced loop (``runtime.heap``): what set-up made is frozen and garbage is collected
+between ticks; and the ROS 2 type support a run's clients need is loaded before its first tick."""
 from __future__ import annotations
 
 import gc
@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from runtime.heap import frozen_heap
+from runtime.heap import MIDDLE_EVERY, OLDEST_EVERY, PacedHeap
 from runtime.loader import load_tree
 from runtime.registry import Registry
 from runtime.runner import RunOptions, make_context, run_tree
@@ -33,20 +33,32 @@ def collector_on():
         gc.disable()
 
 
-def test_the_heap_is_frozen_inside_and_given_back_after(collector_on):
+def test_inside_the_heap_is_frozen_and_collected_only_between_ticks(collector_on):
     kept = [object() for _ in range(10)]
-    with frozen_heap():
+    with PacedHeap() as heap:
         assert gc.get_freeze_count() > len(kept)
         assert not any(o is kept[0] for o in gc.get_objects())  # no collection walks it
-    assert gc.get_freeze_count() == 0
+        assert not gc.isenabled()  # nothing collects inside a tick
+        collected: list[int] = []
+        gc.callbacks.append(lambda phase, info: phase == "start" and collected.append(info["generation"]))
+        try:
+            for _ in range(OLDEST_EVERY):
+                heap.between_ticks()
+        finally:
+            gc.callbacks.pop()
+    assert collected.count(2) == 1 and collected.count(1) == OLDEST_EVERY // MIDDLE_EVERY - 1
+    assert collected.count(0) == OLDEST_EVERY - OLDEST_EVERY // MIDDLE_EVERY
+    assert gc.get_freeze_count() == 0 and gc.isenabled()  # given back
     del kept
 
 
-def test_nothing_is_frozen_when_disabled_or_when_the_caller_turned_the_collector_off(collector_on):
-    with frozen_heap(enabled=False):
-        assert gc.get_freeze_count() == 0
+def test_nothing_changes_when_disabled_or_when_the_caller_turned_the_collector_off(collector_on):
+    with PacedHeap(enabled=False) as heap:
+        heap.between_ticks()
+        assert gc.get_freeze_count() == 0 and gc.isenabled()
     gc.disable()
-    with frozen_heap():
+    with PacedHeap() as heap:
+        heap.between_ticks()
         assert gc.get_freeze_count() == 0
     assert not gc.isenabled()  # the caller's choice is kept
 
@@ -59,7 +71,7 @@ class FreezeWatcher:
         pass
 
     def ticked(self, now_s, visited) -> None:
-        self.counts.append(gc.get_freeze_count())
+        self.counts.append(gc.get_freeze_count() if not gc.isenabled() else 0)
 
     def stopped(self) -> None:
         pass
