@@ -18,7 +18,10 @@ seeds stacked. The CPU seconds of the runtime's process per wall second of its r
 them: they depend much less than the wall-clock figures on what else the machine runs.
 
     .venv/bin/python benchmarks/bench_realtime.py [--seeds 0,1] [--world vla_sim|kinematic]
-                                                  [--setups realtime,ros,robot] [--no-load]
+                                                  [--setups realtime,ros,robot] [--no-load] [--priority N]
+
+The runtime ticks at SCHED_FIFO priority 50 (``--realtime-priority 50``, as ros2_control's update
+loop asks for) unless ``--priority 0``; each row says what its ticks ran at.
 """
 from __future__ import annotations
 
@@ -113,8 +116,10 @@ class Policy:
         end([self.adapter, self.server], signal.SIGTERM)
 
 
-def run(setup: str, world: str, seed: int, loaded: bool, env: dict[str, str], description: list[str]) -> dict[str, Any]:
-    """One run of ``setup``: the runtime's summary, the robot's where it runs apart, CPU seconds."""
+def run(setup: str, world: str, seed: int, loaded: bool, env: dict[str, str], description: list[str],
+        priority: int = 0) -> dict[str, Any]:
+    """One run of ``setup`` (the runtime's ticks at SCHED_FIFO ``priority``, 0: the default): the
+    runtime's summary, the robot's where it runs apart, CPU seconds."""
     args = ["run", str(OBJECTIVE), "--seed", str(seed), "--json"]
     robot = None
     if setup == "realtime":
@@ -131,6 +136,8 @@ def run(setup: str, world: str, seed: int, loaded: bool, env: dict[str, str], de
                                    and "<SetCollisionRule " not in line))
         args = ["run", str(stack), "--json", "--ros", "--use-sim-time", "--world", "robot",
                 *[a for option in description for a in ("--world-option", option)]]
+    if priority:
+        args += ["--realtime-priority", str(priority)]
     load = busy(2, RUN_TIMEOUT_S) if loaded else []
     try:
         cpu = children_cpu()
@@ -163,6 +170,7 @@ def row(setup: str, world: str, loaded: bool, results: list[dict[str, Any]]) -> 
         "setup": SETUPS[setup],
         "world": world,
         "load": "2 busy" if loaded else "quiet",
+        "scheduling": pacing[0].get("scheduling", "default") if pacing else "default",
         "seeds": len(results),
         "stacked": sum(stacked(r) for r in results),
         "late_fraction": round(median([p.get("late_ticks", 0) / max(r["summary"]["ticks"], 1) for p, r in zip(pacing, results)]), 4),
@@ -184,6 +192,8 @@ def main() -> None:
     parser.add_argument("--world", default="vla_sim", choices=("vla_sim", "kinematic"))
     parser.add_argument("--setups", default="realtime,ros,robot", help="comma-separated: realtime, ros, robot")
     parser.add_argument("--no-load", action="store_true", help="only the quiet rows")
+    parser.add_argument("--priority", type=int, default=50,
+                        help="the runtime's --realtime-priority (SCHED_FIFO, default 50; 0: the default scheduling)")
     args = parser.parse_args()
     seeds = [int(s) for s in args.seeds.split(",")]
     setups = [s for s in args.setups.split(",") if s]
@@ -200,7 +210,7 @@ def main() -> None:
     try:
         for loaded in ([False] if args.no_load else [False, True]):
             for setup in setups:
-                results = [run(setup, args.world, seed, loaded, env, description) for seed in seeds]
+                results = [run(setup, args.world, seed, loaded, env, description, args.priority) for seed in seeds]
                 rows.append(row(setup, args.world, loaded, results))
     finally:
         if policy is not None:
@@ -208,7 +218,7 @@ def main() -> None:
     report(
         "real time: objectives/stack_cubes.xml on the wall clock",
         rows,
-        ["setup", "world", "load", "seeds", "stacked", "late_fraction", "worst_tick_s", "interval_p50_s", "interval_p99_s",
+        ["setup", "world", "load", "scheduling", "seeds", "stacked", "late_fraction", "worst_tick_s", "interval_p50_s", "interval_p99_s",
          "chunk_rtt_p50_s", "goal_accept_max_s", "peak_force_n", "cpu_per_run_s"],
         notes=["wall-clock figures depend on what else the machine runs; cpu_per_run_s: CPU seconds of the runtime's "
                "process (start-up included; the runtime alone where the robot runs apart) per wall second of its run"],

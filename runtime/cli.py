@@ -122,6 +122,9 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
                           "(--policy none unless given)")
     run.add_argument("--use-sim-time", action="store_true",
                      help="with --ros: take the clock from the graph's /clock (a simulated robot's, objective sim-robot)")
+    run.add_argument("--realtime-priority", type=int, metavar="N",
+                     help="with --realtime or --ros: tick at SCHED_FIFO priority N (1-99), ahead of ordinary processes, "
+                          "as ros2_control's update loop does (needs root or an rtprio limit; else a warning)")
     run.add_argument("--json", action="store_true", help="print a JSON summary as the last line of stdout")
     run.add_argument("--world", metavar="NAME", help="world for trees that need one (default: the installation's, vla_sim here)")
     run.add_argument("--max-seconds", type=positive_float, metavar="S", help="fail after S seconds of clock time")
@@ -202,6 +205,7 @@ def cmd_run(args: argparse.Namespace, registry: Registry, stop: StopRequest | No
         ros=args.ros,
         use_sim_time=args.use_sim_time,
         tick_hz=args.tick_hz,
+        realtime_priority=args.realtime_priority,
         max_seconds=args.max_seconds,
         world=args.world,
         sets=dict(args.set),

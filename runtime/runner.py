@@ -20,6 +20,7 @@ A world (the simulated cell) is started only when some node of the tree has
 """
 from __future__ import annotations
 
+import contextlib
 import enum
 import json
 import math
@@ -41,6 +42,7 @@ from .errors import ObjectiveError, ObjectiveRuntimeError, OptionError, error_ki
 from .events import EventLog
 from .extras import load_entry_point
 from .heap import PacedHeap
+from .scheduling import check_priority, realtime_priority
 from .interrupt import Interrupted, StopRequest, exit_code_for, signal_name
 from .loader import LoadedTree, load_tree
 from .registry import WORLD_GROUP, Registry, default_world_name
@@ -90,6 +92,9 @@ class RunOptions:
     use_sim_time: bool = False
     """With ``ros``: start the clock at the time the graph's ``/clock`` reads (a simulated robot's
     own clock, ``objective sim-robot``), so the stamps sent to its controllers are on its time."""
+    realtime_priority: int | None = None
+    """In a paced run: tick at this SCHED_FIFO priority (1-99, ``runtime.scheduling``); None:
+    the default priority."""
     log_dir: Path | None = None
     """Where the traceback of an unexpected exception goes: the recording directory when
     recording, else this (None: ``build/logs/`` under the working directory)."""
@@ -118,6 +123,12 @@ class RunOptions:
         for name in self.sets:
             if not name or name.strip() != name:
                 raise ObjectiveError(f"--set needs name=value with a non-empty name, got {name!r}")
+        if self.realtime_priority is not None:
+            if not self.paced:
+                raise ObjectiveError("--realtime-priority sets the priority of a paced run's ticks: it needs --realtime or --ros")
+            problem = check_priority(self.realtime_priority)
+            if problem is not None:
+                raise ObjectiveError(f"--realtime-priority: {problem}")
         if self.use_sim_time and not self.ros:
             raise ObjectiveError("--use-sim-time follows the ROS graph's /clock: it needs --ros")
         if self.ros and self.policy_latency is not None:
@@ -374,6 +385,8 @@ class Pacing:
     period: float
     late_ticks: int = 0
     worst_tick_s: float = 0.0
+    scheduling: str = "default"
+    """What the tick thread ran at (``runtime.scheduling.realtime_priority``)."""
     intervals_s: list[float] = field(default_factory=list)
     _last_start: float | None = None
 
@@ -388,7 +401,8 @@ class Pacing:
         self._last_start = started_s
 
     def as_dict(self) -> dict[str, Any]:
-        out: dict[str, Any] = {"late_ticks": self.late_ticks, "worst_tick_s": round(self.worst_tick_s, 4), "period_s": self.period}
+        out: dict[str, Any] = {"late_ticks": self.late_ticks, "worst_tick_s": round(self.worst_tick_s, 4), "period_s": self.period,
+                               "scheduling": self.scheduling}
         if self.intervals_s:
             ordered = sorted(self.intervals_s)
             for name, q in (("p50", 0.5), ("p99", 0.99)):
@@ -491,7 +505,10 @@ def run_tree(
             context.events.emit("run_started", loaded.tree_id, seed=options.seed)
             for watcher in watchers:
                 watcher.started(loaded)
-            with PacedHeap(pacing is not None) as heap:  # garbage is collected between ticks
+            priority = realtime_priority(options.realtime_priority) if pacing is not None else contextlib.nullcontext("")
+            with PacedHeap(pacing is not None) as heap, priority as scheduling:  # garbage is collected between ticks
+                if pacing is not None:
+                    pacing.scheduling = scheduling
                 while True:
                     if stop is not None and stop.signum is not None:
                         breakoff = Breakoff(signum=stop.signum, cause=stop.cause)
