@@ -46,7 +46,7 @@ from .scheduling import check_priority, realtime_priority
 from .interrupt import Interrupted, StopRequest, exit_code_for, signal_name
 from .loader import LoadedTree, load_tree
 from .registry import WORLD_GROUP, Registry, default_world_name
-from .world_check import check_tree, declared_interfaces
+from .world_check import check_tree, declared_interfaces, named_links
 
 Progress = Callable[[float, int, str], None]
 """Called after every tick with (clock seconds, ticks so far, name of the running node)."""
@@ -499,9 +499,9 @@ def run_tree(
             for node in nodes:
                 node.setup()
             if options.ros:  # the clients the behaviors create while they run then cost no late tick
-                from .ros.run import load_type_support
+                from .ros.run import prepare_links
 
-                load_type_support(declared_interfaces(nodes))
+                prepare_links(bus, declared_interfaces(nodes), named_links(loaded.nodes))
             context.events.emit("run_started", loaded.tree_id, seed=options.seed)
             for watcher in watchers:
                 watcher.started(loaded)

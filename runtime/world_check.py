@@ -135,6 +135,17 @@ def declared_interfaces(nodes: Iterable[Any]) -> list[type]:
     return list(seen)
 
 
+def named_links(records: Iterable[Any]) -> list[tuple[str, NameKind, tuple[type, ...]]]:
+    """(name, SERVICE or ACTION, the types it may have) for each service and action a port names
+    before the first tick (a literal value), each name once: the clients the tree will create."""
+    links: dict[tuple[str, NameKind], tuple[type, ...]] = {}
+    for _, _, names, value in _named(records):
+        if names.kind in (NameKind.SERVICE, NameKind.ACTION) and names.interface is not None:
+            types = names.interface if isinstance(names.interface, tuple) else (names.interface,)
+            links.setdefault((value, names.kind), types)
+    return [(name, kind, types) for (name, kind), types in links.items()]
+
+
 def check_tree(loaded: Any, context: RunContext) -> None:
     """Raise a ``SetupError`` when ``loaded`` names what the world started on ``context`` does not
     have: the first problem, with how many more there are (the runner, before the first tick)."""

@@ -106,14 +106,58 @@ def test_the_interfaces_a_tree_declares_are_each_listed_once(registry):
 
 
 @pytest.mark.ros
-def test_type_support_is_loaded_before_any_client_exists():
+def test_type_support_is_loaded_and_the_named_clients_exist_before_the_first_tick():
     """In a fresh interpreter: nothing has loaded GripperCommand's C type support until
-    ``load_type_support`` does."""
+    ``prepare_links`` does, and the clients it made are the ones behaviors then get."""
     code = (
+        "import os, random\n"
+        "os.environ['ROS_DOMAIN_ID'] = str(random.randint(100, 199)); os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'\n"
         "from control_msgs.action import GripperCommand\n"
-        "from runtime.ros.run import load_type_support\n"
+        "from std_srvs.srv import Trigger\n"
+        "from runtime.clock import WallClock\n"
+        "from runtime.ports import NameKind\n"
+        "from runtime.ros.bus import RosBus\n"
+        "from runtime.ros.run import prepare_links\n"
         "assert GripperCommand._TYPE_SUPPORT is None\n"
-        "load_type_support([GripperCommand])\n"
-        "assert GripperCommand._TYPE_SUPPORT is not None\n"
+        "with RosBus(WallClock(), node_name='prepare', serves=False) as bus:\n"
+        "    prepare_links(bus, [GripperCommand], [('/t', NameKind.SERVICE, (Trigger,)), ('/g', NameKind.ACTION, (GripperCommand,))])\n"
+        "    assert GripperCommand._TYPE_SUPPORT is not None\n"
+        "    assert [c.name for c in bus._clients] == ['/t'] and [c.name for c in bus._action_clients] == ['/g']\n"
     )
     subprocess.run([sys.executable, "-c", code], check=True, timeout=60)
+
+
+def test_the_services_and_actions_a_tree_names_are_listed_once_with_their_types(registry):
+    from control_msgs.action import FollowJointTrajectory, GripperCommand
+    from moveit_pro_controllers_msgs.action import FollowJointTrajectoryWithAdmittance
+    from moveit_pro_ml_msgs.srv import GetActionChunk
+
+    from runtime.ports import NameKind
+    from runtime.world_check import named_links
+
+    context = make_context(RunOptions())
+    loaded = load_tree(Path(__file__).parent.parent / "objectives" / "stack_cubes.xml", registry, context)
+    links = {(name, kind): types for name, kind, types in named_links(loaded.nodes)}
+    assert len(links) == len(named_links(loaded.nodes))
+    assert links[("/get_action_chunk", NameKind.SERVICE)] == (GetActionChunk,)
+    assert links[("/robotiq_gripper_controller/gripper_cmd", NameKind.ACTION)] == (GripperCommand,)
+    assert set(links[("/joint_trajectory_admittance_controller/follow_joint_trajectory", NameKind.ACTION)]) == {
+        FollowJointTrajectoryWithAdmittance, FollowJointTrajectory}
+
+
+@pytest.mark.ros
+def test_a_ros_node_keeps_one_client_per_name_and_type(monkeypatch):
+    import random
+
+    from control_msgs.action import GripperCommand
+    from std_srvs.srv import Trigger
+
+    from runtime.clock import WallClock
+    from runtime.ros.bus import RosBus
+
+    monkeypatch.setenv("ROS_DOMAIN_ID", str(random.randint(100, 199)))
+    monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    with RosBus(WallClock(), node_name="clients", serves=False) as bus:
+        assert bus.create_client("/a", Trigger) is bus.create_client("/a", Trigger)
+        assert bus.create_client("/a", Trigger) is not bus.create_client("/b", Trigger)
+        assert bus.create_action_client("/g", GripperCommand) is bus.create_action_client("/g", GripperCommand)

@@ -721,6 +721,11 @@ class RosBus:
             worker.close()
 
     def create_client(self, name: str, srv_type: type) -> _RosClient:
+        """The node's client of service ``name``: created once per name and type, then shared
+        (creating one costs milliseconds; a behavior that starts again asks again)."""
+        for client in self._clients:
+            if client.name == name and client.srv_type is srv_type:
+                return client
         client = _RosClient(self, name, srv_type)
         self._clients.append(client)
         return client
@@ -800,6 +805,11 @@ class RosBus:
             server.destroy()
 
     def create_action_client(self, name: str, action_type: type) -> _RosActionClient:
+        """The node's client of action ``name``: created once per name and type, then shared
+        (its feedback callbacks are per goal)."""
+        for client in self._action_clients:
+            if client.name == name and client.action_type is action_type:
+                return client
         client = _RosActionClient(self, name, action_type)
         self._action_clients.append(client)
         return client

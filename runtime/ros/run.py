@@ -147,14 +147,30 @@ def sync_to_graph_clock(bus: Any, clock: WallClock, timeout_s: float = CLOCK_WAI
         bus.destroy_subscription(subscription)
 
 
-def load_type_support(interfaces: Iterable[type]) -> None:
-    """Load rclpy's C type support of each message, service or action type now. rclpy loads it
-    when the first client, server or subscription of a type is created: 30-50 ms per type on
-    this project's machines, which would be a late tick when a behavior creates its client."""
+def prepare_links(bus: Any, interfaces: Iterable[type], links: Iterable[tuple[str, Any, tuple[type, ...]]]) -> None:
+    """Before the first tick, what behaviors would otherwise pay for in a tick when they start:
+    rclpy's C type support of every service and action type the tree declares (``interfaces``;
+    rclpy loads it when the first client of a type is made: 30-50 ms per type on this project's
+    machines), and the clients of the services and actions it names (``links``, from
+    ``runtime.world_check.named_links``; a few ms each), which the bus then hands to the behaviors
+    that ask for them (``RosBus.create_client`` keeps one client per name and type). An action
+    that may have several types (a trajectory controller) gets the client of the type the graph
+    serves, when it serves one yet."""
     from rclpy.type_support import check_for_type_support
+
+    from runtime.bus import interface_type_name
+    from runtime.ports import NameKind
 
     for interface in interfaces:
         check_for_type_support(interface)
+    for name, kind, types in links:
+        if kind is NameKind.SERVICE:
+            bus.create_client(name, types[0])
+            continue
+        served = bus.action_types(name)
+        for action_type in types:
+            if len(types) == 1 or interface_type_name(action_type, "action") in served:
+                bus.create_action_client(name, action_type)
 
 
 def graph_description(node_name: str = DEFAULT_NODE_NAME) -> str:
