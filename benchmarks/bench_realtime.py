@@ -18,7 +18,7 @@ seeds stacked. The CPU seconds of the runtime's process per wall second of its r
 them: they depend much less than the wall-clock figures on what else the machine runs.
 
     .venv/bin/python benchmarks/bench_realtime.py [--seeds 0,1] [--world vla_sim|kinematic]
-                                                  [--setups realtime,ros,robot] [--no-load] [--priority N]
+                                                  [--setups realtime,ros,robot] [--no-load | --only-load] [--priority N]
 
 The runtime ticks at SCHED_FIFO priority 50 (``--realtime-priority 50``, as ros2_control's update
 loop asks for) unless ``--priority 0``; each row says what its ticks ran at.
@@ -192,6 +192,7 @@ def main() -> None:
     parser.add_argument("--world", default="vla_sim", choices=("vla_sim", "kinematic"))
     parser.add_argument("--setups", default="realtime,ros,robot", help="comma-separated: realtime, ros, robot")
     parser.add_argument("--no-load", action="store_true", help="only the quiet rows")
+    parser.add_argument("--only-load", action="store_true", help="only the rows under two busy processes")
     parser.add_argument("--priority", type=int, default=50,
                         help="the runtime's --realtime-priority (SCHED_FIFO, default 50; 0: the default scheduling)")
     args = parser.parse_args()
@@ -208,7 +209,7 @@ def main() -> None:
     policy = Policy.start(env) if "robot" in setups else None
     rows = []
     try:
-        for loaded in ([False] if args.no_load else [False, True]):
+        for loaded in [load for load in (False, True) if not (args.no_load and load) and not (args.only_load and not load)]:
             for setup in setups:
                 results = [run(setup, args.world, seed, loaded, env, description, args.priority) for seed in seeds]
                 rows.append(row(setup, args.world, loaded, results))
