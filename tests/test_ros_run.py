@@ -91,7 +91,8 @@ def test_open_gripper_on_ros_succeeds_and_says_where_it_runs(ros_env):
     assert code == 0, err
     summary = json.loads(out.strip().splitlines()[-1])
     assert summary["status"] == "SUCCESS" and summary["world"]["gripper"] == 0.0
-    assert set(summary["pacing"]) == {"late_ticks", "worst_tick_s", "period_s", "interval_p50_s", "interval_p99_s", "interval_max_s"}
+    assert set(summary["pacing"]) == {"late_ticks", "worst_tick_s", "period_s", "scheduling", "interval_p50_s", "interval_p99_s", "interval_max_s"}
+    assert summary["pacing"]["scheduling"] == "default"
     domain = ros_env["ROS_DOMAIN_ID"]
     assert f"[INFO] running on ROS 2 as node /objective_runtime (ROS_DOMAIN_ID={domain}, ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST)" in err
 
