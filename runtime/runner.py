@@ -42,10 +42,10 @@ from .errors import ObjectiveError, ObjectiveRuntimeError, OptionError, error_ki
 from .events import EventLog
 from .extras import load_entry_point
 from .heap import PacedHeap
-from .scheduling import check_priority, realtime_priority
 from .interrupt import Interrupted, StopRequest, exit_code_for, signal_name
 from .loader import LoadedTree, load_tree
 from .registry import WORLD_GROUP, Registry, default_world_name
+from .scheduling import check_priority, realtime_priority
 from .world_check import check_tree, declared_interfaces, named_links
 
 Progress = Callable[[float, int, str], None]
