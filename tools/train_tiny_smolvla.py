@@ -67,6 +67,10 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
                         help="train on (and serve) this part of a camera's frames, fractions of the frame (repeatable; "
                              "needs --train-size)")
     parser.add_argument("--patch-size", type=int, default=16, help="vision-tower patch size (px)")
+    parser.add_argument("--early-frames", type=int, default=0,
+                        help="with --early-share: an episode's first N frames (the arm at or near Home) are drawn more often")
+    parser.add_argument("--early-share", type=float, default=0.0,
+                        help="share of every batch drawn from the episodes' first --early-frames frames (0: uniform sampling)")
     parser.add_argument("--gripper-velocity", type=float, default=None,
                         help="the oracle's gripper speed when recording (rad/s; default: the oracle's)")
     parser.add_argument("--motion-noise", type=float, default=0.0,
@@ -142,6 +146,9 @@ class DemoTensors:
         # Not padding: after an episode's last frame the oracle holds its final pose, so the last
         # action repeated is the true label of those steps (and a policy must learn to hold).
         self.chunk_pad = torch.zeros(wanted.shape, dtype=torch.bool)
+        first = np.array([np.flatnonzero(episodes == e)[0] for e in np.unique(episodes)])
+        self.frame_index = torch.from_numpy(np.arange(len(episodes)) - first[np.searchsorted(np.unique(episodes), episodes)])
+        """Each row's frame number within its episode (0: the episode's first frame, the arm at Home)."""
 
     def __len__(self) -> int:
         return len(self.tasks)
@@ -233,6 +240,9 @@ def main(argv: list[str] | None = None) -> int:
     optimizer = torch.optim.AdamW(parameters, lr=args.lr, betas=(0.9, 0.95), weight_decay=1e-4)
     warmup = max(1, args.steps // 20)
     generator = torch.Generator().manual_seed(args.seed)
+    early = torch.nonzero(demos.frame_index < args.early_frames).flatten()
+    if args.early_share > 0 and len(early) == 0:
+        raise SystemExit("--early-share needs --early-frames >= 1")
     policy.train()
     step, started, losses = 0, time.monotonic(), []
     deadline = started + args.minutes * 60
@@ -240,7 +250,7 @@ def main(argv: list[str] | None = None) -> int:
         progress = max(step / args.steps, (time.monotonic() - started) / (deadline - started))
         for group in optimizer.param_groups:
             group["lr"] = args.lr * learning_rate_factor(step, warmup, progress)
-        rows = torch.randint(len(demos), (args.batch,), generator=generator)
+        rows = sample_rows(demos, args.batch, early, args.early_share, generator)
         loss, _ = policy.forward(preprocessor(demos.batch(rows)))
         optimizer.zero_grad()
         loss.backward()
@@ -267,6 +277,7 @@ def main(argv: list[str] | None = None) -> int:
             "steps": step, "batch": args.batch, "lr": args.lr, "threads": args.threads,
             "image_size": image_size, "cameras": list(cameras), "patch_size": args.patch_size,
             "vision_width": args.vision_width, "vision_layers": args.vision_layers, "seed": args.seed, "seconds": round(elapsed, 1),
+            "early_frames": args.early_frames, "early_share": args.early_share,
             "final_loss": round(float(np.mean(losses[-25:])), 5),
         },
     }
@@ -284,6 +295,18 @@ def main(argv: list[str] | None = None) -> int:
                                         demos_meta(args.dataset).get("world"))
     print(json.dumps(result))
     return 0
+
+
+def sample_rows(demos: "DemoTensors", batch: int, early, early_share: float, generator):
+    """``batch`` rows of ``demos``: ``round(early_share * batch)`` of them among ``early`` (the
+    episodes' first frames, where only the cameras tell the layouts apart), the rest uniform."""
+    import torch
+
+    from_early = round(early_share * batch) if len(early) else 0
+    uniform = torch.randint(len(demos), (batch - from_early,), generator=generator)
+    if from_early == 0:
+        return uniform
+    return torch.cat([uniform, early[torch.randint(len(early), (from_early,), generator=generator)]])
 
 
 def learning_rate_factor(step: int, warmup_steps: int, progress: float) -> float:
