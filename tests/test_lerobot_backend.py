@@ -442,6 +442,24 @@ def test_record_demos_keeps_the_chosen_cameras_and_stops_after_the_plan_with_dem
 
 
 @needs_lerobot
+def test_training_schedule_anneals_by_either_budget_and_early_frames_take_their_share_of_a_batch():
+    import runpy
+    from pathlib import Path
+
+    import torch
+
+    train = runpy.run_path(str(Path(__file__).resolve().parent.parent / "tools" / "train_tiny_smolvla.py"))
+    factor = train["learning_rate_factor"]
+    assert factor(0, 10, 0.0) == pytest.approx(0.1) and factor(10, 10, 0.0) == 1.0
+    assert factor(50, 10, 0.5) == pytest.approx(0.5) and factor(99, 10, 1.0) == 0.0 and factor(99, 10, 1.7) == 0.0
+    early = torch.arange(5)
+    rows = train["sample_rows"]([None] * 1000, 16, early, 0.375, torch.Generator().manual_seed(0))
+    assert len(rows) == 16 and bool((rows[-6:] < 5).all())
+    uniform = train["sample_rows"]([None] * 1000, 16, early, 0.0, torch.Generator().manual_seed(0))
+    assert len(uniform) == 16 and int((uniform < 5).sum()) < 6
+
+
+@needs_lerobot
 def test_the_training_pipeline_records_trains_saves_and_evaluates_in_one_command(tmp_path):
     """`make lerobot-policy` in miniature: record (two workers), train a few steps, save, evaluate."""
     import json
