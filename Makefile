@@ -58,13 +58,19 @@ $(LEROBOT_STAMP): pyproject.toml requirements/lerobot.txt requirements/lerobot-c
 	HF_HUB_OFFLINE=1 $(LPY) -c "from policy.lerobot_compat import ensure_torchvision; print('torchvision ops:', ensure_torchvision()); import lerobot.policies.smolvla.modeling_smolvla, lerobot.async_inference.robot_client"
 	@touch $@
 
-# The tiny SmolVLA: records 60 oracle demonstrations in two workers (build/demos/stack_cubes_60,
-# reused when present; seeds 0-59), trains 5000 seeded steps on the CPU (at most 30 minutes),
-# saves build/policies/tiny_smolvla and evaluates it on held-out seeds 100-149 (docs/lerobot.md).
+# The tiny SmolVLA (docs/lerobot.md): records 93 oracle demonstrations in two workers
+# (build/demos/stack_cubes_93, reused when present; layout seeds 1000-1092, wrist and overview
+# cameras at 128 px, the gripper at 0.5 rad/s, 0.04 rad of motion noise, frames until 2 s after the
+# plan), trains on the overview's workspace crop and the wrist at 64 px with one torch thread for
+# 30 minutes (9000 steps scheduled; about 5300 fit on this machine, the schedule annealed by time),
+# saves build/policies/tiny_smolvla and evaluates it on held-out seeds 100-149.
+LEROBOT_POLICY_DEMOS := --dataset build/demos/stack_cubes_93 --episodes 93 --demo-seed 1000 --workers 2 \
+	--record-steps 220 --cameras wrist,overview --gripper-velocity 0.5 --motion-noise 0.04 --hold-after-plan 2
+LEROBOT_POLICY_MODEL := --crop overview=0.21875,0.25,0.71875,0.75 --train-size 64 --patch-size 8
 lerobot-policy: lerobot
 	HF_HUB_OFFLINE=1 MUJOCO_GL=egl ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST $(LPY) tools/train_tiny_smolvla.py \
-		--dataset build/demos/stack_cubes_60 --episodes 60 --workers 2 --seed 0 --steps 5000 --minutes 30 \
-		--threads 2 --eval-episodes 50 --eval-seed-start 100
+		$(LEROBOT_POLICY_DEMOS) $(LEROBOT_POLICY_MODEL) --seed 0 --steps 9000 --minutes 30 \
+		--threads 1 --eval-episodes 50 --eval-seed-start 100
 
 # Headless Chromium (Debian's package) for the report's browser test; skipped when absent.
 chromium:

@@ -12,10 +12,13 @@ Per request (``infer``):
 
 1. **Cameras.** Each request image name is mapped to one of the checkpoint's camera features
    (``observation.images.<name>``); see :func:`map_cameras`. Any mismatch is refused with both
-   lists named, because a camera fed into the wrong slot fails silently otherwise.
+   lists named, because a camera fed into the wrong slot fails silently otherwise. Request images
+   the checkpoint's metadata lists as ``ignored_images`` (cameras it was trained without, e.g. the
+   shipped Objective's ``scene`` for a two-camera policy) are dropped first, and only those.
 2. **Frames** arrive H x W x 3 uint8 RGB (the adapters convert ``bgr8``/``mono8``; a transport
-   that hands raw BGR sets ``image_encoding="bgr8"``), become float CHW in [0, 1] and are resized
-   to the feature's size.
+   that hands raw BGR sets ``image_encoding="bgr8"``), are cropped when the checkpoint's metadata
+   names a crop for that camera (``camera_crops``: the part of the frame it was trained on, as
+   fractions of the frame), become float CHW in [0, 1] and are resized to the feature's size.
 3. **State** is reordered from the request's ``joint_names`` into the checkpoint's joint order
    (``objective_policy.json``'s ``joint_names``, else the request order); the preprocessor
    normalizes it and tokenizes the prompt.
@@ -63,7 +66,9 @@ VLM_DIRNAME = "vlm"
 hub name its config records."""
 METADATA_FILE = "objective_policy.json"
 """Optional file next to a checkpoint with what LeRobot's format does not keep: ``joint_names``
-(state/action columns), ``control_period`` (seconds per step at training), ``default_guidance_horizon``."""
+(state/action columns), ``control_period`` (seconds per step at training), ``default_guidance_horizon``,
+``camera_crops`` (camera -> ``[top, left, bottom, right]`` fractions of the frame, see :func:`crop_slices`)
+and ``ignored_images`` (request image names the policy does not use)."""
 RTC_POLICY_TYPES = frozenset({"smolvla", "pi0", "pi05"})
 """LeRobot 0.4.4 policies whose sampling loop takes RTC guidance."""
 DEFAULT_GUIDANCE_HORIZON = 10
@@ -149,6 +154,30 @@ def map_cameras(
             f"request images {given}"
         )
     return mapping
+
+
+CameraCrop = tuple[float, float, float, float]
+"""``(top, left, bottom, right)`` of a frame, as fractions of its height and width."""
+
+
+def checked_crop(camera: str, box: Sequence[float]) -> CameraCrop:
+    """``box`` as a ``CameraCrop``, or OptionError naming the camera when it is not inside the frame."""
+    values = tuple(float(v) for v in box)
+    if len(values) != 4 or not (0.0 <= values[0] < values[2] <= 1.0 and 0.0 <= values[1] < values[3] <= 1.0):
+        raise OptionError(
+            f"crop of camera '{camera}' must be [top, left, bottom, right] fractions with 0 <= top < bottom <= 1 "
+            f"and 0 <= left < right <= 1, got {list(box)}"
+        )
+    return values  # type: ignore[return-value]
+
+
+def crop_slices(height: int, width: int, box: CameraCrop) -> tuple[slice, slice]:
+    """Rows and columns of an ``height`` x ``width`` frame inside ``box`` (rounded to whole pixels):
+    the same pixels whatever code crops, the training script's or the backend's."""
+    top, left, bottom, right = box
+    rows = slice(round(top * height), max(round(bottom * height), round(top * height) + 1))
+    columns = slice(round(left * width), max(round(right * width), round(left * width) + 1))
+    return rows, columns
 
 
 def parse_camera_map(text: str) -> dict[str, str]:
@@ -326,6 +355,10 @@ class LeRobotBackend:
         self.rtc = False
         self.default_guidance = DEFAULT_GUIDANCE_HORIZON
         self.camera_keys: list[str] = []
+        self.ignored_images: frozenset[str] = frozenset()
+        """Request image names dropped before the cameras are mapped (the metadata's ``ignored_images``)."""
+        self.crops: dict[str, CameraCrop] = {}
+        """Checkpoint feature key -> the crop applied to its frames (from the metadata's ``camera_crops``)."""
         self.image_sizes: dict[str, tuple[int, int]] = {}
         self.state_dim = 0
         self.action_dim = 0
@@ -377,6 +410,18 @@ class LeRobotBackend:
         self.config = config
         self.camera_keys = [key for key in config.input_features if key.startswith(IMAGE_PREFIX)]
         self.image_sizes = {key: tuple(config.input_features[key].shape[-2:]) for key in self.camera_keys}
+        crops = self.metadata.get("camera_crops") or {}
+        unknown = sorted(set(crops) - {camera_name(k) for k in self.camera_keys})
+        if unknown:
+            raise OptionError(
+                f"checkpoint '{folder}': {METADATA_FILE} crops cameras [{', '.join(unknown)}] it does not have "
+                f"(cameras [{', '.join(camera_name(k) for k in self.camera_keys)}])"
+            )
+        self.crops = {IMAGE_PREFIX + name: checked_crop(name, box) for name, box in crops.items()}
+        self.ignored_images = frozenset(self.metadata.get("ignored_images") or ())
+        fed = sorted(self.ignored_images & {camera_name(k) for k in self.camera_keys})
+        if fed:
+            raise OptionError(f"checkpoint '{folder}': {METADATA_FILE} ignores images [{', '.join(fed)}] that are cameras it uses")
         self.state_dim = int(config.input_features[STATE_KEY].shape[0]) if STATE_KEY in config.input_features else 0
         self.action_dim = int(config.output_features[ACTION_KEY].shape[0])
         names = options.joint_names or self.metadata.get("joint_names")
@@ -416,7 +461,7 @@ class LeRobotBackend:
         """
         self._require_loaded()
         try:
-            self._camera_mapping(list(example_request.images))
+            self._camera_mapping(self._fed_images(example_request))
             self._columns(example_request)
         except ValueError as exc:
             LOG.info("warmup example does not fit the checkpoint (%s); warming up on a synthetic observation", exc)
@@ -464,6 +509,8 @@ class LeRobotBackend:
             "checkpoint": str(self.checkpoint),
             "policy_type": getattr(self.config, "type", None),
             "cameras": [camera_name(k) for k in self.camera_keys],
+            "camera_crops": {camera_name(k): list(box) for k, box in self.crops.items()},
+            "ignored_images": sorted(self.ignored_images),
             "joint_names": self.joint_names,
             "state_dim": self.state_dim,
             "action_dim": self.action_dim,
@@ -487,11 +534,18 @@ class LeRobotBackend:
         if self.joint_names:
             state = state[joint_order(request.joint_names, self.joint_names)]
         observation: dict[str, Any] = {STATE_KEY: torch.from_numpy(state), "task": request.prompt}
-        mapping = self._camera_mapping(list(request.images))
+        mapping = self._camera_mapping(self._fed_images(request))
         for name, key in mapping.items():
             rgb = frame_to_rgb(request.images[name], self.options.image_encoding, name)
+            if key in self.crops:
+                rows, columns = crop_slices(rgb.shape[0], rgb.shape[1], self.crops[key])
+                rgb = rgb[rows, columns]
             observation[key] = self._image_tensor(rgb, self.image_sizes[key])
         return observation
+
+    def _fed_images(self, request: PolicyRequest) -> list[str]:
+        """The request's image names less the checkpoint's ``ignored_images``."""
+        return [name for name in request.images if name not in self.ignored_images]
 
     def _camera_mapping(self, names: list[str]) -> dict[str, str]:
         cache_key = tuple(names)

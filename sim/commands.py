@@ -25,6 +25,15 @@ def _arguments(demos: argparse.ArgumentParser) -> None:
     demos.add_argument("--overwrite", action="store_true", help="replace OUT if it exists")
     demos.add_argument("--workers", type=int, default=1, metavar="N",
                        help="record N episodes at once, each in its own process (default 1)")
+    demos.add_argument("--cameras", default="scene,wrist,overview", metavar="A,B",
+                       help="cameras kept in the dataset (default scene,wrist,overview)")
+    demos.add_argument("--gripper-velocity", type=float, default=None, metavar="RAD_S",
+                       help="the oracle's gripper speed while recording (default: the oracle's, 1 rad/s)")
+    demos.add_argument("--motion-noise", type=float, default=0.0, metavar="RAD",
+                       help="peak smooth offset added to the executed arm motion, labels staying the oracle's plan "
+                            "(recovery demonstrations; default 0: none)")
+    demos.add_argument("--hold-after-plan", type=float, default=None, metavar="S",
+                       help="stop taking frames this long after the oracle's plan ends (default: take --steps frames)")
 
 
 def _record_demos(args: argparse.Namespace, registry: Registry) -> int:
@@ -34,7 +43,8 @@ def _record_demos(args: argparse.Namespace, registry: Registry) -> int:
         summary = record_demos(DemoOptions(
             episodes=args.episodes, seed=args.seed, out=args.out, world=args.world, image_size=args.image_size,
             total_steps=args.steps, prompt=args.prompt, keep_failed=args.keep_failed, overwrite=args.overwrite,
-            workers=args.workers,
+            workers=args.workers, cameras=tuple(c.strip() for c in args.cameras.split(",") if c.strip()),
+            gripper_velocity=args.gripper_velocity, motion_noise_rad=args.motion_noise, hold_after_plan_s=args.hold_after_plan,
         ))
     except ObjectiveError as err:
         print(f"error: {err}", file=sys.stderr)

@@ -22,6 +22,21 @@ by ExecutePolicy through the admittance controller with the shipped Objective's 
 5. With ``workers`` > 1 the episodes run in that many spawned processes and come back in seed
    order; the dataset is written in ``OUT.partial`` and renamed to ``OUT`` once complete.
 
+Demo-only settings (``DemoOptions``; the oracle's defaults, used by ``make demo`` and the
+benchmarks, stay as they are):
+
+- ``gripper_velocity``: the oracle's ``max_gripper_velocity`` while recording, so the demonstrated
+  gripper column can move well inside the gripper's limits (a learned policy overshoots what it saw).
+- ``motion_noise_rad``: DART-style recovery data. The chunks the oracle serves (what is executed)
+  get a smooth random offset per arm joint, while every frame's label stays the oracle's plan; so
+  the dataset shows states off the plan labelled with the way back. The offset fades in over the
+  first ``NOISE_RAMP_S``, fades out over the grasp descent (none while closing and lifting), comes
+  back after the lift and fades out over the place descent, so the cube is grasped and released
+  exactly where the oracle planned (``MotionNoise.envelope``).
+- ``hold_after_plan_s``: frames stop this long after the plan's end (the oracle then only holds its
+  final pose, and the training repeats that hold as the label of later steps).
+- ``cameras``: the cameras kept in the dataset.
+
 Features: ``observation.state`` and ``action`` (float32, the 6 arm joints then the gripper joint,
 the request's ``robot_state`` order), ``observation.images.<camera>`` (H x W x 3 uint8) per camera,
 and the prompt as the frame's task. ``meta/info.json`` keeps the joint names.
@@ -50,6 +65,10 @@ DEFAULT_PROMPT = "stack the blue cube on the green cube"
 CAMERAS = ("scene", "wrist", "overview")
 FPS = 10
 """The dataset's rate: frames (requests) are 0.1 s apart, the learned policy's step."""
+NOISE_RAMP_S = 1.0
+"""Seconds over which the motion noise fades in, at the start and after the lift."""
+NOISE_PERIODS_S = (2.5, 4.0, 6.5)
+"""Periods of the sinusoids summed into each joint's motion noise."""
 
 RECORD_XML = """<?xml version="1.0" encoding="UTF-8"?>
 <root BTCPP_format="4" main_tree_to_execute="Record Demonstration">
@@ -96,10 +115,12 @@ class _RecordingWorld:
     discarded warmup) for ``duration`` seconds of sim time.
     """
 
-    def __init__(self, inner: Any, prompt: str, duration: float) -> None:
+    def __init__(self, inner: Any, prompt: str, duration: float, options: "DemoOptions", seed: int) -> None:
         self.inner = inner
         self.prompt = prompt
         self.duration = duration
+        self.options = options
+        self.noise = MotionNoise(options.motion_noise_rad, seed) if options.motion_noise_rad > 0 else None
         self.frames: list[DemoFrame] = []
         self.joint_names: list[str] = []
         self.oracle: Any = None
@@ -116,11 +137,11 @@ class _RecordingWorld:
         from sim.oracle import oracle_for_cell
 
         self.inner.start(context)
-        self.oracle = oracle_for_cell(self.inner.cell)
+        self.oracle = oracle_for_cell(self.inner.cell, config=self.options.oracle_config())
         self.oracle.load()
         PolicyAdapter(_EpisodeStart(self.oracle, self)).serve(context.bus, DEFAULT_SERVICE_NAME)
         self.joint_sub = context.bus.create_subscription("/joint_states", JointState, None)
-        self.camera_subs = {c: context.bus.create_subscription(f"/{c}_camera/color", Image, None) for c in CAMERAS}
+        self.camera_subs = {c: context.bus.create_subscription(f"/{c}_camera/color", Image, None) for c in self.options.cameras}
 
     def step_to(self, t: float) -> None:
         self.inner.step_to(t)
@@ -129,6 +150,9 @@ class _RecordingWorld:
         now = float(self.oracle.peek.time())
         elapsed = now - self.started_at
         if elapsed > self.duration - 1e-9:
+            return
+        hold = self.options.hold_after_plan_s
+        if hold is not None and now - self.oracle.plan.start > self.oracle.plan.duration + hold + 1e-9:
             return
         if elapsed + 1e-9 >= len(self.frames) / FPS:
             self.frames.append(self._sample(now))
@@ -153,8 +177,50 @@ class _RecordingWorld:
         )
 
 
+class MotionNoise:
+    """A smooth random offset per arm joint, a function of plan time (the same at every request,
+    so overlapping chunks agree): a sum of sinusoids of ``NOISE_PERIODS_S`` with seeded phases and
+    weights, scaled to peak near ``amplitude_rad``, times :meth:`envelope`."""
+
+    def __init__(self, amplitude_rad: float, seed: int, joints: int = 6) -> None:
+        rng = np.random.default_rng([seed, 0x5EED])
+        self.amplitude_rad = amplitude_rad
+        self.phases = rng.uniform(0.0, 2.0 * math.pi, size=(len(NOISE_PERIODS_S), joints))
+        weights = rng.uniform(0.5, 1.0, size=(len(NOISE_PERIODS_S), joints))
+        self.weights = weights / weights.sum(axis=0, keepdims=True)
+
+    def offsets(self, plan: Any, times: np.ndarray) -> np.ndarray:
+        """(len(times), joints) offsets at plan times ``times``."""
+        times = np.asarray(times, dtype=float)
+        omega = 2.0 * math.pi / np.asarray(NOISE_PERIODS_S)
+        waves = np.sin(times[:, None, None] * omega[None, :, None] + self.phases[None]) * self.weights[None]
+        return self.amplitude_rad * waves.sum(axis=1) * self.envelope(plan, times)[:, None]
+
+    @staticmethod
+    def envelope(plan: Any, times: np.ndarray) -> np.ndarray:
+        """How much of the offset applies at plan times ``times``, in [0, 1]: rising from 0 over
+        ``NOISE_RAMP_S`` at the plan's start, fading linearly to 0 over the grasp descent (exactly
+        on the plan when the fingers close), 0 while closing and lifting, rising again over
+        ``NOISE_RAMP_S`` after the lift, fading to 0 over the place descent, 0 from the release on."""
+        bounds = plan.boundaries()
+        times = np.asarray(times, dtype=float)
+
+        def rise(start: float) -> np.ndarray:
+            return np.clip((times - start) / NOISE_RAMP_S, 0.0, 1.0)
+
+        def fade(segment: str) -> np.ndarray:
+            start, end = bounds[segment]
+            return np.clip((end - times) / max(end - start, 1e-9), 0.0, 1.0)
+
+        grasping = rise(0.0) * fade("descend")
+        carrying = rise(bounds["lift"][1]) * fade("place")
+        return np.where(times < bounds["close"][0], grasping, carrying)
+
+
 class _EpisodeStart:
-    """The oracle as a backend, telling the world when the real episode starts."""
+    """The oracle as a backend, telling the world when the real episode starts, and adding the
+    world's motion noise (if any) to the arm columns of the chunks it serves (what is executed;
+    the recorded labels are sampled from the plan itself)."""
 
     def __init__(self, inner: Any, world: _RecordingWorld) -> None:
         self.inner, self.world, self.name = inner, world, "oracle"
@@ -172,7 +238,16 @@ class _EpisodeStart:
             if self.world.episode_requests == 2:  # the first one is ExecutePolicy's discarded warmup
                 self.world.started_at = float(self.inner.peek.time())
                 self.world.frames = []
-        return response
+        noise, plan = self.world.noise, self.inner.plan
+        if noise is None or response.actions is None or plan is None:
+            return response
+        arm_names = list(self.inner.peek.kinematics.joint_names)
+        columns = [list(request.joint_names).index(name) for name in arm_names]
+        period = response.native_control_period or self.inner.config.control_period
+        times = float(self.inner.peek.time()) - plan.start + period * np.arange(len(response.actions))
+        actions = np.array(response.actions, dtype=float, copy=True)
+        actions[:, columns] += noise.offsets(plan, times)
+        return PolicyResponse.chunk(actions, response.native_control_period, response.policy_actions)
 
 
 @dataclass
@@ -190,6 +265,38 @@ class DemoOptions:
     overwrite: bool = False
     workers: int = 1
     """Processes recording episodes at once (each runs its own world)."""
+    cameras: tuple[str, ...] = CAMERAS
+    """Cameras kept in the dataset (a subset of ``CAMERAS``)."""
+    gripper_velocity: float | None = None
+    """The oracle's ``max_gripper_velocity`` while recording (rad/s); None: the oracle's default."""
+    motion_noise_rad: float = 0.0
+    """Peak of the smooth offset added to the executed arm motion (rad per joint); 0: none."""
+    hold_after_plan_s: float | None = None
+    """Stop taking frames this long after the oracle's plan ends; None: take ``total_steps`` frames."""
+
+    def oracle_config(self) -> Any:
+        """The oracle's configuration for recording: its defaults, but for ``gripper_velocity``."""
+        from sim.oracle import OracleConfig
+
+        if self.gripper_velocity is None:
+            return OracleConfig()
+        return OracleConfig(max_gripper_velocity=self.gripper_velocity)
+
+    def check(self) -> None:
+        """OptionError naming the first setting that cannot be recorded."""
+        if self.episodes < 1:
+            raise OptionError(f"--episodes must be >= 1, got {self.episodes}")
+        if self.workers < 1:
+            raise OptionError(f"--workers must be >= 1, got {self.workers}")
+        unknown = [c for c in self.cameras if c not in CAMERAS]
+        if unknown or not self.cameras or len(set(self.cameras)) != len(self.cameras):
+            raise OptionError(f"--cameras must name distinct cameras of {', '.join(CAMERAS)}, got {', '.join(self.cameras) or 'none'}")
+        if self.gripper_velocity is not None and not self.gripper_velocity > 0:
+            raise OptionError(f"--gripper-velocity must be positive, got {self.gripper_velocity}")
+        if not self.motion_noise_rad >= 0:
+            raise OptionError(f"--motion-noise must be >= 0, got {self.motion_noise_rad}")
+        if self.hold_after_plan_s is not None and not self.hold_after_plan_s >= 0:
+            raise OptionError(f"--hold-after-plan must be >= 0, got {self.hold_after_plan_s}")
 
 
 @dataclass
@@ -244,7 +351,7 @@ def record_episode(seed: int, options: DemoOptions, world_name: str) -> EpisodeR
     })
     world_options = {"seed": seed, "realtime": False, "policy": "none", "policy_latency": "0",
                      "image_size": options.image_size}
-    world = _RecordingWorld(create_world(world_name, world_options), options.prompt, options.total_steps / FPS)
+    world = _RecordingWorld(create_world(world_name, world_options), options.prompt, options.total_steps / FPS, options, seed)
     context = make_context(run_options)
     objectives = Path(__file__).resolve().parent.parent / "objectives"
     loaded = load_tree(RECORD_XML, Registry.from_entry_points(), context, objectives_dir=objectives)
@@ -267,10 +374,7 @@ def record_demos(options: DemoOptions) -> DemoSummary:
     datasets.disable_progress_bars()
     from sim.oracle import parse_prompt
 
-    if options.episodes < 1:
-        raise OptionError(f"--episodes must be >= 1, got {options.episodes}")
-    if options.workers < 1:
-        raise OptionError(f"--workers must be >= 1, got {options.workers}")
+    options.check()
     parse_prompt(options.prompt)
     out = Path(options.out)
     if out.exists() and not options.overwrite:
@@ -292,18 +396,18 @@ def record_demos(options: DemoOptions) -> DemoSummary:
             LOG.warning("episode %d (seed %d) dropped: %s", episode, seed, recording.reason)
             dropped.append(seed)
             continue
-        _check_frames(recording.frames, seed, options.image_size)
+        _check_frames(recording.frames, seed, options.image_size, options.cameras)
         if dataset is None:
             joint_names = recording.joint_names
             dataset = LeRobotDataset.create(
                 repo_id="local/stack_cubes_demos", fps=FPS, root=partial, robot_type="ur5e_2f85",
-                features=dataset_features(joint_names, options.image_size), use_videos=False,
+                features=dataset_features(joint_names, options.image_size, options.cameras), use_videos=False,
             )
         for frame in recording.frames:
             dataset.add_frame({
                 "observation.state": frame.state,
                 "action": frame.action,
-                **{f"observation.images.{c}": frame.images[c] for c in CAMERAS},
+                **{f"observation.images.{c}": frame.images[c] for c in options.cameras},
                 "task": frame.prompt,
             })
         dataset.save_episode()
@@ -315,6 +419,8 @@ def record_demos(options: DemoOptions) -> DemoSummary:
     dataset.finalize()
     (partial / "meta" / "demos.json").write_text(json.dumps({
         "world": world_name, "image_size": options.image_size, "steps": options.total_steps, "prompt": options.prompt,
+        "cameras": list(options.cameras), "gripper_velocity": options.gripper_velocity,
+        "motion_noise_rad": options.motion_noise_rad, "hold_after_plan_s": options.hold_after_plan_s,
         "seeds": [seed for seed in seeds if seed not in dropped], "dropped_seeds": dropped,
     }, indent=2) + "\n", encoding="utf-8")
     if out.exists():
@@ -340,15 +446,15 @@ def _record_all(seeds: list[int], options: DemoOptions, world_name: str):
         pool.shutdown(wait=True, cancel_futures=True)
 
 
-def _check_frames(frames: list[DemoFrame], seed: int, image_size: int) -> None:
+def _check_frames(frames: list[DemoFrame], seed: int, image_size: int, cameras: tuple[str, ...] = CAMERAS) -> None:
     """Frames must be one policy step apart and full size, or the chunk labels would be wrong."""
     if not frames:
         raise RuntimeError(f"episode with seed {seed} recorded no frame")
     for frame in frames:
-        missing = [c for c in CAMERAS if c not in frame.images]
+        missing = [c for c in cameras if c not in frame.images]
         if missing:
             raise RuntimeError(f"episode with seed {seed}: no frame from cameras {missing}")
-        shape = frame.images[CAMERAS[0]].shape
+        shape = frame.images[cameras[0]].shape
         if shape != (image_size, image_size, 3):
             raise RuntimeError(
                 f"episode with seed {seed}: camera frames are {shape}, expected {image_size} x {image_size} x 3 "

@@ -12,6 +12,8 @@ from policy.backend import PolicyRequest, PolicyStatus
 from policy.lerobot_backend import (
     CameraMappingError,
     LatencyMonitor,
+    checked_crop,
+    crop_slices,
     execution_horizon,
     frame_to_rgb,
     joint_order,
@@ -90,6 +92,16 @@ def test_two_request_images_into_one_camera_are_refused():
         map_cameras(["scene", "front"], ["observation.images.scene"], {"front": "scene"})
     with pytest.raises(CameraMappingError, match=r"camera map names request images \[top\] that the request does not have"):
         map_cameras(["scene"], ["observation.images.scene"], {"top": "scene"})
+
+
+def test_a_crop_is_the_same_whole_pixels_at_any_frame_size_and_bad_boxes_are_named():
+    assert crop_slices(128, 128, (0.21875, 0.25, 0.71875, 0.75)) == (slice(28, 92), slice(32, 96))
+    assert crop_slices(64, 64, (0.21875, 0.25, 0.71875, 0.75)) == (slice(14, 46), slice(16, 48))
+    assert crop_slices(10, 10, (0.5, 0.5, 0.52, 0.52)) == (slice(5, 6), slice(5, 6))  # never empty
+    assert checked_crop("overview", [0, 0.25, 1, 0.75]) == (0.0, 0.25, 1.0, 0.75)
+    for box in ([0.5, 0, 0.4, 1], [0, 0, 1], [-0.1, 0, 1, 1], [0, 0, 1, 1.2]):
+        with pytest.raises(ValueError, match=r"crop of camera 'overview' must be \[top, left, bottom, right\] fractions"):
+            checked_crop("overview", box)
 
 
 def test_bgr_frames_are_reversed_and_mono_replicated():
@@ -195,6 +207,40 @@ def test_frames_of_another_size_are_resized_to_the_checkpoint_features(backend, 
     response = backend.infer(PolicyRequest(PROMPT, JOINTS, np.zeros(7), frames(size=100)))
     assert response.status is PolicyStatus.CHUNK, response.message
     assert tuple(calls[0]["batch"]["observation.images.wrist"].shape) == (1, 3, 64, 64)
+
+
+@pytest.fixture(scope="module")
+def cropping_checkpoint(tmp_path_factory):
+    """A two-camera tiny SmolVLA whose metadata crops the overview and ignores the scene image."""
+    from policy.tiny_smolvla import TinySmolVLASpec, build_tiny_smolvla, save_checkpoint
+
+    folder = tmp_path_factory.mktemp("cropping_smolvla")
+    config, policy = build_tiny_smolvla(folder, TinySmolVLASpec(cameras=("wrist", "overview"), image_size=32,
+                                                                patch_size=8, num_steps=2))
+    stats = {key: {"mean": np.zeros(7), "std": np.ones(7), "min": -np.ones(7), "max": np.ones(7)}
+             for key in ("observation.state", "action")}
+    save_checkpoint(folder, config, policy, stats, {
+        "joint_names": JOINTS, "control_period": 0.1, "camera_crops": {"overview": [0.5, 0.0, 1.0, 0.5]},
+        "ignored_images": ["scene"],
+    })
+    return folder
+
+
+@needs_lerobot
+def test_metadata_crops_a_camera_before_the_resize_and_drops_only_the_ignored_images(cropping_checkpoint, monkeypatch):
+    served = make_lerobot_backend(cropping_checkpoint, committed_window=None)
+    served.load()
+    assert served.describe()["camera_crops"] == {"overview": [0.5, 0.0, 1.0, 0.5]}
+    calls = spy_on_predict(served, monkeypatch)
+    overview = np.zeros((64, 64, 3), dtype=np.uint8)
+    overview[32:, :32] = 255  # the cropped quarter is white, the rest black
+    images = {"scene": np.zeros((64, 64, 3), np.uint8), "wrist": np.zeros((64, 64, 3), np.uint8), "overview": overview}
+    response = served.infer(PolicyRequest(PROMPT, JOINTS, np.zeros(7), images, new_episode=True))
+    assert response.status is PolicyStatus.CHUNK, response.message
+    seen = calls[0]["batch"]["observation.images.overview"]
+    assert tuple(seen.shape[-2:]) == (32, 32) and float(seen.min()) > 0.99  # only the white quarter, at 32 px
+    missing = served.infer(PolicyRequest(PROMPT, JOINTS, np.zeros(7), {"scene": images["scene"], "overview": overview}))
+    assert missing.status is PolicyStatus.ERROR and "checkpoint cameras [wrist] get no request image" in missing.message
 
 
 @needs_lerobot
@@ -372,6 +418,48 @@ def test_record_demos_writes_a_lerobot_dataset_of_oracle_steps(tmp_path, capsys)
 
 
 @needs_lerobot
+def test_record_demos_keeps_the_chosen_cameras_and_stops_after_the_plan_with_demo_only_settings(tmp_path, capsys):
+    """Two cameras, a slower gripper, motion noise and frames only until 1 s after the plan: the
+    dataset has those cameras, meta/demos.json the settings, and fewer frames than --steps."""
+    import json
+
+    from runtime.cli import main
+
+    out = tmp_path / "demos"
+    code = main(["record-demos", str(out), "--episodes", "1", "--seed", "3", "--world", "kinematic", "--image-size", "32",
+                 "--steps", "250", "--keep-failed", "--cameras", "wrist,overview", "--gripper-velocity", "0.5",
+                 "--motion-noise", "0.03", "--hold-after-plan", "1"])
+    assert code == 0, capsys.readouterr().err
+    info = json.loads((out / "meta" / "info.json").read_text())
+    assert sorted(k for k in info["features"] if k.startswith("observation.images.")) == [
+        "observation.images.overview", "observation.images.wrist"]
+    demos = json.loads((out / "meta" / "demos.json").read_text())
+    assert demos["cameras"] == ["wrist", "overview"] and demos["gripper_velocity"] == 0.5
+    assert demos["motion_noise_rad"] == 0.03 and demos["hold_after_plan_s"] == 1
+    assert 100 < info["total_frames"] < 250
+    assert main(["record-demos", str(tmp_path / "bad"), "--cameras", "wrist,top"]) == 2
+    assert "--cameras must name distinct cameras of scene, wrist, overview, got wrist, top" in capsys.readouterr().err
+
+
+@needs_lerobot
+def test_training_schedule_anneals_by_either_budget_and_early_frames_take_their_share_of_a_batch():
+    import runpy
+    from pathlib import Path
+
+    import torch
+
+    train = runpy.run_path(str(Path(__file__).resolve().parent.parent / "tools" / "train_tiny_smolvla.py"))
+    factor = train["learning_rate_factor"]
+    assert factor(0, 10, 0.0) == pytest.approx(0.1) and factor(10, 10, 0.0) == 1.0
+    assert factor(50, 10, 0.5) == pytest.approx(0.5) and factor(99, 10, 1.0) == 0.0 and factor(99, 10, 1.7) == 0.0
+    early = torch.arange(5)
+    rows = train["sample_rows"]([None] * 1000, 16, early, 0.375, torch.Generator().manual_seed(0))
+    assert len(rows) == 16 and bool((rows[-6:] < 5).all())
+    uniform = train["sample_rows"]([None] * 1000, 16, early, 0.0, torch.Generator().manual_seed(0))
+    assert len(uniform) == 16 and int((uniform < 5).sum()) < 6
+
+
+@needs_lerobot
 def test_the_training_pipeline_records_trains_saves_and_evaluates_in_one_command(tmp_path):
     """`make lerobot-policy` in miniature: record (two workers), train a few steps, save, evaluate."""
     import json
@@ -381,7 +469,7 @@ def test_the_training_pipeline_records_trains_saves_and_evaluates_in_one_command
     train = runpy.run_path(str(Path(__file__).resolve().parent.parent / "tools" / "train_tiny_smolvla.py"))
     dataset, out = tmp_path / "demos", tmp_path / "policy"
     code = train["main"]([
-        "--dataset", str(dataset), "--out", str(out), "--episodes", "2", "--world", "kinematic", "--image-size", "32",
+        "--dataset", str(dataset), "--out", str(out), "--episodes", "2", "--demo-seed", "0", "--world", "kinematic", "--image-size", "32",
         "--record-steps", "30", "--keep-failed", "--workers", "2", "--steps", "3", "--batch", "4",
         "--eval-episodes", "1", "--eval-seed-start", "100",
     ])
