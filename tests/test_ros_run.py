@@ -147,6 +147,8 @@ def test_sigterm_halts_the_run_and_the_node_leaves_the_graph(ros_env, observer, 
     try:
         # the recording's report worker starts beside the runner: on a loaded machine that takes a while
         wait_for(lambda: joint_states.count >= 1, observer, timeout=30.0, what="/joint_states from the runner")
+        # the tree runs: the gripper closes (the world publishes joint states before the first tick)
+        wait_for(lambda: joint_states.latest.position[-1] > 0.05, observer, timeout=30.0, what="the gripper closing")
         runner.send_signal(signal.SIGTERM)
         code, out, err = finish(runner, timeout=10.0)
     finally:
