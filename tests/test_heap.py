@@ -29,8 +29,7 @@ def collector_on():
     gc.enable()
     yield
     gc.unfreeze()
-    if not was_enabled:
-        gc.disable()
+    (gc.enable if was_enabled else gc.disable)()
 
 
 def test_inside_the_heap_is_frozen_and_collected_only_between_ticks(collector_on):
