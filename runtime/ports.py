@@ -134,6 +134,13 @@ class Names:
     creates: bool = False
     """The node creates the object it names (AddCollisionBox, PlaceSimBox): later nodes may name it."""
 
+    @property
+    def interfaces(self) -> tuple[type, ...]:
+        """``interface`` as a tuple of the types allowed (empty: none declared)."""
+        if self.interface is None:
+            return ()
+        return self.interface if isinstance(self.interface, tuple) else (self.interface,)
+
 
 @dataclass(frozen=True)
 class PortInfo:

@@ -20,7 +20,6 @@ A world (the simulated cell) is started only when some node of the tree has
 """
 from __future__ import annotations
 
-import contextlib
 import enum
 import json
 import math
@@ -505,8 +504,8 @@ def run_tree(
             context.events.emit("run_started", loaded.tree_id, seed=options.seed)
             for watcher in watchers:
                 watcher.started(loaded)
-            priority = realtime_priority(options.realtime_priority) if pacing is not None else contextlib.nullcontext("")
-            with PacedHeap(pacing is not None) as heap, priority as scheduling:  # garbage is collected between ticks
+            # options.check() allows a priority only in a paced run
+            with PacedHeap(pacing is not None) as heap, realtime_priority(options.realtime_priority) as scheduling:
                 if pacing is not None:
                     pacing.scheduling = scheduling
                 while True:

@@ -71,8 +71,8 @@ class WorldFacts:
                 return None
             if value not in offered:
                 return f"no {kind.value} '{value}'{_hint(value, offered)} ({kind.value}s: {_listing(sorted(offered))})"
-            allowed = names.interface if isinstance(names.interface, tuple) else (names.interface,)
-            if names.interface is not None and offered[value] not in allowed:
+            allowed = names.interfaces
+            if allowed and offered[value] not in allowed:
                 return (f"{kind.value} '{value}' is a {_type_name(offered[value])}, not a "
                         f"{' or a '.join(_type_name(t) for t in allowed)}")
             return None
@@ -128,10 +128,8 @@ def declared_interfaces(nodes: Iterable[Any]) -> list[type]:
     for node in nodes:
         for binding in getattr(node, "bindings", {}).values():
             names = binding.info.names
-            interface = None if names is None else names.interface
-            for kind in interface if isinstance(interface, tuple) else (interface,):
-                if kind is not None:
-                    seen.setdefault(kind, None)
+            for kind in () if names is None else names.interfaces:
+                seen.setdefault(kind, None)
     return list(seen)
 
 
@@ -140,9 +138,8 @@ def named_links(records: Iterable[Any]) -> list[tuple[str, NameKind, tuple[type,
     before the first tick (a literal value), each name once: the clients the tree will create."""
     links: dict[tuple[str, NameKind], tuple[type, ...]] = {}
     for _, _, names, value in _named(records):
-        if names.kind in (NameKind.SERVICE, NameKind.ACTION) and names.interface is not None:
-            types = names.interface if isinstance(names.interface, tuple) else (names.interface,)
-            links.setdefault((value, names.kind), types)
+        if names.kind in (NameKind.SERVICE, NameKind.ACTION) and names.interfaces:
+            links.setdefault((value, names.kind), names.interfaces)
     return [(name, kind, types) for (name, kind), types in links.items()]
 
 
