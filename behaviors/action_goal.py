@@ -58,11 +58,18 @@ class Goal:
 
     def cancel(self) -> Goal:
         """Ask the server to cancel the goal if it may be playing it (it brings the motion to a
-        smooth stop); what is left is no goal."""
+        smooth stop); a goal still on its way is cancelled as soon as the server accepts it.
+        What is left is no goal."""
         if self.state is GoalState.PLAYING:
             self.handle.cancel_goal_async()
-        elif self.state is GoalState.SENT and self.send_future.done():
-            handle = self.send_future.result()
-            if handle.accepted:
-                handle.cancel_goal_async()
+        elif self.state is GoalState.SENT:
+            self.send_future.add_done_callback(_cancel_if_accepted)
         return Goal()
+
+
+def _cancel_if_accepted(send_future: Any) -> None:
+    if send_future.cancelled() or send_future.exception() is not None:
+        return  # never reached the server: nothing plays
+    handle = send_future.result()
+    if handle.accepted:
+        handle.cancel_goal_async()

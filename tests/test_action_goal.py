@@ -4,21 +4,18 @@ from __future__ import annotations
 from typing import Any
 
 from behaviors.action_goal import Goal, GoalState
+from runtime import bus
 
 
-class Future:
-    def __init__(self) -> None:
-        self.value: Any = None
-        self.finished = False
+class Future(bus.Future):
+    """The bus's own future (done-callbacks included), answered by the test."""
 
-    def done(self) -> bool:
-        return self.finished
-
-    def result(self) -> Any:
-        return self.value
+    @property
+    def value(self) -> Any:
+        return self.result()
 
     def finish(self, value: Any) -> None:
-        self.value, self.finished = value, True
+        self.set_result(value)
 
 
 class Handle:
@@ -75,7 +72,6 @@ def test_a_refused_goal_is_rejected():
 def test_cancel_asks_the_server_only_when_it_may_be_playing_the_goal():
     client = Client()
     sent = Goal.send(client, "go")
-    assert sent.cancel() == Goal()  # no answer yet: nothing to cancel
     handle = Handle(accepted=True)
     client.future.finish(handle)
     assert sent.cancel() == Goal() and handle.cancels == 1  # accepted, not yet read
@@ -84,3 +80,19 @@ def test_cancel_asks_the_server_only_when_it_may_be_playing_the_goal():
     refused.future.finish(Handle(accepted=False))
     assert Goal.send(refused, "go").cancel() == Goal() and refused.future.value.cancels == 0
     assert Goal().cancel() == Goal()
+
+
+def test_a_goal_cancelled_on_its_way_is_cancelled_once_the_server_accepts_it():
+    # The run ends while a goal has not been answered: if the server accepts it later, it must
+    # not play.
+    client = Client()
+    assert Goal.send(client, "go").cancel() == Goal()
+    handle = Handle(accepted=True)
+    client.future.finish(handle)
+    assert handle.cancels == 1
+    refused, lost = Client(), Client()
+    Goal.send(refused, "go").cancel()
+    refused.future.finish(Handle(accepted=False))
+    assert refused.future.value.cancels == 0
+    Goal.send(lost, "go").cancel()
+    lost.future.set_exception(TimeoutError("the goal never reached the server"))  # nothing to cancel, no error

@@ -1124,6 +1124,48 @@ def test_a_goal_answered_only_after_the_next_chunk_arrived_is_waited_for(registr
     assert run.summary["steps_executed"] == 20
 
 
+def abort_playing_goal_before(monkeypatch, goal_number: int) -> None:
+    """The controller aborts the goal it plays (a force spike) just before its ``goal_number``-th
+    trajectory goal (1-based) arrives, then handles that goal as usual: from rest."""
+    import sim.controllers.admittance as admittance
+
+    controller_class = admittance.JointTrajectoryAdmittanceController
+    on_goal, goals = controller_class._on_goal, []
+
+    def aborted_first(self, handle):
+        goals.append(handle)
+        if len(goals) == goal_number:
+            t = self.clock.now()
+            self._finish(t, "abort", admittance.Result(
+                error_code=admittance.Result.FORCE_TORQUE_THRESHOLD_EXCEEDED,
+                error_string=f"force-torque threshold exceeded at t={t:.3f} s: Fx = 50.00 N exceeds 45.00 N"))
+        return on_goal(self, handle)
+
+    monkeypatch.setattr(controller_class, "_on_goal", aborted_first)
+
+
+SETTLE_AFTER = '<ForceSuccess>{node}</ForceSuccess><Wait seconds="1.0"/>'
+"""Keeps the cell running a second after ExecutePolicy ends, to see where the arm comes to rest."""
+
+
+@pytest.mark.parametrize("tolerance", ["0.3", "0.001"])
+def test_a_goal_aborted_just_before_the_next_arrives_ends_the_run_with_its_abort(registry, monkeypatch, tolerance):
+    # Goal 2 is aborted for a force spike just before goal 3 reaches the controller. With a wide
+    # path tolerance the controller then accepts goal 3 from where the arm stopped; with a tight
+    # one it refuses it ("position deviation at the seam"). Either way the run ends with the
+    # abort that happened first, and the arm comes to rest: goal 3 does not play on.
+    abort_playing_goal_before(monkeypatch, 3)
+    ports = BASE.replace('goal_path_tolerance="0.3"', f'goal_path_tolerance="{tolerance}"')
+    run = run_policy(registry, ports, ScriptedPolicy(hold(velocity=np.array([0.1, 0, 0, 0, 0, 0]))), latency=0.05,
+                     wrap=SETTLE_AFTER)
+    (finished,) = run.context.events.of_kind("policy_finished")
+    assert finished.data["status"] == "FAILURE"
+    assert re.fullmatch(r"the controller aborted the motion: force-torque threshold exceeded at t=\d+\.\d{3} s: "
+                        r"Fx = 50.00 N exceeds 45.00 N", finished.data["message"]), finished.data["message"]
+    assert not run.world.controllers["joint_trajectory_admittance_controller"].executing
+    assert np.allclose(run.world.cell.arm_velocity_now, 0.0, atol=1e-9)
+
+
 def test_a_controller_that_never_acknowledges_a_goal_ends_the_run(registry, monkeypatch):
     answer_late(monkeypatch, float("inf"), lambda client: client.name.endswith("follow_joint_trajectory"))
     run = run_policy(registry, BASE, ScriptedPolicy(hold()))

@@ -159,3 +159,25 @@ def test_move_to_waypoint_on_an_action_of_another_type_is_an_error_too(registry,
     result = run_xml(registry, tmp_path, '<MoveToWaypoint waypoint_name="Home" controller_action_name="/robotiq_gripper_controller/gripper_cmd"/>')
     assert result.status == "ERROR"
     assert "port 'controller_action_name': action '/robotiq_gripper_controller/gripper_cmd' is a control_msgs/action/GripperCommand, not a moveit_pro_controllers_msgs/action/FollowJointTrajectoryWithAdmittance or a control_msgs/action/FollowJointTrajectory" in result.reason
+
+
+def test_a_jtc_goal_aborted_just_before_the_next_arrives_ends_the_run_with_its_abort(registry, monkeypatch):
+    # The JTC aborts the goal it plays (a path tolerance violation) just before the third goal
+    # arrives, then takes that goal from where the arm stopped. A goal it preempts ends aborted
+    # too, with INVALID_GOAL; this one is no preemption: the run ends with it.
+    import sim.controllers.jtc as jtc
+
+    on_goal, goals = jtc.JointTrajectoryController._on_goal, []
+
+    def aborted_first(self, handle):
+        goals.append(handle)
+        if len(goals) == 3 and self._goal is not None:
+            self._end_goal("abort", jtc.Result(error_code=jtc.Result.PATH_TOLERANCE_VIOLATED,
+                                               error_string="Aborted due to path tolerance violation"))
+            self._stop(self.clock.now())
+        return on_goal(self, handle)
+
+    monkeypatch.setattr(jtc.JointTrajectoryController, "_on_goal", aborted_first)
+    run = run_policy(registry, on_jtc(""), ScriptedPolicy(hold(velocity=TURN)), prepare=False, wrap=ON_JTC)
+    assert (run.result.status, run.result.reason) == ("FAILURE", "the controller aborted the motion: Aborted due to path tolerance violation")
+    assert len(goals) == 3

@@ -3,14 +3,15 @@ the rollback of a goal that reached the controller after its seam.
 
 ``send`` is the one place a motion is sent: it builds the goal (``controller_link.trajectory_goal``;
 for a JTC led by the motion already sent, ``controller_link.jtc_stream_points``) and keeps the
-``states.Rollback`` to return to. ``watch`` follows the goal and says what its news means for the
-run: nothing, a problem that ends it, or a rollback to plan the chunk again (``MAX_LATE_RETRIES``
-times per chunk). The action client is built once (``ControllerLink``); ``reset`` starts a run.
+``states.Rollback`` to return to. ``watch`` follows the goal, and the goal it replaced until that
+one's result comes, and says what their news means for the run: nothing, a problem that ends it
+(an abort of either), or a rollback to plan the chunk again (``MAX_LATE_RETRIES`` times per chunk). The action client is built once (``ControllerLink``); ``reset`` starts a run.
 """
 from __future__ import annotations
 
 from typing import Any
 
+from control_msgs.action import FollowJointTrajectory
 from moveit_pro_controllers_msgs.action import FollowJointTrajectoryWithAdmittance as FollowTrajectory
 
 from runtime.bus import STATUS_ABORTED, STATUS_SUCCEEDED
@@ -31,6 +32,8 @@ that delivered late once (a robot whose clock runs ahead of the runtime's ``/clo
 transport) is planned for with room to spare."""
 LATE_GOAL_CODES = (FollowTrajectory.Result.OLD_HEADER_TIMESTAMP, FollowTrajectory.Result.SEAM_AFTER_TRAJECTORY_END)
 """The controller's answers to a goal that reached it after its seam (decided by code, not text)."""
+JTC_PREEMPTED_CODE = FollowJointTrajectory.Result.INVALID_GOAL
+"""How a stock JTC ends the goal a newer one preempts (aborted, "Current goal preempted by new incoming action.")."""
 GOAL_ACK_TIMEOUT_S = 5.0  # a controller that does not acknowledge a goal by then is gone
 
 
@@ -45,6 +48,10 @@ class ControllerStream:
 
     def reset(self) -> None:
         self.goal = Goal()
+        self.replaced = Goal()
+        """The goal that was playing when ``goal`` was sent, until its result comes: the
+        controller may have aborted it (a force or a path limit) before the new goal arrived,
+        and then plays the new goal from rest; that abort ends the run all the same."""
         self.rollback: Rollback | None = None  # kept until the controller accepts the seam
         self.late_retries = 0  # of the chunk being sent
         self.goal_latency_s = 0.0
@@ -73,6 +80,8 @@ class ControllerStream:
         refused for arriving late goes back to, kept until the controller accepts the seam."""
         self.rollback = rollback
         message = self._goal_message(config, joints, samples, playing, rollback.takes_over_s, now_s, tick_period_s)
+        if self.goal.state is GoalState.PLAYING:
+            self.replaced = self.goal
         self.goal = Goal.send(self.link.client, message, now_s)
 
     def _goal_message(self, config: PolicyRunConfig, joints: list[str], samples: Samples, playing: Samples | None,
@@ -94,6 +103,9 @@ class ControllerStream:
     def watch(self, now_s: float) -> str | Rollback | None:
         """Follow the goal: None (nothing that changes the run), the problem that ends the run,
         or the ``Rollback`` of a goal refused only for arriving after its seam."""
+        aborted = self._watch_replaced()
+        if aborted is not None:
+            return aborted
         goal, name = self.goal, self.link.name
         if goal.state is GoalState.SENT:
             if not goal.send_future.done():
@@ -120,6 +132,24 @@ class ControllerStream:
                 return f"the controller ended the motion: {outcome.result.error_string}"
         return None
 
+    def _watch_replaced(self) -> str | None:
+        """The abort of the goal the newest one replaced, once its result comes (a goal the
+        controller superseded ends cancelled; one that ran to its end succeeded)."""
+        replaced = self.replaced = self.replaced.advance()
+        if replaced.state is not GoalState.ENDED:
+            return None
+        self.replaced = Goal()
+        outcome = replaced.outcome
+        if outcome.status != STATUS_ABORTED or self._preempted(outcome.result):
+            return None
+        return f"the controller aborted the motion: {outcome.result.error_string}"
+
+    def _preempted(self, result: Any) -> bool:
+        """Whether an aborted goal ended only because a newer goal took over: a stock JTC aborts
+        the goal it preempts with INVALID_GOAL (ros2_controllers #2422); the admittance controller
+        ends it CANCELED with SUPERSEDED."""
+        return self.link.kind is ControllerKind.JTC and result.error_code == JTC_PREEMPTED_CODE
+
     def _late_rollback(self, result: Any) -> Rollback | None:
         """A goal refused only because it reached the controller after its seam (a first goal on
         a new connection, a slow tick or a busy transport): the controller goes on with what it
@@ -134,7 +164,10 @@ class ControllerStream:
         self.late_margin_s = max(2 * self.late_margin_s, LATE_MARGIN_STEP_S)
         if rollback.goal.state is GoalState.PLAYING:  # still playing (or its result is waiting to be read)
             self.goal = rollback.goal
+            if self.replaced.handle is rollback.goal.handle:
+                self.replaced = Goal()  # watched as the goal again
         return rollback
 
     def cancel(self) -> None:
         self.goal = self.goal.cancel()
+        self.replaced = self.replaced.cancel()
