@@ -2,6 +2,8 @@
 wall clock, and what that costs the robot, in three set-ups, quiet and under a bounded CPU load.
 
 - ``realtime``: ``--realtime``, the cell and the oracle in the runtime's process, no ROS;
+- ``realtime, recorded``: the same with ``--record`` (the run's bag and report written by the
+  recording worker into a temporary directory): what recording costs the ticks;
 - ``ros, one process``: ``--ros --policy oracle``, the cell and the oracle hosted by the runtime's
   node on ROS 2;
 - ``ros, robot apart``: four processes, as on a real arm: ``objective sim-robot`` (the cell
@@ -18,7 +20,7 @@ seeds stacked. The CPU seconds of the runtime's process per wall second of its r
 them: they depend much less than the wall-clock figures on what else the machine runs.
 
     .venv/bin/python benchmarks/bench_realtime.py [--seeds 0,1] [--world vla_sim|kinematic]
-                                                  [--setups realtime,ros,robot] [--no-load | --only-load] [--priority N]
+                                                  [--setups realtime,recorded,ros,robot] [--no-load | --only-load] [--priority N]
 
 The runtime ticks at SCHED_FIFO priority 50 (``--realtime-priority 50``, as ros2_control's update
 loop asks for) unless ``--priority 0``; each row says what its ticks ran at.
@@ -48,7 +50,7 @@ OBJECTIVE = ROOT / "objectives" / "stack_cubes.xml"
 OBJECTIVE_CLI = [sys.executable, "-m", "runtime.cli"]
 BUSY_LOOP = "import time, sys\nend = time.monotonic() + float(sys.argv[1])\nwhile time.monotonic() < end:\n    pass\n"
 RUN_TIMEOUT_S = 240.0
-SETUPS = {"realtime": "realtime", "ros": "ros, one process", "robot": "ros, robot apart"}
+SETUPS = {"realtime": "realtime", "recorded": "realtime, recorded", "ros": "ros, one process", "robot": "ros, robot apart"}
 
 
 def busy(count: int, seconds: float) -> list[subprocess.Popen]:
@@ -121,9 +123,12 @@ def run(setup: str, world: str, seed: int, loaded: bool, env: dict[str, str], de
     """One run of ``setup`` (the runtime's ticks at SCHED_FIFO ``priority``, 0: the default): the
     runtime's summary, the robot's where it runs apart, CPU seconds."""
     args = ["run", str(OBJECTIVE), "--seed", str(seed), "--json"]
-    robot = None
-    if setup == "realtime":
+    robot, record = None, None
+    if setup in ("realtime", "recorded"):
         args += ["--realtime", "--world", world]
+        if setup == "recorded":
+            record = tempfile.TemporaryDirectory(prefix="bench-realtime-")
+            args += ["--record", record.name]
     elif setup == "ros":
         args += ["--ros", "--policy", "oracle", "--world", world]
     else:
@@ -146,6 +151,8 @@ def run(setup: str, world: str, seed: int, loaded: bool, env: dict[str, str], de
         cpu = children_cpu() - cpu  # before the busy processes are reaped, which would count them
     finally:
         end(load)
+        if record is not None:
+            record.cleanup()
     summary = last_json(runner.stdout)
     robot_summary = last_json(end([robot], signal.SIGTERM)[0]) if robot is not None else None
     return {"summary": summary, "robot": robot_summary, "runtime_cpu_s": cpu}
@@ -190,7 +197,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--seeds", default="0", help="comma-separated seeds (default 0)")
     parser.add_argument("--world", default="vla_sim", choices=("vla_sim", "kinematic"))
-    parser.add_argument("--setups", default="realtime,ros,robot", help="comma-separated: realtime, ros, robot")
+    parser.add_argument("--setups", default="realtime,ros,robot", help="comma-separated: realtime, recorded, ros, robot")
     parser.add_argument("--no-load", action="store_true", help="only the quiet rows")
     parser.add_argument("--only-load", action="store_true", help="only the rows under two busy processes")
     parser.add_argument("--priority", type=int, default=50,
