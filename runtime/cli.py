@@ -30,7 +30,7 @@ from typing import Any, Sequence
 # the user chose a GL backend. Its backend is fixed when it is first imported.
 os.environ.setdefault("MUJOCO_GL", "egl")
 
-from .command import COMMAND_GROUP, EXIT_BAD_INPUT, EXIT_FAILURE, EXIT_SUCCESS, Command
+from .command import COMMAND_GROUP, EXIT_BAD_INPUT, EXIT_SUCCESS, Command
 from .errors import INTERNAL, InternalError, ObjectiveError, error_kind
 from .interrupt import StopRequest, exit_code_for, signal_name, stop_on_signals
 from .ports import FINITE, NUMERIC_TYPES, Direction, PortInfo, PortType

@@ -565,10 +565,9 @@ class _RosActionClient:
             raise TypeError(f"action '{self.name}' takes {self.action_type.__name__}.Goal, got {type(goal).__name__}")
         if not self._client.server_is_ready():
             raise RuntimeError(f"action server '{self.name}' is not available")
-        on_feedback = None
+        on_feedback: Callable[[Any], None] | None = None
         if feedback_callback is not None:
-            def on_feedback(message: Any) -> None:
-                self.bus._post(feedback_callback, message.feedback)
+            on_feedback = lambda message: self.bus._post(feedback_callback, message.feedback)  # noqa: E731
 
         future = RosFuture(self.bus)
         _bridge(
