@@ -182,6 +182,10 @@ class DemoTensors:
         self.chunk_pad = torch.zeros(wanted.shape, dtype=torch.bool)
         self.frame_index = torch.from_numpy(np.arange(len(episode)) - first)
         """Each row's frame number within its episode (0: the episode's first frame, the arm at Home)."""
+        self.episode = torch.from_numpy(episode)
+        """Each row's episode, numbered across the datasets."""
+        self.episode_seeds = [seed for root in roots for seed in demos_meta(root).get("seeds", [])]
+        """The layout seed of every episode, in that numbering (empty for a dataset without ``demos.json``)."""
 
     def __len__(self) -> int:
         return len(self.tasks)
@@ -293,12 +297,14 @@ class TrainingRun:
 
 
 def train(policy: Any, optimizer: Any, demos: DemoTensors, to_batch: Callable[[dict], dict], args: argparse.Namespace,
-          log_every: int = 25) -> TrainingRun:
+          log_every: int = 25, auxiliary: Callable[[Any], Any] | None = None) -> TrainingRun:
     """Train ``policy`` (its ``forward(batch)`` returns ``(loss, _)``) for ``args.steps`` steps or
     ``args.minutes``, whichever ends first, on batches of ``args.batch`` rows of ``demos`` drawn with
     ``args.seed`` (and ``args.early_frames``/``args.early_share``), each passed through ``to_batch``
     (normalization, shapes). The learning rate (``args.lr``) warms up over 5 % of the steps, then
-    follows a cosine to 0 over the step or time budget, whichever is further along."""
+    follows a cosine to 0 over the step or time budget, whichever is further along.
+    ``auxiliary(rows)``: a loss added to the policy's after its forward (``layout_target``), whose
+    parameters the optimizer holds too; the losses recorded are the policy's own."""
     import torch
 
     parameters = [p for group in optimizer.param_groups for p in group["params"]]
@@ -308,7 +314,7 @@ def train(policy: Any, optimizer: Any, demos: DemoTensors, to_batch: Callable[[d
     if args.early_share > 0 and len(early) == 0:
         raise SystemExit("--early-share needs --early-frames >= 1")
     policy.train()
-    step, started, losses = 0, time.monotonic(), []
+    step, started, losses, extras = 0, time.monotonic(), [], []
     deadline = started + args.minutes * 60
     while step < args.steps and time.monotonic() < deadline:
         progress = max(step / args.steps, (time.monotonic() - started) / (deadline - started))
@@ -316,14 +322,18 @@ def train(policy: Any, optimizer: Any, demos: DemoTensors, to_batch: Callable[[d
             group["lr"] = args.lr * learning_rate_factor(step, warmup, progress)
         rows = sample_rows(demos, args.batch, early, args.early_share, generator)
         loss, _ = policy.forward(to_batch(demos.batch(rows)))
+        extra = auxiliary(rows) if auxiliary is not None else None
         optimizer.zero_grad()
-        loss.backward()
+        (loss if extra is None else loss + extra).backward()
         torch.nn.utils.clip_grad_norm_(parameters, 10.0)
         optimizer.step()
         losses.append(float(loss.detach()))
+        extras.append(float(extra.detach()) if extra is not None else 0.0)
         step += 1
         if step % log_every == 0 or step == 1:
-            LOG.info("step %d: loss %.4f (%.2f steps/s)", step, sum(losses[-log_every:]) / len(losses[-log_every:]),
+            recent = slice(-log_every, None)
+            LOG.info("step %d: loss %.4f%s (%.2f steps/s)", step, sum(losses[recent]) / len(losses[recent]),
+                     f", auxiliary {sum(extras[recent]) / len(extras[recent]):.4f}" if auxiliary is not None else "",
                      step / (time.monotonic() - started))
     policy.eval()
     return TrainingRun(step, time.monotonic() - started, losses)

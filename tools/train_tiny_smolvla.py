@@ -26,6 +26,7 @@ import json
 import logging
 import sys
 import time
+from typing import Any
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -49,6 +50,8 @@ from tools.demo_training import (  # noqa: E402  (also ensures torchvision befor
     training_record,
 )
 
+from tools.layout_target import LayoutProbe, layout_targets  # noqa: E402
+
 LOG = logging.getLogger("train_tiny_smolvla")
 
 
@@ -58,7 +61,28 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--vision-width", type=int, default=64, help="width of the tiny vision tower")
     parser.add_argument("--vision-layers", type=int, default=2, help="layers of the tiny vision tower")
     parser.add_argument("--patch-size", type=int, default=16, help="vision-tower patch size (px)")
+    parser.add_argument("--layout-target", type=float, default=0.0, metavar="WEIGHT",
+                        help="add the cube layout as an auxiliary target of the vision tokens of --layout-camera, "
+                             "weighted so (tools/layout_target.py; 0: off)")
+    parser.add_argument("--layout-camera", default="overview", help="the camera whose vision tokens learn the layout")
     return parser.parse_args(argv)
+
+
+def layout_probe(policy: Any, config: Any, demos: DemoTensors, camera: str, weight: float, image_size: int) -> LayoutProbe:
+    """The auxiliary layout target on the vision tokens of ``camera`` (SmolVLA embeds one camera at a
+    time, in ``config.image_features`` order, then its empty cameras)."""
+    import torch
+
+    keys = list(config.image_features)
+    key = f"observation.images.{camera}"
+    if key not in keys:
+        raise SystemExit(f"--layout-camera {camera}: the policy sees [{', '.join(k.rsplit('.', 1)[1] for k in keys)}]")
+    embed = policy.model.vlm_with_expert
+    with torch.no_grad():
+        features_dim = embed.embed_image(torch.zeros(1, 3, image_size, image_size)).flatten(1).shape[1]
+    calls = len(keys) + getattr(config, "empty_cameras", 0)
+    targets = layout_targets(demos.episode_seeds, demos.episode)
+    return LayoutProbe(embed.get_vlm_model().connector, keys.index(key), calls, features_dim, targets, weight)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -95,11 +119,17 @@ def main(argv: list[str] | None = None) -> int:
         config, dataset_stats={k: {s: torch.as_tensor(v) for s, v in d.items()} for k, d in stats.items()}
     )
     parameters = [p for p in policy.parameters() if p.requires_grad]
+    probe = None
+    if args.layout_target > 0:
+        probe = layout_probe(policy, config, demos, args.layout_camera, args.layout_target, image_size)
+        parameters += list(probe.head.parameters())
     LOG.info("tiny SmolVLA: %.2f M parameters (%.2f M trainable); %d frames, %d episodes, cameras %s at %d px",
              sum(p.numel() for p in policy.parameters()) / 1e6, sum(p.numel() for p in parameters) / 1e6,
              len(demos), demos.episodes, list(cameras), image_size)
     optimizer = torch.optim.AdamW(parameters, lr=args.lr, betas=(0.9, 0.95), weight_decay=1e-4)
-    run = train(policy, optimizer, demos, preprocessor, args)
+    run = train(policy, optimizer, demos, preprocessor, args, auxiliary=probe)
+    if probe is not None:
+        probe.remove()
     tasks = list(meta.tasks.index) if meta.tasks is not None else []
     metadata = {
         "joint_names": joint_names,
@@ -111,7 +141,9 @@ def main(argv: list[str] | None = None) -> int:
         "ignored_images": [camera for camera in CAMERAS if camera not in cameras],
         "training": training_record(args, demos, run, image_size=image_size, cameras=list(cameras),
                                     patch_size=args.patch_size, vision_width=args.vision_width,
-                                    vision_layers=args.vision_layers),
+                                    vision_layers=args.vision_layers,
+                                    layout_target={"weight": args.layout_target, "camera": args.layout_camera}
+                                    if args.layout_target > 0 else None),
     }
     save_checkpoint(staging, config, policy, stats, metadata)
     replace_folder(staging, args.out)
