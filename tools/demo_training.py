@@ -16,7 +16,7 @@ turns a :class:`DemoTensors` batch into what its policy's ``forward`` takes.
    ends annealed), gradient clipping, seeded batches.
 4. :func:`training_record` and :func:`evaluate`: the seeds, settings, episodes and ``data_sha256``
    (SHA-256 over the datasets' files) that go into ``objective_policy.json``, and ``objective
-   eval`` on held-out seeds written to ``evaluation.json``.
+   eval`` on held-out seeds written beside the checkpoint (``<checkpoint>.eval/evaluation.json``).
 """
 from __future__ import annotations
 
@@ -404,9 +404,12 @@ def replace_folder(staging: Path, out: Path) -> None:
 
 
 def evaluate(checkpoint: Path, episodes: int, seed_start: int, image_size: int, workers: int, world: str | None) -> dict:
-    """``objective eval`` of ``stack_cubes_lerobot.xml`` with the checkpoint on held-out seeds; writes
-    ``evaluation.json`` next to the checkpoint and returns it."""
-    out = checkpoint / "eval"
+    """``objective eval`` of ``stack_cubes_lerobot.xml`` with the checkpoint on held-out seeds into
+    :func:`evaluation_folder` (beside the checkpoint, not inside it: ``objective eval`` identifies a
+    policy by the hash of its folder's files, so files added there would make a later ``objective
+    eval`` of the same folder refuse to resume), with its command and summary in ``evaluation.json``
+    there; returns that summary."""
+    out = evaluation_folder(checkpoint)
     command = [sys.executable, "-m", "runtime.cli", "eval", str(ROOT / "objectives" / "stack_cubes_lerobot.xml"),
                "--policy", f"lerobot:{checkpoint}", "--episodes", str(episodes), "--seed-start", str(seed_start),
                "--workers", str(min(workers, episodes)), "--out", str(out), "--world-option", f"image_size={image_size}",
@@ -420,8 +423,13 @@ def evaluate(checkpoint: Path, episodes: int, seed_start: int, image_size: int, 
         raise RuntimeError(f"objective eval exited {finished.returncode}: {finished.stderr.strip()[-2000:]}")
     summary = json.loads(finished.stdout.strip().splitlines()[-1])
     evaluation = {"command": " ".join(command[1:]), "seconds": round(time.monotonic() - started), "summary": summary}
-    (checkpoint / "evaluation.json").write_text(json.dumps(evaluation, indent=2) + "\n", encoding="utf-8")
+    (out / "evaluation.json").write_text(json.dumps(evaluation, indent=2) + "\n", encoding="utf-8")
     return evaluation
+
+
+def evaluation_folder(checkpoint: Path) -> Path:
+    """Where the training's evaluation of ``checkpoint`` goes: ``<checkpoint>.eval`` beside it."""
+    return checkpoint.with_name(checkpoint.name + ".eval")
 
 
 def frame_size(demos: DemoTensors) -> int:
