@@ -277,6 +277,40 @@ def sample_rows(demos: "DemoTensors", batch: int, early, early_share: float, gen
     return torch.cat([uniform, early[torch.randint(len(early), (from_early,), generator=generator)]])
 
 
+def load_demos(args: argparse.Namespace, chunk: int) -> tuple[DemoTensors, dict]:
+    """Seed torch and numpy with ``args.seed``, set ``args.threads``, record the dataset if it is
+    missing and read it into memory with ``chunk`` actions per frame: the demonstrations and the
+    camera crops."""
+    import numpy as np
+    import torch
+
+    torch.manual_seed(args.seed)
+    np.random.seed(args.seed)
+    torch.set_num_threads(args.threads)
+    cameras, crops = camera_settings(args)
+    ensure_dataset(args, cameras)
+    loading = time.monotonic()
+    demos = DemoTensors(dataset_roots(args), chunk, args.train_size, cameras, crops)
+    LOG.info("loaded %d frames of %d episodes into memory in %.1f s", len(demos), demos.episodes, time.monotonic() - loading)
+    return demos, crops
+
+
+def checkpoint_metadata(demos: DemoTensors, crops: dict) -> dict:
+    """What every checkpoint's ``objective_policy.json`` says of its interface: joint names, control
+    period, prompts, camera crops, and the request images it ignores (the shipped Objectives send
+    the guide's three cameras; a policy trained on fewer drops the rest)."""
+    from sim.demos import CAMERAS
+
+    meta = demos.meta
+    return {
+        "joint_names": list(meta.features["action"]["names"]),
+        "control_period": 1.0 / meta.fps,
+        "prompts": list(meta.tasks.index) if meta.tasks is not None else [],
+        "camera_crops": {camera: list(box) for camera, box in crops.items()},
+        "ignored_images": [camera for camera in CAMERAS if camera not in demos.cameras],
+    }
+
+
 def learning_rate_factor(step: int, warmup_steps: int, progress: float) -> float:
     """Linear warm-up over ``warmup_steps``, then cosine from 1 to 0 over ``progress`` in [0, 1]."""
     return min(1.0, (step + 1) / warmup_steps) * 0.5 * (1.0 + math.cos(math.pi * min(max(progress, 0.0), 1.0)))

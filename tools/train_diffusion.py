@@ -22,19 +22,16 @@ import argparse
 import json
 import logging
 import sys
-import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 from tools.demo_training import (  # noqa: E402  (also ensures torchvision before LeRobot)
-    DemoTensors,
     add_arguments,
-    camera_settings,
-    dataset_roots,
+    checkpoint_metadata,
+    load_demos,
     demos_meta,
-    ensure_dataset,
     evaluate,
     frame_size,
     replace_folder,
@@ -64,24 +61,13 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
 def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s: %(message)s")
-    import numpy as np
     import torch
 
     from policy.lerobot_checkpoint import save_checkpoint
     from policy.tiny_diffusion import TinyDiffusionSpec, build_tiny_diffusion
-    from sim.demos import CAMERAS
 
-    torch.manual_seed(args.seed)
-    np.random.seed(args.seed)
-    torch.set_num_threads(args.threads)
-    cameras, crops = camera_settings(args)
-    ensure_dataset(args, cameras)
-
-    loading = time.monotonic()
-    demos = DemoTensors(dataset_roots(args), args.horizon, args.train_size, cameras, crops)
-    meta = demos.meta
-    LOG.info("loaded %d frames of %d episodes into memory in %.1f s", len(demos), demos.episodes, time.monotonic() - loading)
-    cameras = demos.cameras
+    demos, crops = load_demos(args, args.horizon)
+    meta, cameras = demos.meta, demos.cameras
     image_size = args.train_size or frame_size(demos)
     joint_names = list(meta.features["action"]["names"])
     spec = TinyDiffusionSpec(
@@ -112,12 +98,7 @@ def main(argv: list[str] | None = None) -> int:
 
     run = train(policy, optimizer, demos, to_batch, args)
     metadata = {
-        "joint_names": joint_names,
-        "control_period": 1.0 / meta.fps,
-        "prompts": list(meta.tasks.index) if meta.tasks is not None else [],
-        "camera_crops": {camera: list(box) for camera, box in crops.items()},
-        # The shipped Objectives send the guide's three cameras; a policy trained on fewer drops the rest.
-        "ignored_images": [camera for camera in CAMERAS if camera not in cameras],
+        **checkpoint_metadata(demos, crops),
         "training": training_record(
             args, demos, run, policy_type="diffusion", image_size=image_size, cameras=list(cameras),
             horizon=spec.horizon, n_action_steps=spec.n_action_steps, down_dims=list(spec.down_dims),

@@ -25,7 +25,6 @@ import argparse
 import json
 import logging
 import sys
-import time
 from typing import Any
 from pathlib import Path
 
@@ -35,11 +34,10 @@ sys.path.insert(0, str(ROOT))
 from tools.demo_training import (  # noqa: E402  (also ensures torchvision before LeRobot)
     DemoTensors,
     add_arguments,
-    camera_settings,
+    checkpoint_metadata,
+    load_demos,
     dataset_hash,  # noqa: F401  (the tests read it from this script)
-    dataset_roots,
     demos_meta,
-    ensure_dataset,
     evaluate,
     frame_size,
     learning_rate_factor,  # noqa: F401
@@ -88,23 +86,12 @@ def layout_probe(policy: Any, config: Any, demos: DemoTensors, camera: str, weig
 def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s: %(message)s")
-    import numpy as np
     import torch
 
     from policy.tiny_smolvla import TinySmolVLASpec, build_tiny_smolvla, save_checkpoint
-    from sim.demos import CAMERAS
 
-    torch.manual_seed(args.seed)
-    np.random.seed(args.seed)
-    torch.set_num_threads(args.threads)
-    cameras, crops = camera_settings(args)
-    ensure_dataset(args, cameras)
-
-    loading = time.monotonic()
-    demos = DemoTensors(dataset_roots(args), TinySmolVLASpec().chunk_size, args.train_size, cameras, crops)
-    meta = demos.meta
-    LOG.info("loaded %d frames into memory in %.1f s", len(demos), time.monotonic() - loading)
-    cameras = demos.cameras
+    demos, crops = load_demos(args, TinySmolVLASpec().chunk_size)
+    meta, cameras = demos.meta, demos.cameras
     image_size = args.train_size or frame_size(demos)
     joint_names = list(meta.features["action"]["names"])
     spec = TinySmolVLASpec(state_dim=len(joint_names), action_dim=len(joint_names), cameras=cameras, image_size=image_size,
@@ -130,15 +117,9 @@ def main(argv: list[str] | None = None) -> int:
     run = train(policy, optimizer, demos, preprocessor, args, auxiliary=probe)
     if probe is not None:
         probe.remove()
-    tasks = list(meta.tasks.index) if meta.tasks is not None else []
     metadata = {
-        "joint_names": joint_names,
-        "control_period": 1.0 / meta.fps,
+        **checkpoint_metadata(demos, crops),
         "default_guidance_horizon": 10,
-        "prompts": tasks,
-        "camera_crops": {camera: list(box) for camera, box in crops.items()},
-        # The shipped Objectives send the guide's three cameras; a policy trained on fewer drops the rest.
-        "ignored_images": [camera for camera in CAMERAS if camera not in cameras],
         "training": training_record(args, demos, run, image_size=image_size, cameras=list(cameras),
                                     patch_size=args.patch_size, vision_width=args.vision_width,
                                     vision_layers=args.vision_layers,
