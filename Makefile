@@ -14,7 +14,7 @@ export ROS_DOMAIN_ID ?= 42
 export MUJOCO_GL ?= egl
 export ROS_LOG_DIR ?= $(CURDIR)/build/ros_log
 
-.PHONY: setup demo test test-all bench clean lerobot lerobot-policy chromium ray
+.PHONY: setup demo test test-all bench clean lerobot lerobot-policy lerobot-diffusion chromium ray
 
 # Every run then reads the project's bytecode instead of compiling ~150 modules from source: the
 # import system reads .pyc files even under PYTHONDONTWRITEBYTECODE=1 (which only stops it writing
@@ -42,7 +42,7 @@ LEROBOT_VENV := .venv-lerobot
 LPY := $(LEROBOT_VENV)/bin/python
 LEROBOT_STAMP := $(LEROBOT_VENV)/.lerobot-stamp
 LEROBOT_PIP := $(LPY) -m pip install --quiet -c requirements/lerobot-constraints.txt
-LEROBOT_TESTS := tests/test_lerobot_backend.py tests/test_baselines.py
+LEROBOT_TESTS := tests/test_lerobot_backend.py tests/test_diffusion_policy.py tests/test_layout_target.py tests/test_baselines.py
 
 lerobot: $(LEROBOT_STAMP)
 
@@ -71,6 +71,20 @@ lerobot-policy: lerobot
 	HF_HUB_OFFLINE=1 MUJOCO_GL=egl ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST $(LPY) tools/train_tiny_smolvla.py \
 		$(LEROBOT_POLICY_DEMOS) $(LEROBOT_POLICY_MODEL) --seed 0 --steps 9000 --minutes 30 \
 		--threads 1 --eval-episodes 50 --eval-seed-start 100
+
+# LeRobot's DiffusionPolicy (docs/lerobot.md): records 120 oracle demonstrations with the settings
+# of lerobot-policy (build/demos/stack_cubes_120, layout seeds 1000-1119, reused when present),
+# trains a random-weight ResNet-18 + SpatialSoftmax encoder on the wrist and the overview's
+# workspace crop at 64 px with a narrow UNet that predicts the clean chunk (32 steps, DDIM 10),
+# one torch thread for 30 minutes, saves build/policies/diffusion and evaluates it on held-out
+# seeds 100-149.
+LEROBOT_DIFFUSION_DEMOS := --dataset build/demos/stack_cubes_120 --episodes 120 --demo-seed 1000 --workers 2 \
+	--record-steps 220 --cameras wrist,overview --gripper-velocity 0.5 --motion-noise 0.04 --hold-after-plan 2
+LEROBOT_DIFFUSION_MODEL := --crop overview=0.21875,0.25,0.71875,0.75 --train-size 64 --prediction sample
+lerobot-diffusion: lerobot
+	HF_HUB_OFFLINE=1 MUJOCO_GL=egl ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST $(LPY) tools/train_diffusion.py \
+		$(LEROBOT_DIFFUSION_DEMOS) $(LEROBOT_DIFFUSION_MODEL) --out build/policies/diffusion --seed 0 --steps 4000 \
+		--minutes 30 --threads 1 --eval-episodes 50 --eval-seed-start 100
 
 # Headless Chromium (Debian's package) for the report's browser test; skipped when absent.
 chromium:

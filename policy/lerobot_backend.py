@@ -28,7 +28,11 @@ Per request (``infer``):
    ``predict_action_chunk(batch, inference_delay=frozen_prefix_steps,
    prev_chunk_left_over=<that tail>, execution_horizon=...)`` with the guide's conversion
    (:func:`execution_horizon`).
-5. **Answer.** The postprocessor denormalizes; the absolute chunk goes back in the request's joint
+5. **Observation queues.** LeRobot 0.4.4's DiffusionPolicy reads its observation from queues that
+   only its ``select_action`` fills, not from ``predict_action_chunk``'s batch; the backend fills
+   them first (:func:`queue_observation`), one observation per request (train such a policy with
+   ``n_obs_steps`` 1: requests are a committed window apart, not one step).
+6. **Answer.** The postprocessor denormalizes; the absolute chunk goes back in the request's joint
    order, and the raw normalized chunk as ``policy_actions`` (only for RTC-capable policies: the
    caller echoes its tail back as the next ``previous_action_chunk``).
 
@@ -71,6 +75,9 @@ METADATA_FILE = "objective_policy.json"
 and ``ignored_images`` (request image names the policy does not use)."""
 RTC_POLICY_TYPES = frozenset({"smolvla", "pi0", "pi05"})
 """LeRobot 0.4.4 policies whose sampling loop takes RTC guidance."""
+QUEUED_OBSERVATION_TYPES = frozenset({"diffusion"})
+"""LeRobot 0.4.4 policies whose ``predict_action_chunk`` reads the observation from the policy's own
+queues (filled only by ``select_action``) instead of its ``batch`` argument: see :func:`queue_observation`."""
 DEFAULT_GUIDANCE_HORIZON = 10
 """LeRobot's own RTCConfig default ``execution_horizon``, used as the width when nothing says otherwise."""
 
@@ -328,6 +335,25 @@ def enable_rtc(config: Any, execution_horizon: int = DEFAULT_GUIDANCE_HORIZON) -
     )
 
 
+def queue_observation(policy: Any, batch: dict[str, Any]) -> dict[str, Any]:
+    """Put a preprocessed observation into the queues of a policy whose ``predict_action_chunk`` reads
+    them (LeRobot 0.4.4's DiffusionPolicy), as its ``select_action`` does, and return the batch to
+    call ``predict_action_chunk`` with: the cameras stacked into ``observation.images``
+    (B, cameras, C, H, W), no ``action`` key (the preprocessor leaves ``action: None``, which would
+    land in the policy's action queue), every queued key appended (a fresh queue is filled with
+    copies). Called without this, ``predict_action_chunk`` stacks an empty queue after a reset, or
+    answers for the previous request's observation."""
+    import torch
+    from lerobot.policies.utils import populate_queues
+
+    queued = {key: value for key, value in batch.items() if key != ACTION_KEY}
+    cameras = list(policy.config.image_features)
+    if cameras:
+        queued["observation.images"] = torch.stack([batch[key] for key in cameras], dim=-4)
+    policy._queues = populate_queues(policy._queues, queued)
+    return queued
+
+
 def resize_frames(frames: Any, size: tuple[int, int]) -> Any:
     """Float NCHW frames at ``size`` (bilinear, antialiased when shrinking): how a request's frames
     reach the checkpoint's feature size, and how the training script resizes its frames to match."""
@@ -353,6 +379,8 @@ class LeRobotBackend:
         self.config: Any = None
         self.metadata: dict[str, Any] = {}
         self.rtc = False
+        self.queued_observation = False
+        """The policy reads its observation from its own queues (:func:`queue_observation`)."""
         self.default_guidance = DEFAULT_GUIDANCE_HORIZON
         self.camera_keys: list[str] = []
         self.ignored_images: frozenset[str] = frozenset()
@@ -402,6 +430,13 @@ class LeRobotBackend:
             enable_rtc(config, self.default_guidance)
         elif hasattr(config, "rtc_config"):
             config.rtc_config = None
+        self.queued_observation = config.type in QUEUED_OBSERVATION_TYPES
+        if self.queued_observation and getattr(config, "n_obs_steps", 1) > 1:
+            LOG.warning(
+                "checkpoint '%s' observes %d steps: its history here is the last %d requests, one committed window "
+                "apart, not consecutive steps as in training (train it with n_obs_steps 1)",
+                folder, config.n_obs_steps, config.n_obs_steps,
+            )
         self.policy = get_policy_class(config.type).from_pretrained(str(folder), config=config)
         self.policy.eval()
         self.preprocessor, self.postprocessor = make_pre_post_processors(
@@ -489,6 +524,8 @@ class LeRobotBackend:
         # (under torch.enable_grad), which inference_mode would forbid.
         with torch.no_grad():
             batch = self.preprocessor(observation)
+            if self.queued_observation:
+                batch = queue_observation(self.policy, batch)
             normalized = self.policy.predict_action_chunk(batch, **guidance)
             absolute = self.postprocessor(normalized)
         elapsed = time.perf_counter() - started

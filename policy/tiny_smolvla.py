@@ -21,12 +21,11 @@ Import :mod:`policy.lerobot_compat` first (done here), so torchvision imports ne
 """
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
 
-from .lerobot_backend import METADATA_FILE, VLM_DIRNAME, enable_rtc
+from .lerobot_backend import VLM_DIRNAME, enable_rtc
+from .lerobot_checkpoint import save_checkpoint, write_metadata  # noqa: F401  (kept importable from here)
 from .lerobot_compat import ensure_torchvision
 
 ensure_torchvision()
@@ -208,39 +207,3 @@ def build_tiny_smolvla(folder: str | Path, spec: TinySmolVLASpec = TinySmolVLASp
     vlm = write_tiny_vlm(Path(folder) / VLM_DIRNAME, spec)
     config = tiny_smolvla_config(vlm, spec, rtc=rtc)
     return config, SmolVLAPolicy(config)
-
-
-def write_metadata(folder: str | Path, metadata: dict) -> Path:
-    """Write ``objective_policy.json`` next to a checkpoint: what LeRobot's format does not keep and
-    the backend needs (``joint_names``, ``control_period``, ``default_guidance_horizon``, and the
-    training ``prompts`` for information)."""
-    path = Path(folder) / METADATA_FILE
-    path.write_text(json.dumps(metadata, indent=2) + "\n", encoding="utf-8")
-    return path
-
-
-
-def save_checkpoint(folder: str | Path, config: Any, policy: Any, stats: dict, metadata: dict) -> Path:
-    """Save a policy in LeRobot's format, with its processors, backbone folder and metadata.
-
-    ``stats`` are the normalization statistics (``{"observation.state": {"mean", "std", "min",
-    "max"}, "action": {...}}``, tensors or arrays); they are stored in the processors' state
-    files, where ``make_pre_post_processors(config, pretrained_path=folder)`` finds them.
-    """
-    import shutil
-
-    import torch
-    from lerobot.policies.factory import make_pre_post_processors
-
-    folder = Path(folder)
-    folder.mkdir(parents=True, exist_ok=True)
-    vlm = Path(config.vlm_model_name)
-    if vlm.resolve() != (folder / VLM_DIRNAME).resolve():
-        shutil.copytree(vlm, folder / VLM_DIRNAME, dirs_exist_ok=True)
-    tensors = {key: {k: torch.as_tensor(v, dtype=torch.float32) for k, v in value.items()} for key, value in stats.items()}
-    preprocessor, postprocessor = make_pre_post_processors(config, dataset_stats=tensors)
-    policy.save_pretrained(folder)
-    preprocessor.save_pretrained(folder)
-    postprocessor.save_pretrained(folder)
-    write_metadata(folder, metadata)
-    return folder

@@ -479,7 +479,8 @@ def test_the_training_pipeline_records_trains_saves_and_evaluates_in_one_command
     training = json.loads((out / "objective_policy.json").read_text())["training"]
     assert training["steps"] == 3 and training["episode_seeds"] == [0, 1] and training["seed"] == 0
     assert training["data_sha256"] == train["dataset_hash"](dataset) and len(training["data_sha256"]) == 64
-    evaluation = json.loads((out / "evaluation.json").read_text())
+    evaluation = json.loads((tmp_path / "policy.eval" / "evaluation.json").read_text())
+    assert sorted(p.name for p in out.iterdir() if p.name.startswith("eval")) == []  # the checkpoint's hash stays its own
     assert evaluation["summary"]["episodes"] == 1 and "--seed-start 100" in evaluation["command"]
     assert "--policy lerobot:" in evaluation["command"] and "--world kinematic" in evaluation["command"]
     # The checkpoint serves: one chunk of the saved policy, in the request's joint order.

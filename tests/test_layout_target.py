@@ -1,0 +1,87 @@
+"""The cube layout as an auxiliary training target of a policy's vision (tools/layout_target.py):
+the target itself (always run), the probe on a toy module, and the training script with it
+(skipped without `make lerobot`)."""
+from __future__ import annotations
+
+import importlib.util
+import json
+import math
+import runpy
+from pathlib import Path
+
+import pytest
+
+from sim.layouts import layout
+from tools.layout_target import LAYOUT_DIM, layout_vector
+
+ROOT = Path(__file__).resolve().parent.parent
+needs_torch = pytest.mark.skipif(importlib.util.find_spec("torch") is None, reason="torch is not in this venv")
+needs_lerobot = pytest.mark.skipif(
+    importlib.util.find_spec("lerobot") is None or importlib.util.find_spec("torch") is None,
+    reason="the LeRobot extra is not in this venv (make lerobot builds .venv-lerobot on Python 3.11; make test runs this file there)",
+)
+
+
+def test_the_layout_vector_scales_each_cube_into_the_workspace_and_folds_its_yaw_by_quarter_turns():
+    for seed in (0, 100, 1000, 1119):
+        vector = layout_vector(seed)
+        assert len(vector) == LAYOUT_DIM == 4 * len(layout(seed))
+        assert all(-1.0 <= v <= 1.0 for v in vector)
+    blue = layout(1000)["blue"]
+    x, y, cos4, sin4 = layout_vector(1000)[4 * list(layout(1000)).index("blue"):][:4]
+    assert x == pytest.approx(2 * (blue[0] + 0.25) / 0.5 - 1) and y == pytest.approx(2 * (blue[1] - 0.32) / 0.28 - 1)
+    assert (cos4, sin4) == pytest.approx((math.cos(4 * blue[2]), math.sin(4 * blue[2])))
+    assert layout_vector(1000) == layout_vector(1000) and layout_vector(1000) != layout_vector(1001)
+
+
+@needs_torch
+def test_the_probe_reads_its_camera_s_call_and_teaches_the_module_the_layout():
+    # Two calls per forward (two cameras); the probe reads the second. Its loss starts at the
+    # targets' mean square (the head starts at zero) and its gradient reaches the hooked module.
+    import torch
+
+    from tools.layout_target import LayoutProbe, layout_targets
+
+    torch.manual_seed(0)
+    module = torch.nn.Linear(3, 5)
+    targets = layout_targets([1000, 1001, 1002], torch.tensor([0, 1, 2, 2]))
+    assert targets.shape == (4, LAYOUT_DIM) and torch.equal(targets[2], targets[3])
+    probe = LayoutProbe(module, call=1, calls=2, features_dim=5, targets=targets, weight=2.0)
+    seen = torch.randn(4, 3)
+    module(torch.randn(4, 3))  # the first camera: not read
+    module(seen)
+    rows = torch.tensor([0, 1, 2, 3])
+    loss = probe(rows)
+    assert float(loss) == pytest.approx(2.0 * float((targets ** 2).mean()))
+    optimizer = torch.optim.SGD([*module.parameters(), *probe.head.parameters()], lr=0.1)
+    optimizer.zero_grad()
+    loss.backward()
+    # The head learns from the first step; the module is reached through the head's weights, zero
+    # at first, so from the second step on.
+    assert float(probe.head.weight.grad.abs().sum()) > 0.0 and float(module.weight.grad.abs().sum()) == 0.0
+    optimizer.step()
+    module(torch.randn(4, 3)), module(seen)
+    optimizer.zero_grad()
+    probe(rows).backward()
+    assert float(module.weight.grad.abs().sum()) > 0.0
+    with pytest.raises(RuntimeError, match="no features captured"):
+        probe(rows)  # nothing ran since the last loss
+    probe.remove()
+    module(seen), module(seen)
+    with pytest.raises(RuntimeError, match="no features captured"):
+        probe(rows)
+    with pytest.raises(ValueError, match="call 2 is not one of the 2 calls"):
+        LayoutProbe(module, call=2, calls=2, features_dim=5, targets=targets, weight=1.0)
+
+
+@needs_lerobot
+def test_the_tiny_smolvla_trains_with_the_layout_target_and_records_it(tmp_path, capsys):
+    train = runpy.run_path(str(ROOT / "tools" / "train_tiny_smolvla.py"))
+    dataset, out = tmp_path / "demos", tmp_path / "policy"
+    common = ["--dataset", str(dataset), "--episodes", "2", "--demo-seed", "0", "--world", "kinematic", "--image-size", "32",
+              "--record-steps", "30", "--keep-failed", "--workers", "2", "--steps", "3", "--batch", "4", "--eval-episodes", "0"]
+    assert train["main"]([*common, "--out", str(out), "--layout-target", "1.0", "--layout-camera", "overview"]) == 0
+    training = json.loads((out / "objective_policy.json").read_text())["training"]
+    assert training["layout_target"] == {"weight": 1.0, "camera": "overview"} and training["steps"] == 3
+    with pytest.raises(SystemExit, match=r"--layout-camera top: the policy sees \[scene, wrist, overview\]"):
+        train["main"]([*common, "--out", str(tmp_path / "other"), "--layout-target", "1.0", "--layout-camera", "top"])
