@@ -5,7 +5,8 @@ the rollback of a goal that reached the controller after its seam.
 for a JTC led by the motion already sent, ``controller_link.jtc_stream_points``) and keeps the
 ``states.Rollback`` to return to. ``watch`` follows the goal, and the goal it replaced until that
 one's result comes, and says what their news means for the run: nothing, a problem that ends it
-(an abort of either), or a rollback to plan the chunk again (``MAX_LATE_RETRIES`` times per chunk). The action client is built once (``ControllerLink``); ``reset`` starts a run.
+(an abort of either), or a rollback to plan the chunk again (``MAX_LATE_RETRIES`` times per
+chunk). The action client is built once (``ControllerLink``); ``reset`` starts a run.
 """
 from __future__ import annotations
 
@@ -163,9 +164,7 @@ class ControllerStream:
         self.late_retries += 1
         self.late_margin_s = max(2 * self.late_margin_s, LATE_MARGIN_STEP_S)
         if rollback.goal.state is GoalState.PLAYING:  # still playing (or its result is waiting to be read)
-            self.goal = rollback.goal
-            if self.replaced.handle is rollback.goal.handle:
-                self.replaced = Goal()  # watched as the goal again
+            self.goal, self.replaced = rollback.goal, Goal()  # the replaced goal is the goal again
         return rollback
 
     def cancel(self) -> None:
