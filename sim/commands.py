@@ -10,6 +10,7 @@ from pathlib import Path
 
 from runtime.command import EXIT_BAD_INPUT, EXIT_FAILURE, EXIT_SUCCESS, Command
 from runtime.errors import ObjectiveError
+from runtime.extras import missing_module_message
 from runtime.registry import Registry
 
 
@@ -48,6 +49,10 @@ def _record_demos(args: argparse.Namespace, registry: Registry) -> int:
         ))
     except ObjectiveError as err:
         print(f"error: {err}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except ModuleNotFoundError as err:
+        print(f"error: objective record-demos writes a LeRobot dataset: {missing_module_message(err.name or str(err))}",
+              file=sys.stderr)
         return EXIT_BAD_INPUT
     except RuntimeError as err:
         print(f"error: {err}", file=sys.stderr)

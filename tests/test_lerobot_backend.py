@@ -136,6 +136,21 @@ def test_bad_options_and_missing_checkpoints_are_named(tmp_path):
         resolve_checkpoint(tmp_path)
 
 
+def test_record_demos_without_the_lerobot_extra_names_the_venv_that_has_it(tmp_path, capsys, monkeypatch):
+    import sim.demos
+    from runtime.cli import main
+
+    def missing(options):
+        raise ModuleNotFoundError("No module named 'torch'", name="torch")
+
+    monkeypatch.setattr(sim.demos, "record_demos", missing)
+    assert main(["record-demos", str(tmp_path / "demos"), "--episodes", "1"]) == 2
+    assert capsys.readouterr().err.strip() == (
+        "error: objective record-demos writes a LeRobot dataset: torch is not installed: the LeRobot extra lives in a "
+        "venv of its own, run `make lerobot` and use .venv-lerobot/bin/objective")
+    assert not (tmp_path / "demos").exists()
+
+
 # ---------------------------------------------------------------------------------------------
 # A real tiny SmolVLA (needs the LeRobot extra)
 # ---------------------------------------------------------------------------------------------

@@ -25,6 +25,7 @@ import argparse
 import json
 import logging
 import sys
+import time
 from typing import Any
 from pathlib import Path
 
@@ -48,7 +49,7 @@ from tools.demo_training import (  # noqa: E402  (also ensures torchvision befor
     training_record,
 )
 
-from tools.layout_target import LayoutProbe, layout_targets  # noqa: E402
+from tools.layout_target import LayoutProbe, LayoutRenders, layout_targets, render_layouts  # noqa: E402
 
 LOG = logging.getLogger("train_tiny_smolvla")
 
@@ -63,13 +64,22 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
                         help="add the cube layout as an auxiliary target of the vision tokens of --layout-camera, "
                              "weighted so (tools/layout_target.py; 0: off)")
     parser.add_argument("--layout-camera", default="overview", help="the camera whose vision tokens learn the layout")
+    parser.add_argument("--layout-renders", type=int, default=0, metavar="N",
+                        help="with --layout-target: also learn the layout of N more layouts, rendered with the arm at Home "
+                             "(seeds from --layout-render-seed; no episode is run for them)")
+    parser.add_argument("--layout-render-seed", type=int, default=20000, help="layout seed of the first rendered layout")
+    parser.add_argument("--layout-render-batch", type=int, default=32, help="rendered layouts per training step")
     return parser.parse_args(argv)
 
 
-def layout_probe(policy: Any, config: Any, demos: DemoTensors, camera: str, weight: float, image_size: int) -> LayoutProbe:
-    """The auxiliary layout target on the vision tokens of ``camera`` (SmolVLA embeds one camera at a
-    time, in ``config.image_features`` order, then its empty cameras)."""
+def layout_probe(policy: Any, config: Any, demos: DemoTensors, args: argparse.Namespace, image_size: int,
+                 crops: dict) -> LayoutProbe:
+    """The auxiliary layout target on the vision tokens of ``args.layout_camera`` (SmolVLA embeds one
+    camera at a time, in ``config.image_features`` order, then its empty cameras), with
+    ``args.layout_renders`` rendered layouts besides the demonstrations'."""
     import torch
+
+    camera = args.layout_camera
 
     keys = list(config.image_features)
     key = f"observation.images.{camera}"
@@ -80,7 +90,26 @@ def layout_probe(policy: Any, config: Any, demos: DemoTensors, camera: str, weig
         features_dim = embed.embed_image(torch.zeros(1, 3, image_size, image_size)).flatten(1).shape[1]
     calls = len(keys) + getattr(config, "empty_cameras", 0)
     targets = layout_targets(demos.episode_seeds, demos.episode)
-    return LayoutProbe(embed.get_vlm_model().connector, keys.index(key), calls, features_dim, targets, weight)
+    renders = None
+    if args.layout_renders > 0:
+        seeds = list(range(args.layout_render_seed, args.layout_render_seed + args.layout_renders))
+        reserved = sorted(set(seeds) & (set(demos.episode_seeds) | set(range(args.eval_seed_start, args.eval_seed_start + 50))))
+        if reserved:
+            raise SystemExit(f"--layout-render-seed {args.layout_render_seed}: the rendered layouts would include demonstration "
+                             f"or held-out seeds ({reserved[0]}..{reserved[-1]})")
+        started = time.monotonic()
+        home = demos.state[demos.frame_index == 0][0, :-1]  # the arm columns of an episode's first frame
+        frames = render_layouts(seeds, camera, home, demos_meta(args.dataset).get("image_size", args.image_size),
+                                crops.get(camera), image_size)
+        LOG.info("rendered %d layouts of camera %s in %.0f s", len(seeds), camera, time.monotonic() - started)
+
+        def features(images: Any) -> Any:
+            prepared, _ = policy.prepare_images({key: images})
+            return embed.embed_image(prepared[0])
+
+        renders = LayoutRenders(frames, seeds, features, args.layout_render_batch, args.seed)
+    return LayoutProbe(embed.get_vlm_model().connector, keys.index(key), calls, features_dim, targets, args.layout_target,
+                       renders)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -108,7 +137,7 @@ def main(argv: list[str] | None = None) -> int:
     parameters = [p for p in policy.parameters() if p.requires_grad]
     probe = None
     if args.layout_target > 0:
-        probe = layout_probe(policy, config, demos, args.layout_camera, args.layout_target, image_size)
+        probe = layout_probe(policy, config, demos, args, image_size, crops)
         parameters += list(probe.head.parameters())
     LOG.info("tiny SmolVLA: %.2f M parameters (%.2f M trainable); %d frames, %d episodes, cameras %s at %d px",
              sum(p.numel() for p in policy.parameters()) / 1e6, sum(p.numel() for p in parameters) / 1e6,
@@ -123,7 +152,9 @@ def main(argv: list[str] | None = None) -> int:
         "training": training_record(args, demos, run, image_size=image_size, cameras=list(cameras),
                                     patch_size=args.patch_size, vision_width=args.vision_width,
                                     vision_layers=args.vision_layers,
-                                    layout_target={"weight": args.layout_target, "camera": args.layout_camera}
+                                    layout_target={"weight": args.layout_target, "camera": args.layout_camera,
+                                                   "renders": args.layout_renders, "render_seed": args.layout_render_seed,
+                                                   "render_batch": args.layout_render_batch}
                                     if args.layout_target > 0 else None),
     }
     save_checkpoint(staging, config, policy, stats, metadata)
