@@ -42,7 +42,7 @@ LEROBOT_VENV := .venv-lerobot
 LPY := $(LEROBOT_VENV)/bin/python
 LEROBOT_STAMP := $(LEROBOT_VENV)/.lerobot-stamp
 LEROBOT_PIP := $(LPY) -m pip install --quiet -c requirements/lerobot-constraints.txt
-LEROBOT_TESTS := tests/test_lerobot_backend.py tests/test_diffusion_policy.py tests/test_layout_target.py tests/test_approach_frames.py tests/test_baselines.py
+LEROBOT_TESTS := tests/test_lerobot_backend.py tests/test_diffusion_policy.py tests/test_layout_target.py tests/test_plan_frames.py tests/test_baselines.py
 
 lerobot: $(LEROBOT_STAMP)
 

@@ -122,14 +122,14 @@ def test_the_tiny_smolvla_trains_with_the_layout_target_and_records_it(tmp_path,
     assert training["layout_target"] == {"weight": 1.0, "camera": "overview", "renders": 4, "render_seed": 20000,
                                          "render_batch": 2}
     assert training["steps"] == 3
-    assert train["main"]([*common, "--out", str(tmp_path / "approach"), "--layout-target", "1.0", "--approach-layouts", "2",
-                          "--approach-seed", "40000", "--approach-steps", "0,10", "--approach-share", "0.5", "--workers", "1",
-                          "--approach-cache", str(tmp_path / "approach_frames")]) == 0
-    training = json.loads((tmp_path / "approach" / "objective_policy.json").read_text())["training"]
-    assert training["approach"] == {"layouts": 2, "seed": 40000, "steps": "0,10", "share": 0.5}
-    with pytest.raises(SystemExit, match=r"--approach-seed 99: the approach layouts would include demonstration or "
+    assert train["main"]([*common, "--out", str(tmp_path / "plan"), "--layout-target", "1.0", "--plan-layouts", "2",
+                          "--plan-seed", "40000", "--plan-every", "10", "--plan-share", "0.5", "--workers", "1",
+                          "--plan-cache", str(tmp_path / "plan_frames")]) == 0
+    training = json.loads((tmp_path / "plan" / "objective_policy.json").read_text())["training"]
+    assert training["plan_frames"] == {"layouts": 2, "seed": 40000, "every": 10, "share": 0.5}
+    with pytest.raises(SystemExit, match=r"--plan-seed 99: the plan layouts would include demonstration or "
                                          r"held-out seeds \(100..100\)"):
-        train["main"]([*common, "--out", str(tmp_path / "other"), "--approach-layouts", "2", "--approach-seed", "99"])
+        train["main"]([*common, "--out", str(tmp_path / "other"), "--plan-layouts", "2", "--plan-seed", "99"])
     with pytest.raises(SystemExit, match=r"--layout-render-seed 98: the rendered layouts would include demonstration "
                                          r"or held-out seeds \(100..101\)"):
         train["main"]([*common, "--out", str(tmp_path / "other"), "--layout-target", "1.0", "--layout-renders", "4",

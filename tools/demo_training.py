@@ -73,16 +73,14 @@ def add_arguments(parser: argparse.ArgumentParser, *, out: Path, steps: int, min
                         help="with --early-share: an episode's first N frames (the arm at or near Home) are drawn more often")
     parser.add_argument("--early-share", type=float, default=0.0,
                         help="share of every batch drawn from the episodes' first --early-frames frames (0: uniform sampling)")
-    parser.add_argument("--approach-layouts", type=int, default=0, metavar="N",
-                        help="also train on frames of the approach to the first cube in N more layouts, made from the "
-                             "oracle's plan without running episodes (tools/approach_frames.py)")
-    parser.add_argument("--approach-seed", type=int, default=30000, help="layout seed of the first approach layout")
-    parser.add_argument("--approach-steps", default="0,5,10,15,20", metavar="K,K",
-                        help="policy steps after Home at which approach frames are taken (before the grasp)")
-    parser.add_argument("--approach-share", type=float, default=0.25,
-                        help="share of every batch drawn from the approach frames")
-    parser.add_argument("--approach-cache", type=Path, default=ROOT / "build/approach_frames",
-                        help="folder of the approach frames made so far (one file per setting)")
+    parser.add_argument("--plan-layouts", type=int, default=0, metavar="N",
+                        help="also train on frames of the oracle's plan played into the cell in N more layouts, without "
+                             "the runtime (tools/plan_frames.py)")
+    parser.add_argument("--plan-seed", type=int, default=30000, help="layout seed of the first plan layout")
+    parser.add_argument("--plan-every", type=int, default=5, metavar="K", help="a plan frame every K policy steps")
+    parser.add_argument("--plan-share", type=float, default=0.25, help="share of every batch drawn from the plan frames")
+    parser.add_argument("--plan-cache", type=Path, default=ROOT / "build/plan_frames",
+                        help="folder of the plan frames made so far (one file per setting)")
     parser.add_argument("--gripper-velocity", type=float, default=None,
                         help="the oracle's gripper speed when recording (rad/s; default: the oracle's)")
     parser.add_argument("--motion-noise", type=float, default=0.0,
@@ -305,37 +303,36 @@ def load_demos(args: argparse.Namespace, chunk: int) -> tuple[DemoTensors, dict]
     return demos, crops
 
 
-def load_approach(args: argparse.Namespace, demos: DemoTensors, crops: dict, size: int, chunk: int) -> Any:
-    """``args.approach_layouts`` layouts of approach frames (``tools.approach_frames``) matching the
-    demonstrations (the Home state of the first episode, joints, cameras, crops, frame sizes, prompt, gripper speed), or
-    None; layout seeds that meet the demonstrations' or the held-out seeds are refused (SystemExit)."""
-    from tools.approach_frames import ApproachSettings, make_approach_frames
+def load_plan_frames(args: argparse.Namespace, demos: DemoTensors, crops: dict, size: int, chunk: int) -> Any:
+    """``args.plan_layouts`` layouts of plan frames (``tools.plan_frames``) matching the demonstrations
+    (the Home state of the first episode, joints, cameras, crops, frame sizes, prompt and the
+    recording's settings), or None; layout seeds that meet the demonstrations' or the held-out seeds
+    are refused (SystemExit)."""
+    from tools.plan_frames import PlanFrameSettings, make_plan_frames
 
-    if args.approach_layouts <= 0:
+    if args.plan_layouts <= 0:
         return None
-    seeds = tuple(range(args.approach_seed, args.approach_seed + args.approach_layouts))
+    if args.plan_every < 1:
+        raise SystemExit(f"--plan-every must be >= 1, got {args.plan_every}")
+    seeds = tuple(range(args.plan_seed, args.plan_seed + args.plan_layouts))
     held_out = range(args.eval_seed_start, args.eval_seed_start + max(args.eval_episodes, 50))
     reserved = sorted(set(seeds) & (set(demos.episode_seeds) | set(held_out)))
     if reserved:
-        raise SystemExit(f"--approach-seed {args.approach_seed}: the approach layouts would include demonstration or "
+        raise SystemExit(f"--plan-seed {args.plan_seed}: the plan layouts would include demonstration or "
                          f"held-out seeds ({reserved[0]}..{reserved[-1]})")
-    try:
-        steps = tuple(sorted({int(k) for k in args.approach_steps.split(",") if k.strip()}))
-    except ValueError:
-        raise SystemExit(f"--approach-steps must be policy steps such as 0,5,10, got {args.approach_steps!r}") from None
-    if not steps or steps[0] < 0:
-        raise SystemExit(f"--approach-steps must be policy steps >= 0, got {args.approach_steps!r}")
     recorded = demos_meta(args.dataset)
-    settings = ApproachSettings(
-        seeds=seeds, steps=steps, home=tuple(float(v) for v in demos.state[demos.frame_index == 0][0]),
+    settings = PlanFrameSettings(
+        seeds=seeds, every=args.plan_every, hold_after_plan_s=float(recorded.get("hold_after_plan_s") or 0.0),
+        home=tuple(float(v) for v in demos.state[demos.frame_index == 0][0]),
         joint_names=tuple(demos.meta.features["action"]["names"]), cameras=tuple(demos.cameras),
         image_size=int(recorded.get("image_size", args.image_size)),
         crops=tuple((camera, tuple(box)) for camera, box in sorted(crops.items())), size=size, chunk=chunk,
         control_period_s=1.0 / demos.meta.fps, gripper_velocity=recorded.get("gripper_velocity"),
         motion_noise_rad=float(recorded.get("motion_noise_rad", 0.0)))
     started = time.monotonic()
-    frames = make_approach_frames(settings, demos.tasks[0], args.approach_cache, workers=args.workers)
-    LOG.info("%d approach frames of %d layouts ready in %.0f s", len(frames), len(seeds), time.monotonic() - started)
+    frames = make_plan_frames(settings, demos.tasks[0], args.plan_cache, workers=args.workers)
+    LOG.info("%d plan frames of %d layouts ready in %.0f s (%d did not stack)", len(frames), len(seeds) - len(frames.dropped),
+             time.monotonic() - started, len(frames.dropped))
     return frames
 
 
@@ -375,16 +372,16 @@ class TrainingRun:
 
 
 def train(policy: Any, optimizer: Any, demos: DemoTensors, to_batch: Callable[[dict], dict], args: argparse.Namespace,
-          log_every: int = 25, auxiliary: Callable[[Any], Any] | None = None, approach: Any = None) -> TrainingRun:
+          log_every: int = 25, auxiliary: Callable[[Any], Any] | None = None, plan_frames: Any = None) -> TrainingRun:
     """Train ``policy`` (its ``forward(batch)`` returns ``(loss, _)``) for ``args.steps`` steps or
     ``args.minutes``, whichever ends first, on batches of ``args.batch`` rows of ``demos`` drawn with
     ``args.seed`` (and ``args.early_frames``/``args.early_share``), each passed through ``to_batch``
     (normalization, shapes). The learning rate (``args.lr``) warms up over 5 % of the steps, then
     follows a cosine to 0 over the step or time budget, whichever is further along.
-    ``approach`` (``tools.approach_frames.ApproachFrames``): ``round(args.approach_share * args.batch)``
-    rows of every batch are drawn from it instead. ``auxiliary(rows)``: a loss added to the policy's
+    ``plan_frames`` (``tools.plan_frames.PlanFrames``): ``round(args.plan_share * args.batch)`` rows
+    of every batch are drawn from it instead. ``auxiliary(rows)``: a loss added to the policy's
     after its forward (``layout_target``), whose parameters the optimizer holds too, given the
-    batch's rows (an approach frame's row counts from ``len(demos)``); the losses recorded are the
+    batch's rows (a plan frame's row counts from ``len(demos)``); the losses recorded are the
     policy's own."""
     import torch
 
@@ -394,7 +391,7 @@ def train(policy: Any, optimizer: Any, demos: DemoTensors, to_batch: Callable[[d
     early = torch.nonzero(demos.frame_index < args.early_frames).flatten()
     if args.early_share > 0 and len(early) == 0:
         raise SystemExit("--early-share needs --early-frames >= 1")
-    from_approach = round(args.approach_share * args.batch) if approach is not None else 0
+    from_plan = round(args.plan_share * args.batch) if plan_frames is not None else 0
     policy.train()
     step, started, losses, extras = 0, time.monotonic(), [], []
     deadline = started + args.minutes * 60
@@ -402,12 +399,12 @@ def train(policy: Any, optimizer: Any, demos: DemoTensors, to_batch: Callable[[d
         progress = max(step / args.steps, (time.monotonic() - started) / (deadline - started))
         for group in optimizer.param_groups:
             group["lr"] = args.lr * learning_rate_factor(step, warmup, progress)
-        rows = sample_rows(demos, args.batch - from_approach, early, args.early_share, generator)
+        rows = sample_rows(demos, args.batch - from_plan, early, args.early_share, generator)
         batch = demos.batch(rows)
-        if from_approach:
-            approach_rows = torch.randint(len(approach), (from_approach,), generator=generator)
-            batch = joined(batch, approach.batch(approach_rows))
-            rows = torch.cat([rows, len(demos) + approach_rows])
+        if from_plan:
+            plan_rows = torch.randint(len(plan_frames), (from_plan,), generator=generator)
+            batch = joined(batch, plan_frames.batch(plan_rows))
+            rows = torch.cat([rows, len(demos) + plan_rows])
         loss, _ = policy.forward(to_batch(batch))
         extra = auxiliary(rows) if auxiliary is not None else None
         optimizer.zero_grad()
@@ -484,9 +481,9 @@ def training_record(args: argparse.Namespace, demos: DemoTensors, run: TrainingR
         "steps": run.steps, "batch": args.batch, "lr": args.lr, "threads": args.threads, "seed": args.seed,
         "seconds": round(run.seconds, 1), "early_frames": args.early_frames, "early_share": args.early_share,
     }
-    if args.approach_layouts > 0:
-        record["approach"] = {"layouts": args.approach_layouts, "seed": args.approach_seed, "steps": args.approach_steps,
-                              "share": args.approach_share}
+    if args.plan_layouts > 0:
+        record["plan_frames"] = {"layouts": args.plan_layouts, "seed": args.plan_seed, "every": args.plan_every,
+                                 "share": args.plan_share}
     record.update(settings)
     record["final_loss"] = run.final_loss()
     return record

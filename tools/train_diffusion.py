@@ -30,7 +30,7 @@ sys.path.insert(0, str(ROOT))
 from tools.demo_training import (  # noqa: E402  (also ensures torchvision before LeRobot)
     add_arguments,
     checkpoint_metadata,
-    load_approach,
+    load_plan_frames,
     load_demos,
     demos_meta,
     evaluate,
@@ -97,7 +97,7 @@ def main(argv: list[str] | None = None) -> int:
         normalized["observation.state"] = normalized["observation.state"].unsqueeze(1)
         return normalized
 
-    run = train(policy, optimizer, demos, to_batch, args, approach=load_approach(args, demos, crops, image_size, args.horizon))
+    run = train(policy, optimizer, demos, to_batch, args, plan_frames=load_plan_frames(args, demos, crops, image_size, args.horizon))
     metadata = {
         **checkpoint_metadata(demos, crops),
         "training": training_record(

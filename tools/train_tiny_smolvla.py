@@ -36,7 +36,7 @@ from tools.demo_training import (  # noqa: E402  (also ensures torchvision befor
     DemoTensors,
     add_arguments,
     checkpoint_metadata,
-    load_approach,
+    load_plan_frames,
     load_demos,
     dataset_hash,  # noqa: F401  (the tests read it from this script)
     demos_meta,
@@ -74,10 +74,10 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
 
 
 def layout_probe(policy: Any, config: Any, demos: DemoTensors, args: argparse.Namespace, image_size: int,
-                 crops: dict, approach: Any = None) -> LayoutProbe:
+                 crops: dict, plan_frames: Any = None) -> LayoutProbe:
     """The auxiliary layout target on the vision tokens of ``args.layout_camera`` (SmolVLA embeds one
     camera at a time, in ``config.image_features`` order, then its empty cameras), over the
-    demonstrations' rows then ``approach``'s, with ``args.layout_renders`` rendered layouts besides."""
+    demonstrations' rows then ``plan_frames``', with ``args.layout_renders`` rendered layouts besides."""
     import torch
 
     camera = args.layout_camera
@@ -91,9 +91,10 @@ def layout_probe(policy: Any, config: Any, demos: DemoTensors, args: argparse.Na
         features_dim = embed.embed_image(torch.zeros(1, 3, image_size, image_size)).flatten(1).shape[1]
     calls = len(keys) + getattr(config, "empty_cameras", 0)
     targets = layout_targets(demos.episode_seeds, demos.episode)
-    if approach is not None:
-        seeds = sorted(set(approach.seeds))
-        targets = torch.cat([targets, layout_targets(seeds, torch.tensor([seeds.index(s) for s in approach.seeds]))])
+    if plan_frames is not None:
+        seeds = sorted(set(plan_frames.seeds))
+        index = {seed: i for i, seed in enumerate(seeds)}
+        targets = torch.cat([targets, layout_targets(seeds, torch.tensor([index[s] for s in plan_frames.seeds]))])
     renders = None
     if args.layout_renders > 0:
         seeds = list(range(args.layout_render_seed, args.layout_render_seed + args.layout_renders))
@@ -139,16 +140,16 @@ def main(argv: list[str] | None = None) -> int:
         config, dataset_stats={k: {s: torch.as_tensor(v) for s, v in d.items()} for k, d in stats.items()}
     )
     parameters = [p for p in policy.parameters() if p.requires_grad]
-    approach = load_approach(args, demos, crops, image_size, spec.chunk_size)
+    plan_frames = load_plan_frames(args, demos, crops, image_size, spec.chunk_size)
     probe = None
     if args.layout_target > 0:
-        probe = layout_probe(policy, config, demos, args, image_size, crops, approach)
+        probe = layout_probe(policy, config, demos, args, image_size, crops, plan_frames)
         parameters += list(probe.head.parameters())
     LOG.info("tiny SmolVLA: %.2f M parameters (%.2f M trainable); %d frames, %d episodes, cameras %s at %d px",
              sum(p.numel() for p in policy.parameters()) / 1e6, sum(p.numel() for p in parameters) / 1e6,
              len(demos), demos.episodes, list(cameras), image_size)
     optimizer = torch.optim.AdamW(parameters, lr=args.lr, betas=(0.9, 0.95), weight_decay=1e-4)
-    run = train(policy, optimizer, demos, preprocessor, args, auxiliary=probe, approach=approach)
+    run = train(policy, optimizer, demos, preprocessor, args, auxiliary=probe, plan_frames=plan_frames)
     if probe is not None:
         probe.remove()
     metadata = {

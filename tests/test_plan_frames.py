@@ -1,0 +1,99 @@
+"""Plan frames (tools/plan_frames.py): the oracle's plan played straight into the cell, labelled as
+`objective record-demos` labels the same instants, checked against a recording of the same layout
+(skipped without `make lerobot`, which brings torch, LeRobot's dataset and the cell together)."""
+from __future__ import annotations
+
+import importlib.util
+
+import numpy as np
+import pytest
+
+needs_lerobot = pytest.mark.skipif(
+    importlib.util.find_spec("lerobot") is None or importlib.util.find_spec("torch") is None,
+    reason="the LeRobot extra is not in this venv (make lerobot builds .venv-lerobot on Python 3.11; make test runs this file there)",
+)
+
+JOINTS = ("shoulder_pan_joint", "shoulder_lift_joint", "elbow_joint", "wrist_1_joint", "wrist_2_joint", "wrist_3_joint",
+          "robotiq_85_left_knuckle_joint")
+PROMPT = "stack the blue cube on the green cube"
+CROP = (0.25, 0.25, 0.75, 0.75)
+SEED = 40000
+
+
+@pytest.fixture(scope="module")
+def recorded(tmp_path_factory):
+    """One episode of layout SEED recorded through the runtime, read as training reads it."""
+    from policy.lerobot_compat import ensure_torchvision
+
+    ensure_torchvision()
+    from policy.lerobot_backend import checked_crop
+    from sim.demos import DemoOptions, record_demos
+    from tools.demo_training import DemoTensors
+
+    out = tmp_path_factory.mktemp("demos") / "one"
+    record_demos(DemoOptions(episodes=1, seed=SEED, out=out, world="vla_sim", image_size=64, total_steps=220,
+                             cameras=("wrist", "overview"), gripper_velocity=0.5, motion_noise_rad=0.04, hold_after_plan_s=2.0))
+    return DemoTensors(out, 50, 32, ("wrist", "overview"), {"overview": checked_crop("overview", CROP)})
+
+
+def settings(demos, **changes):
+    from tools.plan_frames import PlanFrameSettings
+
+    values = dict(seeds=(SEED,), every=1, hold_after_plan_s=2.0, home=tuple(float(v) for v in demos.state[0]), joint_names=JOINTS,
+                  cameras=("wrist", "overview"), image_size=64, crops=(("overview", CROP),), size=32, chunk=50,
+                  control_period_s=0.1, gripper_velocity=0.5, motion_noise_rad=0.04)
+    values.update(changes)
+    return PlanFrameSettings(**values)
+
+
+@needs_lerobot
+def test_plan_frames_are_the_recorded_episode_without_the_runtime(recorded, tmp_path):
+    from tools.plan_frames import make_plan_frames
+
+    frames = make_plan_frames(settings(recorded), PROMPT, tmp_path, workers=1)
+    assert frames.dropped == [] and set(frames.seeds) == {SEED}
+    assert abs(len(frames) - len(recorded)) <= 1
+    count = min(len(frames), len(recorded))
+    # The label of every instant is the recorder's: the plan's next 50 steps.
+    labels = recorded.action[recorded.chunk_rows[:count - 50]]
+    np.testing.assert_allclose(frames.action[:count - 50].numpy(), labels.numpy(), atol=1e-3)
+    # The arm where the recorded one was (the gripper's release runs a little ahead: the docstring).
+    arm_error = (frames.state[:count, :6] - recorded.state[:count, :6]).abs().amax(dim=1)
+    assert float(arm_error.median()) < 0.005 and float(arm_error.quantile(0.9)) < 0.03
+    for key in ("observation.images.wrist", "observation.images.overview"):
+        pixels = (frames.images[key][:count].float() - recorded.images[key][:count].float()).abs().mean(dim=(1, 2, 3))
+        assert float(pixels.median()) < 2.0, key
+
+
+@needs_lerobot
+def test_plan_frames_take_every_kth_step_are_cached_and_batch_like_demonstrations(recorded, tmp_path, monkeypatch):
+    from tools import plan_frames
+
+    every = plan_frames.make_plan_frames(settings(recorded, every=5), PROMPT, tmp_path, workers=1)
+    assert len(every) == pytest.approx(len(recorded) / 5, abs=1)
+    assert every.action.shape == (len(every), 50, 7) and every.images["observation.images.overview"].shape[1:] == (3, 32, 32)
+    batch = every.batch(np.array([1, 0]))
+    assert batch["task"] == [PROMPT, PROMPT] and not batch["action_is_pad"].any()
+    assert float(batch["observation.images.wrist"].max()) <= 1.0
+    monkeypatch.setattr(plan_frames, "_play_part", lambda *a: pytest.fail("played again"))
+    assert len(plan_frames.make_plan_frames(settings(recorded, every=5), PROMPT, tmp_path, workers=1)) == len(every)
+    with pytest.raises(pytest.fail.Exception, match="played again"):
+        plan_frames.make_plan_frames(settings(recorded, every=5, motion_noise_rad=0.0), PROMPT, tmp_path, workers=1)
+
+
+def test_the_arm_runs_one_step_behind_the_plan_only_while_the_first_chunk_plays():
+    from tools.plan_frames import plan_delay_s
+
+    assert [plan_delay_s(t) for t in (0.0, 1.5, 2.0, 2.5, 9.0)] == pytest.approx([0.1, 0.1, 0.05, 0.0, 0.0])
+
+
+@needs_lerobot
+def test_a_batch_mixes_demonstration_and_plan_rows():
+    import torch
+
+    from tools.demo_training import joined
+
+    first = {"observation.state": torch.zeros(2, 7), "task": ["a", "a"]}
+    second = {"observation.state": torch.ones(1, 7), "task": ["b"]}
+    both = joined(first, second)
+    assert both["task"] == ["a", "a", "b"] and both["observation.state"][:, 0].tolist() == [0.0, 0.0, 1.0]
