@@ -74,54 +74,15 @@ def test_the_probe_reads_its_camera_s_call_and_teaches_the_module_the_layout():
         LayoutProbe(module, call=2, calls=2, features_dim=5, targets=targets, weight=1.0)
 
 
-@needs_torch
-def test_rendered_layouts_reach_the_head_through_the_hooked_module_without_disturbing_its_count():
-    # The renders' features come from the same module the probe hooks: that call is not taken for
-    # a camera's, and the loss is over the demonstration rows and the rendered batch together.
-    import torch
-
-    from tools.layout_target import LayoutProbe, LayoutRenders, layout_targets
-
-    torch.manual_seed(0)
-    module = torch.nn.Linear(3 * 2 * 2, 5)
-    frames = torch.randint(0, 256, (6, 3, 2, 2), dtype=torch.uint8)
-    renders = LayoutRenders(frames, [20000 + i for i in range(6)], lambda images: module(images.flatten(1)), batch=3, seed=0)
-    targets = layout_targets([1000], torch.tensor([0, 0]))
-    probe = LayoutProbe(module, call=0, calls=1, features_dim=5, targets=targets, weight=1.0, renders=renders)
-    torch.nn.init.ones_(probe.head.bias)
-    module(torch.randn(2, 12))
-    loss = probe(torch.tensor([0, 1]))
-    drawn = torch.randint(6, (3,), generator=torch.Generator().manual_seed(0))
-    expected = torch.cat([targets, renders.targets[drawn]])
-    assert float(loss) == pytest.approx(float(((1.0 - expected) ** 2).mean()), rel=1e-6)
-    module(torch.randn(2, 12))  # the next forward's camera is captured again
-    assert probe(torch.tensor([0, 1])).shape == ()
-
-
-@needs_lerobot
-def test_render_layouts_draws_each_seed_s_cubes_as_the_recorder_s_cell_does():
-    import torch
-
-    from tools.layout_target import render_layouts
-
-    home = [-1.8732, -1.7137, 1.7892, -1.6396, -1.5708, -0.3024]
-    frames = render_layouts([1000, 1001, 1000], "overview", home, 64, None, 32)
-    assert frames.shape == (3, 3, 32, 32) and frames.dtype == torch.uint8
-    assert torch.equal(frames[0], frames[2]) and not torch.equal(frames[0], frames[1])
-
-
 @needs_lerobot
 def test_the_tiny_smolvla_trains_with_the_layout_target_and_records_it(tmp_path, capsys):
     train = runpy.run_path(str(ROOT / "tools" / "train_tiny_smolvla.py"))
     dataset, out = tmp_path / "demos", tmp_path / "policy"
     common = ["--dataset", str(dataset), "--episodes", "2", "--demo-seed", "0", "--world", "kinematic", "--image-size", "32",
               "--record-steps", "30", "--keep-failed", "--workers", "2", "--steps", "3", "--batch", "4", "--eval-episodes", "0"]
-    assert train["main"]([*common, "--out", str(out), "--layout-target", "1.0", "--layout-camera", "overview",
-                          "--layout-renders", "4", "--layout-render-batch", "2"]) == 0
+    assert train["main"]([*common, "--out", str(out), "--layout-target", "1.0", "--layout-camera", "overview"]) == 0
     training = json.loads((out / "objective_policy.json").read_text())["training"]
-    assert training["layout_target"] == {"weight": 1.0, "camera": "overview", "renders": 4, "render_seed": 20000,
-                                         "render_batch": 2}
-    assert training["steps"] == 3
+    assert training["layout_target"] == {"weight": 1.0, "camera": "overview"} and training["steps"] == 3
     assert train["main"]([*common, "--out", str(tmp_path / "plan"), "--layout-target", "1.0", "--plan-layouts", "2",
                           "--plan-seed", "40000", "--plan-every", "10", "--plan-share", "0.5", "--workers", "1",
                           "--plan-cache", str(tmp_path / "plan_frames")]) == 0
@@ -130,9 +91,5 @@ def test_the_tiny_smolvla_trains_with_the_layout_target_and_records_it(tmp_path,
     with pytest.raises(SystemExit, match=r"--plan-seed 99: the plan layouts would include demonstration or "
                                          r"held-out seeds \(100..100\)"):
         train["main"]([*common, "--out", str(tmp_path / "other"), "--plan-layouts", "2", "--plan-seed", "99"])
-    with pytest.raises(SystemExit, match=r"--layout-render-seed 98: the rendered layouts would include demonstration "
-                                         r"or held-out seeds \(100..101\)"):
-        train["main"]([*common, "--out", str(tmp_path / "other"), "--layout-target", "1.0", "--layout-renders", "4",
-                       "--layout-render-seed", "98"])
     with pytest.raises(SystemExit, match=r"--layout-camera top: the policy sees \[scene, wrist, overview\]"):
         train["main"]([*common, "--out", str(tmp_path / "other"), "--layout-target", "1.0", "--layout-camera", "top"])

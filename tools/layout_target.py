@@ -9,10 +9,7 @@ still labelled where it started, which is where the policy has to go for it.
 ``LayoutProbe`` reads one camera's vision features while the policy runs its own ``forward``
 (a forward hook on the module that outputs them) and fits a linear head from those features to
 the layout; its mean squared error, times ``weight``, is added to the policy's loss
-(``demo_training.train``'s ``auxiliary``). With ``renders`` (``render_layouts``: the camera's
-frame of many more layouts, the arm at Home, rendered in the cell without running an episode) the
-head also reads the vision features of a batch of those each step, through the same vision
-tower, so the tower learns the layout over far more layouts than were demonstrated. The gradient reaches the vision tower through the
+(``demo_training.train``'s ``auxiliary``). The gradient reaches the vision tower through the
 features, so the tower must encode where the cubes are, linearly decodable; the action head then
 learns from features that hold the answer. The head is training scaffolding: the checkpoint is
 the LeRobot policy alone, unchanged at inference.
@@ -51,63 +48,16 @@ def layout_targets(episode_seeds: list[int], episode: Any) -> Any:
     return table[episode]
 
 
-def render_layouts(seeds: list[int], camera: str, arm: Any, image_size: int, crop: Any, size: int) -> Any:
-    """uint8 (len(seeds), 3, size, size) frames of ``camera`` with the cubes at each seed's layout and
-    the arm at ``arm`` (gripper open), as the recorder's cell renders them at ``image_size`` px, then
-    cropped by ``crop`` (a ``CameraCrop`` or None) and resized as ``demo_training`` reads frames."""
-    import numpy as np
-    import torch
-
-    from policy.lerobot_backend import crop_slices
-    from sim.cell_model import CellOptions
-    from sim.mujoco_cell import MujocoCell
-    from tools.demo_training import resized
-
-    cell = MujocoCell(CellOptions(image_width=image_size, image_height=image_size))
-    try:
-        frames = []
-        for seed in seeds:
-            cell.reset(seed, np.asarray(arm, dtype=float))
-            frames.append(cell.render(camera))
-    finally:
-        cell.close()
-    frames = np.stack(frames)
-    if crop is not None:
-        rows, columns = crop_slices(frames.shape[1], frames.shape[2], crop)
-        frames = frames[:, rows, columns]
-    return resized(torch.from_numpy(np.ascontiguousarray(frames)).permute(0, 3, 1, 2).contiguous(), size)
-
-
-class LayoutRenders:
-    """``batch`` frames per step drawn from ``frames`` (``render_layouts``) with their layout targets,
-    turned into vision features by ``features`` (the policy's image preparation and vision tower)."""
-
-    def __init__(self, frames: Any, seeds: list[int], features: Any, batch: int, seed: int) -> None:
-        import torch
-
-        self.frames, self.features, self.batch = frames, features, batch
-        self.targets = torch.tensor([layout_vector(s) for s in seeds], dtype=torch.float32)
-        self.generator = torch.Generator().manual_seed(seed)
-
-    def draw(self) -> tuple[Any, Any]:
-        """(features, targets) of one batch."""
-        import torch
-
-        rows = torch.randint(len(self.frames), (self.batch,), generator=self.generator)
-        return self.features(self.frames[rows].float().div_(255.0)), self.targets[rows]
-
-
 class LayoutProbe:
     """A linear read-out of the layout from the output of ``module``'s ``call``-th call (0-based)
     in each policy forward of ``calls`` calls (one per camera: the camera to read)."""
 
-    def __init__(self, module: Any, call: int, calls: int, features_dim: int, targets: Any, weight: float,
-                 renders: LayoutRenders | None = None) -> None:
+    def __init__(self, module: Any, call: int, calls: int, features_dim: int, targets: Any, weight: float) -> None:
         import torch
 
         if not 0 <= call < calls:
             raise ValueError(f"LayoutProbe: call {call} is not one of the {calls} calls per forward")
-        self.targets, self.weight, self.call, self.calls, self.renders = targets, weight, call, calls, renders
+        self.targets, self.weight, self.call, self.calls = targets, weight, call, calls
         self.head = torch.nn.Linear(features_dim, LAYOUT_DIM)
         """Its parameters go to the optimizer with the policy's."""
         torch.nn.init.zeros_(self.head.weight)
@@ -117,8 +67,6 @@ class LayoutProbe:
         self._hook = module.register_forward_hook(self._capture)
 
     def _capture(self, module: Any, inputs: Any, output: Any) -> None:
-        if self._count < 0:  # the renders' own forward
-            return
         if self._count % self.calls == self.call:
             self._features = output
         self._count += 1
@@ -129,14 +77,9 @@ class LayoutProbe:
 
         if self._features is None:
             raise RuntimeError("LayoutProbe: no features captured (the hooked module did not run in the forward)")
-        features, targets = self._features.flatten(1), self.targets[rows]
-        self._features, self._count = None, -1
-        if self.renders is not None:
-            extra_features, extra_targets = self.renders.draw()
-            features = torch.cat([features, extra_features.flatten(1)])
-            targets = torch.cat([targets, extra_targets])
-        self._count = 0
-        return self.weight * torch.nn.functional.mse_loss(self.head(features), targets)
+        features = self._features.flatten(1)
+        self._features, self._count = None, 0
+        return self.weight * torch.nn.functional.mse_loss(self.head(features), self.targets[rows])
 
     def remove(self) -> None:
         self._hook.remove()

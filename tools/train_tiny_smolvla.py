@@ -25,7 +25,6 @@ import argparse
 import json
 import logging
 import sys
-import time
 from typing import Any
 from pathlib import Path
 
@@ -50,7 +49,7 @@ from tools.demo_training import (  # noqa: E402  (also ensures torchvision befor
     training_record,
 )
 
-from tools.layout_target import LayoutProbe, LayoutRenders, layout_targets, render_layouts  # noqa: E402
+from tools.layout_target import LayoutProbe, layout_targets  # noqa: E402
 
 LOG = logging.getLogger("train_tiny_smolvla")
 
@@ -65,11 +64,6 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
                         help="add the cube layout as an auxiliary target of the vision tokens of --layout-camera, "
                              "weighted so (tools/layout_target.py; 0: off)")
     parser.add_argument("--layout-camera", default="overview", help="the camera whose vision tokens learn the layout")
-    parser.add_argument("--layout-renders", type=int, default=0, metavar="N",
-                        help="with --layout-target: also learn the layout of N more layouts, rendered with the arm at Home "
-                             "(seeds from --layout-render-seed; no episode is run for them)")
-    parser.add_argument("--layout-render-seed", type=int, default=20000, help="layout seed of the first rendered layout")
-    parser.add_argument("--layout-render-batch", type=int, default=32, help="rendered layouts per training step")
     return parser.parse_args(argv)
 
 
@@ -77,7 +71,7 @@ def layout_probe(policy: Any, config: Any, demos: DemoTensors, args: argparse.Na
                  crops: dict, plan_frames: Any = None) -> LayoutProbe:
     """The auxiliary layout target on the vision tokens of ``args.layout_camera`` (SmolVLA embeds one
     camera at a time, in ``config.image_features`` order, then its empty cameras), over the
-    demonstrations' rows then ``plan_frames``', with ``args.layout_renders`` rendered layouts besides."""
+    demonstrations' rows then ``plan_frames``'."""
     import torch
 
     camera = args.layout_camera
@@ -95,26 +89,7 @@ def layout_probe(policy: Any, config: Any, demos: DemoTensors, args: argparse.Na
         seeds = sorted(set(plan_frames.seeds))
         index = {seed: i for i, seed in enumerate(seeds)}
         targets = torch.cat([targets, layout_targets(seeds, torch.tensor([index[s] for s in plan_frames.seeds]))])
-    renders = None
-    if args.layout_renders > 0:
-        seeds = list(range(args.layout_render_seed, args.layout_render_seed + args.layout_renders))
-        reserved = sorted(set(seeds) & (set(demos.episode_seeds) | set(range(args.eval_seed_start, args.eval_seed_start + 50))))
-        if reserved:
-            raise SystemExit(f"--layout-render-seed {args.layout_render_seed}: the rendered layouts would include demonstration "
-                             f"or held-out seeds ({reserved[0]}..{reserved[-1]})")
-        started = time.monotonic()
-        home = demos.state[demos.frame_index == 0][0, :-1]  # the arm columns of an episode's first frame
-        frames = render_layouts(seeds, camera, home, demos_meta(args.dataset).get("image_size", args.image_size),
-                                crops.get(camera), image_size)
-        LOG.info("rendered %d layouts of camera %s in %.0f s", len(seeds), camera, time.monotonic() - started)
-
-        def features(images: Any) -> Any:
-            prepared, _ = policy.prepare_images({key: images})
-            return embed.embed_image(prepared[0])
-
-        renders = LayoutRenders(frames, seeds, features, args.layout_render_batch, args.seed)
-    return LayoutProbe(embed.get_vlm_model().connector, keys.index(key), calls, features_dim, targets, args.layout_target,
-                       renders)
+    return LayoutProbe(embed.get_vlm_model().connector, keys.index(key), calls, features_dim, targets, args.layout_target)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -158,9 +133,7 @@ def main(argv: list[str] | None = None) -> int:
         "training": training_record(args, demos, run, image_size=image_size, cameras=list(cameras),
                                     patch_size=args.patch_size, vision_width=args.vision_width,
                                     vision_layers=args.vision_layers,
-                                    layout_target={"weight": args.layout_target, "camera": args.layout_camera,
-                                                   "renders": args.layout_renders, "render_seed": args.layout_render_seed,
-                                                   "render_batch": args.layout_render_batch}
+                                    layout_target={"weight": args.layout_target, "camera": args.layout_camera}
                                     if args.layout_target > 0 else None),
     }
     save_checkpoint(staging, config, policy, stats, metadata)
