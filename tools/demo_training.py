@@ -79,6 +79,9 @@ def add_arguments(parser: argparse.ArgumentParser, *, out: Path, steps: int, min
     parser.add_argument("--plan-seed", type=int, default=30000, help="layout seed of the first plan layout")
     parser.add_argument("--plan-every", type=int, default=5, metavar="K", help="a plan frame every K policy steps")
     parser.add_argument("--plan-share", type=float, default=0.25, help="share of every batch drawn from the plan frames")
+    parser.add_argument("--plan-noise", type=float, default=None, metavar="RAD",
+                        help="motion noise of the plan frames (default: the recording's --motion-noise); larger shows the "
+                             "way back from farther off the plan")
     parser.add_argument("--plan-cache", type=Path, default=ROOT / "build/plan_frames",
                         help="folder of the plan frames made so far (one file per setting)")
     parser.add_argument("--gripper-velocity", type=float, default=None,
@@ -314,6 +317,8 @@ def load_plan_frames(args: argparse.Namespace, demos: DemoTensors, crops: dict, 
         return None
     if args.plan_every < 1:
         raise SystemExit(f"--plan-every must be >= 1, got {args.plan_every}")
+    if args.plan_noise is not None and not args.plan_noise >= 0:
+        raise SystemExit(f"--plan-noise must be >= 0, got {args.plan_noise}")
     seeds = tuple(range(args.plan_seed, args.plan_seed + args.plan_layouts))
     held_out = range(args.eval_seed_start, args.eval_seed_start + max(args.eval_episodes, 50))
     reserved = sorted(set(seeds) & (set(demos.episode_seeds) | set(held_out)))
@@ -328,7 +333,7 @@ def load_plan_frames(args: argparse.Namespace, demos: DemoTensors, crops: dict, 
         image_size=int(recorded.get("image_size", args.image_size)),
         crops=tuple((camera, tuple(box)) for camera, box in sorted(crops.items())), size=size, chunk=chunk,
         control_period_s=1.0 / demos.meta.fps, gripper_velocity=recorded.get("gripper_velocity"),
-        motion_noise_rad=float(recorded.get("motion_noise_rad", 0.0)))
+        motion_noise_rad=float(recorded.get("motion_noise_rad", 0.0)) if args.plan_noise is None else args.plan_noise)
     started = time.monotonic()
     frames = make_plan_frames(settings, demos.tasks[0], args.plan_cache, workers=args.workers)
     LOG.info("%d plan frames of %d layouts ready in %.0f s (%d did not stack)", len(frames), len(seeds) - len(frames.dropped),
@@ -483,7 +488,7 @@ def training_record(args: argparse.Namespace, demos: DemoTensors, run: TrainingR
     }
     if args.plan_layouts > 0:
         record["plan_frames"] = {"layouts": args.plan_layouts, "seed": args.plan_seed, "every": args.plan_every,
-                                 "share": args.plan_share}
+                                 "share": args.plan_share, "noise": args.plan_noise}
     record.update(settings)
     record["final_loss"] = run.final_loss()
     return record
