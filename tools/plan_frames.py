@@ -129,10 +129,12 @@ def make_plan_frames(settings: PlanFrameSettings, task: str, cache: Path, worker
                           arrays["seed"].tolist(), task, arrays["dropped"].tolist())
 
 
-def plan_delay_s(t: float) -> float:
-    """How far behind the plan the arm runs at plan time ``t`` (see the module doc)."""
+def plan_delay_s(t: Any) -> Any:
+    """How far behind the plan the arm runs at plan time(s) ``t`` (see the module doc)."""
+    import numpy as np
+
     start, end = CATCH_UP_S
-    return FIRST_CHUNK_DELAY_S * min(max((end - t) / (end - start), 0.0), 1.0)
+    return FIRST_CHUNK_DELAY_S * np.clip((end - np.asarray(t, dtype=float)) / (end - start), 0.0, 1.0)
 
 
 def _play_part(settings: PlanFrameSettings, task: str, seeds: tuple[int, ...]) -> dict:
@@ -191,7 +193,7 @@ def _play_part(settings: PlanFrameSettings, task: str, seeds: tuple[int, ...]) -
             steps = int(round((plan.duration + settings.hold_after_plan_s) / period))
             # The whole episode's commands at once: arm (with its velocity) and gripper at every tick.
             ticks = np.arange(steps * substeps) * PHYSICS_DT_S
-            behind = ticks - np.array([plan_delay_s(t) for t in ticks])
+            behind = ticks - plan_delay_s(ticks)
             arm_now, _ = plan.sample(behind)
             arm_next, _ = plan.sample(behind + 1e-3)
             if noise is not None:
