@@ -87,7 +87,7 @@ def test_the_tiny_smolvla_trains_with_the_layout_target_and_records_it(tmp_path,
                           "--plan-seed", "40000", "--plan-every", "10", "--plan-share", "0.5", "--workers", "1",
                           "--plan-cache", str(tmp_path / "plan_frames")]) == 0
     training = json.loads((tmp_path / "plan" / "objective_policy.json").read_text())["training"]
-    assert training["plan_frames"] == {"layouts": 2, "seed": 40000, "every": 10, "share": 0.5, "noise": None}
+    assert training["plan_frames"] == {"layouts": 2, "seed": 40000, "every": 10, "share": 0.5, "noise": None, "detour_m": 0.0, "detour_descent": False}
     with pytest.raises(SystemExit, match=r"--plan-seed 99: the plan layouts would include demonstration or "
                                          r"held-out seeds \(100..100\)"):
         train["main"]([*common, "--out", str(tmp_path / "other"), "--plan-layouts", "2", "--plan-seed", "99"])

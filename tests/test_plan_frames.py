@@ -81,6 +81,41 @@ def test_plan_frames_take_every_kth_step_are_cached_and_batch_like_demonstration
         plan_frames.make_plan_frames(settings(recorded, every=5, motion_noise_rad=0.0), PROMPT, tmp_path, workers=1)
 
 
+@needs_lerobot
+def test_a_detour_stops_the_arm_off_its_way_and_the_frames_show_the_way_back_to_the_cube(recorded, tmp_path):
+    from sim.cell_model import CellOptions
+    from sim.mujoco_cell import MujocoCell
+    from sim.oracle import SceneKinematics
+    from sim.robot_model import planning_robot_model
+    from tools.plan_frames import make_plan_frames
+
+    cell = MujocoCell(CellOptions(image_width=64, image_height=64))
+    try:
+        cell.reset(SEED, recorded.state[0, :6].numpy())
+        cube_m = cell.cube_pose("blue")[0][:2]
+    finally:
+        cell.close()
+    kinematics = SceneKinematics(planning_robot_model())
+
+    def to_cube_m(q) -> float:
+        return float(np.linalg.norm(kinematics.tcp_pose(np.asarray(q[:6], dtype=float))[:2, 3] - cube_m))
+
+    direct = make_plan_frames(settings(recorded), PROMPT, tmp_path, workers=1)
+    frames = make_plan_frames(settings(recorded, detour_m=0.1), PROMPT, tmp_path, workers=1)
+    assert frames.dropped == [] and set(frames.seeds) == {SEED}
+    state, label = frames.state.numpy(), frames.action.numpy()
+    # The first frame is taken where the detour stopped the arm, away from Home and off the direct way.
+    assert np.abs(state[0, :6] - recorded.state[0, :6].numpy()).max() > 0.1
+    assert min(np.abs(direct.state[:, :6].numpy() - state[0, :6]).max(axis=1)) > 0.02
+    # Its label starts where the arm stands and heads for the real cube; the cube ends stacked (kept).
+    assert np.abs(label[0, 0, :6] - state[0, :6]).max() < 0.02
+    assert to_cube_m(label[0, -1]) < to_cube_m(state[0]) and to_cube_m(label[0, -1]) < 0.01
+    assert len(frames) == pytest.approx(len(direct), abs=20)
+    # Seeded: the same settings give the same frames.
+    again = make_plan_frames(settings(recorded, detour_m=0.1), PROMPT, tmp_path / "again", workers=1)
+    np.testing.assert_array_equal(again.state.numpy(), state)
+
+
 def test_the_arm_runs_one_step_behind_the_plan_only_while_the_first_chunk_plays():
     from tools.plan_frames import plan_delay_s
 

@@ -82,6 +82,12 @@ def add_arguments(parser: argparse.ArgumentParser, *, out: Path, steps: int, min
     parser.add_argument("--plan-noise", type=float, default=None, metavar="RAD",
                         help="motion noise of the plan frames (default: the recording's --motion-noise); larger shows the "
                              "way back from farther off the plan")
+    parser.add_argument("--plan-detour", type=float, default=0.0, metavar="M",
+                        help="every plan layout starts with a detour: the arm heads for a pre-grasp moved by up to M "
+                             "metres, is stopped part-way, and the frames show the oracle's way back to the cube from "
+                             "there (0: from Home, no detour)")
+    parser.add_argument("--plan-detour-descent", action="store_true",
+                        help="with --plan-detour: the detour may go on down beside the cube before it stops")
     parser.add_argument("--plan-cache", type=Path, default=ROOT / "build/plan_frames",
                         help="folder of the plan frames made so far (one file per setting)")
     parser.add_argument("--gripper-velocity", type=float, default=None,
@@ -311,7 +317,7 @@ def load_plan_frames(args: argparse.Namespace, demos: DemoTensors, crops: dict, 
     (the Home state of the first episode, joints, cameras, crops, frame sizes, prompt and the
     recording's settings), or None; layout seeds that meet the demonstrations' or the held-out seeds
     are refused (SystemExit)."""
-    from tools.plan_frames import PlanFrameSettings, make_plan_frames
+    from tools.plan_frames import DETOUR_MIN_M, PlanFrameSettings, make_plan_frames
 
     if args.plan_layouts <= 0:
         return None
@@ -319,6 +325,10 @@ def load_plan_frames(args: argparse.Namespace, demos: DemoTensors, crops: dict, 
         raise SystemExit(f"--plan-every must be >= 1, got {args.plan_every}")
     if args.plan_noise is not None and not args.plan_noise >= 0:
         raise SystemExit(f"--plan-noise must be >= 0, got {args.plan_noise}")
+    if args.plan_detour != 0 and not DETOUR_MIN_M < args.plan_detour < 0.5:
+        raise SystemExit(f"--plan-detour must be 0 or in ({DETOUR_MIN_M}, 0.5) metres, got {args.plan_detour}")
+    if args.plan_detour_descent and not args.plan_detour:
+        raise SystemExit("--plan-detour-descent needs --plan-detour")
     seeds = tuple(range(args.plan_seed, args.plan_seed + args.plan_layouts))
     held_out = range(args.eval_seed_start, args.eval_seed_start + max(args.eval_episodes, 50))
     reserved = sorted(set(seeds) & (set(demos.episode_seeds) | set(held_out)))
@@ -333,7 +343,8 @@ def load_plan_frames(args: argparse.Namespace, demos: DemoTensors, crops: dict, 
         image_size=int(recorded.get("image_size", args.image_size)),
         crops=tuple((camera, tuple(box)) for camera, box in sorted(crops.items())), size=size, chunk=chunk,
         control_period_s=1.0 / demos.meta.fps, gripper_velocity=recorded.get("gripper_velocity"),
-        motion_noise_rad=float(recorded.get("motion_noise_rad", 0.0)) if args.plan_noise is None else args.plan_noise)
+        motion_noise_rad=float(recorded.get("motion_noise_rad", 0.0)) if args.plan_noise is None else args.plan_noise,
+        detour_m=args.plan_detour, detour_descent=args.plan_detour_descent)
     started = time.monotonic()
     frames = make_plan_frames(settings, demos.tasks[0], args.plan_cache, workers=args.workers)
     LOG.info("%d plan frames of %d layouts ready in %.0f s (%d did not stack)", len(frames), len(seeds) - len(frames.dropped),
@@ -488,7 +499,8 @@ def training_record(args: argparse.Namespace, demos: DemoTensors, run: TrainingR
     }
     if args.plan_layouts > 0:
         record["plan_frames"] = {"layouts": args.plan_layouts, "seed": args.plan_seed, "every": args.plan_every,
-                                 "share": args.plan_share, "noise": args.plan_noise}
+                                 "share": args.plan_share, "noise": args.plan_noise,
+                                 "detour_m": args.plan_detour, "detour_descent": args.plan_detour_descent}
     record.update(settings)
     record["final_loss"] = run.final_loss()
     return record

@@ -10,6 +10,13 @@ policy step a frame is taken: the measured joints, the rendered cameras, and as 
 next ``chunk`` steps, exactly as the recorder labels the same instant. An episode whose blue cube
 does not end on the green one is dropped, as the recorder drops it.
 
+With a detour (``detour_m`` > 0) a layout shows the way back from a wrong approach, the error a
+learned policy's first chunk makes: the arm first follows the plan to a pre-grasp moved by a seeded
+random offset (2 cm up to ``detour_m`` sideways, a little up or down, turned by up to
+``DETOUR_YAW_RAD``) and is stopped part-way there (or, with ``detour_descent``, anywhere from
+half-way there to the end of the descent beside the cube); the oracle then plans from where the arm
+stands to the real cube, and only that plan gives frames (the first one at the stop) and labels.
+
 The timing follows the recorder's measured one (``tests/test_plan_frames.py`` compares both on the
 same seeds): the arm runs one policy step behind the plan while the first chunk plays (the first
 request's latency), then on it (later chunks are stitched on time), blended over a second.
@@ -43,6 +50,14 @@ gripper goal per policy step). Measured against recordings: the closing matches,
 0.1-0.2 rad ahead of the recorded one for a few frames (the recorded release lags more)."""
 STACK_TOLERANCE_M = 0.015
 """The blue cube's centre within this of the stacked position: the episode is kept (the stack check's)."""
+DETOUR_MIN_M = 0.02
+"""The smallest sideways offset of a detour's pre-grasp."""
+DETOUR_HEIGHT_M = (-0.02, 0.04)
+"""The range of a detour's vertical offset."""
+DETOUR_YAW_RAD = 0.26
+"""A detour's pre-grasp turns by up to this about the vertical."""
+DETOUR_FIRST_STOP = 0.5
+"""The earliest stop: this fraction of the detour's way to its pre-grasp."""
 
 
 @dataclass(frozen=True)
@@ -70,6 +85,10 @@ class PlanFrameSettings:
     motion_noise_rad: float
     """The recorder's smooth offset of the executed motion (``sim.demos.MotionNoise``): the arm follows
     the plan plus it, the label is the plan."""
+    detour_m: float = 0.0
+    """The largest sideways offset of a detour's pre-grasp (0: no detours; see the module doc)."""
+    detour_descent: bool = False
+    """The detour may go on down the moved descent before it stops."""
 
     def key(self) -> str:
         return hashlib.sha256(json.dumps(self.__dict__, sort_keys=True).encode()).hexdigest()[:16]
@@ -179,43 +198,70 @@ def _play_part(settings: PlanFrameSettings, task: str, seeds: tuple[int, ...]) -
     period = settings.control_period_s
     substeps = int(round(period / PHYSICS_DT_S))
     offsets = np.arange(settings.chunk) * period
+
+    def play(plan: Any, steps: int, delayed: bool, noise: Any, frame_phase: int | None) -> tuple[list, dict]:
+        """Command the cell along ``plan`` for ``steps`` policy steps (behind it by ``plan_delay_s``
+        when ``delayed``, plus ``noise``); a frame (state, label chunk, camera frames) at every step
+        ``s`` with ``s % every == frame_phase`` (none when ``frame_phase`` is None)."""
+        # The whole episode's commands at once: arm (with its velocity) and gripper at every tick.
+        ticks = np.arange(steps * substeps) * PHYSICS_DT_S
+        behind = ticks - plan_delay_s(ticks) if delayed else ticks
+        arm_now, _ = plan.sample(behind)
+        arm_next, _ = plan.sample(behind + 1e-3)
+        if noise is not None:
+            arm_now, arm_next = arm_now + noise.offsets(plan, behind), arm_next + noise.offsets(plan, behind + 1e-3)
+        arm_velocity = (arm_next - arm_now) / 1e-3
+        _, gripper_command = plan.sample(ticks - GRIPPER_DELAY_S)
+        taken: list[tuple[Any, Any]] = []
+        camera_frames: dict[str, list] = {c: [] for c in settings.cameras}
+        for step in range(steps):
+            if frame_phase is not None and step % settings.every == frame_phase:
+                state = np.empty(len(settings.joint_names))
+                state[arm], state[gripper_column] = cell.arm_position(), cell.gripper_position()
+                arm_chunk, gripper_chunk = plan.sample(step * period + offsets)
+                chunk = np.empty((settings.chunk, len(settings.joint_names)))
+                chunk[:, arm], chunk[:, gripper_column] = arm_chunk, gripper_chunk
+                taken.append((state, chunk))
+                for camera in settings.cameras:
+                    camera_frames[camera].append(camera_frame(camera))
+            for tick in range(step * substeps, (step + 1) * substeps):
+                cell.command_arm(arm_now[tick], arm_velocity[tick])
+                cell.command_gripper(float(gripper_command[tick]), 100.0)
+                cell.step(PHYSICS_DT_S)
+        return taken, camera_frames
+
+    def detour(seed: int, top_pose: tuple) -> None:
+        """Play the plan to the seed's moved pre-grasp, stopping part-way (see the module doc)."""
+        rng = np.random.default_rng([seed, 0xDE7])
+        angle, radius = rng.uniform(0.0, 2.0 * np.pi), rng.uniform(DETOUR_MIN_M, settings.detour_m)
+        shift = np.array([radius * np.cos(angle), radius * np.sin(angle), rng.uniform(*DETOUR_HEIGHT_M)])
+        half_turn = rng.uniform(-DETOUR_YAW_RAD, DETOUR_YAW_RAD) / 2.0
+        (w, x, y, z), c, s = top_pose[1], np.cos(half_turn), np.sin(half_turn)
+        turned = np.array([c * w - s * z, c * x - s * y, c * y + s * x, c * z + s * w])  # (c, 0, 0, s) * q
+        wrong = plan_stack(kinematics, home[arm], float(home[gripper_column]), (top_pose[0] + shift, turned),
+                           cell.cube_pose(bottom), config)
+        arrival_s = wrong.boundaries()["pre_grasp"][1]
+        last_s = wrong.boundaries()["descend"][1] if settings.detour_descent else arrival_s
+        stop_s = rng.uniform(DETOUR_FIRST_STOP * arrival_s, last_s)
+        play(wrong, max(1, int(round(stop_s / period))), True, None, None)
+
     states, actions, seeds_out, frames, dropped = [], [], [], {c: [] for c in settings.cameras}, []
     try:
         for seed in seeds:
             cell.reset(seed, home[arm])
             try:
-                plan = plan_stack(kinematics, home[arm], float(home[gripper_column]), cell.cube_pose(top),
-                                  cell.cube_pose(bottom), config)
+                start = home[arm], float(home[gripper_column])
+                if settings.detour_m > 0:
+                    detour(seed, cell.cube_pose(top))
+                    start = cell.arm_position(), cell.gripper_position()
+                plan = plan_stack(kinematics, *start, cell.cube_pose(top), cell.cube_pose(bottom), config)
             except PlanError:
                 dropped.append(seed)
                 continue
             noise = MotionNoise(settings.motion_noise_rad, seed, len(arm)) if settings.motion_noise_rad > 0 else None
             steps = int(round((plan.duration + settings.hold_after_plan_s) / period))
-            # The whole episode's commands at once: arm (with its velocity) and gripper at every tick.
-            ticks = np.arange(steps * substeps) * PHYSICS_DT_S
-            behind = ticks - plan_delay_s(ticks)
-            arm_now, _ = plan.sample(behind)
-            arm_next, _ = plan.sample(behind + 1e-3)
-            if noise is not None:
-                arm_now, arm_next = arm_now + noise.offsets(plan, behind), arm_next + noise.offsets(plan, behind + 1e-3)
-            arm_velocity = (arm_next - arm_now) / 1e-3
-            _, gripper_command = plan.sample(ticks - GRIPPER_DELAY_S)
-            taken: list[tuple[Any, Any]] = []
-            camera_frames: dict[str, list] = {c: [] for c in settings.cameras}
-            for step in range(steps):
-                if step % settings.every == seed % settings.every:
-                    state = np.empty(len(settings.joint_names))
-                    state[arm], state[gripper_column] = cell.arm_position(), cell.gripper_position()
-                    arm_chunk, gripper_chunk = plan.sample(step * period + offsets)
-                    chunk = np.empty((settings.chunk, len(settings.joint_names)))
-                    chunk[:, arm], chunk[:, gripper_column] = arm_chunk, gripper_chunk
-                    taken.append((state, chunk))
-                    for camera in settings.cameras:
-                        camera_frames[camera].append(camera_frame(camera))
-                for tick in range(step * substeps, (step + 1) * substeps):
-                    cell.command_arm(arm_now[tick], arm_velocity[tick])
-                    cell.command_gripper(float(gripper_command[tick]), 100.0)
-                    cell.step(PHYSICS_DT_S)
+            from_home = settings.detour_m <= 0
+            taken, camera_frames = play(plan, steps, from_home, noise, seed % settings.every if from_home else 0)
             stacked = cell.cube_pose(bottom)[0] + np.array([0.0, 0.0, config.cube_size])
             if np.linalg.norm(cell.cube_pose(top)[0] - stacked) > STACK_TOLERANCE_M:
                 dropped.append(seed)
