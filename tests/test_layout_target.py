@@ -35,6 +35,21 @@ def test_the_layout_vector_scales_each_cube_into_the_workspace_and_folds_its_yaw
 
 
 @needs_torch
+def test_the_target_can_hold_only_the_cubes_named():
+    import torch
+
+    from tools.layout_target import LayoutProbe, layout_targets
+
+    blue_only = layout_targets([1000, 1001], torch.tensor([1, 0]), ("blue",))
+    everything = layout_targets([1000, 1001], torch.tensor([1, 0]))
+    column = 4 * list(layout(1000)).index("blue")
+    assert blue_only.shape == (2, 4) and torch.equal(blue_only, everything[:, column:column + 4])
+    assert LayoutProbe(torch.nn.Linear(3, 5), 0, 1, 5, blue_only, 1.0).head.out_features == 4
+    with pytest.raises(SystemExit, match="--layout-cubes blue,yellow: the cubes are red, green, blue"):
+        layout_targets([1000], torch.tensor([0]), ("blue", "yellow"))
+
+
+@needs_torch
 def test_the_probe_reads_its_camera_s_call_and_teaches_the_module_the_layout():
     # Two calls per forward (two cameras); the probe reads the second. Its loss starts at the
     # targets' mean square (the head starts at zero) and its gradient reaches the hooked module.
@@ -82,7 +97,7 @@ def test_the_tiny_smolvla_trains_with_the_layout_target_and_records_it(tmp_path,
               "--record-steps", "30", "--keep-failed", "--workers", "2", "--steps", "3", "--batch", "4", "--eval-episodes", "0"]
     assert train["main"]([*common, "--out", str(out), "--layout-target", "1.0", "--layout-camera", "overview"]) == 0
     training = json.loads((out / "objective_policy.json").read_text())["training"]
-    assert training["layout_target"] == {"weight": 1.0, "camera": "overview"} and training["steps"] == 3
+    assert training["layout_target"] == {"weight": 1.0, "camera": "overview", "cubes": ["red", "green", "blue"]} and training["steps"] == 3
     assert train["main"]([*common, "--out", str(tmp_path / "plan"), "--layout-target", "1.0", "--plan-layouts", "2",
                           "--plan-seed", "40000", "--plan-every", "10", "--plan-share", "0.5", "--workers", "1",
                           "--plan-cache", str(tmp_path / "plan_frames")]) == 0

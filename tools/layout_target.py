@@ -3,8 +3,9 @@
 Every recorded episode starts from ``sim.layouts.layout(seed)``, so each frame's cube layout is
 known without any extra recording: for every cube (``CUBE_COLORS`` order) its x and y scaled to
 [-1, 1] over the workspace band, and cos 4·yaw, sin 4·yaw (a cube looks the same every quarter
-turn), ``LAYOUT_DIM`` numbers in all. The layout is the episode's start: a cube the arm carries is
-still labelled where it started, which is where the policy has to go for it.
+turn), ``LAYOUT_DIM`` numbers in all, or those of the cubes named (``colors``: e.g. only the blue
+cube, the one the policy has to find among its look-alikes). The layout is the episode's start: a
+cube the arm carries is still labelled where it started, which is where the policy has to go for it.
 
 ``LayoutProbe`` reads one camera's vision features while the policy runs its own ``forward``
 (a forward hook on the module that outputs them) and fits a linear head from those features to
@@ -25,26 +26,29 @@ from sim.layouts import DEFAULT_WORKSPACE, layout
 LAYOUT_DIM = 4 * len(CUBE_COLORS)
 
 
-def layout_vector(seed: int) -> list[float]:
-    """The target for an episode of layout ``seed`` (see the module doc)."""
+def layout_vector(seed: int, colors: tuple[str, ...] = tuple(CUBE_COLORS)) -> list[float]:
+    """The target for an episode of layout ``seed``: four numbers per cube of ``colors`` (see the module doc)."""
     cubes = layout(seed)
     (x_low, x_high), (y_low, y_high) = DEFAULT_WORKSPACE.x_range, DEFAULT_WORKSPACE.y_range
     vector: list[float] = []
-    for color in CUBE_COLORS:
+    for color in colors:
         x, y, yaw = cubes[color]
         vector += [2 * (x - x_low) / (x_high - x_low) - 1, 2 * (y - y_low) / (y_high - y_low) - 1,
                    math.cos(4 * yaw), math.sin(4 * yaw)]
     return vector
 
 
-def layout_targets(episode_seeds: list[int], episode: Any) -> Any:
-    """(rows, ``LAYOUT_DIM``) float tensor: the layout of each row's episode (``episode``: a row's
-    index into ``episode_seeds``)."""
+def layout_targets(episode_seeds: list[int], episode: Any, colors: tuple[str, ...] = tuple(CUBE_COLORS)) -> Any:
+    """(rows, 4 x len(``colors``)) float tensor: the layout of each row's episode (``episode``: a
+    row's index into ``episode_seeds``)."""
     import torch
 
     if not episode_seeds:
         raise SystemExit("--layout-target needs datasets recorded by `objective record-demos` (meta/demos.json holds their seeds)")
-    table = torch.tensor([layout_vector(seed) for seed in episode_seeds], dtype=torch.float32)
+    unknown = [color for color in colors if color not in CUBE_COLORS]
+    if unknown or not colors:
+        raise SystemExit(f"--layout-cubes {','.join(colors)}: the cubes are {', '.join(CUBE_COLORS)}")
+    table = torch.tensor([layout_vector(seed, colors) for seed in episode_seeds], dtype=torch.float32)
     return table[episode]
 
 
@@ -58,7 +62,7 @@ class LayoutProbe:
         if not 0 <= call < calls:
             raise ValueError(f"LayoutProbe: call {call} is not one of the {calls} calls per forward")
         self.targets, self.weight, self.call, self.calls = targets, weight, call, calls
-        self.head = torch.nn.Linear(features_dim, LAYOUT_DIM)
+        self.head = torch.nn.Linear(features_dim, targets.shape[1])
         """Its parameters go to the optimizer with the policy's."""
         torch.nn.init.zeros_(self.head.weight)
         torch.nn.init.zeros_(self.head.bias)

@@ -64,6 +64,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
                         help="add the cube layout as an auxiliary target of the vision tokens of --layout-camera, "
                              "weighted so (tools/layout_target.py; 0: off)")
     parser.add_argument("--layout-camera", default="overview", help="the camera whose vision tokens learn the layout")
+    parser.add_argument("--layout-cubes", default="red,green,blue", metavar="A,B",
+                        help="the cubes whose positions the layout target holds (default: all)")
     return parser.parse_args(argv)
 
 
@@ -84,11 +86,12 @@ def layout_probe(policy: Any, config: Any, demos: DemoTensors, args: argparse.Na
     with torch.no_grad():
         features_dim = embed.embed_image(torch.zeros(1, 3, image_size, image_size)).flatten(1).shape[1]
     calls = len(keys) + getattr(config, "empty_cameras", 0)
-    targets = layout_targets(demos.episode_seeds, demos.episode)
+    colors = tuple(args.layout_cubes.split(","))
+    targets = layout_targets(demos.episode_seeds, demos.episode, colors)
     if plan_frames is not None:
         seeds = sorted(set(plan_frames.seeds))
         index = {seed: i for i, seed in enumerate(seeds)}
-        targets = torch.cat([targets, layout_targets(seeds, torch.tensor([index[s] for s in plan_frames.seeds]))])
+        targets = torch.cat([targets, layout_targets(seeds, torch.tensor([index[s] for s in plan_frames.seeds]), colors)])
     return LayoutProbe(embed.get_vlm_model().connector, keys.index(key), calls, features_dim, targets, args.layout_target)
 
 
@@ -133,7 +136,8 @@ def main(argv: list[str] | None = None) -> int:
         "training": training_record(args, demos, run, image_size=image_size, cameras=list(cameras),
                                     patch_size=args.patch_size, vision_width=args.vision_width,
                                     vision_layers=args.vision_layers,
-                                    layout_target={"weight": args.layout_target, "camera": args.layout_camera}
+                                    layout_target={"weight": args.layout_target, "camera": args.layout_camera,
+                                                   "cubes": args.layout_cubes.split(",")}
                                     if args.layout_target > 0 else None),
     }
     save_checkpoint(staging, config, policy, stats, metadata)
