@@ -9,6 +9,7 @@ import math
 import runpy
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from sim.layouts import layout
@@ -32,6 +33,17 @@ def test_the_layout_vector_scales_each_cube_into_the_workspace_and_folds_its_yaw
     assert x == pytest.approx(2 * (blue[0] + 0.25) / 0.5 - 1) and y == pytest.approx(2 * (blue[1] - 0.32) / 0.28 - 1)
     assert (cos4, sin4) == pytest.approx((math.cos(4 * blue[2]), math.sin(4 * blue[2])))
     assert layout_vector(1000) == layout_vector(1000) and layout_vector(1000) != layout_vector(1001)
+
+
+def test_cube_errors_are_distances_on_the_table_per_cube():
+    from tools.layout_target import cube_errors_cm
+
+    truth = np.array([layout_vector(seed) for seed in (1000, 1001, 1002)])
+    moved = truth.copy()
+    blue = 4 * list(layout(1000)).index("blue")
+    moved[:, blue] += 0.2  # a fifth of the half range in x: 5 cm
+    moved[:, blue + 1] += 0.5  # half of the half range in y: 7 cm
+    assert cube_errors_cm(moved, truth) == {"red": 0.0, "green": 0.0, "blue": pytest.approx(math.hypot(5.0, 7.0), abs=0.01)}
 
 
 @needs_torch

@@ -38,6 +38,21 @@ def layout_vector(seed: int, colors: tuple[str, ...] = tuple(CUBE_COLORS)) -> li
     return vector
 
 
+def cube_errors_cm(predicted: Any, truth: Any) -> dict[str, float]:
+    """Per cube, the median distance (cm) between the positions of two sets of layout vectors
+    (rows of all ``LAYOUT_DIM`` numbers, as :func:`layout_vector` writes them)."""
+    import numpy as np
+
+    half_range_cm = 50.0 * np.array([DEFAULT_WORKSPACE.x_range[1] - DEFAULT_WORKSPACE.x_range[0],
+                                     DEFAULT_WORKSPACE.y_range[1] - DEFAULT_WORKSPACE.y_range[0]])
+    errors = {}
+    for index, color in enumerate(CUBE_COLORS):
+        position = slice(4 * index, 4 * index + 2)
+        distance = np.linalg.norm((np.asarray(predicted)[:, position] - np.asarray(truth)[:, position]) * half_range_cm, axis=1)
+        errors[color] = round(float(np.median(distance)), 2)
+    return errors
+
+
 def layout_targets(episode_seeds: list[int], episode: Any, colors: tuple[str, ...] = tuple(CUBE_COLORS)) -> Any:
     """(rows, 4 x len(``colors``)) float tensor: the layout of each row's episode (``episode``: a
     row's index into ``episode_seeds``)."""
