@@ -115,6 +115,23 @@ def test_the_tiny_smolvla_trains_with_the_layout_target_and_records_it(tmp_path,
                           "--plan-cache", str(tmp_path / "plan_frames")]) == 0
     training = json.loads((tmp_path / "plan" / "objective_policy.json").read_text())["training"]
     assert training["plan_frames"] == {"layouts": 2, "seed": 40000, "every": 10, "share": 0.5, "noise": None, "detour_m": 0.0, "detour_descent": False}
+    # The per-cube probe of that checkpoint's features: fitted on one plan layout, validated on the
+    # other, tested on the two recorded episodes; the blind answer is the fitted layout itself.
+    from tools.layout_target import cube_errors_cm
+
+    probe = runpy.run_path(str(ROOT / "tools" / "vision_probe.py"))
+    plan_file = next((tmp_path / "plan_frames").glob("*.npz"))
+    capsys.readouterr()
+    assert probe["main"](["--checkpoint", str(tmp_path / "plan"), "--plan-frames", str(plan_file),
+                          "--dataset", str(dataset), "--camera", "overview"]) == 0
+    report = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert (report["fit_layouts"], report["validation_layouts"], report["recorded_episodes"]) == (1, 1, 2)
+    assert set(report["recorded_cm"]) == {"red", "green", "blue"}
+    assert report["blind_recorded_cm"] == cube_errors_cm(np.array([layout_vector(40000)] * 2),
+                                                         np.array([layout_vector(0), layout_vector(1)]))
+    with pytest.raises(SystemExit, match=r"--camera top: .*\.npz holds \[overview, scene, wrist\]"):
+        probe["main"](["--checkpoint", str(tmp_path / "plan"), "--plan-frames", str(plan_file), "--dataset", str(dataset),
+                       "--camera", "top"])
     with pytest.raises(SystemExit, match=r"--plan-seed 99: the plan layouts would include demonstration or "
                                          r"held-out seeds \(100..100\)"):
         train["main"]([*common, "--out", str(tmp_path / "other"), "--plan-layouts", "2", "--plan-seed", "99"])

@@ -18,7 +18,7 @@ the LeRobot policy alone, unchanged at inference.
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import Any, Sequence
 
 from sim.cell_model import CUBE_COLORS
 from sim.layouts import DEFAULT_WORKSPACE, layout
@@ -53,6 +53,13 @@ def cube_errors_cm(predicted: Any, truth: Any) -> dict[str, float]:
     return errors
 
 
+def checked_colors(colors: Sequence[str]) -> tuple[str, ...]:
+    """``colors`` as a tuple when each names a cube (SystemExit naming the cubes otherwise)."""
+    if not colors or any(color not in CUBE_COLORS for color in colors):
+        raise SystemExit(f"--layout-cubes {','.join(colors)}: the cubes are {', '.join(CUBE_COLORS)}")
+    return tuple(colors)
+
+
 def layout_targets(episode_seeds: list[int], episode: Any, colors: tuple[str, ...] = tuple(CUBE_COLORS)) -> Any:
     """(rows, 4 x len(``colors``)) float tensor: the layout of each row's episode (``episode``: a
     row's index into ``episode_seeds``)."""
@@ -60,10 +67,7 @@ def layout_targets(episode_seeds: list[int], episode: Any, colors: tuple[str, ..
 
     if not episode_seeds:
         raise SystemExit("--layout-target needs datasets recorded by `objective record-demos` (meta/demos.json holds their seeds)")
-    unknown = [color for color in colors if color not in CUBE_COLORS]
-    if unknown or not colors:
-        raise SystemExit(f"--layout-cubes {','.join(colors)}: the cubes are {', '.join(CUBE_COLORS)}")
-    table = torch.tensor([layout_vector(seed, colors) for seed in episode_seeds], dtype=torch.float32)
+    table = torch.tensor([layout_vector(seed, checked_colors(colors)) for seed in episode_seeds], dtype=torch.float32)
     return table[episode]
 
 

@@ -159,6 +159,7 @@ def plan_delay_s(t: Any) -> Any:
 def _play_part(settings: PlanFrameSettings, task: str, seeds: tuple[int, ...]) -> dict:
     """One worker's share: arrays ``state`` (M, A), ``action`` (M, chunk, A), ``seed`` (M,),
     ``image_<camera>`` (M, 3, size, size) uint8 and ``dropped`` (the seeds that did not stack)."""
+    import mujoco
     import numpy as np
     import torch
 
@@ -235,9 +236,9 @@ def _play_part(settings: PlanFrameSettings, task: str, seeds: tuple[int, ...]) -
         rng = np.random.default_rng([seed, 0xDE7])
         angle, radius = rng.uniform(0.0, 2.0 * np.pi), rng.uniform(DETOUR_MIN_M, settings.detour_m)
         shift = np.array([radius * np.cos(angle), radius * np.sin(angle), rng.uniform(*DETOUR_HEIGHT_M)])
-        half_turn = rng.uniform(-DETOUR_YAW_RAD, DETOUR_YAW_RAD) / 2.0
-        (w, x, y, z), c, s = top_pose[1], np.cos(half_turn), np.sin(half_turn)
-        turned = np.array([c * w - s * z, c * x - s * y, c * y + s * x, c * z + s * w])  # (c, 0, 0, s) * q
+        turn, turned = np.empty(4), np.empty(4)
+        mujoco.mju_axisAngle2Quat(turn, np.array([0.0, 0.0, 1.0]), rng.uniform(-DETOUR_YAW_RAD, DETOUR_YAW_RAD))
+        mujoco.mju_mulQuat(turned, turn, np.asarray(top_pose[1], dtype=float))
         wrong = plan_stack(kinematics, home[arm], float(home[gripper_column]), (top_pose[0] + shift, turned),
                            cell.cube_pose(bottom), config)
         arrival_s = wrong.boundaries()["pre_grasp"][1]

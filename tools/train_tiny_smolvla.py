@@ -49,7 +49,7 @@ from tools.demo_training import (  # noqa: E402  (also ensures torchvision befor
     training_record,
 )
 
-from tools.layout_target import LayoutProbe, layout_targets  # noqa: E402
+from tools.layout_target import LayoutProbe, checked_colors, layout_targets  # noqa: E402
 
 LOG = logging.getLogger("train_tiny_smolvla")
 
@@ -66,7 +66,9 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--layout-camera", default="overview", help="the camera whose vision tokens learn the layout")
     parser.add_argument("--layout-cubes", default="red,green,blue", metavar="A,B",
                         help="the cubes whose positions the layout target holds (default: all)")
-    return parser.parse_args(argv)
+    args = parser.parse_args(argv)
+    args.layout_cubes = checked_colors(args.layout_cubes.split(","))
+    return args
 
 
 def layout_probe(policy: Any, config: Any, demos: DemoTensors, args: argparse.Namespace, image_size: int,
@@ -86,7 +88,7 @@ def layout_probe(policy: Any, config: Any, demos: DemoTensors, args: argparse.Na
     with torch.no_grad():
         features_dim = embed.embed_image(torch.zeros(1, 3, image_size, image_size)).flatten(1).shape[1]
     calls = len(keys) + getattr(config, "empty_cameras", 0)
-    colors = tuple(args.layout_cubes.split(","))
+    colors = args.layout_cubes
     targets = layout_targets(demos.episode_seeds, demos.episode, colors)
     if plan_frames is not None:
         seeds = sorted(set(plan_frames.seeds))
@@ -137,7 +139,7 @@ def main(argv: list[str] | None = None) -> int:
                                     patch_size=args.patch_size, vision_width=args.vision_width,
                                     vision_layers=args.vision_layers,
                                     layout_target={"weight": args.layout_target, "camera": args.layout_camera,
-                                                   "cubes": args.layout_cubes.split(",")}
+                                                   "cubes": list(args.layout_cubes)}
                                     if args.layout_target > 0 else None),
     }
     save_checkpoint(staging, config, policy, stats, metadata)

@@ -4,7 +4,8 @@
         --plan-frames build/plan_frames/KEY.npz --dataset build/demos/heldout --camera overview
 
 The features: one camera's vision tokens (the policy's ``embed_image``, flattened) of each
-layout's first frame, the arm at Home. A ridge regression from them to the layout
+layout's first frame, the arm at or near Home (a plan file's first frame of a layout is among its
+first ``every`` steps). A ridge regression from them to the layout
 (``tools.layout_target.layout_vector``) is fitted on the first frames of plan layouts
 (``tools/plan_frames.py``'s cache file, made with the checkpoint's crop and frame size), 90 % to
 fit and 10 % to validate, and tested on the first frames of the recorded episodes of
@@ -47,11 +48,16 @@ def main(argv: list[str] | None = None) -> int:
     from tools.demo_training import DemoTensors
     from tools.layout_target import cube_errors_cm, layout_vector
 
+    if not args.plan_frames.is_file():
+        raise SystemExit(f"--plan-frames {args.plan_frames}: no such file (tools/plan_frames.py writes them in build/plan_frames/)")
     backend = make_lerobot_backend(args.checkpoint, committed_window=None)
     backend.load()
     crops = {camera: checked_crop(camera, box) for camera, box in (backend.metadata.get("camera_crops") or {}).items()
              if camera == args.camera}
     with np.load(args.plan_frames) as plan:
+        held = sorted(key[len("image_"):] for key in plan.files if key.startswith("image_"))
+        if args.camera not in held:
+            raise SystemExit(f"--camera {args.camera}: {args.plan_frames} holds [{', '.join(held)}]")
         seeds = plan["seed"]
         first = np.r_[True, seeds[1:] != seeds[:-1]]
         fit_images, fit_seeds = torch.from_numpy(plan[f"image_{args.camera}"][first]), seeds[first]
