@@ -71,6 +71,7 @@ def test_plan_frames_take_every_kth_step_are_cached_and_batch_like_demonstration
 
     every = plan_frames.make_plan_frames(settings(recorded, every=5), PROMPT, tmp_path, workers=1)
     assert len(every) == pytest.approx(len(recorded) / 5, abs=1)
+    assert every.step[:3].tolist() == [0, 5, 10]  # SEED % 5 == 0: this layout's frames start at Home
     assert every.action.shape == (len(every), 50, 7) and every.images["observation.images.overview"].shape[1:] == (3, 32, 32)
     batch = every.batch(np.array([1, 0]))
     assert batch["task"] == [PROMPT, PROMPT] and not batch["action_is_pad"].any()
@@ -102,7 +103,7 @@ def test_a_detour_stops_the_arm_off_its_way_and_the_frames_show_the_way_back_to_
 
     direct = make_plan_frames(settings(recorded), PROMPT, tmp_path, workers=1)
     frames = make_plan_frames(settings(recorded, detour_m=0.1), PROMPT, tmp_path, workers=1)
-    assert frames.dropped == [] and set(frames.seeds) == {SEED}
+    assert frames.dropped == [] and set(frames.seeds) == {SEED} and frames.step[:2].tolist() == [0, 1]
     state, label = frames.state.numpy(), frames.action.numpy()
     # The first frame is taken where the detour stopped the arm, away from Home and off the direct way.
     assert np.abs(state[0, :6] - recorded.state[0, :6].numpy()).max() > 0.1
@@ -114,6 +115,62 @@ def test_a_detour_stops_the_arm_off_its_way_and_the_frames_show_the_way_back_to_
     # Seeded: the same settings give the same frames.
     again = make_plan_frames(settings(recorded, detour_m=0.1), PROMPT, tmp_path / "again", workers=1)
     np.testing.assert_array_equal(again.state.numpy(), state)
+
+
+def test_every_plan_frame_knows_its_policy_step():
+    from dataclasses import replace
+
+    from tools.plan_frames import PlanFrameSettings, frame_steps
+
+    plain = PlanFrameSettings(seeds=(7, 8), every=5, hold_after_plan_s=2.0, home=(0.0,) * 7, joint_names=JOINTS,
+                              cameras=("wrist",), image_size=64, crops=(), size=32, chunk=50, control_period_s=0.1,
+                              gripper_velocity=0.5, motion_noise_rad=0.04)
+    # From Home the layouts take their frames at staggered steps (seed % every); a detour's start at its stop.
+    assert frame_steps(plain, [7, 7, 7, 8, 8]).tolist() == [2, 7, 12, 3, 8]
+    assert frame_steps(replace(plain, detour_m=0.1), [7, 7, 8]).tolist() == [0, 5, 0]
+
+
+@needs_lerobot
+def test_the_early_share_of_a_batch_covers_its_plan_rows_too():
+    """Of the plan rows of every batch, the early share comes from the layouts' first steps, so the
+    first chunk from Home learns from every played layout, not from one frame in thirty-six."""
+    import argparse
+
+    import torch
+
+    from tools.demo_training import train
+
+    class Rows:
+        """Frames whose state is their policy step (demonstrations: 0..199; plan frames: 0..999)."""
+
+        def __init__(self, count: int) -> None:
+            self.frame_index = self.step = torch.arange(count)
+
+        def __len__(self) -> int:
+            return len(self.step)
+
+        def batch(self, rows):
+            return {"observation.state": self.step[rows].float()[:, None], "task": ["t"] * len(rows)}
+
+    seen = []
+
+    class Policy(torch.nn.Module):
+        def __init__(self) -> None:
+            super().__init__()
+            self.weight = torch.nn.Parameter(torch.zeros(1))
+
+        def forward(self, batch):
+            seen.append(batch["observation.state"][:, 0].tolist())
+            return (self.weight * batch["observation.state"]).mean(), None
+
+    policy = Policy()
+    args = argparse.Namespace(steps=20, minutes=1.0, seed=0, early_frames=10, early_share=0.375, plan_share=0.5,
+                              batch=16, lr=1e-3)
+    train(policy, torch.optim.SGD(policy.parameters(), lr=1e-3), Rows(200), lambda b: b, args, plan_frames=Rows(1000))
+    assert len(seen) == 20
+    for steps in seen:
+        recorded, played = steps[:8], steps[8:]
+        assert sum(s < 10 for s in recorded) >= 3 and sum(s < 10 for s in played) >= 3
 
 
 def test_the_arm_runs_one_step_behind_the_plan_only_while_the_first_chunk_plays():

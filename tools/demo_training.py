@@ -72,7 +72,8 @@ def add_arguments(parser: argparse.ArgumentParser, *, out: Path, steps: int, min
     parser.add_argument("--early-frames", type=int, default=0,
                         help="with --early-share: an episode's first N frames (the arm at or near Home) are drawn more often")
     parser.add_argument("--early-share", type=float, default=0.0,
-                        help="share of every batch drawn from the episodes' first --early-frames frames (0: uniform sampling)")
+                        help="share of every batch drawn from the episodes' first --early-frames steps, in its recorded "
+                             "and its played rows alike (0: uniform sampling)")
     parser.add_argument("--plan-layouts", type=int, default=0, metavar="N",
                         help="also train on frames of the oracle's plan played into the cell in N more layouts, without "
                              "the runtime (tools/plan_frames.py)")
@@ -282,13 +283,13 @@ def resized(frames, size: int | None):
     return torch.cat(blocks)
 
 
-def sample_rows(demos: "DemoTensors", batch: int, early, early_share: float, generator):
-    """``batch`` rows of ``demos``: ``round(early_share * batch)`` of them among ``early`` (the
+def sample_rows(rows: int, batch: int, early, early_share: float, generator):
+    """``batch`` of ``rows`` row indices: ``round(early_share * batch)`` of them among ``early`` (the
     episodes' first frames, where only the cameras tell the layouts apart), the rest uniform."""
     import torch
 
     from_early = round(early_share * batch) if len(early) else 0
-    uniform = torch.randint(len(demos), (batch - from_early,), generator=generator)
+    uniform = torch.randint(rows, (batch - from_early,), generator=generator)
     if from_early == 0:
         return uniform
     return torch.cat([uniform, early[torch.randint(len(early), (from_early,), generator=generator)]])
@@ -395,7 +396,7 @@ def train(policy: Any, optimizer: Any, demos: DemoTensors, to_batch: Callable[[d
     (normalization, shapes). The learning rate (``args.lr``) warms up over 5 % of the steps, then
     follows a cosine to 0 over the step or time budget, whichever is further along.
     ``plan_frames`` (``tools.plan_frames.PlanFrames``): ``round(args.plan_share * args.batch)`` rows
-    of every batch are drawn from it instead. ``auxiliary(rows)``: a loss added to the policy's
+    of every batch are drawn from it instead, with the same early share among its frames. ``auxiliary(rows)``: a loss added to the policy's
     after its forward (``layout_target``), whose parameters the optimizer holds too, given the
     batch's rows (a plan frame's row counts from ``len(demos)``); the losses recorded are the
     policy's own."""
@@ -407,6 +408,7 @@ def train(policy: Any, optimizer: Any, demos: DemoTensors, to_batch: Callable[[d
     early = torch.nonzero(demos.frame_index < args.early_frames).flatten()
     if args.early_share > 0 and len(early) == 0:
         raise SystemExit("--early-share needs --early-frames >= 1")
+    plan_early = torch.nonzero(plan_frames.step < args.early_frames).flatten() if plan_frames is not None else early[:0]
     from_plan = round(args.plan_share * args.batch) if plan_frames is not None else 0
     policy.train()
     step, started, losses, extras = 0, time.monotonic(), [], []
@@ -415,10 +417,10 @@ def train(policy: Any, optimizer: Any, demos: DemoTensors, to_batch: Callable[[d
         progress = max(step / args.steps, (time.monotonic() - started) / (deadline - started))
         for group in optimizer.param_groups:
             group["lr"] = args.lr * learning_rate_factor(step, warmup, progress)
-        rows = sample_rows(demos, args.batch - from_plan, early, args.early_share, generator)
+        rows = sample_rows(len(demos), args.batch - from_plan, early, args.early_share, generator)
         batch = demos.batch(rows)
         if from_plan:
-            plan_rows = torch.randint(len(plan_frames), (from_plan,), generator=generator)
+            plan_rows = sample_rows(len(plan_frames), from_plan, plan_early, args.early_share, generator)
             batch = joined(batch, plan_frames.batch(plan_rows))
             rows = torch.cat([rows, len(demos) + plan_rows])
         loss, _ = policy.forward(to_batch(batch))

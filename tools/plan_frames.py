@@ -102,6 +102,8 @@ class PlanFrames:
     action: Any
     images: dict[str, Any]
     seeds: list[int]
+    step: Any
+    """Each frame's policy step in its episode (from Home, or from a detour's stop)."""
     task: str
     dropped: list[int]
     """Layout seeds whose episode did not stack (no frames kept)."""
@@ -144,8 +146,28 @@ def make_plan_frames(settings: PlanFrameSettings, task: str, cache: Path, worker
                  time.monotonic() - started, len(arrays["dropped"]), path)
     with np.load(path) as arrays:
         images = {f"observation.images.{c}": torch.from_numpy(arrays[f"image_{c}"]) for c in settings.cameras}
+        seeds = arrays["seed"].tolist()
         return PlanFrames(torch.from_numpy(arrays["state"]), torch.from_numpy(arrays["action"]), images,
-                          arrays["seed"].tolist(), task, arrays["dropped"].tolist())
+                          seeds, torch.from_numpy(frame_steps(settings, seeds)), task, arrays["dropped"].tolist())
+
+
+def first_frame_step(settings: PlanFrameSettings, seed: int) -> int:
+    """The policy step of a layout's first frame: from Home, the layouts' frames are staggered by
+    seed (every step of the episode is some layout's frame); a detour's frames start at its stop."""
+    return seed % settings.every if settings.detour_m <= 0 else 0
+
+
+def frame_steps(settings: PlanFrameSettings, seeds: list[int]) -> Any:
+    """The policy step of every frame, given the frames' layout seeds in the order they were made
+    (each layout's frames together, a frame every ``settings.every`` steps from its first)."""
+    import numpy as np
+
+    steps = np.empty(len(seeds), dtype=np.int64)
+    taken = 0
+    for row, seed in enumerate(seeds):
+        taken = taken + 1 if row and seeds[row - 1] == seed else 0
+        steps[row] = first_frame_step(settings, seed) + taken * settings.every
+    return steps
 
 
 def plan_delay_s(t: Any) -> Any:
@@ -262,7 +284,7 @@ def _play_part(settings: PlanFrameSettings, task: str, seeds: tuple[int, ...]) -
             noise = MotionNoise(settings.motion_noise_rad, seed, len(arm)) if settings.motion_noise_rad > 0 else None
             steps = int(round((plan.duration + settings.hold_after_plan_s) / period))
             from_home = settings.detour_m <= 0
-            taken, camera_frames = play(plan, steps, from_home, noise, seed % settings.every if from_home else 0)
+            taken, camera_frames = play(plan, steps, from_home, noise, first_frame_step(settings, seed))
             stacked = cell.cube_pose(bottom)[0] + np.array([0.0, 0.0, config.cube_size])
             if np.linalg.norm(cell.cube_pose(top)[0] - stacked) > STACK_TOLERANCE_M:
                 dropped.append(seed)
