@@ -114,7 +114,7 @@ def test_the_tiny_smolvla_trains_with_the_layout_target_and_records_it(tmp_path,
                           "--plan-seed", "40000", "--plan-every", "10", "--plan-share", "0.5", "--workers", "1",
                           "--plan-cache", str(tmp_path / "plan_frames")]) == 0
     training = json.loads((tmp_path / "plan" / "objective_policy.json").read_text())["training"]
-    assert training["plan_frames"] == {"layouts": 2, "seed": 40000, "every": 10, "share": 0.5, "noise": None, "detour_m": 0.0, "detour_descent": False}
+    assert training["plan_frames"] == {"layouts": 2, "early_layouts": 0, "seed": 40000, "every": 10, "share": 0.5, "noise": None, "detour_m": 0.0, "detour_descent": False}
     # The per-cube probe of that checkpoint's features: fitted on one plan layout, validated on the
     # other, tested on the two recorded episodes; the blind answer is the fitted layout itself.
     from tools.layout_target import cube_errors_cm
@@ -137,3 +137,13 @@ def test_the_tiny_smolvla_trains_with_the_layout_target_and_records_it(tmp_path,
         train["main"]([*common, "--out", str(tmp_path / "other"), "--plan-layouts", "2", "--plan-seed", "99"])
     with pytest.raises(SystemExit, match=r"--layout-camera top: the policy sees \[scene, wrist, overview\]"):
         train["main"]([*common, "--out", str(tmp_path / "other"), "--layout-target", "1.0", "--layout-camera", "top"])
+    with pytest.raises(SystemExit, match=r"--plan-early-layouts needs --early-frames >= 1"):
+        train["main"]([*common, "--out", str(tmp_path / "other"), "--plan-early-layouts", "2"])
+    # Early layouts join the full ones; the layout target covers their rows too.
+    assert train["main"]([*common, "--out", str(tmp_path / "early"), "--layout-target", "1.0", "--plan-layouts", "1",
+                          "--plan-early-layouts", "2", "--plan-seed", "40000", "--plan-every", "5", "--plan-share", "0.5",
+                          "--early-frames", "10", "--early-share", "0.5", "--workers", "1",
+                          "--plan-cache", str(tmp_path / "early_frames")]) == 0
+    training = json.loads((tmp_path / "early" / "objective_policy.json").read_text())["training"]
+    assert training["plan_frames"]["layouts"] == 1 and training["plan_frames"]["early_layouts"] == 2
+    assert len(list((tmp_path / "early_frames").glob("*.npz"))) == 2

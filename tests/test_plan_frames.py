@@ -117,6 +117,22 @@ def test_a_detour_stops_the_arm_off_its_way_and_the_frames_show_the_way_back_to_
     np.testing.assert_array_equal(again.state.numpy(), state)
 
 
+@needs_lerobot
+def test_early_layouts_are_played_for_their_first_steps_only_and_join_the_full_ones(recorded, tmp_path):
+    from tools.plan_frames import make_plan_frames
+
+    full = make_plan_frames(settings(recorded, every=5), PROMPT, tmp_path, workers=1)
+    early = make_plan_frames(settings(recorded, every=5, first_steps=10), PROMPT, tmp_path, workers=1)
+    assert settings(recorded, every=5).key() != settings(recorded, every=5, first_steps=10).key()
+    # The first 10 steps of the same episode: frames at steps 0 and 5, as the full play has them.
+    assert early.step.tolist() == [0, 5] and early.dropped == [] and early.seeds == [SEED, SEED]
+    np.testing.assert_allclose(early.state.numpy(), full.state[:2].numpy(), atol=1e-9)
+    np.testing.assert_array_equal(early.action.numpy(), full.action[:2].numpy())
+    both = full.joined(early)
+    assert len(both) == len(full) + 2 and both.step[-2:].tolist() == [0, 5] and both.seeds[-2:] == [SEED, SEED]
+    assert all(len(frames) == len(both) for frames in both.images.values()) and len(both.action) == len(both)
+
+
 def test_every_plan_frame_knows_its_policy_step():
     from dataclasses import replace
 

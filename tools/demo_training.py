@@ -28,7 +28,7 @@ import os
 import subprocess
 import sys
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, Callable, Sequence
 
@@ -77,6 +77,9 @@ def add_arguments(parser: argparse.ArgumentParser, *, out: Path, steps: int, min
     parser.add_argument("--plan-layouts", type=int, default=0, metavar="N",
                         help="also train on frames of the oracle's plan played into the cell in N more layouts, without "
                              "the runtime (tools/plan_frames.py)")
+    parser.add_argument("--plan-early-layouts", type=int, default=0, metavar="N",
+                        help="and N more plan layouts (seeds after the --plan-layouts ones) played for only their first "
+                             "--early-frames steps: what the first chunk from Home learns from, at a tenth of the cost")
     parser.add_argument("--plan-seed", type=int, default=30000, help="layout seed of the first plan layout")
     parser.add_argument("--plan-every", type=int, default=5, metavar="K", help="a plan frame every K policy steps")
     parser.add_argument("--plan-share", type=float, default=0.25, help="share of every batch drawn from the plan frames")
@@ -314,14 +317,17 @@ def load_demos(args: argparse.Namespace, chunk: int) -> tuple[DemoTensors, dict]
 
 
 def load_plan_frames(args: argparse.Namespace, demos: DemoTensors, crops: dict, size: int, chunk: int) -> Any:
-    """``args.plan_layouts`` layouts of plan frames (``tools.plan_frames``) matching the demonstrations
+    """``args.plan_layouts`` layouts of plan frames (``tools.plan_frames``), then ``args.plan_early_layouts``
+    played for only their first ``args.early_frames`` steps, matching the demonstrations
     (the Home state of the first episode, joints, cameras, crops, frame sizes, prompt and the
     recording's settings), or None; layout seeds that meet the demonstrations' or the held-out seeds
     are refused (SystemExit)."""
     from tools.plan_frames import DETOUR_MIN_M, PlanFrameSettings, make_plan_frames
 
-    if args.plan_layouts <= 0:
+    if args.plan_layouts <= 0 and args.plan_early_layouts <= 0:
         return None
+    if args.plan_early_layouts > 0 and args.early_frames < 1:
+        raise SystemExit("--plan-early-layouts needs --early-frames >= 1 (the steps those layouts are played for)")
     if args.plan_every < 1:
         raise SystemExit(f"--plan-every must be >= 1, got {args.plan_every}")
     if args.plan_noise is not None and not args.plan_noise >= 0:
@@ -330,9 +336,10 @@ def load_plan_frames(args: argparse.Namespace, demos: DemoTensors, crops: dict, 
         raise SystemExit(f"--plan-detour must be 0 or in ({DETOUR_MIN_M}, 0.5) metres, got {args.plan_detour}")
     if args.plan_detour_descent and not args.plan_detour:
         raise SystemExit("--plan-detour-descent needs --plan-detour")
-    seeds = tuple(range(args.plan_seed, args.plan_seed + args.plan_layouts))
+    seeds = tuple(range(args.plan_seed, args.plan_seed + max(args.plan_layouts, 0)))
+    early_seeds = tuple(range(args.plan_seed + len(seeds), args.plan_seed + len(seeds) + max(args.plan_early_layouts, 0)))
     held_out = range(args.eval_seed_start, args.eval_seed_start + max(args.eval_episodes, 50))
-    reserved = sorted(set(seeds) & (set(demos.episode_seeds) | set(held_out)))
+    reserved = sorted(set(seeds + early_seeds) & (set(demos.episode_seeds) | set(held_out)))
     if reserved:
         raise SystemExit(f"--plan-seed {args.plan_seed}: the plan layouts would include demonstration or "
                          f"held-out seeds ({reserved[0]}..{reserved[-1]})")
@@ -347,8 +354,10 @@ def load_plan_frames(args: argparse.Namespace, demos: DemoTensors, crops: dict, 
         motion_noise_rad=float(recorded.get("motion_noise_rad", 0.0)) if args.plan_noise is None else args.plan_noise,
         detour_m=args.plan_detour, detour_descent=args.plan_detour_descent)
     started = time.monotonic()
-    frames = make_plan_frames(settings, demos.tasks[0], args.plan_cache, workers=args.workers)
-    LOG.info("%d plan frames of %d layouts ready in %.0f s (%d did not stack)", len(frames), len(seeds) - len(frames.dropped),
+    parts = [make_plan_frames(part, demos.tasks[0], args.plan_cache, workers=args.workers)
+             for part in (settings, replace(settings, seeds=early_seeds, first_steps=args.early_frames)) if part.seeds]
+    frames = parts[0] if len(parts) == 1 else parts[0].joined(parts[1])
+    LOG.info("%d plan frames of %d layouts ready in %.0f s (%d did not stack)", len(frames), len(set(frames.seeds)),
              time.monotonic() - started, len(frames.dropped))
     return frames
 
@@ -499,8 +508,9 @@ def training_record(args: argparse.Namespace, demos: DemoTensors, run: TrainingR
         "steps": run.steps, "batch": args.batch, "lr": args.lr, "threads": args.threads, "seed": args.seed,
         "seconds": round(run.seconds, 1), "early_frames": args.early_frames, "early_share": args.early_share,
     }
-    if args.plan_layouts > 0:
-        record["plan_frames"] = {"layouts": args.plan_layouts, "seed": args.plan_seed, "every": args.plan_every,
+    if args.plan_layouts > 0 or args.plan_early_layouts > 0:
+        record["plan_frames"] = {"layouts": args.plan_layouts, "early_layouts": args.plan_early_layouts,
+                                 "seed": args.plan_seed, "every": args.plan_every,
                                  "share": args.plan_share, "noise": args.plan_noise,
                                  "detour_m": args.plan_detour, "detour_descent": args.plan_detour_descent}
     record.update(settings)
