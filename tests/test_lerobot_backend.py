@@ -468,9 +468,9 @@ def test_training_schedule_anneals_by_either_budget_and_early_frames_take_their_
     assert factor(0, 10, 0.0) == pytest.approx(0.1) and factor(10, 10, 0.0) == 1.0
     assert factor(50, 10, 0.5) == pytest.approx(0.5) and factor(99, 10, 1.0) == 0.0 and factor(99, 10, 1.7) == 0.0
     early = torch.arange(5)
-    rows = train["sample_rows"](1000, 16, early, 0.375, torch.Generator().manual_seed(0))
+    rows = train["sample_rows"](1000, 16, [(early, 0.375)], torch.Generator().manual_seed(0))
     assert len(rows) == 16 and bool((rows[-6:] < 5).all())
-    uniform = train["sample_rows"](1000, 16, early, 0.0, torch.Generator().manual_seed(0))
+    uniform = train["sample_rows"](1000, 16, [(early, 0.0)], torch.Generator().manual_seed(0))
     assert len(uniform) == 16 and int((uniform < 5).sum()) < 6
 
 

@@ -147,27 +147,36 @@ def test_every_plan_frame_knows_its_policy_step():
 
 
 @needs_lerobot
-def test_the_early_share_of_a_batch_covers_its_plan_rows_too():
-    """Of the plan rows of every batch, the early share comes from the layouts' first steps, so the
-    first chunk from Home learns from every played layout, not from one frame in thirty-six."""
+def test_the_early_and_lift_shares_of_a_batch_cover_its_plan_rows_too():
+    """Of the plan rows of every batch as of the recorded ones, the early share comes from the
+    episodes' first steps and the lift share from the steps after the gripper first holds the cube,
+    so the chunks decided from the cameras learn from every played layout."""
     import argparse
 
     import torch
 
-    from tools.demo_training import train
+    from tools.demo_training import HELD_GRIPPER_RAD, lift_rows, train
 
     class Rows:
-        """Frames whose state is their policy step (demonstrations: 0..199; plan frames: 0..999)."""
+        """Episodes of 200 frames whose state is (step, gripper); the gripper holds from step 100 to 149."""
 
-        def __init__(self, count: int) -> None:
-            self.frame_index = self.step = torch.arange(count)
+        def __init__(self, episodes: int) -> None:
+            self.frame_index = self.step = torch.arange(200).repeat(episodes)
+            self.episode = torch.arange(episodes).repeat_interleave(200)
+            self.seeds = self.episode.tolist()
+            held = (self.step >= 100) & (self.step < 150)
+            self.state = torch.stack([self.step.float(), torch.where(held, 0.54, 0.0)], dim=1)
 
         def __len__(self) -> int:
             return len(self.step)
 
         def batch(self, rows):
-            return {"observation.state": self.step[rows].float()[:, None], "task": ["t"] * len(rows)}
+            return {"observation.state": self.state[rows], "task": ["t"] * len(rows)}
 
+    demos = Rows(2)
+    assert lift_rows(demos.state[:, 1], demos.episode, demos.step, 20).tolist() == [*range(100, 120), *range(300, 320)]
+    never = lift_rows(torch.zeros(200), torch.zeros(200, dtype=torch.long), torch.arange(200), 20)
+    assert never.tolist() == [] and HELD_GRIPPER_RAD < 0.54
     seen = []
 
     class Policy(torch.nn.Module):
@@ -177,16 +186,19 @@ def test_the_early_share_of_a_batch_covers_its_plan_rows_too():
 
         def forward(self, batch):
             seen.append(batch["observation.state"][:, 0].tolist())
-            return (self.weight * batch["observation.state"]).mean(), None
+            return (self.weight * batch["observation.state"][:, 0]).mean(), None
 
     policy = Policy()
-    args = argparse.Namespace(steps=20, minutes=1.0, seed=0, early_frames=10, early_share=0.375, plan_share=0.5,
-                              batch=16, lr=1e-3)
-    train(policy, torch.optim.SGD(policy.parameters(), lr=1e-3), Rows(200), lambda b: b, args, plan_frames=Rows(1000))
+    args = argparse.Namespace(steps=20, minutes=1.0, seed=0, early_frames=10, early_share=0.375, lift_steps=20,
+                              lift_share=0.25, plan_share=0.5, batch=16, lr=1e-3)
+    train(policy, torch.optim.SGD(policy.parameters(), lr=1e-3), demos, lambda b: b, args, plan_frames=Rows(5))
     assert len(seen) == 20
     for steps in seen:
-        recorded, played = steps[:8], steps[8:]
-        assert sum(s < 10 for s in recorded) >= 3 and sum(s < 10 for s in played) >= 3
+        for part in (steps[:8], steps[8:]):
+            assert sum(s < 10 for s in part) >= 3 and sum(100 <= s < 120 for s in part) >= 2
+    args.lift_share = 0.75
+    with pytest.raises(SystemExit, match="--early-share 0.375 and --lift-share 0.75 must add up to at most 1"):
+        train(policy, torch.optim.SGD(policy.parameters(), lr=1e-3), demos, lambda b: b, args)
 
 
 def test_the_arm_runs_one_step_behind_the_plan_only_while_the_first_chunk_plays():

@@ -74,6 +74,11 @@ def add_arguments(parser: argparse.ArgumentParser, *, out: Path, steps: int, min
     parser.add_argument("--early-share", type=float, default=0.0,
                         help="share of every batch drawn from the episodes' first --early-frames steps, in its recorded "
                              "and its played rows alike (0: uniform sampling)")
+    parser.add_argument("--lift-steps", type=int, default=0,
+                        help="with --lift-share: the N steps from the first frame of an episode whose gripper holds the "
+                             "cube (the start of the carry) are drawn more often")
+    parser.add_argument("--lift-share", type=float, default=0.0,
+                        help="share of every batch drawn from the --lift-steps steps, in its recorded and its played rows alike")
     parser.add_argument("--plan-layouts", type=int, default=0, metavar="N",
                         help="also train on frames of the oracle's plan played into the cell in N more layouts, without "
                              "the runtime (tools/plan_frames.py)")
@@ -286,16 +291,33 @@ def resized(frames, size: int | None):
     return torch.cat(blocks)
 
 
-def sample_rows(rows: int, batch: int, early, early_share: float, generator):
-    """``batch`` of ``rows`` row indices: ``round(early_share * batch)`` of them among ``early`` (the
-    episodes' first frames, where only the cameras tell the layouts apart), the rest uniform."""
+HELD_GRIPPER_RAD = 0.25
+"""A gripper at least this closed holds the cube (it closes on a 30 mm cube at 0.54 rad; open is 0)."""
+
+
+def sample_rows(rows: int, batch: int, focus: Sequence[tuple[Any, float]], generator):
+    """``batch`` of ``rows`` row indices: for every ``(pool, share)`` of ``focus``, ``round(share *
+    batch)`` of them among ``pool`` (rows of the moments a policy decides from its cameras: an
+    episode's first frames, the lift), the rest uniform."""
     import torch
 
-    from_early = round(early_share * batch) if len(early) else 0
-    uniform = torch.randint(rows, (batch - from_early,), generator=generator)
-    if from_early == 0:
-        return uniform
-    return torch.cat([uniform, early[torch.randint(len(early), (from_early,), generator=generator)]])
+    counts = [round(share * batch) if len(pool) else 0 for pool, share in focus]
+    drawn = [torch.randint(rows, (batch - sum(counts),), generator=generator)]
+    drawn += [pool[torch.randint(len(pool), (count,), generator=generator)] for (pool, _), count in zip(focus, counts) if count]
+    return torch.cat(drawn)
+
+
+def lift_rows(gripper: Any, episode: Any, step: Any, within: int) -> Any:
+    """The rows of the first ``within`` steps from the first frame of their episode whose gripper
+    holds the cube: the lift, where the chunk starts the carry to the other cube, which only the
+    cameras place (the arm's state says where the first cube was)."""
+    import torch
+
+    held = gripper >= HELD_GRIPPER_RAD
+    never = torch.iinfo(torch.int64).max - within
+    first = torch.full((int(episode.max()) + 1,), never, dtype=torch.int64).scatter_reduce(0, episode[held], step[held], "amin")
+    start = first[episode]
+    return torch.nonzero((step >= start) & (step < start + within)).flatten()
 
 
 def load_demos(args: argparse.Namespace, chunk: int) -> tuple[DemoTensors, dict]:
@@ -401,11 +423,12 @@ def train(policy: Any, optimizer: Any, demos: DemoTensors, to_batch: Callable[[d
           log_every: int = 25, auxiliary: Callable[[Any], Any] | None = None, plan_frames: Any = None) -> TrainingRun:
     """Train ``policy`` (its ``forward(batch)`` returns ``(loss, _)``) for ``args.steps`` steps or
     ``args.minutes``, whichever ends first, on batches of ``args.batch`` rows of ``demos`` drawn with
-    ``args.seed`` (and ``args.early_frames``/``args.early_share``), each passed through ``to_batch``
+    ``args.seed`` (``args.early_share`` of them from the episodes' first ``args.early_frames`` steps,
+    ``args.lift_share`` from their ``args.lift_steps`` lift steps: ``lift_rows``), each passed through ``to_batch``
     (normalization, shapes). The learning rate (``args.lr``) warms up over 5 % of the steps, then
     follows a cosine to 0 over the step or time budget, whichever is further along.
     ``plan_frames`` (``tools.plan_frames.PlanFrames``): ``round(args.plan_share * args.batch)`` rows
-    of every batch are drawn from it instead, with the same early share among its frames. ``auxiliary(rows)``: a loss added to the policy's
+    of every batch are drawn from it instead, with the same shares among its frames. ``auxiliary(rows)``: a loss added to the policy's
     after its forward (``layout_target``), whose parameters the optimizer holds too, given the
     batch's rows (a plan frame's row counts from ``len(demos)``); the losses recorded are the
     policy's own."""
@@ -414,10 +437,22 @@ def train(policy: Any, optimizer: Any, demos: DemoTensors, to_batch: Callable[[d
     parameters = [p for group in optimizer.param_groups for p in group["params"]]
     warmup = max(1, args.steps // 20)
     generator = torch.Generator().manual_seed(args.seed)
-    early = torch.nonzero(demos.frame_index < args.early_frames).flatten()
-    if args.early_share > 0 and len(early) == 0:
+    if args.early_share > 0 and args.early_frames < 1:
         raise SystemExit("--early-share needs --early-frames >= 1")
-    plan_early = torch.nonzero(plan_frames.step < args.early_frames).flatten() if plan_frames is not None else early[:0]
+    if args.lift_share > 0 and args.lift_steps < 1:
+        raise SystemExit("--lift-share needs --lift-steps >= 1")
+    if not 0 <= args.early_share + args.lift_share <= 1:
+        raise SystemExit(f"--early-share {args.early_share} and --lift-share {args.lift_share} must add up to at most 1")
+
+    def focus(gripper: Any, episode: Any, step: Any) -> list:
+        return [(torch.nonzero(step < args.early_frames).flatten(), args.early_share),
+                (lift_rows(gripper, episode, step, args.lift_steps), args.lift_share)]
+
+    # The gripper is the state's last column (six arm joints, then the gripper, as the recorder writes them).
+    demo_focus = focus(demos.state[:, -1], demos.episode, demos.frame_index)
+    if plan_frames is not None:
+        _, plan_episode = torch.unique(torch.tensor(plan_frames.seeds), return_inverse=True)
+        plan_focus = focus(plan_frames.state[:, -1], plan_episode, plan_frames.step)
     from_plan = round(args.plan_share * args.batch) if plan_frames is not None else 0
     policy.train()
     step, started, losses, extras = 0, time.monotonic(), [], []
@@ -426,10 +461,10 @@ def train(policy: Any, optimizer: Any, demos: DemoTensors, to_batch: Callable[[d
         progress = max(step / args.steps, (time.monotonic() - started) / (deadline - started))
         for group in optimizer.param_groups:
             group["lr"] = args.lr * learning_rate_factor(step, warmup, progress)
-        rows = sample_rows(len(demos), args.batch - from_plan, early, args.early_share, generator)
+        rows = sample_rows(len(demos), args.batch - from_plan, demo_focus, generator)
         batch = demos.batch(rows)
         if from_plan:
-            plan_rows = sample_rows(len(plan_frames), from_plan, plan_early, args.early_share, generator)
+            plan_rows = sample_rows(len(plan_frames), from_plan, plan_focus, generator)
             batch = joined(batch, plan_frames.batch(plan_rows))
             rows = torch.cat([rows, len(demos) + plan_rows])
         loss, _ = policy.forward(to_batch(batch))
@@ -507,6 +542,7 @@ def training_record(args: argparse.Namespace, demos: DemoTensors, run: TrainingR
         "episode_seeds": [seed for root in roots for seed in demos_meta(root).get("seeds", [])],
         "steps": run.steps, "batch": args.batch, "lr": args.lr, "threads": args.threads, "seed": args.seed,
         "seconds": round(run.seconds, 1), "early_frames": args.early_frames, "early_share": args.early_share,
+        "lift_steps": args.lift_steps, "lift_share": args.lift_share,
     }
     if args.plan_layouts > 0 or args.plan_early_layouts > 0:
         record["plan_frames"] = {"layouts": args.plan_layouts, "early_layouts": args.plan_early_layouts,
