@@ -83,8 +83,9 @@ def add_arguments(parser: argparse.ArgumentParser, *, out: Path, steps: int, min
                         help="also train on frames of the oracle's plan played into the cell in N more layouts, without "
                              "the runtime (tools/plan_frames.py)")
     parser.add_argument("--plan-early-layouts", type=int, default=0, metavar="N",
-                        help="and N more plan layouts (seeds after the --plan-layouts ones) played for only their first "
-                             "--early-frames steps: what the first chunk from Home learns from, at a tenth of the cost")
+                        help="and N more plan layouts (seeds after the --plan-layouts ones) played from Home (no detour) for "
+                             "only their first --early-frames steps: what the first chunk from Home learns from, at a "
+                             "tenth of the cost")
     parser.add_argument("--plan-seed", type=int, default=30000, help="layout seed of the first plan layout")
     parser.add_argument("--plan-every", type=int, default=5, metavar="K", help="a plan frame every K policy steps")
     parser.add_argument("--plan-share", type=float, default=0.25, help="share of every batch drawn from the plan frames")
@@ -340,7 +341,7 @@ def load_demos(args: argparse.Namespace, chunk: int) -> tuple[DemoTensors, dict]
 
 def load_plan_frames(args: argparse.Namespace, demos: DemoTensors, crops: dict, size: int, chunk: int) -> Any:
     """``args.plan_layouts`` layouts of plan frames (``tools.plan_frames``), then ``args.plan_early_layouts``
-    played for only their first ``args.early_frames`` steps, matching the demonstrations
+    played from Home (never a detour) for only their first ``args.early_frames`` steps, matching the demonstrations
     (the Home state of the first episode, joints, cameras, crops, frame sizes, prompt and the
     recording's settings), or None; layout seeds that meet the demonstrations' or the held-out seeds
     are refused (SystemExit)."""
@@ -377,7 +378,8 @@ def load_plan_frames(args: argparse.Namespace, demos: DemoTensors, crops: dict, 
         detour_m=args.plan_detour, detour_descent=args.plan_detour_descent)
     started = time.monotonic()
     parts = [make_plan_frames(part, demos.tasks[0], args.plan_cache, workers=args.workers)
-             for part in (settings, replace(settings, seeds=early_seeds, first_steps=args.early_frames)) if part.seeds]
+             for part in (settings, replace(settings, seeds=early_seeds, first_steps=args.early_frames, detour_m=0.0,
+                                            detour_descent=False)) if part.seeds]
     frames = parts[0] if len(parts) == 1 else parts[0].joined(parts[1])
     LOG.info("%d plan frames of %d layouts ready in %.0f s (%d did not stack)", len(frames), len(set(frames.seeds)),
              time.monotonic() - started, len(frames.dropped))
