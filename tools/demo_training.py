@@ -79,6 +79,12 @@ def add_arguments(parser: argparse.ArgumentParser, *, out: Path, steps: int, min
                              "cube (the start of the carry) are drawn more often")
     parser.add_argument("--lift-share", type=float, default=0.0,
                         help="share of every batch drawn from the --lift-steps steps, in its recorded and its played rows alike")
+    parser.add_argument("--approach-steps", type=int, default=0,
+                        help="with --approach-share: the N steps before the first frame of an episode whose gripper holds "
+                             "the cube (the descent and the closing) are drawn more often")
+    parser.add_argument("--approach-share", type=float, default=0.0,
+                        help="share of every batch drawn from the --approach-steps steps, in its recorded and its played "
+                             "rows alike")
     parser.add_argument("--plan-layouts", type=int, default=0, metavar="N",
                         help="also train on frames of the oracle's plan played into the cell in N more layouts, without "
                              "the runtime (tools/plan_frames.py)")
@@ -299,7 +305,7 @@ HELD_GRIPPER_RAD = 0.25
 def sample_rows(rows: int, batch: int, focus: Sequence[tuple[Any, float]], generator):
     """``batch`` of ``rows`` row indices: for every ``(pool, share)`` of ``focus``, ``round(share *
     batch)`` of them among ``pool`` (rows of the moments a policy decides from its cameras: an
-    episode's first frames, the lift), the rest uniform."""
+    episode's first frames, the grasp), the rest uniform."""
     import torch
 
     counts = [round(share * batch) if len(pool) else 0 for pool, share in focus]
@@ -308,17 +314,19 @@ def sample_rows(rows: int, batch: int, focus: Sequence[tuple[Any, float]], gener
     return torch.cat(drawn)
 
 
-def lift_rows(gripper: Any, episode: Any, step: Any, within: int) -> Any:
-    """The rows of the first ``within`` steps from the first frame of their episode whose gripper
-    holds the cube: the lift, where the chunk starts the carry to the other cube, which only the
-    cameras place (the arm's state says where the first cube was)."""
+def grasp_rows(gripper: Any, episode: Any, step: Any, start: int, stop: int) -> Any:
+    """The rows whose step lies from ``start`` to before ``stop`` steps after the first frame of
+    their episode whose gripper holds the cube (negative: before it). From 0 on: the lift, where
+    the chunk starts the carry to the other cube, which only the cameras place (the arm's state
+    says where the first cube was); before 0: the descent and the closing, where the wrist camera
+    centres the gripper on the cube."""
     import torch
 
     held = gripper >= HELD_GRIPPER_RAD
-    never = torch.iinfo(torch.int64).max - within
+    never = torch.iinfo(torch.int64).max // 2
     first = torch.full((int(episode.max()) + 1,), never, dtype=torch.int64).scatter_reduce(0, episode[held], step[held], "amin")
-    start = first[episode]
-    return torch.nonzero((step >= start) & (step < start + within)).flatten()
+    since = step - first[episode]
+    return torch.nonzero((since >= start) & (since < stop)).flatten()
 
 
 def load_demos(args: argparse.Namespace, chunk: int) -> tuple[DemoTensors, dict]:
@@ -426,7 +434,8 @@ def train(policy: Any, optimizer: Any, demos: DemoTensors, to_batch: Callable[[d
     """Train ``policy`` (its ``forward(batch)`` returns ``(loss, _)``) for ``args.steps`` steps or
     ``args.minutes``, whichever ends first, on batches of ``args.batch`` rows of ``demos`` drawn with
     ``args.seed`` (``args.early_share`` of them from the episodes' first ``args.early_frames`` steps,
-    ``args.lift_share`` from their ``args.lift_steps`` lift steps: ``lift_rows``), each passed through ``to_batch``
+    ``args.approach_share`` and ``args.lift_share`` from the ``args.approach_steps`` steps before and the
+    ``args.lift_steps`` steps from the grasp: ``grasp_rows``), each passed through ``to_batch``
     (normalization, shapes). The learning rate (``args.lr``) warms up over 5 % of the steps, then
     follows a cosine to 0 over the step or time budget, whichever is further along.
     ``plan_frames`` (``tools.plan_frames.PlanFrames``): ``round(args.plan_share * args.batch)`` rows
@@ -443,12 +452,16 @@ def train(policy: Any, optimizer: Any, demos: DemoTensors, to_batch: Callable[[d
         raise SystemExit("--early-share needs --early-frames >= 1")
     if args.lift_share > 0 and args.lift_steps < 1:
         raise SystemExit("--lift-share needs --lift-steps >= 1")
-    if not 0 <= args.early_share + args.lift_share <= 1:
-        raise SystemExit(f"--early-share {args.early_share} and --lift-share {args.lift_share} must add up to at most 1")
+    if args.approach_share > 0 and args.approach_steps < 1:
+        raise SystemExit("--approach-share needs --approach-steps >= 1")
+    if not 0 <= args.early_share + args.approach_share + args.lift_share <= 1:
+        raise SystemExit(f"--early-share {args.early_share}, --approach-share {args.approach_share} and --lift-share "
+                         f"{args.lift_share} must add up to at most 1")
 
     def focus(gripper: Any, episode: Any, step: Any) -> list:
         return [(torch.nonzero(step < args.early_frames).flatten(), args.early_share),
-                (lift_rows(gripper, episode, step, args.lift_steps), args.lift_share)]
+                (grasp_rows(gripper, episode, step, -args.approach_steps, 0), args.approach_share),
+                (grasp_rows(gripper, episode, step, 0, args.lift_steps), args.lift_share)]
 
     # The gripper is the state's last column (six arm joints, then the gripper, as the recorder writes them).
     demo_focus = focus(demos.state[:, -1], demos.episode, demos.frame_index)
@@ -544,6 +557,7 @@ def training_record(args: argparse.Namespace, demos: DemoTensors, run: TrainingR
         "episode_seeds": [seed for root in roots for seed in demos_meta(root).get("seeds", [])],
         "steps": run.steps, "batch": args.batch, "lr": args.lr, "threads": args.threads, "seed": args.seed,
         "seconds": round(run.seconds, 1), "early_frames": args.early_frames, "early_share": args.early_share,
+        "approach_steps": args.approach_steps, "approach_share": args.approach_share,
         "lift_steps": args.lift_steps, "lift_share": args.lift_share,
     }
     if args.plan_layouts > 0 or args.plan_early_layouts > 0:
