@@ -74,17 +74,14 @@ def add_arguments(parser: argparse.ArgumentParser, *, out: Path, steps: int, min
     parser.add_argument("--early-share", type=float, default=0.0,
                         help="share of every batch drawn from the episodes' first --early-frames steps, in its recorded "
                              "and its played rows alike (0: uniform sampling)")
-    parser.add_argument("--lift-steps", type=int, default=0,
-                        help="with --lift-share: the N steps from the first frame of an episode whose gripper holds the "
-                             "cube (the start of the carry) are drawn more often")
-    parser.add_argument("--lift-share", type=float, default=0.0,
-                        help="share of every batch drawn from the --lift-steps steps, in its recorded and its played rows alike")
-    parser.add_argument("--approach-steps", type=int, default=0,
-                        help="with --approach-share: the N steps before the first frame of an episode whose gripper holds "
-                             "the cube (the descent and the closing) are drawn more often")
-    parser.add_argument("--approach-share", type=float, default=0.0,
-                        help="share of every batch drawn from the --approach-steps steps, in its recorded and its played "
-                             "rows alike")
+    for moment, steps in (("approach", "the N steps before the first frame of an episode whose gripper holds the cube "
+                                        "(the descent and the closing)"),
+                          ("lift", "the N steps from the first frame of an episode whose gripper holds the cube (the "
+                                   "start of the carry)")):
+        parser.add_argument(f"--{moment}-steps", type=int, default=0, help=f"with --{moment}-share: {steps} are drawn more often")
+        parser.add_argument(f"--{moment}-share", type=float, default=0.0,
+                            help=f"share of every batch drawn from the --{moment}-steps steps, in its recorded and its played "
+                                 "rows alike")
     parser.add_argument("--plan-layouts", type=int, default=0, metavar="N",
                         help="also train on frames of the oracle's plan played into the cell in N more layouts, without "
                              "the runtime (tools/plan_frames.py)")
