@@ -27,8 +27,8 @@ without the stack check: its labels are the oracle's plan, whose played episodes
 3 of 2,000 layouts.
 
 ``make_plan_frames`` plays them in worker processes (each its own cell and kinematics) and keeps
-them in a cache file named by a hash of the settings (those at their defaults left out); ``PlanFrames.batch`` answers what
-``DemoTensors.batch`` does, so a training batch mixes both.
+them in a cache file named by a hash of the settings (those at their defaults left out);
+``PlanFrames.batch`` answers what ``DemoTensors.batch`` does, so a training batch mixes both.
 """
 from __future__ import annotations
 
@@ -116,7 +116,7 @@ class PlanFrames:
     """Each frame's policy step in its episode (from Home, or from a detour's stop)."""
     task: str
     dropped: list[int]
-    """Layout seeds whose episode did not stack (no frames kept)."""
+    """Layout seeds without frames: no plan, or (played to the end) not stacked."""
 
     def __len__(self) -> int:
         return len(self.seeds)
