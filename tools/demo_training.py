@@ -445,12 +445,9 @@ def train(policy: Any, optimizer: Any, demos: DemoTensors, to_batch: Callable[[d
     parameters = [p for group in optimizer.param_groups for p in group["params"]]
     warmup = max(1, args.steps // 20)
     generator = torch.Generator().manual_seed(args.seed)
-    if args.early_share > 0 and args.early_frames < 1:
-        raise SystemExit("--early-share needs --early-frames >= 1")
-    if args.lift_share > 0 and args.lift_steps < 1:
-        raise SystemExit("--lift-share needs --lift-steps >= 1")
-    if args.approach_share > 0 and args.approach_steps < 1:
-        raise SystemExit("--approach-share needs --approach-steps >= 1")
+    for moment, steps in (("early", args.early_frames), ("approach", args.approach_steps), ("lift", args.lift_steps)):
+        if getattr(args, f"{moment}_share") > 0 and steps < 1:
+            raise SystemExit(f"--{moment}-share needs --{moment}-{'frames' if moment == 'early' else 'steps'} >= 1")
     if not 0 <= args.early_share + args.approach_share + args.lift_share <= 1:
         raise SystemExit(f"--early-share {args.early_share}, --approach-share {args.approach_share} and --lift-share "
                          f"{args.lift_share} must add up to at most 1")
