@@ -38,6 +38,9 @@ def _serve_arguments(serve: argparse.ArgumentParser) -> None:
     serve.add_argument("--warmup-prompt", default="stack the red cube on the blue cube", help="prompt of the warmup request")
     serve.add_argument("--default-guidance", type=int, default=0, metavar="STEPS",
                        help="RTC guidance width used when a request's guidance_horizon is 0")
+    serve.add_argument("--noise-scale", type=float, metavar="SCALE",
+                       help="scale of a denoising policy's starting noise: 1 samples as trained, 0 answers one chunk "
+                            "per observation (default: the checkpoint's objective_policy.json, else 1)")
     serve.add_argument("--tls-cert", type=Path, metavar="FILE", help="serve HTTPS with this certificate (PEM)")
     serve.add_argument("--tls-key", type=Path, metavar="FILE", help="private key of --tls-cert (PEM)")
     serve.add_argument("--tls-client-ca", type=Path, metavar="FILE", help="require client certificates signed by this CA")
@@ -62,7 +65,8 @@ def _serve(args: argparse.Namespace, registry: Registry) -> int:
             max_body_bytes=args.max_body_bytes, warmup=warmup,
             tls_cert=args.tls_cert, tls_key=args.tls_key, tls_client_ca=args.tls_client_ca,
         )
-        backend = make_backend(args.backend, BackendOptions(args.replay_file, args.default_guidance, args.checkpoint))
+        backend = make_backend(args.backend, BackendOptions(args.replay_file, args.default_guidance, args.checkpoint,
+                                                             args.noise_scale))
         server = InferenceServer(backend, config)
         stop = threading.Event()
         restore = stop_on_signals(stop)

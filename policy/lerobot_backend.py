@@ -47,6 +47,7 @@ The pure functions here (:func:`execution_horizon`, :func:`map_cameras`, :func:`
 from __future__ import annotations
 
 import json
+import math
 import logging
 import statistics
 import time
@@ -71,8 +72,9 @@ hub name its config records."""
 METADATA_FILE = "objective_policy.json"
 """Optional file next to a checkpoint with what LeRobot's format does not keep: ``joint_names``
 (state/action columns), ``control_period`` (seconds per step at training), ``default_guidance_horizon``,
-``camera_crops`` (camera -> ``[top, left, bottom, right]`` fractions of the frame, see :func:`crop_slices`)
-and ``ignored_images`` (request image names the policy does not use)."""
+``camera_crops`` (camera -> ``[top, left, bottom, right]`` fractions of the frame, see :func:`crop_slices`),
+``ignored_images`` (request image names the policy does not use) and ``noise_scale`` (see
+:class:`LeRobotOptions`)."""
 RTC_POLICY_TYPES = frozenset({"smolvla", "pi0", "pi05"})
 """LeRobot 0.4.4 policies whose sampling loop takes RTC guidance."""
 QUEUED_OBSERVATION_TYPES = frozenset({"diffusion"})
@@ -87,6 +89,26 @@ DEFAULT_GUIDANCE_HORIZON = 10
 # ---------------------------------------------------------------------------------------------
 class CameraMappingError(ObjectiveError, ValueError):
     """Request image names and checkpoint cameras do not correspond; names both sides."""
+
+
+def checked_noise_scale(value: Any, where: str) -> float:
+    """A sampler noise scale: a finite number >= 0 (1 samples as trained, 0 starts at the mean)."""
+    try:
+        scale = float(value)
+    except (TypeError, ValueError):
+        scale = float("nan")
+    if not math.isfinite(scale) or scale < 0:
+        raise OptionError(f"{where}: noise_scale must be a finite number >= 0 (1 samples as trained), got {value!r}")
+    return scale
+
+
+def noise_shape(config: Any) -> tuple[int, int, int]:
+    """The shape of the starting noise of one sampled chunk: SmolVLA, pi0 and pi0.5 denoise
+    ``chunk_size`` steps padded to ``max_action_dim``; the diffusion policy ``horizon`` steps of the
+    action."""
+    if getattr(config, "type", "") == "diffusion":
+        return (1, int(config.horizon), int(config.output_features[ACTION_KEY].shape[0]))
+    return (1, int(config.chunk_size), int(config.max_action_dim))
 
 
 def execution_horizon(frozen_prefix_steps: int, guidance_horizon: int, server_default: int) -> int:
@@ -293,6 +315,10 @@ class LeRobotOptions:
     """CPU threads for torch (None: torch's default). One thread measured fastest on 2 shared cores."""
     seed: int | None = 0
     """Seeds torch's noise for the flow-matching sampler (None: unseeded)."""
+    noise_scale: float | None = None
+    """Scale of the sampler's starting noise: 1 samples a chunk as trained, 0 starts every chunk at the
+    noise's mean, which answers the same chunk for the same observation (the flow's central
+    trajectory). None: the checkpoint metadata's ``noise_scale``, else 1."""
     warmup_on_load: bool = False
     """Run the full-size warmup at the end of ``load()`` on a synthetic observation (zero images at
     the checkpoint's sizes, zero state): for hosts that call ``load()`` only, like the embedded world."""
@@ -395,6 +421,7 @@ class LeRobotBackend:
         self.last_rtc: RtcCall | None = None
         self.joint_names: list[str] | None = None
         self.calls = 0
+        self.noise_scale = 1.0
         self._mappings: dict[tuple[str, ...], dict[str, str]] = {}
 
     # -- lifecycle ---
@@ -467,10 +494,15 @@ class LeRobotBackend:
         self.joint_names = list(names) if names else None
         period = options.control_period if options.control_period is not None else self.metadata.get("control_period", 0.0)
         self.control_period = float(period)
+        if options.noise_scale is not None:
+            self.noise_scale = checked_noise_scale(options.noise_scale, "the noise_scale option")
+        else:
+            self.noise_scale = checked_noise_scale(self.metadata.get("noise_scale", 1.0), f"{metadata_path}")
         LOG.info(
-            "loaded %s policy from %s: cameras [%s], state %d, action %d, chunk %s, RTC %s (default width %d)",
+            "loaded %s policy from %s: cameras [%s], state %d, action %d, chunk %s, RTC %s (default width %d), noise scale %g",
             config.type, folder, ", ".join(camera_name(k) for k in self.camera_keys), self.state_dim,
             self.action_dim, getattr(config, "chunk_size", "?"), "on" if self.rtc else "off", self.default_guidance,
+            self.noise_scale,
         )
         if options.warmup_on_load:
             self.warmup(self.synthetic_request())
@@ -526,6 +558,8 @@ class LeRobotBackend:
             batch = self.preprocessor(observation)
             if self.queued_observation:
                 batch = queue_observation(self.policy, batch)
+            if self.noise_scale != 1.0:
+                guidance["noise"] = self.noise_scale * torch.randn(noise_shape(self.config))
             normalized = self.policy.predict_action_chunk(batch, **guidance)
             absolute = self.postprocessor(normalized)
         elapsed = time.perf_counter() - started
@@ -553,6 +587,7 @@ class LeRobotBackend:
             "action_dim": self.action_dim,
             "chunk_size": getattr(self.config, "chunk_size", None),
             "rtc": self.rtc,
+            "noise_scale": self.noise_scale,
             "default_guidance_horizon": self.default_guidance,
             "native_control_period": self.control_period,
             "steady_latency_s": round(self.latency.steady(), 4),

@@ -516,6 +516,8 @@ class BackendOptions:
     """The server's RTC guidance width (``guidance_horizon`` 0 means this), for denoising backends."""
     checkpoint: Path | None = None
     """A LeRobot checkpoint directory (``--backend lerobot``)."""
+    noise_scale: float | None = None
+    """Scale of a denoising policy's starting noise (``--noise-scale``); None: the checkpoint's own."""
 
 
 def replay_backend(options: BackendOptions) -> PolicyBackend:
@@ -537,7 +539,8 @@ def lerobot_backend(options: BackendOptions) -> PolicyBackend:
         raise OptionError("--backend lerobot needs --checkpoint DIR (a LeRobot checkpoint folder)")
     if not options.checkpoint.is_dir():
         raise OptionError(f"--checkpoint {options.checkpoint}: no such directory")
-    return make_lerobot_backend(options.checkpoint, guidance_horizon=options.default_guidance or None)
+    return make_lerobot_backend(options.checkpoint, guidance_horizon=options.default_guidance or None,
+                                noise_scale=options.noise_scale)
 
 
 BACKEND_GROUP = "objective.policy_backends"

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import importlib.util
+import json
 import logging
 
 import numpy as np
@@ -256,6 +257,38 @@ def test_metadata_crops_a_camera_before_the_resize_and_drops_only_the_ignored_im
     assert tuple(seen.shape[-2:]) == (32, 32) and float(seen.min()) > 0.99  # only the white quarter, at 32 px
     missing = served.infer(PolicyRequest(PROMPT, JOINTS, np.zeros(7), {"scene": images["scene"], "overview": overview}))
     assert missing.status is PolicyStatus.ERROR and "checkpoint cameras [wrist] get no request image" in missing.message
+
+
+@needs_lerobot
+def test_noise_scale_zero_answers_one_chunk_per_observation_and_bad_scales_are_named(checkpoint, backend, tmp_path):
+    request = PolicyRequest(PROMPT, JOINTS, np.zeros(7), frames(), new_episode=True)
+    sampled = [backend.infer(request).actions for _ in range(2)]
+    assert backend.describe()["noise_scale"] == 1.0
+    assert np.abs(sampled[0] - sampled[1]).max() > 1e-3  # two samples of the flow differ
+
+    from policy.server import BackendOptions, make_backend
+
+    central = make_backend("lerobot", BackendOptions(checkpoint=checkpoint, noise_scale=0.0))  # serve --noise-scale 0
+    central.load()
+    answers = [central.infer(request).actions for _ in range(2)]
+    np.testing.assert_array_equal(answers[0], answers[1])
+    assert central.describe()["noise_scale"] == 0.0
+
+    import shutil
+
+    copy = tmp_path / "central"
+    shutil.copytree(checkpoint, copy)
+    metadata = json.loads((copy / "objective_policy.json").read_text())
+    (copy / "objective_policy.json").write_text(json.dumps({**metadata, "noise_scale": 0}))
+    from_metadata = make_lerobot_backend(copy, committed_window=None)
+    from_metadata.load()
+    np.testing.assert_allclose(from_metadata.infer(request).actions, answers[0], atol=1e-6)
+
+    (copy / "objective_policy.json").write_text(json.dumps({**metadata, "noise_scale": "loud"}))
+    with pytest.raises(ValueError, match=r"objective_policy.json: noise_scale must be a finite number >= 0 .*'loud'"):
+        make_lerobot_backend(copy, committed_window=None).load()
+    with pytest.raises(ValueError, match=r"the noise_scale option: noise_scale must be a finite number >= 0 .*-1"):
+        make_lerobot_backend(checkpoint, committed_window=None, noise_scale=-1).load()
 
 
 @needs_lerobot
