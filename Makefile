@@ -58,15 +58,20 @@ $(LEROBOT_STAMP): pyproject.toml requirements/lerobot.txt requirements/lerobot-c
 	HF_HUB_OFFLINE=1 $(LPY) -c "from policy.lerobot_compat import ensure_torchvision; print('torchvision ops:', ensure_torchvision()); import lerobot.policies.smolvla.modeling_smolvla, lerobot.async_inference.robot_client"
 	@touch $@
 
-# The tiny SmolVLA (docs/lerobot.md): records 93 oracle demonstrations in two workers
-# (build/demos/stack_cubes_93, reused when present; layout seeds 1000-1092, wrist and overview
+# The tiny SmolVLA (docs/lerobot.md): records 360 oracle demonstrations in two workers
+# (build/demos/stack_cubes_360, reused when present; layout seeds 1000-1359, wrist and overview
 # cameras at 128 px, the gripper at 0.5 rad/s, 0.04 rad of motion noise, frames until 2 s after the
-# plan), trains on the overview's workspace crop and the wrist at 64 px with one torch thread for
-# 30 minutes (9000 steps scheduled; about 5300 fit on this machine, the schedule annealed by time),
-# saves build/policies/tiny_smolvla and evaluates it on held-out seeds 100-149.
-LEROBOT_POLICY_DEMOS := --dataset build/demos/stack_cubes_93 --episodes 93 --demo-seed 1000 --workers 2 \
+# plan), plays the oracle's plan for 2,000 more layouts straight into the cell (seeds 30000-31999, a
+# frame every 5th step; build/plan_frames, made once), then trains on the overview's workspace crop
+# and the wrist at 64 px with one torch thread for 30 minutes: half of every batch from the played
+# layouts, 6 of 16 samples from the episodes' first second, 4 of 16 from the 2 s after the grasp,
+# the cube layout as an auxiliary target of the overview's vision tokens. Saves
+# build/policies/tiny_smolvla and evaluates it on held-out seeds 100-149.
+LEROBOT_POLICY_DEMOS := --dataset build/demos/stack_cubes_360 --episodes 360 --demo-seed 1000 --workers 2 \
 	--record-steps 220 --cameras wrist,overview --gripper-velocity 0.5 --motion-noise 0.04 --hold-after-plan 2
-LEROBOT_POLICY_MODEL := --crop overview=0.21875,0.25,0.71875,0.75 --train-size 64 --patch-size 8
+LEROBOT_POLICY_MODEL := --crop overview=0.21875,0.25,0.71875,0.75 --train-size 64 --patch-size 8 \
+	--layout-target 1 --early-frames 10 --early-share 0.375 --lift-steps 20 --lift-share 0.25 \
+	--plan-layouts 2000 --plan-seed 30000 --plan-every 5 --plan-share 0.5
 lerobot-policy: lerobot
 	HF_HUB_OFFLINE=1 MUJOCO_GL=egl ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST $(LPY) tools/train_tiny_smolvla.py \
 		$(LEROBOT_POLICY_DEMOS) $(LEROBOT_POLICY_MODEL) --seed 0 --steps 9000 --minutes 30 \
