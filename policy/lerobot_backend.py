@@ -559,7 +559,7 @@ class LeRobotBackend:
             if self.queued_observation:
                 batch = queue_observation(self.policy, batch)
             if self.noise_scale != 1.0:
-                guidance["noise"] = self.noise_scale * torch.randn(noise_shape(self.config))
+                guidance["noise"] = self.noise_scale * torch.randn(noise_shape(self.config), device=self.options.device)
             normalized = self.policy.predict_action_chunk(batch, **guidance)
             absolute = self.postprocessor(normalized)
         elapsed = time.perf_counter() - started

@@ -98,6 +98,20 @@ def test_a_diffusion_checkpoint_answers_from_the_observation_of_each_request(che
 
 
 @needs_lerobot
+def test_a_diffusion_checkpoint_at_noise_scale_zero_answers_one_chunk_per_observation(checkpoint):
+    """The diffusion policy's starting noise is (1, horizon, action) where SmolVLA's is padded to
+    max_action_dim: at noise scale 0 the sampler starts from zeros of the right shape, so one
+    observation gets one chunk whatever the random state."""
+    backend = make_lerobot_backend(checkpoint, committed_window=None, noise_scale=0.0)
+    backend.load()
+    request = PolicyRequest(PROMPT, JOINTS, np.zeros(7), frames(64, 90), new_episode=True)
+    answers = [backend.infer(request) for _ in range(2)]
+    assert all(a.status == PolicyStatus.CHUNK for a in answers), answers[0].message
+    assert answers[0].actions.shape == (24, 7)
+    np.testing.assert_array_equal(answers[0].actions, answers[1].actions)
+
+
+@needs_lerobot
 def test_training_script_trains_saves_and_the_backend_serves_one_chunk(tmp_path):
     """`make lerobot-diffusion` in miniature on a tiny kinematic recording: a few steps, LeRobot's
     format with the data hash and seeds beside it, then one chunk through the backend."""
