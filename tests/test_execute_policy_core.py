@@ -237,8 +237,21 @@ def test_a_path_unsafe_all_along_its_tail_is_sent_without_one():
     planned = plan(start, ramp(), checks=FakeChecks(path_horizon_s=2.2))  # the window ends at 2.2 s
     assert isinstance(planned, Planned)
     assert planned.sent.motion.rest_time == planned.sent.motion.end and planned.sent.grid.tail == NO_TAIL
+    assert np.allclose(planned.sent.samples.velocities[-1], 0.0, atol=1e-9)  # at rest where the window ends
     unsafe = plan(start, ramp(), checks=FakeChecks(path_horizon_s=1.0))
     assert unsafe == Reject("chunk 1 rejected: beyond the horizon", "world collision")
+
+
+def test_a_window_with_too_few_run_steps_after_it_for_a_runout_ends_at_rest():
+    # Three run steps remain after the window: too few for a runout from the ramp's 0.5 rad/s
+    # (with four, one fits). The window is not the run's last, yet nothing follows it at speed:
+    # it comes to rest at its end (a stock JTC refuses a goal whose last point moves).
+    _, planned = first_plan(total_steps=23)
+    motion = planned.sent.motion
+    assert planned.sent.grid.tail == NO_TAIL and planned.sent.grid.remaining > 0
+    _, v, _ = motion.evaluate(np.array([motion.end]))
+    assert motion.rest_time == motion.end and np.allclose(v, 0.0, atol=1e-9)
+    assert np.allclose(planned.sent.samples.velocities[-1], 0.0, atol=1e-9)
 
 
 def test_the_runs_last_window_ends_at_rest_without_a_runout():

@@ -138,7 +138,7 @@ def _plan(inp: PlanInput, from_rest: Arrival | None) -> Planned | Wait | Reject:
     )
     last_window = window.tail_played + window.steps >= grid.remaining
     tail = NO_TAIL if last_window else chunk_tail(motion, chunk, window, grid.remaining - window.tail_played - window.steps, shaping)
-    motion = motion.at_rest_at_end() if last_window else motion.with_tail(tail)
+    motion = ending(motion, tail)
     # A chunk over the limits on its own is the policy's; the join is planned within them.
     reason = inp.checks.limits(densify(motion.chunk_alone(), shaping.num_interpolation_points), window)
     if reason is not None:
@@ -149,7 +149,7 @@ def _plan(inp: PlanInput, from_rest: Arrival | None) -> Planned | Wait | Reject:
         # The tail only keeps the arm going while the next chunk is late: where the chunk's path
         # beyond its window is unsafe but the window is not, the tail stops short of the unsafe
         # point (a shorter extension, then the runout), or the window ends without one.
-        candidate = motion.with_tail(shorter)
+        candidate = ending(motion, shorter)
         candidate_samples = densify(candidate, shaping.num_interpolation_points)
         if inp.checks.path(candidate_samples, window) is None:
             motion, samples, reason, tail = candidate, candidate_samples, None, shorter
@@ -159,6 +159,14 @@ def _plan(inp: PlanInput, from_rest: Arrival | None) -> Planned | Wait | Reject:
     stall = drained_seconds(None if previous is None else previous.full_speed_end, seam_time)
     new_grid = grid.with_window(window, tail, chunk.steps)
     return Planned(window, seam_time, SentMotion(new_grid, motion, samples), stall, takes_over)
+
+
+def ending(motion: ChunkMotion, tail: Tail) -> ChunkMotion:
+    """The window's motion followed by ``tail``, or, with no tail (the run's last window, a chunk
+    with too few steps beyond the window for a runout, a tail the path checks refuse), brought to
+    rest at the window's end: a motion is never sent ending at speed (a stock JTC refuses such a
+    goal, and nothing would carry the arm on if the next chunk were late)."""
+    return motion.with_tail(tail) if tail.steps > 0 else motion.at_rest_at_end()
 
 
 def state_at(motion: ChunkMotion | None, t: float, rest_position: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
