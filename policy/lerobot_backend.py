@@ -47,8 +47,8 @@ The pure functions here (:func:`execution_horizon`, :func:`map_cameras`, :func:`
 from __future__ import annotations
 
 import json
-import math
 import logging
+import math
 import statistics
 import time
 from dataclasses import dataclass, field
@@ -558,9 +558,7 @@ class LeRobotBackend:
             batch = self.preprocessor(observation)
             if self.queued_observation:
                 batch = queue_observation(self.policy, batch)
-            if self.noise_scale != 1.0:
-                guidance["noise"] = self.noise_scale * torch.randn(noise_shape(self.config), device=self.options.device)
-            normalized = self.policy.predict_action_chunk(batch, **guidance)
+            normalized = self.policy.predict_action_chunk(batch, **guidance, **self._starting_noise())
             absolute = self.postprocessor(normalized)
         elapsed = time.perf_counter() - started
         self.calls += 1
@@ -656,6 +654,15 @@ class LeRobotBackend:
             "prev_chunk_left_over": torch.from_numpy(tail),
             "execution_horizon": horizon,
         }
+
+    def _starting_noise(self) -> dict[str, Any]:
+        """The ``noise`` keyword of ``predict_action_chunk`` at a noise scale other than 1 (empty at 1:
+        LeRobot samples its own)."""
+        if self.noise_scale == 1.0:
+            return {}
+        import torch
+
+        return {"noise": self.noise_scale * torch.randn(noise_shape(self.config), device=self.options.device)}
 
     def _columns(self, request: PolicyRequest) -> list[int]:
         """Request column of each checkpoint action dimension."""
