@@ -1,6 +1,6 @@
 """ExecutePolicy's pure core without a world: the immutable step grid, the planner's
 Planned / Wait / Reject decisions, and the stream's named states and their transitions."""
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import pytest
@@ -251,6 +251,34 @@ def test_a_window_with_too_few_run_steps_after_it_for_a_runout_ends_at_rest():
     assert planned.sent.grid.tail == NO_TAIL and planned.sent.grid.remaining > 0
     _, v, _ = motion.evaluate(np.array([motion.end]))
     assert motion.rest_time == motion.end and np.allclose(v, 0.0, atol=1e-9)
+    assert np.allclose(planned.sent.samples.velocities[-1], 0.0, atol=1e-9)
+
+
+def test_a_seam_blend_that_outlasts_the_tail_brings_the_window_to_rest_at_its_end():
+    # Under a gentle acceleration limit the ramp's 0.5 rad/s, started from rest, is joined over a
+    # blend of 7.9 s: longer than the window and a tail (4.9 s), whose runout slows the chunk but
+    # not the blend. With that tail the goal would end at 0.036 rad/s (a stock JTC refuses it).
+    gentle = replace(SHAPING, max_acceleration=np.full(2, 0.5))
+    start = SentMotion(StepGrid(0.0, DT, 20, 100))
+    planned = plan_chunk(PlanInput(start, GoalState.NONE, ramp(), 1, 0, 2, 2, START, gentle, FakeChecks()))
+    assert isinstance(planned, Planned)
+    motion = planned.sent.motion
+    assert motion.blend_duration == pytest.approx(7.88, abs=0.01) and planned.sent.grid.tail == NO_TAIL
+    assert motion.rest_time == motion.end and planned.sent.grid.remaining > 0
+    assert np.allclose(planned.sent.samples.velocities[-1], 0.0, atol=1e-9)
+    assert np.allclose(planned.sent.samples.positions[-1], motion.evaluate(np.array([motion.end]))[0][0])
+
+
+def test_a_shorter_tail_that_the_seam_blend_outlasts_is_passed_over():
+    # A 6.57 s blend: the full tail (rest 6.8 s after the seam) outlasts it, but goes past the
+    # path's horizon; the next shorter tail (half the extension, rest after 6.3 s) would pass
+    # the checks and end moving, so the window comes to rest at its end instead.
+    gentle = replace(SHAPING, max_acceleration=np.full(2, 0.6))
+    start = SentMotion(StepGrid(0.0, DT, 20, 100))
+    planned = plan_chunk(PlanInput(start, GoalState.NONE, ramp(), 1, 0, 2, 2, START, gentle, FakeChecks(path_horizon_s=6.6)))
+    assert isinstance(planned, Planned)
+    assert planned.sent.motion.blend_duration == pytest.approx(6.57, abs=0.01)
+    assert planned.sent.grid.tail == NO_TAIL
     assert np.allclose(planned.sent.samples.velocities[-1], 0.0, atol=1e-9)
 
 

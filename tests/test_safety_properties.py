@@ -302,6 +302,9 @@ def assert_nothing_unsafe_reached_the_controller(out: Outcome) -> None:
         samples = Samples(g.times, g.positions, g.velocities, g.accelerations)
         hit = safety.first_collision(snapshot, samples, PADDING, 0.0)
         assert hit is None, f"a point in collision reached the controller: {hit}"
+        # A goal ends at rest: a stock JTC refuses one that does not, and nothing else would
+        # carry the arm on if the next chunk were late.
+        assert np.allclose(g.velocities[-1], 0.0, atol=1e-6), f"a goal ending at {g.velocities[-1]} rad/s reached the controller"
     gripper = out.snapshot_scene.limits[GRIPPER_DRIVER_JOINT]
     for position in out.gripper_goals:
         assert gripper.lower - tol <= position <= gripper.upper + tol, f"gripper goal {position} reached the gripper controller"

@@ -146,6 +146,8 @@ def _plan(inp: PlanInput, from_rest: Arrival | None) -> Planned | Wait | Reject:
     samples = densify(motion, shaping.num_interpolation_points)
     reason = inp.checks.path(samples, window)
     for shorter in shorter_tails(tail) if reason is not None else ():
+        if not comes_to_rest(motion, shorter):
+            continue
         # The tail only keeps the arm going while the next chunk is late: where the chunk's path
         # beyond its window is unsafe but the window is not, the tail stops short of the unsafe
         # point (a shorter extension, then the runout), or the window ends without one.
@@ -163,10 +165,19 @@ def _plan(inp: PlanInput, from_rest: Arrival | None) -> Planned | Wait | Reject:
 
 def ending(motion: ChunkMotion, tail: Tail) -> ChunkMotion:
     """The window's motion followed by ``tail``, or, with no tail (the run's last window, a chunk
-    with too few steps beyond the window for a runout, a tail the path checks refuse), brought to
-    rest at the window's end: a motion is never sent ending at speed (a stock JTC refuses such a
-    goal, and nothing would carry the arm on if the next chunk were late)."""
+    with too few steps beyond the window for a runout, a seam blend that outlasts the tail, a
+    tail the path checks refuse), brought to rest at the window's end: a motion is never sent
+    ending at speed (a stock JTC refuses such a goal, and nothing would carry the arm on if the
+    next chunk were late)."""
     return motion.with_tail(tail) if tail.steps > 0 else motion.at_rest_at_end()
+
+
+def comes_to_rest(motion: ChunkMotion, tail: Tail) -> bool:
+    """Whether ``ending(motion, tail)`` is at rest when it ends: always without a tail; with one,
+    only when the seam's blend is over before the runout ends (the runout slows the chunk's
+    playback, not the blend: a chunk that starts far from the arm, or at another speed, is
+    joined gently over a blend that can outlast a window and its tail)."""
+    return tail.steps == 0 or motion.seam + motion.blend_duration <= motion.end + tail.extension_s + tail.runout_s + 1e-9
 
 
 def state_at(motion: ChunkMotion | None, t: float, rest_position: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
@@ -192,13 +203,15 @@ def chunk_tail(motion: ChunkMotion, chunk: Chunk, window: Window, remaining_step
     """The window's tail if no chunk takes over at its end: the chunk's steps beyond the window
     at full speed, then a runout to rest at its last step (``shaping.plan_tail``). It stops a
     step short of the run's ``remaining_steps`` after the window, so a late chunk always has a
-    step left to take over."""
+    step left to take over. None (``NO_TAIL``) when the seam's blend outlasts it
+    (``comes_to_rest``)."""
     spare = min(chunk.steps - 1 - (window.end_step - window.request_step), remaining_steps - 1)
     if spare < 1:
         return NO_TAIL
     beyond = motion.end + shaping.dt * np.arange(spare + 1)
     _, velocity, _ = motion.evaluate(beyond)  # the window's motion carried on along the chunk
-    return plan_tail(np.abs(velocity).max(axis=0), shaping.max_acceleration, shaping.dt, nominal_runout_s(shaping), spare)
+    tail = plan_tail(np.abs(velocity).max(axis=0), shaping.max_acceleration, shaping.dt, nominal_runout_s(shaping), spare)
+    return tail if comes_to_rest(motion, tail) else NO_TAIL
 
 
 def shorter_tails(tail: Tail) -> list[Tail]:
