@@ -27,6 +27,7 @@ import json
 import os
 import subprocess
 import sys
+import textwrap
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Sequence
@@ -126,6 +127,20 @@ def run_cell(args: argparse.Namespace, objective: Path, cell: Cell) -> dict[str,
     return cell_row(cell, records, range(args.seed_start, args.seed_start + args.episodes))
 
 
+def policy_label(spec: str) -> str:
+    """A ``--policy`` as titles show it: a checkpoint or a recording by its own name
+    (``lerobot:NAME``, ``replay:NAME``), any other spec as it is."""
+    kind, _, where = spec.partition(":")
+    return f"{kind}:{Path(where).name}" if kind in ("lerobot", "replay") else spec
+
+
+def rate_axis(rows: Sequence[dict[str, Any]]) -> tuple[float, float]:
+    """The plot's success-rate range: all of 0-1, unless every interval ends below a quarter;
+    then the rates would sit on the axis, so it ends just above the highest interval."""
+    top = max([r["ci95_high"] for r in rows if r["rate"] is not None] + [0.0])
+    return (-0.02, 1.02) if top > 0.25 else (-0.02, 1.2 * max(top, 0.05))
+
+
 def plot(rows: Sequence[dict[str, Any]], path: Path, title: str) -> None:
     """Success rate against the mean delay, one line per executor over the fixed delays with
     its 95 % interval as a band; lognormal delays as open markers at their mean. Each executor is
@@ -152,8 +167,8 @@ def plot(rows: Sequence[dict[str, Any]], path: Path, title: str) -> None:
                         fmt="s", mfc="none", color=color, capsize=3, label=None if fixed else executor.label)
     ax.set_xlabel("policy call delay, s (open squares: lognormal, at its mean; executors drawn slightly apart)")
     ax.set_ylabel("success rate (95 % Wilson interval)")
-    ax.set_ylim(-0.02, 1.02)
-    ax.set_title(title, fontsize=9)
+    ax.set_ylim(*rate_axis(rows))
+    ax.set_title("\n".join(textwrap.wrap(title, 95)), fontsize=9)
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
     fig.tight_layout()
@@ -206,7 +221,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                 return 2
             print(f"{executor.value} at {delay}: {row['successes']}/{row['episodes']}", file=sys.stderr, flush=True)
             rows.append(row)
-    title = f"success under latency: policy {args.policy}, {args.world}, seeds {args.seed_start}+, {args.episodes} episodes per cell"
+    title = f"success under latency: policy {policy_label(args.policy)}, {args.world}, seeds {args.seed_start}+, {args.episodes} episodes per cell"
     report(title, rows, COLUMNS, notes=["rate: successes / episodes (an ERROR is not a success); ci95: Wilson score interval; "
                                         "time_to_success_s: median simulated seconds of the successful episodes"])
     (args.out / "rows.jsonl").write_text("".join(json.dumps(r) + "\n" for r in rows))

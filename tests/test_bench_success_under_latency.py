@@ -44,6 +44,16 @@ def test_a_cells_row_counts_the_seeds_asked_for(bench):
     assert (empty["episodes"], empty["rate"], empty["ci95_low"], empty["ci95_high"], empty["time_to_success_s"]) == (0, None, 0.0, 1.0, None)
 
 
+def test_a_checkpoint_is_titled_by_its_folder_and_low_rates_get_an_axis_of_their_own(bench):
+    assert bench.policy_label("lerobot:/work/policies/tiny_smolvla") == "lerobot:tiny_smolvla"
+    assert bench.policy_label("replay:build/demos/run.mcap") == "replay:run.mcap"
+    assert [bench.policy_label(s) for s in ("oracle", "http://127.0.0.1:8000", "my_policy.py:make")] == [
+        "oracle", "http://127.0.0.1:8000", "my_policy.py:make"]
+    row = {"executor": "rtc", "delay": "0", "delay_mean_s": 0.0, "rate": 0.02, "ci95_low": 0.0035, "ci95_high": 0.105}
+    assert bench.rate_axis([row]) == (-0.02, pytest.approx(0.126))
+    assert bench.rate_axis([row, {**row, "rate": 0.5, "ci95_low": 0.37, "ci95_high": 0.63}]) == (-0.02, 1.02)
+
+
 def test_delays_are_fixed_seconds_or_lognormal(bench):
     assert [bench.check_delay(d) for d in ("0", "0.2", "lognormal:0.5,0.25")] == ["0", "0.2", "lognormal:0.5,0.25"]
     for bad in ("measured", "-1", "lognormal:0.5", "fast"):
