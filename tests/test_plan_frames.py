@@ -147,16 +147,16 @@ def test_every_plan_frame_knows_its_policy_step():
 
 
 @needs_lerobot
-def test_the_early_approach_and_lift_shares_of_a_batch_cover_its_plan_rows_too():
+def test_the_early_approach_lift_and_place_shares_of_a_batch_cover_its_plan_rows_too():
     """Of the plan rows of every batch as of the recorded ones, the early share comes from the
     episodes' first steps, the approach share from the steps before the gripper first holds the
-    cube and the lift share from those after, so the chunks decided from the cameras learn from
-    every played layout."""
+    cube, the lift share from those after and the place share from those before it lets go, so
+    the chunks decided from the cameras learn from every played layout."""
     import argparse
 
     import torch
 
-    from tools.demo_training import HELD_GRIPPER_RAD, grasp_rows, train
+    from tools.demo_training import HELD_GRIPPER_RAD, grasp_rows, release_rows, train
 
     class Rows:
         """Episodes of 200 frames whose state is (step, gripper); the gripper holds from step 100 to 149."""
@@ -179,6 +179,9 @@ def test_the_early_approach_and_lift_shares_of_a_batch_cover_its_plan_rows_too()
     assert grasp_rows(demos.state[:, 1], demos.episode, demos.step, -10, 0).tolist() == [*range(90, 100), *range(290, 300)]
     never = grasp_rows(torch.zeros(200), torch.zeros(200, dtype=torch.long), torch.arange(200), -20, 20)
     assert never.tolist() == [] and HELD_GRIPPER_RAD < 0.54
+    assert release_rows(demos.state[:, 1], demos.episode, demos.step, -15, 0).tolist() == [*range(135, 150), *range(335, 350)]
+    closed_from_the_start = torch.where(torch.arange(200) < 50, 0.54, 0.0)  # lets go at step 50, never opened before
+    assert release_rows(closed_from_the_start, torch.zeros(200, dtype=torch.long), torch.arange(200), -5, 2).tolist() == [*range(45, 52)]
     seen = []
 
     class Policy(torch.nn.Module):
@@ -192,15 +195,17 @@ def test_the_early_approach_and_lift_shares_of_a_batch_cover_its_plan_rows_too()
 
     policy = Policy()
     args = argparse.Namespace(steps=20, minutes=1.0, seed=0, early_frames=10, early_share=0.25, approach_steps=10,
-                              approach_share=0.25, lift_steps=20, lift_share=0.25, plan_share=0.5, batch=16, lr=1e-3)
+                              approach_share=0.25, lift_steps=20, lift_share=0.25, place_steps=15, place_share=0.125,
+                              plan_share=0.5, batch=16, lr=1e-3)
     train(policy, torch.optim.SGD(policy.parameters(), lr=1e-3), demos, lambda b: b, args, plan_frames=Rows(5))
     assert len(seen) == 20
     for steps in seen:
         for part in (steps[:8], steps[8:]):
             assert sum(s < 10 for s in part) >= 2 and sum(90 <= s < 100 for s in part) >= 2
-            assert sum(100 <= s < 120 for s in part) >= 2
+            assert sum(100 <= s < 120 for s in part) >= 2 and sum(135 <= s < 150 for s in part) >= 1
     args.lift_share = 0.75
-    with pytest.raises(SystemExit, match="--early-share 0.25, --approach-share 0.25 and --lift-share 0.75 must add up to at most 1"):
+    with pytest.raises(SystemExit, match="--early-share 0.25, --approach-share 0.25, --lift-share 0.75, --place-share 0.125 "
+                                         "must add up to at most 1"):
         train(policy, torch.optim.SGD(policy.parameters(), lr=1e-3), demos, lambda b: b, args)
 
 

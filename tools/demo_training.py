@@ -77,7 +77,9 @@ def add_arguments(parser: argparse.ArgumentParser, *, out: Path, steps: int, min
     for moment, steps in (("approach", "the N steps before the first frame of an episode whose gripper holds the cube "
                                         "(the descent and the closing)"),
                           ("lift", "the N steps from the first frame of an episode whose gripper holds the cube (the "
-                                   "start of the carry)")):
+                                   "start of the carry)"),
+                          ("place", "the N steps before the frame at which an episode's gripper lets go of the cube (the "
+                                    "end of the carry and the setting down)")):
         parser.add_argument(f"--{moment}-steps", type=int, default=0, help=f"with --{moment}-share: {steps} are drawn more often")
         parser.add_argument(f"--{moment}-share", type=float, default=0.0,
                             help=f"share of every batch drawn from the --{moment}-steps steps, in its recorded and its played "
@@ -317,12 +319,33 @@ def grasp_rows(gripper: Any, episode: Any, step: Any, start: int, stop: int) -> 
     the chunk starts the carry to the other cube, which only the cameras place (the arm's state
     says where the first cube was); before 0: the descent and the closing, where the wrist camera
     centres the gripper on the cube."""
+    held = gripper >= HELD_GRIPPER_RAD
+    return _rows_around(episode, step, _first_step(episode, step, held), start, stop)
+
+
+def release_rows(gripper: Any, episode: Any, step: Any, start: int, stop: int) -> Any:
+    """The rows whose step lies from ``start`` to before ``stop`` steps after the frame at which
+    their episode's gripper lets go of the cube (its first frame after the grasp that no longer
+    holds; negative: before it). Before 0: the end of the carry and the setting down, where the
+    chunk decides where the cube goes, which only the cameras say (the wrist camera holding the
+    cube sees the other one only as it comes close)."""
+    held = gripper >= HELD_GRIPPER_RAD
+    grasp = _first_step(episode, step, held)
+    return _rows_around(episode, step, _first_step(episode, step, ~held & (step > grasp[episode])), start, stop)
+
+
+def _first_step(episode: Any, step: Any, where: Any) -> Any:
+    """Per episode, the first step at which ``where`` holds (a step no run reaches where it never does)."""
     import torch
 
-    held = gripper >= HELD_GRIPPER_RAD
     never = torch.iinfo(torch.int64).max // 2
-    first = torch.full((int(episode.max()) + 1,), never, dtype=torch.int64).scatter_reduce(0, episode[held], step[held], "amin")
-    since = step - first[episode]
+    return torch.full((int(episode.max()) + 1,), never, dtype=torch.int64).scatter_reduce(0, episode[where], step[where], "amin")
+
+
+def _rows_around(episode: Any, step: Any, moment: Any, start: int, stop: int) -> Any:
+    import torch
+
+    since = step - moment[episode]
     return torch.nonzero((since >= start) & (since < stop)).flatten()
 
 
@@ -432,7 +455,8 @@ def train(policy: Any, optimizer: Any, demos: DemoTensors, to_batch: Callable[[d
     ``args.minutes``, whichever ends first, on batches of ``args.batch`` rows of ``demos`` drawn with
     ``args.seed`` (``args.early_share`` of them from the episodes' first ``args.early_frames`` steps,
     ``args.approach_share`` and ``args.lift_share`` from the ``args.approach_steps`` steps before and the
-    ``args.lift_steps`` steps from the grasp: ``grasp_rows``), each passed through ``to_batch``
+    ``args.lift_steps`` steps from the grasp: ``grasp_rows``, ``args.place_share`` from the
+    ``args.place_steps`` steps before the release: ``release_rows``), each passed through ``to_batch``
     (normalization, shapes). The learning rate (``args.lr``) warms up over 5 % of the steps, then
     follows a cosine to 0 over the step or time budget, whichever is further along.
     ``plan_frames`` (``tools.plan_frames.PlanFrames``): ``round(args.plan_share * args.batch)`` rows
@@ -445,17 +469,21 @@ def train(policy: Any, optimizer: Any, demos: DemoTensors, to_batch: Callable[[d
     parameters = [p for group in optimizer.param_groups for p in group["params"]]
     warmup = max(1, args.steps // 20)
     generator = torch.Generator().manual_seed(args.seed)
-    for moment, steps in (("early", args.early_frames), ("approach", args.approach_steps), ("lift", args.lift_steps)):
+    moments = (("early", args.early_frames), ("approach", args.approach_steps), ("lift", args.lift_steps),
+               ("place", args.place_steps))
+    for moment, steps in moments:
         if getattr(args, f"{moment}_share") > 0 and steps < 1:
             raise SystemExit(f"--{moment}-share needs --{moment}-{'frames' if moment == 'early' else 'steps'} >= 1")
-    if not 0 <= args.early_share + args.approach_share + args.lift_share <= 1:
-        raise SystemExit(f"--early-share {args.early_share}, --approach-share {args.approach_share} and --lift-share "
-                         f"{args.lift_share} must add up to at most 1")
+    shares = [getattr(args, f"{moment}_share") for moment, _ in moments]
+    if not 0 <= sum(shares) <= 1:
+        named = ", ".join(f"--{moment}-share {share:g}" for (moment, _), share in zip(moments, shares))
+        raise SystemExit(f"{named} must add up to at most 1")
 
     def focus(gripper: Any, episode: Any, step: Any) -> list:
         return [(torch.nonzero(step < args.early_frames).flatten(), args.early_share),
                 (grasp_rows(gripper, episode, step, -args.approach_steps, 0), args.approach_share),
-                (grasp_rows(gripper, episode, step, 0, args.lift_steps), args.lift_share)]
+                (grasp_rows(gripper, episode, step, 0, args.lift_steps), args.lift_share),
+                (release_rows(gripper, episode, step, -args.place_steps, 0), args.place_share)]
 
     # The gripper is the state's last column (six arm joints, then the gripper, as the recorder writes them).
     demo_focus = focus(demos.state[:, -1], demos.episode, demos.frame_index)
@@ -553,6 +581,7 @@ def training_record(args: argparse.Namespace, demos: DemoTensors, run: TrainingR
         "seconds": round(run.seconds, 1), "early_frames": args.early_frames, "early_share": args.early_share,
         "approach_steps": args.approach_steps, "approach_share": args.approach_share,
         "lift_steps": args.lift_steps, "lift_share": args.lift_share,
+        "place_steps": args.place_steps, "place_share": args.place_share,
     }
     if args.plan_layouts > 0 or args.plan_early_layouts > 0:
         record["plan_frames"] = {"layouts": args.plan_layouts, "early_layouts": args.plan_early_layouts,
