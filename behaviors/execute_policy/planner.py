@@ -146,11 +146,12 @@ def _plan(inp: PlanInput, from_rest: Arrival | None) -> Planned | Wait | Reject:
     samples = densify(motion, shaping.num_interpolation_points)
     reason = inp.checks.path(samples, window)
     for shorter in shorter_tails(tail) if reason is not None else ():
-        if not comes_to_rest(motion, shorter):
-            continue
         # The tail only keeps the arm going while the next chunk is late: where the chunk's path
         # beyond its window is unsafe but the window is not, the tail stops short of the unsafe
-        # point (a shorter extension, then the runout), or the window ends without one.
+        # point (a shorter extension, then the runout), or the window ends without one. A shorter
+        # tail that the seam's blend outlasts would not end at rest: passed over.
+        if not comes_to_rest(motion, shorter):
+            continue
         candidate = ending(motion, shorter)
         candidate_samples = densify(candidate, shaping.num_interpolation_points)
         if inp.checks.path(candidate_samples, window) is None:
