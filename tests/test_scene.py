@@ -154,6 +154,16 @@ def _probe_below_gripper(scene: PlanningScene, q: np.ndarray, gap: float) -> flo
     return scene.min_distance(q, kind="world").distance
 
 
+def test_a_distance_just_under_the_padding_reads_below_it():
+    from runtime.scene.collision import CollisionResult, millimetres_apart
+
+    assert millimetres_apart(6.5, 10.0) == ("6.5", "10.0")
+    assert millimetres_apart(9.96, 10.0) == ("9.96", "10.00")
+    assert millimetres_apart(9.9996, 10.0) == ("9.999", "10.000")  # under a micrometre: cut down at three decimals
+    hit = CollisionResult("world", "gripper_left_pad", "table", 0.00996, 0.01, step=55, time=6.59)
+    assert str(hit) == "step 55 (t=6.590 s): world collision gripper_left_pad vs table: distance 9.96 mm < padding 10.00 mm"
+
+
 def test_world_collision_respects_padding_and_rules(scene, home):
     q = np.r_[home, 0.0]
     gap = _probe_below_gripper(scene, q, 0.005)

@@ -25,6 +25,7 @@ Pairs checked:
 from __future__ import annotations
 
 import functools
+import math
 import os
 from dataclasses import dataclass
 from typing import Callable, Iterable, Sequence
@@ -192,11 +193,21 @@ class CollisionResult:
         if self.step is not None:
             where = f"step {self.step}" + (f" (t={self.time:.3f} s)" if self.time is not None else "") + ": "
         if self.distance < 0:
-            how = f"penetration {-self.distance * 1000:.1f} mm"
-        else:
-            how = f"distance {self.distance * 1000:.1f} mm"
-        pad = f" < padding {self.padding * 1000:.1f} mm" if self.kind == "world" and self.distance >= 0 else ""
-        return f"{where}{self.kind} collision {self.first} vs {self.second}: {how}{pad}"
+            return f"{where}{self.kind} collision {self.first} vs {self.second}: penetration {-self.distance * 1000:.1f} mm"
+        if self.kind != "world":
+            return f"{where}{self.kind} collision {self.first} vs {self.second}: distance {self.distance * 1000:.1f} mm"
+        distance, padding = millimetres_apart(self.distance * 1000, self.padding * 1000)
+        return f"{where}{self.kind} collision {self.first} vs {self.second}: distance {distance} mm < padding {padding} mm"
+
+
+def millimetres_apart(below_mm: float, limit_mm: float) -> tuple[str, str]:
+    """Two lengths at one decimal, or at as many more (up to three, then the first cut down rather
+    than rounded) as it takes for the first to read below the second: a distance 9.96 mm under a
+    10 mm padding reads 9.96 < 10.00, not 10.0 < 10.0."""
+    for digits in (1, 2, 3):
+        if round(below_mm, digits) < round(limit_mm, digits):
+            return f"{below_mm:.{digits}f}", f"{limit_mm:.{digits}f}"
+    return f"{math.floor(below_mm * 1000) / 1000:.3f}", f"{limit_mm:.3f}"
 
 
 @dataclass(frozen=True)
