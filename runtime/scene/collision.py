@@ -192,12 +192,13 @@ class CollisionResult:
         where = ""
         if self.step is not None:
             where = f"step {self.step}" + (f" (t={self.time:.3f} s)" if self.time is not None else "") + ": "
+        head = f"{where}{self.kind} collision {self.first} vs {self.second}"
         if self.distance < 0:
-            return f"{where}{self.kind} collision {self.first} vs {self.second}: penetration {-self.distance * 1000:.1f} mm"
+            return f"{head}: penetration {-self.distance * 1000:.1f} mm"
         if self.kind != "world":
-            return f"{where}{self.kind} collision {self.first} vs {self.second}: distance {self.distance * 1000:.1f} mm"
+            return f"{head}: distance {self.distance * 1000:.1f} mm"
         distance, padding = millimetres_apart(self.distance * 1000, self.padding * 1000)
-        return f"{where}{self.kind} collision {self.first} vs {self.second}: distance {distance} mm < padding {padding} mm"
+        return f"{head}: distance {distance} mm < padding {padding} mm"
 
 
 def millimetres_apart(below_mm: float, limit_mm: float) -> tuple[str, str]:
