@@ -54,6 +54,15 @@ class WallClock:
         self._start = time.monotonic() - now
         self._target = now
 
+    def catch_up(self, now: float) -> None:
+        """Jump forward to ``now`` if it is ahead of this clock, never back (a later reading of
+        the clock this run follows: one read while its publisher was starved is late, the
+        freshest is nearest)."""
+        ahead = now - self.now()
+        if ahead > 0.0:
+            self._start -= ahead
+            self._target += ahead
+
     def advance(self, dt: float) -> None:
         self._target = max(self._target + dt, self.now() - dt)  # never accumulate a backlog
         delay = self._target - self.now()

@@ -1053,6 +1053,29 @@ def test_goals_late_by_a_robot_clock_running_ahead_get_more_time_to_arrive_until
     assert min(goals[4:]) > 0.25  # every goal after the retries is planned to land with room to spare
 
 
+def test_a_run_the_controller_finishes_early_on_its_own_clock_counts_every_step_it_played(registry, monkeypatch):
+    # The controller's clock runs 0.35 s ahead of the runtime's: its one goal, a window that
+    # comes to rest at its end (no steps beyond it), is over 0.35 s before the runtime's clock gets there. The
+    # controller's success says every step was played: the count is the window's, not the part
+    # of it the runtime's clock had reached.
+    import sim.controllers.admittance as admittance
+    from runtime.timestamps import time_msg, to_seconds
+
+    parse = admittance.parse_goal
+
+    def robot_ahead(request, joint_names, now, *args):
+        stamp = request.joint_trajectory.header.stamp
+        request.joint_trajectory.header.stamp = time_msg(to_seconds(stamp) - 0.35)
+        return parse(request, joint_names, now, *args)
+
+    monkeypatch.setattr(admittance, "parse_goal", robot_ahead)
+    ports = BASE.replace('total_action_steps="60"', 'total_action_steps="10"').replace('committed_action_steps="20"', 'committed_action_steps="10"')
+    run = run_policy(registry, ports, ScriptedPolicy(hold(velocity=np.array([0.1, 0, 0, 0, 0, 0]))), latency=0.05)
+    assert run.result.status == "SUCCESS", run.result.reason
+    assert run.summary["message"] == "executed 10 steps"
+    assert run.summary["steps_executed"] == 10 and run.result.blackboard["steps"] == 10
+
+
 def refuse_third_goal_with(monkeypatch, code: int, text: str) -> None:
     """The controller refuses its third trajectory goal with ``code`` and ``text`` (a real
     controller words its refusals its own way), then behaves normally."""

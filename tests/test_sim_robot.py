@@ -13,6 +13,8 @@ from __future__ import annotations
 
 import json
 import subprocess
+import threading
+import time
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -113,12 +115,52 @@ def test_use_sim_time_without_a_clock_on_the_graph_names_what_to_start():
     from runtime.clock import WallClock
     from runtime.errors import ObjectiveError
     from runtime.ros import RosBus
-    from runtime.ros.run import sync_to_graph_clock
+    from runtime.ros.run import follow_graph_clock
 
     clock = WallClock()
     with RosBus(clock, node_name="no_clock_here") as bus:
         with pytest.raises(ObjectiveError, match=r"nothing published /clock within 0.3 s \(start the simulated robot first"):
-            sync_to_graph_clock(bus, clock, timeout_s=0.3)
+            follow_graph_clock(bus, clock, timeout_s=0.3)
+
+
+def test_use_sim_time_moves_forward_to_a_fresher_clock_reading_never_back():
+    # The first reading is old (the robot's process was starved when it published): a fresher
+    # one moves the run's clock forward to it; an older one after that leaves it where it is.
+    from rosgraph_msgs.msg import Clock
+
+    from runtime.clock import WallClock
+    from runtime.ros import RosBus
+    from runtime.ros.run import CLOCK_TOPIC, follow_graph_clock
+    from runtime.timestamps import time_msg
+
+    def publish_until(bus, publisher, stamp_s: float, done) -> None:
+        deadline = time.monotonic() + 5.0
+        while not done() and time.monotonic() < deadline:
+            publisher.publish(Clock(clock=time_msg(stamp_s)))
+            time.sleep(0.01)
+            bus.spin_once()
+
+    clock = WallClock()
+    with RosBus(WallClock(), node_name="robot_clock") as robot, RosBus(clock, node_name="follower") as follower:
+        publisher = robot.create_publisher(CLOCK_TOPIC, Clock)
+        first: list[float] = []
+        source = threading.Thread(target=publish_until, args=(robot, publisher, 100.0, lambda: bool(first)))
+        source.start()
+        first.append(follow_graph_clock(follower, clock))
+        source.join()
+        assert first == [100.0] and 100.0 <= clock.now() < 101.0
+
+        def caught_up() -> bool:
+            follower.spin_once()
+            return clock.now() >= 1000.0
+        publish_until(robot, publisher, 1000.0, caught_up)
+        assert 1000.0 <= clock.now() < 1001.0
+
+        ahead_s = clock.now()
+        stale_seen = follower.create_subscription(CLOCK_TOPIC, Clock, reliable=False)
+        publish_until(robot, publisher, 900.0, lambda: stale_seen.latest is not None and stale_seen.latest.clock.sec == 900)
+        follower.spin_once()
+        assert clock.now() >= ahead_s  # never back
 
 
 def test_sim_robot_bad_world_options_are_bad_input(capsys):

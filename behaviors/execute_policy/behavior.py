@@ -314,6 +314,9 @@ class ExecutePolicy(Behavior):
             return self._stop(Status.FAILURE, f"the planning scene changed: {collision} in the remaining path; robot stopped",
                               FailureKind.SCENE_CHANGED)
         if stream_finished(sent, policy.request, self._controller().goal):
+            # The controller's success says it played every step sent, whatever this run's clock
+            # reads (a robot's clock may run ahead of it).
+            self.metrics.steps_executed = sent.grid.executed_until
             return self._stop(Status.SUCCESS, f"executed {sent.grid.total_steps} steps")
         return Status.RUNNING
 

@@ -120,31 +120,34 @@ CLOCK_WAIT_S = 10.0
 """Wall time ``--use-sim-time`` waits for the first ``/clock`` message."""
 
 
-def sync_to_graph_clock(bus: Any, clock: WallClock, timeout_s: float = CLOCK_WAIT_S) -> float:
-    """Set ``clock`` to the time the graph's ``/clock`` reads (``--use-sim-time``); returns it.
+def follow_graph_clock(bus: Any, clock: WallClock, timeout_s: float = CLOCK_WAIT_S) -> float:
+    """Set ``clock`` to the time the graph's ``/clock`` reads (``--use-sim-time``) and keep it
+    there; returns the first reading.
 
-    Read once: from then on the run's clock goes on at wall-clock rate, as a simulated robot
-    paced to the wall clock does. ObjectiveError when nothing publishes ``/clock`` in time."""
+    Between readings the run's clock goes on at wall-clock rate, as a simulated robot paced to
+    the wall clock does; each later ``/clock`` message (delivered in ``bus.spin_once``) moves it
+    forward when it reads ahead, never back, so a first reading that was already old (the
+    robot's process starved just then) costs no more than until the next fresh one.
+    ObjectiveError when nothing publishes ``/clock`` in time."""
     from rosgraph_msgs.msg import Clock
 
     from runtime.errors import ObjectiveError
     from runtime.timestamps import to_seconds
 
-    subscription = bus.create_subscription(CLOCK_TOPIC, Clock, reliable=False)
-    try:
-        deadline = time.monotonic() + timeout_s
-        while subscription.latest is None:
-            if time.monotonic() >= deadline:
-                raise ObjectiveError(
-                    f"--use-sim-time: nothing published {CLOCK_TOPIC} within {timeout_s:g} s "
-                    "(start the simulated robot first: objective sim-robot)"
-                )
-            time.sleep(0.01)
-        now = to_seconds(subscription.latest.clock)
-        clock.sync(now)
-        return now
-    finally:
-        bus.destroy_subscription(subscription)
+    subscription = bus.create_subscription(CLOCK_TOPIC, Clock, lambda msg: clock.catch_up(to_seconds(msg.clock)),
+                                           reliable=False)
+    deadline = time.monotonic() + timeout_s
+    while subscription.latest is None:
+        if time.monotonic() >= deadline:
+            bus.destroy_subscription(subscription)
+            raise ObjectiveError(
+                f"--use-sim-time: nothing published {CLOCK_TOPIC} within {timeout_s:g} s "
+                "(start the simulated robot first: objective sim-robot)"
+            )
+        time.sleep(0.01)
+    now = to_seconds(subscription.latest.clock)
+    clock.sync(now)
+    return now
 
 
 def prepare_links(bus: Any, interfaces: Iterable[type], links: Iterable[tuple[str, Any, tuple[type, ...]]]) -> None:
