@@ -216,7 +216,7 @@ class RunResult:
 def make_context(options: RunOptions) -> RunContext:
     """Clock, bus and event log for one run: in-process, or a RosBus node with ``options.ros``."""
     if options.ros:
-        from .ros.run import make_ros_bus, follow_graph_clock  # rclpy is imported only for ROS runs
+        from .ros.run import follow_graph_clock, make_ros_bus  # rclpy is imported only for ROS runs
 
         wall = WallClock()
         bus = make_ros_bus(wall, options.ros_node_name, serves=world_hosts_servers(options.world or default_world_name()))
