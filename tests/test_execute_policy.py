@@ -1055,9 +1055,9 @@ def test_goals_late_by_a_robot_clock_running_ahead_get_more_time_to_arrive_until
 
 def test_a_run_the_controller_finishes_early_on_its_own_clock_counts_every_step_it_played(registry, monkeypatch):
     # The controller's clock runs 0.35 s ahead of the runtime's: its one goal, a window that
-    # comes to rest at its end (no steps beyond it), is over 0.35 s before the runtime's clock gets there. The
-    # controller's success says every step was played: the count is the window's, not the part
-    # of it the runtime's clock had reached.
+    # comes to rest at its end (no steps beyond it), is over 0.35 s before the runtime's clock
+    # gets there. The controller's success says every step was played: the count is the
+    # window's, not the part of it the runtime's clock had reached.
     import sim.controllers.admittance as admittance
     from runtime.timestamps import time_msg, to_seconds
 
