@@ -219,15 +219,15 @@ class LeRobotQueue:
     (its constructor, the gRPC threads); a popped action sets ``latest_action`` as its control
     loop does."""
 
-    implementation = "lerobot 0.4.4 (RobotClient._aggregate_action_queues, weighted_average)"
+    implementation = "lerobot (RobotClient._aggregate_action_queues, weighted_average)"
 
     def __init__(self, chunk_size_threshold: float = 0.5, aggregate_fn_name: str = "weighted_average") -> None:
         import threading
         from queue import Queue
 
-        from policy.lerobot_compat import ensure_torchvision
+        from policy.lerobot_offline import force_offline
 
-        ensure_torchvision()  # lerobot's robot and processor modules import torchvision
+        force_offline()
         from lerobot.async_inference.configs import get_aggregate_function
 
         self._client = _import_robot_client()

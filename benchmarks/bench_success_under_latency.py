@@ -17,7 +17,7 @@ episodes (``time_to_success_s``: the whole Objective, Prepare and stack check in
 
     .venv/bin/python benchmarks/bench_success_under_latency.py --policy oracle --episodes 4 \\
         --delays 0 1 --out build/bench/success-latency --plot build/bench/success-latency.png
-    .venv-lerobot/bin/python benchmarks/bench_success_under_latency.py --policy lerobot:build/policies/NAME \\
+    .venv/bin/python benchmarks/bench_success_under_latency.py --policy lerobot:build/policies/NAME \\
         --world-option image_size=128 --tracking-weight 0.3 --total-steps 250 --out build/bench/learned
 """
 from __future__ import annotations

@@ -111,7 +111,7 @@ class EpisodeWorker:
                 try:
                     self.policy = PolicyHost(self.spec.policy, getattr(world, "cell", None))
                 except ImportError as err:
-                    raise ObjectiveError(f"--policy {self.spec.policy.text}: {err} (the LeRobot extra: make lerobot, then .venv-lerobot/bin/objective)") from None
+                    raise ObjectiveError(f"--policy {self.spec.policy.text}: {err} (the LeRobot extra: `make lerobot` in a checkout, or pip install 'objective-runtime[lerobot]')") from None
                 except (ObjectiveError, OSError) as err:
                     raise ObjectiveError(f"--policy {self.spec.policy.text}: {err}") from None
             else:

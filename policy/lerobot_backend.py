@@ -28,7 +28,7 @@ Per request (``infer``):
    ``predict_action_chunk(batch, inference_delay=frozen_prefix_steps,
    prev_chunk_left_over=<that tail>, execution_horizon=...)`` with the guide's conversion
    (:func:`execution_horizon`).
-5. **Observation queues.** LeRobot 0.4.4's DiffusionPolicy reads its observation from queues that
+5. **Observation queues.** LeRobot's DiffusionPolicy reads its observation from queues that
    only its ``select_action`` fills, not from ``predict_action_chunk``'s batch; the backend fills
    them first (:func:`queue_observation`), one observation per request (train such a policy with
    ``n_obs_steps`` 1: requests are a committed window apart, not one step).
@@ -76,9 +76,9 @@ METADATA_FILE = "objective_policy.json"
 ``ignored_images`` (request image names the policy does not use) and ``noise_scale`` (see
 :class:`LeRobotOptions`)."""
 RTC_POLICY_TYPES = frozenset({"smolvla", "pi0", "pi05"})
-"""LeRobot 0.4.4 policies whose sampling loop takes RTC guidance."""
+"""LeRobot policies whose sampling loop takes RTC guidance (LeRobot 0.6 guides pi0-FAST, GR00T and others too; these are the ones served and tested here)."""
 QUEUED_OBSERVATION_TYPES = frozenset({"diffusion"})
-"""LeRobot 0.4.4 policies whose ``predict_action_chunk`` reads the observation from the policy's own
+"""LeRobot policies whose ``predict_action_chunk`` reads the observation from the policy's own
 queues (filled only by ``select_action``) instead of its ``batch`` argument: see :func:`queue_observation`."""
 DEFAULT_GUIDANCE_HORIZON = 10
 """LeRobot's own RTCConfig default ``execution_horizon``, used as the width when nothing says otherwise."""
@@ -363,7 +363,7 @@ def enable_rtc(config: Any, execution_horizon: int = DEFAULT_GUIDANCE_HORIZON) -
 
 def queue_observation(policy: Any, batch: dict[str, Any]) -> dict[str, Any]:
     """Put a preprocessed observation into the queues of a policy whose ``predict_action_chunk`` reads
-    them (LeRobot 0.4.4's DiffusionPolicy), as its ``select_action`` does, and return the batch to
+    them (LeRobot's DiffusionPolicy), as its ``select_action`` does, and return the batch to
     call ``predict_action_chunk`` with: the cameras stacked into ``observation.images``
     (B, cameras, C, H, W), no ``action`` key (the preprocessor leaves ``action: None``, which would
     land in the policy's action queue), every queued key appended (a fresh queue is filled with
@@ -426,9 +426,9 @@ class LeRobotBackend:
 
     # -- lifecycle ---
     def load(self) -> None:
-        from .lerobot_compat import ensure_torchvision
+        from .lerobot_offline import force_offline
 
-        ensure_torchvision()
+        force_offline()
         import torch
         from lerobot.configs.policies import PreTrainedConfig
         from lerobot.policies.factory import get_policy_class, make_pre_post_processors

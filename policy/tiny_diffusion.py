@@ -23,9 +23,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
-from .lerobot_compat import ensure_torchvision
+from .lerobot_offline import force_offline
 
-ensure_torchvision()
+force_offline()
 
 
 @dataclass(frozen=True)
@@ -108,6 +108,7 @@ def tiny_diffusion_config(spec: TinyDiffusionSpec = TinyDiffusionSpec()) -> Any:
         crop_is_random=True,
         pretrained_backbone_weights=None,
         use_group_norm=True,
+        use_separate_rgb_encoder_per_camera=False,
         spatial_softmax_num_keypoints=spec.keypoints,
         down_dims=spec.down_dims,
         kernel_size=spec.kernel_size,

@@ -17,7 +17,7 @@ The tokenizer is word-level on purpose: the prompts are short and drawn from a s
 ("stack the blue cube on the green cube"), so words are the meaningful units and an unknown word
 maps to ``[UNK]`` rather than to noise.
 
-Import :mod:`policy.lerobot_compat` first (done here), so torchvision imports next to the CPU torch.
+Importing this module keeps the hub offline (:mod:`policy.lerobot_offline`).
 """
 from __future__ import annotations
 
@@ -26,9 +26,9 @@ from pathlib import Path
 
 from .lerobot_backend import VLM_DIRNAME, enable_rtc
 from .lerobot_checkpoint import save_checkpoint, write_metadata  # noqa: F401  (kept importable from here)
-from .lerobot_compat import ensure_torchvision
+from .lerobot_offline import force_offline
 
-ensure_torchvision()
+force_offline()
 
 PROMPT_WORDS = (
     "stack put place pick move the a an cube cubes block on onto top of and then to with "

@@ -38,8 +38,8 @@ def missing_module_message(name: str) -> str:
         return (f"{module} is not installed: source your ROS 2 Jazzy (source /opt/ros/jazzy/setup.bash) "
                 f"or pip install 'objective-runtime[ros]'")
     if extra == "lerobot":
-        return (f"{module} is not installed: the LeRobot extra lives in a venv of its own, "
-                f"run `make lerobot` and use .venv-lerobot/bin/objective")
+        return (f"{module} is not installed: it comes with the LeRobot extra, `make lerobot` in a checkout "
+                f"or pip install 'objective-runtime[lerobot]'")
     return f"{module} is not installed: it comes with the [{extra}] extra, pip install 'objective-runtime[{extra}]'"
 
 

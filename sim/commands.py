@@ -62,7 +62,7 @@ def _record_demos(args: argparse.Namespace, registry: Registry) -> int:
     return EXIT_SUCCESS
 
 
-RECORD_DEMOS = Command("record oracle demonstrations in the cell as a local LeRobot dataset (needs `make lerobot`: .venv-lerobot/bin/objective)",
+RECORD_DEMOS = Command("record oracle demonstrations in the cell as a local LeRobot dataset (needs the LeRobot extra: `make lerobot`)",
                        _arguments, _record_demos)
 
 

@@ -365,9 +365,9 @@ def record_demos(options: DemoOptions) -> DemoSummary:
     Episodes run in ``options.workers`` processes (each its own world); the dataset is written
     here, in seed order, into ``OUT.partial`` and renamed to ``OUT`` only once it is complete.
     """
-    from policy.lerobot_compat import ensure_torchvision
+    from policy.lerobot_offline import force_offline
 
-    ensure_torchvision()
+    force_offline()
     import datasets
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
 

@@ -38,7 +38,7 @@ def test_the_lerobot_baseline_runs_lerobot_s_own_queue_code_where_lerobot_is_ins
     from benchmarks.baselines import LeRobotQueue, ReimplementedQueue, TaskPolicy, benchmark_task, latency_trace, run_lerobot_aggregate
 
     if importlib.util.find_spec("lerobot") is None:
-        pytest.skip("lerobot is not in this venv (make lerobot builds .venv-lerobot on Python 3.11; make test runs this file there)")
+        pytest.skip("the LeRobot extra is not installed (make lerobot)")
     queue = LeRobotQueue()  # installed: an import error in it fails the test
     from lerobot.async_inference.robot_client import RobotClient
 
@@ -54,7 +54,7 @@ def test_the_lerobot_baseline_runs_lerobot_s_own_queue_code_where_lerobot_is_ins
     trace = latency_trace("lognormal", 1.5, 50, seed=1)
     theirs = run_lerobot_aggregate(TaskPolicy(path, 0.1, 50, seed=1), trace, np.zeros(6), 0.1, 60, queue=queue)
     ours = run_lerobot_aggregate(TaskPolicy(path, 0.1, 50, seed=1), trace, np.zeros(6), 0.1, 60, queue=ReimplementedQueue())
-    assert theirs.implementation.startswith("lerobot 0.4.4") and ours.implementation.startswith("reimplementation")
+    assert theirs.implementation.startswith("lerobot (RobotClient") and ours.implementation.startswith("reimplementation")
     assert len(merges) >= 2 and set(merges) == {50}  # every chunk went through LeRobot's code
     assert theirs.seams == ours.seams and theirs.calls == ours.calls
     assert np.allclose(theirs.positions, ours.positions, atol=1e-12)

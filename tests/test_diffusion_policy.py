@@ -17,7 +17,7 @@ from policy.lerobot_backend import make_lerobot_backend
 
 needs_lerobot = pytest.mark.skipif(
     importlib.util.find_spec("lerobot") is None or importlib.util.find_spec("torch") is None,
-    reason="the LeRobot extra is not in this venv (make lerobot builds .venv-lerobot on Python 3.11; make test runs this file there)",
+    reason="the LeRobot extra is not installed (make lerobot)",
 )
 JOINTS = ["shoulder_pan_joint", "shoulder_lift_joint", "elbow_joint", "wrist_1_joint", "wrist_2_joint",
           "wrist_3_joint", "robotiq_85_left_knuckle_joint"]
@@ -67,7 +67,7 @@ def checkpoint(tmp_path_factory):
 
 @needs_lerobot
 def test_a_diffusion_checkpoint_answers_from_the_observation_of_each_request(checkpoint):
-    """LeRobot 0.4.4's predict_action_chunk reads the policy's observation queue, not its batch: the
+    """LeRobot's predict_action_chunk reads the policy's observation queue once it is filled: the
     backend fills it, so the first request after load answers, in range and in the request's joint
     order, and a later request answers for its own frames, not the first request's."""
     backend = make_lerobot_backend(checkpoint, committed_window=None)

@@ -19,7 +19,7 @@ ROOT = Path(__file__).resolve().parent.parent
 needs_torch = pytest.mark.skipif(importlib.util.find_spec("torch") is None, reason="torch is not in this venv")
 needs_lerobot = pytest.mark.skipif(
     importlib.util.find_spec("lerobot") is None or importlib.util.find_spec("torch") is None,
-    reason="the LeRobot extra is not in this venv (make lerobot builds .venv-lerobot on Python 3.11; make test runs this file there)",
+    reason="the LeRobot extra is not installed (make lerobot)",
 )
 
 

@@ -10,7 +10,7 @@ import pytest
 
 needs_lerobot = pytest.mark.skipif(
     importlib.util.find_spec("lerobot") is None or importlib.util.find_spec("torch") is None,
-    reason="the LeRobot extra is not in this venv (make lerobot builds .venv-lerobot on Python 3.11; make test runs this file there)",
+    reason="the LeRobot extra is not installed (make lerobot)",
 )
 
 JOINTS = ("shoulder_pan_joint", "shoulder_lift_joint", "elbow_joint", "wrist_1_joint", "wrist_2_joint", "wrist_3_joint",
@@ -23,9 +23,9 @@ SEED = 40000
 @pytest.fixture(scope="module")
 def recorded(tmp_path_factory):
     """One episode of layout SEED recorded through the runtime, read as training reads it."""
-    from policy.lerobot_compat import ensure_torchvision
+    from policy.lerobot_offline import force_offline
 
-    ensure_torchvision()
+    force_offline()
     from policy.lerobot_backend import checked_crop
     from sim.demos import DemoOptions, record_demos
     from tools.demo_training import DemoTensors

@@ -36,9 +36,9 @@ ROOT = Path(__file__).resolve().parent.parent
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
-from policy.lerobot_compat import ensure_torchvision  # noqa: E402
+from policy.lerobot_offline import force_offline  # noqa: E402
 
-ensure_torchvision()
+force_offline()
 
 LOG = logging.getLogger("demo_training")
 REPO_ID = "local/stack_cubes_demos"

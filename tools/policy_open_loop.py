@@ -1,6 +1,6 @@
 """Open-loop check of a checkpoint on recorded demonstrations: does it localize the cubes?
 
-    .venv-lerobot/bin/python tools/policy_open_loop.py --checkpoint build/policies/tiny_smolvla \
+    .venv/bin/python tools/policy_open_loop.py --checkpoint build/policies/tiny_smolvla \
         --dataset build/demos/heldout --every 20
 
 For every episode of ``--dataset`` (oracle demonstrations, e.g. on held-out seeds), the frames a
@@ -24,9 +24,9 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from policy.lerobot_compat import ensure_torchvision  # noqa: E402
+from policy.lerobot_offline import force_offline  # noqa: E402
 
-ensure_torchvision()
+force_offline()
 
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:

@@ -1,6 +1,6 @@
 """Train a small LeRobot DiffusionPolicy on recorded oracle demonstrations (`make lerobot-diffusion`). Seeded, CPU.
 
-    .venv-lerobot/bin/python tools/train_diffusion.py --dataset build/demos/stack_cubes \\
+    .venv/bin/python tools/train_diffusion.py --dataset build/demos/stack_cubes \\
         --out build/policies/diffusion --steps 600
 
 The same steps as ``tools/train_tiny_smolvla.py`` (``tools/demo_training.py``: record the dataset

@@ -1,6 +1,6 @@
 """Train the tiny SmolVLA on recorded oracle demonstrations (`make lerobot-policy`). Seeded, CPU.
 
-    .venv-lerobot/bin/python tools/train_tiny_smolvla.py --dataset build/demos/stack_cubes \
+    .venv/bin/python tools/train_tiny_smolvla.py --dataset build/demos/stack_cubes \
         --out build/policies/tiny_smolvla --steps 600
 
 1. If ``--dataset`` does not exist, records it first (``objective record-demos`` with

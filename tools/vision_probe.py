@@ -1,6 +1,6 @@
 """How well a checkpoint's vision features place each cube on layouts it never saw (a ridge probe).
 
-    .venv-lerobot/bin/python tools/vision_probe.py --checkpoint build/policies/tiny_smolvla \
+    .venv/bin/python tools/vision_probe.py --checkpoint build/policies/tiny_smolvla \
         --plan-frames build/plan_frames/KEY.npz --dataset build/demos/heldout --camera overview
 
 The features: one camera's vision tokens (the policy's ``embed_image``, flattened) of each
@@ -24,9 +24,9 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from policy.lerobot_compat import ensure_torchvision  # noqa: E402
+from policy.lerobot_offline import force_offline  # noqa: E402
 
-ensure_torchvision()
+force_offline()
 
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
