@@ -3,8 +3,8 @@
 The node ``/objective_server`` serves, as MoveIt Pro's Objective server does:
 
 - ``/do_objective`` (action ``objective_server_msgs/action/DoObjective``): run one Objective by
-  name, with port overrides (a port of the nodes with a given name) and blackboard overrides
-  (root entries, as ``objective run --set``). Feedback, at most every ``FEEDBACK_PERIOD_S`` of
+  name, with port and blackboard overrides, which reach only the ports the Objective declares
+  (``runtime.objective_library.override_entries``: never a node's inside it). Feedback, at most every ``FEEDBACK_PERIOD_S`` of
   wall time: the RUNNING leaves, the clock, the ticks, and what running nodes report so far
   (ExecutePolicy: chunks, stalls, ...). Result: the status, the reason, the failing node and
   the ``objective run --json`` summary. A cancelled goal halts the tree as SIGINT halts
@@ -46,8 +46,9 @@ from runtime.crash import describe_crash, write_traceback
 from runtime.errors import ObjectiveError
 from runtime.interrupt import StopRequest
 from runtime.loader import LoadedTree, load_tree
-from runtime.objective_library import Library, PortOverride, apply_port_overrides
+from runtime.objective_library import Library, PortOverride, override_entries
 from runtime.registry import Registry
+from runtime.ros.run import set_discovery_range
 from runtime.runner import RunEnd, TickWatcher, RunOptions, RunResult, make_context, run_loaded, running_leaves
 
 NODE_NAME = "objective_server"
@@ -146,6 +147,7 @@ class ObjectiveServer:
         self._stop: StopRequest | None = None
         self._idle = threading.Event()
         self._idle.set()
+        set_discovery_range()
         self.context = rclpy.Context()
         rclpy.init(context=self.context)
         self.node = rclpy.create_node(node_name, context=self.context)
@@ -235,7 +237,8 @@ class ObjectiveServer:
         _log.info("running '%s'", name)
         try:
             objective = self.library.find(name)
-            options = replace(self.options.run, sets={**objective.defaults(), **self.options.run.sets, **blackboard})
+            entries = override_entries(objective, port_overrides, blackboard)
+            options = replace(self.options.run, sets={**objective.defaults(), **self.options.run.sets, **entries})
             options.check()
         except ObjectiveError as err:
             return Outcome.error(str(err))
@@ -243,7 +246,6 @@ class ObjectiveServer:
         try:
             loaded = load_tree(objective.file, self.registry, context, None, self.options.search_paths,
                                self.library.directory)
-            apply_port_overrides(loaded, port_overrides)
         except ObjectiveError as err:
             context.bus.close()
             return Outcome.error(str(err))
