@@ -373,3 +373,31 @@ def test_the_server_keeps_discovery_on_this_machine(serve, monkeypatch, library)
     monkeypatch.delenv("ROS_AUTOMATIC_DISCOVERY_RANGE")
     serve(library)
     assert os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] == "LOCALHOST"
+
+
+def test_a_goal_running_when_the_server_is_stopped_gets_its_result(ros_env, library):
+    """SIGTERM to `objective server` mid-goal: the run is halted, the goal ends ABORTED with the
+    reason, its client receives the result, and the server exits 0 without a stray exception."""
+    proc = subprocess.Popen([sys.executable, "-m", "runtime.cli", "server", str(library), "--realtime"], cwd=REPO,
+                            env=dict(os.environ), stderr=subprocess.PIPE, text=True)
+    c = None
+    try:
+        c = Client()
+        handle = c.send("Long Wait")
+        assert handle.accepted
+        wait_for(lambda: c.feedback, what="feedback of the long wait")
+        result_future = handle.get_result_async()
+        proc.send_signal(signal.SIGTERM)
+        response = wait(result_future, timeout=20.0, what="the result of the goal the server was stopped in")
+        _, err = proc.communicate(timeout=20)
+    finally:
+        if c is not None:
+            c.close()
+        if proc.poll() is None:
+            proc.kill()
+    assert response.status == GoalStatus.STATUS_ABORTED
+    assert response.result.status == "INTERRUPTED"
+    assert response.result.reason.startswith("the Objective server is shutting down at "), response.result.reason
+    assert "halted 'Wait'" in response.result.reason
+    assert proc.returncode == 0, err
+    assert "exception" not in err.lower() and "Traceback" not in err, err

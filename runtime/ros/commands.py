@@ -35,7 +35,7 @@ def _arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _serve(args: argparse.Namespace, registry: Registry) -> int:
-    from runtime.ros.objective_server import NODE_NAME, ObjectiveServer, ServerOptions
+    from runtime.ros.objective_server import NODE_NAME, SHUTDOWN, ObjectiveServer, ServerOptions
     from runtime.ros.run import graph_description, set_discovery_range
     from runtime.runner import RunOptions
 
@@ -56,7 +56,7 @@ def _serve(args: argparse.Namespace, registry: Registry) -> int:
                      graph_description(NODE_NAME))
             while not stop.requested:
                 time.sleep(0.1)
-            log.info("stopping (%s)", "a run was halted" if server.cancel("the Objective server is stopping")
+            log.info("stopping (%s)", "a run was halted" if server.cancel(SHUTDOWN)
                      else "nothing was running")
         finally:
             server.close()

@@ -60,6 +60,9 @@ FEEDBACK_PERIOD_S = 0.1
 CANCELLED = f"cancelled by a client of {ACTION_NAME}"
 CANCELLED_BY_SERVICE = f"cancelled through {CANCEL_SERVICE}"
 SHUTDOWN = "the Objective server is shutting down"
+RESULT_GRACE_S = 0.25
+"""Wall time the server keeps serving after a goal ended before it leaves the graph, so the
+result reaches the clients waiting for it (rclpy sends it from the executor's next wake)."""
 _log = logging.getLogger("objective")
 
 
@@ -146,7 +149,10 @@ class ObjectiveServer:
         """The name of the Objective whose goal was accepted and has not ended."""
         self._stop: StopRequest | None = None
         self._idle = threading.Event()
+        """Set while no run holds the slot and no goal is being finished."""
         self._idle.set()
+        self._goal_ended_at = -float("inf")
+        """``time.monotonic()`` when the last DoObjective goal ended (its result on its way)."""
         set_discovery_range()
         self.context = rclpy.Context()
         rclpy.init(context=self.context)
@@ -184,15 +190,12 @@ class ObjectiveServer:
 
     def _run_reserved(self, request: Any, publish: Callable[[Any], None]) -> Outcome:
         """Run what ``request`` (a DoObjective goal or an ExecuteObjective request) asks for in the
-        slot ``_reserve`` took, then free the slot."""
+        slot ``_reserve`` took; the caller frees the slot (``_release``)."""
         with self._lock:
             stop = self._stop = self._stop or StopRequest()
-        try:
-            outcome = self.run(request.objective_name,
-                               [PortOverride(o.node, o.port, o.value) for o in request.port_overrides],
-                               {e.key: e.value for e in request.blackboard_overrides}, stop, publish)
-        finally:
-            self._release()
+        outcome = self.run(request.objective_name,
+                           [PortOverride(o.node, o.port, o.value) for o in request.port_overrides],
+                           {e.key: e.value for e in request.blackboard_overrides}, stop, publish)
         _log.info("%s: %s%s", request.objective_name, outcome.status, f": {outcome.reason}" if outcome.reason else "")
         return outcome
 
@@ -220,13 +223,19 @@ class ObjectiveServer:
             return True
 
     def _execute(self, goal_handle: Any) -> Any:
-        outcome = self._run_reserved(goal_handle.request, goal_handle.publish_feedback)
-        if outcome.status == RunEnd.INTERRUPTED.value and goal_handle.is_cancel_requested:
-            goal_handle.canceled()
-        elif outcome.status in (RunEnd.SUCCESS.value, RunEnd.SKIPPED.value):
-            goal_handle.succeed()
-        else:
-            goal_handle.abort()
+        """Run the goal's Objective and end the goal; the slot is freed only once the goal has
+        ended, so ``close()`` (a SIGTERM) never leaves the graph under a goal it has not answered."""
+        try:
+            outcome = self._run_reserved(goal_handle.request, goal_handle.publish_feedback)
+            if outcome.status == RunEnd.INTERRUPTED.value and goal_handle.is_cancel_requested:
+                goal_handle.canceled()
+            elif outcome.status in (RunEnd.SUCCESS.value, RunEnd.SKIPPED.value):
+                goal_handle.succeed()
+            else:
+                goal_handle.abort()
+        finally:
+            self._goal_ended_at = time.monotonic()
+            self._release()
         return DoObjective.Result(status=outcome.status, reason=outcome.reason, failing_node=outcome.failing_node,
                                   failing_location=outcome.failing_location,
                                   summary_json=json.dumps(outcome.summary, default=str))
@@ -273,10 +282,17 @@ class ObjectiveServer:
             self._release()
             response.success, response.message = False, str(err)
             return response
-        threading.Thread(target=self._run_reserved, args=(request, lambda feedback: None),
+        threading.Thread(target=self._run_in_background, args=(request,),
                          name=f"objective {request.objective_name}", daemon=True).start()
         response.success, response.message = True, f"started '{request.objective_name}'"
         return response
+
+    def _run_in_background(self, request: Any) -> None:
+        """An ``/execute_objective`` run: nobody waits for its result (it is logged)."""
+        try:
+            self._run_reserved(request, lambda feedback: None)
+        finally:
+            self._release()
 
     def _cancel_service(self, request: Any, response: Any) -> Any:
         response.success = self.cancel(CANCELLED_BY_SERVICE)
@@ -297,9 +313,12 @@ class ObjectiveServer:
 
     # -- life ----------------------------------------------------------------------------------
     def close(self, timeout_s: float = 10.0) -> None:
-        """Cancel the running Objective, wait for its halt (up to ``timeout_s``), leave the graph."""
+        """Cancel the running Objective (its goal ends ABORTED: "the Objective server is shutting
+        down ..."), wait for its halt (up to ``timeout_s``) and for its result to leave, then
+        leave the graph."""
         self.cancel(SHUTDOWN)
         self._idle.wait(timeout_s)
+        time.sleep(max(0.0, self._goal_ended_at + RESULT_GRACE_S - time.monotonic()))
         self._action.destroy()
         self.node.destroy_node()
         self.executor.shutdown(timeout_sec=1.0)
