@@ -354,13 +354,22 @@ def test_a_compression_bomb_is_refused_before_it_is_expanded(tmp_path, capsys, d
 
 
 def test_a_recording_expands_at_most_a_bounded_multiple_of_its_size(recording):
+    from mcap.records import Chunk
+    from mcap.stream_reader import StreamReader
+
     from recording.report.data import read_mcap
     from recording.report.mcap_reader import ReadLimits
 
-    read_mcap(recording / "run.mcap", Recording(recording), ReadLimits(expansion=20))  # a recording: 5-10 times
-    with pytest.raises(ObjectiveError, match=r"chunk \d+ would expand the file's chunks to more than 1 times the "
+    mcap = recording / "run.mcap"
+    with open(mcap, "rb") as stream:
+        sizes = [r.uncompressed_size for r in StreamReader(stream, emit_chunks=True).records if isinstance(r, Chunk)]
+    expansion = sum(sizes) / mcap.stat().st_size
+    assert len(sizes) >= 2 and 3 < expansion < 20  # the recorder's chunks expand 5 to 10 times
+    read_mcap(mcap, Recording(recording), ReadLimits(expansion=20))
+    tight = ReadLimits(max_chunk_bytes=max(sizes), expansion=(sum(sizes) - max(sizes)) / mcap.stat().st_size / 2)
+    with pytest.raises(ObjectiveError, match=r"chunk \d+ would expand the file's chunks to more than [\d.]+ times the "
                                              r"file's size: not read \(a compression bomb, not a recording\)"):
-        read_mcap(recording / "run.mcap", Recording(recording), ReadLimits(max_chunk_bytes=1 << 20, expansion=1))
+        read_mcap(mcap, Recording(recording), tight)
 
 
 def test_a_chunk_of_anything_but_records_is_refused_at_its_first_byte(tmp_path, capsys):
