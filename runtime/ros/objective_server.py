@@ -4,9 +4,9 @@ The node ``/objective_server`` serves, as MoveIt Pro's Objective server does:
 
 - ``/do_objective`` (action ``objective_server_msgs/action/DoObjective``): run one Objective by
   name, with port and blackboard overrides, which reach only the ports the Objective declares
-  (``runtime.objective_library.override_entries``: never a node's inside it). Feedback, at most every ``FEEDBACK_PERIOD_S`` of
-  wall time: the RUNNING leaves, the clock, the ticks, and what running nodes report so far
-  (ExecutePolicy: chunks, stalls, ...). Result: the status, the reason, the failing node and
+  (``runtime.objective_library.override_entries``: never a node's inside it). Feedback, at most
+  every ``FEEDBACK_PERIOD_S`` of wall time: the RUNNING leaves, the clock, the ticks, and what
+  running nodes report so far (ExecutePolicy: chunks, stalls, ...). Result: the status, the reason, the failing node and
   the ``objective run --json`` summary. A cancelled goal halts the tree as SIGINT halts
   ``objective run`` (goals cancelled, the arm stopped) and ends CANCELED with status INTERRUPTED.
 - ``/execute_objective`` (``objective_server_msgs/srv/ExecuteObjective``): start one the same
@@ -21,6 +21,11 @@ One Objective at a time: a goal that arrives while another runs is rejected, and
 are wrong is accepted and aborted at once with status ERROR and the reason, so the client
 learns what is wrong. Each run is a run of ``runtime.runner`` with the server's options (world,
 ``--ros``, ``--realtime``, ...): exactly what ``objective run FILE`` with those options does.
+
+Discovery stays on this machine (``runtime.ros.run.set_discovery_range``) unless the environment
+or ``--discovery-range`` opens it. ``close()`` (SIGINT/SIGTERM) halts the running Objective, ends
+its goal ABORTED ("the Objective server is shutting down ...") and leaves the graph only once that
+result is on its way to the client.
 """
 from __future__ import annotations
 
