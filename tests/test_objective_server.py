@@ -401,3 +401,22 @@ def test_a_goal_running_when_the_server_is_stopped_gets_its_result(ros_env, libr
     assert "halted 'Wait'" in response.result.reason
     assert proc.returncode == 0, err
     assert "exception" not in err.lower() and "Traceback" not in err, err
+
+
+def test_the_middleware_here_has_no_dds_security(ros_env, tmp_path):
+    """What docs/operating.md says of SROS2 with the PyPI wheels: a node asked to enforce DDS
+    security is refused, the Fast DDS library having no security plugins."""
+    enclave = tmp_path / "keystore" / "enclaves" / "objective_server"
+    enclave.mkdir(parents=True)
+    for name in ("identity_ca.cert.pem", "cert.pem", "key.pem", "permissions_ca.cert.pem", "governance.p7s",
+                 "permissions.p7s"):
+        (enclave / name).write_text("placeholder")
+    env = {**os.environ, "ROS_SECURITY_ENABLE": "true", "ROS_SECURITY_STRATEGY": "Enforce",
+           "ROS_SECURITY_KEYSTORE": str(tmp_path / "keystore")}
+    code = ("import rclpy\n"
+            "c = rclpy.Context()\n"
+            "rclpy.init(context=c, args=['--ros-args', '--enclave', '/objective_server'])\n"
+            "rclpy.create_node('probe', context=c)\n")
+    done = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=60)
+    assert done.returncode != 0
+    assert "This Fast DDS version doesn't have the security libraries" in done.stderr, done.stderr
