@@ -59,7 +59,7 @@ def evaluation(world: str, seeds: range, workers: int, executor: ExecutorKind) -
     with tempfile.TemporaryDirectory(prefix="bench-eval-") as folder:
         config = EvalConfig(spec=spec, out=Path(folder), episodes=len(seeds), seed_start=seeds.start, workers=workers,
                             executor=executor)
-        store = EvalStore(config.out, identity(spec))
+        store = EvalStore(config.out, identity(spec, [OBJECTIVE]))  # a fresh DIR: the identity is only stored
         start = time.perf_counter()
         runner = make_executor(config)
         try:

@@ -6,7 +6,7 @@ import enum
 import hashlib
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Iterable
 
 from runtime.errors import ObjectiveError
 
@@ -86,12 +86,14 @@ class EvalConfig:
             raise ObjectiveError(f"--out {self.out}: exists and is not a directory")
 
 
-def identity(spec: WorkerSpec) -> dict[str, Any]:
-    """What a DIR's episodes depend on besides the seed; a resume must match it exactly."""
+def identity(spec: WorkerSpec, files: Iterable[Path]) -> dict[str, Any]:
+    """What a DIR's episodes depend on besides the seed; a resume must match it exactly.
+    ``files``: every file the Objective is built from (``LoadedTree.files``: its SubTrees' too)."""
     objective = spec.objective.resolve()
     return {
         "objective": str(objective),
-        "objective_sha256": hashlib.sha256(objective.read_bytes()).hexdigest(),
+        "objective_sha256": _sha256(objective),
+        "objective_files": {str(file): _sha256(file) for file in sorted({Path(f).resolve() for f in files})},
         "tree": spec.tree,
         "policy": spec.policy.text,
         "policy_sha256": policy_digest(spec.policy),
@@ -101,6 +103,22 @@ def identity(spec: WorkerSpec) -> dict[str, Any]:
         "world_options": dict(spec.world_options),
         "max_seconds": spec.max_seconds,
     }
+
+
+def _sha256(path: Path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def files_mismatch(stored: dict[str, str] | None, current: dict[str, str]) -> str | None:
+    """Which of the Objective's files differ between a DIR (``stored``) and now, or None."""
+    if stored is None:
+        return "an Objective whose SubTree files were not recorded (by an earlier version)"
+    changed = [f for f in sorted(set(stored) | set(current)) if stored.get(f) != current.get(f)]
+    if not changed:
+        return None
+    how = {f: "now used" if f not in stored else "no longer used" if f not in current else "edited" for f in changed}
+    shown = ", ".join(f"{f} ({how[f]})" for f in changed[:3]) + (f" and {len(changed) - 3} more" if len(changed) > 3 else "")
+    return f"a different Objective: {shown}"
 
 
 def identity_mismatch(stored: dict[str, Any], current: dict[str, Any]) -> str | None:
@@ -116,4 +134,5 @@ def identity_mismatch(stored: dict[str, Any], current: dict[str, Any]) -> str | 
             if key == "objective_sha256":
                 return f"was made by {what}: {stored.get('objective')}, now {current.get('objective')}"
             return f"was made by {what}: {stored.get(key)!r}, now {current.get(key)!r}"
-    return None
+    files = files_mismatch(stored.get("objective_files"), current["objective_files"])
+    return None if files is None else f"was made by {files}"

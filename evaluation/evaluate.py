@@ -59,8 +59,8 @@ def evaluate(config: EvalConfig, registry: Registry, progress: Any = None, stop:
     """
     config.check()
     spec = config.spec
-    validate(spec.objective, registry, spec.tree, spec.search_paths, spec.objectives_dir).trees_or_raise()
-    ident = identity(spec)
+    trees = validate(spec.objective, registry, spec.tree, spec.search_paths, spec.objectives_dir).trees_or_raise()
+    ident = identity(spec, (file for tree in trees for file in tree.files))
     store = EvalStore(config.out, ident)
     resumed = sum(1 for seed in config.seeds if seed in store.records)
     started = time.monotonic()

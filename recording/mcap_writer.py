@@ -20,6 +20,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from .files import open_new
 from .schema import message_class, message_definition, type_name
 
 LIBRARY = "objective-runtime recorder"
@@ -104,7 +105,7 @@ class McapRos2Writer:
         self.path = Path(path)
         self.clock_origin_ns = clock_origin_ns
         self.flush_interval_s = flush_interval_s
-        self._stream = open(self.path, "wb")
+        self._stream = open_new(self.path)  # never through a link planted there
         self._writer = Writer(self._stream, compression=CompressionType.ZSTD)
         self._writer.start(profile=Profile.ROS2, library=LIBRARY)
         self._writer.add_metadata(METADATA_NAME, {"clock_origin_ns": str(clock_origin_ns)})

@@ -46,7 +46,7 @@ from .bag_metadata import BAG_METADATA_FILE, bag_metadata_yaml
 from .bus import JOINT_STATES_HZ, RecordingBus
 from .live import LiveOptions, LiveView
 from .event_messages import event_message, stamp_of
-from .files import EVENTS_FILE, MCAP_FILE, REPORT_FILES
+from .files import EVENTS_FILE, MCAP_FILE, REPORT_FILES, open_existing, open_new, recording_held, write_new
 from .handoff import Handoff
 from .mcap_writer import LATCHED_QOS, McapRos2Writer, to_nanoseconds, wall_clock_origin_ns
 from .reserve import append_line, release, reserve, why_not_written
@@ -172,11 +172,15 @@ class Recorder:
 
         if directory.exists() and not directory.is_dir():
             raise ObjectiveError(f"--record {directory}: exists and is not a directory")
+        held = recording_held(directory)
+        if held is not None:
+            raise ObjectiveError(f"--record {directory}: already holds a recording ({held}); record into a new "
+                                 "directory, or remove that one first")
         try:
             directory.mkdir(parents=True, exist_ok=True)
             for name in (*REPORT_FILES, BAG_METADATA_FILE, CRASH_LOG):  # a previous run's files must not pass for this run's
                 (directory / name).unlink(missing_ok=True)
-            (directory / EVENTS_FILE).write_bytes(b"")
+            open_new(directory / EVENTS_FILE).close()
             reserve(directory)
             self.worker = ReportWorker()
             self.worker.start()  # it also imports the report's libraries while the run goes on
@@ -186,7 +190,7 @@ class Recorder:
                 self._lines = []
                 return self.handoff
             self.writer = McapRos2Writer(directory / MCAP_FILE, self.clock_origin_ns)  # no worker: written here
-            self._events = open(directory / EVENTS_FILE, "a", encoding="utf-8", buffering=1)
+            self._events = open_existing(directory / EVENTS_FILE, "a", "utf-8", buffering=1)
             return self.writer
         except OSError as err:
             raise ObjectiveError(f"--record {directory}: cannot write there ({err.strerror})") from None
@@ -201,9 +205,9 @@ class Recorder:
         try:
             events = self.directory / EVENTS_FILE
             scratch = events.with_name(EVENTS_FILE + ".new")
-            scratch.write_text("".join(lines), encoding="utf-8")
+            write_new(scratch, "".join(lines))
             os.replace(scratch, events)
-            self._events = open(events, "a", encoding="utf-8", buffering=1)
+            self._events = open_existing(events, "a", "utf-8", buffering=1)
             mcap = self.directory / MCAP_FILE
             now = self.context.clock.now()
             if mcap.is_file() and mcap.stat().st_size > 0:
@@ -306,8 +310,8 @@ class Recorder:
             if self.writer is not None and self.directory is not None:
                 self.writer.close()  # (it may have replaced a worker lost while the sinks were closing)
                 w = self.writer
-                (self.directory / BAG_METADATA_FILE).write_text(
-                    bag_metadata_yaml(MCAP_FILE, w.topics, w.counts, w.first_ns, w.last_ns), encoding="utf-8")
+                write_new(self.directory / BAG_METADATA_FILE,
+                          bag_metadata_yaml(MCAP_FILE, w.topics, w.counts, w.first_ns, w.last_ns))
                 release(self.directory)
         except OSError as err:
             self._stop_writing(err)

@@ -12,6 +12,8 @@ import os
 from pathlib import Path
 from typing import BinaryIO
 
+from .files import open_existing, open_new
+
 RESERVE_FILE = ".room-for-the-summary"
 RESERVE_BYTES = 256 << 10
 """Far more than a run summary takes (a few KiB) and ``metadata.yaml``."""
@@ -21,15 +23,15 @@ def reserve(directory: Path) -> None:
     """Take ``RESERVE_BYTES`` in ``directory`` (nothing if the disk is already too full)."""
     path = directory / RESERVE_FILE
     try:
-        fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
+        stream = open_new(path)
     except OSError:
         return
     try:
-        os.posix_fallocate(fd, 0, RESERVE_BYTES)
+        os.posix_fallocate(stream.fileno(), 0, RESERVE_BYTES)
     except OSError:
         path.unlink(missing_ok=True)
     finally:
-        os.close(fd)
+        stream.close()
 
 
 def release(directory: Path) -> None:
@@ -51,7 +53,7 @@ def append_line(path: Path, line: str) -> None:
     """Append ``line`` to the ``events.jsonl`` at ``path`` after its last whole line (a line the
     full disk cut short goes); nothing if even that cannot be written."""
     try:
-        with open(path, "r+b") as stream:
+        with open_existing(path, "r+b") as stream:
             _cut_torn_line(stream)
             stream.write(line.encode())
     except OSError:

@@ -30,7 +30,7 @@ from .bus import JOINT_STATES_TOPIC
 from .event_messages import event_message
 from .handoff import MESSAGE_HEADER, Frame
 from .mcap_writer import LATCHED_QOS, McapRos2Writer, OfferedQos, SerializedMessage, to_nanoseconds
-from .files import EVENTS_FILE, MCAP_FILE
+from .files import EVENTS_FILE, MCAP_FILE, open_existing, write_new
 from .reserve import append_line, release, why_not_written
 from .schema import type_name
 from .tf_model import TF_STATIC_TOPIC, TF_TOPIC, TF_TYPE, TfModel, TfWriter
@@ -61,7 +61,7 @@ class RecordingSession:
         self.ended = False
         try:
             self.writer = McapRos2Writer(self.directory / MCAP_FILE, clock_origin_ns)
-            self._events = open(self.directory / EVENTS_FILE, "ab")  # the run created it empty
+            self._events = open_existing(self.directory / EVENTS_FILE)  # the run created it empty
         except OSError as err:
             self._stop_writing(err)
 
@@ -168,8 +168,7 @@ class RecordingSession:
         self._events.close()
         w = self.writer
         w.close()
-        (self.directory / BAG_METADATA_FILE).write_text(
-            bag_metadata_yaml(MCAP_FILE, w.topics, w.counts, w.first_ns, w.last_ns), encoding="utf-8")
+        write_new(self.directory / BAG_METADATA_FILE, bag_metadata_yaml(MCAP_FILE, w.topics, w.counts, w.first_ns, w.last_ns))
         release(self.directory)
         self._finish_data()
 

@@ -81,6 +81,17 @@ def add_groot2_arguments(parser: argparse.ArgumentParser) -> None:
                         help="interface Groot2 connects to (default 127.0.0.1; 0.0.0.0 = every interface)")
 
 
+DISCOVERY_RANGES = ("localhost", "subnet", "system_default", "off")
+"""ROS 2's automatic discovery ranges (Jazzy and later), the values of ``--discovery-range``."""
+
+
+def add_discovery_argument(parser: argparse.ArgumentParser) -> None:
+    """``--discovery-range``: who on the network may see the ROS 2 node (``runtime.ros.run.set_discovery_range``)."""
+    parser.add_argument("--discovery-range", choices=DISCOVERY_RANGES,
+                        metavar="RANGE", help="ROS 2 discovery range: localhost (default, unless "
+                        "ROS_AUTOMATIC_DISCOVERY_RANGE says otherwise), subnet, system_default or off")
+
+
 def groot2_server(args: argparse.Namespace) -> Any:
     """The Groot2 server ``--groot2`` asks for (a context manager), or a null context."""
     if args.groot2 is None:
@@ -139,6 +150,7 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
                      help="record the run into DIR: run.mcap, events.jsonl, plots, camera video, tree.svg, report.html")
     run.add_argument("--live", type=tcp_port, nargs="?", const=8765, metavar="PORT",
                      help="serve the run's topics to Foxglove on ws://127.0.0.1:PORT while it runs (default 8765; 0 = any free port)")
+    add_discovery_argument(run)
     add_groot2_arguments(run)
     run.add_argument("--tick-hz", type=positive_float, default=100.0, help=argparse.SUPPRESS)
     add_paths(run)
@@ -218,9 +230,12 @@ def cmd_run(args: argparse.Namespace, registry: Registry, stop: StopRequest | No
     if progress is not None:
         for handler in logging.getLogger("objective").handlers:
             handler.addFilter(lambda record: progress.clear() or True)  # log lines replace the progress line
+    if args.discovery_range is not None and not args.ros:
+        raise ObjectiveError("--discovery-range sets who may discover the run's ROS 2 node: it needs --ros")
     if args.ros:
-        from .ros.run import graph_description
+        from .ros.run import graph_description, set_discovery_range
 
+        set_discovery_range(args.discovery_range)
         options.check()
         logging.getLogger("objective").info("running %s", graph_description(options.ros_node_name))
     try:

@@ -29,6 +29,14 @@ size and requests missing their second part get the same error replies BehaviorT
 Groot2's requests are its heartbeat: ``connected`` says whether one arrived in the last
 ``HEARTBEAT_S`` seconds.
 
+A client can never slow the tick loop by more than a bounded share: a request frame over
+``MAX_REQUEST_BYTES`` is dropped by ZeroMQ before it is read (the client is disconnected); a
+blackboard request names at most ``MAX_BLACKBOARD_NAMES`` blackboards and its reply is at most
+``MAX_REPLY_BYTES`` (else an error reply saying so); the tick side (``update``) never waits for
+an answer being computed (the lock guards only the snapshot the answers read); and the server
+thread rests after each answer so that its work takes at most ``MonitorLimits.max_share`` of
+the time (``rest_after``).
+
 Statuses follow BehaviorTree.CPP's codes: IDLE 0, RUNNING 1, SUCCESS 2, FAILURE 3, and 10 +
 the previous status for a node that went back to IDLE (a finished or halted node), so Groot2
 shows where the run went; a skipped node keeps its code, as BehaviorTree.CPP reports no change
@@ -73,6 +81,12 @@ HEARTBEAT_S = 5.0
 RECEIVE_TIMEOUT_MS = 100
 MAX_TRANSITIONS = 1000
 """Transitions kept while recording (the oldest are dropped), as BehaviorTree.CPP keeps."""
+MAX_REQUEST_BYTES = 64 << 10
+"""The largest request frame read (Groot2's are a few hundred bytes: a header, blackboard names)."""
+MAX_BLACKBOARD_NAMES = 256
+MAX_REPLY_BYTES = 1 << 20
+MAX_SHARE = 0.1
+"""The share of the time the server thread may work (it competes with the tick loop for the GIL)."""
 HOOKS_REFUSED = ("hooks and breakpoints are not supported: objective-runtime's Groot2 monitor is read-only "
                  "(a breakpoint would stop the tick loop while the robot moves)")
 _log = logging.getLogger("objective")
@@ -109,11 +123,22 @@ _CODES = {Status.RUNNING: Code.RUNNING, Status.SUCCESS: Code.SUCCESS, Status.FAI
 
 
 @dataclass(frozen=True)
+class MonitorLimits:
+    """What one client may cost the process."""
+
+    max_request_bytes: int = MAX_REQUEST_BYTES
+    max_blackboard_names: int = MAX_BLACKBOARD_NAMES
+    max_reply_bytes: int = MAX_REPLY_BYTES
+    max_share: float = MAX_SHARE
+
+
+@dataclass(frozen=True)
 class Groot2Options:
     port: int = DEFAULT_PORT
     """The request port; the publisher takes ``port + 1``. 0: any free pair of ports."""
     host: str = "127.0.0.1"
     """The interface to listen on (``0.0.0.0``: every interface, as BehaviorTree.CPP does)."""
+    limits: MonitorLimits = field(default_factory=MonitorLimits)
 
 
 # ------------------------------------------------------------------------------------------------
@@ -254,17 +279,28 @@ def status_buffer(uids: list[int], codes: list[int]) -> bytes:
     return b"".join(struct.pack("<HB", uid, code) for uid, code in zip(uids, codes))
 
 
-def blackboard_dump(boards: dict[str, "Blackboard"], request: str) -> dict[str, dict[str, Any] | None]:
+def blackboard_dump(boards: dict[str, "Blackboard"], request: str,
+                    max_names: int = MAX_BLACKBOARD_NAMES) -> dict[str, dict[str, Any] | None]:
     """``{name: {entry: value}}`` for the ``;``-separated names in ``request`` that exist; an
-    empty blackboard is None (JSON null), as BehaviorTree.CPP exports it.
+    empty blackboard is None (JSON null), as BehaviorTree.CPP exports it. ValueError for a
+    request naming more than ``max_names`` blackboards (each counted once).
 
     Values are sent as ``_plain`` makes them (a ROS message as a map of its fields)."""
+    names = list(dict.fromkeys(request.split(";")))
+    if len(names) > max_names:
+        raise ValueError(f"a blackboard request names at most {max_names} blackboards, got {len(names)}")
     out: dict[str, dict[str, Any] | None] = {}
-    for name in request.split(";"):
+    for name in names:
         board = boards.get(name)
         if board is not None:
             out[name] = {key: _plain(value) for key, value in sorted(board.local_entries().items())} or None
     return out
+
+
+def rest_after(busy_s: float, max_share: float) -> float:
+    """How long the server rests after ``busy_s`` of work, so that its work is at most
+    ``max_share`` of the time."""
+    return busy_s * (1.0 - max_share) / max_share
 
 
 def _plain(value: Any) -> Any:
@@ -314,6 +350,8 @@ class Groot2Server:
             sock.setsockopt(self._zmq.LINGER, 0)
         self._server.setsockopt(self._zmq.RCVTIMEO, RECEIVE_TIMEOUT_MS)
         self._server.setsockopt(self._zmq.SNDTIMEO, 1000)
+        self._server.setsockopt(self._zmq.MAXMSGSIZE, options.limits.max_request_bytes)  # larger: never read
+        self.limits = options.limits
         try:
             self.port = self._bind(options)
         except self._zmq.ZMQError as err:
@@ -330,6 +368,7 @@ class Groot2Server:
         self._transitions: list[bytes] = []
         self._last_request = -float("inf")
         self._running = True
+        self._closing = threading.Event()
         self._thread = threading.Thread(target=self._serve, name="groot2", daemon=True)
         self._thread.start()
 
@@ -391,6 +430,7 @@ class Groot2Server:
 
     def close(self) -> None:
         self._running = False
+        self._closing.set()
         self._thread.join(timeout=2.0)
         self._context.destroy(linger=0)
 
@@ -415,7 +455,7 @@ class Groot2Server:
                 return
             if not self.connected:
                 _log.info("Groot2: a client connected to %s", self.url)
-            self._last_request = time.monotonic()
+            self._last_request = started = time.monotonic()
             try:
                 reply = self.answer(request)
             except Exception as err:  # a malformed request body: say so, keep serving
@@ -424,6 +464,7 @@ class Groot2Server:
                 self._server.send_multipart(reply)
             except self._zmq.ZMQError:
                 return
+            self._closing.wait(rest_after(time.monotonic() - started, self.limits.max_share))
 
     def answer(self, request: list[bytes]) -> list[bytes]:
         """The reply to one request (a list of frames), as BehaviorTree.CPP's publisher gives it."""
@@ -434,22 +475,30 @@ class Groot2Server:
             kind = Request(bytes([letter]))
         except ValueError:
             return _error("Request not recognized")
+        with self._lock:  # (held only to read the snapshot: ``update`` never waits for an answer)
+            tree, status = self._tree, self._status
+        if tree is None:
+            return _error("no tree is running yet")
+        header = HEADER.pack(PROTOCOL_ID, letter, request_id) + tree.uuid
+        body = request[1].decode() if len(request) == 2 else None
+        needs_body = (Request.BLACKBOARD, Request.HOOK_INSERT, Request.HOOK_REMOVE,
+                      Request.BREAKPOINT_UNLOCK, Request.TOGGLE_RECORDING)
+        if kind in needs_body and body is None:
+            return _error("must be 2 parts message")
+        if kind is Request.FULL_TREE:
+            return [header, tree.xml.encode()]
+        if kind is Request.STATUS:
+            return [header, status]
+        if kind is Request.BLACKBOARD:
+            try:
+                packed = self._msgpack.packb(blackboard_dump(tree.blackboards, body or "", self.limits.max_blackboard_names))
+            except ValueError as err:
+                return _error(str(err))
+            if len(packed) > self.limits.max_reply_bytes:
+                return _error(f"the blackboards asked for take {len(packed)} bytes, over the "
+                              f"{self.limits.max_reply_bytes} a reply may have: ask for fewer")
+            return [header, packed]
         with self._lock:
-            tree = self._tree
-            if tree is None:
-                return _error("no tree is running yet")
-            header = HEADER.pack(PROTOCOL_ID, letter, request_id) + tree.uuid
-            body = request[1].decode() if len(request) == 2 else None
-            needs_body = (Request.BLACKBOARD, Request.HOOK_INSERT, Request.HOOK_REMOVE,
-                          Request.BREAKPOINT_UNLOCK, Request.TOGGLE_RECORDING)
-            if kind in needs_body and body is None:
-                return _error("must be 2 parts message")
-            if kind is Request.FULL_TREE:
-                return [header, tree.xml.encode()]
-            if kind is Request.STATUS:
-                return [header, self._status]
-            if kind is Request.BLACKBOARD:
-                return [header, self._msgpack.packb(blackboard_dump(tree.blackboards, body or ""))]
             if kind is Request.HOOKS_DUMP:
                 return [header, b"[]"]
             if kind in (Request.REMOVE_ALL_HOOKS, Request.DISABLE_ALL_HOOKS):

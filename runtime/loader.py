@@ -133,6 +133,8 @@ class Document:
     """Trees written in this file itself, in order (not those of included files)."""
     models: dict[str, NodeModel] = field(default_factory=dict)
     unnamed_trees: int = 0
+    files: list[Path] = field(default_factory=list)
+    """Every file read into this document: its own, then its includes'."""
     """``<BehaviorTree>`` elements without an ID so far; BT.CPP names them BehaviorTree_0, _1, ..."""
 
     @property
@@ -272,6 +274,7 @@ def parse_document(
     seen = _seen if _seen is not None else set()
     if path is not None:
         seen.add(path)
+        doc.files.append(path)
     own = _into is None
     for element in _elements(root):
         eloc = SourceLocation(display, element.sourceline or 0)
@@ -421,6 +424,9 @@ class LoadedTree:
     tree_id: str
     file: Path | None
     nodes: list[LoadedNode]
+    files: tuple[Path, ...] = ()
+    """Every file the tree was built from: its own, its includes, and each file (with its
+    includes) of the library whose trees it uses as SubTrees."""
 
     def __post_init__(self) -> None:
         self._index = {id(loaded.node): loaded for loaded in self.nodes}
@@ -481,6 +487,8 @@ class _Builder:
         self.calls: list[tuple[SourceLocation, str]] = []
         """The SubTree calls being built, outermost first."""
         self.entry_types: dict[tuple[int, str], _EntryType] = {}
+        self.documents: dict[int, Document] = {}
+        """The documents whose trees were built (by id)."""
 
     # -- resolution ---
     def resolve(self, tree_id: str, doc: Document, loc: SourceLocation) -> TreeDef:
@@ -502,6 +510,7 @@ class _Builder:
 
     # -- construction ---
     def build_tree(self, tree: TreeDef, blackboard: Blackboard, stack: list[tuple[str, str]], depth: int = 0) -> py_trees.behaviour.Behaviour:
+        self.documents.setdefault(id(tree.document), tree.document)
         children = _elements(tree.element)
         if len(children) != 1:
             raise LoadError(f"a BehaviorTree has exactly one root node, got {len(children)}", tree.location, tree.id)
@@ -818,7 +827,8 @@ def load_tree(
 def _build(builder: _Builder, doc: Document, tree: TreeDef) -> LoadedTree:
     blackboard = Blackboard()
     root = builder.build_tree(tree, blackboard, [(tree.document.key, tree.id)])
-    return LoadedTree(root, blackboard, tree.id, doc.path, builder.nodes)
+    files = dict.fromkeys(f for d in (doc, *builder.documents.values()) for f in d.files)
+    return LoadedTree(root, blackboard, tree.id, doc.path, builder.nodes, tuple(files))
 
 
 @dataclass

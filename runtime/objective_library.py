@@ -7,10 +7,12 @@ TreeNodesModel entry of that tree, if the file has one: root blackboard entries,
 starts with set to their defaults. A file that cannot be read is listed
 with its error, so a typo shows where it is rather than an Objective silently missing.
 
-A request may override the ports of the Objective's nodes (``PortOverride``: every node with
-that name, checked and converted exactly as the XML's own values are, before anything runs)
-and set root blackboard entries (as ``objective run --set``). A bad override is an
-``ObjectiveError`` naming the override and what is wrong with it.
+A request may set the ports the Objective declares as its own (its TreeNodesModel entry), as
+MoveIt Pro's Objective server does: ``PortOverride`` (port by name) and blackboard overrides
+(root entries, as ``objective run --set``) alike reach only those ports, which are root
+blackboard entries. A port of a node inside the Objective is never reachable from a request (a
+client could otherwise widen a collision rule or rewrite a Script); an override of an
+undeclared port is an ``ObjectiveError`` naming it and the ports the Objective declares.
 """
 from __future__ import annotations
 
@@ -18,9 +20,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Iterable
 
-from .behavior import NodeKind
 from .errors import ObjectiveError
-from .loader import LoadedTree, parse_document, top_level_trees
+from .loader import parse_document, top_level_trees
 
 
 @dataclass(frozen=True)
@@ -51,7 +52,7 @@ class Objective:
 @dataclass(frozen=True)
 class PortOverride:
     node: str
-    """The node's name (its ``name`` attribute, else its ID); every node so named gets the value."""
+    """The Objective's name, or empty: nothing else (an override reaches only the Objective's ports)."""
     port: str
     value: str
 
@@ -101,23 +102,26 @@ class Library:
         return found[0]
 
 
-def apply_port_overrides(loaded: LoadedTree, overrides: Iterable[PortOverride]) -> None:
-    """Set each override's port on every node of ``loaded`` with that name, as if the XML wrote it."""
-    for override in overrides:
-        what = f"port override {override.node}.{override.port}={override.value!r}"
-        targets = [info for info in loaded.nodes if info.node.name == override.node]
-        if not targets:
-            names = ", ".join(sorted({info.node.name for info in loaded.nodes}))
-            raise ObjectiveError(f"{what}: no node named '{override.node}' in '{loaded.tree_id}' (nodes: {names})")
-        for info in targets:
-            if info.kind is NodeKind.SUBTREE:
-                raise ObjectiveError(f"{what}: '{override.node}' is a SubTree; set the entry its port remaps "
-                                     "with a blackboard override instead")
-            values = {k: v for k, v in info.values.items() if k not in ("name", "ID") and not k.startswith("_")}
-            values[override.port] = override.value
-            node = info.node
-            try:
-                node.bind(node.context, node.blackboard, values, info.location, info.xml_id)
-            except ObjectiveError as err:
-                raise ObjectiveError(f"{what}: {err}") from None
-            info.values[override.port] = override.value
+def override_entries(objective: Objective, ports: Iterable[PortOverride], blackboard: dict[str, str]) -> dict[str, str]:
+    """The root blackboard entries a request's overrides set. Each must name an input port
+    ``objective`` declares (its TreeNodesModel entry); anything else is an ObjectiveError naming
+    the override and the declared ports."""
+    declared = {p.name for p in objective.ports if p.direction != "output_port"}
+    listed = f"its ports: {', '.join(sorted(declared))}" if declared else "it declares none"
+    entries: dict[str, str] = {}
+
+    def admit(what: str, port: str, value: str) -> None:
+        if port not in declared:
+            raise ObjectiveError(f"{what}: '{port}' is not a port Objective '{objective.name}' declares ({listed}); "
+                                 "overrides reach only the Objective's own ports")
+        entries[port] = value
+
+    for key, value in blackboard.items():
+        admit(f"blackboard override {key}={value!r}", key, value)
+    for override in ports:
+        what = f"port override {override.node + '.' if override.node else ''}{override.port}={override.value!r}"
+        if override.node not in ("", objective.name):
+            raise ObjectiveError(f"{what}: '{override.node}' is not Objective '{objective.name}'; overrides reach only "
+                                 f"the Objective's own ports, never a node's inside it ({listed})")
+        admit(what, override.port, override.value)
+    return entries

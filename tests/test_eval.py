@@ -256,6 +256,28 @@ def test_resume_skips_finished_seeds_and_refuses_another_objective_or_policy(tmp
     assert len(episodes(out)) == 4
 
 
+def test_resume_refuses_an_objective_whose_subtree_file_was_edited(tmp_path, capsys):
+    """The resume check covers every file the Objective is built from, its SubTrees' too: seeds
+    run before and after an edit of a SubTree never land in one summary."""
+    library = tmp_path / "library"
+    library.mkdir()
+    inner = library / "inner.xml"
+    inner.write_text('<root BTCPP_format="4"><BehaviorTree ID="Inner"><AlwaysSuccess/></BehaviorTree></root>')
+    objective = tmp_path / "outer.xml"
+    objective.write_text('<root BTCPP_format="4"><BehaviorTree ID="Outer"><SubTree ID="Inner"/></BehaviorTree></root>')
+    out = tmp_path / "eval"
+    args = ("--record", "none", "--out", out, "--path", library)
+    code, summary, err = eval_cli(capsys, objective, "--episodes", 2, *args)
+    assert code == 0 and summary["successes"] == 2, err
+    assert summary["identity"]["objective_files"].keys() == {str(objective.resolve()), str(inner.resolve())}
+    inner.write_text('<root BTCPP_format="4"><BehaviorTree ID="Inner"><AlwaysFailure/></BehaviorTree></root>')
+    code = main(["eval", str(objective), "--episodes", "4", *map(str, args)])
+    assert code == 2
+    assert (f"error: --out {out} was made by a different Objective: {inner.resolve()} (edited)"
+            in capsys.readouterr().err)
+    assert len(episodes(out)) == 2
+
+
 def test_bad_input_is_refused_before_any_worker_starts(tmp_path, capsys):
     broken = tmp_path / "broken.xml"
     broken.write_text('<root BTCPP_format="4"><BehaviorTree ID="T"><NoSuchNode/></BehaviorTree></root>')

@@ -12,6 +12,7 @@ import subprocess
 import sys
 import time
 import xml.etree.ElementTree as ET
+from typing import Any
 
 import msgpack
 import pytest
@@ -376,3 +377,97 @@ def test_a_message_on_the_blackboard_is_sent_as_its_fields(registry):
     assert dump["Outer"]["goal"]["header"]["frame_id"] == "world"
     assert dump["Outer"]["goal"]["pose"]["position"] == {"x": 0.5, "y": 0.0, "z": 0.0}
     assert msgpack.unpackb(msgpack.packb(dump)) == dump
+
+
+# -- a client costs the tick loop a bounded share --------------------------------------------
+@pytest.fixture
+def ours(registry):
+    """Our server showing XML's tree, and a client of it."""
+    context = make_context(RunOptions())
+    loaded = load_tree(XML, registry, context)
+    server = Groot2Server(Groot2Options(port=0))
+    server.show(loaded)
+    client = Client(server.port)
+    yield server, loaded, client
+    client.close()
+    server.close()
+
+
+def test_a_request_frame_over_the_cap_is_never_read(ours):
+    """A 1 MiB frame (the cap is 64 KiB) is dropped by ZeroMQ unread: no reply, no memory kept;
+    other clients are served as before."""
+    from runtime.groot2 import MAX_REQUEST_BYTES
+
+    server, _, client = ours
+    assert MAX_REQUEST_BYTES == 64 << 10
+    client.socket.setsockopt(zmq.RCVTIMEO, 500)
+    with pytest.raises(zmq.Again):
+        client.ask(header("B"), b"Main;" * (1 << 18))
+    other = Client(server.port)
+    try:
+        assert other.ask(header("S"))[0][:6] == header("S")
+    finally:
+        other.close()
+
+
+def test_a_blackboard_request_and_its_reply_are_bounded(registry):
+    from runtime.groot2 import MonitorLimits
+
+    context = make_context(RunOptions())
+    loaded = load_tree(XML, registry, context)
+    tick_tree(loaded.root)
+    with Groot2Server(Groot2Options(port=0, limits=MonitorLimits(max_reply_bytes=10))) as server:
+        server.show(loaded)
+        client = Client(server.port)
+        try:
+            names = ";".join(f"board{k}" for k in range(300)).encode()
+            assert client.ask(header("B"), names) == [
+                b"error", b"a blackboard request names at most 256 blackboards, got 300"]
+            reply = client.ask(header("B"), b"Main;" * 10000)  # one blackboard, asked 10,000 times: once
+            assert reply[0] == b"error" and reply[1].startswith(b"the blackboards asked for take ")
+            assert reply[1].endswith(b" bytes, over the 10 a reply may have: ask for fewer")
+        finally:
+            client.close()
+
+
+def test_the_tick_never_waits_for_an_answer_being_computed(ours, monkeypatch):
+    """While the server thread computes an answer (a blackboard dump held here until released),
+    the tick side's ``update`` takes the new statuses at once."""
+    import threading
+
+    import runtime.groot2 as groot2
+
+    server, loaded, client = ours
+    entered, release = threading.Event(), threading.Event()
+    dump = groot2.blackboard_dump
+
+    def slow_dump(*args: Any) -> Any:
+        entered.set()
+        release.wait(10.0)
+        return dump(*args)
+
+    monkeypatch.setattr(groot2, "blackboard_dump", slow_dump)
+    asking = threading.Thread(target=client.ask, args=(header("B"), b"Main"), daemon=True)
+    asking.start()
+    try:
+        assert entered.wait(5.0), "the server never started the answer"
+        tick = tick_tree(loaded.root)
+        updating = threading.Thread(target=server.update, args=(tick.visited,), daemon=True)
+        updating.start()
+        updating.join(5.0)
+        assert not updating.is_alive(), "update() waited for the monitor's answer"
+    finally:
+        release.set()
+        asking.join(5.0)
+
+
+def test_the_server_rests_so_that_it_works_at_most_its_share(ours, monkeypatch):
+    import runtime.groot2 as groot2
+
+    assert groot2.rest_after(0.01, 0.1) == pytest.approx(0.09)  # 10 ms of work in 100 ms: a tenth
+    rests: list[tuple[float, float]] = []
+    monkeypatch.setattr(groot2, "rest_after", lambda busy_s, share: rests.append((busy_s, share)) or 0.0)
+    server, _, client = ours
+    for _ in range(5):
+        client.ask(header("S"))
+    assert len(rests) >= 4 and all(share == groot2.MAX_SHARE == 0.1 for _, share in rests)

@@ -575,3 +575,17 @@ def test_line_numbers_are_where_the_start_tag_begins(registry, tmp_path, empty_l
   </BehaviorTree>
 </root>""")
     assert error_of(registry, path, empty_lib) == f"{path}:5: Typed: port 'n' expects an integer, got 'many'"
+
+
+def test_a_loaded_tree_names_every_file_it_was_built_from(registry, tmp_path, empty_lib):
+    """Its own file, its includes, and the library files of the SubTrees it uses (not the others)."""
+    (tmp_path / "parts").mkdir()
+    part = write(tmp_path / "parts", '<root BTCPP_format="4"><BehaviorTree ID="Part"><SubTree ID="Lib"/></BehaviorTree></root>',
+                 "part.xml")
+    used = write(empty_lib, '<root BTCPP_format="4"><BehaviorTree ID="Lib"><AlwaysSuccess/></BehaviorTree></root>', "lib.xml")
+    write(empty_lib, '<root BTCPP_format="4"><BehaviorTree ID="Other"><AlwaysFailure/></BehaviorTree></root>', "other.xml")
+    main = write(tmp_path, """<root BTCPP_format="4" main_tree_to_execute="M">
+  <include path="parts/part.xml"/>
+  <BehaviorTree ID="M"><SubTree ID="Part"/></BehaviorTree>
+</root>""")
+    assert load(registry, main, empty_lib).files == (main.resolve(), part.resolve(), used.resolve())

@@ -41,13 +41,14 @@ ARM = ["shoulder_pan_joint", "shoulder_lift_joint", "elbow_joint", "wrist_1_join
 WAIT = """<root BTCPP_format="4" main_tree_to_execute="Wait and Greet">
   <BehaviorTree ID="Wait and Greet" _description="Waits, then copies the greeting">
     <Sequence>
-      <Wait name="wait" seconds="0.2"/>
+      <Wait name="wait" seconds="{seconds}"/>
       <Script code="said := greeting"/>
     </Sequence>
   </BehaviorTree>
   <TreeNodesModel>
     <SubTree ID="Wait and Greet">
       <input_port name="greeting" type="std::string" default="hello"/>
+      <input_port name="seconds" type="double" default="0.2"/>
     </SubTree>
   </TreeNodesModel>
 </root>"""
@@ -170,11 +171,11 @@ def client(ros_env):
 def test_an_objective_runs_by_name_with_feedback_and_overrides(serve, client, library):
     serve(library)
     c = client()
-    status, result = c.run("Wait and Greet", ports=[("wait", "seconds", "0.5")], board={"greeting": "bonjour"})
+    status, result = c.run("Wait and Greet", ports=[("", "seconds", "0.5")], board={"greeting": "bonjour"})
     assert status == GoalStatus.STATUS_SUCCEEDED
     assert (result.status, result.reason) == ("SUCCESS", "")
     summary = json.loads(result.summary_json)
-    assert summary["blackboard"] == {"greeting": "bonjour", "said": "bonjour"}
+    assert summary["blackboard"] == {"greeting": "bonjour", "seconds": "0.5", "said": "bonjour"}
     assert summary["sim_seconds"] == pytest.approx(0.51)  # the port override: 0.5 s, not 0.2 s
     first = c.feedback[0]
     assert list(first.running_nodes) == ["wait (Wait)"] and first.ticks == 1 and first.clock_s == pytest.approx(0.01)
@@ -188,24 +189,37 @@ def test_the_list_gives_every_objective_with_its_description_ports_and_errors(se
     wait_and_greet = by_file["wait.xml"]
     assert (wait_and_greet.name, wait_and_greet.description) == ("Wait and Greet", "Waits, then copies the greeting")
     assert [(p.name, p.direction, p.type, p.default_value) for p in wait_and_greet.ports] == [
-        ("greeting", "input_port", "std::string", "hello")]
+        ("greeting", "input_port", "std::string", "hello"), ("seconds", "input_port", "double", "0.2")]
     assert by_file["more/long.xml"].name == "Long Wait" and by_file["more/long.xml"].error == ""
     assert "broken.xml" in by_file["broken.xml"].error
     assert response.running == ""
 
 
-@pytest.mark.parametrize("name, ports, reason", [
-    ("Nope", [], "no Objective named 'Nope' in {lib} (Objectives: Long Wait, Wait and Greet)"),
-    ("broken", [], "Objective 'broken' cannot run: "),
-    ("Wait and Greet", [("wait", "secs", "1")],
-     "port override wait.secs='1': {lib}/wait.xml:4: Wait: unknown port 'secs' (ports: seconds)"),
-    ("Wait and Greet", [("wait", "seconds", "soon")], "port override wait.seconds='soon': {lib}/wait.xml:4: Wait: "),
-    ("Wait and Greet", [("waiter", "seconds", "1")],
-     "port override waiter.seconds='1': no node named 'waiter' in 'Wait and Greet' (nodes: Script, Sequence, wait)"),
+DECLARED = "its ports: greeting, seconds"
+
+
+@pytest.mark.parametrize("name, ports, board, reason", [
+    ("Nope", [], {}, "no Objective named 'Nope' in {lib} (Objectives: Long Wait, Wait and Greet)"),
+    ("broken", [], {}, "Objective 'broken' cannot run: "),
+    ("Wait and Greet", [("", "secs", "1")], {},
+     f"port override secs='1': 'secs' is not a port Objective 'Wait and Greet' declares ({DECLARED}); "
+     "overrides reach only the Objective's own ports"),
+    # a port of a node inside the Objective is out of reach: a client cannot rewrite a Script
+    # or widen a collision rule
+    ("Wait and Greet", [("wait", "seconds", "1")], {},
+     "port override wait.seconds='1': 'wait' is not Objective 'Wait and Greet'; overrides reach only the "
+     f"Objective's own ports, never a node's inside it ({DECLARED})"),
+    ("Wait and Greet", [("Script", "code", "said := 'pwned'")], {},
+     "port override Script.code=\"said := 'pwned'\": 'Script' is not Objective 'Wait and Greet'; "),
+    ("Wait and Greet", [], {"said": "x"},
+     f"blackboard override said='x': 'said' is not a port Objective 'Wait and Greet' declares ({DECLARED}); "),
+    ("Long Wait", [("Long Wait", "seconds", "0")], {},
+     "port override Long Wait.seconds='0': 'seconds' is not a port Objective 'Long Wait' declares "
+     "(it declares none); "),
 ])
-def test_a_bad_request_ends_as_error_saying_what_is_wrong(serve, client, library, name, ports, reason):
+def test_a_bad_request_ends_as_error_saying_what_is_wrong(serve, client, library, name, ports, board, reason):
     serve(library)
-    status, result = client().run(name, ports=ports)
+    status, result = client().run(name, ports=ports, board=board)
     assert status == GoalStatus.STATUS_ABORTED
     assert result.status == "ERROR"
     assert result.reason.startswith(reason.format(lib=library)), result.reason
@@ -332,7 +346,7 @@ def test_execute_objective_starts_one_and_answers_at_once(serve, client, library
 
 
 def test_the_command_serves_until_sigterm(ros_env, library):
-    env = dict(os.environ)
+    env = {k: v for k, v in os.environ.items() if k != "ROS_AUTOMATIC_DISCOVERY_RANGE"}  # localhost all the same
     proc = subprocess.Popen([sys.executable, "-m", "runtime.cli", "server", str(library)], cwd=REPO, env=env,
                             stderr=subprocess.PIPE, text=True)
     c = None
@@ -349,4 +363,60 @@ def test_the_command_serves_until_sigterm(ros_env, library):
             proc.kill()
     assert proc.returncode == 0, err
     assert f"serving 3 Objectives of {library} on ROS 2 as node /objective_server" in err
+    assert "ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST)" in err
     assert "Traceback" not in err
+
+
+def test_the_server_keeps_discovery_on_this_machine(serve, monkeypatch, library):
+    """Unless the environment or ``--discovery-range`` opens it, the server's node is discoverable
+    from this machine only."""
+    monkeypatch.delenv("ROS_AUTOMATIC_DISCOVERY_RANGE")
+    serve(library)
+    assert os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] == "LOCALHOST"
+
+
+def test_a_goal_running_when_the_server_is_stopped_gets_its_result(ros_env, library):
+    """SIGTERM to `objective server` mid-goal: the run is halted, the goal ends ABORTED with the
+    reason, its client receives the result, and the server exits 0 without a stray exception."""
+    proc = subprocess.Popen([sys.executable, "-m", "runtime.cli", "server", str(library), "--realtime"], cwd=REPO,
+                            env=dict(os.environ), stderr=subprocess.PIPE, text=True)
+    c = None
+    try:
+        c = Client()
+        handle = c.send("Long Wait")
+        assert handle.accepted
+        wait_for(lambda: c.feedback, what="feedback of the long wait")
+        result_future = handle.get_result_async()
+        proc.send_signal(signal.SIGTERM)
+        response = wait(result_future, timeout=20.0, what="the result of the goal the server was stopped in")
+        _, err = proc.communicate(timeout=20)
+    finally:
+        if c is not None:
+            c.close()
+        if proc.poll() is None:
+            proc.kill()
+    assert response.status == GoalStatus.STATUS_ABORTED
+    assert response.result.status == "INTERRUPTED"
+    assert response.result.reason.startswith("the Objective server is shutting down at "), response.result.reason
+    assert "halted 'Wait'" in response.result.reason
+    assert proc.returncode == 0, err
+    assert "exception" not in err.lower() and "Traceback" not in err, err
+
+
+def test_the_middleware_here_has_no_dds_security(ros_env, tmp_path):
+    """What docs/operating.md says of SROS2 with the PyPI wheels: a node asked to enforce DDS
+    security is refused, the Fast DDS library having no security plugins."""
+    enclave = tmp_path / "keystore" / "enclaves" / "objective_server"
+    enclave.mkdir(parents=True)
+    for name in ("identity_ca.cert.pem", "cert.pem", "key.pem", "permissions_ca.cert.pem", "governance.p7s",
+                 "permissions.p7s"):
+        (enclave / name).write_text("placeholder")
+    env = {**os.environ, "ROS_SECURITY_ENABLE": "true", "ROS_SECURITY_STRATEGY": "Enforce",
+           "ROS_SECURITY_KEYSTORE": str(tmp_path / "keystore")}
+    code = ("import rclpy\n"
+            "c = rclpy.Context()\n"
+            "rclpy.init(context=c, args=['--ros-args', '--enclave', '/objective_server'])\n"
+            "rclpy.create_node('probe', context=c)\n")
+    done = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=60)
+    assert done.returncode != 0
+    assert "This Fast DDS version doesn't have the security libraries" in done.stderr, done.stderr

@@ -223,6 +223,52 @@ def test_recording_again_into_a_directory_replaces_the_old_report(tmp_path):
     assert (rec / "report.html").is_file()
 
 
+def test_a_second_recording_into_one_directory_is_refused(tmp_path, capsys):
+    code, rec = record_run(tmp_path, HALTED_XML)
+    assert code == 1
+    first = (rec / "run.mcap").read_bytes()
+    capsys.readouterr()
+    code, _ = record_run(tmp_path, HALTED_XML)
+    assert code == 2
+    assert (f"error: --record {rec}: already holds a recording (run.mcap); record into a new directory, "
+            "or remove that one first") in capsys.readouterr().err
+    assert (rec / "run.mcap").read_bytes() == first  # the first run is kept
+
+
+@pytest.mark.parametrize("planted", ["run.mcap", "events.jsonl"])
+def test_a_recording_file_planted_as_a_link_is_refused_and_its_target_kept(tmp_path, capsys, planted):
+    victim = tmp_path / "victim"
+    victim.write_text("precious")
+    (tmp_path / "rec").mkdir()
+    (tmp_path / "rec" / planted).symlink_to(victim)
+    code, rec = record_run(tmp_path, HALTED_XML)
+    assert code == 2 and f"--record {rec}: already holds a recording ({planted})" in capsys.readouterr().err
+    assert victim.read_text() == "precious"
+
+
+def test_a_recording_writes_no_file_through_a_planted_link(tmp_path):
+    """Every file of the directory is replaced, never written through a link left there."""
+    rec = tmp_path / "rec"
+    rec.mkdir()
+    names = [".room-for-the-summary", "metadata.yaml", "report.html", "tree.svg", "joints.svg", "events.jsonl.new"]
+    for name in names:
+        (tmp_path / f"victim-{name}").write_text("precious")
+        (rec / name).symlink_to(tmp_path / f"victim-{name}")
+    code, _ = record_run(tmp_path, HALTED_XML)
+    assert code == 1
+    assert all((tmp_path / f"victim-{name}").read_text() == "precious" for name in names)
+    assert (rec / "report.html").is_file() and not (rec / "report.html").is_symlink()
+
+
+def test_the_bag_writer_replaces_a_link_instead_of_writing_through_it(tmp_path):
+    victim = tmp_path / "victim"
+    victim.write_text("precious")
+    (tmp_path / "run.mcap").symlink_to(victim)
+    McapRos2Writer(tmp_path / "run.mcap").close()
+    assert victim.read_text() == "precious"
+    assert not (tmp_path / "run.mcap").is_symlink() and (tmp_path / "run.mcap").stat().st_size > 0
+
+
 def test_record_into_a_file_is_bad_input(tmp_path, capsys):
     target = tmp_path / "not-a-dir"
     target.write_text("x")

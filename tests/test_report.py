@@ -9,6 +9,7 @@ import shutil
 import xml.etree.ElementTree as ET
 from html.parser import HTMLParser
 from pathlib import Path
+from typing import Any
 
 import imageio.v2 as imageio
 import imageio.v3 as iio
@@ -16,6 +17,7 @@ import numpy as np
 import pytest
 
 from runtime.cli import main
+from runtime.errors import ObjectiveError
 from runtime.display import ProgressLine
 from recording.report import load_recording, render_report
 from recording.report.data import CommandedGoal, Recording
@@ -282,3 +284,98 @@ def test_a_recording_cut_anywhere_in_a_record_reads_as_partial(recording, tmp_pa
     mcap.write_bytes(data[: middle + into])
     loaded = load_recording(copy)
     assert any(p.startswith("run.mcap ends early") for p in loaded.partial), loaded.partial
+
+
+# -- a recording is untrusted data -----------------------------------------------------------
+def hostile_recording(directory: Path, write: Any) -> Path:
+    """A recording directory whose run.mcap ``write(writer)`` fills (an mcap ``Writer``)."""
+    from mcap.writer import CompressionType, Writer
+
+    directory.mkdir()
+    (directory / "events.jsonl").write_text("")
+    with open(directory / "run.mcap", "wb") as stream:
+        writer = Writer(stream, compression=CompressionType.ZSTD)
+        writer.start(profile="ros2", library="test")
+        write(writer)
+        writer.finish()
+    return directory
+
+
+def test_a_schema_name_in_a_recording_never_imports_its_module(tmp_path, monkeypatch):
+    """A schema naming any module (``this/msg/Zen`` printed the Zen of Python) on the topics the
+    report decodes is counted by its name, never imported."""
+    package = tmp_path / "path" / "planted"
+    (package / "msg").mkdir(parents=True)
+    (package / "__init__.py").write_text(f"open({str(tmp_path / 'imported')!r}, 'w').write('yes')\n")
+    (package / "msg" / "__init__.py").write_text("JointState = String = None\n")
+    monkeypatch.syspath_prepend(str(tmp_path / "path"))
+
+    def write(writer: Any) -> None:
+        for topic, name in (("/joint_states", "planted/msg/JointState"), ("/policy/request", "planted/msg/String"),
+                            ("/c/joint_trajectory", "this/msg/Zen"), ("/g/_action/goal", "planted/action/GripperCommand_Goal")):
+            schema = writer.register_schema(name=name, encoding="ros2msg", data=b"string data")
+            channel = writer.register_channel(topic=topic, message_encoding="cdr", schema_id=schema)
+            writer.add_message(channel, log_time=1, publish_time=1, data=b"\x00\x01\x00\x00\x00\x00\x00\x00")
+
+    loaded = load_recording(hostile_recording(tmp_path / "rec", write))
+    assert not (tmp_path / "imported").exists()
+    assert loaded.topics["/joint_states"] == ("planted/msg/JointState", 1) and loaded.joints is None
+    assert loaded.topics["/c/joint_trajectory"] == ("this/msg/Zen", 1) and loaded.goals == []
+
+
+def zstd_chunk_file(path: Path, declared: int, zeros: int, piece: int = 1 << 20) -> None:
+    """An MCAP file of one zstd chunk of ``zeros`` zero bytes (compressed a piece at a time, so
+    the test holds no more than ``piece``) that declares ``declared`` bytes uncompressed."""
+    import struct
+    import zstandard
+
+    compressor = zstandard.ZstdCompressor().compressobj()
+    data = b"".join(compressor.compress(bytes(min(piece, zeros - at))) for at in range(0, zeros, piece))
+    data += compressor.flush()
+    name = b"zstd"
+    body = struct.pack("<QQQI", 0, 0, declared, 0) + struct.pack("<I", len(name)) + name + struct.pack("<Q", len(data)) + data
+    header = struct.pack("<I", 4) + b"ros2" + struct.pack("<I", 4) + b"test"
+    magic = b"\x89MCAP0\r\n"
+    path.write_bytes(magic + b"\x01" + struct.pack("<Q", len(header)) + header
+                     + b"\x06" + struct.pack("<Q", len(body)) + body)
+
+
+@pytest.mark.parametrize("declared, zeros, message", [
+    (1 << 40, 1024, "declares 1099511627776 bytes uncompressed, over the 67108864 a recording's chunk may have: not read"),
+    (1 << 20, 8 << 20, "decompresses to more than the 1048576 bytes it declares: not read"),
+])
+def test_a_compression_bomb_is_refused_before_it_is_expanded(tmp_path, capsys, declared, zeros, message):
+    rec = tmp_path / "rec"
+    rec.mkdir()
+    (rec / "events.jsonl").write_text("")
+    zstd_chunk_file(rec / "run.mcap", declared, zeros)
+    assert main(["report", str(rec)]) == 2
+    assert f"error: {rec / 'run.mcap'}: chunk 1 {message}" in capsys.readouterr().err
+
+
+def test_a_recording_expands_at_most_a_bounded_multiple_of_its_size(recording):
+    from mcap.records import Chunk
+    from mcap.stream_reader import StreamReader
+
+    from recording.report.data import read_mcap
+    from recording.report.mcap_reader import ReadLimits
+
+    mcap = recording / "run.mcap"
+    with open(mcap, "rb") as stream:
+        sizes = [r.uncompressed_size for r in StreamReader(stream, emit_chunks=True).records if isinstance(r, Chunk)]
+    expansion = sum(sizes) / mcap.stat().st_size
+    assert len(sizes) >= 2 and 3 < expansion < 20  # the recorder's chunks expand 5 to 10 times
+    read_mcap(mcap, Recording(recording), ReadLimits(expansion=20))
+    tight = ReadLimits(max_chunk_bytes=max(sizes), expansion=(sum(sizes) - max(sizes)) / mcap.stat().st_size / 2)
+    with pytest.raises(ObjectiveError, match=r"chunk \d+ would expand the file's chunks to more than [\d.]+ times the "
+                                             r"file's size: not read \(a compression bomb, not a recording\)"):
+        read_mcap(mcap, Recording(recording), tight)
+
+
+def test_a_chunk_of_anything_but_records_is_refused_at_its_first_byte(tmp_path, capsys):
+    rec = tmp_path / "rec"
+    rec.mkdir()
+    (rec / "events.jsonl").write_text("")
+    zstd_chunk_file(rec / "run.mcap", 8 << 20, 8 << 20)  # 8 MiB of zeros: opcode 0, nine bytes at a time
+    assert main(["report", str(rec)]) == 2
+    assert f"chunk 1 holds opcode 0x00 at byte 0 of 8388608: not a recording's chunk" in capsys.readouterr().err

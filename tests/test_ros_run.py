@@ -86,8 +86,10 @@ def finish(proc: subprocess.Popen, timeout: float = 30.0) -> tuple[int, str, str
 
 # -- the CLI -------------------------------------------------------------------------------
 def test_open_gripper_on_ros_succeeds_and_says_where_it_runs(ros_env):
+    """Discovery stays on this machine when nothing in the environment opens it."""
+    env = {k: v for k, v in ros_env.items() if k != "ROS_AUTOMATIC_DISCOVERY_RANGE"}
     code, out, err = finish(objective("run", "objectives/cell/open_gripper.xml", "--ros", "--realtime",
-                                      "--world", "kinematic", "--json", env=ros_env))
+                                      "--world", "kinematic", "--json", env=env))
     assert code == 0, err
     summary = json.loads(out.strip().splitlines()[-1])
     assert summary["status"] == "SUCCESS" and summary["world"]["gripper"] == 0.0
@@ -174,6 +176,17 @@ def test_policy_latency_is_refused_with_ros(ros_env):
     )
     with pytest.raises(ObjectiveError):
         RunOptions(ros=True, policy_latency="0.3").check()
+
+
+def test_the_discovery_range_opens_only_with_the_flag_and_only_with_ros(ros_env, capsys):
+    from runtime.cli import main
+    from runtime.ros.run import set_discovery_range
+
+    assert main(["run", "objectives/cell/open_gripper.xml", "--discovery-range", "subnet"]) == 2
+    assert capsys.readouterr().err.strip() == (
+        "error: --discovery-range sets who may discover the run's ROS 2 node: it needs --ros")
+    assert set_discovery_range() == "LOCALHOST"  # (the fixture's)
+    assert set_discovery_range("subnet") == "SUBNET" == os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"]
 
 
 # -- ExecutePolicy against a policy served by another node -----------------------------------

@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Callable
 
-from ..files import HTML_FILE, JOINTS_FILE, LATENCY_FILE, TREE_FILE, VIDEO_FILE
+from ..files import HTML_FILE, JOINTS_FILE, LATENCY_FILE, TREE_FILE, VIDEO_FILE, write_new
 
 if TYPE_CHECKING:
     from .data import Recording
@@ -67,7 +67,7 @@ def render_report(directory: Path | str, logger: logging.Logger | None = None, r
     for name, render in steps:
         _render_one(report, name, render)
     html_path = directory / HTML_FILE
-    _render_one(report, "html", lambda: _write_text(html_path, report_html(recording, report.files)))
+    _render_one(report, "html", lambda: write_new(html_path, report_html(recording, report.files)))
     log_errors(report, logger)
     return report
 
@@ -77,11 +77,6 @@ def log_errors(report: Report, logger: logging.Logger | None) -> None:
     if logger is not None:
         for name, error in report.errors.items():
             logger.warning("recording %s: the %s artifact could not be rendered: %s", report.directory, name, error)
-
-
-def _write_text(path: Path, text: str) -> Path:
-    path.write_text(text, encoding="utf-8")
-    return path
 
 
 def _render_one(report: Report, name: str, render: Callable[[], Path]) -> None:

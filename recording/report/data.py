@@ -1,13 +1,17 @@
 """A recording read back: ``events.jsonl`` and ``run.mcap`` as plain arrays for the report.
 
 Everything the report draws comes from these two files, so a recording can be rendered again
-(``objective report DIR``) on another machine. Messages are decoded with rclpy's deserializer
-(the inverse of what the recorder wrote); the tests decode the same files independently with
+(``objective report DIR``) on another machine. A recording is read as untrusted data: only the
+message types of ``DECODED_TYPES`` (what the recorder writes and the report draws) are ever
+decoded, whatever a schema names, and ``run.mcap`` is read within bounds
+(``recording.report.mcap_reader``). Messages are decoded with rclpy's deserializer (the inverse
+of what the recorder wrote); the tests decode the same files independently with
 mcap-ros2-support, the way Foxglove would.
 """
 from __future__ import annotations
 
 import json
+import os
 import struct
 from collections import defaultdict
 from dataclasses import dataclass, field
@@ -16,9 +20,7 @@ from typing import Any, Callable
 
 import numpy as np
 from mcap.exceptions import EndOfFile
-from mcap.reader import NonSeekingReader
-from mcap.records import Chunk, Message, Metadata
-from mcap.stream_reader import StreamReader
+from mcap.records import Message, Metadata
 from rclpy.serialization import deserialize_message
 
 from runtime.errors import ObjectiveError
@@ -27,6 +29,7 @@ from ..cdr import JointStateArrays, TrajectoryArrays, joint_state_arrays, joint_
 from ..mcap_writer import METADATA_NAME
 from ..files import EVENTS_FILE, MCAP_FILE
 from ..schema import message_class
+from .mcap_reader import ReadLimits, messages, records
 
 
 @dataclass
@@ -197,15 +200,23 @@ def _goal(topic: str, sent_at: float, trajectory: TrajectoryArrays) -> Commanded
                          column(trajectory.velocities))
 
 
+JOINT_STATE, TRAJECTORY, STRING, GRIPPER_GOAL, IMAGE = (
+    "sensor_msgs/msg/JointState", "trajectory_msgs/msg/JointTrajectory", "std_msgs/msg/String",
+    "control_msgs/action/GripperCommand_Goal", "sensor_msgs/msg/Image")
+DECODED_TYPES = frozenset({JOINT_STATE, TRAJECTORY, STRING, GRIPPER_GOAL, IMAGE})
+"""The only message types the report decodes (and so the only type names it imports): what the
+recorder writes and the report draws. Any other type is counted by its name, never imported."""
+
+
 def _wanted(topic: str, type_name: str) -> bool:
     """The messages the report draws; the rest (feedback, goals, results...) are only counted."""
     if topic == JOINT_STATES_TOPIC:
-        return True
-    if type_name == "trajectory_msgs/msg/JointTrajectory":
+        return type_name == JOINT_STATE
+    if type_name == TRAJECTORY:
         return topic.endswith("/joint_trajectory")
-    if type_name == "std_msgs/msg/String":
+    if type_name == STRING:
         return topic.endswith("/request") or topic.endswith("/response")
-    return type_name.endswith("GripperCommand_Goal")
+    return type_name == GRIPPER_GOAL
 
 
 def clock_origin_ns(path: Path) -> int:
@@ -213,10 +224,10 @@ def clock_origin_ns(path: Path) -> int:
     the ``objective_runtime`` metadata record, written before the first message."""
     with open(path, "rb") as stream:
         try:
-            for record in StreamReader(stream, skip_magic=False).records:
+            for record in records(stream, path, os.fstat(stream.fileno()).st_size):
                 if isinstance(record, Metadata) and record.name == METADATA_NAME:
                     return int(record.metadata.get("clock_origin_ns", "0"))
-                if isinstance(record, (Message, Chunk)):
+                if isinstance(record, Message):
                     return 0
         except (EndOfFile, struct.error):  # a file cut before its first message
             return 0
@@ -246,24 +257,25 @@ class McapContents:
         recording = self.recording
         self.counts[topic][0] = type_name
         self.counts[topic][1] += 1
-        if type_name == "sensor_msgs/msg/Image":
+        if type_name == IMAGE:
             self.images[(topic, log_time_ns - self.origin_ns)] = data  # decoded only if a request shows it
             return None
         if not _wanted(topic, type_name):
             return None
         cls = self.classes.get(type_name)
         if cls is None:
+            assert type_name in DECODED_TYPES  # (``_wanted``): a recording names no module to import
             cls = self.classes[type_name] = message_class(type_name)
         t = (log_time_ns - self.origin_ns) * 1e-9
         if topic == JOINT_STATES_TOPIC:
             msg = _joint_state(data, cls)
             self.joint_messages.append((t, msg))
             return msg
-        if type_name == "trajectory_msgs/msg/JointTrajectory":  # (on a controller's /joint_trajectory: _wanted)
+        if type_name == TRAJECTORY:  # (on a controller's /joint_trajectory: _wanted)
             recording.goals.append(_goal(topic, t, _trajectory(data, cls)))
             return None
         msg = deserialize_message(data, cls)
-        if type_name.endswith("GripperCommand_Goal"):
+        if type_name == GRIPPER_GOAL:
             recording.gripper_commands.append((t, float(msg.command.position)))
         elif topic.endswith("/request"):
             request = json.loads(msg.data)
@@ -295,7 +307,7 @@ class McapContents:
             keys = [(view["topic"], int(round(request["time"] * 1e9))) for view in request.get("images", [])]
             if not final and not all(key in self.images for key in keys):
                 return
-            image_class = image_class or message_class("sensor_msgs/msg/Image")
+            image_class = image_class or message_class(IMAGE)
             try:
                 views = [(view["name"], image_rgb(deserialize_message(self.images[key], image_class)))
                          for view, key in zip(request.get("images", []), keys) if key in self.images]
@@ -314,14 +326,14 @@ class McapContents:
                     self.on_frame(frame)
 
 
-def read_mcap(path: Path, recording: Recording) -> None:
+def read_mcap(path: Path, recording: Recording, limits: ReadLimits = ReadLimits()) -> None:
     contents = McapContents(recording, clock_origin_ns(path))
     with open(path, "rb") as stream:
         # Read front to back, as a stream: file order is recording order, which is clock order
         # (the recorder writes as time passes), and a file whose writer was killed (no summary
         # section, maybe half a chunk) still gives every complete chunk.
         try:
-            for schema, channel, message in NonSeekingReader(stream).iter_messages(log_time_order=False):
+            for schema, channel, message in messages(stream, path, os.fstat(stream.fileno()).st_size, limits):
                 contents.add(channel.topic, schema.name if schema is not None else "", message.log_time, message.data)
         except (EndOfFile, struct.error):  # cut inside a record's opcode and length, or inside its body
             end = contents.end_time_s()

@@ -14,6 +14,7 @@ from typing import Any
 
 import numpy as np
 
+from ..files import write_new
 from .data import CommandedGoal, Recording
 from .svg_chart import LegendEntry, Panel, document, legend, text
 
@@ -182,13 +183,11 @@ def joints_plot(recording: Recording, path: Path) -> Path:
     if off_scale:
         body.append(text(JOINTS_WIDTH_PX - RIGHT_PX, height - 4, "joint limits far outside the plotted range are not drawn",
                          9, "end", LIMIT_COLOR))
-    path.write_text(document(JOINTS_WIDTH_PX, height, body, "joints: commanded versus measured"), encoding="utf-8")
-    return path
+    return write_new(path, document(JOINTS_WIDTH_PX, height, body, "joints: commanded versus measured"))
 
 
 def _message_svg(path: Path, message: str, title: str) -> Path:
-    path.write_text(document(580, 60, [text(290, 34, message, 12, "middle")], title), encoding="utf-8")
-    return path
+    return write_new(path, document(580, 60, [text(290, 34, message, 12, "middle")], title))
 
 
 def _time_span(recording: Recording, measured: Any) -> tuple[float, float] | None:
@@ -264,5 +263,4 @@ def latency_plot(recording: Recording, path: Path) -> Path:
         LegendEntry("stalled before its seam", STALL_COLOR, patch=True, opacity=1.0),
         LegendEntry("committed window", COMMANDED_COLOR), LegendEntry("warmup (discarded)", REQUEST_COLOR, patch=True, opacity=1.0),
     ], LATENCY_WIDTH_PX / 2, 36))
-    path.write_text(document(LATENCY_WIDTH_PX, LATENCY_HEIGHT_PX, body, "policy latency per chunk"), encoding="utf-8")
-    return path
+    return write_new(path, document(LATENCY_WIDTH_PX, LATENCY_HEIGHT_PX, body, "policy latency per chunk"))

@@ -12,6 +12,8 @@ from pathlib import Path
 from typing import Any
 from xml.sax.saxutils import escape
 
+from ..files import write_new
+
 STYLE = {  # status -> (fill, stroke, label)
     "SUCCESS": ("#c8e6c9", "#2e7d32", "SUCCESS"),
     "FAILURE": ("#ffcdd2", "#c62828", "FAILURE"),
@@ -170,5 +172,4 @@ def tree_svg(nodes: list[dict[str, Any]], statuses: dict[int, tuple[str, str]], 
 
 
 def write_tree_svg(nodes: list[dict[str, Any]], statuses: dict[int, tuple[str, str]], path: Path, title: str = "") -> Path:
-    path.write_text(tree_svg(nodes, statuses, title), encoding="utf-8")
-    return path
+    return write_new(path, tree_svg(nodes, statuses, title))

@@ -85,6 +85,7 @@ class VideoEncoder:
             height = max(MIN_HEIGHT, max(view.shape[0] for _, view in frame.views))
             height += height % 2
             self._size = (height, mosaic(frame, height).shape[1])
+            self.partial_path.unlink(missing_ok=True)  # ffmpeg writes a new file, never through a link left there
             self._writer = imageio.get_writer(self.partial_path, fps=self.fps, codec="libx264", macro_block_size=1,
                                               pixelformat="yuv420p", output_params=["-movflags", "+faststart"])
         height, width = self._size

@@ -10,7 +10,7 @@ import logging
 import time
 from pathlib import Path
 
-from runtime.cli import parse_set, add_groot2_arguments, groot2_server, positive_float
+from runtime.cli import parse_set, add_discovery_argument, add_groot2_arguments, groot2_server, positive_float
 from runtime.command import EXIT_SUCCESS, Command
 from runtime.interrupt import StopRequest, stop_on_signals
 from runtime.registry import Registry
@@ -30,13 +30,16 @@ def _arguments(parser: argparse.ArgumentParser) -> None:
                         help="run each Objective on real ROS 2 as node /objective_runtime (implies --realtime), "
                              "as `objective run --ros`")
     parser.add_argument("--max-seconds", type=positive_float, metavar="S", help="fail a run after S seconds of clock time")
+    add_discovery_argument(parser)
     add_groot2_arguments(parser)
 
 
 def _serve(args: argparse.Namespace, registry: Registry) -> int:
-    from runtime.ros.objective_server import NODE_NAME, ObjectiveServer, ServerOptions
-    from runtime.ros.run import graph_description
+    from runtime.ros.objective_server import NODE_NAME, SHUTDOWN, ObjectiveServer, ServerOptions
+    from runtime.ros.run import graph_description, set_discovery_range
     from runtime.runner import RunOptions
+
+    set_discovery_range(args.discovery_range)
 
     options = RunOptions(
         seed=args.seed, realtime=args.realtime or args.ros, ros=args.ros, max_seconds=args.max_seconds,
@@ -53,7 +56,7 @@ def _serve(args: argparse.Namespace, registry: Registry) -> int:
                      graph_description(NODE_NAME))
             while not stop.requested:
                 time.sleep(0.1)
-            log.info("stopping (%s)", "a run was halted" if server.cancel("the Objective server is stopping")
+            log.info("stopping (%s)", "a run was halted" if server.cancel(SHUTDOWN)
                      else "nothing was running")
         finally:
             server.close()

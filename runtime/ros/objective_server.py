@@ -3,10 +3,10 @@
 The node ``/objective_server`` serves, as MoveIt Pro's Objective server does:
 
 - ``/do_objective`` (action ``objective_server_msgs/action/DoObjective``): run one Objective by
-  name, with port overrides (a port of the nodes with a given name) and blackboard overrides
-  (root entries, as ``objective run --set``). Feedback, at most every ``FEEDBACK_PERIOD_S`` of
-  wall time: the RUNNING leaves, the clock, the ticks, and what running nodes report so far
-  (ExecutePolicy: chunks, stalls, ...). Result: the status, the reason, the failing node and
+  name, with port and blackboard overrides, which reach only the ports the Objective declares
+  (``runtime.objective_library.override_entries``: never a node's inside it). Feedback, at most
+  every ``FEEDBACK_PERIOD_S`` of wall time: the RUNNING leaves, the clock, the ticks, and what
+  running nodes report so far (ExecutePolicy: chunks, stalls, ...). Result: the status, the reason, the failing node and
   the ``objective run --json`` summary. A cancelled goal halts the tree as SIGINT halts
   ``objective run`` (goals cancelled, the arm stopped) and ends CANCELED with status INTERRUPTED.
 - ``/execute_objective`` (``objective_server_msgs/srv/ExecuteObjective``): start one the same
@@ -21,6 +21,11 @@ One Objective at a time: a goal that arrives while another runs is rejected, and
 are wrong is accepted and aborted at once with status ERROR and the reason, so the client
 learns what is wrong. Each run is a run of ``runtime.runner`` with the server's options (world,
 ``--ros``, ``--realtime``, ...): exactly what ``objective run FILE`` with those options does.
+
+Discovery stays on this machine (``runtime.ros.run.set_discovery_range``) unless the environment
+or ``--discovery-range`` opens it. ``close()`` (SIGINT/SIGTERM) halts the running Objective, ends
+its goal ABORTED ("the Objective server is shutting down ...") and leaves the graph only once that
+result is on its way to the client.
 """
 from __future__ import annotations
 
@@ -46,8 +51,9 @@ from runtime.crash import describe_crash, write_traceback
 from runtime.errors import ObjectiveError
 from runtime.interrupt import StopRequest
 from runtime.loader import LoadedTree, load_tree
-from runtime.objective_library import Library, PortOverride, apply_port_overrides
+from runtime.objective_library import Library, PortOverride, override_entries
 from runtime.registry import Registry
+from runtime.ros.run import set_discovery_range
 from runtime.runner import RunEnd, TickWatcher, RunOptions, RunResult, make_context, run_loaded, running_leaves
 
 NODE_NAME = "objective_server"
@@ -59,6 +65,9 @@ FEEDBACK_PERIOD_S = 0.1
 CANCELLED = f"cancelled by a client of {ACTION_NAME}"
 CANCELLED_BY_SERVICE = f"cancelled through {CANCEL_SERVICE}"
 SHUTDOWN = "the Objective server is shutting down"
+RESULT_GRACE_S = 0.25
+"""Wall time the server keeps serving after a goal ended before it leaves the graph, so the
+result reaches the clients waiting for it (rclpy sends it from the executor's next wake)."""
 _log = logging.getLogger("objective")
 
 
@@ -145,7 +154,11 @@ class ObjectiveServer:
         """The name of the Objective whose goal was accepted and has not ended."""
         self._stop: StopRequest | None = None
         self._idle = threading.Event()
+        """Set while no run holds the slot and no goal is being finished."""
         self._idle.set()
+        self._goal_ended_at = -float("inf")
+        """``time.monotonic()`` when the last DoObjective goal ended (its result on its way)."""
+        set_discovery_range()
         self.context = rclpy.Context()
         rclpy.init(context=self.context)
         self.node = rclpy.create_node(node_name, context=self.context)
@@ -182,15 +195,12 @@ class ObjectiveServer:
 
     def _run_reserved(self, request: Any, publish: Callable[[Any], None]) -> Outcome:
         """Run what ``request`` (a DoObjective goal or an ExecuteObjective request) asks for in the
-        slot ``_reserve`` took, then free the slot."""
+        slot ``_reserve`` took; the caller frees the slot (``_release``)."""
         with self._lock:
             stop = self._stop = self._stop or StopRequest()
-        try:
-            outcome = self.run(request.objective_name,
-                               [PortOverride(o.node, o.port, o.value) for o in request.port_overrides],
-                               {e.key: e.value for e in request.blackboard_overrides}, stop, publish)
-        finally:
-            self._release()
+        outcome = self.run(request.objective_name,
+                           [PortOverride(o.node, o.port, o.value) for o in request.port_overrides],
+                           {e.key: e.value for e in request.blackboard_overrides}, stop, publish)
         _log.info("%s: %s%s", request.objective_name, outcome.status, f": {outcome.reason}" if outcome.reason else "")
         return outcome
 
@@ -218,13 +228,19 @@ class ObjectiveServer:
             return True
 
     def _execute(self, goal_handle: Any) -> Any:
-        outcome = self._run_reserved(goal_handle.request, goal_handle.publish_feedback)
-        if outcome.status == RunEnd.INTERRUPTED.value and goal_handle.is_cancel_requested:
-            goal_handle.canceled()
-        elif outcome.status in (RunEnd.SUCCESS.value, RunEnd.SKIPPED.value):
-            goal_handle.succeed()
-        else:
-            goal_handle.abort()
+        """Run the goal's Objective and end the goal; the slot is freed only once the goal has
+        ended, so ``close()`` (a SIGTERM) never leaves the graph under a goal it has not answered."""
+        try:
+            outcome = self._run_reserved(goal_handle.request, goal_handle.publish_feedback)
+            if outcome.status == RunEnd.INTERRUPTED.value and goal_handle.is_cancel_requested:
+                goal_handle.canceled()
+            elif outcome.status in (RunEnd.SUCCESS.value, RunEnd.SKIPPED.value):
+                goal_handle.succeed()
+            else:
+                goal_handle.abort()
+        finally:
+            self._goal_ended_at = time.monotonic()
+            self._release()
         return DoObjective.Result(status=outcome.status, reason=outcome.reason, failing_node=outcome.failing_node,
                                   failing_location=outcome.failing_location,
                                   summary_json=json.dumps(outcome.summary, default=str))
@@ -235,7 +251,8 @@ class ObjectiveServer:
         _log.info("running '%s'", name)
         try:
             objective = self.library.find(name)
-            options = replace(self.options.run, sets={**objective.defaults(), **self.options.run.sets, **blackboard})
+            entries = override_entries(objective, port_overrides, blackboard)
+            options = replace(self.options.run, sets={**objective.defaults(), **self.options.run.sets, **entries})
             options.check()
         except ObjectiveError as err:
             return Outcome.error(str(err))
@@ -243,7 +260,6 @@ class ObjectiveServer:
         try:
             loaded = load_tree(objective.file, self.registry, context, None, self.options.search_paths,
                                self.library.directory)
-            apply_port_overrides(loaded, port_overrides)
         except ObjectiveError as err:
             context.bus.close()
             return Outcome.error(str(err))
@@ -271,10 +287,17 @@ class ObjectiveServer:
             self._release()
             response.success, response.message = False, str(err)
             return response
-        threading.Thread(target=self._run_reserved, args=(request, lambda feedback: None),
+        threading.Thread(target=self._run_in_background, args=(request,),
                          name=f"objective {request.objective_name}", daemon=True).start()
         response.success, response.message = True, f"started '{request.objective_name}'"
         return response
+
+    def _run_in_background(self, request: Any) -> None:
+        """An ``/execute_objective`` run: nobody waits for its result (it is logged)."""
+        try:
+            self._run_reserved(request, lambda feedback: None)
+        finally:
+            self._release()
 
     def _cancel_service(self, request: Any, response: Any) -> Any:
         response.success = self.cancel(CANCELLED_BY_SERVICE)
@@ -295,9 +318,12 @@ class ObjectiveServer:
 
     # -- life ----------------------------------------------------------------------------------
     def close(self, timeout_s: float = 10.0) -> None:
-        """Cancel the running Objective, wait for its halt (up to ``timeout_s``), leave the graph."""
+        """Cancel the running Objective (its goal ends ABORTED: "the Objective server is shutting
+        down ..."), wait for its halt (up to ``timeout_s``) and for its result to leave, then
+        leave the graph."""
         self.cancel(SHUTDOWN)
         self._idle.wait(timeout_s)
+        time.sleep(max(0.0, self._goal_ended_at + RESULT_GRACE_S - time.monotonic()))
         self._action.destroy()
         self.node.destroy_node()
         self.executor.shutdown(timeout_sec=1.0)

@@ -44,10 +44,26 @@ controller's trajectory goal and the gripper goal); the rest deliver requests an
 CELL_NODE_SUFFIX = "_cell"
 
 
+DISCOVERY_VARIABLE = "ROS_AUTOMATIC_DISCOVERY_RANGE"
+
+
+def set_discovery_range(opened: str | None = None) -> str:
+    """Fix the ROS 2 discovery range of this process before rclpy initialises, and return it:
+    ``opened`` when the operator opens it (``--discovery-range``), else what the environment
+    already says, else LOCALHOST, so that only processes on this machine can see the node and
+    call it (the policy adapter does the same)."""
+    if opened is not None:
+        os.environ[DISCOVERY_VARIABLE] = opened.upper()
+    return os.environ.setdefault(DISCOVERY_VARIABLE, "LOCALHOST")
+
+
 def make_ros_bus(clock: WallClock, node_name: str = DEFAULT_NODE_NAME, serves: bool = True) -> Any:
     """The runner's bus on ROS 2: a ``HostingBus`` when the world hosts servers (``serves``),
-    else one ``RosBus`` that serves nothing (the ``robot`` world: the robot's drivers serve)."""
+    else one ``RosBus`` that serves nothing (the ``robot`` world: the robot's drivers serve).
+    Discovery stays on this machine unless the range was opened (``set_discovery_range``)."""
     from runtime.ros.bus import RosBus  # rclpy is imported only for ROS runs
+
+    set_discovery_range()
 
     if serves:
         return HostingBus(clock, node_name)
@@ -179,8 +195,8 @@ def prepare_links(bus: Any, interfaces: Iterable[type], links: Iterable[tuple[st
 def graph_description(node_name: str = DEFAULT_NODE_NAME) -> str:
     """One line saying where the run lives on ROS 2, for the start-up log."""
     domain = os.environ.get("ROS_DOMAIN_ID", "0")
-    scope = os.environ.get("ROS_AUTOMATIC_DISCOVERY_RANGE", "SUBNET (ROS default)")
-    return f"on ROS 2 as node /{node_name} (ROS_DOMAIN_ID={domain}, ROS_AUTOMATIC_DISCOVERY_RANGE={scope})"
+    scope = os.environ.get(DISCOVERY_VARIABLE, "SUBNET (ROS default)")
+    return f"on ROS 2 as node /{node_name} (ROS_DOMAIN_ID={domain}, {DISCOVERY_VARIABLE}={scope})"
 
 
 def deliver_pending(bus: Any, step_world: Callable[[], None] | None = None, seconds: float = HALT_GRACE_S) -> None:
