@@ -34,6 +34,8 @@ class PathPlanningError(ObjectiveError, ValueError):
 class PlannerSettings:
     timeout_s: float = 1.0
     """Seconds RRT-Connect may search (shortcutting its path takes a few milliseconds more)."""
+    max_iterations: int = 5000
+    """RRT-Connect iterations (one sample, one extension of each tree) before it gives up."""
     seed: int = 0
     """Seeds OMPL's random generator: the same seed, scene and query give the same path."""
     check_step_rad: float = 0.025
@@ -90,6 +92,8 @@ def plan_path(is_free: Validity, start: np.ndarray, goal: np.ndarray, lower: np.
             raise PathPlanningError(f"the {name} state is in collision")
     if not settings.timeout_s > 0:
         raise PathPlanningError(f"the planning timeout must be positive, got {settings.timeout_s:g} s")
+    if settings.max_iterations < 1:
+        raise PathPlanningError(f"max_iterations must be at least 1, got {settings.max_iterations}")
     if motion_is_free(is_free, start, goal, settings.check_step_rad):
         return JointPath(np.stack([start, goal]), 0.0, 0.0, True)
     return _search(is_free, start, goal, lower, upper, settings)
@@ -119,10 +123,19 @@ def _search(is_free: Validity, start: np.ndarray, goal: np.ndarray, lower: np.nd
     planner.setRange(float(settings.range_rad))
     setup.setPlanner(planner)
     setup.setStartAndGoalStates(_state(space, start), _state(space, goal))
+    iterations = [0]
+
+    def iterated_enough() -> bool:  # OMPL asks once per RRT-Connect iteration
+        iterations[0] += 1
+        return iterations[0] > settings.max_iterations
+
     began = time.perf_counter()
-    setup.solve(float(settings.timeout_s))
+    setup.solve(ob.plannerOrTerminationCondition(ob.timedPlannerTerminationCondition(float(settings.timeout_s)),
+                                                 ob.PlannerTerminationCondition(iterated_enough)))
     searched = time.perf_counter() - began
     if not setup.haveExactSolutionPath():
+        if iterations[0] > settings.max_iterations:
+            raise PathPlanningError(f"no collision-free path found in {settings.max_iterations} iterations ({searched:.2f} s)")
         raise PathPlanningError(f"no collision-free path found within {settings.timeout_s:g} s")
     path = setup.getSolutionPath()
     simplifier = og.PathSimplifier(info)
