@@ -1,0 +1,140 @@
+"""MoveIt Pro's planning behaviors on the kinematic cell: PlanToJointGoal, ComputeInverseKinematics
+and the MTC set, around a box, on both controller types, and their failures."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from runtime.registry import Registry
+from runtime.runner import RunOptions, run_file
+
+DOWN = "0.7071068;0.7071068;0;0"
+"""The TCP orientation at Home: z down, x along world +y."""
+WALL = """<CreatePoseStamped position_xyz="0;0.45;0.10" pose_stamped="{wall_pose}"/>
+      <AddCollisionBox object_id="wall" dimensions="0.04;0.30;0.20" pose="{wall_pose}"/>"""
+"""A wall across the workspace, between the arm's left and right of it."""
+LEFT, RIGHT = "-0.15;0.45;0.12", "0.15;0.45;0.12"
+
+
+@pytest.fixture(scope="module")
+def registry() -> Registry:
+    return Registry.from_entry_points()
+
+
+def run_xml(registry: Registry, tmp_path: Path, body: str, world: str = "kinematic", max_seconds: float = 60.0):
+    path = tmp_path / "tree.xml"
+    path.write_text(f'<root BTCPP_format="4" main_tree_to_execute="Main"><BehaviorTree ID="Main"><Sequence>{body}</Sequence></BehaviorTree></root>')
+    return run_file(path, registry, RunOptions(world=world, max_seconds=max_seconds))
+
+
+def plan_to_pose(xyz: str, name: str = "to pose", execute: str = '<SubTree ID="Execute MTC Solution" solution="{mtc_solution}"/>') -> str:
+    return f"""<CreatePoseStamped position_xyz="{xyz}" orientation_xyzw="{DOWN}" pose_stamped="{{target_pose}}"/>
+      <InitializeMTCTask task_id="{name}" task="{{mtc_task}}" timeout="-1.000000"/>
+      <SetupMTCCurrentState task="{{mtc_task}}"/>
+      <SetupMTCPlanToPose name="{name}" task="{{mtc_task}}" target_pose="{{target_pose}}" ik_frame="tcp" link_padding="0.01"
+                          planning_group_name="manipulator" max_iterations="5000" trajectory_sampling_rate="100"
+                          velocity_scale_factor="1.000000" acceleration_scale_factor="1.000000" monitored_stage="current state"/>
+      <PlanMTCTask task="{{mtc_task}}" solution="{{mtc_solution}}"/>
+      <WaitForMTCSolutionApproval solution="{{mtc_solution}}"/>
+      {execute}"""
+
+
+TCP_AT = """<GetCurrentPlanningScene/>
+      <GetJointState joint_positions="{q}"/>"""
+
+
+@pytest.mark.parametrize("controller", ["joint_trajectory_admittance_controller", "joint_trajectory_controller"])
+def test_a_wall_between_the_arm_and_its_goal_is_planned_around_on_both_controllers(registry, tmp_path, controller):
+    execute = (f'<SubTree ID="Execute MTC Solution" solution="{{mtc_solution}}" controller_names="{controller}" '
+               f'controller_action_name="/{controller}/follow_joint_trajectory"/>')
+    result = run_xml(registry, tmp_path, f"""
+      <SubTree ID="Move to Waypoint" waypoint_name="Home"/>
+      {plan_to_pose(LEFT, "left", execute)}
+      {WALL}
+      {plan_to_pose(RIGHT, "right", execute)}
+      {TCP_AT}""")
+    assert (result.status, result.reason) == ("SUCCESS", "")
+    assert result.blackboard["q"][0] < -2.0  # the pan turned right of Home (-1.87): the TCP is at x = +0.15
+
+
+def right_of_the_wall() -> list[float]:
+    """The IK solution (seeded from Home) of the TCP looking down right of the wall."""
+    from runtime.scene import solve_ik
+    from sim.robot_model import load_waypoints, planning_robot_model
+
+    home = np.array(list(load_waypoints()["Home"].values()))
+    target = np.eye(4)
+    target[:3, :3] = [[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]]  # DOWN
+    target[:3, 3] = [float(v) for v in RIGHT.split(";")]
+    return [round(float(v), 6) for v in solve_ik(planning_robot_model(), "manipulator", target, seeds=[home], frame="tcp", random_restarts=0).positions]
+
+
+def test_plan_to_joint_goal_goes_around_the_wall_that_stops_the_straight_move(registry, tmp_path):
+    goal = ";".join(str(v) for v in right_of_the_wall())
+    before = f"""<SubTree ID="Move to Waypoint" waypoint_name="Home"/>
+      {plan_to_pose(LEFT, "left")}
+      {WALL}"""
+    straight = run_xml(registry, tmp_path, f'{before}<MoveToJointState name="straight" joint_positions="{goal}"/>')
+    assert (straight.status, straight.failing_node) == ("FAILURE", "straight")
+    assert straight.reason.startswith("the motion would collide: ") and "wall" in straight.reason
+    planned = run_xml(registry, tmp_path, f"""{before}
+      <CreatePoseStamped position_xyz="{RIGHT}" orientation_xyzw="{DOWN}" pose_stamped="{{p}}"/>
+      <ResetPoseStampedVector vector="{{poses}}"/>
+      <PushBackVector input_vector="{{poses}}" element="{{p}}" output_vector="{{poses}}"/>
+      <ComputeInverseKinematics target_poses="{{poses}}" tip_links="tcp" link_padding="0.01" solution="{{right}}"/>
+      <PlanToJointGoal joint_goal="{{right}}" link_padding="0.01" seed="0"/>
+      <ValidateTrajectory link_padding="0.01"/>
+      <ExecuteTrajectory link_padding="0.01"/>
+      {TCP_AT}""")
+    assert (planned.status, planned.reason) == ("SUCCESS", "")
+    np.testing.assert_allclose(planned.blackboard["q"], right_of_the_wall(), atol=1e-3)
+
+
+def tcp_position(q: list[float]) -> np.ndarray:
+    from sim.planning import make_cell_scene
+    from sim.cell_model import CUBE_COLORS
+
+    scene = make_cell_scene({c: (np.array([0.3, 0.1 * i, 0.015]), np.array([1.0, 0, 0, 0])) for i, c in enumerate(CUBE_COLORS)})
+    return scene.link_pose(np.array(q), "tcp", scene.layout("manipulator", None))[:3, 3]
+
+
+PICK_TASK = f"""<CreatePoseStamped position_xyz="0.15;0.45;0.05" orientation_xyzw="{DOWN}" pose_stamped="{{grasp}}"/>
+      <ResetPoseStampedVector vector="{{grasps}}"/>
+      <PushBackVector input_vector="{{grasps}}" element="{{grasp}}" output_vector="{{grasps}}"/>
+      <InitializeMTCTask task_id="pick" task="{{mtc_task}}" timeout="-1.000000"/>
+      <SetupMTCCurrentState task="{{mtc_task}}"/>
+      <SetupMTCSetCollisionRule task="{{mtc_task}}" name_a="gripper" name_b="wall" allow_collision="false"/>
+      <SetupMTCConnectWithProRRT task="{{mtc_task}}" planning_group_name="manipulator" link_padding="0.01" max_iterations="5000"
+                                 seed="0" trajectory_sampling_rate="100" velocity_scale_factor="1.000000" acceleration_scale_factor="1.000000"/>
+      <SetupMTCMoveAlongFrameAxis name="approach" task="{{mtc_task}}" hand_frame="tcp" axis_frame="tcp" axis_x="0.0" axis_y="0.0" axis_z="1.0"
+                                  max_distance="0.08" min_distance="0.05" velocity_scale="0.5" acceleration_scale="0.5"
+                                  planning_group_name="manipulator" ignore_environment_collisions="false"/>
+      <SetupMTCBatchPoseIK task="{{mtc_task}}" target_poses="{{grasps}}" ik_group="manipulator" end_effector_link="tcp"
+                           end_effector_group="moveit_ee" ik_timeout_s="0.01" max_ik_solutions="4" monitored_stage="current state"/>
+      <SetupMTCMoveAlongFrameAxis name="lift" task="{{mtc_task}}" hand_frame="tcp" axis_frame="world" axis_z="1.0"
+                                  max_distance="0.1" min_distance="0.1" planning_group_name="manipulator"/>
+      <PlanMTCTask task="{{mtc_task}}" solution="{{mtc_solution}}" max_solutions="1"/>"""
+
+
+def test_a_pick_task_connects_over_the_wall_to_an_approach_and_lifts(registry, tmp_path):
+    """Connect (RRT around the wall) -> approach 8 cm down the TCP axis -> the IK solution of the
+    grasp -> lift 10 cm: split after the connect, the rest replayed through SetupMTCFromSolution."""
+    result = run_xml(registry, tmp_path, f"""
+      <SubTree ID="Move to Waypoint" waypoint_name="Home"/>
+      {plan_to_pose(LEFT, "left")}
+      {WALL}
+      {PICK_TASK}
+      <SplitMTCSolution solution_in="{{mtc_solution}}" index="2" solution_out_1="{{to_approach}}" solution_out_2="{{approach_and_lift}}"/>
+      <SubTree ID="Execute MTC Solution" solution="{{to_approach}}"/>
+      {TCP_AT.replace("{q}", "{q_approach}")}
+      <InitializeMTCTask task_id="replay" task="{{replay_task}}"/>
+      <SetupMTCCurrentState task="{{replay_task}}"/>
+      <SetupMTCFromSolution task="{{replay_task}}" solution="{{approach_and_lift}}"/>
+      <PlanMTCTask task="{{replay_task}}" solution="{{replayed}}"/>
+      <ExecuteMTCSolution solution="{{replayed}}" execution_pipeline="jtac"/>
+      {TCP_AT}""")
+    assert (result.status, result.reason) == ("SUCCESS", "")
+    np.testing.assert_allclose(tcp_position(result.blackboard["q_approach"]), [0.15, 0.45, 0.13], atol=2e-3)
+    np.testing.assert_allclose(tcp_position(result.blackboard["q"]), [0.15, 0.45, 0.15], atol=2e-3)
