@@ -90,7 +90,10 @@ def plan_free_motion(safety: MotionSafety, start: np.ndarray, goal: np.ndarray, 
     try:
         path = plan_path(is_free, start, goal, safety.limits.lower, safety.limits.upper, settings)
     except PathPlanningError as err:
-        raise PlanningError(str(err)) from None
+        if err.in_collision is None:
+            raise PlanningError(str(err)) from None
+        q = start if err.in_collision == "start" else goal
+        raise PlanningError(f"{err}: {safety.scene.check_state(q, motion.padding_m, snapshot=snapshot, layout=safety.layout)}") from None
     samples = timed(safety, path.waypoints, motion)
     problem = check_motion(safety, samples, motion.padding_m, CHECK_STEP_RAD, snapshot)
     if problem:

@@ -138,3 +138,73 @@ def test_a_pick_task_connects_over_the_wall_to_an_approach_and_lifts(registry, t
     assert (result.status, result.reason) == ("SUCCESS", "")
     np.testing.assert_allclose(tcp_position(result.blackboard["q_approach"]), [0.15, 0.45, 0.13], atol=2e-3)
     np.testing.assert_allclose(tcp_position(result.blackboard["q"]), [0.15, 0.45, 0.15], atol=2e-3)
+
+
+# -- bad input: FAILURE for what the world makes impossible, ERROR for a task set up wrong -----------
+def mtc(body: str, task_id: str = "bad") -> str:
+    return f"""<SubTree ID="Move to Waypoint" waypoint_name="Home"/>
+      <InitializeMTCTask task_id="{task_id}" task="{{mtc_task}}"/>
+      <SetupMTCCurrentState task="{{mtc_task}}"/>
+      {body}
+      <PlanMTCTask name="plan" task="{{mtc_task}}" solution="{{mtc_solution}}"/>"""
+
+
+def to_pose(xyz: str, **ports: str) -> str:
+    extra = " ".join(f'{k}="{v}"' for k, v in ports.items())
+    return f"""<CreatePoseStamped position_xyz="{xyz}" orientation_xyzw="{DOWN}" pose_stamped="{{target}}"/>
+      <SetupMTCPlanToPose name="reach" task="{{mtc_task}}" target_pose="{{target}}" ik_frame="tcp" {extra}/>"""
+
+
+def test_an_unreachable_pose_fails_naming_the_stage(registry, tmp_path):
+    result = run_xml(registry, tmp_path, mtc(to_pose("0;2.0;0.3")))
+    assert (result.status, result.failing_node) == ("FAILURE", "plan")
+    assert result.reason.startswith(f"task 'bad': SetupMTCPlanToPose 'reach' ({tmp_path / 'tree.xml'}:")
+    assert "): the pose (0.000, 2.000, 0.300) for 'tcp' is unreachable: no IK solution (" in result.reason
+
+
+def test_a_goal_in_collision_fails_naming_the_stage_and_the_contact(registry, tmp_path):
+    result = run_xml(registry, tmp_path, WALL + mtc(to_pose("0;0.45;0.12")))
+    assert (result.status, result.failing_node) == ("FAILURE", "plan")
+    assert "SetupMTCPlanToPose 'reach'" in result.reason
+    assert "every IK solution at (0.000, 0.450, 0.120) for 'tcp' is in collision: " in result.reason
+    assert "vs wall" in result.reason
+
+
+@pytest.mark.parametrize("box_at, which", [("-0.134;0.492;0.40", "goal"), ("0;0.45;0.40", "start")])
+def test_a_joint_goal_or_a_start_in_collision_fails_naming_the_contact(registry, tmp_path, box_at, which):
+    """A box in the gripper at Ready (the goal) or at Home (the start)."""
+    result = run_xml(registry, tmp_path, f"""<SubTree ID="Move to Waypoint" waypoint_name="Home"/>
+      <CreatePoseStamped position_xyz="{box_at}" pose_stamped="{{box_pose}}"/>
+      <AddCollisionBox object_id="box" dimensions="0.05;0.05;0.05" pose="{{box_pose}}"/>
+      <RetrieveWaypoint waypoint_name="Ready" waypoint_joint_state="{{ready}}"/>
+      <PlanToJointGoal name="plan" joint_goal="{{ready}}" link_padding="0.01"/>""")
+    assert (result.status, result.failing_node) == ("FAILURE", "plan")
+    assert result.reason.startswith(f"the {which} state is in collision: world collision ")
+    assert " vs box: " in result.reason
+
+
+def test_a_task_with_no_stages_is_an_error(registry, tmp_path):
+    result = run_xml(registry, tmp_path, """<InitializeMTCTask task_id="empty" task="{mtc_task}"/>
+      <PlanMTCTask name="plan" task="{mtc_task}" solution="{mtc_solution}"/>""")
+    assert (result.status, result.failing_node) == ("ERROR", "PlanMTCTask 'plan'")
+    assert result.reason.endswith("task 'empty' has no stages: add SetupMTCCurrentState and the motions to plan")
+
+
+def test_an_unknown_planning_group_or_frame_is_an_error_where_it_is_written(registry, tmp_path):
+    group = run_xml(registry, tmp_path, mtc(to_pose("0.15;0.45;0.12", planning_group_name="arm")))
+    assert (group.status, group.failing_node) == ("ERROR", "SetupMTCPlanToPose 'reach'")
+    assert group.reason.endswith("SetupMTCPlanToPose 'reach': port 'planning_group_name': unknown joint group 'arm' (joint groups: gripper, manipulator)")
+    frame = run_xml(registry, tmp_path, mtc(to_pose("0.15;0.45;0.12").replace('ik_frame="tcp"', 'ik_frame="grasp_link"')))
+    assert (frame.status, frame.failing_node) == ("ERROR", "SetupMTCPlanToPose 'reach'")
+    assert "SetupMTCPlanToPose 'reach': port 'ik_frame': unknown frame 'grasp_link' (" in frame.reason
+
+
+def test_a_search_that_runs_out_fails_naming_the_stage(registry, tmp_path):
+    iterations = run_xml(registry, tmp_path, WALL.replace("{wall_pose}", "{w}") + mtc(
+        to_pose(LEFT) + to_pose(RIGHT, max_iterations="1", link_padding="0.01").replace('name="reach"', 'name="across"')))
+    assert (iterations.status, iterations.failing_node) == ("FAILURE", "plan")
+    assert "SetupMTCPlanToPose 'across'" in iterations.reason
+    assert "no collision-free path found in 1 iterations (" in iterations.reason
+    timeout = run_xml(registry, tmp_path, mtc(to_pose(LEFT)).replace('task_id="bad"', 'task_id="bad" timeout="0.000001"'))
+    assert (timeout.status, timeout.failing_node) == ("FAILURE", "plan")
+    assert "the task's planning timeout ran out before this stage (1e-06 s, InitializeMTCTask timeout)" in timeout.reason

@@ -29,6 +29,11 @@ Validity = Callable[[np.ndarray], bool]
 class PathPlanningError(ObjectiveError, ValueError):
     """No path: the start or goal is invalid, or the search ran out of time."""
 
+    def __init__(self, what: str, in_collision: str | None = None) -> None:
+        super().__init__(what)
+        self.in_collision = in_collision
+        """``"start"`` or ``"goal"`` when that state is in collision, else None."""
+
 
 @dataclass(frozen=True)
 class PlannerSettings:
@@ -89,7 +94,7 @@ def plan_path(is_free: Validity, start: np.ndarray, goal: np.ndarray, lower: np.
             raise PathPlanningError(f"the {name} is outside the joint bounds: joint {i} at {q[i]:.4f} rad, "
                                     f"bounds [{lower[i]:.4f}, {upper[i]:.4f}] rad")
         if not is_free(q):
-            raise PathPlanningError(f"the {name} state is in collision")
+            raise PathPlanningError(f"the {name} state is in collision", in_collision=name)
     if not settings.timeout_s > 0:
         raise PathPlanningError(f"the planning timeout must be positive, got {settings.timeout_s:g} s")
     if settings.max_iterations < 1:
