@@ -59,26 +59,38 @@ def test_a_wall_between_the_arm_and_its_goal_is_planned_around_on_both_controlle
     assert result.blackboard["q"][0] < -2.0  # the pan turned right of Home (-1.87): the TCP is at x = +0.15
 
 
-def right_of_the_wall() -> list[float]:
-    """The IK solution (seeded from Home) of the TCP looking down right of the wall."""
+def ik_down_at(xyz: str) -> list[float]:
+    """The IK solution (seeded from Home) of the TCP looking down (DOWN) at ``xyz``."""
     from runtime.scene import solve_ik
-    from sim.robot_model import load_waypoints, planning_robot_model
+    from sim.robot_model import planning_robot_model
 
-    home = np.array(list(load_waypoints()["Home"].values()))
     target = np.eye(4)
     target[:3, :3] = [[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]]  # DOWN
-    target[:3, 3] = [float(v) for v in RIGHT.split(";")]
-    return [round(float(v), 6) for v in solve_ik(planning_robot_model(), "manipulator", target, seeds=[home], frame="tcp", random_restarts=0).positions]
+    target[:3, 3] = [float(v) for v in xyz.split(";")]
+    return [round(float(v), 6) for v in solve_ik(planning_robot_model(), "manipulator", target, seeds=[load_home()], frame="tcp", random_restarts=0).positions]
 
 
-def test_plan_to_joint_goal_goes_around_the_wall_that_stops_the_straight_move(registry, tmp_path):
-    goal = ";".join(str(v) for v in right_of_the_wall())
+def wall_blocks_the_straight_move(goal: list[float], start_xyz: str = LEFT) -> bool:
+    """Whether the wall stops the straight joint move from the IK solution at ``start_xyz``
+    (or Home) to ``goal``, as the planner checks it (10 mm padding)."""
+    from runtime.scene import Box, pose_matrix
+    from runtime.scene.planner import motion_is_free, scene_validity
+
+    scene = cell_scene()
+    scene.add_object("wall", Box((0.04, 0.30, 0.20)), pose_matrix((0.0, 0.45, 0.10)))
+    is_free = scene_validity(scene, scene.layout("manipulator", None), 0.01, scene.snapshot(), None)
+    return not motion_is_free(is_free, np.array(ik_down_at(start_xyz)), np.array(goal), 0.01)
+
+
+def test_plan_to_joint_goal_and_move_to_joint_state_go_around_the_wall_that_blocks_the_straight_move(registry, tmp_path):
+    right = ik_down_at(RIGHT)
+    assert wall_blocks_the_straight_move(right)
     before = f"""<SubTree ID="Move to Waypoint" waypoint_name="Home"/>
       {plan_to_pose(LEFT, "left")}
       {WALL}"""
-    straight = run_xml(registry, tmp_path, f'{before}<MoveToJointState name="straight" joint_positions="{goal}"/>')
-    assert (straight.status, straight.failing_node) == ("FAILURE", "straight")
-    assert straight.reason.startswith("the motion would collide: ") and "wall" in straight.reason
+    moved = run_xml(registry, tmp_path, f'{before}<MoveToJointState joint_positions="{";".join(map(str, right))}" link_padding="0.01"/>{TCP_AT}')
+    assert (moved.status, moved.reason) == ("SUCCESS", "")
+    np.testing.assert_allclose(moved.blackboard["q"], right, atol=1e-3)
     planned = run_xml(registry, tmp_path, f"""{before}
       <CreatePoseStamped position_xyz="{RIGHT}" orientation_xyzw="{DOWN}" pose_stamped="{{p}}"/>
       <ResetPoseStampedVector vector="{{poses}}"/>
@@ -89,14 +101,39 @@ def test_plan_to_joint_goal_goes_around_the_wall_that_stops_the_straight_move(re
       <ExecuteTrajectory link_padding="0.01"/>
       {TCP_AT}""")
     assert (planned.status, planned.reason) == ("SUCCESS", "")
-    np.testing.assert_allclose(planned.blackboard["q"], right_of_the_wall(), atol=1e-3)
+    np.testing.assert_allclose(planned.blackboard["q"], right, atol=1e-3)
+
+
+@pytest.mark.parametrize("subtree, controller", [("Move to Waypoint", "joint_trajectory_admittance_controller"),
+                                                 ("Move to Waypoint (JTC)", "joint_trajectory_controller")])
+def test_move_to_waypoint_plans_around_a_wall_between_the_arm_and_home(registry, tmp_path, subtree, controller):
+    home = list(load_home())
+    assert wall_blocks_the_straight_move(home, RIGHT)
+    result = run_xml(registry, tmp_path, f"""<SubTree ID="Move to Waypoint" waypoint_name="Home"/>
+      {plan_to_pose(RIGHT, "right")}
+      {WALL}
+      <SubTree ID="{subtree}" waypoint_name="Home" controller_names="{controller}"
+               controller_action_server="/{controller}/follow_joint_trajectory"/>
+      {TCP_AT}""")
+    assert (result.status, result.reason) == ("SUCCESS", "")
+    np.testing.assert_allclose(result.blackboard["q"], home, atol=1e-3)
+
+
+def load_home() -> np.ndarray:
+    from sim.robot_model import load_waypoints
+
+    return np.array(list(load_waypoints()["Home"].values()))
+
+
+def cell_scene():
+    from sim.cell_model import CUBE_COLORS
+    from sim.planning import make_cell_scene
+
+    return make_cell_scene({c: (np.array([0.3, 0.1 * i, 0.015]), np.array([1.0, 0, 0, 0])) for i, c in enumerate(CUBE_COLORS)})
 
 
 def tcp_position(q: list[float]) -> np.ndarray:
-    from sim.planning import make_cell_scene
-    from sim.cell_model import CUBE_COLORS
-
-    scene = make_cell_scene({c: (np.array([0.3, 0.1 * i, 0.015]), np.array([1.0, 0, 0, 0])) for i, c in enumerate(CUBE_COLORS)})
+    scene = cell_scene()
     return scene.link_pose(np.array(q), "tcp", scene.layout("manipulator", None))[:3, 3]
 
 
@@ -208,3 +245,30 @@ def test_a_search_that_runs_out_fails_naming_the_stage(registry, tmp_path):
     timeout = run_xml(registry, tmp_path, mtc(to_pose(LEFT)).replace('task_id="bad"', 'task_id="bad" timeout="0.000001"'))
     assert (timeout.status, timeout.failing_node) == ("FAILURE", "plan")
     assert "the task's planning timeout ran out before this stage (1e-06 s, InitializeMTCTask timeout)" in timeout.reason
+
+
+@pytest.mark.parametrize("answer, status", [(True, "SUCCESS"), (False, "FAILURE")])
+def test_approval_can_be_required_through_a_service(answer, status):
+    from std_srvs.srv import SetBool
+
+    from behaviors.mtc import MTCSolution, WaitForMTCSolutionApproval
+    from runtime.behavior import Status
+    from runtime.blackboard import Blackboard
+    from tests.test_scene_behaviors import make_context, make_node, tick
+
+    context = make_context(None)
+    blackboard = Blackboard()
+    blackboard.set("mtc_solution", MTCSolution("pick", ()))
+    headless = make_node(WaitForMTCSolutionApproval, context, blackboard)
+    assert tick(headless) is Status.SUCCESS
+    node = make_node(WaitForMTCSolutionApproval, context, blackboard, require_approval="true")
+    assert tick(node) is Status.RUNNING
+    assert tick(node) is Status.RUNNING
+    client = context.bus.create_client("/approve_mtc_solution", SetBool)
+    assert client.service_is_ready()
+    client.call_async(SetBool.Request(data=answer))
+    context.bus.spin_once()
+    assert tick(node) is Status[status]
+    if not answer:
+        assert node.feedback_message == "the solution was rejected through '/approve_mtc_solution'"
+    assert not client.service_is_ready()  # served only while waiting
