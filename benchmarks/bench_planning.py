@@ -4,10 +4,12 @@ Seeded queries: a start and a goal configuration, each the IK solution (seeded f
 Home's branch: every joint within half a turn of it) of a TCP pose looking down, the start left
 of the cubes' workspace centre (x < -0.08 m) and the goal right of it (x > 0.08 m), between 8
 and 30 cm above the table; both collision-free in both scenes. Two scenes: the cell as it is
-(table and three cubes), and the same with a wall across the workspace (``obstacle``: 4 x 30 x 20
-cm, centred at x = 0, y = 0.45 m), which most straight moves from left to right go through. Per scene: how many straight joint moves
-are free, how many queries the planner solves within its 1 s timeout, its plan time (median and
-p95; the straight check included) and the joint-space path lengths (rad) of both where both exist.
+(table and three cubes), and the same with a wall across the workspace (``obstacle``: 4 x 30 x
+20 cm, centred at x = 0, y = 0.45 m), which most straight moves from left to right go through.
+Per scene: how many straight joint moves are free, how many queries the planner solves within
+its 1 s timeout, its plan time (median and p95; the straight check included), and the
+joint-space length (rad) of the planned path beside that of the straight move between the same
+configurations.
 
 The planner is the runtime's (``runtime.scene.planner``: OMPL's RRT-Connect and shortcutting
 on the planning scene's checks, one thread).
@@ -101,8 +103,8 @@ def main() -> None:
         results = measure_ompl(scene, queries, args.seed)
         times = [r[0] for r in results]
         solved = [r for r in results if r[1]]
-        both = [r for r in results if r[1] and r[3]]
-        straight_lengths = [float(np.linalg.norm(g - s)) for (s, g), r in zip(queries, results) if r[1] and r[3]]
+        straight_lengths = [float(np.linalg.norm(g - s)) for (s, g), r in zip(queries, results) if r[1]]
+        detours = [r[2] / float(np.linalg.norm(g - s)) for (s, g), r in zip(queries, results) if r[1] and not r[3]]
         within_1s = sum(1 for r in solved if r[0] <= 1000.0)
         rows.append({
             "bench": "planning",
@@ -115,13 +117,16 @@ def main() -> None:
             "p95_ms": round(percentile(times, 95), 2),
             "median_ms_searched": round(median([r[0] for r in solved if not r[3]]), 2) if any(not r[3] for r in solved) else None,
             "median_length_rad": round(median([r[2] for r in solved]), 3) if solved else None,
-            "median_straight_length_rad": round(median(straight_lengths), 3) if both else None,
+            "median_straight_length_rad": round(median(straight_lengths), 3) if solved else None,
+            "median_detour": round(median(detours), 2) if detours else None,
         })
     report("bench_planning: OMPL RRT-Connect + shortcutting on the cell's planning scene", rows,
            ["scene", "queries", "straight_free", "solved", "solved_within_1s_pct", "median_ms", "p95_ms",
-            "median_ms_searched", "median_length_rad", "median_straight_length_rad"],
+            "median_ms_searched", "median_length_rad", "median_straight_length_rad", "median_detour"],
            notes=[f"timeout {TIMEOUT_S:g} s, padding {PADDING_M} m, one thread; times include the straight-move check",
-                  "median_ms_searched: the queries whose straight move is blocked (RRT-Connect ran)"])
+                  "median_ms_searched: the queries whose straight move is blocked (RRT-Connect ran)",
+                  "lengths: joint-space (rad) of the planned path and of the straight move between the same start and goal",
+                  "median_detour: planned length / straight length, over the queries whose straight move is blocked"])
 
 
 if __name__ == "__main__":
