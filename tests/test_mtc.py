@@ -317,3 +317,18 @@ def test_the_example_plans_around_the_box_over_ros(tmp_path, monkeypatch):
                           cwd=EXAMPLE.parents[2], env=env, capture_output=True, text=True, timeout=100)
     assert proc.returncode == 0, proc.stderr
     assert proc.stderr.strip().splitlines()[-1].startswith("SUCCESS after ")
+
+
+def test_a_task_out_of_order_is_an_error_naming_the_stage(registry, tmp_path):
+    late = run_xml(registry, tmp_path, """<InitializeMTCTask task_id="late" task="{mtc_task}"/>
+      <SetupMTCSetCollisionRule task="{mtc_task}" name_a="gripper" name_b="cube_red"/>
+      <SetupMTCCurrentState task="{mtc_task}"/>
+      <PlanMTCTask name="plan" task="{mtc_task}" solution="{mtc_solution}"/>""")
+    assert (late.status, late.failing_node) == ("ERROR", "PlanMTCTask 'plan'")
+    assert "task 'late' must start with SetupMTCCurrentState, got SetupMTCSetCollisionRule (" in late.reason
+    alone = run_xml(registry, tmp_path, mtc('<SetupMTCConnectWithProRRT task="{mtc_task}"/>', "alone"))
+    assert (alone.status, alone.failing_node) == ("ERROR", "PlanMTCTask 'plan'")
+    assert alone.reason.endswith(": a connect stage needs a SetupMTCBatchPoseIK after it to connect to")
+    octomap = run_xml(registry, tmp_path, mtc('<SetupMTCSetCollisionRule name="rule" task="{mtc_task}" name_a="gripper" name_b="&lt;octomap&gt;"/>'))
+    assert (octomap.status, octomap.failing_node) == ("ERROR", "SetupMTCSetCollisionRule 'rule'")
+    assert octomap.reason.endswith("'<octomap>' is not in this planning scene: it has no octomap (point clouds are not kept here)")
