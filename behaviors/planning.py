@@ -26,6 +26,7 @@ from runtime.timestamps import time_msg
 from .execute_policy.shaping import Samples
 from .motion import PlanningError
 from .poses import FrameError, ReadsRobotState, known_frames, pose_in_world
+from .robot_state import group_joint_state
 from .safety import MotionSafety, SafetyError, make_safety
 from .trajectories import check_motion, resample_within, time_path
 from .trajectory_goal import trajectory_msg
@@ -145,11 +146,10 @@ def group_goal(joint_state: Any, joints: tuple[str, ...], port: str) -> np.ndarr
     """The group's joint values from a JointState; PlanningError naming the missing joints."""
     if not isinstance(joint_state, JointState):
         raise PlanningError(f"port '{port}' expects a sensor_msgs/JointState, got {type(joint_state).__name__}")
-    by_name = dict(zip(joint_state.name, joint_state.position))
-    missing = [j for j in joints if j not in by_name]
-    if missing:
-        raise PlanningError(f"{port} lacks joints {', '.join(missing)} (it has {', '.join(joint_state.name) or 'none'})")
-    return np.array([by_name[j] for j in joints], dtype=float)
+    try:
+        return np.array(group_joint_state(joint_state, joints, 0.0).position, dtype=float)
+    except KeyError as err:
+        raise PlanningError(f"{port}: {err.args[0]}") from None
 
 
 GROUP_PORT = InputPort("planning_group_name", PortType.STRING, "manipulator", "SRDF joint group to move.", names=Names(NameKind.JOINT_GROUP))

@@ -332,3 +332,16 @@ def test_a_task_out_of_order_is_an_error_naming_the_stage(registry, tmp_path):
     octomap = run_xml(registry, tmp_path, mtc('<SetupMTCSetCollisionRule name="rule" task="{mtc_task}" name_a="gripper" name_b="&lt;octomap&gt;"/>'))
     assert (octomap.status, octomap.failing_node) == ("ERROR", "SetupMTCSetCollisionRule 'rule'")
     assert octomap.reason.endswith("'<octomap>' is not in this planning scene: it has no octomap (point clouds are not kept here)")
+
+
+def test_a_joint_goal_without_the_group_joints_fails_naming_them():
+    from sensor_msgs.msg import JointState
+
+    from behaviors.motion import PlanningError
+    from behaviors.planning import group_goal
+
+    assert list(group_goal(JointState(name=["b", "a"], position=[2.0, 1.0]), ("a", "b"), "joint_goal")) == [1.0, 2.0]
+    with pytest.raises(PlanningError, match="^joint_goal: the joint state lacks b, c$"):
+        group_goal(JointState(name=["a"], position=[1.0]), ("a", "b", "c"), "joint_goal")
+    with pytest.raises(PlanningError, match="^port 'joint_state' expects a sensor_msgs/JointState, got list$"):
+        group_goal([1.0], ("a",), "joint_state")
