@@ -625,6 +625,32 @@ class SplitMTCSolution(Behavior):
 APPROVAL_SERVICE = "/approve_mtc_solution"
 
 
+@dataclass
+class ApprovalDesk:
+    """One approval service of a run: served from the first wait until the run ends (so an
+    answer always goes back to its caller), handing each answer to the node waiting, if any."""
+
+    waiting: str | None = None
+    """The label of the node waiting for an answer, or None."""
+    answer: tuple[bool, str] | None = None
+
+    def take(self, request: Any) -> Any:
+        if self.waiting is None:
+            return SetBool.Response(success=False, message="no MTC solution is waiting for approval")
+        self.answer = (bool(request.data), "")
+        return SetBool.Response(success=True, message="approved" if request.data else "rejected")
+
+
+def approval_desk(context: Any, service: str) -> ApprovalDesk:
+    """The run's desk serving ``service`` (created and served on first use)."""
+    desks = context.resources.setdefault("mtc_approval_services", {})
+    if service not in desks:
+        desk = ApprovalDesk()
+        context.bus.create_service(service, SetBool, desk.take)
+        desks[service] = desk
+    return desks[service]
+
+
 class WaitForMTCSolutionApproval(Behavior):
     """MoveIt Pro's WaitForMTCSolutionApproval, without a user interface."""
 
@@ -636,38 +662,42 @@ class WaitForMTCSolutionApproval(Behavior):
         InputPort("solution", PortType.ANY, "{mtc_solution}", "The solution to approve."),
         InputPort("cartesian_path_links", PortType.STRING_LIST, "", "Accepted for compatibility (no user interface draws paths here)."),
         InputPort("require_approval", PortType.BOOL, False, "Not in MoveIt Pro. true: wait for a call of approval_service."),
-        InputPort("approval_service", PortType.STRING, APPROVAL_SERVICE, "Not in MoveIt Pro. The std_srvs/SetBool service served while waiting."),
+        InputPort("approval_service", PortType.STRING, APPROVAL_SERVICE,
+                  "Not in MoveIt Pro. The std_srvs/SetBool service, served from the first wait to the end of the run."),
     )
 
     def initialise(self) -> None:
-        self.answer: tuple[bool, str] | None = None
-        self.served: str | None = None
+        self.desk: ApprovalDesk | None = None
 
     def update(self) -> Status:
         solution = as_solution(self.get_input("solution"))
         if not self.get_input("require_approval"):
             self.feedback_message = f"approved: no user interface (headless), {len(solution.steps)} steps"
             return Status.SUCCESS
-        if self.served is None:
-            self.served = self.get_input("approval_service")
-            self.context.bus.create_service(self.served, SetBool, self._answer)
-            self.feedback_message = f"waiting for approval on '{self.served}'"
-        if self.answer is None:
+        service = self.get_input("approval_service")
+        if self.desk is None:
+            self.desk = approval_desk(self.context, service)
+            if self.desk.waiting is not None:
+                raise SetupError(f"'{service}' is already waiting for {self.desk.waiting}: give each "
+                                 "WaitForMTCSolutionApproval that may wait at the same time its own approval_service")
+            self.desk.waiting, self.desk.answer = self.xml_id if self.name == self.xml_id else self.name, None
+            self.feedback_message = f"waiting for approval on '{service}'"
+        if self.desk.answer is None:
             return Status.RUNNING
-        approved, message = self.answer
+        approved, _ = self.desk.answer
+        self._leave()
         if approved:
             return Status.SUCCESS
-        return self.fail(f"the solution was rejected through '{self.served}'" + (f": {message}" if message else ""))
+        return self.fail(f"the solution was rejected through '{service}'")
 
-    def _answer(self, request: Any) -> Any:
-        self.answer = (bool(request.data), "")
-        return SetBool.Response(success=True, message="approved" if request.data else "rejected")
+    def _leave(self) -> None:
+        if self.desk is not None:
+            self.desk.waiting, self.desk.answer = None, None
+            self.desk = None
 
     def terminate(self, new_status: Status) -> None:
-        served = getattr(self, "served", None)
-        if served is not None:
-            self.context.bus.destroy_service(served)
-            self.served = None
+        if getattr(self, "desk", None) is not None:
+            self._leave()
 
 
 class ExecuteMTCSolution(ExecuteTrajectory):

@@ -271,7 +271,10 @@ def test_approval_can_be_required_through_a_service(answer, status):
     assert tick(node) is Status[status]
     if not answer:
         assert node.feedback_message == "the solution was rejected through '/approve_mtc_solution'"
-    assert not client.service_is_ready()  # served only while waiting
+    late = client.call_async(SetBool.Request(data=True))  # served to the end of the run, answering no one
+    context.clock.advance(0.1)
+    context.bus.spin_once()
+    assert late.result().success is False and late.result().message == "no MTC solution is waiting for approval"
 
 
 # -- the example Objective: park, a box between the arm and the cubes, around it to Home, the policy ---
@@ -299,7 +302,7 @@ def test_the_example_plans_around_the_box_then_the_policy_stacks_the_cubes(regis
 
 @pytest.mark.ros
 @pytest.mark.timeout(120)
-def test_the_example_plans_around_the_box_over_ros(tmp_path, monkeypatch):
+def test_the_example_plans_around_the_box_over_ros(tmp_path):
     """The example up to Home (the policy is served by an adapter over ROS: not here), run with
     ``--ros``: the MTC task and the planned Move to Waypoint drive the hosted cell's controllers
     over a real ROS 2 graph (loopback)."""
@@ -345,3 +348,52 @@ def test_a_joint_goal_without_the_group_joints_fails_naming_them():
         group_goal(JointState(name=["a"], position=[1.0]), ("a", "b", "c"), "joint_goal")
     with pytest.raises(PlanningError, match="^port 'joint_state' expects a sensor_msgs/JointState, got list$"):
         group_goal([1.0], ("a",), "joint_state")
+
+
+@pytest.mark.ros
+@pytest.mark.timeout(120)
+def test_approval_is_asked_for_over_ros_and_a_rejection_fails_the_run(tmp_path, monkeypatch):
+    """``require_approval="true"`` on a run with ``--ros``: the runner serves /approve_mtc_solution
+    while it waits; another node's ``data: false`` fails the node, the arm never moving."""
+    import os
+    import random
+    import subprocess
+    import sys
+    import time
+
+    from std_srvs.srv import SetBool
+
+    from runtime.clock import WallClock
+    from runtime.ros import RosBus
+
+    tree = tmp_path / "approve.xml"
+    tree.write_text(f"""<root BTCPP_format="4" main_tree_to_execute="Main"><BehaviorTree ID="Main"><Sequence>
+      {plan_to_pose(LEFT, "left", execute="")}
+      </Sequence></BehaviorTree></root>""".replace("<WaitForMTCSolutionApproval", '<WaitForMTCSolutionApproval name="ask" require_approval="true"'))
+    monkeypatch.setenv("ROS_DOMAIN_ID", str(random.randint(100, 199)))
+    monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    env = dict(os.environ)
+    runner = subprocess.Popen([sys.executable, "-m", "runtime.cli", "run", str(tree), "--ros", "--world", "kinematic"],
+                              cwd=EXAMPLE.parents[2], env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    bus = RosBus(WallClock(), node_name="test_approver")
+    try:
+        client = bus.create_client("/approve_mtc_solution", SetBool)
+        deadline = time.monotonic() + 60.0
+        while not client.service_is_ready():
+            assert time.monotonic() < deadline, "the runner never served /approve_mtc_solution"
+            bus.spin_once()
+            time.sleep(0.05)
+        future = client.call_async(SetBool.Request(data=False))
+        while not future.done():
+            assert time.monotonic() < deadline, "no answer from /approve_mtc_solution"
+            bus.spin_once()
+            time.sleep(0.02)
+        assert future.result().message == "rejected"
+        _, err = runner.communicate(timeout=60)
+    finally:
+        if runner.poll() is None:
+            runner.kill()
+            runner.communicate()
+        bus.close()
+    assert runner.returncode == 1, err
+    assert "the solution was rejected through '/approve_mtc_solution'" in err.strip().splitlines()[-1]
