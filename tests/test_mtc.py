@@ -397,3 +397,20 @@ def test_approval_is_asked_for_over_ros_and_a_rejection_fails_the_run(tmp_path, 
         bus.close()
     assert runner.returncode == 1, err
     assert "the solution was rejected through '/approve_mtc_solution'" in err.strip().splitlines()[-1]
+
+
+def test_two_nodes_waiting_on_one_approval_service_is_an_error():
+    from behaviors.mtc import MTCSolution, WaitForMTCSolutionApproval
+    from runtime.behavior import Status
+    from runtime.blackboard import Blackboard
+    from runtime.errors import SetupError
+    from tests.test_scene_behaviors import make_context, make_node, tick
+
+    context = make_context(None)
+    blackboard = Blackboard()
+    blackboard.set("mtc_solution", MTCSolution("pick", ()))
+    first = make_node(WaitForMTCSolutionApproval, context, blackboard, require_approval="true")
+    second = make_node(WaitForMTCSolutionApproval, context, blackboard, require_approval="true")
+    assert tick(first) is Status.RUNNING
+    with pytest.raises(SetupError, match="^'/approve_mtc_solution' is already waiting for WaitForMTCSolutionApproval: give each"):
+        tick(second)
