@@ -28,7 +28,6 @@ from dataclasses import dataclass, field, replace
 from typing import Any, ClassVar
 
 import numpy as np
-from sensor_msgs.msg import JointState
 from std_srvs.srv import SetBool
 
 from runtime.behavior import Behavior, Status
@@ -379,7 +378,6 @@ class InitializeMTCTask(Behavior):
     ports = (
         InputPort("task_id", PortType.STRING, "", "The task's name (in messages)."),
         InputPort("timeout", PortType.FLOAT, -1.0, "Seconds PlanMTCTask may plan the whole task; -1: no limit.", valid=Range(-1, 3600, "s")),
-        InputPort("controller_names", PortType.STRING, "", "Accepted for compatibility: ExecuteMTCSolution's controller_action_name picks the controller."),
         OutputPort("task", PortType.ANY, "The new task.", default="{mtc_task}"),
     )
 
