@@ -167,7 +167,6 @@ def test_a_pick_task_connects_over_the_wall_to_an_approach_and_lifts(registry, t
       <SubTree ID="Execute MTC Solution" solution="{{to_approach}}"/>
       {TCP_AT.replace("{q}", "{q_approach}")}
       <InitializeMTCTask task_id="replay" task="{{replay_task}}"/>
-      <SetupMTCCurrentState task="{{replay_task}}"/>
       <SetupMTCFromSolution task="{{replay_task}}" solution="{{approach_and_lift}}"/>
       <PlanMTCTask task="{{replay_task}}" solution="{{replayed}}"/>
       <ExecuteMTCSolution solution="{{replayed}}" execution_pipeline="jtac"/>
@@ -414,3 +413,14 @@ def test_two_nodes_waiting_on_one_approval_service_is_an_error():
     assert tick(first) is Status.RUNNING
     with pytest.raises(SetupError, match="^'/approve_mtc_solution' is already waiting for WaitForMTCSolutionApproval: give each"):
         tick(second)
+
+
+def test_a_solution_replayed_from_elsewhere_fails_naming_the_gap(registry, tmp_path):
+    result = run_xml(registry, tmp_path, f"""<SubTree ID="Move to Waypoint" waypoint_name="Home"/>
+      {plan_to_pose(LEFT, "left")}
+      <InitializeMTCTask task_id="again" task="{{replay_task}}"/>
+      <SetupMTCFromSolution name="replay" task="{{replay_task}}" solution="{{mtc_solution}}"/>
+      <PlanMTCTask name="plan" task="{{replay_task}}" solution="{{replayed}}"/>""")
+    assert (result.status, result.failing_node) == ("FAILURE", "plan")
+    assert result.reason.startswith(f"task 'again': SetupMTCFromSolution 'replay' ({tmp_path / 'tree.xml'}:")
+    assert "rad away from the arm's current position (at most 0.01 rad)" in result.reason
