@@ -424,3 +424,11 @@ def test_a_solution_replayed_from_elsewhere_fails_naming_the_gap(registry, tmp_p
     assert (result.status, result.failing_node) == ("FAILURE", "plan")
     assert result.reason.startswith(f"task 'again': SetupMTCFromSolution 'replay' ({tmp_path / 'tree.xml'}:")
     assert "rad away from the arm's current position (at most 0.01 rad)" in result.reason
+
+
+@pytest.mark.parametrize("world, seed", [("kinematic", 0), ("vla_sim", 3)])
+def test_the_mtc_pick_and_place_example_stacks_the_cubes(registry, world, seed):
+    """MoveIt Pro-style Objective for this cell: approaches as connect + approach + batch IK tasks."""
+    path = EXAMPLE.parent / "mtc_pick_and_place.xml"
+    result = run_file(path, registry, RunOptions(world=world, seed=seed, max_seconds=60.0))
+    assert (result.status, result.reason) == ("SUCCESS", "")
