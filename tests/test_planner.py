@@ -96,6 +96,6 @@ def test_no_path_within_the_timeout_is_named():
     with pytest.raises(PathPlanningError, match=r"^no collision-free path found within 0.05 s$"):
         plan_path(is_free, np.array([-1.0, 0.0]), np.array([1.0, 0.0]), np.array([-2.0, -2.0]), np.array([2.0, 2.0]),
                   PlannerSettings(timeout_s=0.05, max_iterations=10**9))
-    with pytest.raises(PathPlanningError, match=r"^no collision-free path found in 20 iterations \(0.0\d s\)$"):
+    with pytest.raises(PathPlanningError, match=r"^no collision-free path found in 20 iterations \(\d+\.\d\d s\)$"):
         plan_path(is_free, np.array([-1.0, 0.0]), np.array([1.0, 0.0]), np.array([-2.0, -2.0]), np.array([2.0, 2.0]),
                   PlannerSettings(timeout_s=5.0, max_iterations=20))
