@@ -99,3 +99,16 @@ def test_no_path_within_the_timeout_is_named():
     with pytest.raises(PathPlanningError, match=r"^no collision-free path found in 20 iterations \(\d+\.\d\d s\)$"):
         plan_path(is_free, np.array([-1.0, 0.0]), np.array([1.0, 0.0]), np.array([-2.0, -2.0]), np.array([2.0, 2.0]),
                   PlannerSettings(timeout_s=5.0, max_iterations=20))
+
+
+def test_without_ompl_a_search_is_an_error_naming_it(monkeypatch):
+    """The straight move needs nothing more; a search needs OMPL, and says so."""
+    import sys
+
+    from runtime.errors import SetupError
+
+    monkeypatch.setitem(sys.modules, "ompl", None)
+    lower, upper = np.array([-2.0, -2.0]), np.array([2.0, 2.0])
+    assert plan_path(lambda q: True, np.array([-1.0, 0.0]), np.array([1.0, 0.0]), lower, upper).straight
+    with pytest.raises(SetupError, match=r"^planning around an obstacle needs OMPL, a core dependency that is not importable here \(.*\): pip install ompl==2.0.1$"):
+        plan_path(lambda q: abs(q[0]) > 0.5 or abs(q[1]) > 1.0, np.array([-1.0, 0.0]), np.array([1.0, 0.0]), lower, upper)

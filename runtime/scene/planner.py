@@ -20,7 +20,7 @@ from typing import Callable
 
 import numpy as np
 
-from ..errors import ObjectiveError
+from ..errors import ObjectiveError, SetupError
 
 Validity = Callable[[np.ndarray], bool]
 """True when a configuration (the group's joint values) is collision-free."""
@@ -109,7 +109,11 @@ def _search(is_free: Validity, start: np.ndarray, goal: np.ndarray, lower: np.nd
     """RRT-Connect, then shortcutting, with OMPL; every OMPL object lives in this call only."""
     lower = np.maximum(lower, np.minimum(start, goal) - settings.margin_rad)
     upper = np.minimum(upper, np.maximum(start, goal) + settings.margin_rad)
-    from ompl import base as ob, geometric as og, util as ou
+    try:
+        from ompl import base as ob, geometric as og, util as ou
+    except ImportError as err:
+        raise SetupError(f"planning around an obstacle needs OMPL, a core dependency that is not importable here "
+                         f"({err}): pip install ompl==2.0.1") from None
 
     ou.setLogLevel(ou.LOG_NONE)
     ou.RNG.setSeed(int(settings.seed) & 0x7FFFFFFF or 1)
