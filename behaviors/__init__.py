@@ -19,7 +19,7 @@ def register(registry: Registry) -> None:
 
 def register_moveit_pro(registry: Registry) -> None:
     """MoveIt Pro's everyday behaviors (docs/moveit-pro-behaviors.md)."""
-    from . import cameras, frames, messages, robot_state, trajectories, vectors, velocity_force, visualization, yaml_files
+    from . import cameras, frames, messages, mtc, planning, robot_state, trajectories, vectors, velocity_force, visualization, yaml_files
 
-    for module in (vectors, frames, yaml_files, trajectories, robot_state, messages, velocity_force, cameras, visualization):
+    for module in (vectors, frames, yaml_files, trajectories, planning, mtc, robot_state, messages, velocity_force, cameras, visualization):
         registry.register_all(module.NODES)

@@ -3,7 +3,9 @@
 The motion is planned with ruckig (jerk-limited, time-optimal, from rest to rest), sampled,
 checked against the planning scene before anything moves, and sent to the trajectory controller
 as one goal: the admittance controller's or a stock JTC's, whichever type is served under
-``controller_action_name`` (``controller_link``).
+``controller_action_name`` (``controller_link``). When something in the planning scene blocks
+that motion, it is planned around instead (``behaviors.planning.plan_free_motion``: RRT-Connect,
+shortcut, timed within the limits and at rest at each corner).
 """
 from __future__ import annotations
 
@@ -137,13 +139,26 @@ class _MoveToJoints(SendsTrajectoryGoal):
         outside = self.safety.first_limit_violation(samples)
         if outside is not None:
             return self.fail(f"the motion is outside the joint limits: {outside}")
-        collision = self.safety.first_collision(self.safety.snapshot(), samples, self.get_input("link_padding"))
+        snapshot = self.safety.snapshot()
+        collision = self.safety.first_collision(snapshot, samples, self.get_input("link_padding"))
         if collision is not None:
-            return self.fail(f"the motion would collide: {collision}")
+            try:
+                samples = self._around(start, goal, snapshot)
+            except PlanningError as err:
+                return self.fail(f"the motion would collide: {collision}; no way around it: {err}")
         goal = trajectory_goal(self.controller.kind, trajectory_msg(samples, joints),
                                GoalTolerances(self.get_input("path_tolerance"), GOAL_TIME_TOLERANCE_S))
         self.goal = Goal.send(self.controller.client, goal)
         return Status.RUNNING
+
+    def _around(self, start: np.ndarray, goal: np.ndarray, snapshot) -> Samples:
+        """The motion planned around what blocks the straight one (``behaviors.planning``)."""
+        from .planning import Motion, plan_free_motion  # behaviors.planning imports this module
+
+        seed = int(self.get_input("seed")) if any(p.name == "seed" for p in self.ports) else 0
+        motion = Motion(self.get_input("link_padding"), self.get_input("velocity_scaling_factor"),
+                        self.get_input("acceleration_scaling_factor"), 1.0 / SAMPLE_PERIOD, seed=seed)
+        return plan_free_motion(self.safety, start, goal, motion, snapshot)
 
     def terminate(self, new_status: Status) -> None:
         if new_status is Status.INVALID:
@@ -158,7 +173,7 @@ class _MoveToJoints(SendsTrajectoryGoal):
 class MoveToJointState(_MoveToJoints):
     """Move the joint group to explicit joint positions, time-optimally within the limits."""
 
-    description = "Move a joint group to the given joint positions (collision-checked, within the limits)."
+    description = "Move a joint group to the given joint positions (within the limits; planned around obstacles that block the straight motion)."
     ports = (InputPort("joint_positions", PortType.FLOAT_LIST, description="Target positions in the group's joint order (rad).", valid=Range(-4 * math.pi, 4 * math.pi, "rad")),) + _MoveToJoints.common_ports
 
     def target(self, joints: tuple[str, ...]) -> np.ndarray:
@@ -171,10 +186,10 @@ class MoveToJointState(_MoveToJoints):
 class MoveToWaypoint(_MoveToJoints):
     """Move the joint group to a named waypoint of the cell (e.g. ``Home``)."""
 
-    description = "Move a joint group to a named waypoint (e.g. Home) from the cell's waypoints file."
+    description = "Move a joint group to a named waypoint (e.g. Home) from the cell's waypoints file, planned around obstacles that block the straight motion."
     ports = (
         InputPort("waypoint_name", PortType.STRING, description="Name of the waypoint, e.g. Home.", names=Names(NameKind.WAYPOINT)),
-        InputPort("seed", PortType.INT, 0, "MoveIt Pro's planner seed (an integer). The motion here is planned without sampling, so every seed gives the same motion.",
+        InputPort("seed", PortType.INT, 0, "Seed of the planner that plans around obstacles blocking the straight motion: the same seed plans the same path.",
                   valid=Range(-(2**31), 2**31 - 1)),
     ) + _MoveToJoints.common_ports
 

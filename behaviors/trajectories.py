@@ -22,7 +22,7 @@ from trajectory_msgs.msg import JointTrajectory
 from runtime.behavior import Behavior, Status
 from runtime.errors import SetupError
 from runtime.ports import InputPort, NameKind, Names, OutputPort, PortType, Range
-from runtime.scene import JointLimits
+from runtime.scene import JointLimits, SceneSnapshot
 from runtime.scene.kinematics import frame_pose, solve_ik
 from runtime.timestamps import time_msg
 
@@ -235,10 +235,12 @@ def mean_velocities(samples: Samples) -> np.ndarray:
     return np.divide(steps, dt, out=np.zeros_like(steps), where=dt > 0)
 
 
-def check_motion(safety: MotionSafety, samples: Samples, padding_m: float, check_step_rad: float) -> str | None:
+def check_motion(safety: MotionSafety, samples: Samples, padding_m: float, check_step_rad: float,
+                 snapshot: SceneSnapshot | None = None) -> str | None:
     """The first point of a motion outside the position, velocity or acceleration limits, or the
     first interval between two points whose mean velocity exceeds a limit, or else its first
-    collision, as a sentence; or None."""
+    collision (with the collision rules of ``snapshot``, default the scene's now), as a sentence;
+    or None."""
     outside = safety.first_limit_violation(samples)
     if outside is not None:
         return f"breaks a joint limit at point {outside.step} (t={outside.time:.3f} s): {outside.what}"
@@ -247,7 +249,7 @@ def check_motion(safety: MotionSafety, samples: Samples, padding_m: float, check
         if fast is not None:
             return (f"moves faster than a joint limit from point {fast.step} to point {fast.step + 1} "
                     f"(t={fast.time:.3f} s): {fast.what} (the mean over that interval)")
-    collision = safety.first_collision(safety.snapshot(), subdivide(samples, check_step_rad), padding_m)
+    collision = safety.first_collision(snapshot or safety.snapshot(), subdivide(samples, check_step_rad), padding_m)
     return None if collision is None else f"collides: {collision}"
 
 
@@ -478,8 +480,12 @@ class ExecuteTrajectory(ReadsRobotState, SendsTrajectoryGoal):
         """The controller goal for the checked trajectory; None when it has no length (the arm
         is already at its only point, so there is nothing to send)."""
         safety = make_safety(self.context.scene, self.get_input("planning_group_name"), None)
-        msg = self.get_input("joint_trajectory_msg")
-        samples = from_trajectory_msg(msg, safety.group_joints)
+        return self.checked_goal(safety, from_trajectory_msg(self.get_input("joint_trajectory_msg"), safety.group_joints))
+
+    def checked_goal(self, safety: MotionSafety, samples: Samples) -> Any:
+        """The controller goal for ``samples`` once they pass ExecuteTrajectory's checks (they
+        start where the arm is, within the limits, collision-free); None when they have no
+        length. Raises PlanningError naming the first problem."""
         now = self.state().positions(safety.group_joints)
         gap = np.abs(samples.positions[0] - now)
         if float(gap.max()) > START_TOLERANCE_RAD:

@@ -129,6 +129,7 @@ def straight_down_policy():
 def test_every_shipped_objective_that_runs_a_policy_is_listed():
     assert POLICY_OBJECTIVES == [
         "objectives/examples/obstacle_appears.xml",
+        "objectives/examples/plan_around_a_box.xml",
         "objectives/moveit_pro/stack_cubes_with_the_vla_policy.xml",
         "objectives/stack_cubes.xml",
         "objectives/stack_cubes_jtc.xml",

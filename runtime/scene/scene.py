@@ -225,6 +225,16 @@ class PlanningScene:
         with self._lock:
             return _lookup(self._rules, object_name, link)
 
+    def snapshot_with_rule(self, snapshot: SceneSnapshot, object_name: str, links: str | Iterable[str],
+                           allowed: bool) -> SceneSnapshot:
+        """``snapshot`` with ``object_name`` allowed (or forbidden) to touch these links / groups
+        / ``"*"``, as ``allow``/``disallow`` would set it; the scene's own rules are unchanged."""
+        with self._lock:
+            rules = {(o, l): a for o, l, a in snapshot.rules}
+            for link in self._expand_links(links):
+                rules[(object_name, link)] = allowed
+        return SceneSnapshot(tuple(sorted((o, l, a) for (o, l), a in rules.items())), snapshot.attachments)
+
     # -- attachments ----------------------------------------------------------------------
     def attach(
         self,
