@@ -361,7 +361,7 @@ def test_rtc_without_a_policy_action_chunk_warns_once(registry):
     assert [w for w in out.summary["warnings"] if "policy_action_chunk" in w] == [
         "policy_uses_real_time_chunking is true but chunk 1 carries no policy_action_chunk: the policy gets no "
         "previous_action_chunk back, so real-time chunking does nothing (send it, or set policy_uses_real_time_chunking=\"false\" "
-        "for a policy without a denoising loop, such as the scripted oracle)"
+        "for a policy without a denoising loop)"
     ]
 
 

@@ -30,6 +30,7 @@ def test_stack_cubes_succeeds_and_reports_the_policy_and_the_check(capsys):
     assert policy["chunks"] == 15 and policy["latency_max_s"] == pytest.approx(0.2, abs=0.011)
     assert summary["stack_check"]["stacked"] is True
     assert summary["blackboard"]["policy_message"] == "executed 300 steps"
+    assert policy["warnings"] == []  # the Objective's real-time chunking is used by the embedded policy
 
 
 @pytest.mark.parametrize("seed", [0, 1])

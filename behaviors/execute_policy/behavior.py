@@ -383,7 +383,7 @@ class ExecutePolicy(Behavior):
             self.warned_no_policy_chunk = True
             self._warn(f"policy_uses_real_time_chunking is true but chunk {self.metrics.chunks} carries no policy_action_chunk: "
                        "the policy gets no previous_action_chunk back, so real-time chunking does nothing (send it, or set "
-                       "policy_uses_real_time_chunking=\"false\" for a policy without a denoising loop, such as the scripted oracle)")
+                       "policy_uses_real_time_chunking=\"false\" for a policy without a denoising loop)")
         chunk = Chunk(chunk.arm, self._settle_gripper(chunk.gripper))
         problem = cfg.committed_window_problem(config.committed_action_steps, chunk.steps) if self.metrics.chunks == 1 else None
         if problem is not None:
