@@ -11,7 +11,7 @@ from typing import Any
 
 from runtime.cli import parse_set
 from runtime.cli import positive_float
-from runtime.command import Command
+from runtime.command import OBJECTIVE_FILE_HELP, POLICY_HELP, Command
 
 HELP = "run an Objective over many seeded episodes and report its success rate"
 
@@ -19,7 +19,7 @@ HELP = "run an Objective over many seeded episodes and report its success rate"
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.description = (HELP + ". Episodes are `objective run --seed S+i`; DIR gets episodes.jsonl (appended as "
                      "episodes finish), summary.json and report.html; running the same command again resumes.")
-    p.add_argument("file", type=Path)
+    p.add_argument("file", type=Path, help=OBJECTIVE_FILE_HELP)
     p.add_argument("--episodes", type=int, required=True, metavar="N", help="episodes to run: seeds S .. S+N-1")
     p.add_argument("--seed-start", type=int, default=0, metavar="S", help="seed of the first episode (default 0)")
     p.add_argument("--out", type=Path, required=True, metavar="DIR", help="where the results go (resumed if it holds some)")
@@ -27,8 +27,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--executor", choices=("local", "ray"), default="local",
                    help="local processes (default) or Ray tasks (`make ray`); see docs/evaluation.md")
     p.add_argument("--ray-address", metavar="ADDR", help="join this Ray cluster (default: start a local one sized to --workers)")
-    p.add_argument("--policy", metavar="SPEC",
-                   help="oracle (default), replay:FILE, lerobot:DIR, http(s)://HOST:PORT (key from POLICY_SERVER_KEY) or none")
+    p.add_argument("--policy", metavar="SPEC", help=POLICY_HELP)
     p.add_argument("--policy-latency", default=None, metavar="SPEC",
                    help="simulated policy latency: seconds (default 0.1), lognormal:MEAN,SD, or measured (not deterministic)")
     p.add_argument("--world", metavar="NAME", help="world for trees that need one (default: vla_sim)")

@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING, Any, ClassVar, Iterator
 import py_trees
 
 from .blackboard import Blackboard
-from .errors import PortError, SourceLocation
+from .errors import PortError, SourceLocation, did_you_mean
 from .ports import ConversionError, Direction, PortInfo, convert, parse_reference, range_problem
 
 if TYPE_CHECKING:
@@ -172,7 +172,7 @@ def make_bindings(
     for name in values:
         if name not in infos:
             known = ", ".join(sorted(infos)) or "none"
-            problems.append(PortError(f"unknown port '{name}' (ports: {known})", location, xml_id))
+            problems.append(PortError(f"unknown port '{name}'{did_you_mean(name, infos)} (ports: {known})", location, xml_id))
     bindings: dict[str, PortBinding] = {}
     for name, info in infos.items():
         try:

@@ -28,7 +28,6 @@ file size, nesting depth, attribute length and number of nodes after SubTree exp
 """
 from __future__ import annotations
 
-import difflib
 import logging
 import os
 import re
@@ -42,7 +41,7 @@ from lxml import etree
 from .behavior import NodeKind, NodeMixin, RunContext
 from .blackboard import Blackboard
 from .crash import LOAD_STOPPED, describe_crash, write_traceback
-from .errors import E, LoadError, ObjectiveError, ObjectiveRuntimeError, PortError, SourceLocation
+from .errors import E, LoadError, ObjectiveError, ObjectiveRuntimeError, PortError, SourceLocation, did_you_mean
 from .ports import ConversionError, PortType, convert, parse_reference
 from .registry import Registry
 from .subtree import SubTree
@@ -438,15 +437,6 @@ def _types_fit(entry: PortType, port: PortType) -> bool:
     return PortType.ANY_LIST in (entry, port) and all(vectors)
 
 
-def _suggest(word: str, candidates: Iterable[str]) -> str:
-    close = difflib.get_close_matches(word, sorted(set(candidates)), n=3, cutoff=0.6)
-    if not close:
-        return ""
-    quoted = [f"'{c}'" for c in close]
-    options = quoted[0] if len(quoted) == 1 else ", ".join(quoted[:-1]) + " or " + quoted[-1]
-    return f"; did you mean {options}?"
-
-
 def _parse_bool_attr(value: str, name: str, loc: SourceLocation, node: str) -> bool:
     lowered = value.strip().lower()
     if lowered in ("true", "1"):
@@ -490,7 +480,7 @@ class _Builder:
         if found is not None:
             return found
         searched = f"{doc.display}, then {self.library.describe()}"
-        hint = _suggest(tree_id, set(doc.trees) | self.library.tree_ids())
+        hint = did_you_mean(tree_id, set(doc.trees) | self.library.tree_ids())
         broken = f" (unreadable library files: {'; '.join(self.library.broken)})" if self.library.broken else ""
         raise LoadError(f"undefined SubTree '{tree_id}' (searched {searched}){hint}{broken}", loc, tree_id)
 
@@ -532,7 +522,7 @@ class _Builder:
             attrs.pop("ID", None)
         spec = self.registry.get(node_id)
         if spec is None:
-            hint = _suggest(node_id, [s.id for s in self.registry.specs()])
+            hint = did_you_mean(node_id, [s.id for s in self.registry.specs()])
             if node_id in doc.trees or (not hint and self.library.find(node_id, loc) is not None):
                 hint = f"; '{node_id}' is a BehaviorTree: use <SubTree ID=\"{node_id}\"/>"
             error = LoadError(f"unknown node '{node_id}'{hint or ' (objective behaviors lists the registered nodes)'}", loc, node_id)
@@ -642,7 +632,8 @@ class _Builder:
             unknown = sorted(set(ports) - set(model.ports))
             if unknown:
                 known = ", ".join(sorted(model.ports)) or "none"
-                raise PortError(f"unknown port '{unknown[0]}' (ports: {known}; model at {model.location})", loc, tree_id)
+                hint = did_you_mean(unknown[0], model.ports)
+                raise PortError(f"unknown port '{unknown[0]}'{hint} (ports: {known}; model at {model.location})", loc, tree_id)
             for port in model.ports.values():
                 if port.name not in ports and port.default is not None:
                     ports[port.name] = port.default
@@ -696,7 +687,7 @@ class _Builder:
                 conditions[attr] = value
             elif attr.startswith("_"):
                 extra = " (BehaviorTree.CPP v3 syntax: use _autoremap=\"true\" on <SubTree>)" if attr == "__shared_blackboard" else ""
-                hint = _suggest(attr, [*CONDITION_ATTRIBUTES, *METADATA_ATTRIBUTES, "_autoremap"])
+                hint = did_you_mean(attr, [*CONDITION_ATTRIBUTES, *METADATA_ATTRIBUTES, "_autoremap"])
                 raise LoadError(f"unknown attribute '{attr}'{extra or hint}", loc, node_id)
             else:
                 ports[attr] = value
@@ -762,7 +753,7 @@ def _select_tree(doc: Document, tree_id: str | None, builder: _Builder) -> TreeD
         found = builder.library.find(choice, loc)
         if found is None:
             what = "--tree" if tree_id else "main_tree_to_execute"
-            hint = _suggest(choice, doc.trees)
+            hint = did_you_mean(choice, doc.trees)
             raise LoadError(f"{what} names BehaviorTree '{choice}', which is not defined (trees: {', '.join(doc.trees) or 'none'}){hint}", loc)
         return found
     if not doc.own_tree_ids:

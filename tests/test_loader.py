@@ -415,6 +415,24 @@ def test_subtree_model_defaults_and_unknown_ports(registry, tmp_path, empty_lib)
     )
 
 
+
+def test_a_port_typo_suggests_the_port_meant(registry, tmp_path, empty_lib):
+    """Node, SubTree, waypoint and service typos had a "did you mean"; port typos had none."""
+    path = write(tmp_path, """<root BTCPP_format="4">
+  <BehaviorTree ID="T">
+    <Typed x="1" flagg="true"/>
+  </BehaviorTree>
+</root>""")
+    assert error_of(registry, path, empty_lib) == f"{path}:3: Typed: unknown port 'flagg'; did you mean 'flag'? (ports: flag, n, out, x)"
+    subtree = write(tmp_path, """<root BTCPP_format="4" main_tree_to_execute="T">
+  <BehaviorTree ID="T"><SubTree ID="Child" nsteps="3"/></BehaviorTree>
+  <BehaviorTree ID="Child"><AlwaysSuccess/></BehaviorTree>
+  <TreeNodesModel><SubTree ID="Child"><input_port name="n_steps" default="2"/></SubTree></TreeNodesModel>
+</root>""", "subtree.xml")
+    assert error_of(registry, subtree, empty_lib) == (
+        f"{subtree}:2: Child: unknown port 'nsteps'; did you mean 'n_steps'? (ports: n_steps; model at {subtree}:4)")
+
+
 def test_model_default_fills_a_required_behavior_port(registry, tmp_path, empty_lib):
     path = write(tmp_path, """<root BTCPP_format="4">
   <BehaviorTree ID="T"><Typed out="{y}"/></BehaviorTree>

@@ -11,7 +11,7 @@ import time
 from pathlib import Path
 
 from runtime.cli import parse_set, add_groot2_arguments, groot2_server, positive_float
-from runtime.command import EXIT_SUCCESS, Command
+from runtime.command import EXIT_SUCCESS, POLICY_HELP, Command
 from runtime.interrupt import StopRequest, stop_on_signals
 from runtime.registry import Registry
 
@@ -23,7 +23,7 @@ def _arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--world", metavar="NAME", help="world for Objectives that need one (default: the installation's)")
     parser.add_argument("--world-option", action="append", type=parse_set, default=[], metavar="KEY=VALUE",
                         help="an option of the world (repeatable)")
-    parser.add_argument("--policy", metavar="SPEC", help="policy the world serves in headless runs: oracle, replay:FILE or none")
+    parser.add_argument("--policy", metavar="SPEC", help=POLICY_HELP)
     parser.add_argument("--seed", type=int, default=0, help="seed of every run's world")
     parser.add_argument("--realtime", action="store_true", help="pace the runs to wall-clock time")
     parser.add_argument("--ros", action="store_true",
