@@ -4,8 +4,11 @@ Every ``*.xml`` file under the directory (subdirectories too) is one Objective, 
 BehaviorTree it runs (``main_tree_to_execute``, else the file's only tree no other uses), as
 MoveIt Pro names Objectives. Its description is that tree's ``_description``; its ports are the
 TreeNodesModel entry of that tree, if the file has one: root blackboard entries, which a run
-starts with set to their defaults. A file that cannot be read is listed
-with its error, so a typo shows where it is rather than an Objective silently missing.
+starts with set to their defaults. SubTrees are found as ``objective run`` finds them: in the
+file, in the directory, in the ``search_paths`` after it (the shipped ``objectives/`` last). A
+file that cannot be read, or whose tree does not load (an unknown node, a missing required
+port, an undefined SubTree), is listed with its error, so a typo shows where it is rather than an
+Objective silently missing or failing only when it is run.
 
 A request may override the ports of the Objective's nodes (``PortOverride``: every node with
 that name, checked and converted exactly as the XML's own values are, before anything runs)
@@ -19,8 +22,9 @@ from pathlib import Path
 from typing import Iterable
 
 from .behavior import NodeKind
-from .errors import ObjectiveError
-from .loader import LoadedTree, parse_document, top_level_trees
+from .errors import ObjectiveError, did_you_mean
+from .loader import LoadedTree, load_tree, parse_document, throwaway_context, top_level_trees
+from .registry import Registry
 
 
 @dataclass(frozen=True)
@@ -56,11 +60,22 @@ class PortOverride:
     value: str
 
 
-def read_objective(file: Path, directory: Path) -> Objective:
-    """The Objective ``file`` holds, or an entry carrying its error."""
+def parse_override(text: str) -> PortOverride:
+    """``NODE.PORT=VALUE`` (the node's name may hold dots and spaces; the port is after the last dot)."""
+    target, sep, value = text.partition("=")
+    node, dot, port = target.rpartition(".")
+    if not sep or not dot or not node.strip() or not port.strip():
+        raise ValueError(f"expected NODE.PORT=VALUE (e.g. wait.seconds=0.5), got {text!r}")
+    return PortOverride(node.strip(), port.strip(), value)
+
+
+def read_objective(file: Path, directory: Path, registry: Registry | None = None,
+                   search_paths: Iterable[Path] = ()) -> Objective:
+    """The Objective ``file`` holds, or an entry carrying its error. With ``registry`` its tree is
+    also built (nothing runs), so a load error is the entry's error too."""
     relative = str(file.relative_to(directory))
     try:
-        doc = parse_document(file, [directory])
+        doc = parse_document(file, [directory, *search_paths])
     except ObjectiveError as err:
         return Objective(file.stem, file, relative, error=str(err))
     tops = top_level_trees(doc)
@@ -72,20 +87,29 @@ def read_objective(file: Path, directory: Path) -> Objective:
     model = doc.models.get(name)
     ports = [ObjectivePort(p.name, p.direction, p.type, p.default or "") for p in model.ports.values()] if model else []
     description = doc.trees[name].element.get("_description", "")
-    return Objective(name, file, relative, description, ports)
+    error = ""
+    if registry is not None:
+        try:
+            load_tree(file, registry, throwaway_context(), name, search_paths, directory)
+        except ObjectiveError as err:
+            error = str(err)
+    return Objective(name, file, relative, description, ports, error)
 
 
 class Library:
-    """The Objectives of ``directory``, read again on every ``objectives()`` (files change)."""
+    """The Objectives of ``directory``, read again on every ``objectives()`` (files change).
 
-    def __init__(self, directory: Path) -> None:
+    SubTrees are searched in ``directory``, then in ``search_paths``; with ``registry`` every
+    Objective's tree is built when the library is read (see ``read_objective``)."""
+
+    def __init__(self, directory: Path, registry: Registry | None = None, search_paths: Iterable[Path] = ()) -> None:
         if not directory.is_dir():
             raise ObjectiveError(f"the Objective library '{directory}' is not a directory")
-        self.directory = directory
+        self.directory, self.registry, self.search_paths = directory, registry, list(search_paths)
 
     def objectives(self) -> list[Objective]:
         files = sorted(p for p in self.directory.rglob("*.xml") if p.is_file())
-        return [read_objective(file, self.directory) for file in files]
+        return [read_objective(file, self.directory, self.registry, self.search_paths) for file in files]
 
     def find(self, name: str) -> Objective:
         """The Objective called ``name``; ObjectiveError when there is none, several, or it is broken."""
@@ -107,8 +131,10 @@ def apply_port_overrides(loaded: LoadedTree, overrides: Iterable[PortOverride]) 
         what = f"port override {override.node}.{override.port}={override.value!r}"
         targets = [info for info in loaded.nodes if info.node.name == override.node]
         if not targets:
-            names = ", ".join(sorted({info.node.name for info in loaded.nodes}))
-            raise ObjectiveError(f"{what}: no node named '{override.node}' in '{loaded.tree_id}' (nodes: {names})")
+            names = sorted({info.node.name for info in loaded.nodes})
+            hint = did_you_mean(override.node, names)
+            raise ObjectiveError(f"{what}: no node named '{override.node}' in '{loaded.tree_id}'{hint} "
+                                 f"(nodes: {', '.join(names)})")
         for info in targets:
             if info.kind is NodeKind.SUBTREE:
                 raise ObjectiveError(f"{what}: '{override.node}' is a SubTree; set the entry its port remaps "

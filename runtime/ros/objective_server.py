@@ -45,7 +45,7 @@ from runtime.controls import Visit
 from runtime.crash import describe_crash, write_traceback
 from runtime.errors import ObjectiveError
 from runtime.interrupt import StopRequest
-from runtime.loader import LoadedTree, load_tree
+from runtime.loader import LoadedTree, default_objectives_dir, load_tree
 from runtime.objective_library import Library, PortOverride, apply_port_overrides
 from runtime.registry import Registry
 from runtime.runner import RunEnd, TickWatcher, RunOptions, RunResult, make_context, run_loaded, running_leaves
@@ -68,7 +68,8 @@ class ServerOptions:
     run: RunOptions = field(default_factory=RunOptions)
     """What every run uses (world, --ros, --realtime, ...); a request adds its blackboard overrides."""
     search_paths: list[Path] = field(default_factory=list)
-    """More directories to find SubTrees in, after the library itself."""
+    """More directories to find SubTrees in, after the library itself (the shipped ``objectives/``
+    is searched after them, as ``objective run`` does)."""
     groot2: Any = None
     """A ``runtime.groot2.Groot2Server`` every run is shown on, or None."""
 
@@ -133,12 +134,20 @@ def feedback(root: Any, now_s: float, ticks: int) -> Any:
     return message
 
 
+def subtree_search_paths(options: ServerOptions) -> list[Path]:
+    """Where a run's SubTrees are searched after the library: ``search_paths``, then the shipped
+    ``objectives/`` (the library ``objective run`` searches), unless the library is that one."""
+    shipped = default_objectives_dir()
+    listed = [options.library, *options.search_paths]
+    return [*options.search_paths, *([] if any(p.resolve() == shipped for p in listed) else [shipped])]
+
+
 class ObjectiveServer:
     """The node, its executor thread and the one run it may hold. ``close()`` cancels that run."""
 
     def __init__(self, options: ServerOptions, registry: Registry, node_name: str = NODE_NAME) -> None:
         self.options, self.registry = options, registry
-        self.library = Library(options.library)
+        self.library = Library(options.library, registry, subtree_search_paths(options))
         options.run.check()
         self._lock = threading.Lock()
         self._running: str | None = None
@@ -241,7 +250,7 @@ class ObjectiveServer:
             return Outcome.error(str(err))
         context = make_context(options)
         try:
-            loaded = load_tree(objective.file, self.registry, context, None, self.options.search_paths,
+            loaded = load_tree(objective.file, self.registry, context, None, self.library.search_paths,
                                self.library.directory)
             apply_port_overrides(loaded, port_overrides)
         except ObjectiveError as err:
