@@ -78,7 +78,8 @@ def _override(text: str) -> Any:
 def _client_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--wait", type=positive_float, default=10.0, metavar="S",
                         help="how long to wait for the server to answer (default 10 s)")
-    actions = parser.add_subparsers(dest="client_action", required=True, metavar="ACTION")
+    actions = parser.add_subparsers(dest="client_action", required=True, metavar="ACTION",
+                                    help="list, start NAME or cancel (objective client ACTION --help)")
     actions.add_parser("list", help="the server's Objectives with their ports and load errors, and what runs")
     start = actions.add_parser("start", help="run an Objective by name, printing its running nodes, until it ends "
                                              "(SIGINT cancels it); exits as `objective run` does")
