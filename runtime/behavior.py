@@ -129,7 +129,7 @@ class NodeMixin:
             return binding.literal
         if not self.blackboard.has(binding.key) or self.blackboard.get(binding.key) is None:
             raise PortError(
-                f"port '{name}' reads blackboard entry '{binding.key}', which is not set",
+                f"port '{name}' reads {self.blackboard.unset_reason(binding.key)}",
                 self.location,
                 self.xml_id,
             )

@@ -42,7 +42,7 @@ from .behavior import NodeKind, NodeMixin, RunContext
 from .blackboard import Blackboard
 from .crash import LOAD_STOPPED, describe_crash, write_traceback
 from .errors import E, LoadError, ObjectiveError, ObjectiveRuntimeError, PortError, SourceLocation, did_you_mean
-from .ports import ConversionError, PortType, convert, parse_reference
+from .ports import ConversionError, Direction, PortType, convert, parse_reference
 from .registry import Registry
 from .subtree import SubTree
 
@@ -863,6 +863,9 @@ def validate(
             loaded = None
         if loaded is not None:
             result.trees.append(loaded)
+            top_level = tid in top_level_trees(doc)
+            model = doc.models.get(tid)
+            builder.errors.extend(unset_reads(loaded, set(model.ports) if model else set(), top_level))
             if check is not None:
                 builder.errors.extend(check(loaded))
         for error in builder.errors:  # a SubTree used by several trees has its errors once
@@ -870,6 +873,62 @@ def validate(
                 result.errors.append(error)
     result.errors.sort(key=_written_at)  # stable: a node's own error before its children's on its line
     return result
+
+
+_NAME = re.compile(r"@?[A-Za-z_][A-Za-z0-9_]*")
+
+
+def _written_slots(nodes: Iterable[LoadedNode]) -> set[tuple[int, str]]:
+    """The blackboard entries (``(id(board), key)``) the tree may write: output ports, a SubTree's
+    literal ports, and every name a literal attribute mentions (a script's ``x := 1``,
+    SetBlackboard's ``output_key``): more than it writes, never less."""
+    slots: set[tuple[int, str]] = set()
+
+    def add(board: Blackboard, key: str) -> None:
+        owner, mapped = board.owner(key)
+        slots.add((id(owner), mapped))
+
+    for info in nodes:
+        node = info.node
+        if isinstance(node, SubTree):
+            slots.update((id(node.child_blackboard), port) for port in node.literals)
+            continue
+        board = getattr(node, "blackboard", None)
+        if board is None:
+            continue
+        for binding in getattr(node, "bindings", {}).values():
+            if binding.key is not None and binding.info.direction is not Direction.INPUT:
+                add(board, binding.key)
+        for value in info.values.values():
+            if not (value.strip().startswith("{") and value.strip().endswith("}")):
+                for name in _NAME.findall(value):
+                    add(board, name)
+    return slots
+
+
+def unset_reads(loaded: LoadedTree, root_ports: set[str], top_level: bool) -> list[PortError]:
+    """Input ports inside a SubTree whose entry nothing in the tree writes: a remapping to a
+    caller's entry nobody sets, or a caller's entry the SubTree does not share (no ``_autoremap``).
+    A root entry counts as given when it is one of the root tree's ``root_ports`` (its
+    TreeNodesModel), or when the root tree is itself a SubTree (not ``top_level``) or the node is
+    on the root's own blackboard: its callers, or ``objective run --set``, may give it."""
+    written = _written_slots(loaded.nodes)
+    errors: list[PortError] = []
+    for info in loaded.nodes:
+        node = info.node
+        board = getattr(node, "blackboard", None)
+        if board is None or isinstance(node, SubTree):
+            continue
+        for port, binding in getattr(node, "bindings", {}).items():
+            if binding.key is None or binding.info.direction is not Direction.INPUT:
+                continue
+            owner, key = board.owner(binding.key)
+            given = owner is loaded.blackboard and (not top_level or key in root_ports or board is owner)
+            if given or (id(owner), key) in written:
+                continue
+            reason = board.unset_reason(binding.key, lambda b, k: (id(b), k) in written)
+            errors.append(info.error(PortError(f"port '{port}' reads {reason}", info.location, info.xml_id)))
+    return errors
 
 
 def _written_at(error: ObjectiveRuntimeError) -> tuple[str, int]:
