@@ -468,6 +468,9 @@ class _Builder:
         self.nodes: list[LoadedNode] = []
         self.collect = collect
         self.errors: list[ObjectiveRuntimeError] = []
+        self.unbuilt: list[LoadedNode] = []
+        """With ``collect``: nodes whose ports bound but whose port combination was refused
+        (``check_literals``), left out of the tree; the world check still reads their names."""
         self.calls: list[tuple[SourceLocation, str]] = []
         """The SubTree calls being built, outermost first."""
         self.entry_types: dict[tuple[int, str], _EntryType] = {}
@@ -537,10 +540,13 @@ class _Builder:
         if model is not None:
             self._apply_model_defaults(cls, model, values, node_id)
 
+        node = None
         try:
             node = cls(name)
             node.bind(self.context, blackboard, values, loc, node_id)
         except ObjectiveError as err:
+            if self.collect and hasattr(node, "bindings"):
+                self.unbuilt.append(LoadedNode(node, node_id, cls.kind, loc, dict(element.attrib), tuple(self.calls)))
             raise self._look_into(element, doc, file, blackboard, stack, err, depth) from None
         except ObjectiveRuntimeError:
             raise
@@ -833,7 +839,7 @@ def validate(
     search_paths: Iterable[Path] = (),
     objectives_dir: Path | None = None,
     context: Callable[[], RunContext] = throwaway_context,
-    check: Callable[[LoadedTree], list[ObjectiveRuntimeError]] | None = None,
+    check: Callable[[list[LoadedNode], bool], list[ObjectiveRuntimeError]] | None = None,
 ) -> Validation:
     """Load a file's trees, ``tree_id`` or every BehaviorTree written in it, each on a ``context()``,
     and find every error: a broken node is left out and the rest is built and checked. ``check``
@@ -861,13 +867,13 @@ def validate(
         except ObjectiveError as err:  # the tree's root itself is broken
             builder.errors.extend([err, *err.also])
             loaded = None
+        top_level = tid in top_level_trees(doc)
         if loaded is not None:
             result.trees.append(loaded)
-            top_level = tid in top_level_trees(doc)
             model = doc.models.get(tid)
             builder.errors.extend(unset_reads(loaded, set(model.ports) if model else set(), top_level))
-            if check is not None:
-                builder.errors.extend(check(loaded))
+        if check is not None:
+            builder.errors.extend(check([*builder.nodes, *builder.unbuilt], top_level))
         for error in builder.errors:  # a SubTree used by several trees has its errors once
             if all(str(error) != str(seen) for seen in result.errors):
                 result.errors.append(error)

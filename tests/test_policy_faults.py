@@ -96,9 +96,11 @@ class Outcome:
 
 
 def run_with_faults(registry: Registry, handler: Callable[[Any], Any] | None, latency: Any,
-                    before: Callable[[Any, KinematicWorld], None] | None = None, ports: str = "") -> Outcome:
+                    before: Callable[[Any, KinematicWorld], None] | None = None, ports: str = "",
+                    setup_error: bool = False) -> Outcome:
     """ExecutePolicy (``BASE`` and ``ports``) under ForceSuccess, then a 1 s Wait so the stop
-    after a failure can be seen."""
+    after a failure can be seen; with ``setup_error`` the run must end ERROR instead (no
+    decorator catches a setup error)."""
     node = (f'<ExecutePolicy policy_service_name="{SERVICE}" joint_group_name="manipulator" {BASE} {ports} '
             'status_message="{message}"/>')
     xml = ('<root BTCPP_format="4"><BehaviorTree ID="T"><Sequence>'
@@ -115,7 +117,7 @@ def run_with_faults(registry: Registry, handler: Callable[[Any], Any] | None, la
     if before is not None:
         before(context, world)
     result = run_tree(loaded, context, options, world=world)
-    assert result.status == "SUCCESS", result.reason  # the Wait after ForceSuccess ran
+    assert result.status == ("ERROR" if setup_error else "SUCCESS"), result.reason  # the Wait after ForceSuccess ran
     finished = context.events.of_kind("policy_finished")
     assert len(finished) == 1
     return Outcome(
@@ -476,8 +478,8 @@ def test_server_killed_mid_run_fails_with_the_adapter_reason(registry, servers):
 
 def test_wrong_key_is_a_401_error_at_the_warmup(registry, servers):
     server = servers(ChunkBackend())
-    out = run_with_faults(registry, None, None, before=serve_adapter(f"{server.url}/infer", key="wrong-key"))
-    assert out.status == "FAILURE"
+    out = run_with_faults(registry, None, None, before=serve_adapter(f"{server.url}/infer", key="wrong-key"), setup_error=True)
+    assert out.status == "ERROR"
     assert out.message.startswith(f"the policy answered ERROR for the warmup: the inference server at {server.url}")
     assert "answered 401" in out.message
     out.assert_stopped_cleanly()
@@ -487,10 +489,10 @@ def test_server_still_loading_answers_503_and_the_run_fails_cleanly(registry, se
     release = threading.Event()
     server = servers(ChunkBackend(release), wait=False)
     try:
-        out = run_with_faults(registry, None, None, before=serve_adapter(f"{server.url}/infer"))
+        out = run_with_faults(registry, None, None, before=serve_adapter(f"{server.url}/infer"), setup_error=True)
     finally:
         release.set()
-    assert out.status == "FAILURE"
+    assert out.status == "ERROR"
     assert "answered 503" in out.message and "still loading" in out.message
     out.assert_stopped_cleanly()
 
@@ -515,10 +517,10 @@ def test_malformed_json_from_the_server_is_an_error_with_the_reason(registry):
     thread.start()
     try:
         url = f"http://127.0.0.1:{httpd.server_address[1]}"
-        out = run_with_faults(registry, None, None, before=serve_adapter(f"{url}/infer"))
+        out = run_with_faults(registry, None, None, before=serve_adapter(f"{url}/infer"), setup_error=True)
     finally:
         httpd.shutdown()
         httpd.server_close()
-    assert out.status == "FAILURE"
+    assert out.status == "ERROR"
     assert out.message.startswith(f"the policy answered ERROR for the warmup: the inference server at {url}/infer sent a malformed answer: response body is not valid JSON")
     out.assert_stopped_cleanly()

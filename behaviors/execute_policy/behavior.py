@@ -272,7 +272,9 @@ class ExecutePolicy(Behavior):
                                 FailureKind.POLICY_ERROR)
         response = answer.response
         if response.status == GetActionChunk.Response.ERROR or response.status == GetActionChunk.Response.UNKNOWN:
-            return self._finish(Status.FAILURE, self._status_reason(response, "warmup"), FailureKind.POLICY_ERROR)
+            # The warmup is the run's first request with its prompt, joints and cameras: a refusal
+            # is of the setup (or of a policy not there to serve it), and a Retry would ask the same.
+            raise self._setup_error(self._status_reason(response, "warmup"))
         policy.latency.update(answer.round_trip_s)
         self._check_sizing("measured latency")
         self.sent_motion = SentMotion(StepGrid(now, config.dt, config.committed_action_steps, config.total_action_steps))
