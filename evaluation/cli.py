@@ -11,6 +11,7 @@ from typing import Any
 
 from runtime.cli import parse_set
 from runtime.cli import positive_float
+from runtime.bus import DEFAULT_POLICY_LATENCY
 from runtime.command import OBJECTIVE_FILE_HELP, POLICY_HELP, Command
 
 HELP = "run an Objective over many seeded episodes and report its success rate"
@@ -29,7 +30,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--ray-address", metavar="ADDR", help="join this Ray cluster (default: start a local one sized to --workers)")
     p.add_argument("--policy", metavar="SPEC", help=POLICY_HELP)
     p.add_argument("--policy-latency", default=None, metavar="SPEC",
-                   help="simulated policy latency: seconds (default 0.1), lognormal:MEAN,SD, or measured (not deterministic)")
+                   help=f"simulated policy latency: seconds (default {DEFAULT_POLICY_LATENCY}, as objective run), lognormal:MEAN,SD, "
+                        "or measured (not deterministic)")
     p.add_argument("--world", metavar="NAME", help="world for trees that need one (default: vla_sim)")
     p.add_argument("--set", action="append", type=parse_set, default=[], metavar="NAME=VALUE",
                    help="set a root blackboard entry before the first tick of every episode; repeatable")
@@ -52,7 +54,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def config_from_args(args: argparse.Namespace) -> Any:
     from .config import (
-        DEFAULT_EPISODE_TIMEOUT_S, DEFAULT_POLICY_LATENCY, DEFAULT_RETRIES, EvalConfig, ExecutorKind, RecordMode, WorkerSpec,
+        DEFAULT_EPISODE_TIMEOUT_S, DEFAULT_RETRIES, EvalConfig, ExecutorKind, RecordMode, WorkerSpec,
     )
     from .policies import parse_policy
 
@@ -79,7 +81,11 @@ def summary_lines(summary: dict[str, Any], out: Path) -> list[str]:
     lines = [f"{done}: {summary['successes']} successes ({rate_text}), {summary['failures']} failures, {summary['errors']} errors"]
     for group in summary["failure_groups"][:5]:
         node = f"'{group['failing_node']}': " if group["failing_node"] else ""
-        lines.append(f"  {group['count']:>4} x {group['status']} {node}{group['reason']}")
+        example = f": {group['example']}" if group["example"] and group["example"] != group["reason"] else ""
+        lines.append(f"  {group['count']:>4} x {group['status']} {node}{group['reason']}{example}")
+    if summary.get("stopped"):
+        lines.append(f"stopped after seed {summary['stopped']['seed']}: a mistake of the setup, found before the first "
+                     "tick, that every seed would repeat: fix it, then evaluate again")
     lines.append(f"results in {out}/ (episodes.jsonl, summary.json, report.html)")
     return lines
 

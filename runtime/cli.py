@@ -30,6 +30,7 @@ from typing import Any, Sequence
 # the user chose a GL backend. Its backend is fixed when it is first imported.
 os.environ.setdefault("MUJOCO_GL", "egl")
 
+from .bus import DEFAULT_POLICY_LATENCY
 from .command import COMMAND_GROUP, EXIT_BAD_INPUT, EXIT_SUCCESS, OBJECTIVE_FILE_HELP, POLICY_HELP, Command
 from .errors import INTERNAL, InternalError, ObjectiveError, error_kind
 from .interrupt import StopRequest, exit_code_for, signal_name, stop_on_signals
@@ -138,7 +139,8 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     run.add_argument("--world", metavar="NAME", help="world for trees that need one (default: the installation's, vla_sim here)")
     run.add_argument("--max-seconds", type=positive_float, metavar="S", help="fail after S seconds of clock time")
     run.add_argument("--policy-latency", metavar="SPEC",
-                     help="policy call latency: 'measured' (default), seconds (e.g. 0.3), lognormal:MEAN,SD or "
+                     help=f"policy call latency: seconds ({DEFAULT_POLICY_LATENCY} by default, as objective eval), "
+                          "'measured' (the policy's own wall time), lognormal:MEAN,SD or "
                           "trace:FILE (one latency per line, per call, the last repeating)")
     run.add_argument("--policy", metavar="SPEC", help=POLICY_HELP)
     run.add_argument("--world-option", action="append", type=parse_set, default=[], metavar="KEY=VALUE",
@@ -217,7 +219,7 @@ def cmd_run(args: argparse.Namespace, registry: Registry, stop: StopRequest | No
         max_seconds=args.max_seconds,
         world=args.world,
         sets=dict(args.set),
-        policy_latency=args.policy_latency,
+        policy_latency=args.policy_latency or (None if args.ros else DEFAULT_POLICY_LATENCY),
         record_dir=args.record,
         live_port=args.live,
         world_options={**dict(args.world_option), **({"policy": args.policy} if args.policy else {})},
