@@ -88,6 +88,8 @@ class Outcome:
     summary: dict[str, Any] = field(default_factory=dict)
     first_window_end: float = 0.0
     """Clock time at which the first executed chunk's window ends."""
+    rejected: list[dict[str, Any]] = field(default_factory=list)
+    """The data of each ``chunk_rejected`` event."""
 
     def assert_stopped_cleanly(self) -> None:
         controller = self.world.controllers["joint_trajectory_admittance_controller"]
@@ -128,6 +130,7 @@ def run_with_faults(registry: Registry, handler: Callable[[Any], Any] | None, la
         world=world,
         summary=result.extra.get("execute_policy", {}),
         first_window_end=next((e.data["seam_time"] + e.data["steps"] * 0.1 for e in context.events.of_kind("chunk_executed")), 0.0),
+        rejected=[e.data for e in context.events.of_kind("chunk_rejected")],
     )
 
 
@@ -402,6 +405,11 @@ def test_a_chunk_a_million_radians_away_is_reported_by_the_value_the_policy_sent
     assert out.message == (f"chunk 2 rejected: step 0: joint shoulder_pan_joint position {sent[0]:.4f} rad exceeds the "
                            "limit 6.2832 rad (policy step 19 of the run)")
     out.assert_stopped_cleanly()
+    # the event carries the rejected chunk for the report to plot, on the clock from its request step
+    (rejected,) = out.rejected
+    assert rejected["joints"][0] == "shoulder_pan_joint" and rejected["positions"][0][0] == pytest.approx(sent[0])
+    assert np.diff(rejected["times"]) == pytest.approx(np.full(len(rejected["times"]) - 1, 0.1))
+    assert rejected["times"][0] < out.finished_at  # its step 0 was due before the run stopped on it
 
 
 # -- the HTTP inference server behind the adapter --------------------------------------------
