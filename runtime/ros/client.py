@@ -16,13 +16,11 @@ from __future__ import annotations
 
 import json
 import os
-import threading
 import time
 from dataclasses import dataclass
 from typing import Any, Callable
 
 import rclpy
-from action_msgs.msg import GoalStatus
 from rclpy.action import ActionClient
 from rclpy.executors import SingleThreadedExecutor
 from std_srvs.srv import Trigger
@@ -36,7 +34,7 @@ from runtime.interrupt import StopRequest
 from runtime.objective_library import PortOverride
 from runtime.runner import RunResult
 
-from .objective_server import ACTION_NAME, CANCEL_SERVICE, LIST_SERVICE
+from .objective_server import ACTION_NAME, CANCEL_SERVICE, LIST_SERVICE, spin_on_thread
 
 CLIENT_NODE_NAME = "objective_client"
 POLL_S = 0.02
@@ -87,14 +85,7 @@ class ObjectiveClient:
         self.canceller = self.node.create_client(Trigger, CANCEL_SERVICE)
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)
-        self._spinner = threading.Thread(target=self._spin, name=node_name, daemon=True)
-        self._spinner.start()
-
-    def _spin(self) -> None:
-        try:
-            self.executor.spin()
-        except Exception:  # the context was shut down under the executor: the client is closing
-            pass
+        self._spinner = spin_on_thread(self.executor, node_name)
 
     def _unavailable(self, name: str) -> ServerUnavailable:
         return ServerUnavailable(
@@ -170,6 +161,3 @@ def list_lines(response: Any) -> list[str]:
     lines.append(f"running: {response.running or 'nothing'}")
     return lines
 
-
-GOAL_STATUS_NAMES = {GoalStatus.STATUS_SUCCEEDED: "succeeded", GoalStatus.STATUS_ABORTED: "aborted",
-                     GoalStatus.STATUS_CANCELED: "canceled"}

@@ -134,6 +134,19 @@ def feedback(root: Any, now_s: float, ticks: int) -> Any:
     return message
 
 
+def spin_on_thread(executor: Any, name: str) -> threading.Thread:
+    """``executor`` spinning on a daemon thread of its own until its context is shut down."""
+    def spin() -> None:
+        try:
+            executor.spin()
+        except Exception:  # the context was shut down under the executor: its node is closing
+            pass
+
+    thread = threading.Thread(target=spin, name=name, daemon=True)
+    thread.start()
+    return thread
+
+
 def subtree_search_paths(options: ServerOptions) -> list[Path]:
     """Where a run's SubTrees are searched after the library: ``search_paths``, then the shipped
     ``objectives/`` (the library ``objective run`` searches), unless the library is that one."""
@@ -168,14 +181,7 @@ class ObjectiveServer:
         self.node.create_service(ListObjectives, LIST_SERVICE, self._list_service, callback_group=group)
         self.executor = MultiThreadedExecutor(num_threads=4, context=self.context)
         self.executor.add_node(self.node)
-        self._spinner = threading.Thread(target=self._spin, name="objective_server", daemon=True)
-        self._spinner.start()
-
-    def _spin(self) -> None:
-        try:
-            self.executor.spin()
-        except Exception:  # the context was shut down under the executor: the server is closing
-            pass
+        self._spinner = spin_on_thread(self.executor, "objective_server")
 
     # -- requests ----------------------------------------------------------------------------
     def _reserve(self, name: str) -> str | None:
