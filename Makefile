@@ -99,7 +99,16 @@ demo: setup
 	$(VENV)/bin/objective run objectives/stack_cubes.xml
 
 test: setup
-	$(PY) -m pytest -q
+	$(PY) -m pytest -q -rs
+
+# The fast tier (docs/testing.md): pure functions and the loader, no world, no ROS 2, no subprocess.
+FAST_TESTS := tests/test_compliance_maths.py tests/test_execute_policy_math.py tests/test_execute_policy_core.py \
+	tests/test_trajectory_maths.py tests/test_trajectory_points.py tests/test_step_spline.py tests/test_seam_blend.py \
+	tests/test_svg_chart.py tests/test_script.py tests/test_loader.py tests/test_errors.py tests/test_eval_stats.py \
+	tests/test_cdr.py tests/test_joint_states.py tests/test_layers.py
+.PHONY: test-fast
+test-fast: setup
+	$(PY) -m pytest -q -rs $(FAST_TESTS)
 
 test-all: setup
 	$(PY) -m pytest -q -m ''

@@ -91,9 +91,9 @@ class SwitchController(Behavior):
     description = "Activate and deactivate ros2_control controllers (already-active ones are skipped)."
     ports = (
         InputPort("activate_controllers", PortType.STRING_LIST, "", "Controllers to activate, ';'-separated.",
-                  names=Names(NameKind.CONTROLLER)),
+                  names=Names(NameKind.CONTROLLER, activates=True)),
         InputPort("deactivate_controllers", PortType.STRING_LIST, "", "Controllers to deactivate, ';'-separated.",
-                  names=Names(NameKind.CONTROLLER)),
+                  names=Names(NameKind.CONTROLLER, activates=False)),
         InputPort("strictness", PortType.STRING, "STRICT", "STRICT (2): all or nothing; BEST_EFFORT (1): switch what can be switched."),
         InputPort("timeout", PortType.FLOAT, 3.0, "Seconds to wait for the controller manager and the switch; 0 or negative: no limit (MoveIt Pro writes -1).",
                   valid=Range(-3600.0, 3600.0, "s")),

@@ -5,6 +5,7 @@ from control_msgs.action import GripperCommand
 
 from runtime.behavior import Behavior, Status
 from runtime.bus import STATUS_SUCCEEDED
+from runtime.errors import SetupError
 from runtime.ports import InputPort, NameKind, Names, PortType, Range
 
 from .action_goal import Goal, GoalState
@@ -49,7 +50,8 @@ class MoveGripperAction(Behavior):
             self.goal = Goal.send(self.client, gripper_command(self.get_input("position"), self.get_input("max_effort")))
         self.goal = self.goal.advance()
         if self.goal.state is GoalState.REJECTED:
-            return self.fail(f"gripper action '{self.action}' rejected the goal")
+            raise SetupError(f"gripper action '{self.action}' rejected the goal: is the gripper controller active, "
+                             "and the position within its range?")
         if self.goal.state is not GoalState.ENDED:
             return self._waiting()
         outcome = self.goal.outcome

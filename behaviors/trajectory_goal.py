@@ -5,9 +5,11 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
+from control_msgs.action import FollowJointTrajectory
 from trajectory_msgs.msg import JointTrajectory
 
 from runtime.behavior import Behavior, Status
+from runtime.errors import SetupError
 from runtime.bus import STATUS_SUCCEEDED
 from runtime.timestamps import time_msg
 from runtime.trajectory_points import trajectory_points
@@ -17,6 +19,11 @@ from .execute_policy.shaping import Samples
 
 GOAL_TIME_TOLERANCE_S = 1.0
 """The controller's default: how late a goal may finish."""
+REFUSED_GOAL_CODES = (FollowJointTrajectory.Result.INVALID_GOAL, FollowJointTrajectory.Result.INVALID_JOINTS)
+"""Result codes of a goal the controller refused as sent (not running, other joints, a malformed
+trajectory): the same goal is refused again, so the run ends as ERROR (the admittance controller
+shares the codes)."""
+NOT_ACCEPTED = "is the controller active (a SwitchController before this node), and does it drive these joints?"
 
 
 def trajectory_msg(samples: Samples, joints: Sequence[str], stamp_s: float = 0.0, stamp_offset_s: float = 0.0) -> JointTrajectory:
@@ -39,13 +46,16 @@ class SendsTrajectoryGoal(Behavior):
 
     def follow_goal(self, what: str) -> Status:
         """RUNNING while the controller plays the goal; SUCCESS when it finished ``what`` (the
-        motion, the trajectory); FAILURE, saying why, when it refused or aborted it."""
+        motion, the trajectory); FAILURE, saying why, when it aborted it; a ``SetupError`` when
+        it refused it (rejected, or ``REFUSED_GOAL_CODES``)."""
         self.goal = self.goal.advance()
         if self.goal.state is GoalState.REJECTED:
-            return self.fail(f"controller '{self.action}' rejected the {what}")
+            raise SetupError(f"controller '{self.action}' rejected the {what}: {NOT_ACCEPTED}")
         if self.goal.state is not GoalState.ENDED:
             return Status.RUNNING
         outcome = self.goal.outcome
+        if outcome.status != STATUS_SUCCEEDED and outcome.result.error_code in REFUSED_GOAL_CODES:
+            raise SetupError(f"controller '{self.action}' refused the {what}: {outcome.result.error_string}")
         if outcome.status != STATUS_SUCCEEDED:
             return self.fail(f"the controller aborted the {what}: {outcome.result.error_string}")
         return Status.SUCCESS

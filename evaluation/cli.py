@@ -11,7 +11,8 @@ from typing import Any
 
 from runtime.cli import parse_set
 from runtime.cli import positive_float
-from runtime.command import Command
+from runtime.bus import DEFAULT_POLICY_LATENCY
+from runtime.command import OBJECTIVE_FILE_HELP, POLICY_HELP, Command
 
 HELP = "run an Objective over many seeded episodes and report its success rate"
 
@@ -19,7 +20,7 @@ HELP = "run an Objective over many seeded episodes and report its success rate"
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.description = (HELP + ". Episodes are `objective run --seed S+i`; DIR gets episodes.jsonl (appended as "
                      "episodes finish), summary.json and report.html; running the same command again resumes.")
-    p.add_argument("file", type=Path)
+    p.add_argument("file", type=Path, help=OBJECTIVE_FILE_HELP)
     p.add_argument("--episodes", type=int, required=True, metavar="N", help="episodes to run: seeds S .. S+N-1")
     p.add_argument("--seed-start", type=int, default=0, metavar="S", help="seed of the first episode (default 0)")
     p.add_argument("--out", type=Path, required=True, metavar="DIR", help="where the results go (resumed if it holds some)")
@@ -27,10 +28,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--executor", choices=("local", "ray"), default="local",
                    help="local processes (default) or Ray tasks (`make ray`); see docs/evaluation.md")
     p.add_argument("--ray-address", metavar="ADDR", help="join this Ray cluster (default: start a local one sized to --workers)")
-    p.add_argument("--policy", metavar="SPEC",
-                   help="oracle (default), replay:FILE, lerobot:DIR, http(s)://HOST:PORT (key from POLICY_SERVER_KEY) or none")
+    p.add_argument("--policy", metavar="SPEC", help=POLICY_HELP)
     p.add_argument("--policy-latency", default=None, metavar="SPEC",
-                   help="simulated policy latency: seconds (default 0.1), lognormal:MEAN,SD, or measured (not deterministic)")
+                   help=f"simulated policy latency: seconds (default {DEFAULT_POLICY_LATENCY}, as objective run), lognormal:MEAN,SD, "
+                        "or measured (not deterministic)")
     p.add_argument("--world", metavar="NAME", help="world for trees that need one (default: vla_sim)")
     p.add_argument("--set", action="append", type=parse_set, default=[], metavar="NAME=VALUE",
                    help="set a root blackboard entry before the first tick of every episode; repeatable")
@@ -53,7 +54,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def config_from_args(args: argparse.Namespace) -> Any:
     from .config import (
-        DEFAULT_EPISODE_TIMEOUT_S, DEFAULT_POLICY_LATENCY, DEFAULT_RETRIES, EvalConfig, ExecutorKind, RecordMode, WorkerSpec,
+        DEFAULT_EPISODE_TIMEOUT_S, DEFAULT_RETRIES, EvalConfig, ExecutorKind, RecordMode, WorkerSpec,
     )
     from .policies import parse_policy
 
@@ -80,7 +81,11 @@ def summary_lines(summary: dict[str, Any], out: Path) -> list[str]:
     lines = [f"{done}: {summary['successes']} successes ({rate_text}), {summary['failures']} failures, {summary['errors']} errors"]
     for group in summary["failure_groups"][:5]:
         node = f"'{group['failing_node']}': " if group["failing_node"] else ""
-        lines.append(f"  {group['count']:>4} x {group['status']} {node}{group['reason']}")
+        example = f": {group['example']}" if group["example"] and group["example"] != group["reason"] else ""
+        lines.append(f"  {group['count']:>4} x {group['status']} {node}{group['reason']}{example}")
+    if summary.get("stopped"):
+        lines.append(f"stopped after seed {summary['stopped']['seed']}: a mistake of the setup, found before the first "
+                     "tick, that every seed would repeat: fix it, then evaluate again")
     lines.append(f"results in {out}/ (episodes.jsonl, summary.json, report.html)")
     return lines
 

@@ -8,13 +8,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Iterable
 
+from runtime.bus import DEFAULT_POLICY_LATENCY  # the same default as objective run
 from runtime.errors import ObjectiveError
 
 from .policies import PolicySpec, check_latency, parse_policy, policy_digest
 
-DEFAULT_POLICY_LATENCY = "0.1"
-"""Seconds of simulated latency per policy call. Fixed (not ``measured``, which follows the wall
-clock) so that a seed gives the same episode in any worker."""
 DEFAULT_EPISODE_TIMEOUT_S = 600.0
 DEFAULT_RETRIES = 1
 

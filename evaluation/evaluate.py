@@ -14,6 +14,7 @@ from runtime.registry import Registry
 from .config import EvalConfig, ExecutorKind, identity
 from .executors import Executor, LocalExecutor
 from .report import write_report
+from .episode import EpisodeRecord
 from .scheduler import Progress, run_episodes
 from .stats import summarise
 from .store import EvalStore
@@ -65,13 +66,16 @@ def evaluate(config: EvalConfig, registry: Registry, progress: Any = None, stop:
     resumed = sum(1 for seed in config.seeds if seed in store.records)
     started = time.monotonic()
     signum: int | None = None
+    stopped_by: EpisodeRecord | None = None
     try:
         try:
             if resumed < config.episodes:
                 tell: Progress | None = progress([store.records[s] for s in config.seeds if s in store.records]) if progress else None
                 executor = make_executor(config)
                 try:
-                    if run_episodes(config, executor, store, tell).interrupted:
+                    loop = run_episodes(config, executor, store, tell)
+                    stopped_by = loop.stopped_by
+                    if loop.interrupted:
                         signum = _signal(stop)
                 finally:
                     executor.close()
@@ -79,6 +83,9 @@ def evaluate(config: EvalConfig, registry: Registry, progress: Any = None, stop:
             signum = _signal(stop)
         with held_back(stop):  # the summary is written whole, whatever signal arrives meanwhile
             summary = _summarise(config, store, ident, resumed, started, signum)
+            if stopped_by is not None:
+                summary["stopped"] = {"seed": stopped_by.seed, "reason": stopped_by.reason}
+                store.write_summary(summary)
     finally:
         store.close()
     return EvalOutcome(config.out, summary, signum)

@@ -3,7 +3,10 @@
 Each seed is in at most one worker at a time and is written once (``EvalStore.add`` refuses a
 seed already there), so an episode retried after a lost worker is never counted twice. A seed
 whose worker died is run again on a fresh worker up to ``retries`` times, then recorded as an
-ERROR; a hung episode is recorded as an ERROR at once (running it again would hang again).
+ERROR; a hung episode is recorded as an ERROR at once (running it again would hang again). An
+episode that ends with a mistake of the setup before its first tick (``static_setup_error``: an
+unknown waypoint, a missing topic) stops the loop: every other seed would end the same, so none
+is started; the episodes already running finish.
 """
 from __future__ import annotations
 
@@ -15,7 +18,7 @@ from typing import Callable
 from runtime.errors import ObjectiveError
 
 from .config import EvalConfig
-from .episode import EPISODE_TIMEOUT, WORKER_LOST, EpisodeRecord
+from .episode import EPISODE_TIMEOUT, WORKER_LOST, EpisodeRecord, EpisodeStatus
 from .executors import Event, EventKind, Executor
 from .store import EvalStore
 
@@ -27,6 +30,13 @@ class LoopResult:
     finished: int
     """Episodes recorded by this run (not those resumed from the file)."""
     interrupted: bool = False
+    stopped_by: EpisodeRecord | None = None
+    """The episode whose static setup error stopped the loop (``static_setup_error``)."""
+
+
+def static_setup_error(record: EpisodeRecord) -> bool:
+    """An ERROR of the setup found before the first tick: it does not depend on the seed."""
+    return record.status is EpisodeStatus.ERROR and record.failure_kind == "SetupError" and record.ticks == 0
 
 
 def run_episodes(config: EvalConfig, executor: Executor, store: EvalStore, progress: Progress | None = None) -> LoopResult:
@@ -34,14 +44,18 @@ def run_episodes(config: EvalConfig, executor: Executor, store: EvalStore, progr
     pending = deque(seed for seed in config.seeds if seed not in store.records)
     attempts: dict[int, int] = {}
     finished = 0
+    stopped_by: EpisodeRecord | None = None
 
     def record(item: EpisodeRecord) -> None:
-        nonlocal finished
+        nonlocal finished, stopped_by
         item.attempts = attempts.get(item.seed, 1)
         if store.add(item):
             finished += 1
             if progress is not None:
                 progress(item)
+        if stopped_by is None and static_setup_error(item):
+            stopped_by = item
+            pending.clear()
 
     try:
         while pending or executor.running():
@@ -52,8 +66,8 @@ def run_episodes(config: EvalConfig, executor: Executor, store: EvalStore, progr
             for event in executor.wait(timeout_s=1.0):
                 _handle(event, config, pending, attempts, record)
     except KeyboardInterrupt:
-        return LoopResult(finished, interrupted=True)
-    return LoopResult(finished)
+        return LoopResult(finished, interrupted=True, stopped_by=stopped_by)
+    return LoopResult(finished, stopped_by=stopped_by)
 
 
 def _handle(event: Event, config: EvalConfig, pending: deque[int], attempts: dict[int, int],

@@ -19,13 +19,13 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from runtime.command import POLICY_SPECS
 from runtime.errors import OptionError
 
 from .factory import FactoryError, build_backend, factory_file, is_factory_spec
 
 HTTP_TIMEOUT_S = 10.0
 """Wall-clock deadline of one call to an inference server (the shipped Objectives' policy_call_timeout)."""
-POLICY_SPECS = "oracle, replay:FILE, lerobot:DIR, FILE.py:FACTORY, MODULE:FACTORY, http(s)://HOST:PORT or none"
 
 
 class PolicySpecError(OptionError):

@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING, Any, ClassVar, Iterator
 import py_trees
 
 from .blackboard import Blackboard
-from .errors import PortError, SourceLocation
+from .errors import PortError, SourceLocation, did_you_mean
 from .ports import ConversionError, Direction, PortInfo, convert, parse_reference, range_problem
 
 if TYPE_CHECKING:
@@ -129,7 +129,7 @@ class NodeMixin:
             return binding.literal
         if not self.blackboard.has(binding.key) or self.blackboard.get(binding.key) is None:
             raise PortError(
-                f"port '{name}' reads blackboard entry '{binding.key}', which is not set",
+                f"port '{name}' reads {self.blackboard.unset_reason(binding.key)}",
                 self.location,
                 self.xml_id,
             )
@@ -172,7 +172,7 @@ def make_bindings(
     for name in values:
         if name not in infos:
             known = ", ".join(sorted(infos)) or "none"
-            problems.append(PortError(f"unknown port '{name}' (ports: {known})", location, xml_id))
+            problems.append(PortError(f"unknown port '{name}'{did_you_mean(name, infos)} (ports: {known})", location, xml_id))
     bindings: dict[str, PortBinding] = {}
     for name, info in infos.items():
         try:

@@ -14,7 +14,7 @@ WasEntryUpdated and friends.
 """
 from __future__ import annotations
 
-from typing import Any, Iterator
+from typing import Any, Callable, Iterator
 
 
 def is_private(key: str) -> bool:
@@ -114,6 +114,30 @@ class Blackboard:
     def local_entries(self) -> dict[str, Any]:
         """Every entry stored on this blackboard, declared ones (None) included: a copy."""
         return dict(self._entries)
+
+    def unset_reason(self, key: str, holds: Callable[[Blackboard, str], bool] | None = None) -> str:
+        """Why reading ``key`` here finds no value, in the words of the tree that wrote the key:
+        ``entry 'k', remapped to the caller's 'c', which is not set``, with a hint when a caller
+        holds ``key`` but this SubTree's blackboard does not share it. ``holds(board, key)`` says
+        whether an entry has a value (default: it holds one now)."""
+        holds = holds or (lambda board, name: board._entries.get(name) is not None)
+        text = f"blackboard entry '{key}'"
+        board, mapped = self, key
+        route = board._route(mapped)
+        while route is not None and route[0] is not board:
+            whose = "the root's" if mapped.startswith("@") else "the caller's"
+            board, mapped = route
+            text += f", remapped to {whose} '{mapped}'"
+            route = board._route(mapped)
+        text += ", which is not set"
+        if board.parent is not None and not is_private(mapped):
+            caller = board.parent
+            while caller is not None and not holds(*caller.owner(mapped)):
+                caller = caller.parent
+            if caller is not None:
+                text += (f"; a caller has '{mapped}', but this SubTree's blackboard is its own: pass it as a port "
+                         f"({mapped}=\"{{{mapped}}}\") or set _autoremap=\"true\" on the SubTree")
+        return text
 
     def __repr__(self) -> str:
         return f"Blackboard({dict(self._entries)!r}, remapping={self.remapping!r}, autoremap={self.autoremap})"

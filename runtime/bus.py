@@ -319,6 +319,11 @@ def read_latency_trace(path: str) -> TraceLatency:
     return TraceLatency(seconds, path)
 
 
+DEFAULT_POLICY_LATENCY = "0.1"
+"""The policy latency of a headless run and of an evaluation's episodes when none is given: a
+fixed 0.1 s, so a seed gives the same run on any machine (``measured`` follows the wall clock)."""
+
+
 def parse_latency(spec: str, seed: int = 0) -> LatencyModel:
     """``measured``, ``0.3`` (fixed seconds), ``lognormal:MEAN,SD`` or ``trace:FILE``."""
     if spec.strip().lower().startswith("trace:"):
@@ -617,6 +622,11 @@ class InProcessBus:
         return self._services[name][1](request)
 
     # -- topics ---
+    def published(self) -> dict[str, type]:
+        """Every topic published on this bus now, with its message type."""
+        topics = {name: pubs[0].msg_type for name, pubs in self._publishers.items() if pubs}
+        return {**topics, **{name: lazy.msg_type for name, lazy in self._lazy.items()}}
+
     def create_publisher(self, name: str, msg_type: type, reliable: bool = True) -> Publisher:
         pub = _InProcessPublisher(self, name, msg_type, reliable)
         self._publishers.setdefault(name, []).append(pub)

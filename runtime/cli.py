@@ -22,7 +22,7 @@ import logging
 import os
 import signal
 import sys
-from importlib.metadata import entry_points
+from importlib.metadata import PackageNotFoundError, entry_points, version
 from pathlib import Path
 from typing import Any, Sequence
 
@@ -30,7 +30,8 @@ from typing import Any, Sequence
 # the user chose a GL backend. Its backend is fixed when it is first imported.
 os.environ.setdefault("MUJOCO_GL", "egl")
 
-from .command import COMMAND_GROUP, EXIT_BAD_INPUT, EXIT_SUCCESS, Command
+from .bus import DEFAULT_POLICY_LATENCY
+from .command import COMMAND_GROUP, EXIT_BAD_INPUT, EXIT_SUCCESS, OBJECTIVE_FILE_HELP, POLICY_HELP, Command
 from .errors import INTERNAL, InternalError, ObjectiveError, error_kind
 from .interrupt import StopRequest, exit_code_for, signal_name, stop_on_signals
 from .ports import FINITE, NUMERIC_TYPES, Direction, PortInfo, PortType
@@ -103,6 +104,14 @@ def groot2_server(args: argparse.Namespace) -> Any:
     return server
 
 
+def installed_version() -> str:
+    """The installed objective-runtime's version (``pyproject.toml``), or a note that it is not installed."""
+    try:
+        return version("objective-runtime")
+    except PackageNotFoundError:
+        return "(objective-runtime is not installed: pip install -e .)"
+
+
 def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     """The CLI's parser. Installed commands (``objective.commands``) are loaded unless ``command``
     is one of the engine's own: ``objective run`` imports no plug-in command's module."""
@@ -112,6 +121,7 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
         epilog="Exit codes: 0 SUCCESS (or SKIPPED), 1 FAILURE, 2 bad input or a run-time error (ERROR), "
                "130/143 interrupted (SIGINT/SIGTERM).",
     )
+    parser.add_argument("--version", action="version", version=f"objective {installed_version()}")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
     def add_paths(p: argparse.ArgumentParser) -> None:
@@ -121,7 +131,7 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
                        help="the library searched first for SubTrees (default: the project's objectives/)")
 
     run = sub.add_parser("run", help="run an Objective until it succeeds or fails")
-    run.add_argument("file", type=Path)
+    run.add_argument("file", type=Path, help=OBJECTIVE_FILE_HELP)
     run.add_argument("--tree", metavar="ID", help="the BehaviorTree to run (default: main_tree_to_execute)")
     run.add_argument("--set", action="append", type=parse_set, default=[], metavar="NAME=VALUE",
                      help="set a root blackboard entry (a string) before the first tick; repeatable")
@@ -140,10 +150,10 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     run.add_argument("--world", metavar="NAME", help="world for trees that need one (default: the installation's, vla_sim here)")
     run.add_argument("--max-seconds", type=positive_float, metavar="S", help="fail after S seconds of clock time")
     run.add_argument("--policy-latency", metavar="SPEC",
-                     help="policy call latency: 'measured' (default), seconds (e.g. 0.3), lognormal:MEAN,SD or "
+                     help=f"policy call latency: seconds ({DEFAULT_POLICY_LATENCY} by default, as objective eval), "
+                          "'measured' (the policy's own wall time), lognormal:MEAN,SD or "
                           "trace:FILE (one latency per line, per call, the last repeating)")
-    run.add_argument("--policy", metavar="SPEC",
-                     help="policy the world serves on /get_action_chunk in headless runs: oracle (default), replay:FILE or none")
+    run.add_argument("--policy", metavar="SPEC", help=POLICY_HELP)
     run.add_argument("--world-option", action="append", type=parse_set, default=[], metavar="KEY=VALUE",
                      help="an option of the world, e.g. urdf=robot.urdf for --world robot (repeatable)")
     run.add_argument("--record", type=Path, metavar="DIR",
@@ -156,7 +166,7 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     add_paths(run)
 
     val = sub.add_parser("validate", help="load Objectives and report every error (nothing runs)")
-    val.add_argument("files", type=Path, nargs="+")
+    val.add_argument("files", type=Path, nargs="+", help="the Objectives: BehaviorTree.CPP v4 XML files")
     val.add_argument("--tree", metavar="ID", help="validate only this BehaviorTree (default: every tree in each file)")
     val.add_argument("--world", metavar="NAME",
                      help="also check what the world knows: frames, objects, joint groups and joints, waypoints, "
@@ -169,7 +179,7 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     beh.add_argument("--json", action="store_true", help="print JSON instead of text")
 
     show = sub.add_parser("show", help="print the tree an Objective builds")
-    show.add_argument("file", type=Path)
+    show.add_argument("file", type=Path, help=OBJECTIVE_FILE_HELP)
     show.add_argument("--tree", metavar="ID")
     add_paths(show)
 
@@ -221,7 +231,7 @@ def cmd_run(args: argparse.Namespace, registry: Registry, stop: StopRequest | No
         max_seconds=args.max_seconds,
         world=args.world,
         sets=dict(args.set),
-        policy_latency=args.policy_latency,
+        policy_latency=args.policy_latency or (None if args.ros else DEFAULT_POLICY_LATENCY),
         record_dir=args.record,
         live_port=args.live,
         world_options={**dict(args.world_option), **({"policy": args.policy} if args.policy else {})},

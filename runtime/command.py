@@ -10,6 +10,11 @@ if TYPE_CHECKING:  # stdlib only at run time: runtime.build_interfaces runs befo
 
 EXIT_SUCCESS, EXIT_FAILURE, EXIT_BAD_INPUT = 0, 1, 2
 COMMAND_GROUP = "objective.commands"
+OBJECTIVE_FILE_HELP = "the Objective: a BehaviorTree.CPP v4 XML file"
+POLICY_SPECS = "oracle, replay:FILE, lerobot:DIR, FILE.py:FACTORY, MODULE:FACTORY, http(s)://HOST:PORT or none"
+"""Every form ``--policy SPEC`` takes (``policy.specs`` parses them), for the commands' help."""
+POLICY_HELP = (f"the policy the world serves on /get_action_chunk in headless runs: {POLICY_SPECS} (default oracle; "
+               "an inference server's bearer key from POLICY_SERVER_KEY)")
 
 
 @dataclass(frozen=True)

@@ -12,8 +12,9 @@
 """
 from __future__ import annotations
 
+import difflib
 from dataclasses import dataclass
-from typing import TypeVar
+from typing import Iterable, TypeVar
 
 
 @dataclass(frozen=True)
@@ -129,3 +130,13 @@ class ScriptRunError(ObjectiveError):
     def __init__(self, what: str, location: SourceLocation | None, node: str | None, script: str) -> None:
         self.script = script
         super().__init__(what, location, node)
+
+
+def did_you_mean(word: str, candidates: Iterable[str]) -> str:
+    """``"; did you mean 'a' or 'b'?"`` for the candidates close to ``word``, or ``""``."""
+    close = difflib.get_close_matches(word, sorted(set(candidates)), n=3, cutoff=0.6)
+    if not close:
+        return ""
+    quoted = [f"'{c}'" for c in close]
+    options = quoted[0] if len(quoted) == 1 else ", ".join(quoted[:-1]) + " or " + quoted[-1]
+    return f"; did you mean {options}?"

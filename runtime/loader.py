@@ -28,7 +28,6 @@ file size, nesting depth, attribute length and number of nodes after SubTree exp
 """
 from __future__ import annotations
 
-import difflib
 import logging
 import os
 import re
@@ -42,8 +41,8 @@ from lxml import etree
 from .behavior import NodeKind, NodeMixin, RunContext
 from .blackboard import Blackboard
 from .crash import LOAD_STOPPED, describe_crash, write_traceback
-from .errors import E, LoadError, ObjectiveError, ObjectiveRuntimeError, PortError, SourceLocation
-from .ports import ConversionError, PortType, convert, parse_reference
+from .errors import E, LoadError, ObjectiveError, ObjectiveRuntimeError, PortError, SourceLocation, did_you_mean
+from .ports import ConversionError, Direction, PortType, convert, parse_reference
 from .registry import Registry
 from .subtree import SubTree
 
@@ -444,15 +443,6 @@ def _types_fit(entry: PortType, port: PortType) -> bool:
     return PortType.ANY_LIST in (entry, port) and all(vectors)
 
 
-def _suggest(word: str, candidates: Iterable[str]) -> str:
-    close = difflib.get_close_matches(word, sorted(set(candidates)), n=3, cutoff=0.6)
-    if not close:
-        return ""
-    quoted = [f"'{c}'" for c in close]
-    options = quoted[0] if len(quoted) == 1 else ", ".join(quoted[:-1]) + " or " + quoted[-1]
-    return f"; did you mean {options}?"
-
-
 def _parse_bool_attr(value: str, name: str, loc: SourceLocation, node: str) -> bool:
     lowered = value.strip().lower()
     if lowered in ("true", "1"):
@@ -484,6 +474,9 @@ class _Builder:
         self.nodes: list[LoadedNode] = []
         self.collect = collect
         self.errors: list[ObjectiveRuntimeError] = []
+        self.unbuilt: list[LoadedNode] = []
+        """With ``collect``: nodes whose ports bound but whose port combination was refused
+        (``check_literals``), left out of the tree; the world check still reads their names."""
         self.calls: list[tuple[SourceLocation, str]] = []
         """The SubTree calls being built, outermost first."""
         self.entry_types: dict[tuple[int, str], _EntryType] = {}
@@ -498,7 +491,7 @@ class _Builder:
         if found is not None:
             return found
         searched = f"{doc.display}, then {self.library.describe()}"
-        hint = _suggest(tree_id, set(doc.trees) | self.library.tree_ids())
+        hint = did_you_mean(tree_id, set(doc.trees) | self.library.tree_ids())
         broken = f" (unreadable library files: {'; '.join(self.library.broken)})" if self.library.broken else ""
         raise LoadError(f"undefined SubTree '{tree_id}' (searched {searched}){hint}{broken}", loc, tree_id)
 
@@ -541,7 +534,7 @@ class _Builder:
             attrs.pop("ID", None)
         spec = self.registry.get(node_id)
         if spec is None:
-            hint = _suggest(node_id, [s.id for s in self.registry.specs()])
+            hint = did_you_mean(node_id, [s.id for s in self.registry.specs()])
             if node_id in doc.trees or (not hint and self.library.find(node_id, loc) is not None):
                 hint = f"; '{node_id}' is a BehaviorTree: use <SubTree ID=\"{node_id}\"/>"
             error = LoadError(f"unknown node '{node_id}'{hint or ' (objective behaviors lists the registered nodes)'}", loc, node_id)
@@ -556,10 +549,13 @@ class _Builder:
         if model is not None:
             self._apply_model_defaults(cls, model, values, node_id)
 
+        node = None
         try:
             node = cls(name)
             node.bind(self.context, blackboard, values, loc, node_id)
         except ObjectiveError as err:
+            if self.collect and hasattr(node, "bindings"):
+                self.unbuilt.append(LoadedNode(node, node_id, cls.kind, loc, dict(element.attrib), tuple(self.calls)))
             raise self._look_into(element, doc, file, blackboard, stack, err, depth) from None
         except ObjectiveRuntimeError:
             raise
@@ -651,7 +647,8 @@ class _Builder:
             unknown = sorted(set(ports) - set(model.ports))
             if unknown:
                 known = ", ".join(sorted(model.ports)) or "none"
-                raise PortError(f"unknown port '{unknown[0]}' (ports: {known}; model at {model.location})", loc, tree_id)
+                hint = did_you_mean(unknown[0], model.ports)
+                raise PortError(f"unknown port '{unknown[0]}'{hint} (ports: {known}; model at {model.location})", loc, tree_id)
             for port in model.ports.values():
                 if port.name not in ports and port.default is not None:
                     ports[port.name] = port.default
@@ -705,7 +702,7 @@ class _Builder:
                 conditions[attr] = value
             elif attr.startswith("_"):
                 extra = " (BehaviorTree.CPP v3 syntax: use _autoremap=\"true\" on <SubTree>)" if attr == "__shared_blackboard" else ""
-                hint = _suggest(attr, [*CONDITION_ATTRIBUTES, *METADATA_ATTRIBUTES, "_autoremap"])
+                hint = did_you_mean(attr, [*CONDITION_ATTRIBUTES, *METADATA_ATTRIBUTES, "_autoremap"])
                 raise LoadError(f"unknown attribute '{attr}'{extra or hint}", loc, node_id)
             else:
                 ports[attr] = value
@@ -771,7 +768,7 @@ def _select_tree(doc: Document, tree_id: str | None, builder: _Builder) -> TreeD
         found = builder.library.find(choice, loc)
         if found is None:
             what = "--tree" if tree_id else "main_tree_to_execute"
-            hint = _suggest(choice, doc.trees)
+            hint = did_you_mean(choice, doc.trees)
             raise LoadError(f"{what} names BehaviorTree '{choice}', which is not defined (trees: {', '.join(doc.trees) or 'none'}){hint}", loc)
         return found
     if not doc.own_tree_ids:
@@ -852,7 +849,7 @@ def validate(
     search_paths: Iterable[Path] = (),
     objectives_dir: Path | None = None,
     context: Callable[[], RunContext] = throwaway_context,
-    check: Callable[[LoadedTree], list[ObjectiveRuntimeError]] | None = None,
+    check: Callable[[list[LoadedNode], bool], list[ObjectiveRuntimeError]] | None = None,
 ) -> Validation:
     """Load a file's trees, ``tree_id`` or every BehaviorTree written in it, each on a ``context()``,
     and find every error: a broken node is left out and the rest is built and checked. ``check``
@@ -880,15 +877,74 @@ def validate(
         except ObjectiveError as err:  # the tree's root itself is broken
             builder.errors.extend([err, *err.also])
             loaded = None
+        top_level = tid in top_level_trees(doc)
         if loaded is not None:
             result.trees.append(loaded)
-            if check is not None:
-                builder.errors.extend(check(loaded))
+            model = doc.models.get(tid)
+            builder.errors.extend(unset_reads(loaded, set(model.ports) if model else set(), top_level))
+        if check is not None:
+            builder.errors.extend(check([*builder.nodes, *builder.unbuilt], top_level))
         for error in builder.errors:  # a SubTree used by several trees has its errors once
             if all(str(error) != str(seen) for seen in result.errors):
                 result.errors.append(error)
     result.errors.sort(key=_written_at)  # stable: a node's own error before its children's on its line
     return result
+
+
+_NAME = re.compile(r"@?[A-Za-z_][A-Za-z0-9_]*")
+
+
+def _written_slots(nodes: Iterable[LoadedNode]) -> set[tuple[int, str]]:
+    """The blackboard entries (``(id(board), key)``) the tree may write: output ports, a SubTree's
+    literal ports, and every name a literal attribute mentions (a script's ``x := 1``,
+    SetBlackboard's ``output_key``): more than it writes, never less."""
+    slots: set[tuple[int, str]] = set()
+
+    def add(board: Blackboard, key: str) -> None:
+        owner, mapped = board.owner(key)
+        slots.add((id(owner), mapped))
+
+    for info in nodes:
+        node = info.node
+        if isinstance(node, SubTree):
+            slots.update((id(node.child_blackboard), port) for port in node.literals)
+            continue
+        board = getattr(node, "blackboard", None)
+        if board is None:
+            continue
+        for binding in getattr(node, "bindings", {}).values():
+            if binding.key is not None and binding.info.direction is not Direction.INPUT:
+                add(board, binding.key)
+        for value in info.values.values():
+            if not (value.strip().startswith("{") and value.strip().endswith("}")):
+                for name in _NAME.findall(value):
+                    add(board, name)
+    return slots
+
+
+def unset_reads(loaded: LoadedTree, root_ports: set[str], top_level: bool) -> list[PortError]:
+    """Input ports inside a SubTree whose entry nothing in the tree writes: a remapping to a
+    caller's entry nobody sets, or a caller's entry the SubTree does not share (no ``_autoremap``).
+    A root entry counts as given when it is one of the root tree's ``root_ports`` (its
+    TreeNodesModel), or when the root tree is itself a SubTree (not ``top_level``) or the node is
+    on the root's own blackboard: its callers, or ``objective run --set``, may give it."""
+    written = _written_slots(loaded.nodes)
+    errors: list[PortError] = []
+    for info in loaded.nodes:
+        node = info.node
+        board = getattr(node, "blackboard", None)
+        if board is None or isinstance(node, SubTree):
+            continue
+        for port, binding in getattr(node, "bindings", {}).items():
+            if binding.key is None or binding.info.direction is not Direction.INPUT:
+                continue
+            owner, key = board.owner(binding.key)
+            given = owner is loaded.blackboard and (not top_level or key in root_ports or board is owner)
+            if given or (id(owner), key) in written:
+                continue
+            reason = board.unset_reason(binding.key, lambda b, k: (id(b), k) in written)
+            errors.append(info.error(PortError(f"port '{port}' reads {reason}", info.location, info.xml_id)))
+    return errors
 
 
 def _written_at(error: ObjectiveRuntimeError) -> tuple[str, int]:

@@ -4,8 +4,11 @@ Every ``*.xml`` file under the directory (subdirectories too) is one Objective, 
 BehaviorTree it runs (``main_tree_to_execute``, else the file's only tree no other uses), as
 MoveIt Pro names Objectives. Its description is that tree's ``_description``; its ports are the
 TreeNodesModel entry of that tree, if the file has one: root blackboard entries, which a run
-starts with set to their defaults. A file that cannot be read is listed
-with its error, so a typo shows where it is rather than an Objective silently missing.
+starts with set to their defaults. SubTrees are found as ``objective run`` finds them: in the
+file, in the directory, in the ``search_paths`` after it (the shipped ``objectives/`` last). A
+file that cannot be read, or whose tree does not load (an unknown node, a missing required
+port, an undefined SubTree), is listed with its error, so a typo shows where it is rather than an
+Objective silently missing or failing only when it is run.
 
 A request may set the ports the Objective declares as its own (its TreeNodesModel entry), as
 MoveIt Pro's Objective server does: ``PortOverride`` (port by name) and blackboard overrides
@@ -20,8 +23,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Iterable
 
-from .errors import ObjectiveError
-from .loader import parse_document, top_level_trees
+from .errors import ObjectiveError, did_you_mean
+from .loader import load_tree, parse_document, throwaway_context, top_level_trees
+from .registry import Registry
 
 
 @dataclass(frozen=True)
@@ -57,11 +61,23 @@ class PortOverride:
     value: str
 
 
-def read_objective(file: Path, directory: Path) -> Objective:
-    """The Objective ``file`` holds, or an entry carrying its error."""
+def parse_override(text: str) -> PortOverride:
+    """``PORT=VALUE``, a port the Objective declares, or ``OBJECTIVE.PORT=VALUE`` (the Objective's
+    name may hold dots and spaces; the port is after the last dot)."""
+    target, sep, value = text.partition("=")
+    node, _, port = target.rpartition(".")
+    if not sep or not port.strip():
+        raise ValueError(f"expected PORT=VALUE (e.g. seconds=0.5), got {text!r}")
+    return PortOverride(node.strip(), port.strip(), value)
+
+
+def read_objective(file: Path, directory: Path, registry: Registry | None = None,
+                   search_paths: Iterable[Path] = ()) -> Objective:
+    """The Objective ``file`` holds, or an entry carrying its error. With ``registry`` its tree is
+    also built (nothing runs), so a load error is the entry's error too."""
     relative = str(file.relative_to(directory))
     try:
-        doc = parse_document(file, [directory])
+        doc = parse_document(file, [directory, *search_paths])
     except ObjectiveError as err:
         return Objective(file.stem, file, relative, error=str(err))
     tops = top_level_trees(doc)
@@ -73,20 +89,29 @@ def read_objective(file: Path, directory: Path) -> Objective:
     model = doc.models.get(name)
     ports = [ObjectivePort(p.name, p.direction, p.type, p.default or "") for p in model.ports.values()] if model else []
     description = doc.trees[name].element.get("_description", "")
-    return Objective(name, file, relative, description, ports)
+    error = ""
+    if registry is not None:
+        try:
+            load_tree(file, registry, throwaway_context(), name, search_paths, directory)
+        except ObjectiveError as err:
+            error = str(err)
+    return Objective(name, file, relative, description, ports, error)
 
 
 class Library:
-    """The Objectives of ``directory``, read again on every ``objectives()`` (files change)."""
+    """The Objectives of ``directory``, read again on every ``objectives()`` (files change).
 
-    def __init__(self, directory: Path) -> None:
+    SubTrees are searched in ``directory``, then in ``search_paths``; with ``registry`` every
+    Objective's tree is built when the library is read (see ``read_objective``)."""
+
+    def __init__(self, directory: Path, registry: Registry | None = None, search_paths: Iterable[Path] = ()) -> None:
         if not directory.is_dir():
             raise ObjectiveError(f"the Objective library '{directory}' is not a directory")
-        self.directory = directory
+        self.directory, self.registry, self.search_paths = directory, registry, list(search_paths)
 
     def objectives(self) -> list[Objective]:
         files = sorted(p for p in self.directory.rglob("*.xml") if p.is_file())
-        return [read_objective(file, self.directory) for file in files]
+        return [read_objective(file, self.directory, self.registry, self.search_paths) for file in files]
 
     def find(self, name: str) -> Objective:
         """The Objective called ``name``; ObjectiveError when there is none, several, or it is broken."""
@@ -112,8 +137,8 @@ def override_entries(objective: Objective, ports: Iterable[PortOverride], blackb
 
     def admit(what: str, port: str, value: str) -> None:
         if port not in declared:
-            raise ObjectiveError(f"{what}: '{port}' is not a port Objective '{objective.name}' declares ({listed}); "
-                                 "overrides reach only the Objective's own ports")
+            raise ObjectiveError(f"{what}: '{port}' is not a port Objective '{objective.name}' declares"
+                                 f"{did_you_mean(port, sorted(declared))} ({listed}); overrides reach only the Objective's own ports")
         entries[port] = value
 
     for key, value in blackboard.items():

@@ -119,6 +119,8 @@ class NameKind(enum.Enum):
     ACTION = "action"
     CONTROLLER = "controller"
     """A ros2_control controller the controller manager lists."""
+    TOPIC = "topic"
+    """A topic the world publishes (``interface``: its message type)."""
 
 
 @dataclass(frozen=True)
@@ -133,6 +135,8 @@ class Names:
     types it may have (a trajectory controller's action: either interface)."""
     creates: bool = False
     """The node creates the object it names (AddCollisionBox, PlaceSimBox): later nodes may name it."""
+    activates: bool | None = None
+    """For a controller: the node activates it (True) or deactivates it (False), for the nodes after it."""
 
     @property
     def interfaces(self) -> tuple[type, ...]:

@@ -294,9 +294,9 @@ def _failing(root: py_trees.behaviour.Behaviour, visited: list[Visit]) -> tuple[
     """The node to blame for the root's FAILURE in this tick, with its reason and failure kind.
 
     Follow the failure down from the root: at each node, go to the child that reported FAILURE
-    most recently in this tick; stop at a node none of whose children failed (a leaf that
-    failed, or a Timeout/Inverter that turned its child's result into a failure). A failure a
-    ForceSuccess forgave is therefore never blamed.
+    most recently in this tick and gives a reason (the most recent one when none does); stop at a
+    node none of whose children failed (a leaf that failed, or a Timeout/Inverter that turned its
+    child's result into a failure). A failure a ForceSuccess forgave is therefore never blamed.
     """
     last: dict[int, tuple[int, Status, str]] = {}
     for order, (node, status, message) in enumerate(visited):
@@ -306,17 +306,21 @@ def _failing(root: py_trees.behaviour.Behaviour, visited: list[Visit]) -> tuple[
         record = last.get(id(node))
         return record[0] if record is not None and record[1] is Status.FAILURE else None
 
+    def reason(node: py_trees.behaviour.Behaviour) -> str:
+        return last[id(node)][2] or _unwrap(node).feedback_message
+
+    def blame(node: py_trees.behaviour.Behaviour) -> py_trees.behaviour.Behaviour:
+        """The failing leaf under ``node``: the most recent failure that gives a reason, so a
+        Fallback's closing AlwaysFailure (no reason) blames the check that failed before it."""
+        failing = sorted((c for c in node.children if failed_at(c) is not None), key=failed_at, reverse=True)
+        leaves = [blame(child) for child in failing]
+        return next((leaf for leaf in leaves if reason(leaf)), leaves[0]) if leaves else node
+
     if failed_at(root) is None:
         return None
-    node = root
-    while True:
-        failing = [(failed_at(c), c) for c in node.children if failed_at(c) is not None]
-        if not failing:
-            break
-        node = max(failing, key=lambda item: item[0])[1]
-    message = last[id(node)][2]
+    node = blame(root)
     inner = _unwrap(node)
-    return inner, message or inner.feedback_message, getattr(inner, "failure_kind", None)
+    return inner, reason(node), getattr(inner, "failure_kind", None)
 
 
 _STATUS_NAMES = {status: status.value for status in Status}  # an enum's .value is a slow property

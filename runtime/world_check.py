@@ -18,7 +18,7 @@ from dataclasses import dataclass, field, replace
 from typing import Any, Iterable, Iterator
 
 from .behavior import RunContext
-from .errors import PortError, SetupError
+from .errors import ObjectiveError, PortError, SetupError
 from .ports import Direction, NameKind, Names, PortType
 
 WORLD_FRAMES = frozenset({"world"})
@@ -37,6 +37,9 @@ class WorldFacts:
     services: dict[str, type] | None = None
     actions: dict[str, type] | None = None
     controllers: frozenset[str] | None = None
+    active_controllers: frozenset[str] | None = None
+    """The controllers active when the world starts."""
+    topics: dict[str, type] | None = None
     listed_frames: tuple[str, ...] = field(default=())
     """The frames a message lists: objects, world, robot links (the model's other frames are not listed)."""
 
@@ -59,14 +62,19 @@ class WorldFacts:
             facts["waypoints"] = frozenset(context.resources["waypoints"])
         bus = context.bus
         if callable(getattr(bus, "served", None)) and callable(getattr(bus, "action_servers", None)):
-            facts.update(services=bus.served(), actions=bus.action_servers(), controllers=_controllers(bus))
+            states = _controller_states(bus)
+            facts.update(services=bus.served(), actions=bus.action_servers(),
+                         controllers=None if states is None else frozenset(states),
+                         active_controllers=None if states is None else frozenset(n for n, s in states.items() if s == "active"))
+        if callable(getattr(bus, "published", None)):
+            facts["topics"] = bus.published()
         return cls(**facts)
 
     def problem(self, names: Names, value: str) -> str | None:
         """Why ``value`` is not a name of this kind in the world, or None (also when not known here)."""
         kind = names.kind
-        if kind in (NameKind.SERVICE, NameKind.ACTION):
-            offered = self.services if kind is NameKind.SERVICE else self.actions
+        if kind in (NameKind.SERVICE, NameKind.ACTION, NameKind.TOPIC):
+            offered = {NameKind.SERVICE: self.services, NameKind.ACTION: self.actions, NameKind.TOPIC: self.topics}[kind]
             if offered is None:
                 return None
             if value not in offered:
@@ -86,8 +94,9 @@ class WorldFacts:
         return f"unknown {kind.value} '{value}'{_hint(value, known)} ({kind.value}s: {_listing(listed)})"
 
 
-def check_names(nodes: Iterable[Any], facts: WorldFacts) -> list[SetupError]:
-    """A ``SetupError`` for each name a node's port gives that the world does not have.
+def check_names(nodes: Iterable[Any], facts: WorldFacts, whole_tree: bool = True) -> list[SetupError]:
+    """A ``SetupError`` for each name a node's port gives that the world does not have; for a
+    ``whole_tree``, also for each action of a controller not active when its node runs.
 
     ``nodes`` are the loader's ``LoadedNode`` records (node, xml_id, location, callers).
     """
@@ -100,7 +109,29 @@ def check_names(nodes: Iterable[Any], facts: WorldFacts) -> list[SetupError]:
         problem = None if names.creates else facts.problem(names, value)
         if problem is not None:
             errors.append(record.error(SetupError(f"port '{port}': {problem}")))
+    for record, port, problem in inactive_controller_actions(named, facts) if whole_tree else ():
+        errors.append(record.error(SetupError(f"port '{port}': {problem}")))
     return errors
+
+
+def inactive_controller_actions(named: list[tuple[Any, str, Names, str]], facts: WorldFacts) -> list[tuple[Any, str, str]]:
+    """(record, port, why) for each action of a controller that is not active when its node runs:
+    the controllers active at the start, switched by the SwitchControllers written before it
+    (``Names.activates``, in the order the nodes are written)."""
+    if facts.controllers is None or facts.active_controllers is None:
+        return []
+    active = set(facts.active_controllers)
+    found = []
+    for record, port, names, value in named:
+        if names.kind is NameKind.CONTROLLER and names.activates is not None:
+            (active.add if names.activates else active.discard)(value)
+            continue
+        controller = value.strip("/").split("/")[0]
+        if names.kind is NameKind.ACTION and controller in facts.controllers and controller not in active:
+            found.append((record, port, f"action '{value}' is served by controller '{controller}', which is not active "
+                                        f"when this node runs: activate it before (SwitchController "
+                                        f"activate_controllers=\"{controller}\"; active: {', '.join(sorted(active))})"))
+    return found
 
 
 def _named(nodes: Iterable[Any]) -> Iterator[tuple[Any, str, Names, str]]:
@@ -161,8 +192,25 @@ class StartedWorld:
     context: RunContext
     facts: WorldFacts
 
-    def check(self, loaded: Any) -> list[SetupError]:
-        return check_names(loaded.nodes, self.facts)
+    def check(self, records: list[Any], whole_tree: bool = True) -> list[SetupError]:
+        """The problems of the loader's node ``records`` (a tree, and nodes the loader left out);
+        ``whole_tree`` False for a SubTree, whose callers may switch its controllers. The tree's
+        scripts run first (``evaluate_scripts``), so a name a script computes is checked too."""
+        evaluate_scripts(records)
+        return check_names(records, self.facts, whole_tree)
+
+
+def evaluate_scripts(records: Iterable[Any]) -> None:
+    """Run each Script of ``records`` once, in the order written, on the blackboard of the tree
+    being validated (a throwaway one: nothing of a run's): ``top_cube := 'cube_' .. top_color``
+    then gives the name a later port reads. A script that reads what only a run writes is skipped."""
+    from . import script as scripting
+    from .script_nodes import Script
+
+    for record in records:
+        if isinstance(record.node, Script):
+            with contextlib.suppress(scripting.ScriptError, ObjectiveError):
+                record.node.script.evaluate(record.node.blackboard)
 
 
 @contextlib.contextmanager
@@ -184,13 +232,13 @@ def started_world(name: str, options: dict[str, Any]) -> Iterator[StartedWorld]:
             context.bus.close()
 
 
-def _controllers(bus: Any) -> frozenset[str] | None:
-    """The controllers an in-process controller manager lists (None when none is served)."""
+def _controller_states(bus: Any) -> dict[str, str] | None:
+    """Each controller an in-process controller manager lists, with its state (None when none is served)."""
     listers = [name for name, srv_type in bus.served().items() if srv_type.__name__ == "ListControllers"]
     if len(listers) != 1:
         return None
     srv_type = bus.served()[listers[0]]
-    return frozenset(c.name for c in bus.call_now(listers[0], srv_type.Request()).controller)
+    return {c.name: c.state for c in bus.call_now(listers[0], srv_type.Request()).controller}
 
 
 def _model_frames(robot: Any) -> Iterable[str]:

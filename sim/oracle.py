@@ -23,8 +23,11 @@ How it answers (``OracleBackend.infer``):
 5. If the grasped cube is seen to have left the gripper while being carried, it re-plans from
    the current state (up to ``max_replans`` times per episode), so a slipped grasp is retried.
 
-It leaves ``policy_actions`` empty: RTC guidance needs a denoising loop, and a scripted
-single-pass policy has none (the guide's "applicability" rule).
+Real-time chunking: each answer also carries its actions as ``policy_actions`` (its action
+space is the request's columns), so an Objective with ``policy_uses_real_time_chunking="true"``
+(the guide's example ports, MoveIt Pro's own Objective) gets the carryover it expects. The oracle
+needs no guidance towards that carryover: every chunk samples the same plan, so a chunk already
+agrees with the one before it (a re-plan after a slipped grasp starts from the observed state).
 
 Motion design. Every segment is a geometric path ``q(s)``, ``s`` in [0, 1], timed by the
 minimum-jerk profile ``s(t) = 10 tau^3 - 15 tau^4 + 6 tau^5`` (zero velocity and acceleration at
@@ -508,7 +511,7 @@ class OracleBackend:
         actions = np.empty((len(times), len(request.joint_names)))
         actions[:, arm_columns] = arm
         actions[:, gripper_column] = gripper
-        return PolicyResponse.chunk(actions, period, None)
+        return PolicyResponse.chunk(actions, period, actions)
 
     def _columns(self, names: Sequence[str]) -> tuple[list[int], int] | str:
         """Request columns of the arm joints (kinematics order) and of the gripper, or an error."""

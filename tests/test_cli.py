@@ -449,3 +449,36 @@ def test_the_synopsis_in_docs_cli_md_is_the_argument_parser_s():
     for option in ("--ros", "--policy SPEC", "--world-option KEY=VALUE", "objective report DIR"):
         assert option in block
 
+
+def test_version_prints_the_installed_version(capsys):
+    from importlib.metadata import version
+
+    with pytest.raises(SystemExit) as exit_info:
+        main(["--version"])
+    assert exit_info.value.code == 0
+    assert capsys.readouterr().out == f"objective {version('objective-runtime')}\n"
+
+
+@pytest.mark.parametrize("command", ["run", "eval", "server"])
+def test_the_policy_option_s_help_lists_every_form_the_spec_parser_takes(command):
+    """``run --help`` listed "oracle (default), replay:FILE or none"; FILE.py:NAME, http(s):// and
+    lerobot:DIR worked too."""
+    from runtime.cli import build_parser
+
+    parser = build_parser()
+    sub = next(a for a in parser._actions if a.dest == "command").choices[command]
+    policy = next(a for a in sub._actions if "--policy" in a.option_strings)
+    help_text = " ".join(policy.help.split())
+    for form in ("oracle", "replay:FILE", "lerobot:DIR", "FILE.py:FACTORY", "MODULE:FACTORY", "http(s)://HOST:PORT", "none"):
+        assert form in help_text, form
+
+
+def test_every_positional_argument_has_help():
+    from runtime.cli import build_parser
+
+    parser = build_parser()
+    for name, sub in next(a for a in parser._actions if a.dest == "command").choices.items():
+        for action in sub._actions:
+            if not action.option_strings:
+                assert action.help, f"objective {name}: {action.dest} has no help"
+

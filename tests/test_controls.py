@@ -284,6 +284,8 @@ def test_log_message_logs_and_records_an_event(make, context, caplog) -> None:
 def test_log_message_rejects_an_unknown_level_at_load(make) -> None:
     with pytest.raises(PortError, match="port 'log_level' must be one of debug, info, warn, error; got 'loud'"):
         make(utility.LogMessage, message="x", log_level="loud")
+    with pytest.raises(PortError, match="port 'log_level' must be one of debug, info, warn, error; got 'warning'"):
+        make(utility.LogMessage, message="x", log_level="warning")  # only the listed names
 
 
 def test_always_success_and_failure(make) -> None:

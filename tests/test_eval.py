@@ -383,3 +383,30 @@ def test_evaluations_started_together_on_one_out_run_each_seed_once(tmp_path, fa
         if code == 2:
             assert "is in use by another evaluation (pid " in err
     assert sorted(line["seed"] for line in episodes(out)) == [0, 1, 2, 3]
+
+
+def test_a_setup_error_before_the_first_tick_stops_the_evaluation_and_the_summary_shows_it(tmp_path, capsys):
+    """Every episode ran to "2 x ERROR 'MoveToWaypoint': SetupError", the message only in episodes.jsonl."""
+    objective = tmp_path / "typo.xml"
+    objective.write_text('<root BTCPP_format="4"><BehaviorTree ID="T"><MoveToWaypoint waypoint_name="home"/></BehaviorTree></root>')
+    out = tmp_path / "eval"
+    code, summary, err = eval_cli(capsys, objective, "--episodes", 6, "--record", "none", "--world", "kinematic", "--out", out)
+    assert code == 1
+    message = f"{objective}:1: MoveToWaypoint: port 'waypoint_name': unknown waypoint 'home' (did you mean 'Home'?)"
+    assert [line["seed"] for line in episodes(out)] == [0]
+    assert summary["stopped"]["seed"] == 0 and summary["stopped"]["reason"].startswith(message)
+    assert summary["complete"] is False
+    lines = err.splitlines()
+    assert lines[1].startswith(f"     1 x ERROR 'MoveToWaypoint': SetupError: {message}"), lines
+    assert lines[2] == ("stopped after seed 0: a mistake of the setup, found before the first tick, that every seed "
+                        "would repeat: fix it, then evaluate again")
+
+
+
+def test_run_and_eval_default_to_the_same_fixed_policy_latency(tmp_path, capsys):
+    """run measured the policy's wall time by default, eval simulated 0.1 s."""
+    assert main(["run", str(STACK), "--world", "kinematic", "--json"]) == 0
+    run_policy = json.loads(capsys.readouterr().out.strip().splitlines()[-1])["execute_policy"]
+    code, summary, _ = eval_cli(capsys, STACK, "--episodes", 1, "--record", "none", "--world", "kinematic", "--out", tmp_path / "e")
+    assert code == 0 and summary["policy_latency"] == "0.1"
+    assert run_policy["latency_p50_s"] == run_policy["latency_max_s"] == pytest.approx(0.1, abs=0.011)  # ticks of 0.01 s

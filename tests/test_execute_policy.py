@@ -271,9 +271,20 @@ def test_a_frame_typo_the_tree_computes_ends_the_run_at_the_check_without_a_retr
     assert run.summary["run_count"] == 1 and len(run.policy.requests) == 4  # one policy run: warmup and 3 chunks
 
 
-def test_silent_camera_is_an_error_naming_the_topic(registry):
+def test_a_camera_topic_the_world_lacks_ends_the_run_before_the_first_tick(registry):
     ports = f'{BASE} image_topics="/scene_camera/color;/thermal_camera/color" image_names="scene;thermal"'
     run = run_policy(registry, ports, ScriptedPolicy(hold()))
+    assert (run.result.status, run.result.ticks) == ("ERROR", 0)
+    assert run.result.reason.startswith("<string>:1: ExecutePolicy: port 'image_topics': no topic '/thermal_camera/color' "
+                                        "(did you mean '/wrist_camera/color'?) (topics: ")
+    assert run.policy.requests == []
+
+
+def test_silent_camera_is_an_error_naming_the_topic(registry):
+    """A topic read from the blackboard is known only when the node runs: it waits 5 s for a frame."""
+    ports = f'{BASE} image_topics="{{cams}}" image_names="scene;thermal"'
+    wrap = "<Sequence><Script code=\"cams := '/scene_camera/color;/thermal_camera/color'\"/>{node}</Sequence>"
+    run = run_policy(registry, ports, ScriptedPolicy(hold()), wrap=wrap)
     assert run.result.status == "ERROR"
     assert run.result.reason == ("<string>:1: ExecutePolicy: not available after 5 s: a frame on camera topic "
                                  "'/thermal_camera/color' (subscribed best-effort, so a reliable or a best-effort "
@@ -301,9 +312,10 @@ def test_cameras_are_read_once_the_rest_is_there_and_feed_the_warmup(registry):
 
 
 def test_missing_service_and_camera_are_both_named_after_five_seconds(registry):
-    ports = f'{BASE} image_topics="/thermal_camera/color;/night_camera/color" image_names="thermal;night"'
+    ports = f'{BASE} image_topics="{{cams}}" image_names="thermal;night"'  # known when the node runs
     reads: list[int] = []
-    wrap = "<Sequence><Script code=\"svc := '/get_action_chunk'\"/>{node}</Sequence>"
+    wrap = ("<Sequence><Script code=\"svc := '/get_action_chunk'; cams := '/thermal_camera/color;/night_camera/color'\"/>"
+            "{node}</Sequence>")
     run = run_policy(registry, ports, None, world_options={"policy": "none"}, before=_counting_camera(reads),
                      wrap=wrap, service="{svc}")
     assert run.result.reason == (
@@ -331,7 +343,7 @@ def test_a_best_effort_camera_is_observed(registry):
 
 
 def test_best_effort_joint_states_never_connect(registry):
-    run = run_policy(registry, BASE, ScriptedPolicy(hold()), prepare=False, world_options={"joint_states_reliable": False})
+    run = run_policy(registry, BASE, ScriptedPolicy(hold()), world_options={"joint_states_reliable": False})
     assert run.result.reason == ("<string>:1: ExecutePolicy: not available after 5 s: joint states on '/joint_states' "
                                  "(the publisher must use reliable QoS)")
 
@@ -558,11 +570,21 @@ def test_a_gripper_goal_the_controller_refuses_fails_the_run_with_the_reason(reg
     assert run.result.sim_seconds < 1.5  # at the first gripper goal, not at the end of the run
 
 
-def test_a_gripper_goal_aborted_by_an_inactive_controller_fails_the_run(registry):
-    """The gripper controller was switched off before the run: it accepts and aborts every goal
-    without moving, and the run notices."""
+def test_a_gripper_controller_switched_off_before_the_node_is_a_setup_error_before_the_first_tick(registry):
     switch = ('<SwitchController activate_controllers="joint_trajectory_admittance_controller" '
               'deactivate_controllers="velocity_force_controller;robotiq_gripper_controller"/>{node}')
+    run = run_policy(registry, f"{BASE} {GRIPPER_PORTS}", ScriptedPolicy(with_gripper(0.4)), prepare=False, wrap=switch)
+    assert (run.result.status, run.result.ticks) == ("ERROR", 0)
+    assert "port 'gripper_command_action_name': action '/robotiq_gripper_controller/gripper_cmd' is served by controller " \
+           "'robotiq_gripper_controller', which is not active when this node runs" in run.result.reason
+
+
+def test_a_gripper_goal_aborted_by_an_inactive_controller_fails_the_run(registry):
+    """The gripper controller was switched off (by names known only when the switch runs): it
+    accepts and aborts every goal without moving, and the run notices."""
+    switch = ("<Script code=\"off := 'velocity_force_controller;robotiq_gripper_controller'\"/>"
+              '<SwitchController activate_controllers="joint_trajectory_admittance_controller" '
+              'deactivate_controllers="{{off}}"/>{node}')
     run = run_policy(registry, f"{BASE} {GRIPPER_PORTS}", ScriptedPolicy(with_gripper(0.4)), prepare=False, wrap=switch)
     assert run.result.status == "FAILURE"
     assert run.result.reason == (

@@ -139,6 +139,7 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
+@pytest.mark.slow  # wall-clock time
 def test_server_down_answers_error_quickly():
     port = _free_port()
     response, elapsed, adapter = call_in_process(f"http://127.0.0.1:{port}", request_msg())
@@ -151,6 +152,7 @@ def test_server_down_answers_error_quickly():
     assert (adapter.errors, adapter.served_chunks) == (1, 0)
 
 
+@pytest.mark.slow  # wall-clock time
 def test_slow_server_answers_error_at_the_timeout(serve):
     gate = threading.Event()
     server = serve(Recorder(gate=gate))
@@ -178,7 +180,6 @@ def test_http_errors_answer_error_with_the_servers_reason(serve, case, reason):
                                            key="not-the-key" if case == "wrong key" else KEY)
     assert response.status == R.ERROR
     assert response.message.startswith(f"the inference server at {server.url}/infer {reason}"), response.message
-    assert elapsed < 1.0
 
 
 def test_server_still_loading_answers_error_503(serve):
@@ -337,7 +338,6 @@ def test_https_with_an_unknown_ca_is_refused(serve, pki):
     assert response.message.startswith(
         f"cannot reach the inference server at {server.url}/infer: TLS certificate verification failed"
     ), response.message
-    assert elapsed < 1.0
 
 
 def test_mutual_tls_needs_the_client_certificate(serve, pki):

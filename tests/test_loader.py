@@ -415,6 +415,24 @@ def test_subtree_model_defaults_and_unknown_ports(registry, tmp_path, empty_lib)
     )
 
 
+
+def test_a_port_typo_suggests_the_port_meant(registry, tmp_path, empty_lib):
+    """Node, SubTree, waypoint and service typos had a "did you mean"; port typos had none."""
+    path = write(tmp_path, """<root BTCPP_format="4">
+  <BehaviorTree ID="T">
+    <Typed x="1" flagg="true"/>
+  </BehaviorTree>
+</root>""")
+    assert error_of(registry, path, empty_lib) == f"{path}:3: Typed: unknown port 'flagg'; did you mean 'flag'? (ports: flag, n, out, x)"
+    subtree = write(tmp_path, """<root BTCPP_format="4" main_tree_to_execute="T">
+  <BehaviorTree ID="T"><SubTree ID="Child" nsteps="3"/></BehaviorTree>
+  <BehaviorTree ID="Child"><AlwaysSuccess/></BehaviorTree>
+  <TreeNodesModel><SubTree ID="Child"><input_port name="n_steps" default="2"/></SubTree></TreeNodesModel>
+</root>""", "subtree.xml")
+    assert error_of(registry, subtree, empty_lib) == (
+        f"{subtree}:2: Child: unknown port 'nsteps'; did you mean 'n_steps'? (ports: n_steps; model at {subtree}:4)")
+
+
 def test_model_default_fills_a_required_behavior_port(registry, tmp_path, empty_lib):
     path = write(tmp_path, """<root BTCPP_format="4">
   <BehaviorTree ID="T"><Typed out="{y}"/></BehaviorTree>
@@ -551,6 +569,41 @@ def test_validate_checks_every_tree_of_a_library_file(registry, tmp_path, empty_
         validate(path, registry, objectives_dir=empty_lib).trees_or_raise()
     assert str(info.value) == f"{path}:3: Typed: missing required port 'x'"
     assert [t.tree_id for t in validate(path, registry, tree_id="Good", objectives_dir=empty_lib).trees] == ["Good"]
+
+
+REMAPPED_TO_NOTHING = """<root BTCPP_format="4" main_tree_to_execute="Main">
+  <BehaviorTree ID="Main"><SubTree ID="Child" x="{target}"/></BehaviorTree>
+  <BehaviorTree ID="Child"><Typed x="{x}"/></BehaviorTree>
+</root>"""
+NOT_SHARED = """<root BTCPP_format="4" main_tree_to_execute="Main">
+  <BehaviorTree ID="Main"><Sequence><Script code="x := 2"/><SubTree ID="Child"/></Sequence></BehaviorTree>
+  <BehaviorTree ID="Child"><Typed x="{x}"/></BehaviorTree>
+</root>"""
+UNSET_READS = [
+    (REMAPPED_TO_NOTHING, "port 'x' reads blackboard entry 'x', remapped to the caller's 'target', which is not set"),
+    (NOT_SHARED, "port 'x' reads blackboard entry 'x', which is not set; a caller has 'x', but this SubTree's "
+                 "blackboard is its own: pass it as a port (x=\"{x}\") or set _autoremap=\"true\" on the SubTree"),
+]
+
+
+@pytest.mark.parametrize("xml, reason", UNSET_READS, ids=["remapped-to-an-unset-entry", "no-autoremap"])
+def test_a_subtree_reading_an_unset_entry_names_the_caller_s_key(registry, tmp_path, empty_lib, xml, reason):
+    """It named the SubTree's key ('x', which the caller never wrote) and gave no _autoremap hint."""
+    path = write(tmp_path, xml)
+    tree = load(registry, path, empty_lib)
+    with pytest.raises(PortError) as info:
+        run_to_end(tree)
+    assert str(info.value).endswith(f"{path}:3: Typed: {reason}"), str(info.value)
+
+
+@pytest.mark.parametrize("xml, reason", UNSET_READS, ids=["remapped-to-an-unset-entry", "no-autoremap"])
+def test_validate_finds_a_subtree_reading_an_entry_nothing_writes(registry, tmp_path, empty_lib, xml, reason):
+    path = write(tmp_path, xml)
+    errors = validate(path, registry, objectives_dir=empty_lib).errors
+    assert [str(e) for e in errors] == [f"{path}:2: SubTree 'Child': {path}:3: Typed: {reason}"]
+    fixed = (xml.replace('<SubTree ID="Child" x="{target}"/>', '<Sequence><Typed x="1" out="{target}"/><SubTree ID="Child" x="{target}"/></Sequence>')
+             .replace('<SubTree ID="Child"/>', '<SubTree ID="Child" _autoremap="true"/>'))
+    assert validate(write(tmp_path, fixed, "fixed.xml"), registry, objectives_dir=empty_lib).errors == []
 
 
 def test_errors_in_an_included_file_name_that_file(registry, tmp_path, empty_lib):

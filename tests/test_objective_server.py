@@ -201,8 +201,11 @@ DECLARED = "its ports: greeting, seconds"
 @pytest.mark.parametrize("name, ports, board, reason", [
     ("Nope", [], {}, "no Objective named 'Nope' in {lib} (Objectives: Long Wait, Wait and Greet)"),
     ("broken", [], {}, "Objective 'broken' cannot run: "),
+    ("Wait and Greet", [("", "greting", "x")], {},
+     f"port override greting='x': 'greting' is not a port Objective 'Wait and Greet' declares; did you mean "
+     f"'greeting'? ({DECLARED}); overrides reach only the Objective's own ports"),
     ("Wait and Greet", [("", "secs", "1")], {},
-     f"port override secs='1': 'secs' is not a port Objective 'Wait and Greet' declares ({DECLARED}); "
+     f"port override secs='1': 'secs' is not a port Objective 'Wait and Greet' declares; did you mean 'seconds'? ({DECLARED}); "
      "overrides reach only the Objective's own ports"),
     # a port of a node inside the Objective is out of reach: a client cannot rewrite a Script
     # or widen a collision rule
@@ -420,3 +423,89 @@ def test_the_middleware_here_has_no_dds_security(ros_env, tmp_path):
     done = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=60)
     assert done.returncode != 0
     assert "This Fast DDS version doesn't have the security libraries" in done.stderr, done.stderr
+
+
+HOME = """<root BTCPP_format="4" main_tree_to_execute="My Home">
+  <BehaviorTree ID="My Home"><SubTree ID="Move to Waypoint" waypoint_name="Home"/></BehaviorTree>
+</root>"""
+
+
+def test_an_objective_finds_the_shipped_subtree_library_as_run_does(serve, client, tmp_path):
+    """It ended ERROR "undefined SubTree 'Move to Waypoint' (searched DIR/my_home.xml, then DIR/*.xml)"."""
+    (tmp_path / "my_home.xml").write_text(HOME)
+    serve(tmp_path, world="kinematic")
+    c = client()
+    assert [o.error for o in c.call(c.list, ListObjectives.Request()).objectives] == [""]
+    status, result = c.run("My Home")
+    assert (status, result.status, result.reason) == (GoalStatus.STATUS_SUCCEEDED, "SUCCESS", "")
+
+
+def test_the_list_gives_a_file_s_load_error(serve, client, tmp_path):
+    """A missing required port was listed with an empty error; the run then ended ERROR."""
+    (tmp_path / "gripper.xml").write_text(
+        '<root BTCPP_format="4"><BehaviorTree ID="Grip"><MoveGripperAction/></BehaviorTree></root>')
+    serve(tmp_path)
+    c = client()
+    (listed,) = c.call(c.list, ListObjectives.Request()).objectives
+    assert (listed.name, listed.error) == ("Grip", f"{tmp_path}/gripper.xml:1: MoveGripperAction: missing required port 'position'")
+
+
+# -- objective client: the server driven from the project's own CLI -----------------------------------
+def client_cli(capsys, *argv: str) -> tuple[int, str, str]:
+    from runtime.cli import main
+
+    code = main(["client", *argv])
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def test_the_client_lists_starts_with_overrides_and_cancels(serve, library, capsys):
+    serve(library)
+    code, out, _ = client_cli(capsys, "list")
+    assert code == 0
+    lines = out.splitlines()
+    assert lines[0].startswith("broken  (broken.xml)") and lines[1].startswith("    error: ")
+    assert lines[2:] == ["Long Wait  (more/long.xml)",
+                         "Wait and Greet  (wait.xml): Waits, then copies the greeting",
+                         "    input_port greeting (std::string) = hello",
+                         "    input_port seconds (double) = 0.2",
+                         "running: nothing"]
+    code, out, err = client_cli(capsys, "start", "Wait and Greet", "--override", "seconds=0.5",
+                                "--set", "greeting=bonjour", "--json")
+    assert code == 0, err
+    client_lines = [line for line in err.splitlines() if not line.startswith("[INFO]")]  # the server's log: same process
+    assert client_lines == ["    0.01 s  running: wait (Wait)", "SUCCESS after 0.51 s (51 ticks)"]
+    summary = json.loads(out.splitlines()[-1])
+    assert summary["blackboard"] == {"greeting": "bonjour", "seconds": "0.5", "said": "bonjour"}
+    code, _, err = client_cli(capsys, "start", "Wait and Greet", "--override", "wait.seconds=1")
+    assert code == 2
+    assert err.strip().endswith("'wait' is not Objective 'Wait and Greet'; overrides reach only the Objective's own "
+                                "ports, never a node's inside it (its ports: greeting, seconds)")
+    code, _, err = client_cli(capsys, "cancel")
+    assert (code, err.splitlines()[-1]) == (1, "no Objective is running")
+
+
+def test_a_client_s_sigint_cancels_its_goal_and_exits_130(serve, library):
+    serve(library, realtime=True)
+    proc = subprocess.Popen([sys.executable, "-m", "runtime.cli", "client", "start", "Long Wait"], cwd=REPO,
+                            env=dict(os.environ), stderr=subprocess.PIPE, text=True)
+    c = Client()
+    try:
+        wait_for(lambda: c.call(c.list, ListObjectives.Request()).running == "Long Wait", what="the run to start")
+        proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate(timeout=30)
+    finally:
+        c.close()
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 130, err
+    assert err.splitlines()[-1].startswith("INTERRUPTED after ")
+    assert "cancelled by a client of /do_objective" in err and "Traceback" not in err
+
+
+def test_a_client_without_a_server_says_how_to_start_one(ros_env, capsys):
+    code, _, err = client_cli(capsys, "--wait", "0.5", "list")
+    assert code == 2
+    assert err == ("error: no Objective server answered on /list_objectives within 0.5 s (start one with "
+                   f"`objective server DIR`, on the same ROS_DOMAIN_ID: {os.environ['ROS_DOMAIN_ID']} here)\n")
+

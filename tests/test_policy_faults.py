@@ -88,6 +88,8 @@ class Outcome:
     summary: dict[str, Any] = field(default_factory=dict)
     first_window_end: float = 0.0
     """Clock time at which the first executed chunk's window ends."""
+    rejected: list[dict[str, Any]] = field(default_factory=list)
+    """The data of each ``chunk_rejected`` event."""
 
     def assert_stopped_cleanly(self) -> None:
         controller = self.world.controllers["joint_trajectory_admittance_controller"]
@@ -96,9 +98,11 @@ class Outcome:
 
 
 def run_with_faults(registry: Registry, handler: Callable[[Any], Any] | None, latency: Any,
-                    before: Callable[[Any, KinematicWorld], None] | None = None, ports: str = "") -> Outcome:
+                    before: Callable[[Any, KinematicWorld], None] | None = None, ports: str = "",
+                    setup_error: bool = False) -> Outcome:
     """ExecutePolicy (``BASE`` and ``ports``) under ForceSuccess, then a 1 s Wait so the stop
-    after a failure can be seen."""
+    after a failure can be seen; with ``setup_error`` the run must end ERROR instead (no
+    decorator catches a setup error)."""
     node = (f'<ExecutePolicy policy_service_name="{SERVICE}" joint_group_name="manipulator" {BASE} {ports} '
             'status_message="{message}"/>')
     xml = ('<root BTCPP_format="4"><BehaviorTree ID="T"><Sequence>'
@@ -115,7 +119,7 @@ def run_with_faults(registry: Registry, handler: Callable[[Any], Any] | None, la
     if before is not None:
         before(context, world)
     result = run_tree(loaded, context, options, world=world)
-    assert result.status == "SUCCESS", result.reason  # the Wait after ForceSuccess ran
+    assert result.status == ("ERROR" if setup_error else "SUCCESS"), result.reason  # the Wait after ForceSuccess ran
     finished = context.events.of_kind("policy_finished")
     assert len(finished) == 1
     return Outcome(
@@ -126,6 +130,7 @@ def run_with_faults(registry: Registry, handler: Callable[[Any], Any] | None, la
         world=world,
         summary=result.extra.get("execute_policy", {}),
         first_window_end=next((e.data["seam_time"] + e.data["steps"] * 0.1 for e in context.events.of_kind("chunk_executed")), 0.0),
+        rejected=[e.data for e in context.events.of_kind("chunk_rejected")],
     )
 
 
@@ -361,7 +366,7 @@ def test_rtc_without_a_policy_action_chunk_warns_once(registry):
     assert [w for w in out.summary["warnings"] if "policy_action_chunk" in w] == [
         "policy_uses_real_time_chunking is true but chunk 1 carries no policy_action_chunk: the policy gets no "
         "previous_action_chunk back, so real-time chunking does nothing (send it, or set policy_uses_real_time_chunking=\"false\" "
-        "for a policy without a denoising loop, such as the scripted oracle)"
+        "for a policy without a denoising loop)"
     ]
 
 
@@ -400,6 +405,11 @@ def test_a_chunk_a_million_radians_away_is_reported_by_the_value_the_policy_sent
     assert out.message == (f"chunk 2 rejected: step 0: joint shoulder_pan_joint position {sent[0]:.4f} rad exceeds the "
                            "limit 6.2832 rad (policy step 19 of the run)")
     out.assert_stopped_cleanly()
+    # the event carries the rejected chunk for the report to plot, on the clock from its request step
+    (rejected,) = out.rejected
+    assert rejected["joints"][0] == "shoulder_pan_joint" and rejected["positions"][0][0] == pytest.approx(sent[0])
+    assert np.diff(rejected["times"]) == pytest.approx(np.full(len(rejected["times"]) - 1, 0.1))
+    assert rejected["times"][0] < out.finished_at  # its step 0 was due before the run stopped on it
 
 
 # -- the HTTP inference server behind the adapter --------------------------------------------
@@ -476,8 +486,8 @@ def test_server_killed_mid_run_fails_with_the_adapter_reason(registry, servers):
 
 def test_wrong_key_is_a_401_error_at_the_warmup(registry, servers):
     server = servers(ChunkBackend())
-    out = run_with_faults(registry, None, None, before=serve_adapter(f"{server.url}/infer", key="wrong-key"))
-    assert out.status == "FAILURE"
+    out = run_with_faults(registry, None, None, before=serve_adapter(f"{server.url}/infer", key="wrong-key"), setup_error=True)
+    assert out.status == "ERROR"
     assert out.message.startswith(f"the policy answered ERROR for the warmup: the inference server at {server.url}")
     assert "answered 401" in out.message
     out.assert_stopped_cleanly()
@@ -487,10 +497,10 @@ def test_server_still_loading_answers_503_and_the_run_fails_cleanly(registry, se
     release = threading.Event()
     server = servers(ChunkBackend(release), wait=False)
     try:
-        out = run_with_faults(registry, None, None, before=serve_adapter(f"{server.url}/infer"))
+        out = run_with_faults(registry, None, None, before=serve_adapter(f"{server.url}/infer"), setup_error=True)
     finally:
         release.set()
-    assert out.status == "FAILURE"
+    assert out.status == "ERROR"
     assert "answered 503" in out.message and "still loading" in out.message
     out.assert_stopped_cleanly()
 
@@ -515,10 +525,10 @@ def test_malformed_json_from_the_server_is_an_error_with_the_reason(registry):
     thread.start()
     try:
         url = f"http://127.0.0.1:{httpd.server_address[1]}"
-        out = run_with_faults(registry, None, None, before=serve_adapter(f"{url}/infer"))
+        out = run_with_faults(registry, None, None, before=serve_adapter(f"{url}/infer"), setup_error=True)
     finally:
         httpd.shutdown()
         httpd.server_close()
-    assert out.status == "FAILURE"
+    assert out.status == "ERROR"
     assert out.message.startswith(f"the policy answered ERROR for the warmup: the inference server at {url}/infer sent a malformed answer: response body is not valid JSON")
     out.assert_stopped_cleanly()

@@ -195,19 +195,19 @@ def test_under_cpu_load_a_realtime_vla_sim_run_keeps_its_velocity_and_force_boun
 
 
 # -- camera frames off the tick's thread (ROS 2) ---------------------------------------------------
-class _SlowCell:
-    """Renders on whichever thread asks, in ``render_s`` of wall time; records where and what."""
+class _GatedCell:
+    """Renders on whichever thread asks, once ``finish_render`` is set; records where and what."""
 
-    def __init__(self, render_s: float) -> None:
-        self.render_s, self.rendered = render_s, []
-        self.released = threading.Event()
+    def __init__(self) -> None:
+        self.rendered: list = []
+        self.finish_render, self.released = threading.Event(), threading.Event()
 
     def snapshot(self) -> float:
         return time.monotonic()
 
     def render_snapshot(self, snapshot: float, camera: str) -> np.ndarray:
         self.rendered.append((threading.current_thread(), camera, snapshot))
-        time.sleep(self.render_s)
+        assert self.finish_render.wait(10)
         return np.zeros((2, 2, 3), dtype=np.uint8)
 
     def close_snapshot_renderer(self) -> None:
@@ -228,15 +228,15 @@ class _Publisher:
 def test_camera_frames_are_rendered_off_the_owners_thread_at_most_at_their_rate():
     from sim.camera_thread import CameraThread
 
-    cell = _SlowCell(render_s=0.05)
+    cell = _GatedCell()
     publishers = {"scene": _Publisher(1), "wrist": _Publisher(0)}
     frames = CameraThread(cell, publishers, rate_hz=10.0, to_image=lambda camera, pixels, t: (camera, t))
     try:
-        started = time.monotonic()
-        frames.offer(1.0)  # due: handed over at once, the owner does not wait for the render
-        assert time.monotonic() - started < 0.04
+        frames.offer(1.0)  # due: handed over, and offer returns while the render cannot finish
         frames.offer(1.05)  # not due before 1.1 s
         frames.offer(1.1)  # due, but the thread still renders the first set: skipped, not queued
+        assert frames.sets_published == 0
+        cell.finish_render.set()
         deadline = time.monotonic() + 5.0
         while frames.sets_published < 1 and time.monotonic() < deadline:
             time.sleep(0.01)
@@ -258,6 +258,7 @@ SLOW_POLICY_XML = (
 )
 
 
+@pytest.mark.slow  # wall-clock time: a tick's work against the policy's 0.5 s
 @pytest.mark.timeout(90)
 @pytest.mark.parametrize("setup", ["realtime", pytest.param("ros", marks=pytest.mark.ros)])
 def test_a_slow_in_process_policy_answers_late_without_holding_a_tick(registry, setup, monkeypatch):
@@ -294,7 +295,6 @@ def test_a_stop_during_a_long_inference_ends_the_run_without_waiting_for_the_ans
     from runtime.interrupt import StopRequest
     from runtime.loader import load_tree
     from runtime.runner import make_context, run_tree
-    from runtime.service_worker import STOP_WAIT_S
     from tests.fakes import FakeBackend
 
     model_done = threading.Event()  # never set while the run lasts: the model answers after 10 s
@@ -303,26 +303,24 @@ def test_a_stop_during_a_long_inference_ends_the_run_without_waiting_for_the_ans
     context = make_context(options)
     PolicyAdapter(backend).serve(context.bus)
     stop = StopRequest()
-    stopped_at: list[float] = []
 
     def stop_once_inferring() -> None:
         while not backend.requests:
             time.sleep(0.01)
         time.sleep(0.2)
-        stopped_at.append(time.monotonic())
         stop.cancel("a test")
 
     stopper = threading.Thread(target=stop_once_inferring, daemon=True)
     stopper.start()
     try:
         result = run_tree(load_tree(SLOW_POLICY_XML, registry, context), context, options, stop=stop)
-        returned_at = time.monotonic()
+        inferring = [t.name for t in threading.enumerate() if t.name.startswith("service ")]
     finally:
         model_done.set()
     stopper.join(5)
     assert result.status == "INTERRUPTED" and "a test" in result.reason, result.reason
     assert len(backend.requests) == 1
-    assert returned_at - stopped_at[0] < STOP_WAIT_S + 2.0  # not the model's ten seconds
+    assert inferring == ["service /get_action_chunk"]  # the run returned while the model still inferred
 
 
 @pytest.mark.parametrize("latency_s, ready_s", [(0.3, 0.3), (0.05, 0.1)])

@@ -89,7 +89,7 @@ def test_a_worker_that_stops_reading_is_lost_within_the_stall_timeout():
     started = time.monotonic()
     with pytest.raises(WorkerLost, match="read nothing for 0 s"):
         write_all(write_end, bytes(4 << 20), stall_timeout_s=0.2)  # more than any pipe holds
-    assert 0.2 <= time.monotonic() - started < 5
+    assert time.monotonic() - started >= 0.2  # it waited the stall timeout out
     os.close(read_end)
     with pytest.raises(WorkerLost, match="stopped reading \\(it exited\\)"):
         write_all(write_end, b"x")

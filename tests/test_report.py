@@ -379,3 +379,45 @@ def test_a_chunk_of_anything_but_records_is_refused_at_its_first_byte(tmp_path, 
     zstd_chunk_file(rec / "run.mcap", 8 << 20, 8 << 20)  # 8 MiB of zeros: opcode 0, nine bytes at a time
     assert main(["report", str(rec)]) == 2
     assert f"chunk 1 holds opcode 0x00 at byte 0 of 8388608: not a recording's chunk" in capsys.readouterr().err
+
+
+# -- a failed run: the rejected chunk, its whole reason, the time axis ending with the run ---------
+def _failed_recording() -> Recording:
+    recording = Recording(Path("."))
+    recording.goals = [goal(0.0, 0.0, 11, 1.0)]  # commanded until 5 s; the run stopped at 2 s
+    recording.summary = {"status": "FAILURE", "sim_seconds": 2.0}
+    reason = ("chunk 2 rejected: densified step 0 (t=1.270 s): joint j acceleration -25.0947 rad/s^2 exceeds the limit "
+              "-5.0000 rad/s^2 (policy step 22 of the run); the arm was stopped and the goal cancelled before it moved there")
+    recording.events = [
+        {"kind": "chunk_requested", "time": 1.0, "source": "p", "data": {}},
+        {"kind": "chunk_rejected", "time": 1.2, "source": "p",
+         "data": {"reason": reason, "joints": ["j"], "times": [1.0, 1.1, 1.2], "positions": [[1.0], [1.5], [3.0]]}},
+    ]
+    return recording
+
+
+def test_a_failed_run_s_time_axis_and_commanded_line_stop_where_the_run_ended():
+    recording = _failed_recording()
+    assert plots._time_span(recording, None, plots.run_end_s(recording))[1] == pytest.approx(2.02)  # 1 % padding, not 5 s
+    assert commanded_series(recording.goals, "j", end_s=2.0).times.max() == 2.0
+
+
+def test_the_joint_plot_draws_the_rejected_chunk(tmp_path):
+    recording = _failed_recording()
+    chunks = plots.rejected_chunks(recording, "j")
+    assert [c.position.tolist() for c in chunks] == [[1.0, 1.5, 3.0]]
+    svg = plots.joints_plot(recording, tmp_path / "joints.svg").read_text()
+    assert svg.count(f'stroke="{plots.REJECTED_COLOR}"') >= 3  # position, velocity and the legend
+    assert "rejected chunk" in svg
+
+
+def test_the_rejection_label_is_wrapped_whole_inside_the_plot(tmp_path):
+    recording = _failed_recording()
+    recording.events.append({"kind": "chunk_executed", "time": 0.9, "source": "p",
+                             "data": {"chunk": 1, "latency": 0.1, "seam_time": 1.0}})
+    svg = ET.parse(plots.latency_plot(recording, tmp_path / "latency.svg")).getroot()
+    lines = [t.text for t in svg.iter(f"{SVG}text") if t.get("fill") == plots.STALL_COLOR]
+    reason = recording.of_kind("chunk_rejected")[0]["data"]["reason"]
+    assert " ".join(lines) == f"rejected: {reason}"
+    usable = plots.LATENCY_WIDTH_PX - 70 - 15 - 12
+    assert all(len(line) * plots.CHAR_WIDTH_EM * 10 <= usable for line in lines)

@@ -334,9 +334,9 @@ def test_a_cancel_sent_just_before_close_is_served_by_the_node_s_own_server(buse
     bus.close()
     assert gripper.cancel_requests == 1 and gripper.goals[0].is_cancel_requested
     assert cancel.done() and cancel.result() is True
-    assert time.monotonic() - start < 1.0
 
 
+@pytest.mark.slow  # wall-clock time
 def test_close_waits_for_an_unanswered_cancel_only_so_long(buses, names, monkeypatch):
     """A server that never serves the cancel (its owner stopped spinning) delays close() by at
     most CANCEL_DELIVERY_S."""
@@ -354,6 +354,7 @@ def test_close_waits_for_an_unanswered_cancel_only_so_long(buses, names, monkeyp
     assert 0.5 <= elapsed < 1.5
 
 
+@pytest.mark.slow  # wall-clock time
 def test_close_is_idempotent_and_releases_waiting_goals(buses, names):
     server_bus, client_bus, gripper, client = _gripper_pair(buses, names)
     sent = client.send_goal_async(GripperCommand.Goal(command=Command(position=0.0, max_effort=10.0)))

@@ -70,6 +70,15 @@ def test_fallback_blames_the_last_child_it_tried(run):
     assert (result.failing_node, result.reason) == ("second", "b")
 
 
+
+def test_a_fallback_ending_in_always_failure_blames_the_check_that_failed_inside_it(run):
+    """It blamed "AlwaysFailure ... no reason given"."""
+    result, _, _ = run("""<Fallback>
+  <Sequence><FailWith name="stack check" reason="not stacked"/></Sequence>
+  <AlwaysFailure/>
+</Fallback>""")
+    assert (result.status, result.failing_node, result.reason) == ("FAILURE", "stack check", "not stacked")
+
 def test_a_forgiven_failure_is_not_blamed(run):
     result, _, _ = run("""<Sequence>
   <ForceSuccess><FailWith name="forgiven" reason="no matter"/></ForceSuccess>

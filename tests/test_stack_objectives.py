@@ -30,6 +30,7 @@ def test_stack_cubes_succeeds_and_reports_the_policy_and_the_check(capsys):
     assert policy["chunks"] == 15 and policy["latency_max_s"] == pytest.approx(0.2, abs=0.011)
     assert summary["stack_check"]["stacked"] is True
     assert summary["blackboard"]["policy_message"] == "executed 300 steps"
+    assert policy["warnings"] == []  # the Objective's real-time chunking is used by the embedded policy
 
 
 @pytest.mark.parametrize("seed", [0, 1])
@@ -158,3 +159,45 @@ def test_a_policy_driving_the_gripper_into_the_table_is_rejected_before_it_moves
     assert (result.status, result.failing_node) == ("FAILURE", "ExecutePolicy"), result.reason
     assert re.match(r"chunk 1 rejected: densified step \d+ \(t=[0-9.]+ s\): world collision gripper_\w+ vs table: ", result.reason), result.reason
     assert result.extra["world"]["peak_force_n"] < 10.0  # the first chunk never moved the arm: nothing was touched
+
+
+# -- a mistake of the setup is an ERROR: no Retry repeats it ---------------------------------------
+def _retried(tmp_path: Path, replace: dict[str, str]) -> Path:
+    """objectives/stack_cubes.xml with its ExecutePolicy inside RetryUntilSuccessful (3 attempts) and ``replace`` applied."""
+    text = (OBJECTIVES / "stack_cubes.xml").read_text()
+    text = text.replace("<ExecutePolicy", '<RetryUntilSuccessful num_attempts="3"><ExecutePolicy')
+    text = text.replace('status_message="{policy_message}"/>', 'status_message="{policy_message}"/></RetryUntilSuccessful>')
+    for old, new in replace.items():
+        assert old in text
+        text = text.replace(old, new)
+    path = tmp_path / "retried.xml"
+    path.write_text(text)
+    return path
+
+
+@pytest.mark.parametrize("replace, reason", [
+    ({'prompt="stack the blue cube on the green cube"': 'prompt=""'},
+     "the policy answered ERROR for the warmup: cannot read the prompt ''"),
+    ({'gripper_command_action_name="/robotiq_gripper_controller/gripper_cmd"': "", 'gripper_joint_name="robotiq_85_left_knuckle_joint"': ""},
+     "the policy answered ERROR for the warmup: oracle needs exactly one gripper joint after the arm joints"),
+], ids=["empty-prompt", "oracle-without-gripper"])
+def test_a_policy_refusing_the_warmup_is_a_setup_error_no_retry_repeats(capsys, tmp_path, replace, reason):
+    """Both ended FAILURE, and a Retry asked the policy the same three times."""
+    code, summary = run_cli(capsys, str(_retried(tmp_path, replace)), "--world", "kinematic")
+    assert (code, summary["status"]) == (2, "ERROR")
+    assert reason in summary["reason"], summary["reason"]
+    assert summary["execute_policy"]["run_count"] == 1
+
+
+def test_a_goal_to_a_controller_that_is_not_running_is_a_setup_error(capsys, tmp_path):
+    """The controller's name comes from the blackboard, so only the goal finds it inactive."""
+    path = tmp_path / "inactive.xml"
+    path.write_text(
+        '<root BTCPP_format="4"><BehaviorTree ID="T"><Sequence>'
+        "<Script code=\"ctl := '/joint_trajectory_admittance_controller/follow_joint_trajectory'\"/>"
+        '<RetryUntilSuccessful num_attempts="3"><MoveToWaypoint waypoint_name="Home" controller_action_name="{ctl}"/></RetryUntilSuccessful>'
+        "</Sequence></BehaviorTree></root>")
+    code, summary = run_cli(capsys, str(path), "--world", "kinematic")
+    assert (code, summary["status"]) == (2, "ERROR")
+    assert summary["reason"].endswith("MoveToWaypoint: controller '/joint_trajectory_admittance_controller/follow_joint_trajectory' "
+                                      "refused the motion: controller joint_trajectory_admittance_controller is not active"), summary["reason"]

@@ -112,17 +112,15 @@ def test_validate_with_a_world_reports_every_name_it_lacks(registry, tmp_path, c
                                 "'cube_purple' (frames: cube_blue, cube_green, cube_red, table, world, ")
     assert errors[2] == (f"error: {path}:6: ExecutePolicy: image_topics has 2 entries and image_names has 1; "
                          "they must be index-aligned")
-    assert len(errors) == 3  # the broken ExecutePolicy is left out; fix it and its names are checked:
-    path.write_text(path.read_text().replace('image_names="scene"', 'image_names="scene;wrist"'))
-    code, errors, _ = validate_cli(capsys, str(path), "--world", "kinematic")
-    assert code == 2 and errors[2:4] == [
+    # the ExecutePolicy whose image lists disagree still has its names checked
+    assert errors[3:5] == [
         f"error: {path}:6: ExecutePolicy: port 'joint_group_name': unknown joint group 'manipulatr' "
         "(did you mean 'manipulator'?) (joint groups: gripper, manipulator)",
         f"error: {path}:6: ExecutePolicy: port 'controller_action_name': action '/robotiq_gripper_controller/gripper_cmd' "
         "is a control_msgs/action/GripperCommand, not a moveit_pro_controllers_msgs/action/FollowJointTrajectoryWithAdmittance "
         "or a control_msgs/action/FollowJointTrajectory",
     ]
-    assert len(errors) == 5 and errors[4].startswith(
+    assert len(errors) == 6 and errors[5].startswith(
         f"error: {path}:6: ExecutePolicy: port 'gripper_joint_name': unknown joint 'robotiq_85_left_knucle_joint' "
         "(did you mean 'robotiq_85_left_knuckle_joint'?) (joints: elbow_joint, ")
 
@@ -137,3 +135,53 @@ def test_a_world_option_it_refuses_is_bad_input(registry, tmp_path, capsys):
     path = write(tmp_path, "<AlwaysSuccess/>")
     code, errors, _ = validate_cli(capsys, str(path), "--world", "kinematic", "--world-option", "image_size=big")
     assert (code, errors) == (2, ["error: world 'kinematic': option 'image_size' must be a whole number, got 'big'"])
+
+
+# -- validate --world checks at least what run checks, and every error of a node -----------------
+POLICY = ('<ExecutePolicy policy_service_name="/get_action_chunk" joint_group_name="{group}" total_action_steps="20" '
+          'image_topics="{topics}" image_names="{names}"/>')
+SWITCH = ('<SwitchController activate_controllers="joint_trajectory_admittance_controller" '
+          'deactivate_controllers="velocity_force_controller"/>')
+NOT_ACTIVE = ("port 'controller_action_name': action '/joint_trajectory_admittance_controller/follow_joint_trajectory' is "
+              "served by controller 'joint_trajectory_admittance_controller', which is not active when this node runs: "
+              "activate it before (SwitchController activate_controllers=\"joint_trajectory_admittance_controller\"; "
+              "active: force_torque_sensor_broadcaster, robotiq_gripper_controller, velocity_force_controller)")
+
+
+def test_validate_world_reports_every_error_of_a_node(tmp_path, capsys):
+    """A wrong joint_group_name and mismatched image_names showed only the latter."""
+    path = write(tmp_path, f"<Sequence>{SWITCH}{POLICY.format(group='manipulatr', topics='/scene_camera/color;/wrist_camera/color', names='scene')}</Sequence>")
+    code, errors, _ = validate_cli(capsys, str(path), "--world", "kinematic")
+    assert code == 2
+    assert errors == [
+        f"error: {path}:3: ExecutePolicy: image_topics has 2 entries and image_names has 1; they must be index-aligned",
+        f"error: {path}:3: ExecutePolicy: port 'joint_group_name': unknown joint group 'manipulatr' (did you mean "
+        "'manipulator'?) (joint groups: gripper, manipulator)",
+    ]
+
+
+@pytest.mark.parametrize("body, problem", [
+    (f"<Sequence>{SWITCH}{POLICY.format(group='manipulator', topics='/thermal_camera/color', names='thermal')}</Sequence>",
+     "port 'image_topics': no topic '/thermal_camera/color'"),
+    (POLICY.format(group="manipulator", topics="", names=""), NOT_ACTIVE),
+], ids=["camera-topic", "no-switch-controller"])
+def test_validate_world_and_run_refuse_what_failed_seconds_into_the_run(tmp_path, capsys, body, problem):
+    """A missing camera topic failed 5 s into the run; an ExecutePolicy without a SwitchController
+    before it failed with "controller ... is not active". Both validated."""
+    path = write(tmp_path, body)
+    code, errors, _ = validate_cli(capsys, str(path), "--world", "kinematic")
+    assert code == 2 and len(errors) == 1 and errors[0].startswith(f"error: {path}:3: ExecutePolicy: {problem}"), errors
+    code = main(["run", str(path), "--world", "kinematic", "--json"])
+    summary = __import__("json").loads(capsys.readouterr().out.splitlines()[-1])
+    assert (code, summary["status"], summary["ticks"]) == (2, "ERROR", 0)  # before the first tick
+    assert summary["reason"].startswith(f"{path}:3: ExecutePolicy: {problem}")
+
+
+def test_validate_world_checks_a_name_a_script_computes(tmp_path, capsys):
+    """top_color="purple" in the shipped check validated; run refused it in its first tick."""
+    path = write(tmp_path, '<SubTree ID="Check if One Cube Is on Another" top_color="purple" bottom_color="green"/>')
+    code, errors, _ = validate_cli(capsys, str(path), "--world", "kinematic")
+    assert code == 2
+    assert errors[0].startswith(f"error: {path}:3: SubTree 'Check if One Cube Is on Another': ")
+    assert "CheckObjectStacked 'top cube on bottom cube': port 'top_object_name': unknown frame 'cube_purple'" in errors[0]
+    assert len(errors) == 1

@@ -39,8 +39,14 @@ def argument_usage(action: argparse.Action) -> str:
 
 
 def command_usage(name: str, parser: argparse.ArgumentParser) -> str:
-    """``objective NAME`` and its arguments (positionals first), wrapped at ``WIDTH`` columns."""
+    """``objective NAME`` and its arguments (positionals first), wrapped at ``WIDTH`` columns; a
+    command with actions of its own (``objective client list|start|cancel``) gets a line per action."""
     actions = [a for a in parser._actions if not isinstance(a, argparse._HelpAction) and a.help != argparse.SUPPRESS]
+    nested = next((a for a in actions if isinstance(a, argparse._SubParsersAction)), None)
+    if nested is not None:
+        options = " ".join(argument_usage(a) for a in actions if a.option_strings)
+        return "\n".join(command_usage(f"{name} {options} {action}".replace("  ", " "), sub)
+                         for action, sub in nested.choices.items())
     parts = [argument_usage(a) for a in actions if not a.option_strings] + [argument_usage(a) for a in actions if a.option_strings]
     head = f"objective {name} "
     lines, line = [], head
@@ -56,7 +62,9 @@ def command_usage(name: str, parser: argparse.ArgumentParser) -> str:
 def synopsis() -> str:
     parser = build_parser()
     commands = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
-    return "\n".join(command_usage(name, sub) for name, sub in commands.choices.items())
+    own = [max(a.option_strings, key=len) for a in parser._actions if isinstance(a, argparse._VersionAction)]
+    return "\n".join([*(f"objective {flag}" for flag in own),
+                      *(command_usage(name, sub) for name, sub in commands.choices.items())])
 
 
 if __name__ == "__main__":

@@ -149,6 +149,7 @@ class ExecutePolicy(Behavior):
         self.rules: Any = None  # the safety rules of the run, taken when the robot is there
         self.warned_period = False
         self.warned_no_policy_chunk = False
+        self.received: tuple[Chunk, int] | None = None  # the newest chunk read, with its request step
         self.warned_sizing = SizingRisk.COVERED  # the worst sizing risk warned about so far
         try:
             self.config = self._read_config()
@@ -272,7 +273,9 @@ class ExecutePolicy(Behavior):
                                 FailureKind.POLICY_ERROR)
         response = answer.response
         if response.status == GetActionChunk.Response.ERROR or response.status == GetActionChunk.Response.UNKNOWN:
-            return self._finish(Status.FAILURE, self._status_reason(response, "warmup"), FailureKind.POLICY_ERROR)
+            # The warmup is the run's first request with its prompt, joints and cameras: a refusal
+            # is of the setup (or of a policy not there to serve it), and a Retry would ask the same.
+            raise self._setup_error(self._status_reason(response, "warmup"))
         policy.latency.update(answer.round_trip_s)
         self._check_sizing("measured latency")
         self.sent_motion = SentMotion(StepGrid(now, config.dt, config.committed_action_steps, config.total_action_steps))
@@ -370,6 +373,7 @@ class ExecutePolicy(Behavior):
         if response.status != GetActionChunk.Response.CHUNK_PRODUCED:
             return self._stop(Status.FAILURE, self._status_reason(response, f"chunk {self.metrics.chunks + 1}"), FailureKind.POLICY_ERROR)
         self.metrics.chunks += 1
+        self.received = None  # until this chunk is read
         period = period_problem(response.native_control_period)
         if period is not None:
             return self._reject(f"chunk {self.metrics.chunks} rejected: {period}", FailureKind.MALFORMED_CHUNK.value)
@@ -383,8 +387,9 @@ class ExecutePolicy(Behavior):
             self.warned_no_policy_chunk = True
             self._warn(f"policy_uses_real_time_chunking is true but chunk {self.metrics.chunks} carries no policy_action_chunk: "
                        "the policy gets no previous_action_chunk back, so real-time chunking does nothing (send it, or set "
-                       "policy_uses_real_time_chunking=\"false\" for a policy without a denoising loop, such as the scripted oracle)")
+                       "policy_uses_real_time_chunking=\"false\" for a policy without a denoising loop)")
         chunk = Chunk(chunk.arm, self._settle_gripper(chunk.gripper))
+        self.received = (chunk, flight.request_step)
         problem = cfg.committed_window_problem(config.committed_action_steps, chunk.steps) if self.metrics.chunks == 1 else None
         if problem is not None:
             return self._reject(f"chunk 1 rejected: {problem}", SHORT_CHUNK)
@@ -494,8 +499,18 @@ class ExecutePolicy(Behavior):
         or ``FailureKind.MALFORMED_CHUNK``'s."""
         self.metrics.rejections += 1
         self.rejection = self.metrics.rejection_reason = reason
-        self.context.events.emit("chunk_rejected", self.name, reason=reason, failure_kind=kind)
+        self.context.events.emit("chunk_rejected", self.name, reason=reason, failure_kind=kind, **self._rejected_chunk())
         return self._stop(Status.FAILURE, reason, kind)
+
+    def _rejected_chunk(self) -> dict[str, Any]:
+        """The chunk being rejected, on the clock, for the report to plot: ``joints``, ``times`` and
+        ``positions`` (one row per step, from its request step); nothing when it was never read."""
+        if self.received is None or self.metrics.chunks == 0:
+            return {}
+        chunk, request_step = self.received
+        grid = self._sent_motion().grid
+        return {"joints": list(self.safety.group_joints), "times": [grid.time(request_step + k) for k in range(chunk.steps)],
+                "positions": np.asarray(chunk.arm, dtype=float).round(6).tolist()}
 
     def _stop(self, status: Status, message: str, kind: FailureKind | str | None = None) -> Status:
         stall_s = stall_at_stop_s(self.sent_motion, self.context.clock.now())

@@ -8,6 +8,7 @@ from typing import Any
 from control_msgs.action import FollowJointTrajectory, GripperCommand
 from moveit_pro_controllers_msgs.action import FollowJointTrajectoryWithAdmittance
 from moveit_pro_ml_msgs.srv import GetActionChunk
+from sensor_msgs.msg import Image, JointState
 
 from runtime.ports import InputPort, NameKind, Names, OutputPort, PortType, Range
 from runtime.errors import ObjectiveError
@@ -38,9 +39,11 @@ PORTS = (
     InputPort("gripper_joint_name", PortType.STRING, "", "Single-DOF gripper joint appended to the observation and streamed from the chunk.",
               names=Names(NameKind.JOINT)),
     InputPort("guidance_horizon", PortType.UINT, 0, "RTC: steps past the frozen prefix kept close to the previous chunk; 0 = the server's setting.", valid=Range(0, 10_000)),
-    InputPort("image_topics", PortType.STRING_LIST, "", "Camera topics (sensor_msgs/Image), ';'-separated."),
+    InputPort("image_topics", PortType.STRING_LIST, "", "Camera topics (sensor_msgs/Image), ';'-separated.",
+              names=Names(NameKind.TOPIC, Image)),
     InputPort("image_names", PortType.STRING_LIST, "", "Names the policy knows the cameras by, index-aligned with image_topics."),
-    InputPort("joint_states_topic", PortType.STRING, "/joint_states", "sensor_msgs/JointState topic (reliable QoS)."),
+    InputPort("joint_states_topic", PortType.STRING, "/joint_states", "sensor_msgs/JointState topic (reliable QoS).",
+              names=Names(NameKind.TOPIC, JointState)),
     InputPort("max_observation_age", PortType.FLOAT, 0.0, "Seconds since it arrived after which a camera frame or joint state is too old to feed the policy: the run stops, naming the topic; 0 = 10 * dt.", valid=Range(0.0, 600.0, "s")),
     InputPort("wrench_topic", PortType.STRING, "", "geometry_msgs/WrenchStamped topic (e.g. /force_torque_sensor_broadcaster/wrench) watched against absolute_force_torque_threshold: the first reading over it stops the run; empty: not watched."),
     OutputPort("steps_executed", PortType.UINT, "Policy steps executed."),

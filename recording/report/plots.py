@@ -8,6 +8,7 @@ plotted quantities from a ``Recording`` and are tested on their own.
 """
 from __future__ import annotations
 
+import textwrap
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -24,7 +25,10 @@ STALL_COLOR = "#d62728"
 LIMIT_COLOR = "#d62728"
 MEASURED_COLOR = "#222222"
 COMMANDED_COLOR = "#ff7f0e"
+REJECTED_COLOR = "#9467bd"
 SEAM_TOLERANCE = 1e-6
+CHAR_WIDTH_EM = 0.6
+"""A character's width in font sizes, as the legend estimates text."""
 
 
 @dataclass
@@ -34,8 +38,9 @@ class Series:
     velocity: np.ndarray
 
 
-def commanded_series(goals: list[CommandedGoal], joint: str) -> Series | None:
-    """The commanded motion of ``joint``: each goal from its seam until the next goal takes over.
+def commanded_series(goals: list[CommandedGoal], joint: str, end_s: float = np.inf) -> Series | None:
+    """The commanded motion of ``joint``: each goal from its seam until the next goal takes over,
+    and nothing after ``end_s`` (where the run ended: a stopped run cancelled its goal).
 
     That is the stitching rule of the admittance controller (a new goal replaces the old one at
     its seam time), so the result is what the controller was following at every instant.
@@ -45,12 +50,38 @@ def commanded_series(goals: list[CommandedGoal], joint: str) -> Series | None:
     for k, goal in enumerate(ordered):
         until = ordered[k + 1].start if k + 1 < len(ordered) else np.inf
         keep = goal.times < until - SEAM_TOLERANCE if k + 1 < len(ordered) else np.ones(len(goal.times), bool)
+        keep &= goal.times <= end_s + SEAM_TOLERANCE
         col = goal.names.index(joint)
         parts.append((goal.times[keep], goal.position[keep, col], goal.velocity[keep, col]))
     if not parts:
         return None
     cat = [np.concatenate([p[i] for p in parts]) for i in range(3)]
     return Series(*cat)
+
+
+def run_end_s(recording: Recording) -> float | None:
+    """The clock time the run ended (its summary's ``sim_seconds``), or None when it has no summary."""
+    seconds = (recording.summary or {}).get("sim_seconds")
+    return float(seconds) if isinstance(seconds, (int, float)) else None
+
+
+def rejected_chunks(recording: Recording, joint: str) -> list[Series]:
+    """Each rejected chunk's motion of ``joint`` on the clock (velocity from its steps), as
+    ExecutePolicy recorded it in its ``chunk_rejected`` event; none for a chunk it could not read."""
+    found = []
+    for event in recording.of_kind("chunk_rejected"):
+        data = event["data"]
+        if joint not in data.get("joints", []) or len(data.get("times", [])) < 2:
+            continue
+        times = np.asarray(data["times"], dtype=float)
+        position = np.asarray(data["positions"], dtype=float)[:, data["joints"].index(joint)]
+        found.append(Series(times, position, np.gradient(position, times)))
+    return found
+
+
+def wrapped(content: str, width_px: float, font_px: float) -> list[str]:
+    """``content`` in lines that fit ``width_px`` at ``font_px`` (nothing cut)."""
+    return textwrap.wrap(content, max(10, int(width_px / (CHAR_WIDTH_EM * font_px)))) or [""]
 
 
 def stall_spans(recording: Recording) -> list[tuple[float, float]]:
@@ -134,13 +165,15 @@ def joints_plot(recording: Recording, path: Path) -> Path:
     requests = [e["time"] for e in recording.of_kind("chunk_requested")]
     rejections = [e["time"] for e in recording.of_kind("chunk_rejected")]
     stalls = stall_spans(recording)
-    span = _time_span(recording, measured) or (0.0, 1.0)
+    end_s = run_end_s(recording)
+    span = _time_span(recording, measured, end_s) or (0.0, 1.0)
     panel_w = (JOINTS_WIDTH_PX - LEFT_PX - RIGHT_PX - COLUMN_GAP_PX) / 2
     height = TOP_PX + len(names) * (ROW_PX + ROW_GAP_PX) - ROW_GAP_PX + BOTTOM_PX
     body: list[str] = []
     off_scale = False
     for row, name in enumerate(names):
-        command = commanded_series(recording.goals, name)
+        command = commanded_series(recording.goals, name, np.inf if end_s is None else end_s)
+        rejected = rejected_chunks(recording, name)
         limit = recording.limits.get(name, {})
         for col, quantity in enumerate(("position", "velocity")):
             series: list[tuple[np.ndarray, np.ndarray, str, str]] = []
@@ -149,6 +182,8 @@ def joints_plot(recording: Recording, path: Path) -> Path:
                 series.append((measured.times, getattr(measured, quantity)[:, measured.names.index(name)], MEASURED_COLOR, ""))
             if command is not None:
                 series.append((command.times, getattr(command, quantity), COMMANDED_COLOR, "5,3"))
+            for chunk in rejected:
+                series.append((chunk.times, getattr(chunk, quantity), REJECTED_COLOR, "2,2"))
             if quantity == "position" and name not in commanded_names and recording.gripper_commands:
                 t, p = zip(*recording.gripper_commands)
                 steps = (list(t), list(p))
@@ -175,11 +210,14 @@ def joints_plot(recording: Recording, path: Path) -> Path:
             body.append(panel.svg())
     for col, title in enumerate(("position (rad)", "velocity (rad/s)")):
         body.append(text(LEFT_PX + col * (panel_w + COLUMN_GAP_PX) + panel_w / 2, TOP_PX - 6, title, 11, "middle"))
-    body.append(legend([
+    entries = [
         LegendEntry("measured", MEASURED_COLOR), LegendEntry("commanded", COMMANDED_COLOR, "5,3"),
         LegendEntry("chunk seam", SEAM_COLOR), LegendEntry("policy request", REQUEST_COLOR, "2,2"),
         LegendEntry("stall (waiting for a chunk)", STALL_COLOR, patch=True), LegendEntry("joint limit", LIMIT_COLOR, "5,3"),
-    ], JOINTS_WIDTH_PX / 2, 16))
+    ]
+    if rejections:
+        entries.append(LegendEntry("rejected chunk", REJECTED_COLOR, "2,2"))
+    body.append(legend(entries, JOINTS_WIDTH_PX / 2, 16))
     if off_scale:
         body.append(text(JOINTS_WIDTH_PX - RIGHT_PX, height - 4, "joint limits far outside the plotted range are not drawn",
                          9, "end", LIMIT_COLOR))
@@ -190,8 +228,9 @@ def _message_svg(path: Path, message: str, title: str) -> Path:
     return write_new(path, document(580, 60, [text(290, 34, message, 12, "middle")], title))
 
 
-def _time_span(recording: Recording, measured: Any) -> tuple[float, float] | None:
-    """First and last instant of the measured and commanded series (None if there are none)."""
+def _time_span(recording: Recording, measured: Any, end_s: float | None = None) -> tuple[float, float] | None:
+    """First and last instant of the measured and commanded series, the last no later than the
+    run's end ``end_s`` (None if there are none)."""
     starts, ends = [], []
     if measured is not None and len(measured.times):
         starts.append(float(measured.times[0]))
@@ -206,6 +245,8 @@ def _time_span(recording: Recording, measured: Any) -> tuple[float, float] | Non
     if not starts:
         return None
     lo, hi = min(starts), max(ends)
+    if end_s is not None and end_s > lo:
+        hi = min(hi, end_s)
     pad = 0.01 * max(hi - lo, 1e-3)
     return lo - pad, hi + pad
 
@@ -250,8 +291,8 @@ def latency_plot(recording: Recording, path: Path) -> Path:
     rejected = recording.of_kind("chunk_rejected")
     body = []
     if rejected:
-        body.append(text(panel.x + 6, panel.y + 14, f"rejected: {rejected[-1]['data'].get('reason', '')}"[:160], 10,
-                         color=STALL_COLOR))
+        lines = wrapped(f"rejected: {rejected[-1]['data'].get('reason', '')}", panel.width - 12, 10)
+        body.extend(text(panel.x + 6, panel.y + 14 + 12 * k, line, 10, color=STALL_COLOR) for k, line in enumerate(lines))
     ticks = [float(c) for c in range(0, last + 1)] if last <= 40 else None
     panel.x_axis(10, "chunk (0 = warmup request)", 10, ticks, [str(int(t)) for t in ticks] if ticks else None)
     panel.y_axis(5, "seconds (log scale)" if log_y else "seconds", 10)

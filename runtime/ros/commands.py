@@ -1,4 +1,4 @@
-"""``objective server``: the Objective server's command (``runtime.ros.objective_server``).
+"""``objective server`` (``runtime.ros.objective_server``) and ``objective client`` (``runtime.ros.client``).
 
 Registered in the ``objective.commands`` entry-point group; rclpy and the server's interfaces
 are imported only when it runs, so ``objective --help`` loads nothing heavy.
@@ -6,12 +6,14 @@ are imported only when it runs, so ``objective --help`` loads nothing heavy.
 from __future__ import annotations
 
 import argparse
+import json
 import logging
 import time
 from pathlib import Path
+from typing import Any
 
 from runtime.cli import parse_set, add_discovery_argument, add_groot2_arguments, groot2_server, positive_float
-from runtime.command import EXIT_SUCCESS, Command
+from runtime.command import EXIT_SUCCESS, POLICY_HELP, Command
 from runtime.interrupt import StopRequest, stop_on_signals
 from runtime.registry import Registry
 
@@ -19,11 +21,11 @@ from runtime.registry import Registry
 def _arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("dir", type=Path, help="the library: every *.xml under it is an Objective, named by its main tree")
     parser.add_argument("--path", action="append", type=Path, default=[], metavar="DIR",
-                        help="another directory of *.xml to find SubTrees in (after DIR); repeatable")
+                        help="another directory of *.xml to find SubTrees in (after DIR, before the shipped objectives/); repeatable")
     parser.add_argument("--world", metavar="NAME", help="world for Objectives that need one (default: the installation's)")
     parser.add_argument("--world-option", action="append", type=parse_set, default=[], metavar="KEY=VALUE",
                         help="an option of the world (repeatable)")
-    parser.add_argument("--policy", metavar="SPEC", help="policy the world serves in headless runs: oracle, replay:FILE or none")
+    parser.add_argument("--policy", metavar="SPEC", help=POLICY_HELP)
     parser.add_argument("--seed", type=int, default=0, help="seed of every run's world")
     parser.add_argument("--realtime", action="store_true", help="pace the runs to wall-clock time")
     parser.add_argument("--ros", action="store_true",
@@ -65,3 +67,71 @@ def _serve(args: argparse.Namespace, registry: Registry) -> int:
 
 SERVER = Command("serve a library of Objectives on ROS 2: /do_objective, /cancel_objective, /list_objectives",
                  _arguments, _serve)
+
+
+def _override(text: str) -> Any:
+    from runtime.objective_library import parse_override
+
+    try:
+        return parse_override(text)
+    except ValueError as err:
+        raise argparse.ArgumentTypeError(str(err)) from None
+
+
+def _client_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--wait", type=positive_float, default=10.0, metavar="S",
+                        help="how long to wait for the server to answer (default 10 s)")
+    actions = parser.add_subparsers(dest="client_action", required=True, metavar="ACTION",
+                                    help="list, start NAME or cancel (objective client ACTION --help)")
+    actions.add_parser("list", help="the server's Objectives with their ports and load errors, and what runs")
+    start = actions.add_parser("start", help="run an Objective by name, printing its running nodes, until it ends "
+                                             "(SIGINT cancels it); exits as `objective run` does")
+    start.add_argument("name", help="the Objective's name, as `objective client list` gives it")
+    start.add_argument("--override", action="append", type=_override, default=[], metavar="PORT=VALUE",
+                       help="set a port the Objective declares (its TreeNodesModel entry), as MoveIt Pro's port "
+                            "overrides do; a node's port inside it is out of reach (repeatable)")
+    start.add_argument("--set", action="append", type=parse_set, default=[], metavar="NAME=VALUE",
+                       help="set a root blackboard entry before the first tick, as `objective run --set` (repeatable)")
+    start.add_argument("--json", action="store_true", help="print the run's JSON summary as the last line of stdout")
+    actions.add_parser("cancel", help="cancel the Objective the server is running, whoever started it")
+
+
+def _client(args: argparse.Namespace, registry: Registry) -> int:
+    import sys
+
+    from runtime.cli import run_outcome_line
+    from runtime.command import EXIT_FAILURE
+    from runtime.ros.client import ObjectiveClient, feedback_line, list_lines
+    from runtime.terminal import printable
+
+    client = ObjectiveClient(wait_s=args.wait)
+    try:
+        if args.client_action == "list":
+            for line in list_lines(client.list()):
+                print(printable(line))
+            return EXIT_SUCCESS
+        if args.client_action == "cancel":
+            answer = client.cancel()
+            print(printable(answer.message), file=sys.stderr)
+            return EXIT_SUCCESS if answer.success else EXIT_FAILURE
+        shown: list[tuple[str, ...]] = []
+
+        def show(feedback: Any) -> None:
+            running = tuple(feedback.running_nodes)
+            if not shown or shown[-1] != running:
+                shown.append(running)
+                print(printable(feedback_line(feedback)), file=sys.stderr)
+
+        stop = StopRequest()
+        with stop_on_signals(stop):
+            outcome = client.start(args.name, list(args.override), dict(args.set), show, stop)
+        print(run_outcome_line(outcome.result), file=sys.stderr)
+        if args.json:
+            print(json.dumps(outcome.result.to_json(), default=str))
+        return outcome.result.exit_code
+    finally:
+        client.close()
+
+
+CLIENT = Command("drive an Objective server without ros2: list, start NAME (with overrides, feedback), cancel",
+                 _client_arguments, _client)

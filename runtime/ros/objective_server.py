@@ -50,7 +50,7 @@ from runtime.controls import Visit
 from runtime.crash import describe_crash, write_traceback
 from runtime.errors import ObjectiveError
 from runtime.interrupt import StopRequest
-from runtime.loader import LoadedTree, load_tree
+from runtime.loader import LoadedTree, default_objectives_dir, load_tree
 from runtime.objective_library import Library, PortOverride, override_entries
 from runtime.registry import Registry
 from runtime.ros.run import set_discovery_range
@@ -77,7 +77,8 @@ class ServerOptions:
     run: RunOptions = field(default_factory=RunOptions)
     """What every run uses (world, --ros, --realtime, ...); a request adds its blackboard overrides."""
     search_paths: list[Path] = field(default_factory=list)
-    """More directories to find SubTrees in, after the library itself."""
+    """More directories to find SubTrees in, after the library itself (the shipped ``objectives/``
+    is searched after them, as ``objective run`` does)."""
     groot2: Any = None
     """A ``runtime.groot2.Groot2Server`` every run is shown on, or None."""
 
@@ -142,12 +143,33 @@ def feedback(root: Any, now_s: float, ticks: int) -> Any:
     return message
 
 
+def spin_on_thread(executor: Any, name: str) -> threading.Thread:
+    """``executor`` spinning on a daemon thread of its own until its context is shut down."""
+    def spin() -> None:
+        try:
+            executor.spin()
+        except Exception:  # the context was shut down under the executor: its node is closing
+            pass
+
+    thread = threading.Thread(target=spin, name=name, daemon=True)
+    thread.start()
+    return thread
+
+
+def subtree_search_paths(options: ServerOptions) -> list[Path]:
+    """Where a run's SubTrees are searched after the library: ``search_paths``, then the shipped
+    ``objectives/`` (the library ``objective run`` searches), unless the library is that one."""
+    shipped = default_objectives_dir()
+    listed = [options.library, *options.search_paths]
+    return [*options.search_paths, *([] if any(p.resolve() == shipped for p in listed) else [shipped])]
+
+
 class ObjectiveServer:
     """The node, its executor thread and the one run it may hold. ``close()`` cancels that run."""
 
     def __init__(self, options: ServerOptions, registry: Registry, node_name: str = NODE_NAME) -> None:
         self.options, self.registry = options, registry
-        self.library = Library(options.library)
+        self.library = Library(options.library, registry, subtree_search_paths(options))
         options.run.check()
         self._lock = threading.Lock()
         self._running: str | None = None
@@ -172,14 +194,7 @@ class ObjectiveServer:
         self.node.create_service(ListObjectives, LIST_SERVICE, self._list_service, callback_group=group)
         self.executor = MultiThreadedExecutor(num_threads=4, context=self.context)
         self.executor.add_node(self.node)
-        self._spinner = threading.Thread(target=self._spin, name="objective_server", daemon=True)
-        self._spinner.start()
-
-    def _spin(self) -> None:
-        try:
-            self.executor.spin()
-        except Exception:  # the context was shut down under the executor: the server is closing
-            pass
+        self._spinner = spin_on_thread(self.executor, "objective_server")
 
     # -- requests ----------------------------------------------------------------------------
     def _reserve(self, name: str) -> str | None:
@@ -258,7 +273,7 @@ class ObjectiveServer:
             return Outcome.error(str(err))
         context = make_context(options)
         try:
-            loaded = load_tree(objective.file, self.registry, context, None, self.options.search_paths,
+            loaded = load_tree(objective.file, self.registry, context, None, self.library.search_paths,
                                self.library.directory)
         except ObjectiveError as err:
             context.bus.close()
