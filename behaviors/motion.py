@@ -136,7 +136,7 @@ class _MoveToJoints(SendsTrajectoryGoal):
             return Status.SUCCESS
         outside = self.safety.first_limit_violation(samples)
         if outside is not None:
-            return self.fail(f"the motion is outside the joint limits: {outside}")
+            return self.fail(f"the motion is outside the {outside.family}s: {outside}")
         collision = self.safety.first_collision(self.safety.snapshot(), samples, self.get_input("link_padding"))
         if collision is not None:
             return self.fail(f"the motion would collide: {collision}")
