@@ -611,9 +611,20 @@ def test_dt_mismatch_doubles_velocity_and_the_chunk_is_rejected_before_moving(re
     assert np.allclose(run.world.cell.arm, start, atol=1e-9)
 
 
+def without_envelope(context: Any, world: KinematicWorld) -> None:
+    """A ``run_policy`` hook: the cell's scene without its Cartesian envelope (a test of another check)."""
+    start = world.start
+
+    def start_without_envelope(run_context: Any) -> None:
+        start(run_context)
+        run_context.scene.envelope = None
+
+    world.start = start_without_envelope
+
+
 def test_chunk_into_the_table_is_rejected_for_padding(registry):
     down = np.array([0.0, 0.6, 0.0, 0.0, 0.0, 0.0])  # shoulder_lift: the arm sweeps down to the table
-    run = run_policy(registry, BASE, ScriptedPolicy(hold(velocity=down)))
+    run = run_policy(registry, BASE, ScriptedPolicy(hold(velocity=down)), before=without_envelope)  # its keep-in box refuses it first
     assert run.result.status == "FAILURE"
     assert "world collision" in run.result.reason and "vs table" in run.result.reason
     assert run.result.reason.startswith("chunk 1 rejected: densified step")
