@@ -43,6 +43,7 @@ from .extras import load_entry_point
 from .heap import PacedHeap
 from .interrupt import Interrupted, StopRequest, exit_code_for, signal_name
 from .loader import LoadedTree, load_tree
+from .protective_stop import ProtectiveStop, StopInputs, needs_heartbeat
 from .registry import WORLD_GROUP, Registry, default_world_name
 from .scheduling import check_priority, realtime_priority
 from .world_check import check_tree, declared_interfaces, named_links
@@ -94,6 +95,9 @@ class RunOptions:
     realtime_priority: int | None = None
     """In a paced run: tick at this SCHED_FIFO priority (1-99, ``runtime.scheduling``); None:
     the default priority."""
+    protective_stop: StopInputs | None = field(default_factory=StopInputs)
+    """Where the run listens for a protective stop and a deadman's heartbeat
+    (``runtime.protective_stop``); None: nowhere."""
     log_dir: Path | None = None
     """Where the traceback of an unexpected exception goes: the recording directory when
     recording, else this (None: ``build/logs/`` under the working directory)."""
@@ -122,6 +126,8 @@ class RunOptions:
         for name in self.sets:
             if not name or name.strip() != name:
                 raise ObjectiveError(f"--set needs name=value with a non-empty name, got {name!r}")
+        if self.protective_stop is not None:
+            self.protective_stop.check()
         if self.realtime_priority is not None:
             if not self.paced:
                 raise ObjectiveError("--realtime-priority sets the priority of a paced run's ticks: it needs --realtime or --ros")
@@ -138,6 +144,8 @@ class RunOptions:
 
 TIMEOUT = "timeout"
 """The failure kind of a run stopped by ``--max-seconds``."""
+PROTECTIVE_STOP = "protective stop"
+"""The failure kind of a run the protective stop ended (``runtime.protective_stop``)."""
 
 
 class RunEnd(enum.Enum):
@@ -425,9 +433,13 @@ class Breakoff:
     error: BaseException | None = None
     cause: str | None = None
     """Who asked to stop, when it was not a signal (``StopRequest.cancel``)."""
+    protective_stop: str | None = None
+    """Why the protective stop was engaged (``runtime.protective_stop``): the run ends FAILURE."""
 
     @property
     def end(self) -> RunEnd:
+        if self.protective_stop is not None:
+            return RunEnd.FAILURE
         return RunEnd.INTERRUPTED if self.signum is not None else RunEnd.ERROR
 
 
@@ -501,6 +513,8 @@ def run_tree(
                 from .ros.run import prepare_links
 
                 prepare_links(bus, declared_interfaces(nodes), named_links(loaded.nodes))
+            guard = ProtectiveStop(bus, options.protective_stop) if options.protective_stop is not None else None
+            policy_running = False
             context.events.emit("run_started", loaded.tree_id, seed=options.seed)
             for watcher in watchers:
                 watcher.started(loaded)
@@ -520,9 +534,15 @@ def run_tree(
                     if world is not None:
                         world.step_to(clock.now())
                     bus.spin_once()
+                    why = guard.reason(clock.now(), policy_running) if guard is not None else None
+                    if why is not None:  # the tree is not ticked again: halted below, its goals cancelled
+                        breakoff = Breakoff(protective_stop=why)
+                        context.events.emit("protective_stop", loaded.tree_id, reason=why)
+                        break
                     ticks += 1  # counted before it runs: a tick that raised was still ticked
                     tick = tick_tree(root)
                     status, visited = tick.status, tick.visited
+                    policy_running = any(seen is Status.RUNNING and needs_heartbeat(n) for n, seen, _ in visited)
                     statuses.update(visited)
                     if pacing is not None:
                         pacing.record(tick_start, time.monotonic())
@@ -607,6 +627,12 @@ def _describe_breakoff(result: RunResult, breakoff: Breakoff, running: list[py_t
                        loaded: LoadedTree, nodes: list[py_trees.behaviour.Behaviour], options: RunOptions) -> None:
     """Fill ``result`` for a run a signal or an exception ended (status, node, reason, log file)."""
     result.status = breakoff.end.value
+    if breakoff.protective_stop is not None:
+        where = ", ".join(f"'{n.name}'" + _at(loaded, n) for n in running)
+        halted = f"; halted {where} (RUNNING)" if where else ""
+        result.reason = f"protective stop: {breakoff.protective_stop} at {result.sim_seconds:.2f} s{halted}"
+        result.failure_kind = PROTECTIVE_STOP
+        return
     if breakoff.signum is not None:
         result.signum = int(breakoff.signum)
         where = ", ".join(f"'{n.name}'" + _at(loaded, n) for n in running)

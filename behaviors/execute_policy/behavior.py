@@ -92,6 +92,7 @@ class ExecutePolicy(Behavior):
 
     ports = cfg.PORTS
     needs_world = True
+    needs_heartbeat = True  # a deadman (``runtime.protective_stop``) watches it while it runs
     description = (
         "Run a learned policy served over GetActionChunk: chunks are smoothed, blended at seams, "
         "checked against limits and the planning scene, and streamed to the trajectory controller "

@@ -1,0 +1,100 @@
+"""The protective stop: one input on the run's bus that halts the running tree.
+
+Every run (``objective run``, each ``eval`` episode, each Objective the server runs) listens on
+``StopInputs.topic`` (``std_msgs/Bool``: ``true`` stops) and serves ``StopInputs.service``
+(``std_srvs/Trigger``), both ``/protective_stop`` by default. The runner asks ``ProtectiveStop.reason``
+after the bus delivered what is due and before the tree ticks; once it answers, the tree is not
+ticked again: it is halted (every RUNNING node's ``terminate``: controller goals cancelled, the
+controllers stop the arm within their stop time) and the run ends FAILURE, "protective stop: ...".
+
+The optional deadman: with ``StopInputs.deadman_topic`` set, while a node that needs a heartbeat
+(``needs_heartbeat``: ExecutePolicy) is RUNNING, a ``std_msgs/Bool`` ``true`` must arrive on it at
+least every ``deadman_period_s`` seconds of the run's clock (counted from when the node started
+running); silence longer than that, or a ``false``, is a protective stop.
+"""
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass
+from typing import Any
+
+from std_msgs.msg import Bool
+from std_srvs.srv import Trigger
+
+from .errors import ObjectiveError
+
+_log = logging.getLogger("objective")
+
+DEFAULT_STOP_NAME = "/protective_stop"
+
+
+@dataclass(frozen=True)
+class StopInputs:
+    """Where a run listens for a protective stop (an empty name: not listened on)."""
+
+    topic: str = DEFAULT_STOP_NAME
+    service: str = DEFAULT_STOP_NAME
+    deadman_topic: str = ""
+    deadman_period_s: float = 0.5
+
+    def check(self) -> None:
+        if not (self.deadman_period_s > 0 and math.isfinite(self.deadman_period_s)):
+            raise ObjectiveError(f"--deadman-period must be a positive number of seconds, got {self.deadman_period_s}")
+
+
+def needs_heartbeat(node: Any) -> bool:
+    """Whether ``node`` drives the arm from outside the Objective (a policy): the deadman watches it."""
+    return bool(getattr(type(node), "needs_heartbeat", False))
+
+
+class ProtectiveStop:
+    """The stop inputs on one run's bus, and whether they asked for a stop (``reason``)."""
+
+    def __init__(self, bus: Any, inputs: StopInputs) -> None:
+        self.bus, self.inputs = bus, inputs
+        self.engaged: str | None = None
+        self.last_heartbeat_s: float | None = None
+        self.watched_since_s: float | None = None
+        self.subscriptions = []
+        self.service = None
+        if inputs.topic:
+            self.subscriptions.append(bus.create_subscription(inputs.topic, Bool, self._on_stop))
+        if inputs.service:
+            if getattr(bus, "serves", True):
+                self.service = bus.create_service(inputs.service, Trigger, self._on_trigger)
+            else:  # a run against a real robot's graph serves nothing (``RosBus(serves=False)``)
+                _log.warning("protective stop: this run serves no services; stop it on the topic '%s'", inputs.topic)
+        if inputs.deadman_topic:
+            self.subscriptions.append(bus.create_subscription(inputs.deadman_topic, Bool, self._on_heartbeat))
+
+    def _on_stop(self, msg: Bool) -> None:
+        if msg.data and self.engaged is None:
+            self.engaged = f"'{self.inputs.topic}' is true"
+
+    def _on_trigger(self, request: Any) -> Trigger.Response:
+        if self.engaged is None:
+            self.engaged = f"'{self.inputs.service}' was called"
+        return Trigger.Response(success=True, message="protective stop: the run halts at its next tick")
+
+    def _on_heartbeat(self, msg: Bool) -> None:
+        if msg.data:
+            self.last_heartbeat_s = self.bus.clock.now()
+        elif self.engaged is None:
+            self.engaged = f"the deadman '{self.inputs.deadman_topic}' was released (false)"
+
+    def reason(self, now_s: float, policy_running: bool) -> str | None:
+        """Why the run must stop now, or None. ``policy_running``: a node that needs a heartbeat
+        was RUNNING after the last tick."""
+        if self.engaged is not None or not self.inputs.deadman_topic:
+            return self.engaged
+        if not policy_running:
+            self.watched_since_s = None
+            return None
+        if self.watched_since_s is None:
+            self.watched_since_s = now_s
+        since = max(self.watched_since_s, self.last_heartbeat_s if self.last_heartbeat_s is not None else -math.inf)
+        if now_s - since > self.inputs.deadman_period_s + 1e-9:
+            self.engaged = (f"no heartbeat on the deadman '{self.inputs.deadman_topic}' for {now_s - since:.2f} s "
+                            f"(period {self.inputs.deadman_period_s:g} s) while a policy ran")
+        return self.engaged

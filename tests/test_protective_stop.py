@@ -1,0 +1,138 @@
+"""The protective stop and the deadman: in process on the simulated clock (the stop lands, the
+tree is not ticked again, the controller goal is cancelled in the same tick, the run ends
+FAILURE) and over ROS 2 (a `objective run --ros` process stopped by a message on its topic)."""
+from __future__ import annotations
+
+import json
+from typing import Any
+
+import numpy as np
+import pytest
+from moveit_pro_controllers_msgs.action import FollowJointTrajectoryWithAdmittance as FollowTrajectory
+from std_msgs.msg import Bool
+from std_srvs.srv import Trigger
+
+from runtime.errors import ObjectiveError
+from runtime.protective_stop import StopInputs
+from runtime.runner import RunOptions
+from tests.test_safety_properties import CONTROLLER, READY, RecordingWorld, registry, run_chunks  # noqa: F401
+from tests import test_safety_properties as harness
+
+SMOOTH = {"kind": "smooth", "steps": 40, "velocity": [0.2] * 6, "joint": 0, "at": 0.5, "size": 0.0,
+          "bad": float("nan"), "names": "permuted", "width": 0, "seed": 0}
+
+
+class CancelRecordingWorld(RecordingWorld):
+    """The recording controller, noting when each cancel request reaches it (clock time), and a
+    hook that runs at every world step (what an operator does at that instant)."""
+
+    def __init__(self, initial: np.ndarray, at_step: Any = None) -> None:
+        super().__init__(initial)
+        self.cancels: list[float] = []
+        self.at_step = at_step
+
+    def start(self, context: Any) -> None:
+        super().start(context)
+        server = context.bus._action_servers[CONTROLLER]
+
+        def on_cancel(goal: Any) -> bool:
+            self.cancels.append(context.clock.now())
+            return True
+
+        server.on_cancel = on_cancel
+
+    def step_to(self, t: float) -> None:
+        super().step_to(t)
+        if self.at_step is not None:
+            self.at_step(self.context, t)
+
+
+def run_policy(at_step: Any, stop: StopInputs | None = StopInputs()) -> tuple[Any, CancelRecordingWorld]:
+    """ExecutePolicy streaming smooth chunks for 20 steps of 0.1 s against the recording controller."""
+    world = CancelRecordingWorld(READY, at_step)
+    original = harness.RecordingWorld
+    harness.RecordingWorld = lambda start, envelope=True: world  # type: ignore[assignment]
+    try:
+        options_stop = stop
+
+        def options(**kwargs: Any) -> RunOptions:
+            return RunOptions(**kwargs, protective_stop=options_stop)
+
+        harness_options = harness.RunOptions
+        harness.RunOptions = options  # type: ignore[assignment]
+        try:
+            out = run_chunks([SMOOTH], READY, 0.1, 50)
+        finally:
+            harness.RunOptions = harness_options
+    finally:
+        harness.RecordingWorld = original
+    return out, world
+
+
+def publish_at(t_s: float, topic: str, value: bool = True) -> Any:
+    publishers: dict[str, Any] = {}
+
+    def step(context: Any, t: float) -> None:
+        if topic not in publishers:
+            publishers[topic] = context.bus.create_publisher(topic, Bool)
+        if abs(t - t_s) < 1e-9:
+            publishers[topic].publish(Bool(data=value))
+
+    return step
+
+
+def test_a_stop_on_the_topic_halts_the_run_and_cancels_the_goal_in_the_same_tick():
+    out, world = run_policy(publish_at(1.0, "/protective_stop"))
+    assert out.status == "FAILURE"
+    assert out.reason.startswith("protective stop: '/protective_stop' is true at 1.00 s; halted 'ExecutePolicy'")
+    assert len(out.goals) >= 1 and world.cancels == [pytest.approx(1.0)]  # the tick that received it cancelled it
+    assert world.active.is_cancel_requested
+
+
+def test_without_a_stop_the_same_run_succeeds():
+    out, world = run_policy(None)
+    assert out.status == "SUCCESS", out.reason
+    assert world.cancels == []
+
+
+def test_the_trigger_service_stops_the_run():
+    def call(context: Any, t: float) -> None:
+        if abs(t - 0.5) < 1e-9:
+            context.bus.create_client("/protective_stop", Trigger).call_async(Trigger.Request())
+
+    out, world = run_policy(call)
+    assert out.status == "FAILURE" and out.reason.startswith("protective stop: '/protective_stop' was called at 0.50 s")
+    assert world.cancels == [pytest.approx(0.5)]
+
+
+def test_the_deadman_stops_a_policy_whose_heartbeat_stops_and_keeps_one_that_keeps_coming():
+    deadman = StopInputs(deadman_topic="/deadman", deadman_period_s=0.3)
+
+    def heartbeat_until(last_s: float, then: bool | None = None) -> Any:
+        """True at every step up to ``last_s``; ``then`` once at the next step (None: silence)."""
+        publishers: dict[str, Any] = {}
+
+        def step(context: Any, t: float) -> None:
+            if "p" not in publishers:
+                publishers["p"] = context.bus.create_publisher("/deadman", Bool)
+            if t <= last_s + 1e-9:
+                publishers["p"].publish(Bool(data=True))
+            elif then is not None and t <= last_s + 0.01 + 1e-9:
+                publishers["p"].publish(Bool(data=then))
+
+        return step
+
+    out, world = run_policy(heartbeat_until(100.0), deadman)
+    assert out.status == "SUCCESS", out.reason
+    out, world = run_policy(heartbeat_until(1.0), deadman)
+    assert out.status == "FAILURE"
+    assert out.reason.startswith("protective stop: no heartbeat on the deadman '/deadman' for 0.31 s (period 0.3 s) "
+                                 "while a policy ran at 1.31 s; halted 'ExecutePolicy'")
+    assert world.cancels == [pytest.approx(1.31)]
+    out, world = run_policy(heartbeat_until(0.8, then=False), deadman)  # released: at once
+    assert out.status == "FAILURE" and out.reason.startswith("protective stop: the deadman '/deadman' was released (false) at 0.81 s")
+
+
+def test_a_deadman_period_that_is_not_positive_is_refused():
+    with pytest.raises(ObjectiveError, match="--deadman-period must be a positive number of seconds, got 0"):
+        RunOptions(protective_stop=StopInputs(deadman_topic="/deadman", deadman_period_s=0.0)).check()
