@@ -128,6 +128,12 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     run.add_argument("--json", action="store_true", help="print a JSON summary as the last line of stdout")
     run.add_argument("--world", metavar="NAME", help="world for trees that need one (default: the installation's, vla_sim here)")
     run.add_argument("--max-seconds", type=positive_float, metavar="S", help="fail after S seconds of clock time")
+    run.add_argument("--protective-stop", default="/protective_stop", metavar="NAME",
+                     help="the std_msgs/Bool topic and std_srvs/Trigger service that stop the run (FAILURE); '' for none")
+    run.add_argument("--deadman-topic", default="", metavar="TOPIC",
+                     help="a std_msgs/Bool heartbeat (true) that must keep arriving while a policy runs")
+    run.add_argument("--deadman-period", type=positive_float, default=0.5, metavar="S",
+                     help="seconds the deadman heartbeat may be silent (default 0.5)")
     run.add_argument("--policy-latency", metavar="SPEC",
                      help="policy call latency: 'measured' (default), seconds (e.g. 0.3), lognormal:MEAN,SD or "
                           "trace:FILE (one latency per line, per call, the last repeating)")
@@ -197,6 +203,7 @@ def _add_plugin_commands(sub: Any) -> None:
 def cmd_run(args: argparse.Namespace, registry: Registry, stop: StopRequest | None = None) -> int:
     """``objective run``; ``stop`` is where ``main``'s SIGINT/SIGTERM handlers ask the run to stop."""
     from .display import ProgressLine
+    from .protective_stop import StopInputs
     from .runner import RunOptions, run_file
 
     options = RunOptions(
@@ -213,6 +220,7 @@ def cmd_run(args: argparse.Namespace, registry: Registry, stop: StopRequest | No
         record_dir=args.record,
         live_port=args.live,
         world_options={**dict(args.world_option), **({"policy": args.policy} if args.policy else {})},
+        protective_stop=StopInputs(args.protective_stop, args.protective_stop, args.deadman_topic, args.deadman_period),
     )
     progress = ProgressLine(sys.stderr) if sys.stderr.isatty() else None
     if progress is not None:
