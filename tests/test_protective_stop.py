@@ -15,6 +15,7 @@ from std_srvs.srv import Trigger
 from runtime.errors import ObjectiveError
 from runtime.protective_stop import StopInputs
 from runtime.runner import RunOptions
+from tests.test_ros_run import observer, ros_env  # noqa: F401  (fixtures)
 from tests.test_safety_properties import CONTROLLER, READY, RecordingWorld, registry, run_chunks  # noqa: F401
 from tests import test_safety_properties as harness
 
@@ -136,3 +137,29 @@ def test_the_deadman_stops_a_policy_whose_heartbeat_stops_and_keeps_one_that_kee
 def test_a_deadman_period_that_is_not_positive_is_refused():
     with pytest.raises(ObjectiveError, match="--deadman-period must be a positive number of seconds, got 0"):
         RunOptions(protective_stop=StopInputs(deadman_topic="/deadman", deadman_period_s=0.0)).check()
+
+
+@pytest.mark.ros
+@pytest.mark.timeout(90)
+def test_a_stop_published_to_a_running_objective_run_ros_process_ends_it_as_failure(ros_env, observer, tmp_path):
+    """Over ROS 2: `objective run --ros` holds the gripper in a long Wait; a Bool on
+    /protective_stop from another node ends it FAILURE (exit 1) within seconds."""
+    from tests.test_ros_run import close_wait_open, finish, objective, wait_for
+    from sensor_msgs.msg import JointState
+
+    joint_states = observer.create_subscription("/joint_states", JointState)
+    stop = observer.create_publisher("/protective_stop", Bool)
+    runner = objective("run", str(close_wait_open(tmp_path, 60.0)), "--ros", "--world", "kinematic", "--json", env=ros_env)
+    try:
+        wait_for(lambda: joint_states.count >= 1 and joint_states.latest.position[-1] > 0.05, observer, timeout=30.0,
+                 what="the gripper closing")
+        wait_for(lambda: stop._publisher.get_subscription_count() > 0, observer, timeout=10.0, what="the runner's stop subscription")
+        stop.publish(Bool(data=True))
+        code, out, err = finish(runner, timeout=15.0)
+    finally:
+        if runner.poll() is None:
+            runner.kill()
+    assert code == 1, err
+    summary = json.loads(out.strip().splitlines()[-1])
+    assert summary["status"] == "FAILURE" and summary["reason"].startswith("protective stop: '/protective_stop' is true at ")
+    assert "Traceback" not in err
