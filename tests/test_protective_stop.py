@@ -134,6 +134,42 @@ def test_the_deadman_stops_a_policy_whose_heartbeat_stops_and_keeps_one_that_kee
     assert out.status == "FAILURE" and out.reason.startswith("protective stop: the deadman '/deadman' was released (false) at 0.81 s")
 
 
+@pytest.mark.parametrize("objective", ["objectives/stack_cubes.xml", "objectives/stack_cubes_jtc.xml"])
+def test_a_stop_brings_the_arm_to_rest_within_the_controllers_stop_time(objective):
+    """The cell's own controllers, both kinds: stopped while the oracle's policy moves the arm,
+    the run ends FAILURE at that instant and the controller that had the goal brings the arm to
+    rest within its stop time (plus one control step)."""
+    from runtime.bus import FixedLatency
+    from runtime.loader import load_tree
+    from runtime.runner import make_context, run_tree
+    from sim.controllers.base import ControllersConfig
+    from sim.kinematic import KinematicWorld
+
+    stop_s, control_step_s = 8.0, 0.01
+    options = RunOptions(seed=0, max_seconds=60.0, world="kinematic")
+    context = make_context(options)
+    world = KinematicWorld({"seed": 0})
+    loaded = load_tree(objective, registry(), context)
+    context.bus.set_latency("/get_action_chunk", FixedLatency(0.1))  # the oracle's calls: the same run every time
+    stop = context.bus.create_publisher("/protective_stop", Bool)
+    step_to = world.step_to
+
+    def step_and_stop(t: float) -> None:
+        step_to(t)
+        if abs(t - stop_s) < 1e-9:
+            stop.publish(Bool(data=True))
+
+    world.step_to = step_and_stop
+    result = run_tree(loaded, context, options, world=world)
+    assert (result.status, result.failure_kind) == ("FAILURE", "protective stop")
+    assert result.reason.startswith(f"protective stop: '/protective_stop' is true at {stop_s:.2f} s; halted 'ExecutePolicy'")
+    assert np.abs(world.cell.arm_velocity()).max() > 0.5  # moving (0.6 rad/s) when it was stopped
+    rest_s = ControllersConfig().stop_time + control_step_s
+    for k in range(1, round(rest_s / control_step_s) + 1):
+        step_to(result.sim_seconds + k * control_step_s)
+    assert np.abs(world.cell.arm_velocity()).max() == 0.0
+
+
 def test_a_deadman_period_that_is_not_positive_is_refused():
     with pytest.raises(ObjectiveError, match="--deadman-period must be a positive number of seconds, got 0"):
         RunOptions(protective_stop=StopInputs(deadman_topic="/deadman", deadman_period_s=0.0)).check()
