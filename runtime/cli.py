@@ -81,6 +81,23 @@ def add_groot2_arguments(parser: argparse.ArgumentParser) -> None:
                         help="interface Groot2 connects to (default 127.0.0.1; 0.0.0.0 = every interface)")
 
 
+def add_protective_stop_arguments(parser: argparse.ArgumentParser) -> None:
+    """``--protective-stop NAME``, ``--deadman-topic`` and ``--deadman-period`` (``runtime.protective_stop``)."""
+    parser.add_argument("--protective-stop", default="/protective_stop", metavar="NAME",
+                        help="the std_msgs/Bool topic and std_srvs/Trigger service that stop a run (FAILURE); '' for none")
+    parser.add_argument("--deadman-topic", default="", metavar="TOPIC",
+                        help="a std_msgs/Bool heartbeat (true) that must keep arriving while a policy runs")
+    parser.add_argument("--deadman-period", type=positive_float, default=0.5, metavar="S",
+                        help="seconds the deadman heartbeat may be silent (default 0.5)")
+
+
+def protective_stop_inputs(args: argparse.Namespace) -> Any:
+    """The ``StopInputs`` of ``add_protective_stop_arguments``' options."""
+    from .protective_stop import StopInputs
+
+    return StopInputs(args.protective_stop, args.protective_stop, args.deadman_topic, args.deadman_period)
+
+
 def groot2_server(args: argparse.Namespace) -> Any:
     """The Groot2 server ``--groot2`` asks for (a context manager), or a null context."""
     if args.groot2 is None:
@@ -128,12 +145,7 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     run.add_argument("--json", action="store_true", help="print a JSON summary as the last line of stdout")
     run.add_argument("--world", metavar="NAME", help="world for trees that need one (default: the installation's, vla_sim here)")
     run.add_argument("--max-seconds", type=positive_float, metavar="S", help="fail after S seconds of clock time")
-    run.add_argument("--protective-stop", default="/protective_stop", metavar="NAME",
-                     help="the std_msgs/Bool topic and std_srvs/Trigger service that stop the run (FAILURE); '' for none")
-    run.add_argument("--deadman-topic", default="", metavar="TOPIC",
-                     help="a std_msgs/Bool heartbeat (true) that must keep arriving while a policy runs")
-    run.add_argument("--deadman-period", type=positive_float, default=0.5, metavar="S",
-                     help="seconds the deadman heartbeat may be silent (default 0.5)")
+    add_protective_stop_arguments(run)
     run.add_argument("--policy-latency", metavar="SPEC",
                      help="policy call latency: 'measured' (default), seconds (e.g. 0.3), lognormal:MEAN,SD or "
                           "trace:FILE (one latency per line, per call, the last repeating)")
@@ -203,7 +215,6 @@ def _add_plugin_commands(sub: Any) -> None:
 def cmd_run(args: argparse.Namespace, registry: Registry, stop: StopRequest | None = None) -> int:
     """``objective run``; ``stop`` is where ``main``'s SIGINT/SIGTERM handlers ask the run to stop."""
     from .display import ProgressLine
-    from .protective_stop import StopInputs
     from .runner import RunOptions, run_file
 
     options = RunOptions(
@@ -220,7 +231,7 @@ def cmd_run(args: argparse.Namespace, registry: Registry, stop: StopRequest | No
         record_dir=args.record,
         live_port=args.live,
         world_options={**dict(args.world_option), **({"policy": args.policy} if args.policy else {})},
-        protective_stop=StopInputs(args.protective_stop, args.protective_stop, args.deadman_topic, args.deadman_period),
+        protective_stop=protective_stop_inputs(args),
     )
     progress = ProgressLine(sys.stderr) if sys.stderr.isatty() else None
     if progress is not None:

@@ -49,51 +49,64 @@ def needs_heartbeat(node: Any) -> bool:
 
 
 class ProtectiveStop:
-    """The stop inputs on one run's bus, and whether they asked for a stop (``reason``)."""
+    """Whether the stop inputs asked for a stop (``reason``). ``listen`` puts the inputs on a run's
+    bus; the Objective server feeds ``on_stop``, ``on_trigger`` and ``on_heartbeat`` from its own
+    node instead, and ``reset``s it before each run. The callbacks may run on another thread."""
 
-    def __init__(self, bus: Any, inputs: StopInputs) -> None:
-        self.bus, self.inputs = bus, inputs
+    def __init__(self, inputs: StopInputs) -> None:
+        self.inputs = inputs
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget a stop and the heartbeats: a new run starts."""
         self.engaged: str | None = None
-        self.last_heartbeat_s: float | None = None
-        self.watched_since_s: float | None = None
-        self.subscriptions = []
-        self.service = None
+        self.heartbeats = 0
+        self._heartbeats_seen = 0
+        self._heartbeat_at_s: float | None = None
+        self._watched_since_s: float | None = None
+
+    def listen(self, bus: Any) -> None:
+        """Subscribe to the topics and serve the service on ``bus`` (a service only where the bus serves)."""
+        inputs = self.inputs
         if inputs.topic:
-            self.subscriptions.append(bus.create_subscription(inputs.topic, Bool, self._on_stop))
+            bus.create_subscription(inputs.topic, Bool, self.on_stop)
         if inputs.service:
             if getattr(bus, "serves", True):
-                self.service = bus.create_service(inputs.service, Trigger, self._on_trigger)
+                bus.create_service(inputs.service, Trigger, self.on_trigger)
             else:  # a run against a real robot's graph serves nothing (``RosBus(serves=False)``)
                 _log.warning("protective stop: this run serves no services; stop it on the topic '%s'", inputs.topic)
         if inputs.deadman_topic:
-            self.subscriptions.append(bus.create_subscription(inputs.deadman_topic, Bool, self._on_heartbeat))
+            bus.create_subscription(inputs.deadman_topic, Bool, self.on_heartbeat)
 
-    def _on_stop(self, msg: Bool) -> None:
+    def on_stop(self, msg: Bool) -> None:
         if msg.data and self.engaged is None:
             self.engaged = f"'{self.inputs.topic}' is true"
 
-    def _on_trigger(self, request: Any) -> Trigger.Response:
+    def on_trigger(self, request: Any, response: Any = None) -> Trigger.Response:
         if self.engaged is None:
             self.engaged = f"'{self.inputs.service}' was called"
         return Trigger.Response(success=True, message="protective stop: the run halts at its next tick")
 
-    def _on_heartbeat(self, msg: Bool) -> None:
+    def on_heartbeat(self, msg: Bool) -> None:
         if msg.data:
-            self.last_heartbeat_s = self.bus.clock.now()
+            self.heartbeats += 1
         elif self.engaged is None:
             self.engaged = f"the deadman '{self.inputs.deadman_topic}' was released (false)"
 
     def reason(self, now_s: float, policy_running: bool) -> str | None:
-        """Why the run must stop now, or None. ``policy_running``: a node that needs a heartbeat
-        was RUNNING after the last tick."""
+        """Why the run must stop now, or None. ``now_s``: the run's clock (a heartbeat counts as
+        arriving at the first check that sees it); ``policy_running``: a node that needs a
+        heartbeat was RUNNING after the last tick."""
         if self.engaged is not None or not self.inputs.deadman_topic:
             return self.engaged
+        if self.heartbeats != self._heartbeats_seen:
+            self._heartbeats_seen, self._heartbeat_at_s = self.heartbeats, now_s
         if not policy_running:
-            self.watched_since_s = None
+            self._watched_since_s = None
             return None
-        if self.watched_since_s is None:
-            self.watched_since_s = now_s
-        since = max(self.watched_since_s, self.last_heartbeat_s if self.last_heartbeat_s is not None else -math.inf)
+        if self._watched_since_s is None:
+            self._watched_since_s = now_s
+        since = max(self._watched_since_s, self._heartbeat_at_s if self._heartbeat_at_s is not None else -math.inf)
         if now_s - since > self.inputs.deadman_period_s + 1e-9:
             self.engaged = (f"no heartbeat on the deadman '{self.inputs.deadman_topic}' for {now_s - since:.2f} s "
                             f"(period {self.inputs.deadman_period_s:g} s) while a policy ran")

@@ -459,12 +459,14 @@ def run_tree(
     world: Any = None,
     stop: StopRequest | None = None,
     watchers: Sequence[TickWatcher] = (),
+    guard: ProtectiveStop | None = None,
 ) -> RunResult:
     """Tick ``loaded`` (bound to ``context``) to completion and summarise the run.
 
     Starts the world named by ``options.world`` when the tree needs one (unless ``world`` is
     given). Before every tick it looks at ``stop`` (set by ``runtime.interrupt`` on SIGINT or
-    SIGTERM). Bad input found while running (e.g. a port reading a blackboard entry nobody
+    SIGTERM) and, after the bus delivered what is due, ``guard`` (the protective stop; by default
+    one listening on the run's bus per ``options.protective_stop``). Bad input found while running (e.g. a port reading a blackboard entry nobody
     wrote), an unexpected exception or an interruption ends the run as ERROR or INTERRUPTED;
     the tree is halted and everything closed either way.
     """
@@ -500,6 +502,9 @@ def run_tree(
     wall_start = time.monotonic()
     try:
         try:
+            if guard is None and options.protective_stop is not None:  # listening from the start
+                guard = ProtectiveStop(options.protective_stop)
+                guard.listen(bus)
             if world is not None:
                 context.world = world
                 try:
@@ -513,7 +518,6 @@ def run_tree(
                 from .ros.run import prepare_links
 
                 prepare_links(bus, declared_interfaces(nodes), named_links(loaded.nodes))
-            guard = ProtectiveStop(bus, options.protective_stop) if options.protective_stop is not None else None
             policy_running = False
             context.events.emit("run_started", loaded.tree_id, seed=options.seed)
             for watcher in watchers:
@@ -686,16 +690,17 @@ def run_file(
 
 
 def run_loaded(loaded: LoadedTree, context: RunContext, options: RunOptions, progress: Progress | None = None,
-               stop: StopRequest | None = None, watchers: Sequence[TickWatcher] = ()) -> RunResult:
+               stop: StopRequest | None = None, watchers: Sequence[TickWatcher] = (),
+               guard: ProtectiveStop | None = None) -> RunResult:
     """Run a loaded tree (``run_file`` after the loading), with the run observers the options ask
     for (``runtime.observer``: the recording, the live view) and ``watchers`` told of every tick."""
     if not options.observed:
-        return run_tree(loaded, context, options, progress, stop=stop, watchers=watchers)
+        return run_tree(loaded, context, options, progress, stop=stop, watchers=watchers, guard=guard)
     from .observer import attach_observers
 
     observers = attach_observers(loaded, context, options)
     try:
-        result = run_tree(loaded, context, options, progress, stop=stop, watchers=watchers)
+        result = run_tree(loaded, context, options, progress, stop=stop, watchers=watchers, guard=guard)
     except BaseException as err:  # the run did not start (e.g. no such world): the observers say so
         for observer in observers:
             observer.aborted(err, stop)

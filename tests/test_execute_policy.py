@@ -219,7 +219,7 @@ def test_a_retried_policy_builds_its_bus_clients_once(registry):
 
 
 # -- start-up ------------------------------------------------------------------------------
-SERVICES_HERE = "/controller_manager/list_controllers, /controller_manager/switch_controller, /velocity_force_controller/zero_fts"
+SERVICES_HERE = "/controller_manager/list_controllers, /controller_manager/switch_controller, /protective_stop, /velocity_force_controller/zero_fts"
 
 
 def test_missing_service_is_an_error_before_anything_moves(registry):
@@ -243,7 +243,7 @@ def test_a_wrong_service_name_under_retry_waits_once_and_ends_as_error(registry)
     assert run.result.reason == (
         "<string>:1: ExecutePolicy: not available after 5 s: policy service '/get_action_chnk' (in this run the world "
         "serves the policy chosen with --policy; services here: /controller_manager/list_controllers, "
-        "/controller_manager/switch_controller, /get_action_chunk, /velocity_force_controller/zero_fts)"
+        "/controller_manager/switch_controller, /get_action_chunk, /protective_stop, /velocity_force_controller/zero_fts)"
     )
     assert run.policy.requests == [] and run.summary["run_count"] == 1
     assert run.summary["message"] == run.result.blackboard["message"] == run.result.reason.removeprefix("<string>:1: ExecutePolicy: ")

@@ -15,8 +15,9 @@ from std_srvs.srv import Trigger
 from runtime.errors import ObjectiveError
 from runtime.protective_stop import StopInputs
 from runtime.runner import RunOptions
+from tests.test_objective_server import client, library, registry, serve  # noqa: F401  (fixtures)
 from tests.test_ros_run import observer, ros_env  # noqa: F401  (fixtures)
-from tests.test_safety_properties import CONTROLLER, READY, RecordingWorld, registry, run_chunks  # noqa: F401
+from tests.test_safety_properties import CONTROLLER, READY, RecordingWorld, run_chunks
 from tests import test_safety_properties as harness
 
 SMOOTH = {"kind": "smooth", "steps": 40, "velocity": [0.2] * 6, "joint": 0, "at": 0.5, "size": 0.0,
@@ -141,6 +142,7 @@ def test_a_stop_brings_the_arm_to_rest_within_the_controllers_stop_time(objectiv
     rest within its stop time (plus one control step)."""
     from runtime.bus import FixedLatency
     from runtime.loader import load_tree
+    from runtime.registry import Registry
     from runtime.runner import make_context, run_tree
     from sim.controllers.base import ControllersConfig
     from sim.kinematic import KinematicWorld
@@ -149,7 +151,7 @@ def test_a_stop_brings_the_arm_to_rest_within_the_controllers_stop_time(objectiv
     options = RunOptions(seed=0, max_seconds=60.0, world="kinematic")
     context = make_context(options)
     world = KinematicWorld({"seed": 0})
-    loaded = load_tree(objective, registry(), context)
+    loaded = load_tree(objective, Registry.from_entry_points(), context)
     context.bus.set_latency("/get_action_chunk", FixedLatency(0.1))  # the oracle's calls: the same run every time
     stop = context.bus.create_publisher("/protective_stop", Bool)
     step_to = world.step_to
@@ -199,3 +201,27 @@ def test_a_stop_published_to_a_running_objective_run_ros_process_ends_it_as_fail
     summary = json.loads(out.strip().splitlines()[-1])
     assert summary["status"] == "FAILURE" and summary["reason"].startswith("protective stop: '/protective_stop' is true at ")
     assert "Traceback" not in err
+
+
+@pytest.mark.ros
+@pytest.mark.timeout(90)
+@pytest.mark.parametrize("ros", [False, True], ids=["in-process run", "ros run"])
+def test_the_objective_server_ends_a_running_objective_as_failure_on_a_protective_stop(serve, client, library, ros):
+    """The server's node serves the stop, whether its runs are in process or on ROS 2 themselves."""
+    from action_msgs.msg import GoalStatus
+    from tests.test_objective_server import wait_for as wait_until
+
+    serve(library, realtime=True, ros=ros, world="kinematic")
+    c = client()
+    handle = c.send("Long Wait")
+    wait_until(lambda: c.feedback, what="feedback")
+    answer = c.call(c.node.create_client(Trigger, "/protective_stop"), Trigger.Request())
+    assert (answer.success, answer.message) == (True, "protective stop: the run halts at its next tick")
+    status, result = c.result(handle)
+    assert status == GoalStatus.STATUS_ABORTED
+    assert result.status == "FAILURE" and result.reason.startswith("protective stop: '/protective_stop' was called at ")
+    handle = c.send("Long Wait")  # the next run starts afresh
+    wait_until(lambda: len(c.feedback) > 3, what="feedback of the next run")
+    c.node.create_publisher(Bool, "/protective_stop", 10).publish(Bool(data=True))
+    status, result = c.result(handle)
+    assert result.status == "FAILURE" and result.reason.startswith("protective stop: '/protective_stop' is true at ")
