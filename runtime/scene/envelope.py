@@ -174,52 +174,92 @@ def check_envelope(
 ) -> EnvelopeViolation | None:
     """The earliest point of ``(N, J)`` rows in ``layout``'s columns (``velocities`` of the
     group's joints, the same rows) outside ``envelope``. At one point the keep-in boxes are
-    reported before the tool axis, then the linear and the angular speed."""
+    reported before the tool axis, then the linear and the angular speed.
+
+    One forward-kinematics pass per point fills arrays; the checks then run on all points at once."""
     full = np.atleast_2d(layout(np.atleast_2d(positions)))
+    if len(full) == 0:
+        return None
+    frames = envelope.frames
+    poses = _frame_states(envelope, robot, layout, full, velocities)
+    found: list[tuple[int, int, EnvelopeViolation]] = []  # step, order at one step, violation
+
+    def first(mask: np.ndarray) -> int | None:
+        hits = np.flatnonzero(mask)
+        return int(hits[0]) if len(hits) else None
+
+    order = 0
+    for box in envelope.keep_in_boxes:
+        for frame in box.frames:
+            xyz = poses.positions[:, frames.index(frame)]
+            for k, axis in enumerate(AXES):
+                for bound, outside in ((box.min_m[k], xyz[:, k] < box.min_m[k] - tolerance),
+                                       (box.max_m[k], xyz[:, k] > box.max_m[k] + tolerance)):
+                    step = first(outside)
+                    if step is not None:
+                        found.append((step, order, EnvelopeViolation(step, None, frame, "workspace", float(xyz[step, k]), bound, axis, box.name)))
+                    order += 1
+    cone = envelope.tool_cone
+    if cone is not None and poses.axes is not None:
+        cosines = np.clip(poses.axes @ np.asarray(cone.direction), -1.0, 1.0)
+        angles = np.degrees(np.arccos(cosines))
+        step = first(angles > cone.max_angle_deg + tolerance)
+        if step is not None:
+            found.append((step, order, EnvelopeViolation(step, None, cone.frame, "tool axis", float(angles[step]), cone.max_angle_deg,
+                                                         _vector_text(cone.direction))))
+    if poses.twists is not None:
+        for k, (quantity, limit) in enumerate((("linear speed", envelope.max_tcp_speed_m_s),
+                                               ("angular speed", envelope.max_tcp_angular_speed_rad_s))):
+            speeds = np.linalg.norm(poses.twists[:, 3 * k: 3 * k + 3], axis=1)
+            step = first(speeds > limit + tolerance)
+            if step is not None:
+                found.append((step, order + 1 + k, EnvelopeViolation(step, None, envelope.tcp_frame, quantity, float(speeds[step]), limit)))
+    if not found:
+        return None
+    step, _, violation = min(found, key=lambda c: (c[0], c[1]))
+    return replace(violation, time=None if times is None else float(np.asarray(times)[step]))
+
+
+@dataclass(frozen=True)
+class _FrameStates:
+    positions: np.ndarray
+    """(N, F, 3): the origin of each of ``envelope.frames`` at each point."""
+    axes: np.ndarray | None
+    """(N, 3): the tool cone's axis in the world, when there is a cone."""
+    twists: np.ndarray | None
+    """(N, 6): the TCP frame's linear then angular velocity (world axes), when speeds are limited."""
+
+
+def _frame_states(envelope: CartesianEnvelope, robot: RobotModel, layout: ConfigurationMap, full: np.ndarray,
+                  velocities: np.ndarray | None) -> _FrameStates:
     model = robot.model
     data = model.createData()
-    frame_ids = {name: robot.frame_id(name) for name in envelope.frames}
-    v_columns = [int(model.idx_vs[model.getJointId(j)]) for j in layout.group.joints]
-    use_velocities = velocities is not None and envelope.needs_velocities
-    v_full = np.zeros(model.nv)
+    frame_ids = [robot.frame_id(name) for name in envelope.frames]
+    count = len(full)
+    positions = np.empty((count, len(frame_ids), 3))
     cone = envelope.tool_cone
-    for step, q in enumerate(full):
+    rotations = np.empty((count, 3, 3)) if cone is not None else None
+    cone_id = robot.frame_id(cone.frame) if cone is not None else 0
+    use_velocities = velocities is not None and envelope.needs_velocities
+    twists = np.empty((count, 6)) if use_velocities else None
+    tcp_id = robot.frame_id(envelope.tcp_frame)
+    v_columns = [int(model.idx_vs[model.getJointId(j)]) for j in layout.group.joints]
+    v_full = np.zeros(model.nv)
+    world_aligned = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
+    for i, q in enumerate(full):
         if use_velocities:
-            v_full[v_columns] = velocities[step, : len(v_columns)]  # type: ignore[index]
+            v_full[v_columns] = velocities[i, : len(v_columns)]  # type: ignore[index]
             pin.forwardKinematics(model, data, q, v_full)
         else:
             pin.forwardKinematics(model, data, q)
-        found = _first_at_point(envelope, model, data, frame_ids, cone, use_velocities, tolerance)
-        if found is not None:
-            time = None if times is None else float(np.asarray(times)[step])
-            return replace(found, step=step, time=time)
-    return None
-
-
-def _first_at_point(
-    envelope: CartesianEnvelope, model: Any, data: Any, frame_ids: dict[str, int], cone: ToolCone | None,
-    use_velocities: bool, tolerance: float,
-) -> EnvelopeViolation | None:
-    placements = {name: pin.updateFramePlacement(model, data, fid) for name, fid in frame_ids.items()}
-    for box in envelope.keep_in_boxes:
-        for frame in box.frames:
-            position = placements[frame].translation
-            for k, axis in enumerate(AXES):
-                if position[k] < box.min_m[k] - tolerance:
-                    return EnvelopeViolation(0, None, frame, "workspace", float(position[k]), box.min_m[k], axis, box.name)
-                if position[k] > box.max_m[k] + tolerance:
-                    return EnvelopeViolation(0, None, frame, "workspace", float(position[k]), box.max_m[k], axis, box.name)
-    if cone is not None:
-        angle = tool_axis_angle_deg(placements[cone.frame].rotation, cone.axis, cone.direction)
-        if angle > cone.max_angle_deg + tolerance:
-            return EnvelopeViolation(0, None, cone.frame, "tool axis", angle, cone.max_angle_deg, _vector_text(cone.direction))
-    if use_velocities:
-        twist = pin.getFrameVelocity(model, data, frame_ids[envelope.tcp_frame], pin.ReferenceFrame.LOCAL_WORLD_ALIGNED)
-        for quantity, value, limit in (("linear speed", float(np.linalg.norm(twist.linear)), envelope.max_tcp_speed_m_s),
-                                       ("angular speed", float(np.linalg.norm(twist.angular)), envelope.max_tcp_angular_speed_rad_s)):
-            if value > limit + tolerance:
-                return EnvelopeViolation(0, None, envelope.tcp_frame, quantity, value, limit)
-    return None
+        for k, fid in enumerate(frame_ids):
+            positions[i, k] = pin.updateFramePlacement(model, data, fid).translation
+        if rotations is not None:
+            rotations[i] = pin.updateFramePlacement(model, data, cone_id).rotation
+        if twists is not None:
+            twists[i] = pin.getFrameVelocity(model, data, tcp_id, world_aligned).vector
+    axes = None if rotations is None else rotations @ np.asarray(cone.axis)  # type: ignore[union-attr]
+    return _FrameStates(positions, axes, twists)
 
 
 def tool_axis_angle_deg(rotation: np.ndarray, axis: Sequence[float], direction: Sequence[float]) -> float:
