@@ -3,25 +3,23 @@ the limit), ports that may only tighten it, and the motion behaviors refusing a 
 before the controller sees it. ExecutePolicy's side is in test_safety_properties.py."""
 from __future__ import annotations
 
-import math
-from pathlib import Path
 
 import numpy as np
 import pytest
 
 from behaviors.execute_policy.checks import CheckKind
+from behaviors.execute_policy.shaping import Samples
+from behaviors.motion import plan_point_to_point
 from behaviors.safety import SafetyError, make_safety
 from behaviors.trajectories import check_motion
-from behaviors.motion import plan_point_to_point
-from behaviors.execute_policy.shaping import Samples
 from runtime.errors import OptionError
 from runtime.loader import load_tree
 from runtime.registry import Registry
 from runtime.runner import RunOptions, make_context, run_tree
 from runtime.scene import CartesianEnvelope, EnvelopeOverrides, KeepInBox, load_envelope, narrowed
-from sim.planning import make_cell_scene
-from sim.robot_model import ARM_JOINTS, CARTESIAN_LIMITS_PATH, load_waypoints
 from sim.kinematic import KinematicWorld
+from sim.planning import make_cell_scene
+from sim.robot_model import ARM_JOINTS, CARTESIAN_LIMITS_PATH, JOINT_LIMITS_PATH, load_waypoints
 from tests.test_safety_properties import CUBES
 
 HOME = np.array([load_waypoints()["Home"][j] for j in ARM_JOINTS])
@@ -38,7 +36,7 @@ def motion_to(scene, goal: np.ndarray, scale: float = 0.5) -> Samples:
 
 
 def test_the_cells_envelope_is_loaded_from_beside_joint_limits(scene):
-    assert CARTESIAN_LIMITS_PATH.parent == Path(CARTESIAN_LIMITS_PATH).parent and CARTESIAN_LIMITS_PATH.name == "cartesian_limits.yaml"
+    assert CARTESIAN_LIMITS_PATH == JOINT_LIMITS_PATH.parent / "cartesian_limits.yaml"
     envelope = scene.envelope
     assert envelope.tcp_frame == "tcp" and envelope.max_tcp_speed_m_s == 1.0 and envelope.max_tcp_angular_speed_rad_s == 3.0
     assert envelope.keep_in_boxes == (KeepInBox("table_workspace", ("tcp", "wrist_3_link", "wrist_2_link", "wrist_1_link"),
@@ -55,7 +53,7 @@ def test_a_motion_that_tilts_the_tool_is_refused_at_its_first_point_past_the_con
     assert 45.0 < outside.value < 46.0 and outside.limit == 45.0
     assert str(outside) == (f"step {outside.step} (t={outside.time:.3f} s): link tcp tool axis {outside.value:.4f} deg "
                             "from (0, 0, -1) exceeds the limit 45.0000 deg")
-    # The same motion within the envelope's cone once the joints' own check is all there is.
+    # Ports left at 0 keep the cell's envelope as it is.
     assert make_safety(scene, "manipulator", None).narrowed(EnvelopeOverrides()).envelope == scene.envelope
 
 
@@ -134,12 +132,14 @@ def test_a_mistake_in_the_yaml_is_an_option_error_naming_the_file_and_key(scene,
     assert str(err.value).startswith(f"{path}: ") and message in str(err.value)
 
 
-def test_move_to_joint_state_refuses_a_motion_outside_the_envelope_before_the_controller_sees_it():
+@pytest.mark.parametrize("controller", ["joint_trajectory_admittance_controller", "joint_trajectory_controller"])
+def test_move_to_joint_state_refuses_a_motion_outside_the_envelope_before_the_controller_sees_it(controller):
     registry = Registry.from_entry_points()
     tilted = ";".join(f"{v:.6f}" for v in HOME + np.array([0, 0, 0, 0, 1.2, 0]))
     xml = ('<root BTCPP_format="4"><BehaviorTree ID="T"><Sequence>'
-           '<SwitchController activate_controllers="joint_trajectory_admittance_controller" deactivate_controllers="velocity_force_controller"/>'
-           f'<MoveToJointState joint_group_name="manipulator" joint_positions="{tilted}"/>'
+           f'<SwitchController activate_controllers="{controller}" deactivate_controllers="velocity_force_controller"/>'
+           f'<MoveToJointState joint_group_name="manipulator" joint_positions="{tilted}" '
+           f'controller_action_name="/{controller}/follow_joint_trajectory"/>'
            '</Sequence></BehaviorTree></root>')
     options = RunOptions(seed=0, max_seconds=10.0, world="kinematic")
     context = make_context(options)

@@ -8,7 +8,6 @@ from typing import Any
 
 import numpy as np
 import pytest
-from moveit_pro_controllers_msgs.action import FollowJointTrajectoryWithAdmittance as FollowTrajectory
 from std_msgs.msg import Bool
 from std_srvs.srv import Trigger
 
@@ -18,7 +17,6 @@ from runtime.runner import RunOptions
 from tests.test_objective_server import client, library, registry, serve  # noqa: F401  (fixtures)
 from tests.test_ros_run import observer, ros_env  # noqa: F401  (fixtures)
 from tests.test_safety_properties import CONTROLLER, READY, RecordingWorld, run_chunks
-from tests import test_safety_properties as harness
 
 SMOOTH = {"kind": "smooth", "steps": 40, "velocity": [0.2] * 6, "joint": 0, "at": 0.5, "size": 0.0,
           "bad": float("nan"), "names": "permuted", "width": 0, "seed": 0}
@@ -52,23 +50,7 @@ class CancelRecordingWorld(RecordingWorld):
 def run_policy(at_step: Any, stop: StopInputs | None = StopInputs()) -> tuple[Any, CancelRecordingWorld]:
     """ExecutePolicy streaming smooth chunks for 20 steps of 0.1 s against the recording controller."""
     world = CancelRecordingWorld(READY, at_step)
-    original = harness.RecordingWorld
-    harness.RecordingWorld = lambda start, envelope=True: world  # type: ignore[assignment]
-    try:
-        options_stop = stop
-
-        def options(**kwargs: Any) -> RunOptions:
-            return RunOptions(**kwargs, protective_stop=options_stop)
-
-        harness_options = harness.RunOptions
-        harness.RunOptions = options  # type: ignore[assignment]
-        try:
-            out = run_chunks([SMOOTH], READY, 0.1, 50)
-        finally:
-            harness.RunOptions = harness_options
-    finally:
-        harness.RecordingWorld = original
-    return out, world
+    return run_chunks([SMOOTH], READY, 0.1, 50, world=world, protective_stop=stop), world
 
 
 def publish_at(t_s: float, topic: str, value: bool = True) -> Any:

@@ -45,6 +45,7 @@ from behaviors.execute_policy.shaping import Samples
 from behaviors.safety import make_safety
 from runtime.bus import FixedLatency
 from runtime.loader import load_tree
+from runtime.protective_stop import StopInputs
 from runtime.registry import Registry
 from runtime.scene.kinematics import frame_jacobian, frame_poses
 from runtime.runner import RunOptions, make_context, run_tree
@@ -270,17 +271,20 @@ class Outcome:
 
 
 def run_chunks(specs: list[dict[str, Any]], start: np.ndarray, dt: float, points: int, gripper: bool = False,
-               max_tcp_speed: float = 0.0, envelope: bool = True) -> Outcome:
-    """``max_tcp_speed``: ExecutePolicy's port (0: the cell's); ``envelope`` False: a scene without one."""
+               max_tcp_speed: float = 0.0, envelope: bool = True, world: RecordingWorld | None = None,
+               protective_stop: StopInputs | None = StopInputs()) -> Outcome:
+    """``max_tcp_speed``: ExecutePolicy's port (0: the cell's); ``envelope`` False: a scene without
+    one; ``world``: a recording world of the caller's (else one starting at ``start``);
+    ``protective_stop``: the run's stop inputs."""
     ports = (f'total_action_steps="20" dt="{dt}" committed_action_steps="10" num_interpolation_points="{points}" '
              f'link_padding="{PADDING}" goal_path_tolerance="0.3" policy_call_timeout="2.0" max_tcp_speed="{max_tcp_speed}"')
     if gripper:
         ports += f' gripper_command_action_name="{GRIPPER_ACTION}" gripper_joint_name="{GRIPPER_DRIVER_JOINT}"'
     xml = (f'<root BTCPP_format="4"><BehaviorTree ID="T"><ExecutePolicy policy_service_name="{SERVICE}" '
            f'joint_group_name="manipulator" {ports} rejection_reason="{{rejection}}"/></BehaviorTree></root>')
-    options = RunOptions(seed=0, max_seconds=20.0)
+    options = RunOptions(seed=0, max_seconds=20.0, protective_stop=protective_stop)
     context = make_context(options)
-    world = RecordingWorld(start, envelope=envelope)
+    world = world if world is not None else RecordingWorld(start, envelope=envelope)
     loaded = load_tree(xml, registry(), context)
     calls = {"n": 0}
 
