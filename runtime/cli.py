@@ -34,6 +34,7 @@ from .command import COMMAND_GROUP, EXIT_BAD_INPUT, EXIT_SUCCESS, Command
 from .errors import INTERNAL, InternalError, ObjectiveError, error_kind
 from .interrupt import StopRequest, exit_code_for, signal_name, stop_on_signals
 from .ports import FINITE, NUMERIC_TYPES, Direction, PortInfo, PortType
+from .protective_stop import PROTECTIVE_STOP, StopInputs
 from .registry import Registry
 from .terminal import printable
 
@@ -91,10 +92,8 @@ def add_protective_stop_arguments(parser: argparse.ArgumentParser) -> None:
                         help="seconds the deadman heartbeat may be silent (default 0.5)")
 
 
-def protective_stop_inputs(args: argparse.Namespace) -> Any:
+def protective_stop_inputs(args: argparse.Namespace) -> StopInputs:
     """The ``StopInputs`` of ``add_protective_stop_arguments``' options."""
-    from .protective_stop import StopInputs
-
     return StopInputs(args.protective_stop, args.protective_stop, args.deadman_topic, args.deadman_period)
 
 
@@ -270,6 +269,8 @@ def run_outcome_line(result: Any) -> str:
         return f"INTERRUPTED after {result.sim_seconds:.2f} s ({result.ticks} ticks): {printable(result.reason)}"
     if result.status == "ERROR":
         return f"{error_label(result.failure_kind)}: {printable(result.reason)}"
+    if result.failure_kind == PROTECTIVE_STOP:  # no node failed: the run was stopped from outside
+        return f"FAILURE after {result.sim_seconds:.2f} s ({result.ticks} ticks): {printable(result.reason)}"
     where = f" ({printable(result.failing_location)})" if result.failing_location else ""
     node = f"'{printable(result.failing_node)}'{where}" if result.failing_node else "the root"
     return (f"FAILURE after {result.sim_seconds:.2f} s: {node} failed: "

@@ -1,10 +1,10 @@
 """The protective stop: one input on the run's bus that halts the running tree.
 
-Every run (``objective run``, each ``eval`` episode, each Objective the server runs) listens on
-``StopInputs.topic`` (``std_msgs/Bool``: ``true`` stops) and serves ``StopInputs.service``
-(``std_srvs/Trigger``), both ``/protective_stop`` by default. The runner asks ``ProtectiveStop.reason``
-after the bus delivered what is due and before the tree ticks; once it answers, the tree is not
-ticked again: it is halted (every RUNNING node's ``terminate``: controller goals cancelled, the
+Every run listens on ``StopInputs.topic`` (``std_msgs/Bool``: ``true`` stops) and serves
+``StopInputs.service`` (``std_srvs/Trigger``), both ``/protective_stop`` by default: on its own
+bus (``objective run``, each ``eval`` episode; a ROS 2 node with ``--ros``), or, for the Objectives
+the server runs, on the server's node. The runner asks ``ProtectiveStop.reason`` after the bus
+delivered what is due and before the tree ticks; once it answers, the tree is not ticked again: it is halted (every RUNNING node's ``terminate``: controller goals cancelled, the
 controllers stop the arm within their stop time) and the run ends FAILURE, "protective stop: ...".
 
 The optional deadman: with ``StopInputs.deadman_topic`` set, while a node that needs a heartbeat
@@ -19,14 +19,13 @@ import math
 from dataclasses import dataclass
 from typing import Any
 
-from std_msgs.msg import Bool
-from std_srvs.srv import Trigger
-
 from .errors import ObjectiveError
 
 _log = logging.getLogger("objective")
 
 DEFAULT_STOP_NAME = "/protective_stop"
+PROTECTIVE_STOP = "protective stop"
+"""The failure kind of a run the protective stop ended."""
 
 
 @dataclass(frozen=True)
@@ -67,6 +66,9 @@ class ProtectiveStop:
 
     def listen(self, bus: Any) -> None:
         """Subscribe to the topics and serve the service on ``bus`` (a service only where the bus serves)."""
+        from std_msgs.msg import Bool  # the ROS interfaces, only once a run listens (a sourced ROS 2 or the [ros] extra)
+        from std_srvs.srv import Trigger
+
         inputs = self.inputs
         if inputs.topic:
             bus.create_subscription(inputs.topic, Bool, self.on_stop)
@@ -78,16 +80,21 @@ class ProtectiveStop:
         if inputs.deadman_topic:
             bus.create_subscription(inputs.deadman_topic, Bool, self.on_heartbeat)
 
-    def on_stop(self, msg: Bool) -> None:
+    def on_stop(self, msg: Any) -> None:
+        """A ``std_msgs/Bool`` on the stop topic: ``true`` stops."""
         if msg.data and self.engaged is None:
             self.engaged = f"'{self.inputs.topic}' is true"
 
-    def on_trigger(self, request: Any, response: Any = None) -> Trigger.Response:
+    def on_trigger(self, request: Any, response: Any = None) -> Any:
+        """A call of the ``std_srvs/Trigger`` service: stops, and says so."""
+        from std_srvs.srv import Trigger
+
         if self.engaged is None:
             self.engaged = f"'{self.inputs.service}' was called"
         return Trigger.Response(success=True, message="protective stop: the run halts at its next tick")
 
-    def on_heartbeat(self, msg: Bool) -> None:
+    def on_heartbeat(self, msg: Any) -> None:
+        """A ``std_msgs/Bool`` on the deadman topic: ``true`` is a heartbeat, ``false`` a release."""
         if msg.data:
             self.heartbeats += 1
         elif self.engaged is None:

@@ -43,7 +43,7 @@ from .extras import load_entry_point
 from .heap import PacedHeap
 from .interrupt import Interrupted, StopRequest, exit_code_for, signal_name
 from .loader import LoadedTree, load_tree
-from .protective_stop import ProtectiveStop, StopInputs, needs_heartbeat
+from .protective_stop import PROTECTIVE_STOP, ProtectiveStop, StopInputs, needs_heartbeat
 from .registry import WORLD_GROUP, Registry, default_world_name
 from .scheduling import check_priority, realtime_priority
 from .world_check import check_tree, declared_interfaces, named_links
@@ -144,8 +144,6 @@ class RunOptions:
 
 TIMEOUT = "timeout"
 """The failure kind of a run stopped by ``--max-seconds``."""
-PROTECTIVE_STOP = "protective stop"
-"""The failure kind of a run the protective stop ended (``runtime.protective_stop``)."""
 
 
 class RunEnd(enum.Enum):
@@ -465,10 +463,11 @@ def run_tree(
 
     Starts the world named by ``options.world`` when the tree needs one (unless ``world`` is
     given). Before every tick it looks at ``stop`` (set by ``runtime.interrupt`` on SIGINT or
-    SIGTERM) and, after the bus delivered what is due, ``guard`` (the protective stop; by default
-    one listening on the run's bus per ``options.protective_stop``). Bad input found while running (e.g. a port reading a blackboard entry nobody
-    wrote), an unexpected exception or an interruption ends the run as ERROR or INTERRUPTED;
-    the tree is halted and everything closed either way.
+    SIGTERM) and, after the bus delivered what is due, ``guard`` (the protective stop: by default
+    one listening on the run's bus per ``options.protective_stop``; it ends the run FAILURE). Bad
+    input found while running (e.g. a port reading a blackboard entry nobody wrote), an unexpected
+    exception or an interruption ends the run as ERROR or INTERRUPTED; the tree is halted and
+    everything closed either way.
     """
     options.check()
     root = loaded.root
@@ -631,16 +630,14 @@ def _describe_breakoff(result: RunResult, breakoff: Breakoff, running: list[py_t
                        loaded: LoadedTree, nodes: list[py_trees.behaviour.Behaviour], options: RunOptions) -> None:
     """Fill ``result`` for a run a signal or an exception ended (status, node, reason, log file)."""
     result.status = breakoff.end.value
+    where = ", ".join(f"'{n.name}'" + _at(loaded, n) for n in running)
+    halted = f"; halted {where} (RUNNING)" if where else ""
     if breakoff.protective_stop is not None:
-        where = ", ".join(f"'{n.name}'" + _at(loaded, n) for n in running)
-        halted = f"; halted {where} (RUNNING)" if where else ""
         result.reason = f"protective stop: {breakoff.protective_stop} at {result.sim_seconds:.2f} s{halted}"
         result.failure_kind = PROTECTIVE_STOP
         return
     if breakoff.signum is not None:
         result.signum = int(breakoff.signum)
-        where = ", ".join(f"'{n.name}'" + _at(loaded, n) for n in running)
-        halted = f"; halted {where} (RUNNING)" if where else ""
         result.stopped_by = breakoff.cause
         cause = breakoff.cause or f"interrupted by {signal_name(breakoff.signum)}"
         result.reason = f"{cause} at {result.sim_seconds:.2f} s{halted}"
