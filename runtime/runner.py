@@ -210,7 +210,7 @@ class RunResult:
             summary["stopped_by"] = self.stopped_by
         elif self.status == RunEnd.INTERRUPTED.value:
             summary["signal"] = signal_name(self.signum or signal.SIGINT)
-        if self.status in (RunEnd.INTERRUPTED.value, RunEnd.ERROR.value):
+        if self.status in (RunEnd.INTERRUPTED.value, RunEnd.ERROR.value) or self.failure_kind == PROTECTIVE_STOP:
             summary["running_nodes"] = list(self.running_nodes)
         if self.log_file is not None:
             summary["log_file"] = self.log_file

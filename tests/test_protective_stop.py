@@ -182,7 +182,8 @@ def test_a_stop_published_to_a_running_objective_run_ros_process_ends_it_as_fail
     assert code == 1, err
     summary = json.loads(out.strip().splitlines()[-1])
     assert summary["status"] == "FAILURE" and summary["reason"].startswith("protective stop: '/protective_stop' is true at ")
-    assert "Traceback" not in err
+    assert summary["failure_kind"] == "protective stop" and summary["running_nodes"]  # what it was doing
+    assert " ticks): protective stop: '/protective_stop' is true at " in err and "Traceback" not in err
 
 
 @pytest.mark.ros
