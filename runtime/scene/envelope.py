@@ -262,12 +262,6 @@ def _frame_states(envelope: CartesianEnvelope, robot: RobotModel, layout: Config
     return _FrameStates(positions, axes, twists)
 
 
-def tool_axis_angle_deg(rotation: np.ndarray, axis: Sequence[float], direction: Sequence[float]) -> float:
-    """Degrees between ``axis`` (in a frame of world ``rotation``) and world ``direction``, both unit."""
-    cosine = float(np.dot(np.asarray(rotation) @ np.asarray(axis, dtype=float), np.asarray(direction, dtype=float)))
-    return math.degrees(math.acos(max(-1.0, min(1.0, cosine))))
-
-
 def _vector_text(v: Sequence[float]) -> str:
     return "(" + ", ".join(f"{x:g}" for x in v) + ")"
 
