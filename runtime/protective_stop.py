@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import logging
 import math
+import re
 from dataclasses import dataclass
 from typing import Any
 
@@ -24,6 +25,8 @@ from .errors import ObjectiveError
 _log = logging.getLogger("objective")
 
 DEFAULT_STOP_NAME = "/protective_stop"
+ROS_NAME = re.compile(r"/?[A-Za-z_][A-Za-z0-9_]*(/[A-Za-z_][A-Za-z0-9_]*)*")
+"""A topic or service name ROS 2 accepts (absolute or relative; no substitutions)."""
 PROTECTIVE_STOP = "protective stop"
 """The failure kind of a run the protective stop ended."""
 
@@ -38,6 +41,12 @@ class StopInputs:
     deadman_period_s: float = 0.5
 
     def check(self) -> None:
+        """ObjectiveError naming the option for a name ROS 2 would refuse or a period that is not positive."""
+        for option, name in (("--protective-stop", self.topic), ("--protective-stop", self.service),
+                             ("--deadman-topic", self.deadman_topic)):
+            if name and not ROS_NAME.fullmatch(name):
+                raise ObjectiveError(f"{option} {name!r} is not a ROS 2 name: words of letters, digits and '_' "
+                                     "(not starting with a digit) between '/', such as /protective_stop")
         if not (self.deadman_period_s > 0 and math.isfinite(self.deadman_period_s)):
             raise ObjectiveError(f"--deadman-period must be a positive number of seconds, got {self.deadman_period_s}")
 

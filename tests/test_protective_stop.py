@@ -154,9 +154,14 @@ def test_a_stop_brings_the_arm_to_rest_within_the_controllers_stop_time(objectiv
     assert np.abs(world.cell.arm_velocity()).max() == 0.0
 
 
-def test_a_deadman_period_that_is_not_positive_is_refused():
+def test_a_deadman_period_that_is_not_positive_or_a_name_ros_refuses_is_an_error_before_the_run():
     with pytest.raises(ObjectiveError, match="--deadman-period must be a positive number of seconds, got 0"):
         RunOptions(protective_stop=StopInputs(deadman_topic="/deadman", deadman_period_s=0.0)).check()
+    with pytest.raises(ObjectiveError, match=r"^--protective-stop 'bad name' is not a ROS 2 name: "):
+        RunOptions(protective_stop=StopInputs("bad name", "bad name")).check()
+    with pytest.raises(ObjectiveError, match=r"^--deadman-topic '/1st' is not a ROS 2 name: "):
+        RunOptions(protective_stop=StopInputs(deadman_topic="/1st")).check()
+    RunOptions(protective_stop=StopInputs("/cell_7/e_stop", "stop", "/operator/deadman")).check()
 
 
 @pytest.mark.ros
