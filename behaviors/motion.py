@@ -138,7 +138,7 @@ class _MoveToJoints(SendsTrajectoryGoal):
             return Status.SUCCESS
         outside = self.safety.first_limit_violation(samples)
         if outside is not None:
-            return self.fail(f"the motion is outside the joint limits: {outside}")
+            return self.fail(f"the motion is outside the {outside.family}s: {outside}")
         snapshot = self.safety.snapshot()
         collision = self.safety.first_collision(snapshot, samples, self.get_input("link_padding"))
         if collision is not None:

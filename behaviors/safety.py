@@ -1,14 +1,18 @@
-"""What motion behaviors need from the planning scene: the group's joints, their limits, and
-collision checks of a densified motion against a snapshot of the collision rules."""
+"""What motion behaviors need from the planning scene: the group's joints, their limits, the
+cell's Cartesian envelope, and collision checks of a densified motion against a snapshot of the
+collision rules."""
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
 
-from runtime.scene import CollisionResult, ConfigurationMap, GroupError, JointLimit, JointLimits, LimitViolation, PlanningScene, SceneSnapshot
-from runtime.errors import ObjectiveError
+from runtime.errors import ObjectiveError, OptionError
+from runtime.scene import (
+    CartesianEnvelope, CollisionResult, ConfigurationMap, EnvelopeOverrides, EnvelopeViolation, GroupError, JointLimit, JointLimits,
+    LimitViolation, PlanningScene, SceneSnapshot, check_envelope, narrowed,
+)
 
 from .execute_policy.shaping import Samples
 
@@ -50,6 +54,20 @@ class MotionSafety:
     gripper_joint: str | None
     chunk_limits: JointLimits
     """The limits of the group's joints, then of the gripper joint when there is one."""
+    envelope: CartesianEnvelope | None = None
+    """The Cartesian envelope every point is checked against (the cell's, perhaps narrowed)."""
+
+    def narrowed(self, overrides: EnvelopeOverrides) -> MotionSafety:
+        """This safety with the envelope tightened by a behavior's ports (``envelope.narrowed``);
+        a SafetyError when a port would widen it. Without a cell envelope, the ports make one
+        around the group's tip."""
+        base = self.envelope if self.envelope is not None else CartesianEnvelope(self.tip)
+        source = "the cell's envelope" if self.envelope is not None else "an unlimited envelope"
+        try:
+            envelope = narrowed(base, overrides, source)
+        except OptionError as err:
+            raise SafetyError(str(err)) from None
+        return replace(self, envelope=None if envelope == CartesianEnvelope(self.tip) else envelope)
 
     def snapshot(self) -> SceneSnapshot:
         """Collision rules and attachments now; checks with it ignore later rule changes."""
@@ -82,10 +100,17 @@ class MotionSafety:
             return None
         return self.chunk_limits.subset([self.gripper_joint]).check_steps(gripper[:, None], dt_s)
 
-    def first_limit_violation(self, samples: Samples) -> LimitViolation | None:
+    def first_limit_violation(self, samples: Samples) -> LimitViolation | EnvelopeViolation | None:
         """The earliest sample of a motion outside the group's position, velocity or
-        acceleration limits: the one limit check of every behavior that sends motion."""
-        return self.limits.check(samples.positions, samples.velocities, samples.accelerations, samples.times)
+        acceleration limits or outside the Cartesian envelope (at one sample, a joint limit is
+        reported first): the one limit check of every behavior that sends motion."""
+        joint = self.limits.check(samples.positions, samples.velocities, samples.accelerations, samples.times)
+        if self.envelope is None or len(samples) == 0:
+            return joint
+        end = len(samples) if joint is None else joint.step
+        cartesian = check_envelope(self.envelope, self.scene.robot, self.scene.layout(self.group, None),
+                                   samples.positions[:end], samples.velocities[:end], samples.times[:end])
+        return joint if cartesian is None else cartesian
 
     def first_value_out_of_limits(self, arm: np.ndarray, gripper: np.ndarray | None) -> LimitViolation | None:
         """The first step of a chunk, as the policy sent it, with a value outside its joint's
@@ -141,7 +166,7 @@ def make_safety(scene: Any, group: str, gripper_joint: str | None) -> MotionSafe
         layout = scene.layout(group, gripper_joint)
     except (KeyError, GroupError, ValueError) as err:
         raise SafetyError(str(err).strip('"')) from None
-    return MotionSafety(scene, group, joints, tip, limits, layout, gripper_joint, chunk_limits)
+    return MotionSafety(scene, group, joints, tip, limits, layout, gripper_joint, chunk_limits, scene.envelope)
 
 
 def _gripper_limit(scene: PlanningScene, joint: str) -> JointLimit:

@@ -237,17 +237,19 @@ def mean_velocities(samples: Samples) -> np.ndarray:
 
 def check_motion(safety: MotionSafety, samples: Samples, padding_m: float, check_step_rad: float,
                  snapshot: SceneSnapshot | None = None) -> str | None:
-    """The first point of a motion outside the position, velocity or acceleration limits, or the
-    first interval between two points whose mean velocity exceeds a limit, or else its first
-    collision (with the collision rules of ``snapshot``, default the scene's now), as a sentence;
-    or None."""
+    """The first point of a motion outside the position, velocity or acceleration limits or the
+    Cartesian envelope, or the first interval between two points whose mean velocity exceeds a
+    limit (a joint's, or the TCP's speed at the interval's end with those mean joint velocities),
+    or else its first collision (with the collision rules of ``snapshot``, default the scene's
+    now), as a sentence; or None."""
     outside = safety.first_limit_violation(samples)
     if outside is not None:
-        return f"breaks a joint limit at point {outside.step} (t={outside.time:.3f} s): {outside.what}"
+        return f"breaks a {outside.family} at point {outside.step} (t={outside.time:.3f} s): {outside.what}"
     if len(samples) > 1:
-        fast = safety.limits.check(samples.positions[1:], mean_velocities(samples), times=samples.times[1:])
+        steps = Samples(samples.times[1:], samples.positions[1:], mean_velocities(samples), np.zeros_like(samples.positions[1:]))
+        fast = safety.first_limit_violation(steps)
         if fast is not None:
-            return (f"moves faster than a joint limit from point {fast.step} to point {fast.step + 1} "
+            return (f"moves faster than a {fast.family} from point {fast.step} to point {fast.step + 1} "
                     f"(t={fast.time:.3f} s): {fast.what} (the mean over that interval)")
     collision = safety.first_collision(snapshot or safety.snapshot(), subdivide(samples, check_step_rad), padding_m)
     return None if collision is None else f"collides: {collision}"

@@ -35,6 +35,7 @@ from .command import COMMAND_GROUP, EXIT_BAD_INPUT, EXIT_SUCCESS, OBJECTIVE_FILE
 from .errors import INTERNAL, InternalError, ObjectiveError, error_kind
 from .interrupt import StopRequest, exit_code_for, signal_name, stop_on_signals
 from .ports import FINITE, NUMERIC_TYPES, Direction, PortInfo, PortType
+from .protective_stop import PROTECTIVE_STOP, StopInputs
 from .registry import Registry
 from .terminal import printable
 
@@ -93,6 +94,21 @@ def add_discovery_argument(parser: argparse.ArgumentParser) -> None:
                         "ROS_AUTOMATIC_DISCOVERY_RANGE says otherwise), subnet, system_default or off")
 
 
+def add_protective_stop_arguments(parser: argparse.ArgumentParser) -> None:
+    """``--protective-stop NAME``, ``--deadman-topic`` and ``--deadman-period`` (``runtime.protective_stop``)."""
+    parser.add_argument("--protective-stop", default="/protective_stop", metavar="NAME",
+                        help="the std_msgs/Bool topic and std_srvs/Trigger service that stop a run (FAILURE); '' for none")
+    parser.add_argument("--deadman-topic", default="", metavar="TOPIC",
+                        help="a std_msgs/Bool heartbeat (true) that must keep arriving while a policy runs")
+    parser.add_argument("--deadman-period", type=positive_float, default=0.5, metavar="S",
+                        help="seconds the deadman heartbeat may be silent (default 0.5)")
+
+
+def protective_stop_inputs(args: argparse.Namespace) -> StopInputs:
+    """The ``StopInputs`` of ``add_protective_stop_arguments``' options."""
+    return StopInputs(args.protective_stop, args.protective_stop, args.deadman_topic, args.deadman_period)
+
+
 def groot2_server(args: argparse.Namespace) -> Any:
     """The Groot2 server ``--groot2`` asks for (a context manager), or a null context."""
     if args.groot2 is None:
@@ -149,6 +165,7 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     run.add_argument("--json", action="store_true", help="print a JSON summary as the last line of stdout")
     run.add_argument("--world", metavar="NAME", help="world for trees that need one (default: the installation's, vla_sim here)")
     run.add_argument("--max-seconds", type=positive_float, metavar="S", help="fail after S seconds of clock time")
+    add_protective_stop_arguments(run)
     run.add_argument("--policy-latency", metavar="SPEC",
                      help=f"policy call latency: seconds ({DEFAULT_POLICY_LATENCY} by default, as objective eval), "
                           "'measured' (the policy's own wall time), lognormal:MEAN,SD or "
@@ -235,6 +252,7 @@ def cmd_run(args: argparse.Namespace, registry: Registry, stop: StopRequest | No
         record_dir=args.record,
         live_port=args.live,
         world_options={**dict(args.world_option), **({"policy": args.policy} if args.policy else {})},
+        protective_stop=protective_stop_inputs(args),
     )
     progress = ProgressLine(sys.stderr) if sys.stderr.isatty() else None
     if progress is not None:
@@ -276,6 +294,8 @@ def run_outcome_line(result: Any) -> str:
         return f"INTERRUPTED after {result.sim_seconds:.2f} s ({result.ticks} ticks): {printable(result.reason)}"
     if result.status == "ERROR":
         return f"{error_label(result.failure_kind)}: {printable(result.reason)}"
+    if result.failure_kind == PROTECTIVE_STOP:  # no node failed: the run was stopped from outside
+        return f"FAILURE after {result.sim_seconds:.2f} s ({result.ticks} ticks): {printable(result.reason)}"
     where = f" ({printable(result.failing_location)})" if result.failing_location else ""
     node = f"'{printable(result.failing_node)}'{where}" if result.failing_node else "the root"
     return (f"FAILURE after {result.sim_seconds:.2f} s: {node} failed: "

@@ -8,6 +8,7 @@ planning scene to check motions against. Options (``--world-option KEY=VALUE``):
 one of the two is required), ``srdf`` (required), ``couplings`` (YAML of joints that follow
 another, for a model without URDF ``<mimic>``), ``joint_limits`` (MoveIt-style YAML; without it only
 position limits are known and velocity/acceleration are unbounded, which ExecutePolicy refuses),
+``cartesian_limits`` (the Cartesian envelope's YAML, ``runtime.scene.envelope``; without it none),
 ``group`` (default ``manipulator``), ``gripper_joint``, ``package_dirs`` (``;``-separated, for
 ``package://`` meshes), ``waypoints`` (YAML ``waypoints: {Name: {joints: [...], positions: [...]}}``).
 """
@@ -20,7 +21,7 @@ from typing import Any
 import yaml
 
 from .behavior import RunContext
-from .scene import PlanningScene, RobotModel, load_joint_limits
+from .scene import PlanningScene, RobotModel, load_envelope, load_joint_limits
 from .errors import OptionError
 from .extras import load_entry_point
 
@@ -28,7 +29,7 @@ MJCF_LOADER_GROUP = "objective.robot_loaders"
 """Entry points ``mjcf = module:function(path, srdf, couplings=...) -> RobotModel``."""
 
 OPTIONS = ("seed", "realtime", "policy_latency", "record_dir", "policy", "urdf", "mjcf", "srdf", "couplings",
-           "joint_limits", "group", "gripper_joint", "package_dirs", "waypoints")
+           "joint_limits", "cartesian_limits", "group", "gripper_joint", "package_dirs", "waypoints")
 
 
 def _existing(options: dict[str, Any], key: str) -> Path:
@@ -98,10 +99,14 @@ class RobotDescriptionWorld:
             position = {j: (lo, hi) for j, lo, hi in zip(joints, lower, upper)}
             limits = load_joint_limits(_existing(options, "joint_limits"), position)
         self.limits = limits
+        self.envelope = None
+        if options.get("cartesian_limits"):
+            tip = self.robot.group(self.group).tip_link
+            self.envelope = load_envelope(_existing(options, "cartesian_limits"), self.robot, tip)
         self.waypoints = load_waypoints_yaml(_existing(options, "waypoints")) if options.get("waypoints") else {}
 
     def start(self, context: RunContext) -> None:
-        context.scene = PlanningScene(self.robot, self.group, self.gripper_joint, limits=self.limits)
+        context.scene = PlanningScene(self.robot, self.group, self.gripper_joint, limits=self.limits, envelope=self.envelope)
         context.resources["waypoints"] = self.waypoints
 
     def step_to(self, t: float) -> None:

@@ -43,6 +43,7 @@ from .extras import load_entry_point
 from .heap import PacedHeap
 from .interrupt import Interrupted, StopRequest, exit_code_for, signal_name
 from .loader import LoadedTree, load_tree
+from .protective_stop import PROTECTIVE_STOP, ProtectiveStop, StopInputs, needs_heartbeat
 from .registry import WORLD_GROUP, Registry, default_world_name
 from .scheduling import check_priority, realtime_priority
 from .world_check import check_tree, declared_interfaces, named_links
@@ -94,6 +95,9 @@ class RunOptions:
     realtime_priority: int | None = None
     """In a paced run: tick at this SCHED_FIFO priority (1-99, ``runtime.scheduling``); None:
     the default priority."""
+    protective_stop: StopInputs | None = field(default_factory=StopInputs)
+    """Where the run listens for a protective stop and a deadman's heartbeat
+    (``runtime.protective_stop``); None: nowhere."""
     log_dir: Path | None = None
     """Where the traceback of an unexpected exception goes: the recording directory when
     recording, else this (None: ``build/logs/`` under the working directory)."""
@@ -122,6 +126,8 @@ class RunOptions:
         for name in self.sets:
             if not name or name.strip() != name:
                 raise ObjectiveError(f"--set needs name=value with a non-empty name, got {name!r}")
+        if self.protective_stop is not None:
+            self.protective_stop.check()
         if self.realtime_priority is not None:
             if not self.paced:
                 raise ObjectiveError("--realtime-priority sets the priority of a paced run's ticks: it needs --realtime or --ros")
@@ -204,7 +210,7 @@ class RunResult:
             summary["stopped_by"] = self.stopped_by
         elif self.status == RunEnd.INTERRUPTED.value:
             summary["signal"] = signal_name(self.signum or signal.SIGINT)
-        if self.status in (RunEnd.INTERRUPTED.value, RunEnd.ERROR.value):
+        if self.status in (RunEnd.INTERRUPTED.value, RunEnd.ERROR.value) or self.failure_kind == PROTECTIVE_STOP:
             summary["running_nodes"] = list(self.running_nodes)
         if self.log_file is not None:
             summary["log_file"] = self.log_file
@@ -429,9 +435,13 @@ class Breakoff:
     error: BaseException | None = None
     cause: str | None = None
     """Who asked to stop, when it was not a signal (``StopRequest.cancel``)."""
+    protective_stop: str | None = None
+    """Why the protective stop was engaged (``runtime.protective_stop``): the run ends FAILURE."""
 
     @property
     def end(self) -> RunEnd:
+        if self.protective_stop is not None:
+            return RunEnd.FAILURE
         return RunEnd.INTERRUPTED if self.signum is not None else RunEnd.ERROR
 
 
@@ -451,14 +461,17 @@ def run_tree(
     world: Any = None,
     stop: StopRequest | None = None,
     watchers: Sequence[TickWatcher] = (),
+    guard: ProtectiveStop | None = None,
 ) -> RunResult:
     """Tick ``loaded`` (bound to ``context``) to completion and summarise the run.
 
     Starts the world named by ``options.world`` when the tree needs one (unless ``world`` is
     given). Before every tick it looks at ``stop`` (set by ``runtime.interrupt`` on SIGINT or
-    SIGTERM). Bad input found while running (e.g. a port reading a blackboard entry nobody
-    wrote), an unexpected exception or an interruption ends the run as ERROR or INTERRUPTED;
-    the tree is halted and everything closed either way.
+    SIGTERM) and, after the bus delivered what is due, ``guard`` (the protective stop: by default
+    one listening on the run's bus per ``options.protective_stop``; it ends the run FAILURE). Bad
+    input found while running (e.g. a port reading a blackboard entry nobody wrote), an unexpected
+    exception or an interruption ends the run as ERROR or INTERRUPTED; the tree is halted and
+    everything closed either way.
     """
     options.check()
     root = loaded.root
@@ -492,6 +505,9 @@ def run_tree(
     wall_start = time.monotonic()
     try:
         try:
+            if guard is None and options.protective_stop is not None:  # listening from the start
+                guard = ProtectiveStop(options.protective_stop)
+                guard.listen(bus)
             if world is not None:
                 context.world = world
                 try:
@@ -505,6 +521,7 @@ def run_tree(
                 from .ros.run import prepare_links
 
                 prepare_links(bus, declared_interfaces(nodes), named_links(loaded.nodes))
+            policy_running = False
             context.events.emit("run_started", loaded.tree_id, seed=options.seed)
             for watcher in watchers:
                 watcher.started(loaded)
@@ -524,9 +541,15 @@ def run_tree(
                     if world is not None:
                         world.step_to(clock.now())
                     bus.spin_once()
+                    why = guard.reason(clock.now(), policy_running) if guard is not None else None
+                    if why is not None:  # the tree is not ticked again: halted below, its goals cancelled
+                        breakoff = Breakoff(protective_stop=why)
+                        context.events.emit("protective_stop", loaded.tree_id, reason=why)
+                        break
                     ticks += 1  # counted before it runs: a tick that raised was still ticked
                     tick = tick_tree(root)
                     status, visited = tick.status, tick.visited
+                    policy_running = any(seen is Status.RUNNING and needs_heartbeat(n) for n, seen, _ in visited)
                     statuses.update(visited)
                     if pacing is not None:
                         pacing.record(tick_start, time.monotonic())
@@ -611,10 +634,14 @@ def _describe_breakoff(result: RunResult, breakoff: Breakoff, running: list[py_t
                        loaded: LoadedTree, nodes: list[py_trees.behaviour.Behaviour], options: RunOptions) -> None:
     """Fill ``result`` for a run a signal or an exception ended (status, node, reason, log file)."""
     result.status = breakoff.end.value
+    where = ", ".join(f"'{n.name}'" + _at(loaded, n) for n in running)
+    halted = f"; halted {where} (RUNNING)" if where else ""
+    if breakoff.protective_stop is not None:
+        result.reason = f"protective stop: {breakoff.protective_stop} at {result.sim_seconds:.2f} s{halted}"
+        result.failure_kind = PROTECTIVE_STOP
+        return
     if breakoff.signum is not None:
         result.signum = int(breakoff.signum)
-        where = ", ".join(f"'{n.name}'" + _at(loaded, n) for n in running)
-        halted = f"; halted {where} (RUNNING)" if where else ""
         result.stopped_by = breakoff.cause
         cause = breakoff.cause or f"interrupted by {signal_name(breakoff.signum)}"
         result.reason = f"{cause} at {result.sim_seconds:.2f} s{halted}"
@@ -664,16 +691,17 @@ def run_file(
 
 
 def run_loaded(loaded: LoadedTree, context: RunContext, options: RunOptions, progress: Progress | None = None,
-               stop: StopRequest | None = None, watchers: Sequence[TickWatcher] = ()) -> RunResult:
+               stop: StopRequest | None = None, watchers: Sequence[TickWatcher] = (),
+               guard: ProtectiveStop | None = None) -> RunResult:
     """Run a loaded tree (``run_file`` after the loading), with the run observers the options ask
     for (``runtime.observer``: the recording, the live view) and ``watchers`` told of every tick."""
     if not options.observed:
-        return run_tree(loaded, context, options, progress, stop=stop, watchers=watchers)
+        return run_tree(loaded, context, options, progress, stop=stop, watchers=watchers, guard=guard)
     from .observer import attach_observers
 
     observers = attach_observers(loaded, context, options)
     try:
-        result = run_tree(loaded, context, options, progress, stop=stop, watchers=watchers)
+        result = run_tree(loaded, context, options, progress, stop=stop, watchers=watchers, guard=guard)
     except BaseException as err:  # the run did not start (e.g. no such world): the observers say so
         for observer in observers:
             observer.aborted(err, stop)

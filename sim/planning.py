@@ -17,11 +17,11 @@ from typing import Mapping
 import numpy as np
 import pinocchio as pin
 
-from runtime.scene import Box, PlanningScene, load_joint_limits, pose_matrix
+from runtime.scene import Box, PlanningScene, load_envelope, load_joint_limits, pose_matrix
 from runtime.errors import OptionError
 
 from .cell_model import CUBE_COLORS, TABLE_CENTER_XY, TABLE_HALF_SIZE, TABLE_TOP_Z
-from .robot_model import ARM_JOINTS, GRIPPER_DRIVER_JOINT, JOINT_LIMITS_PATH, planning_robot_model
+from .robot_model import ARM_JOINTS, CARTESIAN_LIMITS_PATH, GRIPPER_DRIVER_JOINT, JOINT_LIMITS_PATH, TCP_SITE, planning_robot_model
 
 CUBE_SIZE = 0.03
 GRIPPER_GROUP = "gripper"
@@ -63,7 +63,8 @@ def make_cell_scene(
     cube_size: float = CUBE_SIZE,
     cube_contact: CubeContact = CubeContact.GRIPPER,
 ) -> PlanningScene:
-    """Robot (group ``manipulator`` + the gripper joint), limits, table and cubes.
+    """Robot (group ``manipulator`` + the gripper joint), joint limits, the Cartesian envelope,
+    table and cubes.
 
     The robot stands on the table, so the table is allowed against its base and shoulder; the
     gripper is allowed against the cubes unless ``cube_contact`` is ``NONE``.
@@ -72,7 +73,8 @@ def make_cell_scene(
     joints = list(ARM_JOINTS) + [GRIPPER_DRIVER_JOINT]
     lower, upper = robot.position_limits(joints)
     limits = load_joint_limits(JOINT_LIMITS_PATH, {j: (lo, hi) for j, lo, hi in zip(joints, lower, upper)})
-    scene = PlanningScene(robot, "manipulator", GRIPPER_DRIVER_JOINT, limits=limits)
+    envelope = load_envelope(CARTESIAN_LIMITS_PATH, robot, TCP_SITE)
+    scene = PlanningScene(robot, "manipulator", GRIPPER_DRIVER_JOINT, limits=limits, envelope=envelope)
     hx, hy, hz = TABLE_HALF_SIZE
     scene.add_object("table", Box((2 * hx, 2 * hy, 2 * hz)), pose_matrix((TABLE_CENTER_XY[0], TABLE_CENTER_XY[1], TABLE_TOP_Z - hz)), fixed=True)
     scene.allow("table", ["base", "shoulder_link"])

@@ -67,6 +67,7 @@ FT_SITE = "wrist_ft_site"
 CONFIG_DIR = Path(__file__).resolve().parent / "config"
 SRDF_PATH = CONFIG_DIR / "ur5e_2f85.srdf"
 JOINT_LIMITS_PATH = CONFIG_DIR / "joint_limits.yaml"
+CARTESIAN_LIMITS_PATH = CONFIG_DIR / "cartesian_limits.yaml"
 WAYPOINTS_PATH = CONFIG_DIR / "waypoints.yaml"
 COUPLINGS_PATH = CONFIG_DIR / "coupled_joints.yaml"
 

@@ -34,12 +34,13 @@ from runtime.interrupt import StopRequest
 from runtime.runner import Pacing, create_world
 from runtime.timestamps import time_msg
 
-from .robot_model import COUPLINGS_PATH, JOINT_LIMITS_PATH, SRDF_PATH, WAYPOINTS_PATH, robot_xml
+from .robot_model import CARTESIAN_LIMITS_PATH, COUPLINGS_PATH, JOINT_LIMITS_PATH, SRDF_PATH, WAYPOINTS_PATH, robot_xml
 
 NODE_NAME = "sim_robot"
 DESCRIPTION_FILES = {
     "srdf": ("robot.srdf", SRDF_PATH),
     "joint_limits": ("joint_limits.yaml", JOINT_LIMITS_PATH),
+    "cartesian_limits": ("cartesian_limits.yaml", CARTESIAN_LIMITS_PATH),
     "couplings": ("coupled_joints.yaml", COUPLINGS_PATH),
     "waypoints": ("waypoints.yaml", WAYPOINTS_PATH),
 }
@@ -56,8 +57,8 @@ class SimRobotOptions:
 
 
 def describe(directory: Path) -> list[str]:
-    """Write the cell's robot description into ``directory`` (MJCF, SRDF, joint limits,
-    couplings, waypoints); returns the ``--world-option`` arguments of ``--world robot`` for it."""
+    """Write the cell's robot description into ``directory`` (MJCF, SRDF, joint limits, the
+    Cartesian envelope, couplings, waypoints); returns the ``--world-option`` arguments of ``--world robot`` for it."""
     directory.mkdir(parents=True, exist_ok=True)
     (directory / "robot.xml").write_text(robot_xml())
     options = [f"mjcf={directory / 'robot.xml'}"]

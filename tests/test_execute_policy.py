@@ -219,7 +219,7 @@ def test_a_retried_policy_builds_its_bus_clients_once(registry):
 
 
 # -- start-up ------------------------------------------------------------------------------
-SERVICES_HERE = "/controller_manager/list_controllers, /controller_manager/switch_controller, /velocity_force_controller/zero_fts"
+SERVICES_HERE = "/controller_manager/list_controllers, /controller_manager/switch_controller, /protective_stop, /velocity_force_controller/zero_fts"
 
 
 def test_missing_service_is_an_error_before_anything_moves(registry):
@@ -243,7 +243,7 @@ def test_a_wrong_service_name_under_retry_waits_once_and_ends_as_error(registry)
     assert run.result.reason == (
         "<string>:1: ExecutePolicy: not available after 5 s: policy service '/get_action_chnk' (in this run the world "
         "serves the policy chosen with --policy; services here: /controller_manager/list_controllers, "
-        "/controller_manager/switch_controller, /get_action_chunk, /velocity_force_controller/zero_fts)"
+        "/controller_manager/switch_controller, /get_action_chunk, /protective_stop, /velocity_force_controller/zero_fts)"
     )
     assert run.policy.requests == [] and run.summary["run_count"] == 1
     assert run.summary["message"] == run.result.blackboard["message"] == run.result.reason.removeprefix("<string>:1: ExecutePolicy: ")
@@ -633,9 +633,20 @@ def test_dt_mismatch_doubles_velocity_and_the_chunk_is_rejected_before_moving(re
     assert np.allclose(run.world.cell.arm, start, atol=1e-9)
 
 
+def without_envelope(context: Any, world: KinematicWorld) -> None:
+    """A ``run_policy`` hook: the cell's scene without its Cartesian envelope (a test of another check)."""
+    start = world.start
+
+    def start_without_envelope(run_context: Any) -> None:
+        start(run_context)
+        run_context.scene.envelope = None
+
+    world.start = start_without_envelope
+
+
 def test_chunk_into_the_table_is_rejected_for_padding(registry):
     down = np.array([0.0, 0.6, 0.0, 0.0, 0.0, 0.0])  # shoulder_lift: the arm sweeps down to the table
-    run = run_policy(registry, BASE, ScriptedPolicy(hold(velocity=down)))
+    run = run_policy(registry, BASE, ScriptedPolicy(hold(velocity=down)), before=without_envelope)  # its keep-in box refuses it first
     assert run.result.status == "FAILURE"
     assert "world collision" in run.result.reason and "vs table" in run.result.reason
     assert run.result.reason.startswith("chunk 1 rejected: densified step")

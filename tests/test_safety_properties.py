@@ -16,6 +16,10 @@ a recording controller. Checked on every run:
   apart whatever ``num_interpolation_points`` says: see the last test);
 - no such point is in self-collision or in world collision (with the run's link_padding), per
   the cell's planning scene;
+- no point the controller plays is outside the run's Cartesian envelope (the cell's
+  ``sim/config/cartesian_limits.yaml``, or narrowed by ExecutePolicy's ports): the goal's points and
+  the controller's own quintic interpolation between them (``ENVELOPE_SUBSTEPS`` instants per
+  piece), each computed here from forward kinematics and the Jacobian, independently of the check;
 - the run ends SUCCESS or FAILURE, never with an exception; a FAILURE caused by a chunk says why
   (``rejection_reason`` is set, and names what was wrong).
 
@@ -41,11 +45,14 @@ from behaviors.execute_policy.shaping import Samples
 from behaviors.safety import make_safety
 from runtime.bus import FixedLatency
 from runtime.loader import load_tree
+from runtime.protective_stop import StopInputs
 from runtime.registry import Registry
+from runtime.scene.kinematics import frame_jacobian, frame_poses
 from runtime.runner import RunOptions, make_context, run_tree
 from runtime.timestamps import time_msg
 from sim.layouts import layout
 from sim.planning import CUBE_SIZE, make_cell_scene
+from sim.controllers.trajectory import quintic_coefficients, quintic_powers
 from sim.robot_model import ARM_JOINTS, GRIPPER_DRIVER_JOINT, load_waypoints
 
 R = GetActionChunk.Response
@@ -88,9 +95,13 @@ class RecordingWorld:
     gripper_goals: list[float] = field(default_factory=list)
     gripper_goal_times: list[float] = field(default_factory=list)
 
+    envelope: bool = True
+
     def start(self, context: Any) -> None:
         self.context = context
         context.scene = make_cell_scene(CUBES)
+        if not self.envelope:
+            context.scene.envelope = None
         self.active: Any = None
         self.active_end = 0.0
         bus = context.bus
@@ -256,18 +267,24 @@ class Outcome:
     dt: float
     gripper_goals: list[float] = field(default_factory=list)
     gripper_goal_times: list[float] = field(default_factory=list)
+    max_tcp_speed: float = 0.0
 
 
-def run_chunks(specs: list[dict[str, Any]], start: np.ndarray, dt: float, points: int, gripper: bool = False) -> Outcome:
+def run_chunks(specs: list[dict[str, Any]], start: np.ndarray, dt: float, points: int, gripper: bool = False,
+               max_tcp_speed: float = 0.0, envelope: bool = True, world: RecordingWorld | None = None,
+               protective_stop: StopInputs | None = StopInputs()) -> Outcome:
+    """``max_tcp_speed``: ExecutePolicy's port (0: the cell's); ``envelope`` False: a scene without
+    one; ``world``: a recording world of the caller's (else one starting at ``start``);
+    ``protective_stop``: the run's stop inputs."""
     ports = (f'total_action_steps="20" dt="{dt}" committed_action_steps="10" num_interpolation_points="{points}" '
-             f'link_padding="{PADDING}" goal_path_tolerance="0.3" policy_call_timeout="2.0"')
+             f'link_padding="{PADDING}" goal_path_tolerance="0.3" policy_call_timeout="2.0" max_tcp_speed="{max_tcp_speed}"')
     if gripper:
         ports += f' gripper_command_action_name="{GRIPPER_ACTION}" gripper_joint_name="{GRIPPER_DRIVER_JOINT}"'
     xml = (f'<root BTCPP_format="4"><BehaviorTree ID="T"><ExecutePolicy policy_service_name="{SERVICE}" '
            f'joint_group_name="manipulator" {ports} rejection_reason="{{rejection}}"/></BehaviorTree></root>')
-    options = RunOptions(seed=0, max_seconds=20.0)
+    options = RunOptions(seed=0, max_seconds=20.0, protective_stop=protective_stop)
     context = make_context(options)
-    world = RecordingWorld(start)
+    world = world if world is not None else RecordingWorld(start, envelope=envelope)
     loaded = load_tree(xml, registry(), context)
     calls = {"n": 0}
 
@@ -284,7 +301,7 @@ def run_chunks(specs: list[dict[str, Any]], start: np.ndarray, dt: float, points
     context.bus.set_latency(SERVICE, FixedLatency(0.05))
     result = run_tree(loaded, context, options, world=world)
     return Outcome(result.status, result.reason, result.blackboard.get("rejection", ""), world.goals, context.scene, dt,
-                   world.gripper_goals, world.gripper_goal_times)
+                   world.gripper_goals, world.gripper_goal_times, max_tcp_speed)
 
 
 def assert_nothing_unsafe_reached_the_controller(out: Outcome) -> None:
@@ -305,6 +322,7 @@ def assert_nothing_unsafe_reached_the_controller(out: Outcome) -> None:
         # A goal ends at rest: a stock JTC refuses one that does not, and nothing else would
         # carry the arm on if the next chunk were late.
         assert np.allclose(g.velocities[-1], 0.0, atol=1e-6), f"a goal ending at {g.velocities[-1]} rad/s reached the controller"
+        assert_within_the_envelope(out, g)
     gripper = out.snapshot_scene.limits[GRIPPER_DRIVER_JOINT]
     for position in out.gripper_goals:
         assert gripper.lower - tol <= position <= gripper.upper + tol, f"gripper goal {position} reached the gripper controller"
@@ -315,6 +333,62 @@ def assert_nothing_unsafe_reached_the_controller(out: Outcome) -> None:
     assert out.status in ("SUCCESS", "FAILURE")
     if out.status == "FAILURE" and "rejected" in out.reason:
         assert out.rejection == out.reason and len(out.rejection) > len("chunk 1 rejected: ")
+
+
+ENVELOPE_SUBSTEPS = 4
+"""Instants inside each piece between two goal points at which the controller's interpolation is
+checked against the envelope (besides the points themselves)."""
+BETWEEN_POINTS_TOLERANCE = {"m": 2e-4, "deg": 0.05, "m/s": 2e-3, "rad/s": 0.01}
+"""What the controller's quintic between two checked points (at most 10 ms apart) may add to a
+value at its points: half a piece of the frame's acceleration (at most a few m/s^2, rad/s^2) times
+(5 ms)^2 for positions and angles; for speeds, the jerk's share. The samples are what the check
+sees; these bound the motion between them, as the joint limits' mean-velocity test does."""
+
+
+def controller_interpolation(g: Goal) -> tuple[np.ndarray, np.ndarray]:
+    """Positions and velocities of the controller's quintic Hermite pieces through the goal's points
+    (what both simulated controllers play): the points and ``ENVELOPE_SUBSTEPS`` instants inside each piece."""
+    if len(g.times) < 2:
+        return g.positions, g.velocities
+    h = np.diff(g.times)
+    coefficients = quintic_coefficients(h, g.positions[:-1], g.velocities[:-1], g.accelerations[:-1],
+                                        g.positions[1:], g.velocities[1:], g.accelerations[1:])
+    positions, velocities = [g.positions], [g.velocities]
+    for f in (np.arange(1, ENVELOPE_SUBSTEPS + 1) / (ENVELOPE_SUBSTEPS + 1)):
+        tau = f * h
+        powers = np.stack([quintic_powers(t) for t in tau])  # (S, 3, 6)
+        state = np.einsum("sik,skj->sij", powers, coefficients)
+        positions.append(state[:, 0]), velocities.append(state[:, 1])
+    return np.vstack(positions), np.vstack(velocities)
+
+
+def assert_within_the_envelope(out: Outcome, g: Goal) -> None:
+    """Every point the controller plays of goal ``g`` against the run's envelope: the cell's,
+    with ExecutePolicy's ``max_tcp_speed`` port when set. Positions, axis and twist come from the
+    scene's forward kinematics and the frame Jacobian, not from the check under test."""
+    envelope = out.snapshot_scene.envelope
+    if envelope is None:
+        return
+    speed_limit = out.max_tcp_speed or envelope.max_tcp_speed_m_s
+    robot, layout = out.snapshot_scene.robot, out.snapshot_scene.layout("manipulator", None)
+    tol = BETWEEN_POINTS_TOLERANCE
+    positions, velocities = controller_interpolation(g)
+    for q, v in zip(positions, velocities):
+        q_full = layout(q)
+        poses = frame_poses(robot, q_full, list(envelope.frames))
+        for box in envelope.keep_in_boxes:
+            for frame in box.frames:
+                p = poses[frame][:3, 3]
+                assert (p >= np.array(box.min_m) - tol["m"]).all() and (p <= np.array(box.max_m) + tol["m"]).all(), (
+                    f"{frame} at {p} outside keep-in box {box.name} reached the controller")
+        cone = envelope.tool_cone
+        axis = poses[cone.frame][:3, :3] @ np.array(cone.axis)
+        angle = np.degrees(np.arccos(np.clip(axis @ np.array(cone.direction), -1, 1)))
+        assert angle <= cone.max_angle_deg + tol["deg"], f"a tool axis {angle:.3f} deg from {cone.direction} reached the controller"
+        twist = frame_jacobian(robot, q_full, envelope.tcp_frame, ARM_JOINTS) @ v
+        assert np.linalg.norm(twist[:3]) <= speed_limit + tol["m/s"], f"a TCP speed {np.linalg.norm(twist[:3]):.4f} m/s reached the controller"
+        assert np.linalg.norm(twist[3:]) <= envelope.max_tcp_angular_speed_rad_s + tol["rad/s"], (
+            f"a TCP angular speed {np.linalg.norm(twist[3:]):.4f} rad/s reached the controller")
 
 
 starts = st.one_of(
@@ -336,14 +410,15 @@ examples = dict(
     dt=st.sampled_from([0.05, 0.1]),
     points=st.sampled_from([2, 10, 50, 100]),
     gripper=st.booleans(),
+    max_tcp_speed=st.sampled_from([0.0, 0.25]),
 )
 common = dict(deadline=None, database=None, suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
 
 
 @settings(max_examples=30, **common)
 @given(**examples)
-def test_no_unsafe_point_reaches_the_controller(specs, start, dt, points, gripper):
-    assert_nothing_unsafe_reached_the_controller(run_chunks(specs, start, dt, points, gripper))
+def test_no_unsafe_point_reaches_the_controller(specs, start, dt, points, gripper, max_tcp_speed):
+    assert_nothing_unsafe_reached_the_controller(run_chunks(specs, start, dt, points, gripper, max_tcp_speed))
 
 
 def _classify(out: Outcome) -> None:
@@ -357,8 +432,8 @@ def _classify(out: Outcome) -> None:
 @pytest.mark.timeout(3600)
 @settings(max_examples=2000, **common)
 @given(**examples)
-def test_no_unsafe_point_reaches_the_controller_2000_examples(specs, start, dt, points, gripper):
-    out = run_chunks(specs, start, dt, points, gripper)
+def test_no_unsafe_point_reaches_the_controller_2000_examples(specs, start, dt, points, gripper, max_tcp_speed):
+    out = run_chunks(specs, start, dt, points, gripper, max_tcp_speed)
     _classify(out)
     assert_nothing_unsafe_reached_the_controller(out)
 
@@ -380,7 +455,7 @@ def test_a_smooth_chunk_reaches_the_controller_and_a_nan_is_rejected_with_a_reas
 def test_a_chunk_into_the_table_never_reaches_the_controller():
     down = {"kind": "into_table", "steps": 50, "velocity": [0.0] * 6, "joint": 0, "at": 0.0, "size": 0.0,
             "bad": float("nan"), "names": "permuted", "width": 0, "seed": 0}
-    out = run_chunks([down], READY, 0.1, 100)
+    out = run_chunks([down], READY, 0.1, 100, envelope=False)  # the envelope's tool cone refuses it first
     assert out.status == "FAILURE"
     assert "world collision" in out.rejection and "vs table" in out.rejection
     assert_nothing_unsafe_reached_the_controller(out)  # the windows before the table went through
@@ -428,3 +503,19 @@ def test_a_gripper_column_faster_than_the_gripper_never_reaches_it_and_a_seam_jo
     assert out.status == "SUCCESS", out.reason
     assert out.gripper_goals[:5] == pytest.approx([0.0, 0.2, 0.4, 0.6, 0.8])
     assert_nothing_unsafe_reached_the_controller(out)
+
+
+def test_a_chunk_faster_than_the_tcp_speed_port_never_reaches_the_controller():
+    """The property's envelope half can fail: ExecutePolicy's max_tcp_speed narrows the cell's 1 m/s
+    for the run, and a chunk over it is refused naming the point, the link, the speed and the
+    limit; a port above the cell's limit is a setup ERROR, never a wider envelope."""
+    smooth = {"kind": "smooth", "steps": 40, "velocity": [0.2] * 6, "joint": 0, "at": 0.5, "size": 0.0,
+              "bad": float("nan"), "names": "permuted", "width": 0, "seed": 0}
+    out = run_chunks([smooth], READY, 0.1, 50, max_tcp_speed=0.05)
+    assert out.status == "FAILURE" and out.goals == []
+    assert out.rejection == ("chunk 1 rejected: densified step 0 (t=0.160 s): link tcp linear speed 0.0700 m/s exceeds "
+                             "the limit 0.0500 m/s (policy step 1 of the run)")
+    out = run_chunks([smooth], READY, 0.1, 50, max_tcp_speed=5.0)
+    assert out.status == "ERROR" and out.goals == []
+    assert out.reason.endswith("ExecutePolicy: max_tcp_speed 5 m/s is above the limit 1 m/s of the cell's envelope: "
+                               "a port may only tighten the Cartesian envelope")

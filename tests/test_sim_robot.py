@@ -177,3 +177,4 @@ def test_sim_robot_describe_writes_what_the_robot_world_loads(tmp_path, capsys):
     world = create(dict(option.split("=", 1) for option in options if option != "--world-option"))
     assert world.limits is not None and world.gripper_joint == "robotiq_85_left_knuckle_joint"
     assert set(world.waypoints) == {"Home", "Observe", "Ready"}
+    assert world.envelope is not None and world.envelope.max_tcp_speed_m_s == 1.0  # the cell's Cartesian envelope

@@ -84,13 +84,15 @@ class ExecutePolicy(Behavior):
     """Stream a learned policy's action chunks as one continuous, checked motion.
 
     Every densified point is checked against joint position, velocity and acceleration limits,
-    self-collision and world collision (with link_padding) before it reaches the controller.
+    the Cartesian envelope (TCP speed, keep-in boxes, tool axis cone), self-collision and world
+    collision (with link_padding) before it reaches the controller.
     SUCCESS after total_action_steps steps or when the policy answers NO_MORE_ACTIONS; FAILURE on
     ERROR/UNKNOWN, timeouts, malformed or unsafe chunks, and controller aborts (F/T, path).
     """
 
     ports = cfg.PORTS
     needs_world = True
+    needs_heartbeat = True  # a deadman (``runtime.protective_stop``) watches it while it runs
     description = (
         "Run a learned policy served over GetActionChunk: chunks are smoothed, blended at seams, "
         "checked against limits and the planning scene, and streamed to the trajectory controller "
@@ -155,6 +157,7 @@ class ExecutePolicy(Behavior):
             self.config = self._read_config()
             cfg.validate(self.config)
             self.safety: MotionSafety = make_safety(self.context.scene, self.config.joint_group_name, self.config.gripper_joint_name or None)
+            self.safety = self.safety.narrowed(self.config.envelope_overrides)
         except (cfg.ConfigError, SafetyError) as err:  # the Objective does not fit this robot: ERROR, never retried
             raise self._setup_error(str(err)) from None
         config = self.config
@@ -640,7 +643,7 @@ class ExecutePolicy(Behavior):
 
     def _read_config(self) -> cfg.PolicyRunConfig:
         values = {p.name: self.get_input(p.name) for p in self.ports if p.direction is Direction.INPUT}
-        for key in ("absolute_force_torque_threshold", "image_topics", "image_names"):
+        for key in ("absolute_force_torque_threshold", "image_topics", "image_names", "tcp_keep_in_box"):
             values[key] = tuple(values[key])
         return cfg.PolicyRunConfig(**values)
 

@@ -1,7 +1,7 @@
 """Where a point is checked: the chunk's values against the joints' position limits, and every
-densified point against the position, velocity and acceleration limits and the planning scene
-(self-collision, and world collision with ``link_padding``). Each check returns why the points
-fail, a ``CheckFailure`` (its kind, and a sentence naming the run's policy step), or None.
+densified point against the position, velocity and acceleration limits, the Cartesian envelope
+and the planning scene (self-collision, and world collision with ``link_padding``). Each check
+returns why the points fail, a ``CheckFailure`` (its kind, and a sentence naming the run's policy step), or None.
 """
 from __future__ import annotations
 
@@ -23,12 +23,17 @@ class CheckKind(enum.Enum):
     POSITION_LIMIT = "position limit"
     VELOCITY_LIMIT = "velocity limit"
     ACCELERATION_LIMIT = "acceleration limit"
+    WORKSPACE_LIMIT = "workspace limit"
+    TOOL_AXIS_LIMIT = "tool axis limit"
+    LINEAR_SPEED_LIMIT = "linear speed limit"
+    ANGULAR_SPEED_LIMIT = "angular speed limit"
     SELF_COLLISION = "self collision"
     WORLD_COLLISION = "world collision"
 
     @classmethod
     def of_limit(cls, quantity: str) -> CheckKind:
-        """The kind of a ``LimitViolation`` of ``quantity`` (position, velocity, acceleration)."""
+        """The kind of a ``LimitViolation`` of ``quantity`` (position, velocity, acceleration) or
+        an ``EnvelopeViolation`` (workspace, tool axis, linear speed, angular speed)."""
         return cls(f"{quantity} limit")
 
     @classmethod

@@ -12,6 +12,7 @@ from sensor_msgs.msg import Image, JointState
 
 from runtime.ports import InputPort, NameKind, Names, OutputPort, PortType, Range
 from runtime.errors import ObjectiveError
+from runtime.scene import EnvelopeOverrides
 
 DEFAULT_CONTROLLER_ACTION = "/joint_trajectory_admittance_controller/follow_joint_trajectory"
 
@@ -46,6 +47,11 @@ PORTS = (
               names=Names(NameKind.TOPIC, JointState)),
     InputPort("max_observation_age", PortType.FLOAT, 0.0, "Seconds since it arrived after which a camera frame or joint state is too old to feed the policy: the run stops, naming the topic; 0 = 10 * dt.", valid=Range(0.0, 600.0, "s")),
     InputPort("wrench_topic", PortType.STRING, "", "geometry_msgs/WrenchStamped topic (e.g. /force_torque_sensor_broadcaster/wrench) watched against absolute_force_torque_threshold: the first reading over it stops the run; empty: not watched."),
+    InputPort("max_tcp_speed", PortType.FLOAT, 0.0, "TCP linear speed limit (m/s) for this run, at most the cell's (cartesian_limits.yaml); 0 = the cell's.", valid=Range(0.0, 100.0, "m/s")),
+    InputPort("max_tcp_angular_speed", PortType.FLOAT, 0.0, "TCP angular speed limit (rad/s) for this run, at most the cell's; 0 = the cell's.", valid=Range(0.0, 1000.0, "rad/s")),
+    InputPort("tcp_keep_in_box", PortType.FLOAT_LIST, "", "A box xmin;ymin;zmin;xmax;ymax;zmax (m, world) the TCP stays inside for this run, besides the cell's; empty = none.",
+              valid=Range(-1000.0, 1000.0, "m")),
+    InputPort("tool_axis_max_angle", PortType.FLOAT, 0.0, "Degrees the tool axis may tilt from the cell's cone direction (straight down without one), at most the cell's; 0 = the cell's.", valid=Range(0.0, 180.0, "deg")),
     OutputPort("steps_executed", PortType.UINT, "Policy steps executed."),
     OutputPort("chunks_received", PortType.UINT, "Chunks received with CHUNK_PRODUCED (the warmup's excluded)."),
     OutputPort("rejection_reason", PortType.STRING, "Why a chunk was rejected (empty when none was)."),
@@ -87,6 +93,15 @@ class PolicyRunConfig:
     joint_states_topic: str
     max_observation_age: float
     wrench_topic: str
+    max_tcp_speed: float = 0.0
+    max_tcp_angular_speed: float = 0.0
+    tcp_keep_in_box: tuple[float, ...] = ()
+    tool_axis_max_angle: float = 0.0
+
+    @property
+    def envelope_overrides(self) -> EnvelopeOverrides:
+        """The ports that tighten the cell's Cartesian envelope for this run."""
+        return EnvelopeOverrides(self.max_tcp_speed, self.max_tcp_angular_speed, self.tcp_keep_in_box, self.tool_axis_max_angle)
 
     @property
     def has_gripper(self) -> bool:

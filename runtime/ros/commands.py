@@ -12,7 +12,15 @@ import time
 from pathlib import Path
 from typing import Any
 
-from runtime.cli import parse_set, add_discovery_argument, add_groot2_arguments, groot2_server, positive_float
+from runtime.cli import (
+    add_discovery_argument,
+    add_groot2_arguments,
+    add_protective_stop_arguments,
+    groot2_server,
+    parse_set,
+    positive_float,
+    protective_stop_inputs,
+)
 from runtime.command import EXIT_SUCCESS, POLICY_HELP, Command
 from runtime.interrupt import StopRequest, stop_on_signals
 from runtime.registry import Registry
@@ -34,6 +42,7 @@ def _arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--max-seconds", type=positive_float, metavar="S", help="fail a run after S seconds of clock time")
     add_discovery_argument(parser)
     add_groot2_arguments(parser)
+    add_protective_stop_arguments(parser)
 
 
 def _serve(args: argparse.Namespace, registry: Registry) -> int:
@@ -47,6 +56,7 @@ def _serve(args: argparse.Namespace, registry: Registry) -> int:
         seed=args.seed, realtime=args.realtime or args.ros, ros=args.ros, max_seconds=args.max_seconds,
         world=args.world,
         world_options={**dict(args.world_option), **({"policy": args.policy} if args.policy else {})},
+        protective_stop=protective_stop_inputs(args),
     )
     log = logging.getLogger("objective")
     stop = StopRequest()

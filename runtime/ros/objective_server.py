@@ -12,6 +12,9 @@ The node ``/objective_server`` serves, as MoveIt Pro's Objective server does:
 - ``/execute_objective`` (``objective_server_msgs/srv/ExecuteObjective``): start one the same
   way and answer at once (the end is logged).
 - ``/cancel_objective`` (``std_srvs/srv/Trigger``): cancel whatever runs.
+- ``/protective_stop`` (``std_msgs/msg/Bool`` topic and ``std_srvs/srv/Trigger`` service, names from
+  the run options' ``protective_stop``) and the deadman's heartbeat, on this node: they end
+  whatever runs as FAILURE ("protective stop: ...", ``runtime.protective_stop``).
 - ``/list_objectives`` (``objective_server_msgs/srv/ListObjectives``): every Objective of the
   library with its description and ports, and the one running now.
 
@@ -41,6 +44,7 @@ import rclpy
 from rclpy.action import ActionServer, CancelResponse, GoalResponse
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.executors import MultiThreadedExecutor
+from std_msgs.msg import Bool
 from std_srvs.srv import Trigger
 
 from objective_server_msgs.action import DoObjective
@@ -52,6 +56,7 @@ from runtime.errors import ObjectiveError
 from runtime.interrupt import StopRequest
 from runtime.loader import LoadedTree, default_objectives_dir, load_tree
 from runtime.objective_library import Library, PortOverride, override_entries
+from runtime.protective_stop import ProtectiveStop, StopInputs
 from runtime.registry import Registry
 from runtime.ros.run import set_discovery_range
 from runtime.runner import RunEnd, TickWatcher, RunOptions, RunResult, make_context, run_loaded, running_leaves
@@ -192,9 +197,24 @@ class ObjectiveServer:
         self.node.create_service(ExecuteObjective, EXECUTE_SERVICE, self._execute_service, callback_group=group)
         self.node.create_service(Trigger, CANCEL_SERVICE, self._cancel_service, callback_group=group)
         self.node.create_service(ListObjectives, LIST_SERVICE, self._list_service, callback_group=group)
+        self.guard = self._listen_for_protective_stop(options.run.protective_stop, group)
         self.executor = MultiThreadedExecutor(num_threads=4, context=self.context)
         self.executor.add_node(self.node)
         self._spinner = spin_on_thread(self.executor, "objective_server")
+
+    def _listen_for_protective_stop(self, inputs: StopInputs | None, group: Any) -> ProtectiveStop | None:
+        """The protective stop's inputs on the server's node (not on each run's): whatever runs
+        then, and however (``--ros`` or not), a stop ends it."""
+        if inputs is None:
+            return None
+        guard = ProtectiveStop(inputs)
+        if inputs.topic:
+            self.node.create_subscription(Bool, inputs.topic, guard.on_stop, 10, callback_group=group)
+        if inputs.service:
+            self.node.create_service(Trigger, inputs.service, guard.on_trigger, callback_group=group)
+        if inputs.deadman_topic:
+            self.node.create_subscription(Bool, inputs.deadman_topic, guard.on_heartbeat, 10, callback_group=group)
+        return guard
 
     # -- requests ----------------------------------------------------------------------------
     def _reserve(self, name: str) -> str | None:
@@ -285,8 +305,10 @@ class ObjectiveServer:
         watchers: list[TickWatcher] = [FeedbackWatcher(publish)]
         if self.options.groot2 is not None:
             watchers.append(self.options.groot2.watcher())
+        if self.guard is not None:
+            self.guard.reset()
         try:
-            return Outcome.of(run_loaded(loaded, context, options, stop=stop, watchers=watchers))
+            return Outcome.of(run_loaded(loaded, context, options, stop=stop, watchers=watchers, guard=self.guard))
         except ObjectiveError as err:  # e.g. no such world: nothing ran
             return Outcome.error(str(err))
 

@@ -48,6 +48,8 @@ class LimitViolation:
     value: float
     limit: float
 
+    family = "joint limit"
+
     def __str__(self) -> str:
         when = f"step {self.step}" + (f" (t={self.time:.3f} s)" if self.time is not None else "")
         return f"{when}: {self.what}"

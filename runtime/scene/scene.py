@@ -34,6 +34,7 @@ from .collision import (
     as_se3,
     make_geometry,
 )
+from .envelope import CartesianEnvelope
 from .kinematics import frame_pose
 from .limits import JointLimits
 from .model import ConfigurationMap, RobotModel
@@ -78,10 +79,13 @@ class PlanningScene:
         gripper_joint: str | None = None,
         limits: JointLimits | None = None,
         reference: np.ndarray | None = None,
+        envelope: CartesianEnvelope | None = None,
     ):
         self._lock = threading.RLock()
         self.robot = robot
         self.limits = limits
+        self.envelope = envelope
+        """The cell's Cartesian envelope (``envelope.load_envelope``), or None: none checked."""
         self._reference = np.array(robot.neutral() if reference is None else reference, dtype=float)
         self._layouts: dict[tuple[str, str | None], ConfigurationMap] = {}
         self._default = (group, gripper_joint)
