@@ -28,7 +28,7 @@ from .motion import PlanningError
 from .poses import FrameError, ReadsRobotState, known_frames, pose_in_world
 from .robot_state import group_joint_state
 from .safety import MotionSafety, SafetyError, make_safety
-from .trajectories import check_motion, resample_within, time_path
+from .trajectories import check_motion, resample_within_envelope, time_path
 from .trajectory_goal import trajectory_msg
 
 CHECK_STEP_RAD = 0.05
@@ -79,14 +79,18 @@ def timed(safety: MotionSafety, waypoints: np.ndarray, motion: Motion) -> Sample
         stops.add(len(rows) - 1)
     path = np.array(rows)
     timing = time_path(path, stops, safety.limits, motion.velocity_scale, motion.acceleration_scale)
-    return resample_within(timing, path, motion.rate_hz, safety.limits)
+    return resample_within_envelope(timing, path, motion.rate_hz, safety)
 
 
 def plan_free_motion(safety: MotionSafety, start: np.ndarray, goal: np.ndarray, motion: Motion,
                      snapshot: SceneSnapshot) -> Samples:
     """A collision-free, timed motion from ``start`` to ``goal`` that passes ExecuteTrajectory's
     checks; PlanningError naming the reason otherwise."""
-    is_free = scene_validity(safety.scene, safety.layout, motion.padding_m, snapshot, None)
+    collision_free = scene_validity(safety.scene, safety.layout, motion.padding_m, snapshot, None)
+
+    def is_free(q: np.ndarray) -> bool:
+        return collision_free(q) and safety.pose_within_envelope(q)
+
     settings = PlannerSettings(timeout_s=motion.timeout_s, max_iterations=motion.max_iterations, seed=motion.seed)
     try:
         path = plan_path(is_free, start, goal, safety.limits.lower, safety.limits.upper, settings)
@@ -94,7 +98,10 @@ def plan_free_motion(safety: MotionSafety, start: np.ndarray, goal: np.ndarray, 
         if err.in_collision is None:
             raise PlanningError(str(err)) from None
         q = start if err.in_collision == "start" else goal
-        raise PlanningError(f"{err}: {safety.scene.check_state(q, motion.padding_m, snapshot=snapshot, layout=safety.layout)}") from None
+        reason = safety.scene.check_state(q, motion.padding_m, snapshot=snapshot, layout=safety.layout)
+        if reason is None:
+            reason = "it lies within 5 mm or 1 deg of the Cartesian envelope's edge, the margin the planner keeps from it"
+        raise PlanningError(f"{err}: {reason}") from None
     samples = timed(safety, path.waypoints, motion)
     problem = check_motion(safety, samples, motion.padding_m, CHECK_STEP_RAD, snapshot)
     if problem:

@@ -11,7 +11,7 @@ import numpy as np
 from runtime.errors import ObjectiveError, OptionError
 from runtime.scene import (
     CartesianEnvelope, CollisionResult, ConfigurationMap, EnvelopeOverrides, EnvelopeViolation, GroupError, JointLimit, JointLimits,
-    LimitViolation, PlanningScene, SceneSnapshot, check_envelope, narrowed,
+    LimitViolation, PlanningScene, SceneSnapshot, check_envelope, narrowed, shrunk, tool_speed_ratio,
 )
 
 from .execute_policy.shaping import Samples
@@ -111,6 +111,23 @@ class MotionSafety:
         cartesian = check_envelope(self.envelope, self.scene.robot, self.scene.layout(self.group, None),
                                    samples.positions[:end], samples.velocities[:end], samples.times[:end])
         return joint if cartesian is None else cartesian
+
+    def pose_within_envelope(self, q: np.ndarray, margin_m: float = 0.005, margin_deg: float = 1.0) -> bool:
+        """Whether the group's joint positions ``q`` put every frame inside the keep-in boxes and
+        the tool inside its cone, with these margins (True without an envelope): a planner's
+        state check, so that the motion timed between two such states stays within the envelope."""
+        if self.envelope is None:
+            return True
+        inner = shrunk(self.envelope, margin_m, margin_deg)
+        return check_envelope(inner, self.scene.robot, self.scene.layout(self.group, None), np.atleast_2d(q)) is None
+
+    def tool_speed_ratio(self, samples: Samples) -> float:
+        """The largest share of the envelope's TCP speed limits a motion reaches (0 without an
+        envelope): above 1, the motion slowed down evenly by that factor keeps within them."""
+        if self.envelope is None or len(samples) == 0:
+            return 0.0
+        return tool_speed_ratio(self.envelope, self.scene.robot, self.scene.layout(self.group, None),
+                                samples.positions, samples.velocities)
 
     def first_value_out_of_limits(self, arm: np.ndarray, gripper: np.ndarray | None) -> LimitViolation | None:
         """The first step of a chunk, as the policy sent it, with a value outside its joint's

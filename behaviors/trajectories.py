@@ -152,6 +152,21 @@ def resample_within(timing: PathTiming, path: np.ndarray, rate_hz: float, limits
     return samples
 
 
+def resample_within_envelope(timing: PathTiming, path: np.ndarray, rate_hz: float, safety: MotionSafety) -> Samples:
+    """``resample_within``, slowed down evenly further where the tool's linear or angular speed
+    exceeds the Cartesian envelope: a path timed by the joint limits alone can move the tool
+    faster than the cell allows (a planned detour at full joint speed passes 1 m/s)."""
+    samples = resample_within(timing, path, rate_hz, safety.limits)
+    for _ in range(5):
+        ratio = safety.tool_speed_ratio(samples)
+        if ratio <= 1.0:
+            break
+        stretch = 1.01 * ratio
+        timing = PathTiming(timing.times * stretch, timing.speeds / stretch)
+        samples = resample(timing, path, rate_hz)
+    return samples
+
+
 def parse_timing(text: str) -> tuple[str, float, float]:
     """MoveIt Pro's ``trajectory_timing`` ("[{mode: time_optimal, velocity_scale_factor: 0.5}]"):
     the mode and the velocity and acceleration scale factors it sets (1.0 when unset)."""
@@ -308,7 +323,7 @@ def plan_cartesian(
         stops.add(len(rows) - 1)
     path = np.array(rows)
     timing = time_path(path, stops, safety.limits, velocity_scale, acceleration_scale)
-    return CartesianPlan(resample_within(timing, path, rate_hz, safety.limits), tip_poses)
+    return CartesianPlan(resample_within_envelope(timing, path, rate_hz, safety), tip_poses)
 
 
 # -- nodes -------------------------------------------------------------------------------------

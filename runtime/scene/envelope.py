@@ -220,6 +220,34 @@ def check_envelope(
     return replace(violation, time=None if times is None else float(np.asarray(times)[step]))
 
 
+def shrunk(envelope: CartesianEnvelope, margin_m: float, margin_deg: float) -> CartesianEnvelope:
+    """``envelope`` with every keep-in box ``margin_m`` smaller on each side and the tool cone
+    ``margin_deg`` narrower: what a planner keeps its states within, so that a motion timed and
+    sampled between two of them stays within ``envelope`` itself."""
+    boxes = tuple(replace(box, min_m=tuple(v + margin_m for v in box.min_m), max_m=tuple(v - margin_m for v in box.max_m))
+                  for box in envelope.keep_in_boxes)
+    cone = envelope.tool_cone
+    if cone is not None:
+        cone = replace(cone, max_angle_deg=max(0.0, cone.max_angle_deg - margin_deg))
+    return replace(envelope, keep_in_boxes=boxes, tool_cone=cone)  # type: ignore[arg-type]
+
+
+def tool_speed_ratio(envelope: CartesianEnvelope, robot: RobotModel, layout: ConfigurationMap,
+                     positions: np.ndarray, velocities: np.ndarray) -> float:
+    """The largest share of its limit the TCP's linear or angular speed reaches over ``(N, J)``
+    rows of ``layout``'s columns with their joint ``velocities``: above 1, slowing the motion down
+    evenly by that factor brings it within both speed limits (speeds scale with the time scale)."""
+    full = np.atleast_2d(layout(np.atleast_2d(positions)))
+    if len(full) == 0 or not envelope.needs_velocities:
+        return 0.0
+    twists = _frame_states(envelope, robot, layout, full, np.atleast_2d(velocities)).twists
+    if twists is None:
+        return 0.0
+    linear = float(np.max(np.linalg.norm(twists[:, :3], axis=1))) / envelope.max_tcp_speed_m_s
+    angular = float(np.max(np.linalg.norm(twists[:, 3:], axis=1))) / envelope.max_tcp_angular_speed_rad_s
+    return max(linear, angular)
+
+
 @dataclass(frozen=True)
 class _FrameStates:
     positions: np.ndarray
