@@ -423,8 +423,9 @@ def main(argv: Sequence[str] | None = None, registry: Registry | None = None) ->
     signals = stop_on_signals(stop) if args.command == "run" else contextlib.nullcontext()
     try:
         with signals:
-            registry = registry if registry is not None else _installed_registry()
             plugin = getattr(args, "plugin_command", None)
+            if registry is None and (plugin is None or plugin.needs_registry):
+                registry = _installed_registry()
             if plugin is not None:
                 code = plugin.run(args, registry)
             elif args.command == "run":
