@@ -9,7 +9,8 @@ What it guarantees to the caller (ExecutePolicy), whatever the backend does:
 - ``chunk.joint_names`` echoes ``robot_state.name``, which satisfies both of the contract's
   naming rules (by order without a gripper, by name with one).
 - A CHUNK_PRODUCED answer has at least one point, one column per observed joint, finite values.
-- Any failure (a bad request, a backend exception, an answer that breaks the rules above) is
+- Any failure (a bad request, a backend exception, ``sys.exit`` or ``KeyboardInterrupt`` in the
+  backend's code, an answer that breaks the rules above) is
   answered with ERROR and a reason. Never NO_MORE_ACTIONS, never an exception, never silence:
   an error reported as a graceful end would let the Objective act on a rollout that never ran.
 - It counts served chunks (``served_chunks``) and logs the count every ``log_every`` chunks, the
@@ -33,6 +34,7 @@ from trajectory_msgs.msg import JointTrajectoryPoint
 
 from runtime.timestamps import duration_msg, time_msg, to_seconds
 from runtime.errors import ObjectiveError, OptionError
+from runtime.interrupt import describe_error, raised_by_code
 
 from .backend import PolicyBackend, PolicyRequest, PolicyResponse, PolicyStatus
 from .images import image_to_rgb, rgb_to_image
@@ -298,8 +300,10 @@ class PolicyAdapter:
         self.calls += 1
         try:
             response = self._answer(request_msg)
-        except Exception as exc:  # the contract: any failure is ERROR with a reason
-            response = error_msg(f"adapter failed: {type(exc).__name__}: {exc}")
+        except BaseException as exc:  # the contract: any failure is ERROR with a reason
+            if not raised_by_code(exc):
+                raise
+            response = error_msg(f"adapter failed: {describe_error(exc)}")
         self._account(response)
         return response
 
@@ -311,8 +315,10 @@ class PolicyAdapter:
         name = getattr(self.backend, "name", type(self.backend).__name__)
         try:
             result = self.backend.infer(request)
-        except Exception as exc:
-            return error_msg(f"policy backend '{name}' failed: {type(exc).__name__}: {exc}")
+        except BaseException as exc:  # sys.exit() and KeyboardInterrupt in a policy's code are its errors too
+            if not raised_by_code(exc):
+                raise
+            return error_msg(f"policy backend '{name}' failed: {describe_error(exc)}")
         try:
             response = response_to_msg(result, request.joint_names)
         except ResponseError as exc:

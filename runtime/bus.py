@@ -26,6 +26,7 @@ from typing import Any, Callable, Generic, Protocol, TypeVar
 
 from .clock import Clock
 from .errors import OptionError
+from .interrupt import describe_error, raised_by_code
 from .service_worker import ServiceWorker
 
 T = TypeVar("T")
@@ -382,13 +383,17 @@ class _Answer:
 def _run_handler(name: str, handler: Callable[[Any], Any], request: Any, future: Future[Any], called_s: float,
                  clock: Clock) -> _Answer:
     """Run ``handler`` on ``request``, timing it; an exception is the answer (the caller sees it
-    through the future)."""
+    through the future), a ``sys.exit`` or ``KeyboardInterrupt`` of the handler's own too
+    (``raised_by_code``)."""
     start = time.perf_counter()
     try:
         response = handler(request)
         error: BaseException | None = None
-    except Exception as exc:
-        response, error = None, exc
+    except BaseException as exc:
+        if not raised_by_code(exc):
+            raise
+        response = None
+        error = exc if isinstance(exc, Exception) else RuntimeError(f"its handler raised {describe_error(exc)}")
     wall = time.perf_counter() - start
     return _Answer(name, future, called_s, clock.now(), wall, response, error)
 

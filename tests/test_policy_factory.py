@@ -154,3 +154,46 @@ def test_a_factory_file_travels_to_a_ray_worker_as_its_file(policy_dir, tmp_path
     assert local.policy.kind is PolicyKind.FACTORY
     assert local.policy.text == f"{tmp_path / 'node' / 'policy' / 'my_policy.py'}:make"
     assert (tmp_path / "node" / "policy" / "my_policy.py").read_text() == HOLD
+
+
+EXITING = '''
+import sys
+
+
+class Exiting:
+    name = "exiting"
+
+    def load(self):
+        {load}
+
+    def warmup(self, request):
+        pass
+
+    def infer(self, request):
+        {infer}
+
+
+def make(options):
+    {make}
+    return Exiting()
+'''
+
+
+@pytest.mark.parametrize("raises, text", [("sys.exit(7)", "SystemExit: 7"), ("raise KeyboardInterrupt", "KeyboardInterrupt")])
+def test_a_policy_that_exits_or_raises_keyboard_interrupt_is_a_policy_error(capsys, tmp_path, raises, text):
+    """Neither ends the process (exit 7, nothing said) nor reads as Ctrl-C: the policy answered ERROR."""
+    path = write(tmp_path, EXITING.format(load="pass", infer=raises, make="pass"))
+    code, summary = run_json(capsys, "objectives/stack_cubes.xml", "--world", "kinematic", "--policy", f"{path}:make")
+    assert code == 1
+    assert summary["status"] == "FAILURE" and summary["failing_node"] == "ExecutePolicy"
+    assert summary["reason"] == f"the policy answered ERROR for the warmup: policy backend 'exiting' failed: {text}"
+
+
+@pytest.mark.parametrize("where", ["make", "load"])
+def test_a_policy_that_exits_while_it_loads_is_an_error_naming_it(capsys, tmp_path, where):
+    path = write(tmp_path, EXITING.format(**{"load": "pass", "infer": "pass", "make": "pass", where: "sys.exit(7)"}))
+    code, summary = run_json(capsys, "objectives/stack_cubes.xml", "--world", "kinematic", "--policy", f"{path}:make")
+    assert code == 2 and summary["status"] == "ERROR"
+    said = {"make": f"policy factory {path}:make raised SystemExit: 7",
+            "load": "policy backend 'exiting' failed to load: SystemExit: 7"}[where]
+    assert summary["reason"] == f"world 'kinematic': {said}"

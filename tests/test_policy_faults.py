@@ -10,6 +10,7 @@ malformed JSON, 401, 503 while loading) go through the real adapter (``PolicyAda
 from __future__ import annotations
 
 import http.server
+import sys
 import threading
 from dataclasses import dataclass, field
 from typing import Any, Callable
@@ -277,6 +278,14 @@ def _raises(request):
     raise ConnectionResetError("adapter crashed")
 
 
+def _exits(request):
+    sys.exit(7)
+
+
+def _keyboard_interrupt(request):
+    raise KeyboardInterrupt
+
+
 def _jump(request):
     response = moving_chunk(request)
     for point in response.chunk.points:
@@ -298,9 +307,12 @@ def _jump(request):
         (_status(42), "FAILURE", "the policy answered status 42 for the chunk 2"),
         (_status(R.NO_MORE_ACTIONS), "SUCCESS", "the policy has no more actions"),
         (_raises, "FAILURE", f"calling the policy service '{SERVICE}' failed: adapter crashed"),
+        (_exits, "FAILURE", f"calling the policy service '{SERVICE}' failed: its handler raised SystemExit: 7"),
+        (_keyboard_interrupt, "FAILURE", f"calling the policy service '{SERVICE}' failed: its handler raised KeyboardInterrupt"),
         (_jump, "FAILURE", "chunk 2 rejected: densified step"),
     ],
-    ids=["inf", "empty", "ragged", "renamed", "one-step", "too-long", "unknown", "error", "status-42", "no-more-actions", "raises", "jump"],
+    ids=["inf", "empty", "ragged", "renamed", "one-step", "too-long", "unknown", "error", "status-42", "no-more-actions", "raises", "exits",
+         "keyboard-interrupt", "jump"],
 )
 def test_malformed_answer_stops_the_arm_with_the_reason(registry, fault, status, message):
     out = run_with_faults(registry, Policy(fault_at=2, fault=fault), FixedLatency(0.1))
