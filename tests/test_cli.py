@@ -438,6 +438,8 @@ def test_printable_escapes_only_what_a_terminal_would_act_on():
 
     assert printable("Pick 'cube' ü → 機器人 🤖") == "Pick 'cube' ü → 機器人 🤖"
     assert printable(f"a{BIDI}b\u2066c\u200bd\r\n\te{ESC}\x85\u2028") == "a\\u202eb\\u2066c\\u200bd\\r\\n\\te\\x1b\\x85\\u2028"
+    assert printable("a" * 5000) == "a" * 4096 + "... (904 characters cut)"  # a policy's 5 MB message too
+    assert printable(ESC * 5000) == "\\x1b" * 4096 + "... (904 characters cut)"
 
 
 def test_the_synopsis_in_docs_cli_md_is_the_argument_parser_s():

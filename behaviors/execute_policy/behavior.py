@@ -33,6 +33,7 @@ from sensor_msgs.msg import Image, JointState
 from runtime.behavior import Behavior, Status
 from runtime.errors import PortError, SetupError
 from runtime.ports import Direction
+from runtime.terminal import bounded
 
 from . import config as cfg
 from ..controller_link import ControllerLink
@@ -505,7 +506,9 @@ class ExecutePolicy(Behavior):
 
     def _finish(self, status: Status, message: str, kind: FailureKind | str | None = None, stall_s: float = 0.0) -> Status:
         """End the run with ``status``; a FAILURE says its ``kind`` (``Behavior.failure_kind``);
-        ``stall_s``: how long the arm had been waiting for a chunk when it ended."""
+        ``stall_s``: how long the arm had been waiting for a chunk when it ended. ``message`` may
+        carry the policy's own text: it is kept ``bounded``."""
+        message = bounded(message)
         self.phase = Phase.DONE
         self.message = self.metrics.message = message
         self.feedback_message = message
@@ -520,6 +523,7 @@ class ExecutePolicy(Behavior):
         """End this run for a mistake of the setup (goals cancelled, the message kept for the
         summary): the error to raise, which ends the whole run as ERROR."""
         self._cancel_goals()
+        what = bounded(what)
         self.phase = Phase.DONE
         self.message = self.metrics.message = what
         self._write_outputs()
