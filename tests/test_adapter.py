@@ -231,3 +231,4 @@ def test_serves_on_the_in_process_bus():
     assert future.done()
     assert future.result().status == R.CHUNK_PRODUCED
     assert adapter.service_name == "/get_action_chunk" and adapter.served_chunks == 1
+    bus.close()  # the service's worker thread ends with the bus

@@ -97,9 +97,11 @@ class Outcome:
 
 
 def run_with_faults(registry: Registry, handler: Callable[[Any], Any] | None, latency: Any,
-                    before: Callable[[Any, KinematicWorld], None] | None = None, ports: str = "") -> Outcome:
+                    before: Callable[[Any, KinematicWorld], None] | None = None, ports: str = "",
+                    own_thread: bool = False) -> Outcome:
     """ExecutePolicy (``BASE`` and ``ports``) under ForceSuccess, then a 1 s Wait so the stop
-    after a failure can be seen."""
+    after a failure can be seen; ``own_thread``: the handler is served as a policy adapter serves
+    one (``create_service(own_thread=True)``)."""
     node = (f'<ExecutePolicy policy_service_name="{SERVICE}" joint_group_name="manipulator" {BASE} {ports} '
             'status_message="{message}"/>')
     xml = ('<root BTCPP_format="4"><BehaviorTree ID="T"><Sequence>'
@@ -110,7 +112,7 @@ def run_with_faults(registry: Registry, handler: Callable[[Any], Any] | None, la
     world = KinematicWorld({"seed": 0, "policy": "none"})
     loaded = load_tree(xml, registry, context)
     if handler is not None:
-        context.bus.create_service(SERVICE, GetActionChunk, handler)
+        context.bus.create_service(SERVICE, GetActionChunk, handler, own_thread=own_thread)
     if latency is not None:
         context.bus.set_latency(SERVICE, latency)
     if before is not None:
@@ -196,6 +198,28 @@ def test_dropped_response_fails_at_policy_call_timeout_and_stops(registry):
     slowing_from = out.first_window_end + 2.6
     assert out.summary["stall_seconds"] == pytest.approx(out.finished_at - slowing_from, abs=1e-6)
     assert out.summary["stall_seconds"] > 0.1
+
+
+def test_a_hung_in_process_policy_fails_at_policy_call_timeout_and_stops(registry):
+    """On the simulated clock a handler's wall time is its latency: one still running after
+    policy_call_timeout of wall time is not waited for longer, and the run fails as for an
+    answer that never comes."""
+    release, held = threading.Event(), []
+
+    def hang(request: Any) -> Any:
+        if not release.wait(20.0):  # bounded: the test releases it at the end
+            held.append("the run waited for the hung policy past policy_call_timeout")
+        return moving_chunk(request)
+
+    try:
+        out = run_with_faults(registry, Policy(fault_at=2, fault=hang), None, own_thread=True)
+    finally:
+        release.set()
+    assert held == []
+    assert out.status == "FAILURE"
+    assert out.message == f"the policy service '{SERVICE}' did not answer within policy_call_timeout = {TIMEOUT:g} s"
+    assert out.finished_at - out.requested_at[2] == pytest.approx(TIMEOUT, abs=2 * TICK)
+    out.assert_stopped_cleanly()
 
 
 def test_warmup_that_never_answers_fails_at_policy_call_timeout(registry):

@@ -200,7 +200,8 @@ class _RosClient:
     def service_is_ready(self) -> bool:
         return self._client.service_is_ready()
 
-    def call_async(self, request: Any) -> Future[Any]:
+    def call_async(self, request: Any, timeout_s: float | None = None) -> Future[Any]:
+        """``timeout_s`` is the caller's (it gives up on its clock); the call itself is not bounded."""
         if not isinstance(request, self.srv_type.Request):
             raise TypeError(f"service '{self.name}' takes {self.srv_type.__name__}.Request, got {type(request).__name__}")
         if not self._client.service_is_ready():
