@@ -313,15 +313,24 @@ class TraceLatency:
         return f"trace:{self.source}"
 
 
+MAX_TRACE_CHARS = 10_000_000
+"""The most a latency trace holds (a million calls' latencies take about 8 MB)."""
+
+
 def read_latency_trace(path: str) -> TraceLatency:
     """A trace file: one latency in seconds per line (finite, not negative); blank lines and
-    ``#`` comments are skipped. Raises ValueError naming ``file:line`` and what is wrong."""
+    ``#`` comments are skipped; at most ``MAX_TRACE_CHARS`` are read (``/dev/zero`` is refused).
+    Raises OptionError naming ``file:line`` and what is wrong."""
     try:
         with open(path, encoding="utf-8") as f:
-            lines = f.read().splitlines()
+            text = f.read(MAX_TRACE_CHARS + 1)
     except (OSError, UnicodeDecodeError) as err:
         reason = err.strerror if isinstance(err, OSError) and err.strerror else str(err)
         raise OptionError(f"latency trace '{path}' cannot be read: {reason}") from None
+    if len(text) > MAX_TRACE_CHARS:
+        raise OptionError(f"latency trace '{path}' holds more than {MAX_TRACE_CHARS:,} characters "
+                          "(one latency in seconds per line)")
+    lines = text.splitlines()
     seconds = []
     for number, line in enumerate(lines, 1):
         text = line.split("#", 1)[0].strip()

@@ -266,6 +266,11 @@ def test_bad_input_is_refused_before_any_worker_starts(tmp_path, capsys):
     assert code == 2 and "--policy 'lerobot:/no/such': no such checkpoint directory" in capsys.readouterr().err
     code = main(["eval", str(STACK), "--episodes", "0", "--out", str(tmp_path / "c")])
     assert code == 2 and "--episodes must be at least 1, got 0" in capsys.readouterr().err
+    code = main(["eval", str(STACK), "--episodes", "2", "--out", str(tmp_path / "c"), "--workers", "100000"])
+    assert code == 2 and "--workers must be 1 to 64 (each worker is a process with a world of its own), got 100000" in capsys.readouterr().err
+    code = main(["eval", str(STACK), "--episodes", "2", "--out", str(tmp_path / "c"), "--seed-start", "-5"])
+    assert code == 2 and "--seed-start must be 0 to 4294967294 (seeds are 0 to 4294967295), got -5" in capsys.readouterr().err
+    assert not (tmp_path / "c").exists()  # refused before any episode
     code = main(["eval", str(STACK), "--episodes", "1", "--out", str(tmp_path / "d"), "--policy-latency", "soon"])
     assert code == 2 and "--policy-latency: latency 'soon'" in capsys.readouterr().err
 
