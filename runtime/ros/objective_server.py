@@ -44,6 +44,7 @@ from objective_server_msgs.srv import ExecuteObjective, ListObjectives
 from runtime.controls import Visit
 from runtime.crash import describe_crash, write_traceback
 from runtime.errors import ObjectiveError
+from runtime.ros.bus import init_context
 from runtime.interrupt import StopRequest
 from runtime.loader import LoadedTree, load_tree
 from runtime.objective_library import Library, PortOverride, apply_port_overrides
@@ -146,8 +147,7 @@ class ObjectiveServer:
         self._stop: StopRequest | None = None
         self._idle = threading.Event()
         self._idle.set()
-        self.context = rclpy.Context()
-        rclpy.init(context=self.context)
+        self.context = init_context()
         self.node = rclpy.create_node(node_name, context=self.context)
         group = ReentrantCallbackGroup()
         self._action = ActionServer(
