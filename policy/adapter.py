@@ -179,6 +179,19 @@ def request_to_msg(request: PolicyRequest, image_encoding: str = "rgb8") -> GetA
 # --------------------------------------------------------------------------------------------
 # Response conversion
 # --------------------------------------------------------------------------------------------
+def not_real_problem(values: np.ndarray, joint_names: Sequence[str]) -> str | None:
+    """The first value of a (steps, joints) chunk that is not a real number (a bool, a complex
+    number, text, None), named by step and joint; None when all are. Such values are refused,
+    never coerced (``True`` is not 1.0 rad, ``'1.5'`` is not 1.5, ``1+2j`` is not 1)."""
+    if values.dtype.kind in "iuf":
+        return None
+    for (step, column), value in np.ndenumerate(values):
+        value = value.item() if isinstance(value, np.generic) else value
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            return f"chunk step {step} joint '{joint_names[column]}' is {type(value).__name__} {value!r}, not a real number"
+    return None
+
+
 def validate_response(response: Any, joint_names: Sequence[str]) -> None:
     """Raise ``ResponseError`` unless ``response`` is a well-formed ``PolicyResponse`` for ``joint_names``."""
     if not isinstance(response, PolicyResponse):
@@ -198,10 +211,10 @@ def validate_response(response: Any, joint_names: Sequence[str]) -> None:
         raise ResponseError(
             f"chunk has {actions.shape[1]} columns for {len(joint_names)} observed joints [{', '.join(joint_names)}]"
         )
-    try:
-        actions = actions.astype(float)
-    except (TypeError, ValueError):
-        raise ResponseError(f"chunk values are not numbers (dtype {actions.dtype})") from None
+    problem = not_real_problem(actions, joint_names)
+    if problem is not None:
+        raise ResponseError(problem)
+    actions = actions.astype(float)
     bad = ~np.isfinite(actions)
     if bad.any():
         step, column = (int(i) for i in np.argwhere(bad)[0])
