@@ -558,3 +558,13 @@ def test_malformed_json_from_the_server_is_an_error_with_the_reason(registry):
     assert out.status == "FAILURE"
     assert out.message.startswith(f"the policy answered ERROR for the warmup: the inference server at {url}/infer sent a malformed answer: response body is not valid JSON")
     out.assert_stopped_cleanly()
+
+
+def test_a_step_period_that_changes_after_the_first_chunk_is_warned_once(registry):
+    """Chunk 2 says 0.05 s per step after chunk 1's 0.1 s: on main nothing was said."""
+    out = run_with_faults(registry, Policy(fault_at=2, fault=_with_period(0.05)), FixedLatency(0.1))
+    assert out.status == "SUCCESS", out.message
+    assert [w for w in out.summary["warnings"] if "steps every" in w] == [
+        "chunk 2 says the policy steps every 0.05 s, but the first chunk said 0.1 s: every chunk is played at "
+        "dt = 0.1 s per step (not retimed)"
+    ]
