@@ -234,6 +234,21 @@ def test_crashed_hung_and_raising_episodes_are_errors_and_the_evaluation_goes_on
     assert [groups[seed]["failure_kind"] for seed in (1, 2, 3, 4)] == ["worker lost", "episode timeout", "internal", None]
 
 
+def test_the_recording_of_a_hung_episode_is_kept_marked_partial(tmp_path, capsys, fault_plugin):
+    """On main it stayed in recordings/.partial-seed-1, which nothing read or removed."""
+    objective = faults_objective(tmp_path, hang=1)
+    kept, everything = tmp_path / "kept", tmp_path / "all"
+    code, summary, err = eval_cli(capsys, objective, "--episodes", 2, "--episode-timeout", 5, "--out", kept)
+    assert code == 1, err
+    hung = {line["seed"]: line for line in episodes(kept)}[1]
+    assert hung["status"] == "ERROR" and hung["recording"] == "recordings/seed-1"
+    assert hung["run"]["recording_incomplete"].startswith("its worker was stopped mid-episode: the recording ends at its last flush")
+    assert sorted(p.name for p in (kept / "recordings").iterdir()) == ["seed-1"]
+    code, summary, err = eval_cli(capsys, objective, "--episodes", 2, "--episode-timeout", 5, "--record", "all",
+                                  "--out", everything)
+    assert sorted(p.name for p in (everything / "recordings").iterdir()) == ["seed-0", "seed-1"]
+
+
 def test_resume_skips_finished_seeds_and_refuses_another_objective_or_policy(tmp_path, capsys, fault_plugin):
     objective = faults_objective(tmp_path, fail=1)
     out = tmp_path / "eval"
