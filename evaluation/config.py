@@ -15,6 +15,10 @@ from .policies import PolicySpec, check_latency, parse_policy, policy_digest
 
 DEFAULT_EPISODE_TIMEOUT_S = 600.0
 DEFAULT_RETRIES = 1
+MAX_WORKERS = 64
+"""The most episodes run at once: each worker is a process holding a world of its own."""
+MAX_SEED = 2**32 - 1
+"""Seeds are 0 .. 2**32 - 1 (what numpy's random generators take)."""
 
 
 class RecordMode(enum.Enum):
@@ -69,8 +73,12 @@ class EvalConfig:
         """ObjectiveError for options that cannot work, before any worker starts."""
         if self.episodes < 1:
             raise ObjectiveError(f"--episodes must be at least 1, got {self.episodes}")
-        if self.workers < 1:
-            raise ObjectiveError(f"--workers must be at least 1, got {self.workers}")
+        if not 1 <= self.workers <= MAX_WORKERS:
+            raise ObjectiveError(f"--workers must be 1 to {MAX_WORKERS} (each worker is a process with a world of its own), "
+                                 f"got {self.workers}")
+        if not 0 <= self.seed_start <= MAX_SEED - self.episodes + 1:
+            raise ObjectiveError(f"--seed-start must be 0 to {MAX_SEED - self.episodes + 1} (seeds are 0 to {MAX_SEED}), "
+                                 f"got {self.seed_start}")
         if self.retries < 0:
             raise ObjectiveError(f"--retries must not be negative, got {self.retries}")
         if not self.episode_timeout_s > 0:

@@ -10,6 +10,7 @@ is started; the episodes already running finish.
 """
 from __future__ import annotations
 
+import shutil
 import time
 from collections import deque
 from dataclasses import dataclass
@@ -79,14 +80,38 @@ def _handle(event: Event, config: EvalConfig, pending: deque[int], attempts: dic
     if event.kind is EventKind.DONE and event.record is not None:
         record(event.record)
     elif event.kind is EventKind.TIMED_OUT:
-        record(EpisodeRecord.error(event.seed, event.reason, event.wall_seconds, worker=event.worker, kind=EPISODE_TIMEOUT))
+        error = EpisodeRecord.error(event.seed, event.reason, event.wall_seconds, worker=event.worker, kind=EPISODE_TIMEOUT)
+        record(keep_stranded_recording(config, error))
     elif event.kind is EventKind.LOST:
         if attempts[event.seed] <= config.retries:
-            pending.appendleft(event.seed)
+            pending.appendleft(event.seed)  # the next attempt starts its recording afresh
         else:
             tries = attempts[event.seed]
             reason = f"{event.reason}; {tries} attempt{'s' if tries > 1 else ''}, each lost its worker"
-            record(EpisodeRecord.error(event.seed, reason, event.wall_seconds, worker=event.worker, kind=WORKER_LOST))
+            error = EpisodeRecord.error(event.seed, reason, event.wall_seconds, worker=event.worker, kind=WORKER_LOST)
+            record(keep_stranded_recording(config, error))
+
+
+STOPPED_MID_EPISODE = ("its worker was stopped mid-episode: the recording ends at its last flush, with no report "
+                       "(objective report DIR renders it, marked partial)")
+
+
+def keep_stranded_recording(config: EvalConfig, error: EpisodeRecord) -> EpisodeRecord:
+    """``error`` (of an episode whose worker was stopped or died) with the recording that worker
+    left in ``recordings/.partial-seed-N``, kept as ``recordings/seed-N`` and marked partial
+    (``recording_incomplete``): every ``--record`` that records keeps ERROR episodes."""
+    from .worker import RECORDINGS_DIR, recording_name
+
+    recordings = config.out / RECORDINGS_DIR
+    scratch = recordings / f".partial-{recording_name(error.seed)}"
+    if not scratch.is_dir():
+        return error
+    final = recordings / recording_name(error.seed)
+    shutil.rmtree(final, ignore_errors=True)
+    scratch.rename(final)
+    error.recording = f"{RECORDINGS_DIR}/{final.name}"
+    error.run["recording_incomplete"] = STOPPED_MID_EPISODE
+    return error
 
 
 def wait_for_workers(executor: Executor, timeout_s: float, clock: Callable[[], float] = time.monotonic) -> None:

@@ -9,7 +9,8 @@ What it guarantees to the caller (ExecutePolicy), whatever the backend does:
 - ``chunk.joint_names`` echoes ``robot_state.name``, which satisfies both of the contract's
   naming rules (by order without a gripper, by name with one).
 - A CHUNK_PRODUCED answer has at least one point, one column per observed joint, finite values.
-- Any failure (a bad request, a backend exception, an answer that breaks the rules above) is
+- Any failure (a bad request, a backend exception, ``sys.exit`` or ``KeyboardInterrupt`` in the
+  backend's code, an answer that breaks the rules above) is
   answered with ERROR and a reason. Never NO_MORE_ACTIONS, never an exception, never silence:
   an error reported as a graceful end would let the Objective act on a rollout that never ran.
 - It counts served chunks (``served_chunks``) and logs the count every ``log_every`` chunks, the
@@ -33,6 +34,7 @@ from trajectory_msgs.msg import JointTrajectoryPoint
 
 from runtime.timestamps import duration_msg, time_msg, to_seconds
 from runtime.errors import ObjectiveError, OptionError
+from runtime.interrupt import describe_error, raised_by_code
 
 from .backend import PolicyBackend, PolicyRequest, PolicyResponse, PolicyStatus
 from .images import image_to_rgb, rgb_to_image
@@ -177,6 +179,19 @@ def request_to_msg(request: PolicyRequest, image_encoding: str = "rgb8") -> GetA
 # --------------------------------------------------------------------------------------------
 # Response conversion
 # --------------------------------------------------------------------------------------------
+def not_real_problem(values: np.ndarray, joint_names: Sequence[str]) -> str | None:
+    """The first value of a (steps, joints) chunk that is not a real number (a bool, a complex
+    number, text, None), named by step and joint; None when all are. Such values are refused,
+    never coerced (``True`` is not 1.0 rad, ``'1.5'`` is not 1.5, ``1+2j`` is not 1)."""
+    if values.dtype.kind in "iuf":
+        return None
+    for (step, column), value in np.ndenumerate(values):
+        value = value.item() if isinstance(value, np.generic) else value
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            return f"chunk step {step} joint '{joint_names[column]}' is {type(value).__name__} {value!r}, not a real number"
+    return None
+
+
 def validate_response(response: Any, joint_names: Sequence[str]) -> None:
     """Raise ``ResponseError`` unless ``response`` is a well-formed ``PolicyResponse`` for ``joint_names``."""
     if not isinstance(response, PolicyResponse):
@@ -196,10 +211,10 @@ def validate_response(response: Any, joint_names: Sequence[str]) -> None:
         raise ResponseError(
             f"chunk has {actions.shape[1]} columns for {len(joint_names)} observed joints [{', '.join(joint_names)}]"
         )
-    try:
-        actions = actions.astype(float)
-    except (TypeError, ValueError):
-        raise ResponseError(f"chunk values are not numbers (dtype {actions.dtype})") from None
+    problem = not_real_problem(actions, joint_names)
+    if problem is not None:
+        raise ResponseError(problem)
+    actions = actions.astype(float)
     bad = ~np.isfinite(actions)
     if bad.any():
         step, column = (int(i) for i in np.argwhere(bad)[0])
@@ -298,8 +313,10 @@ class PolicyAdapter:
         self.calls += 1
         try:
             response = self._answer(request_msg)
-        except Exception as exc:  # the contract: any failure is ERROR with a reason
-            response = error_msg(f"adapter failed: {type(exc).__name__}: {exc}")
+        except BaseException as exc:  # the contract: any failure is ERROR with a reason
+            if not raised_by_code(exc):
+                raise
+            response = error_msg(f"adapter failed: {describe_error(exc)}")
         self._account(response)
         return response
 
@@ -311,8 +328,10 @@ class PolicyAdapter:
         name = getattr(self.backend, "name", type(self.backend).__name__)
         try:
             result = self.backend.infer(request)
-        except Exception as exc:
-            return error_msg(f"policy backend '{name}' failed: {type(exc).__name__}: {exc}")
+        except BaseException as exc:  # sys.exit() and KeyboardInterrupt in a policy's code are its errors too
+            if not raised_by_code(exc):
+                raise
+            return error_msg(f"policy backend '{name}' failed: {describe_error(exc)}")
         try:
             response = response_to_msg(result, request.joint_names)
         except ResponseError as exc:

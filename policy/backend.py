@@ -75,7 +75,9 @@ class PolicyResponse:
         policy_actions: np.ndarray | None = None,
         message: str = "",
     ) -> PolicyResponse:
-        return cls(PolicyStatus.CHUNK, message, np.asarray(actions, dtype=float), native_control_period, policy_actions)
+        values = np.asarray(actions)  # real numbers as floats; anything else kept for the adapter to refuse
+        values = values.astype(float) if values.dtype.kind in "iuf" else values
+        return cls(PolicyStatus.CHUNK, message, values, native_control_period, policy_actions)
 
     @classmethod
     def error(cls, message: str) -> PolicyResponse:

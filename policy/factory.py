@@ -34,6 +34,7 @@ from pathlib import Path
 from typing import Any, Callable
 
 from runtime.errors import OptionError
+from runtime.interrupt import describe_error, raised_by_code
 
 from .backend import PolicyBackend
 
@@ -78,8 +79,10 @@ def build_backend(text: str, options: Any) -> PolicyBackend:
     factory = load_factory(text)
     try:
         backend = factory(options)
-    except Exception as err:
-        raise FactoryError(f"policy factory {text} raised {type(err).__name__}: {err}") from err
+    except BaseException as err:
+        if not raised_by_code(err):
+            raise
+        raise FactoryError(f"policy factory {text} raised {describe_error(err)}") from None
     missing = [m for m in BACKEND_METHODS if not callable(getattr(backend, m, None))]
     if missing or not isinstance(getattr(backend, "name", None), str):
         lacks = ", ".join(f"{m}()" for m in missing) or "a name (str)"
@@ -99,9 +102,11 @@ def _import_file(path: Path, text: str) -> Any:
     sys.modules[module_name] = module  # dataclasses and pickling look their module up by name
     try:
         spec.loader.exec_module(module)
-    except Exception as err:
+    except BaseException as err:  # a sys.exit() at import is the file's error too
         sys.modules.pop(module_name, None)
-        raise FactoryError(f"policy factory {text}: importing {path} raised {_describe(err)}") from err
+        if not raised_by_code(err):
+            raise
+        raise FactoryError(f"policy factory {text}: importing {path} raised {describe_error(err)}") from None
     return module
 
 
@@ -111,10 +116,8 @@ def _import_module(name: str, text: str) -> Any:
     except ModuleNotFoundError as err:
         if err.name == name or name.startswith(f"{err.name}."):
             raise FactoryError(f"policy factory {text}: no module named '{name}' (a file is named FILE.py:NAME)") from None
-        raise FactoryError(f"policy factory {text}: importing {name} raised {_describe(err)}") from err
-    except Exception as err:
-        raise FactoryError(f"policy factory {text}: importing {name} raised {_describe(err)}") from err
-
-
-def _describe(err: Exception) -> str:
-    return f"{type(err).__name__}: {err}"  # a SyntaxError's text names the file and line
+        raise FactoryError(f"policy factory {text}: importing {name} raised {describe_error(err)}") from err
+    except BaseException as err:  # a SyntaxError's text names the file and line
+        if not raised_by_code(err):
+            raise
+        raise FactoryError(f"policy factory {text}: importing {name} raised {describe_error(err)}") from None

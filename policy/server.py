@@ -31,7 +31,11 @@ One inference at a time (a lock): backends keep per-episode state and are not th
 lock covers the request's decoding too, and at most ``BODIES_AT_ONCE`` bodies are read at a time
 (the other clients wait with their bodies unread), so however many large requests arrive,
 one thread parses while the rest wait without the GIL: ``GET /health`` never waits for the lock
-and answers within a few switch intervals. A request's line and headers must arrive within
+and answers within a few switch intervals. A request waits for the lock (and for a turn to read
+its body) at most ``ServerConfig.lock_wait_s``, then is answered ``503`` busy, so a hung backend
+call never piles threads up behind it; a backend call running longer than
+``ServerConfig.infer_deadline_s`` is taken for hung: ``/health`` answers ``error`` naming it,
+and requests are answered ``503`` at once, until it returns. A request's line and headers must arrive within
 ``ServerConfig.header_deadline_s`` of its first byte (a client dripping a byte every few seconds is cut off
 with a ``408`` before its key is read). Each request is logged on one line with its status and
 latency.
@@ -58,6 +62,7 @@ from typing import Any, Callable
 import numpy as np
 
 from runtime.errors import OptionError
+from runtime.interrupt import describe_error, raised_by_code
 
 from .backend import PolicyBackend, PolicyRequest
 from .factory import build_backend, is_factory_spec
@@ -142,6 +147,12 @@ class ServerConfig:
     max_body_bytes: int = DEFAULT_MAX_BODY_BYTES
     header_deadline_s: float = 10.0
     """Seconds from a request's first byte to the end of its headers; later, ``408`` and closed."""
+    lock_wait_s: float = 10.0
+    """Seconds a request waits for the inference in progress (one at a time), then ``503`` busy:
+    longer than a client waits (the adapter's 2.5 s, ``--policy http``'s 10 s)."""
+    infer_deadline_s: float = 30.0
+    """Seconds one backend call may run; longer, the backend is taken for hung (``/health``:
+    ``error``; ``/infer``: ``503`` at once) until the call returns."""
     warmup: WarmupSpec = field(default_factory=WarmupSpec)
     tls_cert: Path | None = None
     tls_key: Path | None = None
@@ -162,8 +173,9 @@ class ServerConfig:
             )
         if self.max_body_bytes <= 0:
             raise OptionError(f"max_body_bytes must be positive, got {self.max_body_bytes}")
-        if not 0 < self.header_deadline_s < float("inf"):
-            raise OptionError(f"header_deadline_s must be a positive number of seconds, got {self.header_deadline_s}")
+        for name in ("header_deadline_s", "lock_wait_s", "infer_deadline_s"):
+            if not 0 < getattr(self, name) < float("inf"):
+                raise OptionError(f"{name} must be a positive number of seconds, got {getattr(self, name)}")
         if (self.tls_cert is None) != (self.tls_key is None):
             raise OptionError("--tls-cert and --tls-key go together")
         if self.tls_client_ca is not None and self.tls_cert is None:
@@ -204,6 +216,8 @@ class InferenceServer:
         self.message = "loading the backend"
         self.requests = 0
         self._infer_lock = threading.Lock()
+        self._infer_started_s: float | None = None
+        """``time.monotonic()`` when the backend call in progress started (None: none runs)."""
         self.intake = threading.BoundedSemaphore(BODIES_AT_ONCE)
         self._httpd: ThreadingHTTPServer | None = None
         self._port: int | None = None
@@ -267,8 +281,30 @@ class InferenceServer:
 
     # -- endpoints (pure of HTTP plumbing, so tests and the handler share them) ---
     def health(self) -> Reply:
-        body = {"status": self.status, "backend": self.backend_name, "message": self.message}
-        return Reply(200, json.dumps(body).encode("utf-8"), self.status)
+        status, message = self.status, self.message
+        stalled = self.stalled()
+        if status == READY and stalled is not None:
+            status, message = ERROR, stalled
+        body = {"status": status, "backend": self.backend_name, "message": message}
+        return Reply(200, json.dumps(body).encode("utf-8"), status)
+
+    def running_s(self) -> float:
+        """How long the backend call in progress has run (0 when none runs)."""
+        started = self._infer_started_s
+        return 0.0 if started is None else time.monotonic() - started
+
+    def stalled(self) -> str | None:
+        """Why the backend is taken for hung (its call in progress is over ``infer_deadline_s``), or None."""
+        running_s = self.running_s()
+        if running_s <= self.config.infer_deadline_s:
+            return None
+        return (f"backend '{self.backend_name}' has been in one inference for {running_s:.1f} s, over its deadline "
+                f"of {self.config.infer_deadline_s:g} s: it looks hung (restart the server)")
+
+    def busy(self) -> Reply:
+        """The answer to a request that waited ``lock_wait_s`` for its turn."""
+        return _error(503, f"policy server is busy: it runs one inference at a time, the one in progress has run "
+                           f"for {self.running_s():.1f} s and this request waited {self.config.lock_wait_s:g} s; try again")
 
     def authorized(self, header: str | None) -> bool:
         """Is ``header`` ``Bearer <the key>``? Constant-time; always true with no key configured."""
@@ -284,16 +320,28 @@ class InferenceServer:
         if self.status != READY:
             return _error(503, f"policy server is not ready: {self.message}" if self.status == ERROR
                           else f"policy server is still loading ({self.message})")
-        with self._infer_lock:
+        stalled = self.stalled()
+        if stalled is not None:
+            return _error(503, f"policy server is not ready: {stalled}")
+        if not self._infer_lock.acquire(timeout=self.config.lock_wait_s):
+            return self.busy()
+        try:
             try:
                 request = decode_request(body)
             except WireError as exc:
                 return _error(400, f"bad request: {exc}")
             self.requests += 1
+            self._infer_started_s = time.monotonic()
             try:
                 response = self.backend.infer(request)
-            except Exception as exc:
-                return _error(500, f"policy backend '{self.backend_name}' failed: {type(exc).__name__}: {exc}")
+            except BaseException as exc:  # sys.exit() and KeyboardInterrupt in a policy's code are its errors too
+                if not raised_by_code(exc):
+                    raise
+                return _error(500, f"policy backend '{self.backend_name}' failed: {describe_error(exc)}")
+            finally:
+                self._infer_started_s = None
+        finally:
+            self._infer_lock.release()
         try:
             return Reply(200, encode_response(response), getattr(response.status, "value", "?"))
         except WireError as exc:
@@ -421,7 +469,9 @@ class _Handler(BaseHTTPRequestHandler):
         if length > limit:
             reason = f"request body of {length} bytes exceeds the limit of {limit} bytes"
             return self._refuse(_error(413, reason), started, length)
-        with self.app.intake:
+        if not self.app.intake.acquire(timeout=self.app.config.lock_wait_s):  # BODIES_AT_ONCE wait for the lock
+            return self._refuse(self.app.busy(), started, length)
+        try:
             body = self.rfile.read(length)
             if len(body) != length:
                 self.close_connection = True
@@ -431,6 +481,8 @@ class _Handler(BaseHTTPRequestHandler):
             except Exception as exc:  # a bug here must still answer, never drop the connection
                 log.exception("POST /infer failed")
                 reply = _error(500, f"policy server failed: {type(exc).__name__}: {exc}")
+        finally:
+            self.app.intake.release()
         self._send(reply, started)
 
     def _refuse(self, reply: Reply, started: float, length: int | None, authenticate: bool = False) -> None:

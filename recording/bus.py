@@ -129,8 +129,8 @@ class _RecordingClient:
         self._recording_inner = inner
         self._bus = bus
 
-    def call_async(self, request: Any) -> Any:
-        future = self._recording_inner.call_async(request)
+    def call_async(self, request: Any, timeout_s: float | None = None) -> Any:
+        future = self._recording_inner.call_async(request, timeout_s=timeout_s)
         self._bus._service_call(self._recording_inner.name, request, future)
         return future
 

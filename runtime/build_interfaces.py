@@ -290,7 +290,7 @@ def build(args: argparse.Namespace, registry: object = None) -> int:
 
 
 COMMAND = Command("build the ROS 2 interface packages shipped in runtime/ros/interfaces into this venv",
-                  add_arguments, build)
+                  add_arguments, build, needs_registry=False)
 
 if __name__ == "__main__":
     sys.exit(main())

@@ -12,13 +12,23 @@ wall clock (``InProcessBus(paced=True)``, ``--realtime``), a service created wit
 ``own_thread=True`` (a policy) runs its handler on a ``ServiceWorker`` instead, so the tick
 never waits for it; its answer is delivered in the first ``spin_once`` after both the handler
 finished and the latency model's delay since the call passed.
+
+On a simulated clock such a handler also runs on its ``ServiceWorker``, and the call waits for
+it with the clock standing still (as if it ran at the call: deterministic), but for at most the
+caller's ``timeout_s`` of wall time: its wall time is its latency, so a handler still running
+then could not be answered in time anyway. The call then leaves its future unanswered (the
+caller's own timeout ends the wait on the clock) and the handler's late answer is dropped. The
+wait also ends when ``stop_waiting_when``'s condition holds (a SIGINT or SIGTERM asked the run
+to stop), so a hung policy never holds a run.
 """
 from __future__ import annotations
 
 import collections
 import itertools
+import logging
 import math
 import random
+import threading
 import time
 import uuid
 from dataclasses import dataclass
@@ -26,9 +36,15 @@ from typing import Any, Callable, Generic, Protocol, TypeVar
 
 from .clock import Clock
 from .errors import OptionError
+from .interrupt import describe_error, raised_by_code
 from .service_worker import ServiceWorker
 
 T = TypeVar("T")
+
+WAIT_SLICE_S = 0.05
+"""How often a call waiting for its handler on a simulated clock looks whether to stop waiting."""
+
+log = logging.getLogger("objective")
 
 
 # --------------------------------------------------------------------------------------------
@@ -106,7 +122,10 @@ class ServiceClient(Protocol):
 
     def service_is_ready(self) -> bool: ...
 
-    def call_async(self, request: Any) -> Future[Any]: ...
+    def call_async(self, request: Any, timeout_s: float | None = None) -> Future[Any]:
+        """Call the service; ``timeout_s``: the caller gives up after that long (on the clock),
+        so an in-process handler on a simulated clock is waited for that long at most (wall)."""
+        ...
 
 
 class Publisher(Protocol):
@@ -175,8 +194,9 @@ class Bus(Protocol):
 
     def create_service(self, name: str, srv_type: type, handler: Callable[[Any], Any], own_thread: bool = False) -> Any:
         """Serve ``name`` with ``handler(request) -> response``. ``own_thread``: a slow handler
-        (a policy's inference) that must never run on the thread that ticks the tree; on a paced
-        bus it runs on a ``ServiceWorker`` of its own, one request at a time."""
+        (a policy's inference) that must never run on the thread that ticks the tree; it runs on
+        a ``ServiceWorker`` of its own, one request at a time (on a simulated clock the call
+        waits for it, see the module's docstring)."""
         ...
 
     def create_client(self, name: str, srv_type: type) -> ServiceClient: ...
@@ -293,15 +313,24 @@ class TraceLatency:
         return f"trace:{self.source}"
 
 
+MAX_TRACE_CHARS = 10_000_000
+"""The most a latency trace holds (a million calls' latencies take about 8 MB)."""
+
+
 def read_latency_trace(path: str) -> TraceLatency:
     """A trace file: one latency in seconds per line (finite, not negative); blank lines and
-    ``#`` comments are skipped. Raises ValueError naming ``file:line`` and what is wrong."""
+    ``#`` comments are skipped; at most ``MAX_TRACE_CHARS`` are read (``/dev/zero`` is refused).
+    Raises OptionError naming ``file:line`` and what is wrong."""
     try:
         with open(path, encoding="utf-8") as f:
-            lines = f.read().splitlines()
+            text = f.read(MAX_TRACE_CHARS + 1)
     except (OSError, UnicodeDecodeError) as err:
         reason = err.strerror if isinstance(err, OSError) and err.strerror else str(err)
         raise OptionError(f"latency trace '{path}' cannot be read: {reason}") from None
+    if len(text) > MAX_TRACE_CHARS:
+        raise OptionError(f"latency trace '{path}' holds more than {MAX_TRACE_CHARS:,} characters "
+                          "(one latency in seconds per line)")
+    lines = text.splitlines()
     seconds = []
     for number, line in enumerate(lines, 1):
         text = line.split("#", 1)[0].strip()
@@ -356,7 +385,7 @@ class _InProcessClient:
     def service_is_ready(self) -> bool:
         return self.name in self.bus._services
 
-    def call_async(self, request: Any) -> Future[Any]:
+    def call_async(self, request: Any, timeout_s: float | None = None) -> Future[Any]:
         entry = self.bus._services.get(self.name)
         if entry is None:
             raise RuntimeError(f"service '{self.name}' is not available")
@@ -364,10 +393,16 @@ class _InProcessClient:
         future: Future[Any] = Future(self.bus.clock)
         called_s = self.bus.clock.now()
         worker = self.bus._workers.get(self.name)
+
+        def run() -> _Answer:
+            return _run_handler(self.name, handler, request, future, called_s, self.bus.clock)
+
         if worker is None:
-            self.bus._deliver(_run_handler(self.name, handler, request, future, called_s, self.bus.clock))
-        else:  # answered on the worker's thread, delivered in a later spin_once
-            worker.submit(lambda: self.bus._answered.append(_run_handler(self.name, handler, request, future, called_s, self.bus.clock)))
+            self.bus._deliver(run())
+        elif self.bus.paced:  # answered on the worker's thread, delivered in a later spin_once
+            worker.submit(lambda: self.bus._answered.append(run()))
+        else:
+            self.bus._wait_for(worker, run, timeout_s)
         return future
 
 
@@ -387,13 +422,17 @@ class _Answer:
 def _run_handler(name: str, handler: Callable[[Any], Any], request: Any, future: Future[Any], called_s: float,
                  clock: Clock) -> _Answer:
     """Run ``handler`` on ``request``, timing it; an exception is the answer (the caller sees it
-    through the future)."""
+    through the future), a ``sys.exit`` or ``KeyboardInterrupt`` of the handler's own too
+    (``raised_by_code``)."""
     start = time.perf_counter()
     try:
         response = handler(request)
         error: BaseException | None = None
-    except Exception as exc:
-        response, error = None, exc
+    except BaseException as exc:
+        if not raised_by_code(exc):
+            raise
+        response = None
+        error = exc if isinstance(exc, Exception) else RuntimeError(f"its handler raised {describe_error(exc)}")
     wall = time.perf_counter() - start
     return _Answer(name, future, called_s, clock.now(), wall, response, error)
 
@@ -586,6 +625,12 @@ class InProcessBus:
         self._answered: collections.deque[_Answer] = collections.deque()
         """Answers the workers finished, for ``spin_once`` to deliver on the owner's thread."""
         self._ids = itertools.count()
+        self._stop_waiting: Callable[[], bool] = lambda: False
+
+    def stop_waiting_when(self, condition: Callable[[], bool]) -> None:
+        """A call waiting for its handler on a simulated clock gives up as soon as ``condition()``
+        holds (the run was asked to stop), leaving its future unanswered."""
+        self._stop_waiting = condition
 
     # -- configuration ---
     def set_latency(self, service_name: str, model: LatencyModel) -> None:
@@ -599,7 +644,7 @@ class InProcessBus:
         if name in self._services:
             raise ValueError(f"service '{name}' is already served")
         self._services[name] = (srv_type, handler)
-        if own_thread and self.paced:
+        if own_thread:
             self._workers[name] = ServiceWorker(name)
         return name
 
@@ -694,6 +739,30 @@ class InProcessBus:
         return [] if server is None else [interface_type_name(server.action_type, "action")]
 
     # -- delivery ---
+    def _wait_for(self, worker: ServiceWorker, run: Callable[[], _Answer], timeout_s: float | None) -> None:
+        """On a simulated clock: ``run`` on ``worker`` and deliver its answer as if it ran here,
+        waiting at most ``timeout_s`` of wall time (None: no bound) and only while the run is not
+        asked to stop; a later answer is dropped (see the module's docstring)."""
+        done = threading.Event()
+        answers: list[_Answer] = []
+
+        def call() -> None:
+            answers.append(run())
+            done.set()
+
+        worker.submit(call)
+        deadline_s = math.inf if timeout_s is None else time.monotonic() + timeout_s
+        while not done.wait(min(WAIT_SLICE_S, max(0.0, deadline_s - time.monotonic()))):
+            if self._stop_waiting():
+                log.warning("service '%s': stopped waiting for its handler, which still runs; its answer is dropped",
+                            worker.service_name)
+                return
+            if time.monotonic() >= deadline_s:
+                log.warning("service '%s': its handler still runs after %g s of wall time (the caller's timeout); "
+                            "its answer is dropped", worker.service_name, timeout_s)
+                return
+        self._deliver(answers[0])
+
     def _deliver(self, answer: _Answer) -> None:
         """Complete the caller's future, due when the handler finished and the latency model's
         delay since the call passed (on a simulated clock the two instants are one)."""

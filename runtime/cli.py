@@ -468,8 +468,9 @@ def main(argv: Sequence[str] | None = None, registry: Registry | None = None) ->
     signals = stop_on_signals(stop) if args.command == "run" else contextlib.nullcontext()
     try:
         with signals:
-            registry = registry if registry is not None else _installed_registry()
             plugin = getattr(args, "plugin_command", None)
+            if registry is None and (plugin is None or plugin.needs_registry):
+                registry = _installed_registry()
             if plugin is not None:
                 code = plugin.run(args, registry)
             elif args.command == "run":
@@ -522,18 +523,21 @@ class _StderrHandler(logging.StreamHandler):  # type: ignore[type-arg]
 
 
 def _setup_logging() -> None:
-    """Runtime messages (LogMessage, warnings) go to stderr, once per process."""
+    """Runtime messages (LogMessage, warnings) go to stderr, once per process; so do the warnings
+    of every other logger (a policy adapter's), made printable like them."""
     log_to_stderr("objective", "[%(levelname)s] %(message)s")
+    log_to_stderr("", "[%(levelname)s] %(name)s: %(message)s", logging.WARNING)
 
 
-def log_to_stderr(name: str, fmt: str) -> None:
-    """Send the logger ``name`` (and its children) to stderr at INFO, once per process."""
+def log_to_stderr(name: str, fmt: str, level: int = logging.INFO) -> None:
+    """Send the logger ``name`` (and its children; "" is the root) to stderr at ``level`` and
+    above, made printable, once per process."""
     logger = logging.getLogger(name)
-    if not logger.handlers:
+    if not any(isinstance(handler, _StderrHandler) for handler in logger.handlers):
         handler = _StderrHandler()
         handler.setFormatter(logging.Formatter(fmt))
         logger.addHandler(handler)
-        logger.setLevel(logging.INFO)
+        logger.setLevel(level)
         logger.propagate = False
 
 

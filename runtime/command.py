@@ -30,3 +30,6 @@ class Command:
     help: str
     add_arguments: Callable[[argparse.ArgumentParser], None]
     run: Callable[[argparse.Namespace, "Registry"], int]
+    needs_registry: bool = True
+    """False for a command that works before the behaviors can load (``build-interfaces``, which
+    builds what they import): ``run`` gets None instead of the registry."""

@@ -379,6 +379,17 @@ class ReactiveSequence(ControlNode):
         "all succeed. Use it to guard a long action with conditions checked every tick."
     )
 
+    @classmethod
+    def check_child_ids(cls, ids: list[str]) -> str | None:
+        """BT.CPP's rule at load (``VerifyXML``, since 4.7): at most one AsyncSequence child. Two
+        would take turns, each halting the other when it returns RUNNING, and never finish."""
+        positions = [str(index + 1) for index, node_id in enumerate(ids) if node_id == "AsyncSequence"]
+        if len(positions) <= 1:
+            return None
+        return (f"a ReactiveSequence cannot have more than one async child (BehaviorTree.CPP refuses it too): "
+                f"children {', '.join(positions[:-1])} and {positions[-1]} are AsyncSequences, which would halt "
+                f"each other in turn and never finish")
+
     def run(self) -> TickGenerator:
         all_skipped = True
         self.status = Status.RUNNING

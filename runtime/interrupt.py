@@ -30,6 +30,20 @@ class Interrupted(KeyboardInterrupt):
         self.signum = signum
 
 
+def raised_by_code(error: BaseException) -> bool:
+    """Whether ``error`` is a fault of the code that raised it, to be reported as that code's
+    error: any Exception, and a SystemExit or KeyboardInterrupt that a policy or a plug-in raised
+    itself (``sys.exit(7)``, ``raise KeyboardInterrupt``). A signal's ``Interrupted`` is not: it
+    stops the run."""
+    return isinstance(error, (Exception, SystemExit, KeyboardInterrupt)) and not isinstance(error, Interrupted)
+
+
+def describe_error(error: BaseException) -> str:
+    """``Type: message`` (``SystemExit: 7``), or the type alone when it has no message."""
+    text = str(error)
+    return f"{type(error).__name__}: {text}" if text else type(error).__name__
+
+
 def signal_name(signum: int) -> str:
     try:
         return signal.Signals(signum).name

@@ -232,6 +232,15 @@ def _elements(element: Any) -> list[Any]:
     return [c for c in element if isinstance(c.tag, str)]
 
 
+def _child_ids_problem(cls: type[NodeMixin], children: list[Any]) -> str | None:
+    """A control node's own rule on which nodes its children are (``check_child_ids``, given their
+    node IDs: the tag, or ``ID`` in the explicit form ``<Control ID="X">``), or None."""
+    check = getattr(cls, "check_child_ids", None)
+    if check is None:
+        return None
+    return check([str(child.get("ID", "")) if child.tag in EXPLICIT_TAGS else str(child.tag) for child in children])
+
+
 def _read_file(path: Path, display: str) -> bytes:
     try:
         size = path.stat().st_size
@@ -566,7 +575,7 @@ class _Builder:
         self.nodes.append(record)
 
         children = _elements(element)
-        problem = self._child_count_problem(cls, len(children))
+        problem = self._child_count_problem(cls, len(children)) or _child_ids_problem(cls, children)
         if problem:
             raise LoadError(problem, loc, node_id)
         for child_el in children:

@@ -59,11 +59,15 @@ class Registry:
 
     @classmethod
     def from_entry_points(cls, group: str = BEHAVIOR_GROUP) -> Registry:
-        """A registry holding every node that installed packages declare."""
+        """A registry holding every node that installed packages declare; an ObjectiveError naming
+        what to install when a module one of them imports is missing (ROS 2, an interface package)."""
+        from .extras import naming_missing_modules
+
         registry = cls()
         for ep in sorted(entry_points(group=group), key=lambda e: e.name):
-            register: Callable[[Registry], None] = ep.load()
-            register(registry)
+            with naming_missing_modules(f"the behaviors of '{ep.name}' ({ep.value}) cannot load"):
+                register: Callable[[Registry], None] = ep.load()
+                register(registry)
         return registry
 
 

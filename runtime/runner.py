@@ -492,6 +492,8 @@ def run_tree(
         world = create_world(options.world or default_world_name(), world_options)
     period = context.tick_period_s = 1.0 / options.tick_hz  # the run's nodes read it from the context
     clock, bus = context.clock, context.bus
+    if stop is not None and callable(getattr(bus, "stop_waiting_when", None)):
+        bus.stop_waiting_when(lambda: stop.requested)  # a hung in-process policy never holds a signal back
     ticks = 0
     blame: tuple[py_trees.behaviour.Behaviour, str, str | None] | None = None
     status = Status.INVALID

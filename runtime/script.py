@@ -116,6 +116,20 @@ def _describe_token(token: Token) -> str:
     return f"'{token.text}'"
 
 
+MAX_SCRIPT_INT = 2**63 - 1
+"""The largest integer literal a script takes (BT.CPP's scripts read integers as 64-bit)."""
+
+
+def _integer(digits: str, base: int, text: str, column: int) -> int:
+    """The value of an integer literal's ``digits``; ScriptError naming it past ``MAX_SCRIPT_INT``
+    (checked on the length first: a 5,000-digit literal is refused without converting it)."""
+    significant = digits.lstrip("0")
+    if len(significant) <= 20 and int(significant or "0", base) <= MAX_SCRIPT_INT:
+        return int(significant or "0", base)
+    shown = text if len(text) <= 30 else f"{text[:20]}... ({len(text)} characters)"
+    raise ScriptError(f"integer {shown} is too large: a script's integers are 64-bit (at most {MAX_SCRIPT_INT})", column)
+
+
 def _read_number(source: str, start: int) -> Token:
     """A decimal or hex integer, or a real with a fraction and/or an exponent."""
     i, n = start, len(source)
@@ -126,7 +140,8 @@ def _read_number(source: str, start: int) -> Token:
             i += 1
         if i == start + 2:
             raise ScriptError(f"invalid number '{source[start:i]}'", column)
-        text, value = source[start:i], int(source[start + 2 : i], 16)
+        text = source[start:i]
+        value = _integer(source[start + 2 : i], 16, text, column)
     else:
         while i < n and source[i].isdigit():
             i += 1
@@ -146,7 +161,7 @@ def _read_number(source: str, start: int) -> Token:
                 while i < n and source[i].isdigit():
                     i += 1
         text = source[start:i]
-        value = float(text) if is_real else int(text)
+        value = float(text) if is_real else _integer(text, 10, text, column)
     # "12abc", "1.", "1.5.2" are typos, not a number followed by something else.
     if i < n and (source[i].isalnum() or source[i] == "_" or (source[i] == "." and source[i : i + 2] != "..")):
         end = i

@@ -10,6 +10,9 @@ worker's thread in the order they came, one at a time (as a server with one mode
 the bus delivers each answer to its caller when the call is done, as an answer from a server in
 another process arrives late.
 
+On a simulated clock the in-process bus runs such a service on a worker too, and the call waits
+for it (the clock standing still), at most for the caller's timeout (``runtime.bus``).
+
 The bus that made a worker owns it and closes it when the service or the bus goes away:
 ``close`` drops the calls not started and waits at most ``STOP_WAIT_S`` for the one in
 progress. A handler cannot be interrupted, so one that runs longer is left to finish on its own

@@ -27,6 +27,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from importlib.metadata import version
 from pathlib import Path
+from typing import Any
 
 import mujoco
 import numpy as np
@@ -65,6 +66,19 @@ HOME_CONFIGURATION: tuple[float, ...] = (-1.5708, -1.5708, 1.5708, -1.5708, -1.5
 """Where the arm starts after a reset (the Menagerie ``home`` keyframe, gripper above the table)."""
 
 
+
+IMAGE_SIZES_PX = (16, 4096)
+"""The camera image sizes (width, height, in pixels) a cell renders."""
+
+
+def image_size_problem(value: Any) -> str | None:
+    """What is wrong with ``value`` as a camera image width or height, or None."""
+    low, high = IMAGE_SIZES_PX
+    if isinstance(value, bool) or not isinstance(value, int) or not low <= value <= high:
+        return f"{value!r}: must be an integer in [{low}, {high}]"
+    return None
+
+
 @dataclass(frozen=True)
 class CellOptions:
     """What can vary between cells. Defaults are the reference cell."""
@@ -87,9 +101,9 @@ class CellOptions:
         if self.cube_friction <= 0:
             raise OptionError(f"cube_friction {self.cube_friction}: must be positive")
         for name in ("image_width", "image_height"):
-            value = getattr(self, name)
-            if not isinstance(value, int) or not 16 <= value <= 4096:
-                raise OptionError(f"{name} {value!r}: must be an integer in [16, 4096]")
+            problem = image_size_problem(getattr(self, name))
+            if problem is not None:
+                raise OptionError(f"{name} {problem}")
         if not 0 < self.timestep <= 0.005:
             raise OptionError(f"timestep {self.timestep} s: must be in (0, 0.005]")
         detail = self.visual_mesh_detail

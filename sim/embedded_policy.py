@@ -9,9 +9,11 @@ from __future__ import annotations
 from typing import Any
 
 from policy.adapter import DEFAULT_SERVICE_NAME, PolicyAdapter
-from policy.specs import PolicySpec, parse_policy
+from policy.specs import PolicySpec, PolicySpecError, parse_policy
 from policy.specs import make_backend as make_spec_backend
 from runtime.bus import parse_latency
+from runtime.errors import ObjectiveError
+from runtime.interrupt import describe_error, raised_by_code
 
 def make_backend(spec: PolicySpec | str | None, cell: Any) -> Any:
     """The backend named by ``spec`` (None for ``none``); PolicySpecError (an OptionError) for a spec that names none."""
@@ -31,7 +33,15 @@ def serve_embedded_policy(bus: Any, spec: str | None, cell: Any, latency: str | 
     backend = make_backend(spec, cell)
     if backend is None:
         return None
-    backend.load()
+    try:
+        backend.load()
+    except ObjectiveError:
+        raise
+    except BaseException as err:  # the policy's own code: its error, sys.exit() and KeyboardInterrupt included
+        if not raised_by_code(err):
+            raise
+        name = getattr(backend, "name", type(backend).__name__)
+        raise PolicySpecError(f"policy backend '{name}' failed to load: {describe_error(err)}") from None
     adapter = PolicyAdapter(backend).serve(bus, DEFAULT_SERVICE_NAME)
     if latency and hasattr(bus, "set_latency"):
         bus.set_latency(DEFAULT_SERVICE_NAME, parse_latency(latency, seed))

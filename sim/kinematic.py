@@ -17,7 +17,7 @@ import pinocchio as pin
 from .layouts import layout
 from .planning import CUBE_SIZE
 from .robot_model import ARM_JOINTS, GRIPPER_DRIVER_JOINT, TCP_SITE, planning_robot_model
-from .world import CellWorld, number_option
+from .world import CellWorld, image_size_option
 
 GRIPPER_SPEED = 1.6  # rad/s of the driver joint: fully closed in 0.5 s
 GRIPPER_CLOSED_ON_CUBE = 0.52  # driver angle where the 2F-85's pads meet a 30 mm cube
@@ -236,7 +236,7 @@ class KinematicWorld(CellWorld):
     """World ``kinematic`` (a ``CellWorld`` around a ``KinematicCell``)."""
 
     def __init__(self, options: dict[str, Any]) -> None:
-        size = number_option(options, "image_size", 32, int)
+        size = image_size_option(options, 32)
         super().__init__("kinematic", options, lambda arm, seed: KinematicCell.at_layout(arm, seed, size))
 
 

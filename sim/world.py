@@ -22,7 +22,7 @@ from runtime.joint_states import joint_state
 from runtime.timestamps import time_msg
 from runtime.errors import OptionError
 
-from .cell_model import CAMERA_NAMES, CUBE_COLORS, CellOptions
+from .cell_model import CAMERA_NAMES, CUBE_COLORS, CellOptions, image_size_problem
 from .controllers import JTC_CONTROLLER, TRAJECTORY_CONTROLLER, ControllersConfig, JtcParams, make_controllers
 from .embedded_policy import serve_embedded_policy
 from .hardware import Hardware
@@ -92,6 +92,16 @@ def number_option(options: dict[str, Any], key: str, default: float, kind: type 
         return kind(value)
     except (TypeError, ValueError):
         raise OptionError(f"option '{key}' must be {'a whole number' if kind is int else 'a number'}, got {value!r}") from None
+
+
+def image_size_option(options: dict[str, Any], default: int) -> int:
+    """``--world-option image_size=N``: the cameras' width and height in pixels; OptionError outside
+    the sizes a cell renders (``cell_model.IMAGE_SIZES_PX``)."""
+    size = number_option(options, "image_size", default, int)
+    problem = image_size_problem(size)
+    if problem is not None:
+        raise OptionError(f"option 'image_size' {problem}")
+    return int(size)
 
 
 class CellClock:
@@ -265,7 +275,7 @@ def create_vla_sim(options: dict[str, Any]) -> CellWorld:
     """World ``vla_sim``: the MuJoCo cell."""
     from .mujoco_cell import MujocoCell
 
-    size = number_option(options, "image_size", 224, int)
+    size = image_size_option(options, 224)
     cell_options = CellOptions(image_width=size, image_height=size)
     return CellWorld("vla_sim", options, lambda arm, seed: MujocoCell(cell_options, arm, seed))
 

@@ -178,6 +178,31 @@ def test_invalid_answers_are_errors(answer, reason):
     assert response.message == f"policy backend 'fake' returned an invalid answer: {reason}"
 
 
+def _with(value, column: int = 2) -> np.ndarray:
+    """A 3-step chunk of zeros whose step 1, ``column`` holds ``value`` (its dtype what numpy makes of it)."""
+    rows = [[0.0] * 7 for _ in range(3)]
+    rows[1][column] = value
+    return np.array(rows, dtype=object if isinstance(value, (bool, str, type(None))) else None)
+
+
+STEP_1_ELBOW, FIRST = "chunk step 1 joint 'elbow_joint'", "chunk step 0 joint 'shoulder_pan_joint'"
+
+
+@pytest.mark.parametrize("actions, problem", [
+    (_with(1 + 2j), f"{FIRST} is complex 0j"),  # one complex value makes the whole array complex
+    (_with(True), f"{STEP_1_ELBOW} is bool True"),
+    (np.ones((3, 7), dtype=bool), f"{FIRST} is bool True"),
+    (_with("1.5"), f"{STEP_1_ELBOW} is str '1.5'"),
+    (np.full((3, 7), "0.1"), f"{FIRST} is str '0.1'"),
+    (_with(None), f"{STEP_1_ELBOW} is NoneType None"),
+], ids=["complex", "bool", "bool-array", "text", "text-array", "none"])
+def test_values_that_are_not_real_numbers_are_refused_naming_step_and_joint(actions, problem):
+    """On main they were coerced: the imaginary part dropped, True read as 1.0 rad, '1.5' as 1.5."""
+    response = PolicyAdapter(FakeBackend(PolicyResponse.chunk(actions, 0.1))).handle(request_msg())
+    assert response.status == R.ERROR
+    assert response.message == f"policy backend 'fake' returned an invalid answer: {problem}, not a real number"
+
+
 def test_bad_request_is_an_error_not_an_exception():
     msg = request_msg()
     msg.robot_state.position = [0.0] * 6
@@ -231,3 +256,4 @@ def test_serves_on_the_in_process_bus():
     assert future.done()
     assert future.result().status == R.CHUNK_PRODUCED
     assert adapter.service_name == "/get_action_chunk" and adapter.served_chunks == 1
+    bus.close()  # the service's worker thread ends with the bus

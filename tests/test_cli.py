@@ -127,6 +127,14 @@ def test_a_bad_latency_trace_is_bad_input_before_anything_runs(cli, tmp_path, co
     assert json.loads(out.strip().splitlines()[-1])["status"] == "ERROR"
 
 
+def test_an_endless_latency_trace_is_refused_after_10_million_characters(cli, tmp_path):
+    """``trace:/dev/zero`` is read up to the bound, never without end."""
+    path = tree_file(tmp_path, "<AlwaysSuccess/>")
+    code, out, err = cli("run", str(path), "--policy-latency", "trace:/dev/zero", "--json")
+    assert code == 2
+    assert "--policy-latency: latency trace '/dev/zero' holds more than 10,000,000 characters" in err
+
+
 def test_run_missing_file_and_bad_options_exit_2(cli, tmp_path):
     code, _, err = cli("run", str(tmp_path / "nope.xml"))
     assert code == 2 and "nope.xml: cannot read file: No such file or directory" in err
@@ -438,6 +446,8 @@ def test_printable_escapes_only_what_a_terminal_would_act_on():
 
     assert printable("Pick 'cube' ü → 機器人 🤖") == "Pick 'cube' ü → 機器人 🤖"
     assert printable(f"a{BIDI}b\u2066c\u200bd\r\n\te{ESC}\x85\u2028") == "a\\u202eb\\u2066c\\u200bd\\r\\n\\te\\x1b\\x85\\u2028"
+    assert printable("a" * 5000) == "a" * 4096 + "... (904 characters cut)"  # a policy's 5 MB message too
+    assert printable(ESC * 5000) == "\\x1b" * 4096 + "... (904 characters cut)"
 
 
 def test_the_synopsis_in_docs_cli_md_is_the_argument_parser_s():

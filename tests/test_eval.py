@@ -234,6 +234,21 @@ def test_crashed_hung_and_raising_episodes_are_errors_and_the_evaluation_goes_on
     assert [groups[seed]["failure_kind"] for seed in (1, 2, 3, 4)] == ["worker lost", "episode timeout", "internal", None]
 
 
+def test_the_recording_of_a_hung_episode_is_kept_marked_partial(tmp_path, capsys, fault_plugin):
+    """On main it stayed in recordings/.partial-seed-1, which nothing read or removed."""
+    objective = faults_objective(tmp_path, hang=1)
+    kept, everything = tmp_path / "kept", tmp_path / "all"
+    code, summary, err = eval_cli(capsys, objective, "--episodes", 2, "--episode-timeout", 5, "--out", kept)
+    assert code == 1, err
+    hung = {line["seed"]: line for line in episodes(kept)}[1]
+    assert hung["status"] == "ERROR" and hung["recording"] == "recordings/seed-1"
+    assert hung["run"]["recording_incomplete"].startswith("its worker was stopped mid-episode: the recording ends at its last flush")
+    assert sorted(p.name for p in (kept / "recordings").iterdir()) == ["seed-1"]
+    code, summary, err = eval_cli(capsys, objective, "--episodes", 2, "--episode-timeout", 5, "--record", "all",
+                                  "--out", everything)
+    assert sorted(p.name for p in (everything / "recordings").iterdir()) == ["seed-0", "seed-1"]
+
+
 def test_resume_skips_finished_seeds_and_refuses_another_objective_or_policy(tmp_path, capsys, fault_plugin):
     objective = faults_objective(tmp_path, fail=1)
     out = tmp_path / "eval"
@@ -288,6 +303,11 @@ def test_bad_input_is_refused_before_any_worker_starts(tmp_path, capsys):
     assert code == 2 and "--policy 'lerobot:/no/such': no such checkpoint directory" in capsys.readouterr().err
     code = main(["eval", str(STACK), "--episodes", "0", "--out", str(tmp_path / "c")])
     assert code == 2 and "--episodes must be at least 1, got 0" in capsys.readouterr().err
+    code = main(["eval", str(STACK), "--episodes", "2", "--out", str(tmp_path / "c"), "--workers", "100000"])
+    assert code == 2 and "--workers must be 1 to 64 (each worker is a process with a world of its own), got 100000" in capsys.readouterr().err
+    code = main(["eval", str(STACK), "--episodes", "2", "--out", str(tmp_path / "c"), "--seed-start", "-5"])
+    assert code == 2 and "--seed-start must be 0 to 4294967294 (seeds are 0 to 4294967295), got -5" in capsys.readouterr().err
+    assert not (tmp_path / "c").exists()  # refused before any episode
     code = main(["eval", str(STACK), "--episodes", "1", "--out", str(tmp_path / "d"), "--policy-latency", "soon"])
     assert code == 2 and "--policy-latency: latency 'soon'" in capsys.readouterr().err
 

@@ -79,6 +79,7 @@ def call_in_process(url: str, msg: GetActionChunk.Request, **config) -> tuple[Ge
     elapsed = time.monotonic() - started
     clock.advance(30.0)
     bus.spin_once()
+    bus.close()  # the service's worker thread ends with the bus
     assert future.done()
     return future.result(), elapsed, adapter
 

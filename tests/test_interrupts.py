@@ -212,3 +212,45 @@ def test_a_second_sigint_while_the_recording_finishes_keeps_its_summary_and_end(
     assert (record / "metadata.yaml").is_file()  # the worker wrote the recording's end
     code, report_err = report(record)
     assert code == 0 and "partial" not in report_err
+
+
+HUNG_POLICY = '''
+import sys
+import threading
+
+
+class Hung:
+    name = "hung"
+
+    def load(self):
+        pass
+
+    def warmup(self, request):
+        pass
+
+    def infer(self, request):
+        print("policy called", file=sys.stderr, flush=True)
+        threading.Event().wait(120)  # hung, within the test's bound
+        raise RuntimeError("the policy was waited for past its hang")
+
+
+def make(options):
+    return Hung()
+'''
+
+
+def test_sigterm_stops_a_run_whose_in_process_policy_hangs(tmp_path):
+    """The policy's call has 600 s to answer: only the signal can end the run, at once."""
+    (tmp_path / "hung.py").write_text(HUNG_POLICY)
+    objective = tmp_path / "stack.xml"
+    objective.write_text((REPO / "objectives" / "stack_cubes.xml").read_text()
+                         .replace('policy_call_timeout="10.0"', 'policy_call_timeout="600"'))
+    proc = start(str(objective), "--world", "kinematic", "--policy", f"{tmp_path / 'hung.py'}:make", "--json")
+    before = wait_for_line(proc, "policy called")
+    proc.send_signal(signal.SIGTERM)
+    code, out, err = finish(proc, timeout=BOUND_S)
+    assert code == 143, before + err
+    summary = json.loads(out.strip().splitlines()[-1])
+    assert (summary["status"], summary["signal"], summary["running_nodes"]) == ("INTERRUPTED", "SIGTERM", ["ExecutePolicy"])
+    assert "service '/get_action_chunk': stopped waiting for its handler, which still runs; its answer is dropped" in err
+    assert "Traceback" not in err

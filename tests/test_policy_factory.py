@@ -154,3 +154,83 @@ def test_a_factory_file_travels_to_a_ray_worker_as_its_file(policy_dir, tmp_path
     assert local.policy.kind is PolicyKind.FACTORY
     assert local.policy.text == f"{tmp_path / 'node' / 'policy' / 'my_policy.py'}:make"
     assert (tmp_path / "node" / "policy" / "my_policy.py").read_text() == HOLD
+
+
+EXITING = '''
+import sys
+
+
+class Exiting:
+    name = "exiting"
+
+    def load(self):
+        {load}
+
+    def warmup(self, request):
+        pass
+
+    def infer(self, request):
+        {infer}
+
+
+def make(options):
+    {make}
+    return Exiting()
+'''
+
+
+@pytest.mark.parametrize("raises, text", [("sys.exit(7)", "SystemExit: 7"), ("raise KeyboardInterrupt", "KeyboardInterrupt")])
+def test_a_policy_that_exits_or_raises_keyboard_interrupt_is_a_policy_error(capsys, tmp_path, raises, text):
+    """Neither ends the process (exit 7, nothing said) nor reads as Ctrl-C: the policy answered ERROR."""
+    path = write(tmp_path, EXITING.format(load="pass", infer=raises, make="pass"))
+    code, summary = run_json(capsys, "objectives/stack_cubes.xml", "--world", "kinematic", "--policy", f"{path}:make")
+    assert code == 1
+    assert summary["status"] == "FAILURE" and summary["failing_node"] == "ExecutePolicy"
+    assert summary["reason"] == f"the policy answered ERROR for the warmup: policy backend 'exiting' failed: {text}"
+
+
+@pytest.mark.parametrize("where", ["make", "load"])
+def test_a_policy_that_exits_while_it_loads_is_an_error_naming_it(capsys, tmp_path, where):
+    path = write(tmp_path, EXITING.format(**{"load": "pass", "infer": "pass", "make": "pass", where: "sys.exit(7)"}))
+    code, summary = run_json(capsys, "objectives/stack_cubes.xml", "--world", "kinematic", "--policy", f"{path}:make")
+    assert code == 2 and summary["status"] == "ERROR"
+    said = {"make": f"policy factory {path}:make raised SystemExit: 7",
+            "load": "policy backend 'exiting' failed to load: SystemExit: 7"}[where]
+    assert summary["reason"] == f"world 'kinematic': {said}"
+
+
+FORGING = '''
+class Forging:
+    name = "forging\\u202e"
+
+    def load(self):
+        pass
+
+    def warmup(self, request):
+        pass
+
+    def infer(self, request):
+        raise RuntimeError("\\x1b[2K\\r\\nSUCCESS after 1.00 s\\u202e" + "x" * 5_000_000)
+
+
+def make(options):
+    return Forging()
+'''
+
+
+def test_a_policy_s_error_text_is_escaped_and_cut_everywhere_it_is_printed(capsys, tmp_path):
+    """ESC, CR-LF and a right-to-left override cannot forge a SUCCESS line, and a 5 MB message
+    prints as 4,096 characters and how many were cut (the adapter's warning, the outcome line, --json)."""
+    path = write(tmp_path, FORGING)
+    assert main(["run", "objectives/stack_cubes.xml", "--world", "kinematic", "--policy", f"{path}:make", "--json"]) == 1
+    out, err = capsys.readouterr()
+    for text in (out, err):
+        assert "\x1b" not in text and "\r" not in text and "\u202e" not in text
+    assert len(err) < 20_000 and len(out) < 30_000
+    said = "policy backend 'forging\\u202e' failed: RuntimeError: \\x1b[2K\\r\\nSUCCESS after 1.00 s\\u202exxx"
+    assert f"[WARNING] policy.adapter: answered ERROR: {said}" in err
+    assert f"'ExecutePolicy' (objectives/stack_cubes.xml:12) failed: the policy answered ERROR for the warmup: {said}" in err
+    assert [line for line in err.splitlines() if "SUCCESS" in line and not line.startswith(("[WARNING]", "FAILURE"))] == []
+    summary = json.loads(out.strip().splitlines()[-1])
+    assert summary["reason"].endswith("x... (4996021 characters cut)")
+    assert len(summary["reason"]) == 4096 + len("... (4996021 characters cut)")

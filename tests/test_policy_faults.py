@@ -10,6 +10,7 @@ malformed JSON, 401, 503 while loading) go through the real adapter (``PolicyAda
 from __future__ import annotations
 
 import http.server
+import sys
 import threading
 from dataclasses import dataclass, field
 from typing import Any, Callable
@@ -99,10 +100,11 @@ class Outcome:
 
 def run_with_faults(registry: Registry, handler: Callable[[Any], Any] | None, latency: Any,
                     before: Callable[[Any, KinematicWorld], None] | None = None, ports: str = "",
-                    setup_error: bool = False) -> Outcome:
+                    setup_error: bool = False, own_thread: bool = False) -> Outcome:
     """ExecutePolicy (``BASE`` and ``ports``) under ForceSuccess, then a 1 s Wait so the stop
     after a failure can be seen; with ``setup_error`` the run must end ERROR instead (no
-    decorator catches a setup error)."""
+    decorator catches a setup error); ``own_thread``: the handler is served as a policy adapter
+    serves one (``create_service(own_thread=True)``)."""
     node = (f'<ExecutePolicy policy_service_name="{SERVICE}" joint_group_name="manipulator" {BASE} {ports} '
             'status_message="{message}"/>')
     xml = ('<root BTCPP_format="4"><BehaviorTree ID="T"><Sequence>'
@@ -113,7 +115,7 @@ def run_with_faults(registry: Registry, handler: Callable[[Any], Any] | None, la
     world = KinematicWorld({"seed": 0, "policy": "none"})
     loaded = load_tree(xml, registry, context)
     if handler is not None:
-        context.bus.create_service(SERVICE, GetActionChunk, handler)
+        context.bus.create_service(SERVICE, GetActionChunk, handler, own_thread=own_thread)
     if latency is not None:
         context.bus.set_latency(SERVICE, latency)
     if before is not None:
@@ -202,6 +204,28 @@ def test_dropped_response_fails_at_policy_call_timeout_and_stops(registry):
     assert out.summary["stall_seconds"] > 0.1
 
 
+def test_a_hung_in_process_policy_fails_at_policy_call_timeout_and_stops(registry):
+    """On the simulated clock a handler's wall time is its latency: one still running after
+    policy_call_timeout of wall time is not waited for longer, and the run fails as for an
+    answer that never comes."""
+    release, held = threading.Event(), []
+
+    def hang(request: Any) -> Any:
+        if not release.wait(20.0):  # bounded: the test releases it at the end
+            held.append("the run waited for the hung policy past policy_call_timeout")
+        return moving_chunk(request)
+
+    try:
+        out = run_with_faults(registry, Policy(fault_at=2, fault=hang), None, own_thread=True)
+    finally:
+        release.set()
+    assert held == []
+    assert out.status == "FAILURE"
+    assert out.message == f"the policy service '{SERVICE}' did not answer within policy_call_timeout = {TIMEOUT:g} s"
+    assert out.finished_at - out.requested_at[2] == pytest.approx(TIMEOUT, abs=2 * TICK)
+    out.assert_stopped_cleanly()
+
+
 def test_warmup_that_never_answers_fails_at_policy_call_timeout(registry):
     out = run_with_faults(registry, Policy(), Latencies(0.1, c0=float("inf")))
     assert out.status == "FAILURE"
@@ -282,6 +306,14 @@ def _raises(request):
     raise ConnectionResetError("adapter crashed")
 
 
+def _exits(request):
+    sys.exit(7)
+
+
+def _keyboard_interrupt(request):
+    raise KeyboardInterrupt
+
+
 def _jump(request):
     response = moving_chunk(request)
     for point in response.chunk.points:
@@ -303,9 +335,12 @@ def _jump(request):
         (_status(42), "FAILURE", "the policy answered status 42 for the chunk 2"),
         (_status(R.NO_MORE_ACTIONS), "SUCCESS", "the policy has no more actions"),
         (_raises, "FAILURE", f"calling the policy service '{SERVICE}' failed: adapter crashed"),
+        (_exits, "FAILURE", f"calling the policy service '{SERVICE}' failed: its handler raised SystemExit: 7"),
+        (_keyboard_interrupt, "FAILURE", f"calling the policy service '{SERVICE}' failed: its handler raised KeyboardInterrupt"),
         (_jump, "FAILURE", "chunk 2 rejected: densified step"),
     ],
-    ids=["inf", "empty", "ragged", "renamed", "one-step", "too-long", "unknown", "error", "status-42", "no-more-actions", "raises", "jump"],
+    ids=["inf", "empty", "ragged", "renamed", "one-step", "too-long", "unknown", "error", "status-42", "no-more-actions", "raises", "exits",
+         "keyboard-interrupt", "jump"],
 )
 def test_malformed_answer_stops_the_arm_with_the_reason(registry, fault, status, message):
     out = run_with_faults(registry, Policy(fault_at=2, fault=fault), FixedLatency(0.1))
@@ -532,3 +567,13 @@ def test_malformed_json_from_the_server_is_an_error_with_the_reason(registry):
     assert out.status == "ERROR"
     assert out.message.startswith(f"the policy answered ERROR for the warmup: the inference server at {url}/infer sent a malformed answer: response body is not valid JSON")
     out.assert_stopped_cleanly()
+
+
+def test_a_step_period_that_changes_after_the_first_chunk_is_warned_once(registry):
+    """Chunk 2 says 0.05 s per step after chunk 1's 0.1 s: on main nothing was said."""
+    out = run_with_faults(registry, Policy(fault_at=2, fault=_with_period(0.05)), FixedLatency(0.1))
+    assert out.status == "SUCCESS", out.message
+    assert [w for w in out.summary["warnings"] if "steps every" in w] == [
+        "chunk 2 says the policy steps every 0.05 s, but the first chunk said 0.1 s: every chunk is played at "
+        "dt = 0.1 s per step (not retimed)"
+    ]

@@ -576,3 +576,16 @@ def test_script_condition_matches_btcpp(code, entries, context):
         board.set(key, value)
     node = bound(ScriptCondition, context, board, code=code)
     assert tick(node).name == status
+
+
+def test_an_integer_literal_past_64_bits_is_refused_as_bt_cpp_refuses_it():
+    """On main a 5,000-digit literal ended as an internal error (Python's int-to-text limit)."""
+    assert btcpp_run("x := 9223372036854775807")[0] == "SUCCESS" and btcpp_run("x := 9223372036854775808")[0] == "error"
+    run("x := 9223372036854775807")
+    with pytest.raises(ScriptError, match=r"^integer 9223372036854775808 is too large: a script's integers are 64-bit "
+                                          r"\(at most 9223372036854775807\) at column 6$"):
+        run("x := 9223372036854775808")
+    with pytest.raises(ScriptError, match=r"^integer 99999999999999999999\.\.\. \(5000 characters\) is too large"):
+        run("x := " + "9" * 5000)
+    with pytest.raises(ScriptError, match=r"^integer 0x1ffffffffffffffff is too large"):
+        run("x := 0x1ffffffffffffffff")

@@ -387,6 +387,41 @@ def test_one_inference_at_a_time():
         server.stop()
 
 
+def test_a_hung_backend_call_never_wedges_the_server(serve):
+    """One call that never returns (released at the end): later requests are answered 503 busy
+    after ``lock_wait_s``, then at once once the call is over ``infer_deadline_s``, when /health
+    says the backend looks hung; no thread piles up; the server serves again once it returns."""
+    gate = threading.Event()
+    backend = FakeBackend(chunk_answer, infer_gate=gate)
+    server = serve(backend, lock_wait_s=0.2, infer_deadline_s=1.0)
+    try:
+        hung = threading.Thread(target=call, args=(server, "POST", "/infer", encode_request(observation())))
+        hung.start()
+        deadline = time.monotonic() + 10
+        while not backend.requests and time.monotonic() < deadline:
+            time.sleep(0.01)
+        assert len(backend.requests) == 1
+        code, body, _ = call(server, "POST", "/infer", encode_request(observation()))
+        assert code == 503 and body["error"].startswith("policy server is busy: it runs one inference at a time, ")
+        assert body["error"].endswith(" and this request waited 0.2 s; try again")
+
+        while call(server, "GET", "/health", key=None)[1]["status"] == "ready" and time.monotonic() < deadline:
+            time.sleep(0.05)
+        code, health, _ = call(server, "GET", "/health", key=None)
+        assert (code, health["status"]) == (200, "error")
+        assert health["message"].startswith("backend 'fake' has been in one inference for ")
+        assert health["message"].endswith(" s, over its deadline of 1 s: it looks hung (restart the server)")
+        threads = threading.active_count()
+        answers = [call(server, "POST", "/infer", encode_request(observation())) for _ in range(20)]
+        assert {(code, body["error"].split(":")[0]) for code, body, _ in answers} == {(503, "policy server is not ready")}
+        assert threading.active_count() <= threads + 1  # each request's thread has ended
+    finally:
+        gate.set()
+        hung.join(10)
+    assert call(server, "GET", "/health", key=None)[1]["status"] == "ready"
+    assert call(server, "POST", "/infer", encode_request(observation()))[0] == 200
+
+
 # --------------------------------------------------------------------------------------------
 # Wire format
 # --------------------------------------------------------------------------------------------

@@ -33,6 +33,7 @@ from sensor_msgs.msg import Image, JointState
 from runtime.behavior import Behavior, Status
 from runtime.errors import PortError, SetupError
 from runtime.ports import Direction
+from runtime.terminal import bounded
 
 from . import config as cfg
 from ..controller_link import ControllerLink
@@ -149,7 +150,9 @@ class ExecutePolicy(Behavior):
         self.held: HeldChunk | None = None
         self.sent_motion: SentMotion | None = None  # from the end of the warmup
         self.rules: Any = None  # the safety rules of the run, taken when the robot is there
-        self.warned_period = False
+        self.first_period_s: float | None = None
+        """The step period the first chunk that gave one said (``native_control_period``)."""
+        self.warned_period_change = False
         self.warned_no_policy_chunk = False
         self.received: tuple[Chunk, int] | None = None  # the newest chunk read, with its request step
         self.warned_sizing = SizingRisk.COVERED  # the worst sizing risk warned about so far
@@ -380,7 +383,7 @@ class ExecutePolicy(Behavior):
         period = period_problem(response.native_control_period)
         if period is not None:
             return self._reject(f"chunk {self.metrics.chunks} rejected: {period}", FailureKind.MALFORMED_CHUNK.value)
-        self._check_period(response.native_control_period)
+        self._check_period(response.native_control_period, self.metrics.chunks)
         try:
             chunk = read_chunk(response.chunk, self.safety.group_joints, config.gripper_joint_name or None)
             policy_chunk = read_policy_chunk(response.policy_action_chunk) if config.policy_uses_real_time_chunking else None
@@ -523,7 +526,9 @@ class ExecutePolicy(Behavior):
 
     def _finish(self, status: Status, message: str, kind: FailureKind | str | None = None, stall_s: float = 0.0) -> Status:
         """End the run with ``status``; a FAILURE says its ``kind`` (``Behavior.failure_kind``);
-        ``stall_s``: how long the arm had been waiting for a chunk when it ended."""
+        ``stall_s``: how long the arm had been waiting for a chunk when it ended. ``message`` may
+        carry the policy's own text: it is kept ``bounded``."""
+        message = bounded(message)
         self.phase = Phase.DONE
         self.message = self.metrics.message = message
         self.feedback_message = message
@@ -538,6 +543,7 @@ class ExecutePolicy(Behavior):
         """End this run for a mistake of the setup (goals cancelled, the message kept for the
         summary): the error to raise, which ends the whole run as ERROR."""
         self._cancel_goals()
+        what = bounded(what)
         self.phase = Phase.DONE
         self.message = self.metrics.message = what
         self._write_outputs()
@@ -600,15 +606,25 @@ class ExecutePolicy(Behavior):
             assert text is not None
             self._warn(text)
 
-    def _check_period(self, period: float) -> None:
-        if self.warned_period or period <= 0:
+    def _check_period(self, period: float, chunk_number: int) -> None:
+        """Warn once when the first chunk's step period differs from ``dt``, and once when a later
+        chunk's differs from the first's (0: the policy gives none)."""
+        if period <= 0:
             return
-        if abs(period - self.config.dt) > 1e-6:
+        if self.first_period_s is None:
+            self.first_period_s = period
+            if abs(period - self.config.dt) > 1e-6:
+                self._warn(
+                    f"the policy was trained at {period:g} s per step but dt is {self.config.dt:g} s: the motion plays "
+                    f"{period / self.config.dt:.2f}x as fast as trained (the chunk is not retimed)"
+                )
+            return
+        if abs(period - self.first_period_s) > 1e-6 and not self.warned_period_change:
+            self.warned_period_change = True
             self._warn(
-                f"the policy was trained at {period:g} s per step but dt is {self.config.dt:g} s: the motion plays "
-                f"{period / self.config.dt:.2f}x as fast as trained (the chunk is not retimed)"
+                f"chunk {chunk_number} says the policy steps every {period:g} s, but the first chunk said "
+                f"{self.first_period_s:g} s: every chunk is played at dt = {self.config.dt:g} s per step (not retimed)"
             )
-        self.warned_period = True
 
     def _check_first_chunk_start(self, chunk: Chunk, anchor: Any) -> None:
         """Warn when the first chunk starts far from where the arm was at its request

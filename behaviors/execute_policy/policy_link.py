@@ -77,7 +77,8 @@ class PolicyLink:
         if config.policy_uses_real_time_chunking and self.carryover is not None and not new_episode:
             request.previous_action_chunk = policy_tail(self.carryover.policy_chunk, request_step - self.carryover.request_step)
             request.previous_anchor_state = self.carryover.anchor
-        self.request = InFlight(self.client.call_async(request), now_s, request_step, frozen, request.robot_state)
+        future = self.client.call_async(request, timeout_s=config.policy_call_timeout)
+        self.request = InFlight(future, now_s, request_step, frozen, request.robot_state)
 
     def timed_out(self, now_s: float, limit_s: float) -> bool:
         """Whether the request in flight has waited more than ``limit_s`` (it is cancelled then)."""

@@ -35,6 +35,7 @@ which callers treat as a failure).
 from __future__ import annotations
 
 import collections
+import os
 import sys
 import threading
 import time
@@ -61,6 +62,7 @@ from runtime.bus import (
     Future,
 )
 from runtime.clock import Clock, next_due
+from runtime.errors import OptionError
 from runtime.service_worker import ServiceWorker
 
 _SPIN_PERIOD_S = 0.1  # how often the spin thread looks at its stop flag when the graph is idle
@@ -200,7 +202,8 @@ class _RosClient:
     def service_is_ready(self) -> bool:
         return self._client.service_is_ready()
 
-    def call_async(self, request: Any) -> Future[Any]:
+    def call_async(self, request: Any, timeout_s: float | None = None) -> Future[Any]:
+        """``timeout_s`` is the caller's (it gives up on its clock); the call itself is not bounded."""
         if not isinstance(request, self.srv_type.Request):
             raise TypeError(f"service '{self.name}' takes {self.srv_type.__name__}.Request, got {type(request).__name__}")
         if not self._client.service_is_ready():
@@ -584,6 +587,30 @@ class _RosActionClient:
 # --------------------------------------------------------------------------------------------
 # The bus
 # --------------------------------------------------------------------------------------------
+MAX_DOMAIN_ID = 232
+"""The highest ROS_DOMAIN_ID ROS 2 takes (0-101 are safe on every machine)."""
+
+
+def domain_id_problem(text: str | None) -> str | None:
+    """What is wrong with ``text`` as ``ROS_DOMAIN_ID`` (None or empty: the default, 0), or None."""
+    if not text:
+        return None
+    if not (text.isascii() and text.isdigit()) or int(text) > MAX_DOMAIN_ID:
+        return f"ROS_DOMAIN_ID={text!r} must be a whole number from 0 to {MAX_DOMAIN_ID} (0-101 are safe everywhere)"
+    return None
+
+
+def init_context(domain_id: int | None = None) -> Any:
+    """A new rclpy context, initialised; OptionError for a ``ROS_DOMAIN_ID`` rclpy would refuse
+    with a bare RCLError (when ``domain_id`` does not override it)."""
+    problem = None if domain_id is not None else domain_id_problem(os.environ.get("ROS_DOMAIN_ID"))
+    if problem is not None:
+        raise OptionError(problem)
+    context = rclpy.Context()
+    rclpy.init(context=context, domain_id=domain_id)
+    return context
+
+
 class RosBus:
     """``runtime.bus.Bus`` over rclpy: one context, one node, one executor thread pool.
 
@@ -616,8 +643,7 @@ class RosBus:
         """Cancel requests this node's action clients sent; ``close()`` waits for their answers."""
         self._closing = threading.Event()
         self._closed = False
-        self.context = rclpy.Context()
-        rclpy.init(context=self.context, domain_id=domain_id)
+        self.context = init_context(domain_id)
         try:
             self.node = rclpy.create_node(node_name, namespace=namespace, context=self.context)
             self._group = ReentrantCallbackGroup()

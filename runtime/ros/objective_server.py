@@ -53,6 +53,7 @@ from objective_server_msgs.srv import ExecuteObjective, ListObjectives
 from runtime.controls import Visit
 from runtime.crash import describe_crash, write_traceback
 from runtime.errors import ObjectiveError
+from runtime.ros.bus import init_context
 from runtime.interrupt import StopRequest
 from runtime.loader import LoadedTree, default_objectives_dir, load_tree
 from runtime.objective_library import Library, PortOverride, override_entries
@@ -186,8 +187,7 @@ class ObjectiveServer:
         self._goal_ended_at = -float("inf")
         """``time.monotonic()`` when the last DoObjective goal ended (its result on its way)."""
         set_discovery_range()
-        self.context = rclpy.Context()
-        rclpy.init(context=self.context)
+        self.context = init_context()
         self.node = rclpy.create_node(node_name, context=self.context)
         group = ReentrantCallbackGroup()
         self._action = ActionServer(

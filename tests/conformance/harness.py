@@ -20,7 +20,9 @@ A case file is a BTCPP_format="4" XML document starting with a comment of ``key:
                        expectations taken from that release's source and are not run in BT.CPP)
     dt_ms: 100         time between ticks: our SimClock advances, BT.CPP sleeps (wall time)
     keys: n x          blackboard entries compared after every tick
-    expect: RUNNING SUCCESS ...   the statuses both engines must produce (ERROR: the tick raised)
+    expect: RUNNING SUCCESS ...   the statuses both engines must produce (ERROR: the tick raised;
+                       REFUSED alone: the tree is refused at load)
+    refused: TEXT      with ``expect: REFUSED``, what both engines' load errors say
 
 Our side ticks through ``runtime.controls.tick_tree``, the one tick loop the runner uses; BT.CPP
 is ticked with ``tickExactlyOnce`` (one pass per tick, the semantics ``tick_tree`` implements; its
@@ -42,12 +44,15 @@ from runtime.behavior import Behavior, NodeKind, RunContext, Status
 from runtime.bus import InProcessBus
 from runtime.clock import SimClock
 from runtime.controls import COMPLETED, tick_tree
+from runtime.errors import LoadError
 from runtime.events import EventLog
 from runtime.registry import Registry
 
 CASES_DIR = Path(__file__).parent / "cases"
 LETTERS = {"R": "RUNNING", "S": "SUCCESS", "F": "FAILURE"}
-_HEADER = re.compile(r"^\s*(ticks|main|since|dt_ms|keys|expect)\s*:\s*(.*?)\s*$", re.MULTILINE)
+REFUSED = "REFUSED"
+"""The one status of a case whose tree is refused at load."""
+_HEADER = re.compile(r"^\s*(ticks|main|since|dt_ms|keys|expect|refused)\s*:\s*(.*?)\s*$", re.MULTILINE)
 
 
 @dataclass(frozen=True)
@@ -60,6 +65,7 @@ class Case:
     dt_ms: int = 0
     keys: tuple[str, ...] = ()
     expect: tuple[str, ...] = ()
+    refused: str = ""
 
     @classmethod
     def load(cls, path: Path) -> Case:
@@ -75,6 +81,7 @@ class Case:
             dt_ms=int(fields.get("dt_ms", 0)),
             keys=tuple(fields.get("keys", "").split()),
             expect=tuple(fields.get("expect", "").split()),
+            refused=fields.get("refused", ""),
         )
         return case
 
@@ -179,7 +186,10 @@ def run_ours(case: Case) -> Run:
     context = RunContext(clock=clock, bus=InProcessBus(clock), events=EventLog(clock))
     trace: list[tuple[str, str]] = []
     context.resources["trace"] = trace
-    tree = load_tree(case.xml, registry, context)
+    try:
+        tree = load_tree(case.xml, registry, context)
+    except LoadError as err:
+        return Run(statuses=[REFUSED], error=str(err))
     run = Run()
     for index in range(case.ticks):
         if index and case.dt_ms:
@@ -242,11 +252,14 @@ def run_btcpp(case: Case) -> Run:
     factory = bt.BehaviorTreeFactory()
     factory.register_simple_stateful_action("Step", on_start, on_running, on_halted)
     factory.register_simple_condition("Check", check)
-    if case.main:
-        factory.register_behavior_tree_from_text(case.xml)
-        tree = factory.create_tree(case.main)
-    else:
-        tree = factory.create_tree_from_text(case.xml)
+    try:
+        if case.main:
+            factory.register_behavior_tree_from_text(case.xml)
+            tree = factory.create_tree(case.main)
+        else:
+            tree = factory.create_tree_from_text(case.xml)
+    except Exception as err:  # noqa: BLE001 - BT.CPP's load errors have no common Python class
+        return Run(statuses=[REFUSED], error=f"{type(err).__name__}: {err}")
     board = tree.root_blackboard()
     run = Run()
     for index in range(case.ticks):
