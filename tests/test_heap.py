@@ -84,7 +84,7 @@ def test_a_paced_run_ticks_on_a_frozen_heap_and_a_simulated_one_does_not(registr
     result = run_tree(load_tree(WAIT_XML, registry, context), context, options, watchers=[watcher])
 
     assert result.status == "SUCCESS", result.reason
-    assert len(watcher.counts) >= 3
+    assert len(watcher.counts) >= 2  # the tick that starts the Sleep and the one that sees it end
     if realtime:
         assert min(watcher.counts) > 10_000  # everything set-up made, the interpreter's own included
     else:

@@ -302,6 +302,6 @@ def test_count_loadable_counts_and_names_what_blocks(tmp_path):
     objectives = tmp_path / "cfg" / "objectives"
     objectives.mkdir(parents=True)
     (objectives / "ok.xml").write_text('<root BTCPP_format="4"><BehaviorTree ID="A"><ResetVector vector="{v}"/></BehaviorTree></root>')
-    (objectives / "mtc.xml").write_text('<root BTCPP_format="4"><BehaviorTree ID="B"><InitializeMTCTask/></BehaviorTree></root>')
+    (objectives / "mtc.xml").write_text('<root BTCPP_format="4"><BehaviorTree ID="B"><SetupMTCPathIK/></BehaviorTree></root>')
     out = subprocess.run([sys.executable, str(ROOT / "tools" / "count_loadable.py"), str(tmp_path)], capture_output=True, text=True, check=True)
-    assert out.stdout.splitlines() == ["1 of 2 Objectives load", "    1  missing: InitializeMTCTask"]
+    assert out.stdout.splitlines() == ["1 of 2 Objectives load", "    1  missing: SetupMTCPathIK"]
