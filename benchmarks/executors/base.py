@@ -1,15 +1,15 @@
 """What the benchmark executors share with ExecutePolicy: the ports, the start-up, the policy
-requests and answers, the chunk's reading, the gripper, the wrench watch and the point checks.
+requests and answers, the chunk's reading, the gripper and the wrench watch.
 
 ``ChunkExecutor`` runs the phases STARTUP (the policy service, the controller and gripper
 actions, every camera and the joint states; 5 s, then an ERROR naming what is missing) and WARMUP
 (one discarded request, ``new_episode=true``) as ExecutePolicy does, then RUN, where each tick
 follows the gripper goals and the wrench and hands over to the executor's own ``run_tick``. A
 subclass decides when to ask for a chunk (``ask``), what to do with one that came (``receive``
-reads it with ExecutePolicy's contract), and what the controller is sent. Every point sent passes
-ExecutePolicy's checks (``check_values``, ``check_samples``): position limits of the values as
-the policy sent them, then position, velocity and acceleration limits and collisions of the
-densified motion. A run ends with ``finish`` (SUCCESS, or FAILURE with its kind, the robot
+reads it with ExecutePolicy's contract), and what the controller is sent: a peer's home runs no
+ExecutePolicy checks, so nothing here checks the motion (the synchronous executor plans with
+ExecutePolicy's planner and its checks; the benchmark's probe, ``unsafe_points``, counts what the
+controller commands for every executor). A run ends with ``finish`` (SUCCESS, or FAILURE with its kind, the robot
 stopped); a mistake of the setup raises ``SetupError`` (ERROR).
 """
 from __future__ import annotations
@@ -26,13 +26,11 @@ from sensor_msgs.msg import Image, JointState
 from behaviors.controller_link import ControllerLink
 from behaviors.execute_policy import config as cfg
 from behaviors.execute_policy.behavior import FailureKind
-from behaviors.execute_policy.checks import CheckFailure, CheckKind
 from behaviors.execute_policy.chunk import Chunk, ChunkError, period_problem, read_chunk
 from behaviors.execute_policy.gripper import GripperStream, join_targets
 from behaviors.execute_policy.metrics import RunMetrics, summarise_runs
 from behaviors.execute_policy.observation import ObservationError, StaleObservation, robot_state
 from behaviors.execute_policy.policy_link import PolicyLink
-from behaviors.execute_policy.shaping import Samples
 from behaviors.execute_policy.states import InFlight
 from behaviors.safety import MotionSafety, SafetyError, make_safety
 from behaviors.wrench_watch import WrenchWatch
@@ -257,22 +255,6 @@ class ChunkExecutor(Behavior):
         return response, answer.flight
 
     # -- checks ------------------------------------------------------------------------------
-    def check_values(self, arm: np.ndarray, gripper: np.ndarray | None) -> CheckFailure | None:
-        """The values as the policy sent them against the position limits, and the gripper
-        targets (one per step) against the gripper's limits: ExecutePolicy's ``PointChecks.values``."""
-        outside = self.safety.first_value_out_of_limits(arm, gripper)
-        if outside is None:
-            outside = self.safety.first_gripper_target_out_of_limits(gripper, self.config.dt)
-        return None if outside is None else CheckFailure(CheckKind.of_limit(outside.quantity), str(outside))
-
-    def check_samples(self, samples: Samples) -> CheckFailure | None:
-        """The densified motion against the limits, then collisions: ExecutePolicy's ``PointChecks.path``."""
-        violation = self.safety.first_limit_violation(samples)
-        if violation is not None:
-            return CheckFailure(CheckKind.of_limit(violation.quantity), f"densified {violation}")
-        hit = self.safety.first_collision(self.rules, samples, self.config.link_padding, self.gripper_position())
-        return None if hit is None else CheckFailure(CheckKind.of_collision(hit.kind), f"densified {hit}")
-
     def gripper_position(self) -> float | None:
         joint, state = self.config.gripper_joint_name, self.joint_states.latest
         if not joint or state is None or joint not in state.name:
