@@ -105,6 +105,24 @@ def test_the_lerobot_queue_asks_when_half_a_chunk_is_left(registry):
     assert result.blackboard["chunks"] == 3
 
 
+def test_lerobots_rtc_engine_asks_at_its_queue_threshold_with_the_leftover_and_the_worst_delay(registry):
+    """LeRobot's rollout RTC engine on the sim clock: 50-step chunks, a request once the queue
+    holds 30 actions or fewer, with the queue's unexecuted actions cut to execution_horizon (10)
+    and ceil(worst latency / dt) frozen steps: the 0.2 s answer is read at the tick after it
+    (0.21 s), so 3, and each chunk replaces the queue from its step 3."""
+    policy = ScriptedPolicy(hold(velocity=TURN))
+    result = run(registry, small_xml("ExecuteWithLeRobotRtc"), policy, latency_s=0.2)
+    assert (result.status, result.blackboard["message"]) == ("SUCCESS", "executed 60 steps")
+    assert result.extra["bench_executor"]["queue"] == "lerobot (policies.rtc.ActionQueue, RTC enabled)"
+    first, second = policy.requests[1], policy.requests[2]  # after the warmup
+    assert (first.frozen_prefix_steps, len(first.previous_action_chunk.data)) == (0, 0)
+    assert second.frozen_prefix_steps == 3 and second.guidance_horizon == 10
+    assert [d.size for d in second.previous_action_chunk.layout.dim] == [10, 6]
+    # Asked 17 control steps after the first chunk merged (47 actions down to 30), with the arm about
+    # two knots along (0.01 rad each) from the observed start: 0.19 rad.
+    assert second.robot_state.position[0] - first.robot_state.position[0] == pytest.approx(0.19, abs=0.015)
+
+
 @pytest.mark.parametrize("node, count, first", [("ExecuteNewestWinsOnJtc", 16, "step 0 (t=2.460 s)"),
                                                  ("ExecuteOnJtcWithUpsampling", 14, "step 0 (t=2.440 s)")])
 def test_newest_wins_and_upsampling_drag_the_arm_back_to_the_state_a_late_chunk_observed(registry, node, count, first):
@@ -135,7 +153,8 @@ def test_a_chunk_the_checks_refuse_ends_the_synchronous_run_with_the_reason(regi
     assert result.extra["unsafe_points"]["count"] == 0
 
 
-@pytest.mark.parametrize("node", ["ExecuteWithLeRobotQueue", "ExecuteNewestWinsOnJtc", "ExecuteOnJtcWithUpsampling"])
+@pytest.mark.parametrize("node", ["ExecuteWithLeRobotQueue", "ExecuteWithLeRobotRtc", "ExecuteNewestWinsOnJtc",
+                                  "ExecuteOnJtcWithUpsampling"])
 def test_the_peers_play_a_jump_their_homes_do_not_check_and_the_probe_counts_it(registry, node):
     result = run(registry, small_xml(node), ScriptedPolicy(jump_at_step_10))
     assert result.status == "SUCCESS"
@@ -148,7 +167,8 @@ def with_rows(rows_of: Any) -> ScriptedPolicy:
     return ScriptedPolicy(lambda i, request: rows_of(request))
 
 
-@pytest.mark.parametrize("node", ["ExecuteChunksSynchronously", "ExecuteWithLeRobotQueue", "ExecuteNewestWinsOnJtc", "ExecuteOnJtcWithUpsampling"])
+@pytest.mark.parametrize("node", ["ExecuteChunksSynchronously", "ExecuteWithLeRobotQueue", "ExecuteWithLeRobotRtc", "ExecuteNewestWinsOnJtc",
+                                  "ExecuteOnJtcWithUpsampling"])
 def test_malformed_chunks_and_a_silent_policy_end_with_the_reason(registry, node):
     def nan_rows(request: Any) -> Any:
         rows = np.tile(np.array(request.robot_state.position), (50, 1))
@@ -172,7 +192,8 @@ def test_malformed_chunks_and_a_silent_policy_end_with_the_reason(registry, node
     assert result.reason == (f"the policy service '{SERVICE}' did not answer the warmup request within policy_call_timeout = 3 s")
 
 
-@pytest.mark.parametrize("node", ["ExecuteWithLeRobotQueue", "ExecuteNewestWinsOnJtc", "ExecuteOnJtcWithUpsampling"])
+@pytest.mark.parametrize("node", ["ExecuteWithLeRobotQueue", "ExecuteWithLeRobotRtc", "ExecuteNewestWinsOnJtc",
+                                  "ExecuteOnJtcWithUpsampling"])
 def test_the_jtc_executors_refuse_the_admittance_controller(registry, node):
     xml = small_xml(node).replace(JTC, "/joint_trajectory_admittance_controller/follow_joint_trajectory").replace(
         'activate_controllers="joint_trajectory_controller"', 'activate_controllers="joint_trajectory_admittance_controller"')
@@ -182,7 +203,8 @@ def test_the_jtc_executors_refuse_the_admittance_controller(registry, node):
     assert "MoveIt Pro's admittance controller" in result.reason
 
 
-@pytest.mark.parametrize("node", ["ExecuteChunksSynchronously", "ExecuteWithLeRobotQueue", "ExecuteNewestWinsOnJtc", "ExecuteOnJtcWithUpsampling"])
+@pytest.mark.parametrize("node", ["ExecuteChunksSynchronously", "ExecuteWithLeRobotQueue", "ExecuteWithLeRobotRtc", "ExecuteNewestWinsOnJtc",
+                                  "ExecuteOnJtcWithUpsampling"])
 def test_a_missing_policy_service_is_an_error_before_anything_moves(registry, node):
     """The ports name what they need (ExecutePolicy's), so the world check finds the missing service."""
     options = RunOptions(seed=0, max_seconds=30.0, world="kinematic")

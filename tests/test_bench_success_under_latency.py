@@ -92,6 +92,7 @@ def test_an_evaluation_that_cannot_run_stops_the_bench_with_its_reason(bench, tm
 
 
 @pytest.mark.slow
+@pytest.mark.timeout(1800)  # 14 cells of 2 kinematic episodes: about 10 min on 2 shared cores
 def test_a_short_run_of_every_executor_with_the_oracle_prints_success_time_and_unsafe_points(bench, tmp_path, capsys):
     out = tmp_path / "bench"
     code = bench.main(["--policy", "oracle", "--episodes", "2", "--delays", "0", "1", "--world", "kinematic", "--out", str(out)])

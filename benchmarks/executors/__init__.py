@@ -8,6 +8,7 @@ repository root are on ``PYTHONPATH``:
 
 - ``ExecuteChunksSynchronously`` (``synchronous``): stop, infer, execute, repeat;
 - ``ExecuteWithLeRobotQueue`` (``lerobot_queue``): LeRobot's async client queue, one action per step;
+- ``ExecuteWithLeRobotRtc`` (``lerobot_rtc``): LeRobot's rollout RTC engine's queue on the sim clock;
 - ``ExecuteNewestWinsOnJtc`` (``newest_wins``): each chunk wins on arrival, merged by the stock JTC;
 - ``ExecuteOnJtcWithUpsampling`` (``jtc_upsampling``): chunks published on arrival, positions only,
   to the stock JTC with ros2_controllers' ``positions_upsampling``;
@@ -25,9 +26,11 @@ from typing import Any
 def register(registry: Any) -> None:
     from .jtc_upsampling import ExecuteOnJtcWithUpsampling
     from .lerobot_queue import ExecuteWithLeRobotQueue
+    from .lerobot_rtc import ExecuteWithLeRobotRtc
     from .newest_wins import ExecuteNewestWinsOnJtc
     from .synchronous import ExecuteChunksSynchronously
     from .unsafe_points import CountUnsafeCommands
 
-    registry.register_all([ExecuteChunksSynchronously, ExecuteWithLeRobotQueue, ExecuteNewestWinsOnJtc, ExecuteOnJtcWithUpsampling,
+    registry.register_all([ExecuteChunksSynchronously, ExecuteWithLeRobotQueue, ExecuteWithLeRobotRtc, ExecuteNewestWinsOnJtc,
+                           ExecuteOnJtcWithUpsampling,
                            CountUnsafeCommands])

@@ -26,7 +26,7 @@ from sensor_msgs.msg import Image, JointState
 from behaviors.controller_link import ControllerLink
 from behaviors.execute_policy import config as cfg
 from behaviors.execute_policy.behavior import FailureKind
-from behaviors.execute_policy.chunk import Chunk, ChunkError, period_problem, read_chunk
+from behaviors.execute_policy.chunk import Chunk, ChunkError, period_problem, read_chunk, read_policy_chunk
 from behaviors.execute_policy.gripper import GripperStream, join_targets
 from behaviors.execute_policy.metrics import RunMetrics, summarise_runs
 from behaviors.execute_policy.observation import ObservationError, StaleObservation, robot_state
@@ -60,6 +60,8 @@ class Received:
     chunk: Chunk
     flight: InFlight
     index: int  # chunk number, 1-based
+    policy_chunk: np.ndarray | None = None
+    """The policy's own chunk (``policy_action_chunk``; None when the answer carries none)."""
 
 
 class ChunkExecutor(Behavior):
@@ -67,6 +69,8 @@ class ChunkExecutor(Behavior):
 
     ports = PORTS
     needs_world = True
+    reads_policy_chunk = False
+    """Whether the executor reads the answers' ``policy_action_chunk`` (``Received.policy_chunk``)."""
 
     def __init__(self, name: str) -> None:
         super().__init__(name)
@@ -202,14 +206,15 @@ class ChunkExecutor(Behavior):
         state = robot_state(self.joint_states.latest, self.safety.group_joints, None, self.config.joint_states_topic)
         return np.asarray(state.position, dtype=float)
 
-    def ask(self, now: float, new_episode: bool = False) -> None:
-        """Ask for a chunk with the observation of now (robot state and camera frames)."""
-        config = self.config
+    def ask(self, now: float, new_episode: bool = False, frozen: int = 0, config: cfg.PolicyRunConfig | None = None) -> None:
+        """Ask for a chunk with the observation of now (robot state and camera frames);
+        ``frozen`` and ``config`` (with its real-time-chunking settings): as ExecutePolicy sends them."""
+        config = config or self.config
         state = robot_state(self.joint_states.latest, self.safety.group_joints, config.gripper_joint_name or None, config.joint_states_topic)
         frames = [sub.latest for sub in self.cameras]  # read first: reading a camera may render its frame
         received = [(config.joint_states_topic, self.joint_states.received_at),
                     *zip(config.image_topics, (sub.received_at for sub in self.cameras))]
-        self.policy.send(config, state, frames, received, now, new_episode, 0, 0)
+        self.policy.send(config, state, frames, received, now, new_episode, 0, frozen)
 
     def receive(self, now: float) -> Received | Status | None:
         """The chunk of the request in flight once it came, read and with its gripper column
@@ -227,11 +232,12 @@ class ChunkExecutor(Behavior):
             if period is not None:
                 raise ChunkError(period)
             chunk = read_chunk(response.chunk, self.safety.group_joints, self.config.gripper_joint_name or None)
+            policy_chunk = read_policy_chunk(response.policy_action_chunk) if self.reads_policy_chunk else None
         except ChunkError as err:
             return self.reject(f"chunk {index} rejected: {err}", FailureKind.MALFORMED_CHUNK.value)
         settled = self.safety.settle_gripper_column(chunk.gripper)
         self.metrics.gripper_clamped += settled.clamped
-        return Received(Chunk(chunk.arm, settled.values), flight, index)
+        return Received(Chunk(chunk.arm, settled.values), flight, index, policy_chunk)
 
     def _answer(self, now: float, what: str) -> tuple[Any, InFlight] | Status | None:
         """The response to the request in flight (None while it has not come); a Status when

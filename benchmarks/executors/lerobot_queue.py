@@ -87,16 +87,21 @@ class ExecuteWithLeRobotQueue(StreamsToJtc):
         actions = chunk.arm if chunk.gripper is None else np.column_stack([chunk.arm, chunk.gripper])
         self.chunk_steps = max(self.chunk_steps, chunk.steps)
         self.queue.merge(self.observed_timestep, actions)
+        self.send_queue(np.array(self.queue.pending()), chunk.gripper is not None, now)
+        return None
+
+    def send_queue(self, pending: np.ndarray, has_gripper: bool, now: float) -> None:
+        """Send the queued actions ``pending`` (arm columns, then the gripper's when
+        ``has_gripper``; up to ``total_action_steps`` played) as knots one step apart from the
+        next control step, leaving out those due before the goal reaches the controller."""
         config = self.config
-        pending = np.array(self.queue.pending()[: config.total_action_steps - self.metrics.steps_executed])
+        pending = pending[: config.total_action_steps - self.metrics.steps_executed]
         if not len(pending):
-            return None
+            return
         times = self.origin_s + (self.next_step + np.arange(len(pending))) * config.dt
         lands = goal_takes_effect_s(now, self.context.tick_period_s, 0.0)
         sent = times > lands + TIME_EPS_S
         if not sent.any():
-            return None
+            return
         joints = len(self.safety.group_joints)
-        gripper = pending[sent, joints] if chunk.gripper is not None else None
-        self.send_knots(lands, times[sent], pending[sent, :joints], gripper)
-        return None
+        self.send_knots(lands, times[sent], pending[sent, :joints], pending[sent, joints] if has_gripper else None)

@@ -19,19 +19,22 @@ class Executor(enum.Enum):
     NO_RTC = "no_rtc"  # ExecutePolicy, policy_uses_real_time_chunking="false"
     SYNC = "sync"  # ExecuteChunksSynchronously
     LEROBOT = "lerobot"  # ExecuteWithLeRobotQueue
+    LEROBOT_RTC = "lerobot_rtc"  # ExecuteWithLeRobotRtc
     NEWEST_WINS = "newest_wins"  # ExecuteNewestWinsOnJtc
     JTC_UPSAMPLING = "jtc_upsampling"  # ExecuteOnJtcWithUpsampling
 
     @property
     def node(self) -> str:
         return {Executor.RTC: "ExecutePolicy", Executor.NO_RTC: "ExecutePolicy", Executor.SYNC: "ExecuteChunksSynchronously",
-                Executor.LEROBOT: "ExecuteWithLeRobotQueue", Executor.NEWEST_WINS: "ExecuteNewestWinsOnJtc",
+                Executor.LEROBOT: "ExecuteWithLeRobotQueue", Executor.LEROBOT_RTC: "ExecuteWithLeRobotRtc",
+                Executor.NEWEST_WINS: "ExecuteNewestWinsOnJtc",
                 Executor.JTC_UPSAMPLING: "ExecuteOnJtcWithUpsampling"}[self]
 
     @property
     def label(self) -> str:
         return {Executor.RTC: "ExecutePolicy + RTC", Executor.NO_RTC: "ExecutePolicy", Executor.SYNC: "synchronous",
-                Executor.LEROBOT: "LeRobot queue", Executor.NEWEST_WINS: "newest-wins JTC",
+                Executor.LEROBOT: "LeRobot queue", Executor.LEROBOT_RTC: "LeRobot RTC engine",
+                Executor.NEWEST_WINS: "newest-wins JTC",
                 Executor.JTC_UPSAMPLING: "JTC positions_upsampling"}[self]
 
 
