@@ -2,7 +2,8 @@
 ``positions_upsampling`` (#2491, cross-chunk continuity #2573), against the test cases of #2491
 (``joint_trajectory_controller/test/test_trajectory.cpp`` and
 ``test_trajectory_controller_upsampling.cpp``): their inputs and expected values, in Python, and
-the cross-chunk start velocity of #2573."""
+the cross-chunk start velocity of #2573 as its pull request describes it (its own test cases are
+not in the stored snapshot of ros2_controllers)."""
 from __future__ import annotations
 
 import math

@@ -1,7 +1,10 @@
 """ros2_controllers' ``positions_upsampling`` of the ``joint_trajectory_controller``: what JTC does
 to a positions-only ``trajectory_msgs/JointTrajectory`` that arrives on its ``~/joint_trajectory``
 topic before it validates it (ros2_controllers #2491, merged 2026-08-18, with the cross-chunk
-velocity continuity of #2573).
+velocity continuity of #2573). #2491 is modelled from its merged source and tested with its own
+test cases (``tests/test_positions_upsampling.py``); the stored snapshot of ros2_controllers ends
+at #2491, so #2573 is modelled from its pull request's description (the first knot's velocity
+clamped to the last commanded one, the last knot at rest), its own test cases not ported.
 
 With ``positions_upsampling.enable`` and an interpolation method other than ``none``, a message
 whose every point carries positions and neither velocities nor accelerations is
