@@ -1,13 +1,14 @@
 """Task success under inference latency: a policy's success rate against the delay of each
-policy call, for six executors (the experiment of Black et al. 2025, "Real-Time Execution of
+policy call, for seven executors (the experiment of Black et al. 2025, "Real-Time Execution of
 Action Chunking Flow Policies", on this cell), with the unsafe points each had the arm commanded.
 
 Executors (``benchmarks/executors/objectives.py``: one Objective each, the same Prepare SubTree,
 policy settings, total steps and stack check): ExecutePolicy with real-time chunking (``rtc``),
 ExecutePolicy without it (``no_rtc``), synchronous execution (``sync``), LeRobot's async client
-queue (``lerobot``), newest-wins on the stock JTC (``newest_wins``) and chunks published to the
-stock JTC with ros2_controllers' ``positions_upsampling`` (``jtc_upsampling``); the last four are
-the benchmark executors of ``benchmarks/executors``. Delays: ``objective eval --policy-latency``
+queue (``lerobot``), LeRobot's rollout RTC engine's queue (``lerobot_rtc``), newest-wins on the
+stock JTC (``newest_wins``) and chunks published to the stock JTC with ros2_controllers'
+``positions_upsampling`` (``jtc_upsampling``); the last five are the benchmark executors of
+``benchmarks/executors``. Delays: ``objective eval --policy-latency``
 specs, simulated on the sim clock (a number of seconds, or ``lognormal:MEAN,SD`` seeded by the
 episode's seed).
 
