@@ -1,19 +1,25 @@
 """Task success under inference latency: a policy's success rate against the delay of each
-policy call, for five executors (the experiment of Black et al. 2025, "Real-Time Execution of
-Action Chunking Flow Policies", on this cell).
+policy call, for seven executors (the experiment of Black et al. 2025, "Real-Time Execution of
+Action Chunking Flow Policies", on this cell), with the unsafe points each had the arm commanded.
 
 Executors (``benchmarks/executors/objectives.py``: one Objective each, the same Prepare SubTree,
 policy settings, total steps and stack check): ExecutePolicy with real-time chunking (``rtc``),
 ExecutePolicy without it (``no_rtc``), synchronous execution (``sync``), LeRobot's async client
-queue (``lerobot``) and newest-wins on the stock JTC (``newest_wins``); the last three are the
-benchmark executors of ``benchmarks/executors``. Delays: ``objective eval --policy-latency``
+queue (``lerobot``), LeRobot's rollout RTC engine's queue (``lerobot_rtc``), newest-wins on the
+stock JTC (``newest_wins``) and chunks published to the stock JTC with ros2_controllers'
+``positions_upsampling`` (``jtc_upsampling``); the last five are the benchmark executors of
+``benchmarks/executors``. Delays: ``objective eval --policy-latency``
 specs, simulated on the sim clock (a number of seconds, or ``lognormal:MEAN,SD`` seeded by the
 episode's seed).
 
 Each (executor, delay) cell is one ``objective eval`` into ``DIR/<executor>/<delay>`` (the local
 pool or Ray), so running the same command again resumes every cell. One row per cell: episodes,
 successes, rate with its 95 % Wilson interval, median simulated seconds of the successful
-episodes (``time_to_success_s``: the whole Objective, Prepare and stack check included), errors.
+episodes (``time_to_success_s``: the whole Objective, Prepare and stack check included), errors,
+and the unsafe points: the ticks at which the controller commanded a state outside a joint limit
+or within the padding of a collision while the executor ran (``CountUnsafeCommands``, beside
+every executor), summed over the cell's episodes (``unsafe_points``), and the episodes with any
+(``unsafe_episodes``).
 
     .venv/bin/python benchmarks/bench_success_under_latency.py --policy oracle --episodes 4 \\
         --delays 0 1 --out build/bench/success-latency --plot build/bench/success-latency.png
@@ -40,9 +46,10 @@ from evaluation.episode import EpisodeRecord, EpisodeStatus
 from evaluation.stats import wilson_interval
 from evaluation.store import read_episodes
 
-DEFAULT_DELAYS = ("0", "0.2", "0.5", "1", "2", "lognormal:0.5,0.5")
+DEFAULT_DELAYS = ("0", "0.1", "0.2", "0.5", "1", "2", "lognormal:0.5,0.5")
 PLUGIN = ROOT / "benchmarks" / "executors" / "plugin"
-COLUMNS = ("executor", "delay", "episodes", "successes", "rate", "ci95_low", "ci95_high", "time_to_success_s", "errors")
+COLUMNS = ("executor", "delay", "episodes", "successes", "rate", "ci95_low", "ci95_high", "time_to_success_s", "errors",
+           "unsafe_points", "unsafe_episodes")
 
 
 class BenchError(Exception):
@@ -82,10 +89,17 @@ def check_delay(text: str) -> str:
     return text
 
 
+def unsafe_points(record: EpisodeRecord) -> int:
+    """The unsafe points the probe counted in one episode (0 where it never ran: an episode that
+    ended before the executor started)."""
+    return int(record.run.get("unsafe_points", {}).get("count", 0))
+
+
 def cell_row(cell: Cell, records: dict[int, EpisodeRecord], seeds: range) -> dict[str, Any]:
     """The row of one cell from its episode records (those of ``seeds``)."""
     done = [records[s] for s in seeds if s in records]
     successes = [r for r in done if r.status is EpisodeStatus.SUCCESS]
+    unsafe = [unsafe_points(r) for r in done]
     low, high = wilson_interval(len(successes), len(done))
     return {
         "bench": "success_under_latency", "executor": cell.executor.value, "label": cell.executor.label,
@@ -94,6 +108,7 @@ def cell_row(cell: Cell, records: dict[int, EpisodeRecord], seeds: range) -> dic
         "ci95_low": round(low, 4), "ci95_high": round(high, 4),
         "time_to_success_s": round(median([r.sim_seconds for r in successes]), 2) if successes else None,
         "errors": sum(r.status is EpisodeStatus.ERROR for r in done),
+        "unsafe_points": sum(unsafe), "unsafe_episodes": sum(n > 0 for n in unsafe),
     }
 
 
@@ -155,7 +170,7 @@ def plot(rows: Sequence[dict[str, Any]], path: Path, title: str) -> None:
     for number, executor in enumerate(Executor):
         mine = [r for r in rows if r["executor"] == executor.value and r["rate"] is not None]
         fixed = sorted((r for r in mine if not r["delay"].startswith("lognormal")), key=lambda r: r["delay_mean_s"])
-        shift = (number - 2) * 0.008 * span  # side by side, so that equal rates do not hide each other
+        shift = (number - (len(Executor) - 1) / 2) * 0.008 * span  # side by side, so that equal rates do not hide each other
         color = None
         if fixed:
             x = [r["delay_mean_s"] + shift for r in fixed]
@@ -219,11 +234,14 @@ def main(argv: Sequence[str] | None = None) -> int:
             except BenchError as err:
                 print(f"bench_success_under_latency: {err}", file=sys.stderr)
                 return 2
-            print(f"{executor.value} at {delay}: {row['successes']}/{row['episodes']}", file=sys.stderr, flush=True)
+            print(f"{executor.value} at {delay}: {row['successes']}/{row['episodes']}, {row['unsafe_points']} unsafe points",
+                  file=sys.stderr, flush=True)
             rows.append(row)
     title = f"success under latency: policy {policy_label(args.policy)}, {args.world}, seeds {args.seed_start}+, {args.episodes} episodes per cell"
     report(title, rows, COLUMNS, notes=["rate: successes / episodes (an ERROR is not a success); ci95: Wilson score interval; "
-                                        "time_to_success_s: median simulated seconds of the successful episodes"])
+                                        "time_to_success_s: median simulated seconds of the successful episodes; "
+                                        "unsafe_points: controller ticks outside a joint limit or within the padding of a collision, "
+                                        "summed over the cell's episodes; unsafe_episodes: episodes with any"])
     (args.out / "rows.jsonl").write_text("".join(json.dumps(r) + "\n" for r in rows))
     if args.plot:
         plot(rows, args.plot, title)

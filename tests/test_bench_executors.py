@@ -1,7 +1,9 @@
 """The benchmark executors of ``benchmarks/executors`` (synchronous, LeRobot's queue, newest-wins
-on the JTC) on the kinematic cell: each stacks the cubes with the oracle through the benchmark's
-Objective, and each ends a run it cannot execute with ExecutePolicy's reasons (a chunk the checks
-refuse, a malformed chunk, a policy that does not answer, a controller it cannot drive)."""
+and positions_upsampling on the JTC) on the kinematic cell, beside the unsafe-points probe: each
+stacks the cubes with the oracle through the benchmark's Objective; the synchronous executor
+refuses a chunk ExecutePolicy's checks refuse, the peers play it as at home and the probe counts
+the unsafe points the controller commanded; each ends a run it cannot execute with ExecutePolicy's
+reasons (a malformed chunk, a policy that does not answer, a controller it cannot drive)."""
 from __future__ import annotations
 
 from typing import Any
@@ -34,12 +36,14 @@ def registry() -> Registry:
 
 
 def small_xml(node: str, ports: str = "") -> str:
-    """The executor alone on the JTC: 60 steps, no gripper, no cameras."""
+    """The executor on the JTC, beside the unsafe-points probe: 60 steps, no gripper, no cameras."""
     return (f'<root BTCPP_format="4"><BehaviorTree ID="T"><Sequence>'
             f'<SwitchController activate_controllers="joint_trajectory_controller" automatic_deactivation="true"/>'
+            f'<Parallel success_count="1" failure_count="1">'
             f'<{node} policy_service_name="{SERVICE}" joint_group_name="manipulator" total_action_steps="60" dt="0.1" '
             f'committed_action_steps="20" goal_path_tolerance="0.3" policy_call_timeout="3.0" controller_action_name="{JTC}" '
             f'steps_executed="{{steps}}" chunks_received="{{chunks}}" status_message="{{message}}" {ports}/>'
+            f'<CountUnsafeCommands joint_group_name="manipulator"/></Parallel>'
             f'</Sequence></BehaviorTree></root>')
 
 
@@ -55,24 +59,29 @@ def run(registry: Registry, xml: str, policy: ScriptedPolicy | None = None, late
     return run_tree(loaded, context, options, world=world)
 
 
-@pytest.mark.parametrize("executor", [Executor.SYNC, Executor.NEWEST_WINS], ids=lambda e: e.value)
-def test_the_synchronous_and_newest_wins_executors_stack_the_cubes_with_the_oracle(registry, executor):
+@pytest.mark.parametrize("executor", [Executor.SYNC, Executor.NEWEST_WINS, Executor.JTC_UPSAMPLING], ids=lambda e: e.value)
+def test_the_synchronous_newest_wins_and_upsampling_executors_stack_the_cubes_with_the_oracle(registry, executor):
     result = run(registry, objective_xml(executor), seed=3, latency_s=0.5)
     assert (result.status, result.reason) == ("SUCCESS", "")
     assert result.blackboard["steps_executed"] == 300
     assert result.blackboard["policy_message"] == "executed 300 steps"
     summary = result.extra["bench_executor"]
     assert summary["rejections"] == 0 and summary["chunks"] >= 300 // 49
+    probe = result.extra["unsafe_points"]
+    assert probe["count"] == 0 and probe["probed"] > 2500  # every tick of the run, about 30 s
 
 
-def test_lerobots_queue_joins_the_oracles_second_chunk_with_a_jump_the_checks_refuse(registry):
+def test_lerobots_queue_joins_the_oracles_second_chunk_with_a_jump_the_probe_counts(registry):
     """The oracle is a function of time; LeRobot's client tags its first observation timestep 0
     and plays that chunk's step 0 (the observed state) at the first control step, so the first
     chunk runs one step behind the oracle's clock and the second, tagged by the action played,
-    does not: where they are aggregated (0.3 old + 0.7 new) the knots jump by 0.7 of a step."""
+    does not: where they are aggregated (0.3 old + 0.7 new) the knots jump by 0.7 of a step.
+    LeRobot checks nothing: the arm plays the jump and the probe counts it."""
     result = run(registry, objective_xml(Executor.LEROBOT), seed=3, latency_s=0.0)
-    assert (result.status, result.failure_kind) == ("FAILURE", "acceleration limit")
-    assert result.reason.startswith("chunk 2 rejected: densified step ")
+    assert (result.status, result.blackboard["steps_executed"]) == ("SUCCESS", 300)
+    probe = result.extra["unsafe_points"]
+    assert probe["count"] > 0
+    assert "joint shoulder_lift_joint acceleration " in probe["first"] and "exceeds the limit" in probe["first"]
 
 
 def test_the_synchronous_executor_rests_while_the_policy_infers(registry):
@@ -96,14 +105,37 @@ def test_the_lerobot_queue_asks_when_half_a_chunk_is_left(registry):
     assert result.blackboard["chunks"] == 3
 
 
-def test_newest_wins_drags_the_arm_back_to_the_state_a_late_chunk_observed(registry):
-    """Chunk 2 starts where the arm was when it was asked for (0.2 s and a step before it
-    plays): newest-wins plays it at once, so the arm would turn back: refused."""
+def test_lerobots_rtc_engine_asks_at_its_queue_threshold_with_the_leftover_and_the_worst_delay(registry):
+    """LeRobot's rollout RTC engine on the sim clock: 50-step chunks, a request once the queue
+    holds 30 actions or fewer, with the queue's unexecuted actions cut to execution_horizon (10)
+    and ceil(worst latency / dt) frozen steps: the 0.2 s answer is read at the tick after it
+    (0.21 s), so 3, and each chunk replaces the queue from its step 3."""
     policy = ScriptedPolicy(hold(velocity=TURN))
-    result = run(registry, small_xml("ExecuteNewestWinsOnJtc"), policy, latency_s=0.2)
-    assert (result.status, result.failure_kind) == ("FAILURE", "acceleration limit")
-    assert result.reason.startswith("chunk 2 rejected: densified step 0 (t=2.450 s): joint shoulder_pan_joint acceleration -")
-    assert result.blackboard["chunks"] == 2 and len(policy.requests) == 3  # warmup, then at 0 and 2 s
+    result = run(registry, small_xml("ExecuteWithLeRobotRtc"), policy, latency_s=0.2)
+    assert (result.status, result.blackboard["message"]) == ("SUCCESS", "executed 60 steps")
+    assert result.extra["bench_executor"]["queue"] == "lerobot (policies.rtc.ActionQueue, RTC enabled)"
+    first, second = policy.requests[1], policy.requests[2]  # after the warmup
+    assert (first.frozen_prefix_steps, len(first.previous_action_chunk.data)) == (0, 0)
+    assert second.frozen_prefix_steps == 3 and second.guidance_horizon == 10
+    assert [d.size for d in second.previous_action_chunk.layout.dim] == [10, 6]
+    # Asked 17 control steps after the first chunk merged (47 actions down to 30), with the arm about
+    # two knots along (0.01 rad each) from the observed start: 0.19 rad.
+    assert second.robot_state.position[0] - first.robot_state.position[0] == pytest.approx(0.19, abs=0.015)
+
+
+@pytest.mark.parametrize("node, count, first", [("ExecuteNewestWinsOnJtc", 16, "step 0 (t=2.460 s)"),
+                                                 ("ExecuteOnJtcWithUpsampling", 14, "step 0 (t=2.440 s)")])
+def test_newest_wins_and_upsampling_drag_the_arm_back_to_the_state_a_late_chunk_observed(registry, node, count, first):
+    """Chunk 2 starts where the arm was when it was asked for (0.2 s and a step before it
+    plays): both play it at once, so the arm turns back, past the acceleration limit: the run
+    goes on, as at home, and the probe counts the points."""
+    policy = ScriptedPolicy(hold(velocity=TURN))
+    result = run(registry, small_xml(node), policy, latency_s=0.2)
+    assert (result.status, result.blackboard["message"]) == ("SUCCESS", "executed 60 steps")
+    probe = result.extra["unsafe_points"]
+    assert probe["count"] == count
+    assert probe["first"].startswith(f"{first}: joint shoulder_pan_joint acceleration -")
+    assert result.blackboard["chunks"] == 4 and len(policy.requests) == 5  # warmup, then every 2 s
 
 
 def jump_at_step_10(index: int, request: Any) -> Any:
@@ -113,20 +145,30 @@ def jump_at_step_10(index: int, request: Any) -> Any:
     return chunk_response(list(request.robot_state.name), rows)
 
 
-@pytest.mark.parametrize("node", ["ExecuteChunksSynchronously", "ExecuteWithLeRobotQueue", "ExecuteNewestWinsOnJtc"])
-def test_a_chunk_the_checks_refuse_ends_the_run_with_the_reason(registry, node):
-    result = run(registry, small_xml(node), ScriptedPolicy(jump_at_step_10))
-    assert result.status == "FAILURE"
+def test_a_chunk_the_checks_refuse_ends_the_synchronous_run_with_the_reason(registry):
+    result = run(registry, small_xml("ExecuteChunksSynchronously"), ScriptedPolicy(jump_at_step_10))
+    assert (result.status, result.failure_kind) == ("FAILURE", "acceleration limit")
     assert result.reason.startswith("chunk 1 rejected: densified ")
-    assert result.failure_kind in ("velocity limit", "acceleration limit")
     assert "shoulder_pan_joint" in result.reason
+    assert result.extra["unsafe_points"]["count"] == 0
+
+
+@pytest.mark.parametrize("node", ["ExecuteWithLeRobotQueue", "ExecuteWithLeRobotRtc", "ExecuteNewestWinsOnJtc",
+                                  "ExecuteOnJtcWithUpsampling"])
+def test_the_peers_play_a_jump_their_homes_do_not_check_and_the_probe_counts_it(registry, node):
+    result = run(registry, small_xml(node), ScriptedPolicy(jump_at_step_10))
+    assert result.status == "SUCCESS"
+    probe = result.extra["unsafe_points"]
+    assert probe["count"] > 50  # 0.6 rad in one step: 6 rad/s, past the velocity limit for many ticks
+    assert "shoulder_pan_joint" in probe["first"] and "exceeds the limit" in probe["first"]
 
 
 def with_rows(rows_of: Any) -> ScriptedPolicy:
     return ScriptedPolicy(lambda i, request: rows_of(request))
 
 
-@pytest.mark.parametrize("node", ["ExecuteChunksSynchronously", "ExecuteWithLeRobotQueue", "ExecuteNewestWinsOnJtc"])
+@pytest.mark.parametrize("node", ["ExecuteChunksSynchronously", "ExecuteWithLeRobotQueue", "ExecuteWithLeRobotRtc", "ExecuteNewestWinsOnJtc",
+                                  "ExecuteOnJtcWithUpsampling"])
 def test_malformed_chunks_and_a_silent_policy_end_with_the_reason(registry, node):
     def nan_rows(request: Any) -> Any:
         rows = np.tile(np.array(request.robot_state.position), (50, 1))
@@ -150,7 +192,8 @@ def test_malformed_chunks_and_a_silent_policy_end_with_the_reason(registry, node
     assert result.reason == (f"the policy service '{SERVICE}' did not answer the warmup request within policy_call_timeout = 3 s")
 
 
-@pytest.mark.parametrize("node", ["ExecuteWithLeRobotQueue", "ExecuteNewestWinsOnJtc"])
+@pytest.mark.parametrize("node", ["ExecuteWithLeRobotQueue", "ExecuteWithLeRobotRtc", "ExecuteNewestWinsOnJtc",
+                                  "ExecuteOnJtcWithUpsampling"])
 def test_the_jtc_executors_refuse_the_admittance_controller(registry, node):
     xml = small_xml(node).replace(JTC, "/joint_trajectory_admittance_controller/follow_joint_trajectory").replace(
         'activate_controllers="joint_trajectory_controller"', 'activate_controllers="joint_trajectory_admittance_controller"')
@@ -160,7 +203,8 @@ def test_the_jtc_executors_refuse_the_admittance_controller(registry, node):
     assert "MoveIt Pro's admittance controller" in result.reason
 
 
-@pytest.mark.parametrize("node", ["ExecuteChunksSynchronously", "ExecuteWithLeRobotQueue", "ExecuteNewestWinsOnJtc"])
+@pytest.mark.parametrize("node", ["ExecuteChunksSynchronously", "ExecuteWithLeRobotQueue", "ExecuteWithLeRobotRtc", "ExecuteNewestWinsOnJtc",
+                                  "ExecuteOnJtcWithUpsampling"])
 def test_a_missing_policy_service_is_an_error_before_anything_moves(registry, node):
     """The ports name what they need (ExecutePolicy's), so the world check finds the missing service."""
     options = RunOptions(seed=0, max_seconds=30.0, world="kinematic")

@@ -1,15 +1,15 @@
 """What the benchmark executors share with ExecutePolicy: the ports, the start-up, the policy
-requests and answers, the chunk's reading, the gripper, the wrench watch and the point checks.
+requests and answers, the chunk's reading, the gripper and the wrench watch.
 
 ``ChunkExecutor`` runs the phases STARTUP (the policy service, the controller and gripper
 actions, every camera and the joint states; 5 s, then an ERROR naming what is missing) and WARMUP
 (one discarded request, ``new_episode=true``) as ExecutePolicy does, then RUN, where each tick
 follows the gripper goals and the wrench and hands over to the executor's own ``run_tick``. A
 subclass decides when to ask for a chunk (``ask``), what to do with one that came (``receive``
-reads it with ExecutePolicy's contract), and what the controller is sent. Every point sent passes
-ExecutePolicy's checks (``check_values``, ``check_samples``): position limits of the values as
-the policy sent them, then position, velocity and acceleration limits and collisions of the
-densified motion. A run ends with ``finish`` (SUCCESS, or FAILURE with its kind, the robot
+reads it with ExecutePolicy's contract), and what the controller is sent: a peer's home runs no
+ExecutePolicy checks, so nothing here checks the motion (the synchronous executor plans with
+ExecutePolicy's planner and its checks; the benchmark's probe, ``unsafe_points``, counts what the
+controller commands for every executor). A run ends with ``finish`` (SUCCESS, or FAILURE with its kind, the robot
 stopped); a mistake of the setup raises ``SetupError`` (ERROR).
 """
 from __future__ import annotations
@@ -26,13 +26,11 @@ from sensor_msgs.msg import Image, JointState
 from behaviors.controller_link import ControllerLink
 from behaviors.execute_policy import config as cfg
 from behaviors.execute_policy.behavior import FailureKind
-from behaviors.execute_policy.checks import CheckFailure, CheckKind
-from behaviors.execute_policy.chunk import Chunk, ChunkError, period_problem, read_chunk
+from behaviors.execute_policy.chunk import Chunk, ChunkError, period_problem, read_chunk, read_policy_chunk
 from behaviors.execute_policy.gripper import GripperStream, join_targets
 from behaviors.execute_policy.metrics import RunMetrics, summarise_runs
 from behaviors.execute_policy.observation import ObservationError, StaleObservation, robot_state
 from behaviors.execute_policy.policy_link import PolicyLink
-from behaviors.execute_policy.shaping import Samples
 from behaviors.execute_policy.states import InFlight
 from behaviors.safety import MotionSafety, SafetyError, make_safety
 from behaviors.wrench_watch import WrenchWatch
@@ -62,6 +60,8 @@ class Received:
     chunk: Chunk
     flight: InFlight
     index: int  # chunk number, 1-based
+    policy_chunk: np.ndarray | None = None
+    """The policy's own chunk (``policy_action_chunk``; None when the answer carries none)."""
 
 
 class ChunkExecutor(Behavior):
@@ -69,6 +69,8 @@ class ChunkExecutor(Behavior):
 
     ports = PORTS
     needs_world = True
+    reads_policy_chunk = False
+    """Whether the executor reads the answers' ``policy_action_chunk`` (``Received.policy_chunk``)."""
 
     def __init__(self, name: str) -> None:
         super().__init__(name)
@@ -204,14 +206,15 @@ class ChunkExecutor(Behavior):
         state = robot_state(self.joint_states.latest, self.safety.group_joints, None, self.config.joint_states_topic)
         return np.asarray(state.position, dtype=float)
 
-    def ask(self, now: float, new_episode: bool = False) -> None:
-        """Ask for a chunk with the observation of now (robot state and camera frames)."""
-        config = self.config
+    def ask(self, now: float, new_episode: bool = False, frozen: int = 0, config: cfg.PolicyRunConfig | None = None) -> None:
+        """Ask for a chunk with the observation of now (robot state and camera frames);
+        ``frozen`` and ``config`` (with its real-time-chunking settings): as ExecutePolicy sends them."""
+        config = config or self.config
         state = robot_state(self.joint_states.latest, self.safety.group_joints, config.gripper_joint_name or None, config.joint_states_topic)
         frames = [sub.latest for sub in self.cameras]  # read first: reading a camera may render its frame
         received = [(config.joint_states_topic, self.joint_states.received_at),
                     *zip(config.image_topics, (sub.received_at for sub in self.cameras))]
-        self.policy.send(config, state, frames, received, now, new_episode, 0, 0)
+        self.policy.send(config, state, frames, received, now, new_episode, 0, frozen)
 
     def receive(self, now: float) -> Received | Status | None:
         """The chunk of the request in flight once it came, read and with its gripper column
@@ -229,11 +232,12 @@ class ChunkExecutor(Behavior):
             if period is not None:
                 raise ChunkError(period)
             chunk = read_chunk(response.chunk, self.safety.group_joints, self.config.gripper_joint_name or None)
+            policy_chunk = read_policy_chunk(response.policy_action_chunk) if self.reads_policy_chunk else None
         except ChunkError as err:
             return self.reject(f"chunk {index} rejected: {err}", FailureKind.MALFORMED_CHUNK.value)
         settled = self.safety.settle_gripper_column(chunk.gripper)
         self.metrics.gripper_clamped += settled.clamped
-        return Received(Chunk(chunk.arm, settled.values), flight, index)
+        return Received(Chunk(chunk.arm, settled.values), flight, index, policy_chunk)
 
     def _answer(self, now: float, what: str) -> tuple[Any, InFlight] | Status | None:
         """The response to the request in flight (None while it has not come); a Status when
@@ -257,22 +261,6 @@ class ChunkExecutor(Behavior):
         return response, answer.flight
 
     # -- checks ------------------------------------------------------------------------------
-    def check_values(self, arm: np.ndarray, gripper: np.ndarray | None) -> CheckFailure | None:
-        """The values as the policy sent them against the position limits, and the gripper
-        targets (one per step) against the gripper's limits: ExecutePolicy's ``PointChecks.values``."""
-        outside = self.safety.first_value_out_of_limits(arm, gripper)
-        if outside is None:
-            outside = self.safety.first_gripper_target_out_of_limits(gripper, self.config.dt)
-        return None if outside is None else CheckFailure(CheckKind.of_limit(outside.quantity), str(outside))
-
-    def check_samples(self, samples: Samples) -> CheckFailure | None:
-        """The densified motion against the limits, then collisions: ExecutePolicy's ``PointChecks.path``."""
-        violation = self.safety.first_limit_violation(samples)
-        if violation is not None:
-            return CheckFailure(CheckKind.of_limit(violation.quantity), f"densified {violation}")
-        hit = self.safety.first_collision(self.rules, samples, self.config.link_padding, self.gripper_position())
-        return None if hit is None else CheckFailure(CheckKind.of_collision(hit.kind), f"densified {hit}")
-
     def gripper_position(self) -> float | None:
         joint, state = self.config.gripper_joint_name, self.joint_states.latest
         if not joint or state is None or joint not in state.name:

@@ -3,13 +3,13 @@
 The two queue-based executors (``ExecuteWithLeRobotQueue``, ``ExecuteNewestWinsOnJtc``) send
 joint positions one policy step apart, with the knot velocities of the C2 cubic spline that runs
 from the commanded state where the goal lands (position and velocity) through them and ends at
-rest (what ros2_controllers' ``positions_upsampling`` computes from a positions-only goal, with
-the start velocity clamped to the last command; ``baselines.cubic_spline_velocities``).
+rest (close to what ros2_controllers' ``positions_upsampling`` computes from a positions-only
+message, ``positions_upsampling``, which spans only the chunk's points; ``baselines.cubic_spline_velocities``).
 A goal is stamped at the instant it is expected at the controller (``lands_s``), and the
 controller merges it into the trajectory it plays at that instant (``allow_trajectory_replacement``,
 ros2_controllers #2419), or installs it from rest when it holds. ``JtcStream.plan`` predicts that
 motion with the controller's own merge (``sim.controllers.jtc_trajectory``) from the commanded
-motion, so the samples checked are the ones the controller plays; ``send`` sends the goal and
+motion; ``send`` sends the goal and
 makes the prediction the commanded motion. Only the newest goal is followed: one preempted by
 the next ends aborted, as JTC ends it.
 """
@@ -24,7 +24,6 @@ from trajectory_msgs.msg import JointTrajectory
 from behaviors.action_goal import Goal, GoalState
 from behaviors.controller_link import ControllerKind, ControllerLink, GoalTolerances, trajectory_goal
 from behaviors.execute_policy.behavior import FailureKind
-from behaviors.execute_policy.shaping import Samples
 from runtime.behavior import Status
 from runtime.bus import STATUS_SUCCEEDED
 from runtime.timestamps import time_msg
@@ -69,13 +68,6 @@ class JtcPlan:
     velocities: np.ndarray
     motion: JtcTrajectory
 
-    def samples(self, spacing_s: float) -> Samples:
-        """The motion from ``lands_s`` to its end, every ``spacing_s`` (and its end)."""
-        end = self.motion.end_time
-        times = np.append(np.arange(self.lands_s, end, spacing_s), end)
-        state = self.motion.sample_many(times)
-        return Samples(times, state.position, state.velocity, state.acceleration)
-
 
 class JtcStream:
     """The goals one executor sends to the JTC behind ``link`` (its kind checked at start-up)."""
@@ -93,12 +85,13 @@ class JtcStream:
         self.motion = JtcTrajectory.hold(now_s, position)
         self.holding = True
 
-    def plan(self, lands_s: float, times_s: np.ndarray, positions: np.ndarray) -> JtcPlan:
+    def plan(self, lands_s: float, times_s: np.ndarray, positions: np.ndarray, runout: bool = True) -> JtcPlan:
         """The goal of the knots ``positions`` at ``times_s`` (all after ``lands_s``, one step
-        apart), followed by their runout to rest (``runout_knots``)."""
+        apart), followed (``runout``) by their runout to rest (``runout_knots``)."""
         assert self.motion is not None, "start() first"
         before = self.motion.sample(lands_s)
-        runout = runout_knots(positions, float(times_s[1] - times_s[0]) if len(times_s) > 1 else 0.0, self.runout_acceleration)
+        step_s = float(times_s[1] - times_s[0]) if len(times_s) > 1 else 0.0
+        runout = runout_knots(positions, step_s, self.runout_acceleration) if runout else np.empty((0, positions.shape[1]))
         times_s = np.append(times_s, times_s[-1] + (times_s[1] - times_s[0]) * np.arange(1, len(runout) + 1)) if len(runout) else times_s
         positions = np.vstack([positions, runout]) if len(runout) else positions
         # The spline runs from the commanded state where the goal lands through the knots.
@@ -142,7 +135,10 @@ class JtcStream:
 
 class StreamsToJtc(ChunkExecutor):
     """A benchmark executor that streams knots to the stock JTC through ``self.stream``: each
-    tick follows the goal, hands an arrived chunk to ``take``, then does ``schedule``."""
+    tick follows the goal, hands an arrived chunk to ``take``, then does ``schedule``. ``runout``:
+    the knots sent end in a runout to rest (``runout_knots``)."""
+
+    runout = True
 
     def start_run(self, now: float) -> Status | None:
         if self.link.kind is not ControllerKind.JTC:
@@ -178,20 +174,9 @@ class StreamsToJtc(ChunkExecutor):
                 return status
         return self.schedule(now)
 
-    def send_checked(self, received: Received, lands_s: float, times_s: np.ndarray, arm: np.ndarray,
-                     gripper: np.ndarray | None) -> Status | None:
-        """Check the chunk's values as the policy sent them, plan the knots ``arm`` at ``times_s``
-        and check the motion the controller will play; send it (and the gripper targets) or end
-        the run with the rejection."""
-        chunk = received.chunk
-        failure = self.check_values(chunk.arm, chunk.gripper)
-        plan = self.stream.plan(lands_s, times_s, arm) if failure is None else None
-        if plan is not None:
-            config = self.config  # ExecutePolicy's density: num_interpolation_points per committed window
-            failure = self.check_samples(plan.samples(config.committed_action_steps * config.dt / config.num_interpolation_points))
-        if failure is not None:
-            return self.reject(f"chunk {received.index} rejected: {failure}", failure.kind.value)
-        assert plan is not None
-        self.stream.send(plan, self.context.clock.now())
+    def send_knots(self, lands_s: float, times_s: np.ndarray, arm: np.ndarray, gripper: np.ndarray | None) -> None:
+        """Send the knots ``arm`` at ``times_s`` (landing at ``lands_s``) and the gripper targets,
+        unchecked: a peer's home runs no ExecutePolicy checks (the benchmark's probe counts the
+        unsafe points the controller commands)."""
+        self.stream.send(self.stream.plan(lands_s, times_s, arm, self.runout), self.context.clock.now())
         self.queue_gripper(times_s, gripper)
-        return None

@@ -12,9 +12,10 @@ On the cell the arm is where the action of each control step puts it, as the bas
 on every merge the queue's actions (up to ``total_action_steps`` played) go to the
 ``joint_trajectory_controller`` as knots one step apart from the next control step on
 (``jtc_stream``), so that between merges the arm plays one action per step, and comes to rest
-after the last one when the queue runs dry (a stall). A knot due before the goal can reach the
-controller is left out (the arm heads for the next one).
-Every knot passes ExecutePolicy's checks before it is sent. The run succeeds once
+at the last one when the queue runs dry (a stall: the robot holds the last action, as LeRobot's
+client does; no runout). A knot due before the goal can reach the controller is left out (the
+arm heads for the next one). Nothing is checked (the benchmark's probe counts the unsafe points
+the controller commands). The run succeeds once
 ``total_action_steps`` actions have been played and the arm rests. ``baselines.run_lerobot_aggregate``
 is the same executor as a pure stream simulation.
 """
@@ -38,7 +39,9 @@ TIME_EPS_S = 1e-9
 
 class ExecuteWithLeRobotQueue(StreamsToJtc):
     """Benchmark executor: LeRobot's async client queue (weighted-average aggregation), one action
-    per step to the stock joint_trajectory_controller, every knot checked as ExecutePolicy checks."""
+    per step to the stock joint_trajectory_controller; nothing checked."""
+
+    runout = False
 
     ports = PORTS + (
         InputPort("chunk_size_threshold", PortType.FLOAT, 0.5,
@@ -79,20 +82,26 @@ class ExecuteWithLeRobotQueue(StreamsToJtc):
         return None
 
     def take(self, received: Received, now: float) -> Status | None:
-        """Aggregate the chunk into the queue and send the queue's knots, checked."""
+        """Aggregate the chunk into the queue and send the queue's knots."""
         chunk = received.chunk
         actions = chunk.arm if chunk.gripper is None else np.column_stack([chunk.arm, chunk.gripper])
         self.chunk_steps = max(self.chunk_steps, chunk.steps)
         self.queue.merge(self.observed_timestep, actions)
+        self.send_queue(np.array(self.queue.pending()), chunk.gripper is not None, now)
+        return None
+
+    def send_queue(self, pending: np.ndarray, has_gripper: bool, now: float) -> None:
+        """Send the queued actions ``pending`` (arm columns, then the gripper's when
+        ``has_gripper``; up to ``total_action_steps`` played) as knots one step apart from the
+        next control step, leaving out those due before the goal reaches the controller."""
         config = self.config
-        pending = np.array(self.queue.pending()[: config.total_action_steps - self.metrics.steps_executed])
+        pending = pending[: config.total_action_steps - self.metrics.steps_executed]
         if not len(pending):
-            return None
+            return
         times = self.origin_s + (self.next_step + np.arange(len(pending))) * config.dt
         lands = goal_takes_effect_s(now, self.context.tick_period_s, 0.0)
         sent = times > lands + TIME_EPS_S
         if not sent.any():
-            return None
+            return
         joints = len(self.safety.group_joints)
-        gripper = pending[sent, joints] if chunk.gripper is not None else None
-        return self.send_checked(received, lands, times[sent], pending[sent, :joints], gripper)
+        self.send_knots(lands, times[sent], pending[sent, :joints], pending[sent, joints] if has_gripper else None)

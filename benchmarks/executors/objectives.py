@@ -1,8 +1,10 @@
-"""The five Objectives the success-under-latency benchmark compares: the same Prepare SubTree
+"""The Objectives the success-under-latency benchmark compares: the same Prepare SubTree
 (``Prepare for Policy on JTC`` of ``objectives/stack_cubes_jtc.xml``: the stock
 ``joint_trajectory_controller``, gripper open, arm at Home), the same policy settings and total
 steps, the same stack check (``Check if One Cube Is on Another``, a FAILURE when the blue cube is
-not on the green one); only the executor differs.
+not on the green one); only the executor differs. Beside the executor, in a ``Parallel`` that
+ends with it, the probe ``CountUnsafeCommands`` counts the unsafe points the controller commanded
+(``unsafe_points``).
 """
 from __future__ import annotations
 
@@ -17,17 +19,23 @@ class Executor(enum.Enum):
     NO_RTC = "no_rtc"  # ExecutePolicy, policy_uses_real_time_chunking="false"
     SYNC = "sync"  # ExecuteChunksSynchronously
     LEROBOT = "lerobot"  # ExecuteWithLeRobotQueue
+    LEROBOT_RTC = "lerobot_rtc"  # ExecuteWithLeRobotRtc
     NEWEST_WINS = "newest_wins"  # ExecuteNewestWinsOnJtc
+    JTC_UPSAMPLING = "jtc_upsampling"  # ExecuteOnJtcWithUpsampling
 
     @property
     def node(self) -> str:
         return {Executor.RTC: "ExecutePolicy", Executor.NO_RTC: "ExecutePolicy", Executor.SYNC: "ExecuteChunksSynchronously",
-                Executor.LEROBOT: "ExecuteWithLeRobotQueue", Executor.NEWEST_WINS: "ExecuteNewestWinsOnJtc"}[self]
+                Executor.LEROBOT: "ExecuteWithLeRobotQueue", Executor.LEROBOT_RTC: "ExecuteWithLeRobotRtc",
+                Executor.NEWEST_WINS: "ExecuteNewestWinsOnJtc",
+                Executor.JTC_UPSAMPLING: "ExecuteOnJtcWithUpsampling"}[self]
 
     @property
     def label(self) -> str:
         return {Executor.RTC: "ExecutePolicy + RTC", Executor.NO_RTC: "ExecutePolicy", Executor.SYNC: "synchronous",
-                Executor.LEROBOT: "LeRobot queue", Executor.NEWEST_WINS: "newest-wins JTC"}[self]
+                Executor.LEROBOT: "LeRobot queue", Executor.LEROBOT_RTC: "LeRobot RTC engine",
+                Executor.NEWEST_WINS: "newest-wins JTC",
+                Executor.JTC_UPSAMPLING: "JTC positions_upsampling"}[self]
 
 
 @dataclass(frozen=True)
@@ -52,27 +60,30 @@ def objective_xml(executor: Executor, settings: PolicySettings = PolicySettings(
   <BehaviorTree ID="Stack Cubes ({executor.value})" _description="Prepare the cell on the JTC, run the policy with {executor.label}, then check the stack">
     <Sequence>
       <SubTree ID="Prepare for Policy on JTC"/>
-      <{executor.node}
-          policy_service_name="/get_action_chunk"
-          joint_group_name="manipulator"
-          prompt="stack the blue cube on the green cube"
-          total_action_steps="{s.total_action_steps}"
-          dt="{s.dt}"
-          committed_action_steps="{s.committed_action_steps}"
-          num_interpolation_points="200"
-          goal_path_tolerance="0.3"
-          policy_tracking_weight="{s.policy_tracking_weight}"{rtc}
-          policy_call_timeout="{s.policy_call_timeout}"
-          image_topics="/scene_camera/color;/wrist_camera/color;/overview_camera/color"
-          image_names="scene;wrist;overview"
-          joint_states_topic="/joint_states"
-          controller_action_name="/joint_trajectory_controller/follow_joint_trajectory"
-          wrench_topic="/force_torque_sensor_broadcaster/wrench"
-          gripper_command_action_name="/robotiq_gripper_controller/gripper_cmd"
-          gripper_joint_name="robotiq_85_left_knuckle_joint"
-          steps_executed="{{steps_executed}}"
-          chunks_received="{{chunks_received}}"
-          status_message="{{policy_message}}"/>
+      <Parallel success_count="1" failure_count="1">
+        <{executor.node}
+            policy_service_name="/get_action_chunk"
+            joint_group_name="manipulator"
+            prompt="stack the blue cube on the green cube"
+            total_action_steps="{s.total_action_steps}"
+            dt="{s.dt}"
+            committed_action_steps="{s.committed_action_steps}"
+            num_interpolation_points="200"
+            goal_path_tolerance="0.3"
+            policy_tracking_weight="{s.policy_tracking_weight}"{rtc}
+            policy_call_timeout="{s.policy_call_timeout}"
+            image_topics="/scene_camera/color;/wrist_camera/color;/overview_camera/color"
+            image_names="scene;wrist;overview"
+            joint_states_topic="/joint_states"
+            controller_action_name="/joint_trajectory_controller/follow_joint_trajectory"
+            wrench_topic="/force_torque_sensor_broadcaster/wrench"
+            gripper_command_action_name="/robotiq_gripper_controller/gripper_cmd"
+            gripper_joint_name="robotiq_85_left_knuckle_joint"
+            steps_executed="{{steps_executed}}"
+            chunks_received="{{chunks_received}}"
+            status_message="{{policy_message}}"/>
+        <CountUnsafeCommands joint_group_name="manipulator" gripper_joint_name="robotiq_85_left_knuckle_joint" unsafe_points="{{unsafe_points}}"/>
+      </Parallel>
       <SubTree ID="Check if One Cube Is on Another" top_color="blue" bottom_color="green"/>
     </Sequence>
   </BehaviorTree>
