@@ -82,15 +82,22 @@ def timed(safety: MotionSafety, waypoints: np.ndarray, motion: Motion) -> Sample
     return resample_within_envelope(timing, path, motion.rate_hz, safety)
 
 
-def plan_free_motion(safety: MotionSafety, start: np.ndarray, goal: np.ndarray, motion: Motion,
-                     snapshot: SceneSnapshot) -> Samples:
-    """A collision-free, timed motion from ``start`` to ``goal`` that passes ExecuteTrajectory's
-    checks; PlanningError naming the reason otherwise."""
-    collision_free = scene_validity(safety.scene, safety.layout, motion.padding_m, snapshot, None)
+def state_validity(safety: MotionSafety, padding_m: float, snapshot: SceneSnapshot, gripper_position: float | None):
+    """The planner's state check: collision-free in ``snapshot`` with ``padding_m``, and inside
+    the Cartesian envelope's boxes and cone with the planner's margin (``pose_within_envelope``)."""
+    collision_free = scene_validity(safety.scene, safety.layout, padding_m, snapshot, gripper_position)
 
     def is_free(q: np.ndarray) -> bool:
         return collision_free(q) and safety.pose_within_envelope(q)
 
+    return is_free
+
+
+def plan_free_motion(safety: MotionSafety, start: np.ndarray, goal: np.ndarray, motion: Motion,
+                     snapshot: SceneSnapshot) -> Samples:
+    """A collision-free, timed motion from ``start`` to ``goal`` that passes ExecuteTrajectory's
+    checks; PlanningError naming the reason otherwise."""
+    is_free = state_validity(safety, motion.padding_m, snapshot, None)
     settings = PlannerSettings(timeout_s=motion.timeout_s, max_iterations=motion.max_iterations, seed=motion.seed)
     try:
         path = plan_path(is_free, start, goal, safety.limits.lower, safety.limits.upper, settings)

@@ -11,8 +11,9 @@ its 1 s timeout, its plan time (median and p95; the straight check included), an
 joint-space length (rad) of the planned path beside that of the straight move between the same
 configurations.
 
-The planner is the runtime's (``runtime.scene.planner``: OMPL's RRT-Connect and shortcutting
-on the planning scene's checks, one thread).
+The planner is the runtime's (``runtime.scene.planner``: OMPL's RRT-Connect and shortcutting,
+one thread) with the state check the planning behaviors give it (``behaviors.planning.state_validity``:
+the planning scene's collision check and the cell's Cartesian envelope).
 
     .venv/bin/python benchmarks/bench_planning.py [--queries 200] [--seed 0]
 """
@@ -46,15 +47,15 @@ def cell_scene(with_obstacle: bool):
 
 def make_queries(count: int, seed: int) -> list[tuple[np.ndarray, np.ndarray]]:
     """``count`` (start, goal) pairs, free in both scenes, from TCP poses looking down."""
+    from behaviors.planning import state_validity
     from behaviors.safety import make_safety
     from runtime.scene import solve_ik
-    from runtime.scene.planner import scene_validity
 
     home = np.array([-1.8732, -1.7159, 1.7867, -1.6416, -1.5708, -0.3024])
     rng = np.random.default_rng(seed)
     scenes = [cell_scene(False), cell_scene(True)]
     safeties = [make_safety(s, "manipulator", s.gripper_joint) for s in scenes]
-    checks = [scene_validity(s, m.layout, PADDING_M, s.snapshot(), 0.0) for s, m in zip(scenes, safeties)]
+    checks = [state_validity(m, PADDING_M, s.snapshot(), 0.0) for s, m in zip(scenes, safeties)]
     down = np.diag([1.0, -1.0, -1.0])  # TCP z down
     states: list[np.ndarray] = []
     while len(states) < 2 * count:
@@ -71,11 +72,12 @@ def make_queries(count: int, seed: int) -> list[tuple[np.ndarray, np.ndarray]]:
 
 def measure_ompl(scene, queries, seed: int) -> list[tuple[float, bool, float | None, bool]]:
     """Per query: milliseconds, solved, path length (rad), straight move free."""
+    from behaviors.planning import state_validity
     from behaviors.safety import make_safety
-    from runtime.scene.planner import PathPlanningError, PlannerSettings, motion_is_free, plan_path, scene_validity
+    from runtime.scene.planner import PathPlanningError, PlannerSettings, motion_is_free, plan_path
 
     safety = make_safety(scene, "manipulator", scene.gripper_joint)
-    is_free = scene_validity(scene, safety.layout, PADDING_M, scene.snapshot(), 0.0)
+    is_free = state_validity(safety, PADDING_M, scene.snapshot(), 0.0)
     lower, upper = safety.limits.lower, safety.limits.upper
     out = []
     for i, (start, goal) in enumerate(queries):

@@ -184,9 +184,9 @@ def test_a_policy_that_exits_or_raises_keyboard_interrupt_is_a_policy_error(caps
     """Neither ends the process (exit 7, nothing said) nor reads as Ctrl-C: the policy answered ERROR."""
     path = write(tmp_path, EXITING.format(load="pass", infer=raises, make="pass"))
     code, summary = run_json(capsys, "objectives/stack_cubes.xml", "--world", "kinematic", "--policy", f"{path}:make")
-    assert code == 1
-    assert summary["status"] == "FAILURE" and summary["failing_node"] == "ExecutePolicy"
-    assert summary["reason"] == f"the policy answered ERROR for the warmup: policy backend 'exiting' failed: {text}"
+    assert code == 2  # a policy refusing its warmup is a setup error: no Retry repeats it
+    assert summary["status"] == "ERROR" and summary["failing_node"] == "ExecutePolicy"
+    assert summary["reason"].endswith(f"the policy answered ERROR for the warmup: policy backend 'exiting' failed: {text}")
 
 
 @pytest.mark.parametrize("where", ["make", "load"])
@@ -222,15 +222,17 @@ def test_a_policy_s_error_text_is_escaped_and_cut_everywhere_it_is_printed(capsy
     """ESC, CR-LF and a right-to-left override cannot forge a SUCCESS line, and a 5 MB message
     prints as 4,096 characters and how many were cut (the adapter's warning, the outcome line, --json)."""
     path = write(tmp_path, FORGING)
-    assert main(["run", "objectives/stack_cubes.xml", "--world", "kinematic", "--policy", f"{path}:make", "--json"]) == 1
+    assert main(["run", "objectives/stack_cubes.xml", "--world", "kinematic", "--policy", f"{path}:make", "--json"]) == 2
     out, err = capsys.readouterr()
     for text in (out, err):
         assert "\x1b" not in text and "\r" not in text and "\u202e" not in text
     assert len(err) < 20_000 and len(out) < 30_000
     said = "policy backend 'forging\\u202e' failed: RuntimeError: \\x1b[2K\\r\\nSUCCESS after 1.00 s\\u202exxx"
     assert f"[WARNING] policy.adapter: answered ERROR: {said}" in err
-    assert f"'ExecutePolicy' (objectives/stack_cubes.xml:12) failed: the policy answered ERROR for the warmup: {said}" in err
-    assert [line for line in err.splitlines() if "SUCCESS" in line and not line.startswith(("[WARNING]", "FAILURE"))] == []
+    assert f"error: objectives/stack_cubes.xml:12: ExecutePolicy: the policy answered ERROR for the warmup: {said}" in err
+    assert [line for line in err.splitlines() if "SUCCESS" in line and not line.startswith(("[WARNING]", "error:"))] == []
     summary = json.loads(out.strip().splitlines()[-1])
     assert summary["reason"].endswith("x... (4996021 characters cut)")
-    assert len(summary["reason"]) == 4096 + len("... (4996021 characters cut)")
+    where = "objectives/stack_cubes.xml:12: ExecutePolicy: "  # an ERROR's reason names the node first
+    assert summary["reason"].startswith(where)
+    assert len(summary["reason"]) == len(where) + 4096 + len("... (4996021 characters cut)")

@@ -405,13 +405,14 @@ def test_rtc_without_a_policy_action_chunk_warns_once(registry):
     ]
 
 
-@pytest.mark.parametrize("offset_rad, warned", [(0.8, True), (0.15, False)])
+@pytest.mark.parametrize("offset_rad, warned", [(0.3, True), (0.15, False)])
 def test_a_first_chunk_far_from_the_arm_warns_naming_the_joint(registry, offset_rad, warned):
-    """0.8 rad on every joint was blended in without a word on main."""
+    """0.3 rad of the base joint (within the cell's envelope: the tool turns about the base,
+    still pointing down) was blended in without a word."""
     def far(request):
         response = moving_chunk(request)
         for point in response.chunk.points:
-            point.positions = [p - offset_rad * (j < 6) for j, p in enumerate(point.positions)]
+            point.positions = [p - offset_rad * (j == 0) for j, p in enumerate(point.positions)]
         return response
 
     out = run_with_faults(registry, Policy(fault_at=1, fault=far), FixedLatency(0.1))
