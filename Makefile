@@ -37,7 +37,7 @@ $(STAMP): pyproject.toml runtime/build_interfaces.py $(shell find runtime/ros/in
 	@test -x $(PY) || { echo "setup: creating $(VENV) with $(PYTHON)"; $(PYTHON) -m venv $(VENV); }
 	@echo "setup: installing the project and its pinned dependencies into $(VENV) (uv $(UV_VERSION))"
 	@set -o pipefail; $(PY) -m pip install --quiet uv==$(UV_VERSION) $(PIP_QUIET)
-	@$(VENV)/bin/uv pip install --quiet --python $(PY) --compile-bytecode pip -e '.[sim,record,ros,ros-build,test,monitor]'
+	@$(VENV)/bin/uv pip install --quiet --python $(PY) --compile-bytecode -e '.[sim,record,ros,ros-build,test,monitor]'
 	@echo "setup: the ROS 2 interface packages (built once per machine and Python, then from its cache)"
 	@$(PY) -m runtime.build_interfaces --build-dir build/interfaces
 	@touch $(STAMP)
