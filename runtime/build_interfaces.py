@@ -221,6 +221,12 @@ def parse_cmake_version(text: str) -> tuple[int, int]:
     return (int(found.group(1)), int(found.group(2))) if found else (0, 0)
 
 
+def say(line: str) -> None:
+    """Print a line in one write: packages building side by side never split each other's."""
+    sys.stdout.write(line + "\n")
+    sys.stdout.flush()
+
+
 def tail(text: str, lines: int = TAIL_LINES) -> str:
     return "\n".join(text.rstrip().splitlines()[-lines:])
 
@@ -292,7 +298,7 @@ def build_package(pkg: Package, prefix: Path, env: dict[str, str], build_dir: Pa
         shutil.rmtree(build)
     build.mkdir(parents=True)
     log = build / "build.log"
-    print(f"{pkg.name}: building with cmake (log: {log})", flush=True)
+    say(f"{pkg.name}: building with cmake (log: {log})")
     configure = cmake_arguments(pkg.path, build, prefix, generators_script, ninja=shutil.which("ninja") is not None)
     run_step(pkg, "configure", configure, env, log)
     run_step(pkg, "build", ["cmake", "--build", str(build), "--parallel", str(jobs)], env, log)
@@ -518,7 +524,7 @@ def provide_all(packages: list[Package], prefix: Path, build_dir: Path, force: b
             failures = []
             for future in as_completed(futures):
                 try:
-                    print(future.result(), flush=True)
+                    say(future.result())
                 except (BuildError, OSError) as exc:
                     failures.append(exc)
         if failures:
