@@ -264,3 +264,14 @@ def test_every_interface_package_is_described_by_its_manifest():
     names = sorted(tool.read_package(d).name for d in tool.INTERFACES_DIR.iterdir() if (d / "package.xml").is_file())
     assert names == ["control_msgs", "controller_manager_msgs", "moveit_pro_controllers_msgs", "moveit_pro_ml_msgs",
                      "objective_server_msgs", "tf2_msgs"]
+
+
+def test_only_what_python_uses_is_built_into_the_venv():
+    tool = _load_build_tool()
+    for name in ["control_msgs", "controller_manager_msgs", "moveit_pro_controllers_msgs", "moveit_pro_ml_msgs",
+                 "objective_server_msgs", "tf2_msgs"]:
+        files = tool.read_marker(Path(sys.prefix), name).get("files")
+        assert files, f"{name}: no {tool.MARKER} in this venv (make setup installs one)"
+        assert f"lib/lib{name}__rosidl_typesupport_fastrtps_c.so" in files
+        assert f"lib/lib{name}__rosidl_generator_py.so" in files
+        assert [f for f in files if "cpp" in f] == [], f"{name}: C++ generator output installed"
