@@ -51,7 +51,7 @@ lerobot: $(LEROBOT_STAMP)
 
 $(LEROBOT_STAMP): $(STAMP) pyproject.toml
 	@echo "make lerobot: installing LeRobot 0.6.1 and torch 2.11.0 into $(VENV) (about 4 GB the first time)"
-	set -o pipefail; $(PY) -m pip install --quiet -e '.[lerobot]' 2>&1 | { grep -v "is ignored: it is neither" || true; }
+	set -o pipefail; $(PY) -m pip install --quiet -e '.[lerobot]' $(PIP_QUIET)
 	HF_HUB_OFFLINE=1 $(PY) -c "import torch, lerobot; import lerobot.policies.smolvla.modeling_smolvla, lerobot.async_inference.robot_client; print('lerobot', lerobot.__version__, 'torch', torch.__version__)"
 	@touch $@
 
