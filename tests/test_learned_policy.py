@@ -98,12 +98,12 @@ needs_lerobot = pytest.mark.skipif(
 
 @pytest.fixture(scope="module")
 def tiny_learned(tmp_path_factory):
-    """One layout played, two training steps, saved as `make learned-policy` saves it."""
+    """Two layouts played, two training steps, saved as `make learned-policy` saves it."""
     from tools.train_learned import main
 
     root = tmp_path_factory.mktemp("learned")
     out = root / "ck"
-    assert main(["--out", str(out), "--cache", str(root / "frames"), "--layouts", "1", "--layout-seed", "50000",
+    assert main(["--out", str(out), "--cache", str(root / "frames"), "--layouts", "2", "--layout-seed", "50000",
                  "--workers", "1", "--steps", "2", "--batch", "4", "--eval-episodes", "0"]) == 0
     return out
 
@@ -119,7 +119,7 @@ def test_the_pipeline_saves_a_lerobot_checkpoint_with_its_perception_and_data(ti
     assert metadata["cube_locator"]["position"]["image"] == "scene"
     assert metadata["cube_locator"]["yaw"]["image"] == "overview"
     training = metadata["training"]
-    assert (training["seed"], training["steps"], training["layout_seeds"]) == (0, 2, [50000, 50000])
+    assert (training["seed"], training["steps"], training["layout_seeds"]) == (0, 2, [50000, 50001])
     assert len(training["data_sha256"]) == 64
 
 
@@ -150,8 +150,9 @@ def test_the_served_policy_locates_the_cubes_and_answers_a_chunk_that_rtc_guides
     guided = backend.infer(PolicyRequest(request.prompt, names, request.joint_positions, images,
                                          previous_action_chunk=leftover, frozen_prefix_steps=3, guidance_horizon=10))
     assert backend.last_rtc.inference_delay == 3 and backend.last_rtc.execution_horizon == 13
-    # the frozen prefix follows the previous chunk's leftover: an unguided chunk lands anywhere
-    assert np.abs(guided.policy_actions[:3] - leftover[:3]).max() < 0.05
+    # the frozen prefix follows the previous chunk's leftover, where an unguided chunk (the first) lands anywhere
+    unguided_gap = np.abs(first.policy_actions[:3] - leftover[:3]).max()
+    assert np.abs(guided.policy_actions[:3] - leftover[:3]).max() < 0.1 * unguided_gap
     missing = backend.infer(PolicyRequest(request.prompt, names, request.joint_positions, {"wrist": images["wrist"]},
                                           new_episode=True))
     assert missing.message == ("the policy locates the cubes in images [scene, overview]; the request has no "

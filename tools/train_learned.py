@@ -96,7 +96,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--cache", type=Path, default=ROOT / "build/plan_frames", help="where played frames are kept")
     parser.add_argument("--layouts", type=int, default=600)
     parser.add_argument("--layout-seed", type=int, default=40000)
-    parser.add_argument("--part", type=int, default=100, help="layouts per cache file (a part played is kept)")
+    parser.add_argument("--part", type=int, default=50, help="layouts per cache file (a part played is kept)")
     parser.add_argument("--every", type=int, default=1, help="a frame every this many policy steps")
     parser.add_argument("--motion-noise", type=float, default=0.04, help="recovery noise of the played motion (rad)")
     parser.add_argument("--workers", type=int, default=2)
