@@ -111,7 +111,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--layers", type=int, default=3, help="the DiT's layers")
     parser.add_argument("--position-noise", type=float, default=0.001, help="std of the located positions' error (m)")
     parser.add_argument("--yaw-noise", type=float, default=0.035, help="std of the located yaws' error (rad)")
-    parser.add_argument("--noise-scale", type=float, default=1.0, help="objective_policy.json's noise_scale (serving)")
+    parser.add_argument("--noise-scale", type=float, default=0.0,
+                        help="objective_policy.json's noise_scale: 0 answers the flow's central chunk (smooth)")
     parser.add_argument("--eval-episodes", type=int, default=50, help="held-out seeds evaluated after training (0: none)")
     parser.add_argument("--eval-seed-start", type=int, default=100)
     parser.add_argument("--eval-workers", type=int, default=1)
