@@ -76,7 +76,8 @@ METADATA_FILE = "objective_policy.json"
 ``camera_crops`` (camera -> ``[top, left, bottom, right]`` fractions of the frame, see :func:`crop_slices`),
 ``ignored_images`` (request image names the policy does not use), ``noise_scale`` (see
 :class:`LeRobotOptions`) and ``cube_locator`` (the perception stage of a policy that observes located
-cubes: ``policy.cube_locator.CubeLocatorConfig``)."""
+cubes: ``policy.cube_locator.CubeLocatorConfig``) and ``relative_actions`` (true: the policy's chunk is
+the joints' offset from the observed state, see :meth:`LeRobotBackend.infer`)."""
 CLIP_DIRNAME = "clip"
 """A checkpoint's local CLIP text-encoder folder (see ``learned_stack``); used instead of the hub name."""
 FLOW_SAMPLED_TYPES = frozenset({"multi_task_dit"})
@@ -434,6 +435,8 @@ class LeRobotBackend:
         self.rtc_processor: Any = None
         self.locator: Any = None
         """The perception stage (``CubeLocatorConfig``) when the metadata names one."""
+        self.relative = False
+        """The chunk is relative to the observed joints (the metadata's ``relative_actions``)."""
         self.located: np.ndarray | None = None
         """The cube features located in the current episode's first request."""
         self._mappings: dict[tuple[str, ...], dict[str, str]] = {}
@@ -506,6 +509,7 @@ class LeRobotBackend:
             )
         self.crops = {IMAGE_PREFIX + name: checked_crop(name, box) for name, box in crops.items()}
         self.ignored_images = frozenset(self.metadata.get("ignored_images") or ())
+        self.relative = bool(self.metadata.get("relative_actions", False))
         self.locator = None
         if "cube_locator" in self.metadata:
             from .cube_locator import CubeLocatorConfig
@@ -590,6 +594,7 @@ class LeRobotBackend:
 
         if request.new_episode:
             self.policy.reset()
+        joints = observation[STATE_KEY][: self.action_dim].clone()  # a relative chunk's origin
         started = time.perf_counter()
         # no_grad, not inference_mode: RTC's guidance takes a gradient inside the sampling loop
         # (under torch.enable_grad), which inference_mode would forbid.
@@ -604,6 +609,8 @@ class LeRobotBackend:
             else:
                 normalized = self.policy.predict_action_chunk(batch, **guidance, **self._starting_noise())
             absolute = self.postprocessor(normalized)
+            if self.relative:
+                absolute = absolute + joints.to(absolute.dtype)
         elapsed = time.perf_counter() - started
         self.calls += 1
         warning = self.latency.record(elapsed)
@@ -705,6 +712,8 @@ class LeRobotBackend:
                 f"previous_action_chunk has shape {tail.shape}; this policy's normalized actions are "
                 f"(steps, {self.action_dim}) (echo policy_action_chunk back untouched)"
             )
+        if self.relative:
+            tail = self._reanchored(request, tail)
         delay = int(request.frozen_prefix_steps)
         horizon = execution_horizon(delay, int(request.guidance_horizon), self.default_guidance)
         self.last_rtc = RtcCall(delay, horizon, int(tail.shape[0]))
@@ -714,6 +723,24 @@ class LeRobotBackend:
             "prev_chunk_left_over": torch.from_numpy(tail),
             "execution_horizon": horizon,
         }
+
+    def _reanchored(self, request: PolicyRequest, tail: np.ndarray) -> np.ndarray:
+        """A relative policy's normalized leftover, made relative to this request's joints: it was relative to
+        the joints of the request that produced it (``previous_anchor_positions``)."""
+        import torch
+        from lerobot.policies.rtc.relative import reanchor_relative_rtc_prefix
+        from lerobot.processor import NormalizerProcessorStep, RelativeActionsProcessorStep
+
+        if request.previous_anchor_positions is None:
+            raise OptionError("this policy's chunks are relative to the observed joints: previous_action_chunk needs "
+                              "previous_anchor_state (the joints of the request that answered it)")
+        order = joint_order(request.joint_names, self.joint_names) if self.joint_names else list(range(self.action_dim))
+        anchor = torch.from_numpy(np.asarray(request.previous_anchor_positions, dtype=np.float32)[order])
+        current = torch.from_numpy(np.asarray(request.joint_positions, dtype=np.float32)[order])
+        absolute = self.postprocessor(torch.from_numpy(tail)[None]).to(torch.float32) + anchor
+        normalizer = next(step for step in self.preprocessor.steps if isinstance(step, NormalizerProcessorStep))
+        relative = RelativeActionsProcessorStep(enabled=True)
+        return reanchor_relative_rtc_prefix(absolute, current, relative, normalizer, "cpu")[0].numpy()
 
     def _starting_noise(self) -> dict[str, Any]:
         """The ``noise`` keyword of ``predict_action_chunk`` at a noise scale other than 1 (empty at 1:

@@ -118,6 +118,7 @@ def test_the_pipeline_saves_a_lerobot_checkpoint_with_its_perception_and_data(ti
     metadata = json.loads((tiny_learned / "objective_policy.json").read_text())
     assert metadata["cube_locator"]["position"]["image"] == "scene"
     assert metadata["cube_locator"]["yaw"]["image"] == "overview"
+    assert metadata["relative_actions"] is True
     training = metadata["training"]
     assert (training["seed"], training["steps"], training["layout_seeds"]) == (0, 2, [50000, 50001])
     assert len(training["data_sha256"]) == 64
@@ -144,15 +145,21 @@ def test_the_served_policy_locates_the_cubes_and_answers_a_chunk_that_rtc_guides
                             new_episode=True)
     first = backend.infer(request)
     assert first.message == "" and first.actions.shape == (50, 7) and first.policy_actions.shape == (50, 7)
+    assert first.actions[0] == pytest.approx(request.joint_positions, abs=0.5)  # relative to the observed joints
     placed = layout(120)
     assert backend.located[[0, 1, 3, 4]] == pytest.approx([*placed["blue"][:2], *placed["green"][:2]], abs=0.005)
-    leftover = first.policy_actions[20:]
+    leftover = first.policy_actions[20:] + 0.5  # a previous chunk the policy would not answer now
     guided = backend.infer(PolicyRequest(request.prompt, names, request.joint_positions, images,
-                                         previous_action_chunk=leftover, frozen_prefix_steps=3, guidance_horizon=10))
+                                         previous_action_chunk=leftover, frozen_prefix_steps=3, guidance_horizon=10,
+                                         previous_anchor_positions=request.joint_positions))
     assert backend.last_rtc.inference_delay == 3 and backend.last_rtc.execution_horizon == 13
     # the frozen prefix follows the previous chunk's leftover, where an unguided chunk (the first) lands anywhere
     unguided_gap = np.abs(first.policy_actions[:3] - leftover[:3]).max()
     assert np.abs(guided.policy_actions[:3] - leftover[:3]).max() < 0.1 * unguided_gap
+    unanchored = backend.infer(PolicyRequest(request.prompt, names, request.joint_positions, images,
+                                             previous_action_chunk=leftover, frozen_prefix_steps=3))
+    assert unanchored.message == ("this policy's chunks are relative to the observed joints: previous_action_chunk needs "
+                                  "previous_anchor_state (the joints of the request that answered it)")
     missing = backend.infer(PolicyRequest(request.prompt, names, request.joint_positions, {"wrist": images["wrist"]},
                                           new_episode=True))
     assert missing.message == ("the policy locates the cubes in images [scene, overview]; the request has no "

@@ -11,7 +11,8 @@ Steps (each seeded):
    No camera is rendered: the policy reads the cubes through its perception stage
    (``policy.cube_locator``), whose output is the cubes' x, y and face yaw, so training gives it the
    layout's poses plus the perception's measured error (``--position-noise``, ``--yaw-noise``).
-2. **Model.** LeRobot's ``MultiTaskDiTPolicy`` with ``objective="flow_matching"``
+2. **Model.** The chunk is learned relative to the observed joints (``relative_actions``: the
+   backend adds them back). LeRobot's ``MultiTaskDiTPolicy`` with ``objective="flow_matching"``
    (``policy.learned_stack``): ``observation.state`` = joints and located cubes, the prompt through a
    tiny random CLIP text encoder kept in the checkpoint (``clip/``), no image features.
 3. **Training** for ``--steps`` or ``--minutes``, whichever ends first (AdamW, cosine schedule).
@@ -139,7 +140,8 @@ def main(argv: list[str] | None = None) -> int:
     torch.set_num_threads(args.threads)
     cubes = frame_cubes(frames.seeds)
     state = torch.cat([frames.state, torch.from_numpy(cubes)], dim=1)
-    stats = {"observation.state": min_max_stats(state), "action": min_max_stats(frames.action.reshape(-1, frames.action.shape[-1]))}
+    action = frames.action - frames.state[:, None, :]  # relative to the observed joints
+    stats = {"observation.state": min_max_stats(state), "action": min_max_stats(action.reshape(-1, action.shape[-1]))}
     staging = args.out.with_name(args.out.name + ".building")
     if staging.exists():
         import shutil
@@ -153,7 +155,7 @@ def main(argv: list[str] | None = None) -> int:
     preprocessor, _ = make_pre_post_processors(config, dataset_stats=stats)
     LOG.info("multi_task_dit (flow matching): %.2f M trainable parameters; %d frames", sum(
         p.numel() for p in policy.parameters() if p.requires_grad) / 1e6, len(state))
-    run = train(policy, preprocessor, state, frames.action, cubes.shape[1], args)
+    run = train(policy, preprocessor, state, action, cubes.shape[1], args)
     cell = MujocoCell(CellOptions())
     try:
         locator = locator_config(cell)
@@ -162,7 +164,7 @@ def main(argv: list[str] | None = None) -> int:
     metadata = {
         "joint_names": list(frame_settings(args, ()).joint_names), "control_period": 0.1, "prompts": [PROMPT],
         "ignored_images": ["scene", "wrist", "overview"], "default_guidance_horizon": 10,
-        "noise_scale": args.noise_scale, "cube_locator": locator.to_json(),
+        "noise_scale": args.noise_scale, "cube_locator": locator.to_json(), "relative_actions": True,
         "training": {
             "policy_type": "multi_task_dit", "objective": "flow_matching", "seed": args.seed, **run,
             "batch": args.batch, "lr": args.lr, "threads": args.threads, "hidden": args.hidden, "layers": args.layers,
