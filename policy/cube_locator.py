@@ -1,9 +1,10 @@
-"""A perception stage on the policy side: where the cubes are, read from one camera frame.
+"""A perception stage on the policy side: where the cubes are, read from two fixed cameras' frames.
 
 The learned stacking policy (``tools/train_learned.py``) sees the cubes only through this: the
-request's RGB frame of a fixed camera, the camera's pose and field of view (the policy's
-configuration, kept in the checkpoint's ``objective_policy.json`` like its normalisation), and the
-cubes' colours and size. Never the simulator's state.
+request's RGB frames of two fixed cameras (``position``: a cube's x, y; ``yaw``: its face heading
+when it shows the cube whole), their poses and fields of view (the policy's configuration, kept in
+the checkpoint's ``objective_policy.json`` like its normalisation), and the cubes' colours and
+size. Never the simulator's state.
 
 How a cube is located (pure functions, numpy only):
 
@@ -13,8 +14,9 @@ How a cube is located (pure functions, numpy only):
    the floor do not pass for blue or green.
 2. **Back-projection.** Every cube pixel's ray (a pinhole camera, MuJoCo's convention: it looks
    along its -z axis, +y up in the image, square pixels, ``fovy`` vertical) is cut with the
-   horizontal plane ``plane_z_m`` (the cube's top face for a camera looking straight down); the
-   cube's x, y is the mean of those points.
+   horizontal plane of the view's ``plane_z_m`` (the cubes' centres for the oblique scene camera,
+   their top faces for the overview camera looking straight down); the cube's x, y is the mean of
+   those points.
 3. **Yaw.** A square's corners lie farthest from its centre, at the face heading + 45 degrees, every
    quarter turn: the fourth-order moment ``sum r^4 exp(4 i theta)`` of the points about their mean
    points there, so the face heading is ``arg(-moment) / 4``, in [-pi/4, pi/4) like
