@@ -53,6 +53,7 @@ import statistics
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
+from types import SimpleNamespace
 from typing import Any, Mapping, Sequence
 
 import numpy as np
@@ -73,8 +74,15 @@ METADATA_FILE = "objective_policy.json"
 """Optional file next to a checkpoint with what LeRobot's format does not keep: ``joint_names``
 (state/action columns), ``control_period`` (seconds per step at training), ``default_guidance_horizon``,
 ``camera_crops`` (camera -> ``[top, left, bottom, right]`` fractions of the frame, see :func:`crop_slices`),
-``ignored_images`` (request image names the policy does not use) and ``noise_scale`` (see
-:class:`LeRobotOptions`)."""
+``ignored_images`` (request image names the policy does not use), ``noise_scale`` (see
+:class:`LeRobotOptions`) and ``cube_locator`` (the perception stage of a policy that observes located
+cubes: ``policy.cube_locator.CubeLocatorConfig``) and ``relative_actions`` (true: the policy's chunk is
+the joints' offset from the observed state, see :meth:`LeRobotBackend.infer`)."""
+CLIP_DIRNAME = "clip"
+"""A checkpoint's local CLIP text-encoder folder (see ``learned_stack``); used instead of the hub name."""
+FLOW_SAMPLED_TYPES = frozenset({"multi_task_dit"})
+"""LeRobot policies whose flow-matching chunk this backend samples itself (``learned_stack.sample_chunk``),
+so that it takes a starting noise and LeRobot's RTC guidance."""
 RTC_POLICY_TYPES = frozenset({"smolvla", "pi0", "pi05"})
 """LeRobot policies whose sampling loop takes RTC guidance (LeRobot 0.6 guides pi0-FAST, GR00T and others too; these are the ones served and tested here)."""
 QUEUED_OBSERVATION_TYPES = frozenset({"diffusion"})
@@ -106,7 +114,7 @@ def noise_shape(config: Any) -> tuple[int, int, int]:
     """The shape of the starting noise of one sampled chunk: SmolVLA, pi0 and pi0.5 denoise
     ``chunk_size`` steps padded to ``max_action_dim``; the diffusion policy ``horizon`` steps of the
     action."""
-    if getattr(config, "type", "") == "diffusion":
+    if getattr(config, "type", "") in {"diffusion", *FLOW_SAMPLED_TYPES}:
         return (1, int(config.horizon), int(config.output_features[ACTION_KEY].shape[0]))
     return (1, int(config.chunk_size), int(config.max_action_dim))
 
@@ -422,6 +430,15 @@ class LeRobotBackend:
         self.joint_names: list[str] | None = None
         self.calls = 0
         self.noise_scale = 1.0
+        self.flow_sampled = False
+        """The backend samples the policy's flow itself (``FLOW_SAMPLED_TYPES``), RTC through ``rtc_processor``."""
+        self.rtc_processor: Any = None
+        self.locator: Any = None
+        """The perception stage (``CubeLocatorConfig``) when the metadata names one."""
+        self.relative = False
+        """The chunk is relative to the observed joints (the metadata's ``relative_actions``)."""
+        self.located: np.ndarray | None = None
+        """The cube features located in the current episode's first request."""
         self._mappings: dict[tuple[str, ...], dict[str, str]] = {}
 
     # -- lifecycle ---
@@ -449,11 +466,22 @@ class LeRobotBackend:
         if getattr(config, "type", "") == "smolvla" and vlm.is_dir():
             config.vlm_model_name = str(vlm)
             overrides["tokenizer_processor"] = {"tokenizer_name": str(vlm)}
+        clip = folder / CLIP_DIRNAME
+        if getattr(config, "type", "") == "multi_task_dit" and clip.is_dir():
+            config.text_encoder_name = str(clip)
+            overrides["tokenizer_processor"] = {"tokenizer_name": str(clip)}
+        self.flow_sampled = config.type in FLOW_SAMPLED_TYPES and getattr(config, "objective", "") == "flow_matching"
         self.default_guidance = int(
             options.guidance_horizon or self.metadata.get("default_guidance_horizon") or DEFAULT_GUIDANCE_HORIZON
         )
-        self.rtc = bool(options.rtc and config.type in RTC_POLICY_TYPES and hasattr(config, "rtc_config"))
-        if self.rtc:
+        self.rtc = bool(options.rtc and (self.flow_sampled or (config.type in RTC_POLICY_TYPES and hasattr(config, "rtc_config"))))
+        if self.rtc and self.flow_sampled:
+            from lerobot.policies.rtc.modeling_rtc import RTCProcessor
+
+            holder = SimpleNamespace()
+            enable_rtc(holder, self.default_guidance)
+            self.rtc_processor = RTCProcessor(holder.rtc_config)
+        elif self.rtc:
             enable_rtc(config, self.default_guidance)
         elif hasattr(config, "rtc_config"):
             config.rtc_config = None
@@ -481,10 +509,18 @@ class LeRobotBackend:
             )
         self.crops = {IMAGE_PREFIX + name: checked_crop(name, box) for name, box in crops.items()}
         self.ignored_images = frozenset(self.metadata.get("ignored_images") or ())
+        self.relative = bool(self.metadata.get("relative_actions", False))
+        self.locator = None
+        if "cube_locator" in self.metadata:
+            from .cube_locator import CubeLocatorConfig
+
+            self.locator = CubeLocatorConfig.from_json(self.metadata["cube_locator"], str(metadata_path))
         fed = sorted(self.ignored_images & {camera_name(k) for k in self.camera_keys})
         if fed:
             raise OptionError(f"checkpoint '{folder}': {METADATA_FILE} ignores images [{', '.join(fed)}] that are cameras it uses")
         self.state_dim = int(config.input_features[STATE_KEY].shape[0]) if STATE_KEY in config.input_features else 0
+        if self.locator is not None:
+            self.state_dim -= 3 * len(self.locator.colors)  # x, y, yaw per located cube follow the joints
         self.action_dim = int(config.output_features[ACTION_KEY].shape[0])
         names = options.joint_names or self.metadata.get("joint_names")
         if names is not None and len(names) != self.action_dim:
@@ -517,6 +553,11 @@ class LeRobotBackend:
             height, width = self.image_sizes[key]
             name = request_name.get(camera_name(key), request_name.get(key, camera_name(key)))
             images[name] = np.zeros((height, width, 3), dtype=np.uint8)
+        if self.locator is not None:
+            from .cube_locator import painted_frame
+
+            for name in self.locator.images():  # no cube in a black frame: a flat table with the cubes' colours
+                images[name] = painted_frame(self.locator.colors)
         return PolicyRequest(prompt, list(names), np.zeros(len(names)), images, new_episode=True)
 
     def warmup(self, example_request: PolicyRequest) -> None:
@@ -543,6 +584,8 @@ class LeRobotBackend:
         self._require_loaded()
         try:
             columns = self._columns(request)
+            if self.locator is not None and (request.new_episode or self.located is None):
+                self.located = self._locate(request)
             observation = self._observation(request)
             guidance = self._guidance(request)
         except (ValueError, CameraMappingError) as exc:
@@ -551,6 +594,7 @@ class LeRobotBackend:
 
         if request.new_episode:
             self.policy.reset()
+        joints = observation[STATE_KEY][: self.action_dim].clone()  # a relative chunk's origin
         started = time.perf_counter()
         # no_grad, not inference_mode: RTC's guidance takes a gradient inside the sampling loop
         # (under torch.enable_grad), which inference_mode would forbid.
@@ -558,8 +602,15 @@ class LeRobotBackend:
             batch = self.preprocessor(observation)
             if self.queued_observation:
                 batch = queue_observation(self.policy, batch)
-            normalized = self.policy.predict_action_chunk(batch, **guidance, **self._starting_noise())
+            if self.flow_sampled:
+                from .learned_stack import sample_chunk
+
+                normalized = sample_chunk(self.policy, batch, self._starting_noise().get("noise"), self.rtc_processor, guidance)
+            else:
+                normalized = self.policy.predict_action_chunk(batch, **guidance, **self._starting_noise())
             absolute = self.postprocessor(normalized)
+            if self.relative:
+                absolute = absolute + joints.to(absolute.dtype)
         elapsed = time.perf_counter() - started
         self.calls += 1
         warning = self.latency.record(elapsed)
@@ -583,12 +634,13 @@ class LeRobotBackend:
             "joint_names": self.joint_names,
             "state_dim": self.state_dim,
             "action_dim": self.action_dim,
-            "chunk_size": getattr(self.config, "chunk_size", None),
+            "chunk_size": getattr(self.config, "chunk_size", getattr(self.config, "horizon", None)),
             "rtc": self.rtc,
             "noise_scale": self.noise_scale,
             "default_guidance_horizon": self.default_guidance,
             "native_control_period": self.control_period,
             "steady_latency_s": round(self.latency.steady(), 4),
+            "cube_locator": list(self.locator.images()) if self.locator is not None else None,
         }
 
     # -- request conversion ---
@@ -603,6 +655,8 @@ class LeRobotBackend:
             )
         if self.joint_names:
             state = state[joint_order(request.joint_names, self.joint_names)]
+        if self.locator is not None:
+            state = np.concatenate([state, self.located])
         observation: dict[str, Any] = {STATE_KEY: torch.from_numpy(state), "task": request.prompt}
         mapping = self._camera_mapping(self._fed_images(request))
         for name, key in mapping.items():
@@ -612,6 +666,19 @@ class LeRobotBackend:
                 rgb = rgb[rows, columns]
             observation[key] = self._image_tensor(rgb, self.image_sizes[key])
         return observation
+
+    def _locate(self, request: PolicyRequest) -> np.ndarray:
+        """The cube features of the request's frames (``cube_locator``); a missing image or cube raises ValueError."""
+        from .cube_locator import cube_features, locate_cubes
+
+        missing = [name for name in self.locator.images() if name not in request.images]
+        if missing:
+            raise OptionError(
+                f"the policy locates the cubes in images [{', '.join(self.locator.images())}]; the request has no "
+                f"[{', '.join(missing)}] (request images [{', '.join(request.images)}])"
+            )
+        images = {name: frame_to_rgb(request.images[name], self.options.image_encoding, name) for name in self.locator.images()}
+        return cube_features(locate_cubes(images, self.locator))
 
     def _fed_images(self, request: PolicyRequest) -> list[str]:
         """The request's image names less the checkpoint's ``ignored_images``."""
@@ -645,6 +712,8 @@ class LeRobotBackend:
                 f"previous_action_chunk has shape {tail.shape}; this policy's normalized actions are "
                 f"(steps, {self.action_dim}) (echo policy_action_chunk back untouched)"
             )
+        if self.relative:
+            tail = self._reanchored(request, tail)
         delay = int(request.frozen_prefix_steps)
         horizon = execution_horizon(delay, int(request.guidance_horizon), self.default_guidance)
         self.last_rtc = RtcCall(delay, horizon, int(tail.shape[0]))
@@ -654,6 +723,24 @@ class LeRobotBackend:
             "prev_chunk_left_over": torch.from_numpy(tail),
             "execution_horizon": horizon,
         }
+
+    def _reanchored(self, request: PolicyRequest, tail: np.ndarray) -> np.ndarray:
+        """A relative policy's normalized leftover, made relative to this request's joints: it was relative to
+        the joints of the request that produced it (``previous_anchor_positions``)."""
+        import torch
+        from lerobot.policies.rtc.relative import reanchor_relative_rtc_prefix
+        from lerobot.processor import NormalizerProcessorStep, RelativeActionsProcessorStep
+
+        if request.previous_anchor_positions is None:
+            raise OptionError("this policy's chunks are relative to the observed joints: previous_action_chunk needs "
+                              "previous_anchor_state (the joints of the request that answered it)")
+        order = joint_order(request.joint_names, self.joint_names) if self.joint_names else list(range(self.action_dim))
+        anchor = torch.from_numpy(np.asarray(request.previous_anchor_positions, dtype=np.float32)[order])
+        current = torch.from_numpy(np.asarray(request.joint_positions, dtype=np.float32)[order])
+        absolute = self.postprocessor(torch.from_numpy(tail)[None]).to(torch.float32) + anchor
+        normalizer = next(step for step in self.preprocessor.steps if isinstance(step, NormalizerProcessorStep))
+        relative = RelativeActionsProcessorStep(enabled=True)
+        return reanchor_relative_rtc_prefix(absolute, current, relative, normalizer, "cpu")[0].numpy()
 
     def _starting_noise(self) -> dict[str, Any]:
         """The ``noise`` keyword of ``predict_action_chunk`` at a noise scale other than 1 (empty at 1:

@@ -602,14 +602,15 @@ def replace_folder(staging: Path, out: Path) -> None:
     staging.rename(out)
 
 
-def evaluate(checkpoint: Path, episodes: int, seed_start: int, image_size: int, workers: int, world: str | None) -> dict:
-    """``objective eval`` of ``stack_cubes_lerobot.xml`` with the checkpoint on held-out seeds into
+def evaluate(checkpoint: Path, episodes: int, seed_start: int, image_size: int, workers: int, world: str | None,
+             objective: Path = ROOT / "objectives" / "stack_cubes_lerobot.xml") -> dict:
+    """``objective eval`` of ``objective`` (``stack_cubes_lerobot.xml``) with the checkpoint on held-out seeds into
     :func:`evaluation_folder` (beside the checkpoint, not inside it: ``objective eval`` identifies a
     policy by the hash of its folder's files, so files added there would make a later ``objective
     eval`` of the same folder refuse to resume), with its command and summary in ``evaluation.json``
     there; returns that summary."""
     out = evaluation_folder(checkpoint)
-    command = [sys.executable, "-m", "runtime.cli", "eval", str(ROOT / "objectives" / "stack_cubes_lerobot.xml"),
+    command = [sys.executable, "-m", "runtime.cli", "eval", str(objective),
                "--policy", f"lerobot:{checkpoint}", "--episodes", str(episodes), "--seed-start", str(seed_start),
                "--workers", str(min(workers, episodes)), "--out", str(out), "--world-option", f"image_size={image_size}",
                "--record", "none", "--json"] + (["--world", world] if world else [])

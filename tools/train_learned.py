@@ -1,0 +1,274 @@
+"""Train the learned stacking policy (`make learned-policy`): located cubes + joints -> a flow-matching chunk.
+
+    .venv/bin/python tools/train_learned.py --out build/policies/learned --seed 0
+
+Steps (each seeded):
+
+1. **Frames.** The oracle's plan played straight into the cell (``tools.plan_frames``: the cell's own
+   physics, grasp and release, the recorder's timing and its recovery noise, episodes that do not
+   stack dropped) for ``--layouts`` layout seeds from ``--layout-seed``, a frame at every policy step:
+   the measured joints (six arm joints, then the gripper) and the plan's next ``--chunk`` steps as label.
+   No camera is rendered: the policy reads the cubes through its perception stage
+   (``policy.cube_locator``), whose output is the cubes' x, y and face yaw, so training gives it the
+   layout's poses plus the perception's measured error (``--position-noise``, ``--yaw-noise``).
+2. **Model.** The chunk is learned relative to the observed joints (``relative_actions``: the
+   backend adds them back). LeRobot's ``MultiTaskDiTPolicy`` with ``objective="flow_matching"``
+   (``policy.learned_stack``): ``observation.state`` = joints and located cubes, the prompt through a
+   tiny random CLIP text encoder kept in the checkpoint (``clip/``), no image features.
+3. **Training** for ``--steps`` or ``--minutes``, whichever ends first (AdamW, cosine schedule).
+4. **Saving** in LeRobot's format in ``--out`` with ``objective_policy.json``: joint names, control
+   period, the perception's configuration (``cube_locator``), the training's seed, steps, layout seeds
+   and ``data_sha256`` (SHA-256 of the frames' arrays).
+5. **Evaluation** (``--eval-episodes``) with ``objective eval objectives/stack_cubes_learned.xml`` on
+   held-out seeds into ``<out>.eval/``.
+"""
+from __future__ import annotations
+
+import argparse
+import hashlib
+import json
+import logging
+import math
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+
+LOG = logging.getLogger("train_learned")
+PROMPT = "stack the blue cube on the green cube"
+GRIPPER_JOINT = "robotiq_85_left_knuckle_joint"
+HELD_OUT = range(100, 150)
+
+
+def frame_settings(args: argparse.Namespace, seeds: tuple[int, ...]):
+    """The plan frames' settings (``tools.plan_frames``): no camera, a frame every step, the recorder's
+    demonstration settings (gripper at 0.5 rad/s, 0.04 rad recovery noise, 2 s held after the plan)."""
+    from sim.cell_model import HOME_CONFIGURATION
+    from sim.robot_model import planning_robot_model
+    from sim.oracle import SceneKinematics
+    from tools.plan_frames import PlanFrameSettings
+
+    reserved = sorted(set(seeds) & set(HELD_OUT))
+    if reserved:
+        raise SystemExit(f"--layout-seed {args.layout_seed}: the layouts would include held-out seeds {reserved[0]}..{reserved[-1]}")
+    arm = tuple(SceneKinematics(planning_robot_model()).joint_names)
+    return PlanFrameSettings(
+        seeds=seeds, every=args.every, hold_after_plan_s=2.0, home=tuple(HOME_CONFIGURATION) + (0.0,),
+        joint_names=arm + (GRIPPER_JOINT,), cameras=(), image_size=64, crops=(), size=64, chunk=args.chunk,
+        control_period_s=0.1, gripper_velocity=0.5, motion_noise_rad=args.motion_noise)
+
+
+def load_frames(args: argparse.Namespace):
+    """The plan frames of ``args.layouts`` layouts, played ``args.part`` layouts at a time into the cache."""
+    from tools.plan_frames import make_plan_frames
+
+    end = args.layout_seed + args.layouts
+    parts = [make_plan_frames(frame_settings(args, tuple(range(start, min(start + args.part, end)))), PROMPT,
+                              args.cache, workers=args.workers) for start in range(args.layout_seed, end, args.part)]
+    frames = parts[0]
+    for part in parts[1:]:
+        frames = frames.joined(part)
+    return frames
+
+
+def locator_config(cell: Any):
+    """The perception's configuration, calibrated from the cell: the scene camera for positions (the
+    cubes' centre plane), the overview camera for yaws (their top faces), both as the cell places them."""
+    from policy.cube_locator import CameraView, CubeLocatorConfig, PinholeCamera
+    from sim.cell_model import CAMERA_FOVY_DEG
+
+    def view(name: str, plane_z_m: float) -> CameraView:
+        index = cell.model.camera(name).id
+        rotation = cell.data.cam_xmat[index].reshape(3, 3)
+        return CameraView(name, PinholeCamera(tuple(float(v) for v in cell.data.cam_xpos[index]),
+                                              tuple(tuple(float(v) for v in row) for row in rotation),
+                                              CAMERA_FOVY_DEG[name]), plane_z_m)
+
+    size = cell.options.cube_size
+    return CubeLocatorConfig(position=view("scene", size / 2), yaw=view("overview", size), cube_size_m=size)
+
+
+def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--out", type=Path, default=ROOT / "build/policies/learned")
+    parser.add_argument("--cache", type=Path, default=ROOT / "build/plan_frames", help="where played frames are kept")
+    parser.add_argument("--layouts", type=int, default=600)
+    parser.add_argument("--layout-seed", type=int, default=40000)
+    parser.add_argument("--part", type=int, default=50, help="layouts per cache file (a part played is kept)")
+    parser.add_argument("--every", type=int, default=1, help="a frame every this many policy steps")
+    parser.add_argument("--motion-noise", type=float, default=0.04, help="recovery noise of the played motion (rad)")
+    parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument("--frames-only", action="store_true", help="play the frames into the cache and stop")
+    parser.add_argument("--seed", type=int, default=0, help="seeds the model's weights, the batches and the noise")
+    parser.add_argument("--steps", type=int, default=6000)
+    parser.add_argument("--minutes", type=float, default=30.0, help="training stops after this long, whatever the steps")
+    parser.add_argument("--batch", type=int, default=64)
+    parser.add_argument("--lr", type=float, default=3e-4)
+    parser.add_argument("--threads", type=int, default=1, help="torch threads")
+    parser.add_argument("--hidden", type=int, default=64, help="the DiT's width")
+    parser.add_argument("--layers", type=int, default=3, help="the DiT's layers")
+    parser.add_argument("--position-noise", type=float, default=0.001, help="std of the located positions' error (m)")
+    parser.add_argument("--yaw-noise", type=float, default=0.035, help="std of the located yaws' error (rad)")
+    parser.add_argument("--noise-scale", type=float, default=0.0,
+                        help="objective_policy.json's noise_scale: 0 answers the flow's central chunk (smooth)")
+    parser.add_argument("--eval-episodes", type=int, default=50, help="held-out seeds evaluated after training (0: none)")
+    parser.add_argument("--eval-seed-start", type=int, default=100)
+    parser.add_argument("--eval-workers", type=int, default=1)
+    return parser.parse_args(argv)
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = parse_args(argv)
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s: %(message)s")
+    args.chunk = 50
+    frames = load_frames(args)
+    LOG.info("%d frames of %d layouts (%d dropped)", len(frames), len(set(frames.seeds)), len(frames.dropped))
+    if args.frames_only:
+        return 0
+    import torch
+
+    from policy.learned_stack import CLIP_DIRNAME, LearnedStackSpec, build_learned_stack, write_tiny_clip
+    from policy.lerobot_checkpoint import save_checkpoint
+    from sim.cell_model import CellOptions
+    from sim.mujoco_cell import MujocoCell
+    from tools.demo_training import evaluate, evaluation_folder, replace_folder
+
+    torch.manual_seed(args.seed)
+    torch.set_num_threads(args.threads)
+    cubes = frame_cubes(frames.seeds)
+    state = torch.cat([frames.state, torch.from_numpy(cubes)], dim=1)
+    action = frames.action - frames.state[:, None, :]  # relative to the observed joints
+    stats = {"observation.state": min_max_stats(state), "action": min_max_stats(action.reshape(-1, action.shape[-1]))}
+    staging = args.out.with_name(args.out.name + ".building")
+    if staging.exists():
+        import shutil
+
+        shutil.rmtree(staging)
+    spec = LearnedStackSpec(joint_dim=frames.state.shape[1], cube_dim=cubes.shape[1], chunk_size=args.chunk,
+                            hidden_dim=args.hidden, layers=args.layers)
+    config, policy = build_learned_stack(spec, write_tiny_clip(staging / CLIP_DIRNAME, seed=args.seed))
+    from lerobot.policies.factory import make_pre_post_processors
+
+    preprocessor, _ = make_pre_post_processors(config, dataset_stats=stats)
+    LOG.info("multi_task_dit (flow matching): %.2f M trainable parameters; %d frames", sum(
+        p.numel() for p in policy.parameters() if p.requires_grad) / 1e6, len(state))
+    run = train(policy, preprocessor, state, action, cubes.shape[1], args)
+    cell = MujocoCell(CellOptions())
+    try:
+        locator = locator_config(cell)
+    finally:
+        cell.close()
+    metadata = {
+        "joint_names": list(frame_settings(args, ()).joint_names), "control_period": 0.1, "prompts": [PROMPT],
+        "ignored_images": ["scene", "wrist", "overview"], "default_guidance_horizon": 10,
+        "noise_scale": args.noise_scale, "cube_locator": locator.to_json(), "relative_actions": True,
+        "training": {
+            "policy_type": "multi_task_dit", "objective": "flow_matching", "seed": args.seed, **run,
+            "batch": args.batch, "lr": args.lr, "threads": args.threads, "hidden": args.hidden, "layers": args.layers,
+            "position_noise_m": args.position_noise, "yaw_noise_rad": args.yaw_noise,
+            "layout_seeds": [args.layout_seed, args.layout_seed + args.layouts - 1], "layouts_dropped": frames.dropped,
+            "frames": len(state), "motion_noise_rad": args.motion_noise, "data_sha256": frames_hash(frames),
+        },
+    }
+    save_checkpoint(staging, config, policy, stats, metadata)
+    replace_folder(staging, args.out)
+    point_at_clip(args.out, staging / CLIP_DIRNAME)
+    LOG.info("saved %s: %d steps in %.0f s, final loss %.4f", args.out, run["steps"], run["seconds"], run["final_loss"])
+    result = {"checkpoint": str(args.out), **metadata["training"]}
+    if args.eval_episodes > 0:
+        result["evaluation"] = evaluate(args.out, args.eval_episodes, args.eval_seed_start, 224, args.eval_workers, None,
+                                        objective=ROOT / "objectives" / "stack_cubes_learned.xml")
+        LOG.info("evaluation in %s", evaluation_folder(args.out))
+    print(json.dumps(result))
+    return 0
+
+
+def point_at_clip(folder: Path, built_at: Path) -> None:
+    """Name ``folder``'s own ``clip/`` in its config and preprocessor, where the staging folder's was
+    (the backend loads the checkpoint's ``clip/`` wherever the folder is; LeRobot's own loaders read these)."""
+    for name in ("config.json", "policy_preprocessor.json"):
+        path = folder / name
+        path.write_text(path.read_text(encoding="utf-8").replace(str(built_at), str(folder / "clip")), encoding="utf-8")
+
+
+def frame_cubes(seeds: list[int]) -> "np.ndarray":
+    """Each frame's cube features (``layout_features``) from its layout seed: blue, then green."""
+    import numpy as np
+
+    from policy.cube_locator import layout_features
+    from sim.layouts import layout
+
+    by_seed = {}
+    for seed in set(seeds):
+        placed = layout(seed)
+        by_seed[seed] = layout_features([placed["blue"], placed["green"]])
+    return np.stack([by_seed[seed] for seed in seeds]).astype(np.float32)
+
+
+def min_max_stats(values: Any) -> dict:
+    """LeRobot's normalization statistics of (N, D) ``values``."""
+    return {"min": values.min(0).values, "max": values.max(0).values, "mean": values.mean(0), "std": values.std(0)}
+
+
+def frames_hash(frames: Any) -> str:
+    """SHA-256 of the frames' states, actions and layout seeds: the data the checkpoint saw."""
+    import numpy as np
+
+    digest = hashlib.sha256()
+    for array in (frames.state.numpy(), frames.action.numpy(), np.asarray(frames.seeds, dtype=np.int64)):
+        digest.update(np.ascontiguousarray(array).tobytes())
+    return digest.hexdigest()
+
+
+def perceived(cubes: Any, position_noise_m: float, yaw_noise_rad: float, generator: Any) -> Any:
+    """``cubes`` (B, 3 per cube: x, y, yaw) with the perception's error drawn: Gaussian, yaw wrapped to a quarter turn."""
+    import torch
+
+    noise = torch.randn(cubes.shape, generator=generator)
+    scale = torch.tensor([position_noise_m, position_noise_m, yaw_noise_rad] * (cubes.shape[1] // 3))
+    noisy = cubes + noise * scale
+    noisy[:, 2::3] = torch.remainder(noisy[:, 2::3] + math.pi / 4, math.pi / 2) - math.pi / 4
+    return noisy
+
+
+def train(policy: Any, preprocessor: Any, state: Any, action: Any, cube_dim: int, args: argparse.Namespace) -> dict:
+    """AdamW on random batches for ``args.steps`` or ``args.minutes``; the cubes get the perception's error."""
+    import torch
+
+    from tools.demo_training import learning_rate_factor
+
+    generator = torch.Generator().manual_seed(args.seed)
+    parameters = [p for p in policy.parameters() if p.requires_grad]
+    optimizer = torch.optim.AdamW(parameters, lr=args.lr, weight_decay=1e-4)
+    policy.train()
+    started, losses, step = time.monotonic(), [], 0
+    budget_s = args.minutes * 60.0
+    joints = state.shape[1] - cube_dim
+    while step < args.steps and time.monotonic() - started < budget_s:
+        progress = max(step / args.steps, (time.monotonic() - started) / budget_s)
+        for group in optimizer.param_groups:
+            group["lr"] = args.lr * learning_rate_factor(step, max(1, args.steps // 20), progress)
+        rows = torch.randint(len(state), (args.batch,), generator=generator)
+        observed = state[rows].clone()
+        observed[:, joints:] = perceived(observed[:, joints:], args.position_noise, args.yaw_noise, generator)
+        batch = preprocessor({"observation.state": observed, "action": action[rows], "task": [PROMPT] * args.batch})
+        batch["observation.state"] = batch["observation.state"].unsqueeze(1)
+        loss, _ = policy.forward(batch)
+        optimizer.zero_grad()
+        loss.backward()
+        torch.nn.utils.clip_grad_norm_(parameters, 1.0)
+        optimizer.step()
+        losses.append(float(loss.detach()))
+        step += 1
+        if step % 100 == 0:
+            LOG.info("step %d: loss %.4f (%.0f s)", step, sum(losses[-100:]) / 100, time.monotonic() - started)
+    policy.eval()
+    tail = losses[-50:]
+    return {"steps": step, "seconds": round(time.monotonic() - started, 1), "final_loss": round(sum(tail) / max(1, len(tail)), 5)}
+
+
+if __name__ == "__main__":
+    sys.exit(main())
