@@ -84,11 +84,12 @@ def timed(safety: MotionSafety, waypoints: np.ndarray, motion: Motion) -> Sample
 
 def state_validity(safety: MotionSafety, padding_m: float, snapshot: SceneSnapshot, gripper_position: float | None):
     """The planner's state check: collision-free in ``snapshot`` with ``padding_m``, and inside
-    the Cartesian envelope's boxes and cone with the planner's margin (``pose_within_envelope``)."""
+    the Cartesian envelope's boxes and cone with the planner's margin (``MotionSafety.pose_check``)."""
     collision_free = scene_validity(safety.scene, safety.layout, padding_m, snapshot, gripper_position)
+    inside_envelope = safety.pose_check()
 
     def is_free(q: np.ndarray) -> bool:
-        return collision_free(q) and safety.pose_within_envelope(q)
+        return collision_free(q) and inside_envelope(q)
 
     return is_free
 

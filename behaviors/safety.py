@@ -4,14 +4,14 @@ collision rules."""
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 
 from runtime.errors import ObjectiveError, OptionError
 from runtime.scene import (
     CartesianEnvelope, CollisionResult, ConfigurationMap, EnvelopeOverrides, EnvelopeViolation, GroupError, JointLimit, JointLimits,
-    LimitViolation, PlanningScene, SceneSnapshot, check_envelope, narrowed, shrunk, tool_speed_ratio,
+    LimitViolation, PlanningScene, PoseCheck, SceneSnapshot, check_envelope, narrowed, shrunk, tool_speed_ratio,
 )
 
 from .execute_policy.shaping import Samples
@@ -112,14 +112,14 @@ class MotionSafety:
                                    samples.positions[:end], samples.velocities[:end], samples.times[:end])
         return joint if cartesian is None else cartesian
 
-    def pose_within_envelope(self, q: np.ndarray, margin_m: float = 0.005, margin_deg: float = 1.0) -> bool:
-        """Whether the group's joint positions ``q`` put every frame inside the keep-in boxes and
-        the tool inside its cone, with these margins (True without an envelope): a planner's
-        state check, so that the motion timed between two such states stays within the envelope."""
+    def pose_check(self, margin_m: float = 0.005, margin_deg: float = 1.0) -> Callable[[np.ndarray], bool]:
+        """Whether the group's joint positions put every frame inside the keep-in boxes and the
+        tool inside its cone, ``margin_m`` and ``margin_deg`` within them (always True without an
+        envelope): a planner's state check, so that the motion timed between two such states
+        stays within the envelope itself."""
         if self.envelope is None:
-            return True
-        inner = shrunk(self.envelope, margin_m, margin_deg)
-        return check_envelope(inner, self.scene.robot, self.scene.layout(self.group, None), np.atleast_2d(q)) is None
+            return lambda q: True
+        return PoseCheck(shrunk(self.envelope, margin_m, margin_deg), self.scene.robot, self.scene.layout(self.group, None))
 
     def tool_speed_ratio(self, samples: Samples) -> float:
         """The largest share of the envelope's TCP speed limits a motion reaches (0 without an

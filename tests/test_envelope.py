@@ -149,3 +149,25 @@ def test_move_to_joint_state_refuses_a_motion_outside_the_envelope_before_the_co
     assert result.reason.startswith("the motion is outside the Cartesian limits: step ")
     assert result.reason.endswith("deg from (0, 0, -1) exceeds the limit 45.0000 deg") and ": link tcp tool axis 45." in result.reason
     assert world.cell.arm_position() == pytest.approx(world.start_arm, abs=1e-3)  # nothing reached the controller
+
+
+def test_the_planners_pose_check_agrees_with_the_envelope_check_and_keeps_its_margin(scene):
+    """The planner's per-state check (``PoseCheck``) answers as ``check_envelope`` does for one
+    configuration, and ``MotionSafety.pose_check`` keeps 1 degree inside the tool cone."""
+    from runtime.scene import PoseCheck, check_envelope
+
+    safety = make_safety(scene, "manipulator", scene.gripper_joint)
+    layout = scene.layout(safety.group, None)
+    exact = PoseCheck(safety.envelope, scene.robot, layout)
+    home = np.array([load_waypoints()["Home"][j] for j in ARM_JOINTS])
+    rng = np.random.default_rng(0)
+    states = home + rng.normal(0.0, 0.8, (300, 6))
+    inside = [check_envelope(safety.envelope, scene.robot, layout, q[None]) is None for q in states]
+    assert [exact(q) for q in states] == inside
+    assert 30 < sum(inside) < 270  # both answers occur
+    # wrist_2 tilts the tool: the first angle the envelope refuses, then one a little inside it
+    tilt = home.copy()
+    edge = next(a for a in np.arange(0.0, 1.2, 0.001)
+                if check_envelope(safety.envelope, scene.robot, layout, (home + [0, 0, 0, 0, a, 0])[None]) is not None)
+    tilt[4] += edge - 0.005
+    assert exact(tilt) and not safety.pose_check()(tilt)

@@ -18,7 +18,7 @@ from .collision import (
     WorldObject,
     pose_matrix,
 )
-from .envelope import CartesianEnvelope, EnvelopeOverrides, EnvelopeViolation, KeepInBox, ToolCone, check_envelope, load_envelope, narrowed, shrunk, tool_speed_ratio
+from .envelope import CartesianEnvelope, EnvelopeOverrides, EnvelopeViolation, KeepInBox, ToolCone, PoseCheck, check_envelope, load_envelope, narrowed, shrunk, tool_speed_ratio
 from .kinematics import IkResult, IkSolver, frame_pose, frame_poses, solve_ik
 from .limits import JointLimit, JointLimits, LimitViolation, load_joint_limits
 from .model import ConfigurationMap, GroupError, JointCoupling, JointGroup, RobotModel, load_couplings
@@ -27,7 +27,7 @@ from .srdf import Srdf, SrdfError, SrdfGroup, parse_srdf
 
 __all__ = [
     "ANY", "Attachment", "Box", "Capsule", "CartesianEnvelope", "Clearance", "CollisionChecker", "CollisionResult",
-    "EnvelopeOverrides", "EnvelopeViolation", "KeepInBox", "ToolCone", "check_envelope", "load_envelope", "narrowed", "shrunk", "tool_speed_ratio",
+    "EnvelopeOverrides", "EnvelopeViolation", "KeepInBox", "ToolCone", "check_envelope", "load_envelope", "narrowed", "PoseCheck", "shrunk", "tool_speed_ratio",
     "ConfigurationMap", "Cylinder", "GroupError", "IkResult", "IkSolver", "JointCoupling", "JointGroup",
     "JointLimit", "JointLimits", "LimitViolation", "Mesh", "PlanningScene", "RobotModel",
     "SceneSnapshot", "Shape", "Sphere", "Srdf", "SrdfError", "SrdfGroup", "WorldObject",

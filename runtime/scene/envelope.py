@@ -232,6 +232,37 @@ def shrunk(envelope: CartesianEnvelope, margin_m: float, margin_deg: float) -> C
     return replace(envelope, keep_in_boxes=boxes, tool_cone=cone)  # type: ignore[arg-type]
 
 
+class PoseCheck:
+    """Whether one configuration keeps every keep-in box's frames inside it and the tool inside its
+    cone (speeds are not looked at): the planner's per-state check. Built once per plan, it keeps
+    its own pinocchio data and frame ids, so a call is one forward-kinematics pass."""
+
+    def __init__(self, envelope: CartesianEnvelope, robot: RobotModel, layout: ConfigurationMap) -> None:
+        self.model = robot.model
+        self.data = robot.model.createData()
+        self.layout = layout
+        self.boxes = [(np.asarray(box.min_m), np.asarray(box.max_m), [robot.frame_id(f) for f in box.frames])
+                      for box in envelope.keep_in_boxes]
+        cone = envelope.tool_cone
+        self.cone = None if cone is None else (
+            robot.frame_id(cone.frame), np.asarray(cone.axis), np.asarray(cone.direction), math.cos(math.radians(cone.max_angle_deg)))
+
+    def __call__(self, q: np.ndarray) -> bool:
+        full = self.layout(np.atleast_2d(q))[0]
+        pin.forwardKinematics(self.model, self.data, full)
+        for low, high, frame_ids in self.boxes:
+            for frame_id in frame_ids:
+                xyz = pin.updateFramePlacement(self.model, self.data, frame_id).translation
+                if (xyz < low).any() or (xyz > high).any():
+                    return False
+        if self.cone is not None:
+            frame_id, axis, direction, cos_max = self.cone
+            rotation = pin.updateFramePlacement(self.model, self.data, frame_id).rotation
+            if float(direction @ (rotation @ axis)) < cos_max:
+                return False
+        return True
+
+
 def tool_speed_ratio(envelope: CartesianEnvelope, robot: RobotModel, layout: ConfigurationMap,
                      positions: np.ndarray, velocities: np.ndarray) -> float:
     """The largest share of its limit the TCP's linear or angular speed reaches over ``(N, J)``
