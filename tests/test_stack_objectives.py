@@ -134,6 +134,7 @@ def test_every_shipped_objective_that_runs_a_policy_is_listed():
         "objectives/moveit_pro/stack_cubes_with_the_vla_policy.xml",
         "objectives/stack_cubes.xml",
         "objectives/stack_cubes_jtc.xml",
+        "objectives/stack_cubes_learned.xml",
         "objectives/stack_cubes_lerobot.xml",
         "objectives/stack_cubes_until_check.xml",
     ]
