@@ -12,6 +12,7 @@ its own policy as ``objective run`` does.
 """
 from __future__ import annotations
 
+import logging
 import shutil
 import time
 import traceback
@@ -31,6 +32,7 @@ from .episode import EpisodeRecord
 from .policies import PolicyHost
 
 RECORDINGS_DIR = "recordings"
+_log = logging.getLogger("objective")
 
 
 def recording_name(seed: int) -> str:
@@ -131,6 +133,7 @@ class EpisodeWorker:
     def run(self, seed: int) -> EpisodeRecord:
         """One episode; an exception of the run becomes an ERROR record with its reason."""
         started = time.monotonic()
+        _log.info("%s: seed %d started", self.name, seed)  # in logs/worker-N.log: which episode a worker runs
         try:
             record = self._run(seed)
         except (ObjectiveError, InternalError) as err:

@@ -313,3 +313,60 @@ def test_the_evaluation_starts_no_episode_after_the_protective_stop_and_its_summ
     assert summary_lines(summary, config.out)[1] == (
         "stopped by the protective stop ('/protective_stop' was called): no episode started after it, "
         "the running ones ended FAILURE; run the same command again to run the rest")
+
+
+@pytest.mark.ros
+@pytest.mark.timeout(120)
+def test_a_stop_published_to_a_running_objective_eval_ends_its_episode_and_the_evaluation(ros_env, observer, tmp_path):
+    """`objective eval` listens in its own process: a Bool on /protective_stop while seed 0 runs
+    (a Wait far longer than the test) ends that episode FAILURE, starts no other, and the summary
+    says the protective stop stopped it (exit 1)."""
+    from tests.test_ros_run import finish, objective, wait_for
+
+    tree = tmp_path / "long_wait.xml"
+    tree.write_text('<root BTCPP_format="4"><BehaviorTree ID="T"><Wait seconds="100000"/></BehaviorTree></root>')
+    out = tmp_path / "out"
+    stop = observer.create_publisher("/protective_stop", Bool)
+    proc = objective("eval", str(tree), "--episodes", "3", "--out", str(out), "--world", "kinematic", "--record", "none",
+                     "--episode-timeout", "100", "--json", env=ros_env)
+    try:
+        wait_for(lambda: stop._publisher.get_subscription_count() > 0, observer, timeout=30.0, what="eval's stop subscription")
+        log = out / "logs" / "worker-0.log"
+        wait_for(lambda: log.is_file() and "seed 0 started" in log.read_text(), timeout=60.0, what="seed 0 starting")
+        stop.publish(Bool(data=True))
+        code, stdout, err = finish(proc, timeout=30.0)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert code == 1, err
+    summary = json.loads(stdout.strip().splitlines()[-1])
+    assert (summary["episodes"], summary["failures"], summary["complete"]) == (1, 1, False)
+    assert summary["protective_stop"] == "'/protective_stop' is true"
+    episode = json.loads((out / "episodes.jsonl").read_text().splitlines()[0])
+    assert (episode["seed"], episode["status"], episode["failure_kind"]) == (0, "FAILURE", "protective stop")
+    assert episode["reason"].startswith("protective stop: '/protective_stop' is true at ") and "halted 'Wait'" in episode["reason"]
+    assert ("stopped by the protective stop ('/protective_stop' is true): no episode started after it, "
+            "the running ones ended FAILURE; run the same command again to run the rest") in err
+    assert "Traceback" not in err
+
+
+def test_eval_without_rclpy_says_the_stop_is_not_listened_for_only_when_one_was_asked_for(monkeypatch, capsys):
+    import argparse
+    import sys
+
+    from evaluation.cli import add_arguments, stop_listener
+
+    monkeypatch.delitem(sys.modules, "runtime.ros.stop_listener", raising=False)
+    monkeypatch.setitem(sys.modules, "rclpy", None)  # as where rclpy is not installed
+    parser = argparse.ArgumentParser()
+    add_arguments(parser)
+    base = ["t.xml", "--episodes", "1", "--out", "out"]
+    assert stop_listener(parser.parse_args(base)) is None
+    assert capsys.readouterr().err == ""  # by default an evaluation does not need ROS 2
+    for given in (["--protective-stop", "/cell/stop"], ["--deadman-topic", "/deadman"]):
+        assert stop_listener(parser.parse_args(base + given)) is None
+        assert capsys.readouterr().err == ("warning: the protective stop is not listened for: rclpy does not import "
+                                           "(the [ros] extra or a sourced ROS 2)\n")
+    assert stop_listener(parser.parse_args(base + ["--protective-stop", ""])) is None
+    with pytest.raises(ObjectiveError, match=r"^--deadman-topic '/1st' is not a ROS 2 name: "):
+        stop_listener(parser.parse_args(base + ["--deadman-topic", "/1st"]))
