@@ -370,3 +370,25 @@ def test_eval_without_rclpy_says_the_stop_is_not_listened_for_only_when_one_was_
     assert stop_listener(parser.parse_args(base + ["--protective-stop", ""])) is None
     with pytest.raises(ObjectiveError, match=r"^--deadman-topic '/1st' is not a ROS 2 name: "):
         stop_listener(parser.parse_args(base + ["--deadman-topic", "/1st"]))
+
+
+@pytest.mark.ros
+@pytest.mark.timeout(120)
+def test_objective_eval_s_deadman_stops_it_once_an_episode_runs_without_a_heartbeat(ros_env, tmp_path):
+    """The deadman of `objective eval` is watched in its own process on the wall clock while an
+    episode runs: no heartbeat at all ends the running episode and the evaluation."""
+    from tests.test_ros_run import finish, objective
+
+    tree = tmp_path / "long_wait.xml"
+    tree.write_text('<root BTCPP_format="4"><BehaviorTree ID="T"><Wait seconds="100000"/></BehaviorTree></root>')
+    out = tmp_path / "out"
+    proc = objective("eval", str(tree), "--episodes", "2", "--out", str(out), "--world", "kinematic", "--record", "none",
+                     "--episode-timeout", "100", "--deadman-topic", "/deadman", "--deadman-period", "1", "--json", env=ros_env)
+    code, stdout, err = finish(proc, timeout=90.0)
+    assert code == 1, err
+    summary = json.loads(stdout.strip().splitlines()[-1])
+    assert summary["protective_stop"].startswith("no heartbeat on the deadman '/deadman' for ")
+    assert (summary["episodes"], summary["failures"]) == (1, 1)
+    episode = json.loads((out / "episodes.jsonl").read_text().splitlines()[0])
+    assert (episode["status"], episode["failure_kind"]) == ("FAILURE", "protective stop")
+    assert episode["reason"].startswith("protective stop: no heartbeat on the deadman '/deadman' for ")
