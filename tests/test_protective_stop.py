@@ -1,6 +1,7 @@
 """The protective stop and the deadman: in process on the simulated clock (the stop lands, the
 tree is not ticked again, the controller goal is cancelled in the same tick, the run ends
-FAILURE) and over ROS 2 (a `objective run --ros` process stopped by a message on its topic)."""
+FAILURE) and over ROS 2 (a `objective run --ros` process stopped by a message on its topic); and
+`objective eval`'s, heard in its own process and forwarded to its workers' episodes."""
 from __future__ import annotations
 
 import json
