@@ -9,8 +9,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from runtime.cli import parse_set
-from runtime.cli import positive_float
+from runtime.cli import add_protective_stop_arguments, parse_set, positive_float, protective_stop_inputs
 from runtime.bus import DEFAULT_POLICY_LATENCY
 from runtime.command import OBJECTIVE_FILE_HELP, POLICY_HELP, Command
 
@@ -50,6 +49,30 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="another directory of *.xml to find SubTrees in (after objectives/); repeatable")
     p.add_argument("--objectives-dir", type=Path, default=None, metavar="DIR",
                    help="the library searched first for SubTrees (default: the project's objectives/)")
+    add_protective_stop_arguments(p)
+    p.set_defaults(protective_stop=None)  # None: not given (listened for only where rclpy imports)
+
+
+def stop_listener(args: argparse.Namespace) -> Any:
+    """The node that listens for the protective stop in this process (``runtime.ros.stop_listener``),
+    or None: ``--protective-stop ''`` and no deadman, or no rclpy (said only when a stop input was
+    given: by default an evaluation does not need ROS 2). ObjectiveError for a name ROS 2 refuses."""
+    from runtime.protective_stop import SharedStop
+
+    from .executors import CONTEXT
+
+    inputs = protective_stop_inputs(args)
+    inputs.check()
+    if not (inputs.topic or inputs.deadman_topic):
+        return None
+    try:
+        from runtime.ros.stop_listener import StopListener
+    except ImportError as err:
+        if args.protective_stop is not None or args.deadman_topic:
+            print(f"warning: the protective stop is not listened for: {err.name or err} does not import "
+                  "(the [ros] extra or a sourced ROS 2)", file=sys.stderr)
+        return None
+    return StopListener(inputs, SharedStop(CONTEXT))
 
 
 def config_from_args(args: argparse.Namespace) -> Any:
@@ -83,6 +106,9 @@ def summary_lines(summary: dict[str, Any], out: Path) -> list[str]:
         node = f"'{group['failing_node']}': " if group["failing_node"] else ""
         example = f": {group['example']}" if group["example"] and group["example"] != group["reason"] else ""
         lines.append(f"  {group['count']:>4} x {group['status']} {node}{group['reason']}{example}")
+    if summary.get("protective_stop"):
+        lines.append(f"stopped by the protective stop ({summary['protective_stop']}): no episode started after it, "
+                     "the running ones ended FAILURE; run the same command again to run the rest")
     if summary.get("stopped"):
         lines.append(f"stopped after seed {summary['stopped']['seed']}: a mistake of the setup, found before the first "
                      "tick, that every seed would repeat: fix it, then evaluate again")
@@ -104,10 +130,13 @@ def cmd_eval(args: argparse.Namespace, registry: Any) -> int:
         return bar[0]
 
     stop = StopRequest(urgent=True)  # SIGINT/SIGTERM stop it at once: the finished episodes are kept and summarised
+    listener = stop_listener(args)
     try:
         with stop_on_signals(stop):
-            outcome = evaluate(config, registry, progress if sys.stderr.isatty() else None, stop)
+            outcome = evaluate(config, registry, progress if sys.stderr.isatty() else None, stop, listener)
     finally:
+        if listener is not None:
+            listener.close()
         if bar:
             bar[0].clear()
     if outcome.interrupted:

@@ -5,10 +5,11 @@ import signal
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
 from runtime.interrupt import StopRequest, exit_code_for, held_back, signal_name
 from runtime.loader import validate
+from runtime.protective_stop import SharedStop
 from runtime.registry import Registry
 
 from .config import EvalConfig, ExecutorKind, identity
@@ -33,22 +34,33 @@ class EvalOutcome:
 
     @property
     def exit_code(self) -> int:
-        """0: every requested episode finished (successes and failures alike); 1: some ended ERROR;
-        130 / 143: interrupted by SIGINT / SIGTERM (run the command again to resume)."""
+        """0: every requested episode finished (successes and failures alike); 1: some ended ERROR,
+        or the protective stop stopped the evaluation; 130 / 143: interrupted by SIGINT / SIGTERM
+        (run the command again to resume)."""
         if self.signum is not None:
             return exit_code_for(self.signum)
-        return 1 if self.summary["errors"] else 0
+        return 1 if self.summary["errors"] or self.summary.get("protective_stop") else 0
 
 
-def make_executor(config: EvalConfig) -> Executor:
+def make_executor(config: EvalConfig, protective_stop: SharedStop | None = None) -> Executor:
+    """The executor ``config`` names; ``protective_stop`` reaches the episodes of local workers only."""
     if config.executor is ExecutorKind.RAY:
         from .ray_executor import RayExecutor
 
         return RayExecutor(config.spec, config.workers, config.out, config.episode_timeout_s, config.ray_address)
-    return LocalExecutor(config.spec, config.workers, config.out, config.episode_timeout_s)
+    return LocalExecutor(config.spec, config.workers, config.out, config.episode_timeout_s, protective_stop)
 
 
-def evaluate(config: EvalConfig, registry: Registry, progress: Any = None, stop: StopRequest | None = None) -> EvalOutcome:
+class StopSource(Protocol):
+    """Where the protective stop is heard (``runtime.ros.stop_listener.StopListener``)."""
+
+    shared: SharedStop
+
+    def poll(self, running: bool) -> str | None: ...
+
+
+def evaluate(config: EvalConfig, registry: Registry, progress: Any = None, stop: StopRequest | None = None,
+             protective_stop: StopSource | None = None) -> EvalOutcome:
     """Run the episodes of ``config`` not yet in its DIR and summarise all of them.
 
     ``progress(store_records)`` builds a callable told about every finished episode (the CLI's
@@ -56,7 +68,8 @@ def evaluate(config: EvalConfig, registry: Registry, progress: Any = None, stop:
     raised as ``KeyboardInterrupt``); the summary of the episodes so far is written either way
     and names it. Raises ObjectiveError for bad input: options, the Objective (``file:line:
     Node: what``), a DIR made by another Objective or policy or in use by another evaluation, a
-    world or policy the workers cannot load.
+    world or policy the workers cannot load. ``protective_stop``: once it is engaged no episode
+    starts, the running ones end FAILURE "protective stop" (local workers) and the summary says so.
     """
     config.check()
     spec = config.spec
@@ -67,14 +80,16 @@ def evaluate(config: EvalConfig, registry: Registry, progress: Any = None, stop:
     started = time.monotonic()
     signum: int | None = None
     stopped_by: EpisodeRecord | None = None
+    stopped_why: str | None = None
     try:
         try:
             if resumed < config.episodes:
                 tell: Progress | None = progress([store.records[s] for s in config.seeds if s in store.records]) if progress else None
-                executor = make_executor(config)
+                executor = make_executor(config, protective_stop.shared if protective_stop is not None else None)
                 try:
-                    loop = run_episodes(config, executor, store, tell)
-                    stopped_by = loop.stopped_by
+                    loop = run_episodes(config, executor, store, tell,
+                                        protective_stop.poll if protective_stop is not None else None)
+                    stopped_by, stopped_why = loop.stopped_by, loop.protective_stop
                     if loop.interrupted:
                         signum = _signal(stop)
                 finally:
@@ -85,6 +100,9 @@ def evaluate(config: EvalConfig, registry: Registry, progress: Any = None, stop:
             summary = _summarise(config, store, ident, resumed, started, signum)
             if stopped_by is not None:
                 summary["stopped"] = {"seed": stopped_by.seed, "reason": stopped_by.reason}
+            if stopped_why is not None:
+                summary["protective_stop"] = stopped_why
+            if stopped_by is not None or stopped_why is not None:
                 store.write_summary(summary)
     finally:
         store.close()

@@ -28,9 +28,13 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Protocol
 
+from runtime.protective_stop import SharedStop
+
 from .config import WorkerSpec
 from .episode import EpisodeRecord
 
+CONTEXT = multiprocessing.get_context("spawn")
+"""How local workers start: nothing of the parent's state is shared but what they are given."""
 LOAD_TIMEOUT_S = 900.0
 """Wall-clock bound on a worker's warm-up (imports, world, checkpoint)."""
 
@@ -109,15 +113,17 @@ class _Slot:
         return f"worker-{self.index}"
 
 
-def worker_main(conn: Any, spec: WorkerSpec, name: str, recordings: str | None, log_file: str | None) -> None:
-    """A local worker process: warm up, then run each seed sent until told to stop."""
+def worker_main(conn: Any, spec: WorkerSpec, name: str, recordings: str | None, log_file: str | None,
+                stop: SharedStop | None = None) -> None:
+    """A local worker process: warm up, then run each seed sent until told to stop (``stop``: the
+    protective stop the evaluation forwards to its episodes)."""
     from runtime.errors import ObjectiveError
 
     from .worker import EpisodeWorker
 
     if log_file:
         _log_to(log_file)
-    worker = EpisodeWorker(spec, name, Path(recordings) if recordings else None)
+    worker = EpisodeWorker(spec, name, Path(recordings) if recordings else None, stop)
     try:
         info = worker.warm_up()
     except ObjectiveError as err:
@@ -194,11 +200,14 @@ class SlotPool:
 
 
 class LocalExecutor(SlotPool):
-    """``workers`` local processes, each keeping its loaded world; see the module doc."""
+    """``workers`` local processes, each keeping its loaded world; see the module doc. ``stop``:
+    a protective stop (made with ``CONTEXT``) every worker's episodes end on."""
 
-    def __init__(self, spec: WorkerSpec, workers: int, out: Path, episode_timeout_s: float) -> None:
+    def __init__(self, spec: WorkerSpec, workers: int, out: Path, episode_timeout_s: float,
+                 stop: SharedStop | None = None) -> None:
         self.spec, self.workers, self.out, self.episode_timeout_s = spec, workers, out, episode_timeout_s
-        self._context = multiprocessing.get_context("spawn")
+        self.stop = stop
+        self._context = CONTEXT
         self._started = 0
         (out / "logs").mkdir(parents=True, exist_ok=True)
         self.slots = [self._spawn(i) for i in range(workers)]
@@ -209,7 +218,7 @@ class LocalExecutor(SlotPool):
         recordings = str(self.out / "recordings") if self.spec.record.value != "none" else None
         process = self._context.Process(
             target=worker_main, name=f"objective-eval-worker-{index}", daemon=True,
-            args=(child, self.spec, f"worker-{index}", recordings, str(self.out / "logs" / f"worker-{index}.log")),
+            args=(child, self.spec, f"worker-{index}", recordings, str(self.out / "logs" / f"worker-{index}.log"), self.stop),
         )
         process.start()
         child.close()

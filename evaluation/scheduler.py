@@ -6,7 +6,8 @@ whose worker died is run again on a fresh worker up to ``retries`` times, then r
 ERROR; a hung episode is recorded as an ERROR at once (running it again would hang again). An
 episode that ends with a mistake of the setup before its first tick (``static_setup_error``: an
 unknown waypoint, a missing topic) stops the loop: every other seed would end the same, so none
-is started; the episodes already running finish.
+is started; the episodes already running finish. A protective stop (``protective_stop``) stops
+it too: no seed is started after it, and the running episodes end on it (the executor forwards it).
 """
 from __future__ import annotations
 
@@ -33,6 +34,8 @@ class LoopResult:
     interrupted: bool = False
     stopped_by: EpisodeRecord | None = None
     """The episode whose static setup error stopped the loop (``static_setup_error``)."""
+    protective_stop: str | None = None
+    """Why the protective stop stopped the loop."""
 
 
 def static_setup_error(record: EpisodeRecord) -> bool:
@@ -40,12 +43,20 @@ def static_setup_error(record: EpisodeRecord) -> bool:
     return record.status is EpisodeStatus.ERROR and record.failure_kind == "SetupError" and record.ticks == 0
 
 
-def run_episodes(config: EvalConfig, executor: Executor, store: EvalStore, progress: Progress | None = None) -> LoopResult:
+StopCheck = Callable[[bool], "str | None"]
+"""Asked between waits whether the protective stop is engaged (its reason), told whether episodes run."""
+STOP_POLL_S = 0.1
+"""Wall time between two looks at the protective stop."""
+
+
+def run_episodes(config: EvalConfig, executor: Executor, store: EvalStore, progress: Progress | None = None,
+                 protective_stop: StopCheck | None = None) -> LoopResult:
     """Run every seed of ``config`` not yet in ``store``; ObjectiveError when workers cannot load."""
     pending = deque(seed for seed in config.seeds if seed not in store.records)
     attempts: dict[int, int] = {}
     finished = 0
     stopped_by: EpisodeRecord | None = None
+    stopped_why: str | None = None
 
     def record(item: EpisodeRecord) -> None:
         nonlocal finished, stopped_by
@@ -60,15 +71,21 @@ def run_episodes(config: EvalConfig, executor: Executor, store: EvalStore, progr
 
     try:
         while pending or executor.running():
+            if protective_stop is not None and stopped_why is None:
+                stopped_why = protective_stop(executor.running() > 0)
+                if stopped_why is not None:
+                    pending.clear()
             while pending and executor.idle_slots():
                 seed = pending.popleft()
                 attempts[seed] = attempts.get(seed, 0) + 1
                 executor.submit(seed)
-            for event in executor.wait(timeout_s=1.0):
+            for event in executor.wait(timeout_s=1.0 if protective_stop is None else STOP_POLL_S):
                 _handle(event, config, pending, attempts, record)
+                if stopped_why is not None:
+                    pending.clear()  # a lost worker's seed is not run again
     except KeyboardInterrupt:
-        return LoopResult(finished, interrupted=True, stopped_by=stopped_by)
-    return LoopResult(finished, stopped_by=stopped_by)
+        return LoopResult(finished, interrupted=True, stopped_by=stopped_by, protective_stop=stopped_why)
+    return LoopResult(finished, stopped_by=stopped_by, protective_stop=stopped_why)
 
 
 def _handle(event: Event, config: EvalConfig, pending: deque[int], attempts: dict[int, int],

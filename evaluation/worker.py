@@ -12,6 +12,7 @@ its own policy as ``objective run`` does.
 """
 from __future__ import annotations
 
+import logging
 import shutil
 import time
 import traceback
@@ -21,6 +22,7 @@ from typing import Any
 from runtime.bus import FixedLatency
 from runtime.errors import INTERNAL, InternalError, ObjectiveError, error_kind
 from runtime.loader import load_tree
+from runtime.protective_stop import ProtectiveStop, SharedStop
 from runtime.registry import Registry
 from runtime.registry import default_world_name
 from runtime.runner import RunOptions, RunResult, create_world, make_context, run_tree
@@ -30,6 +32,7 @@ from .episode import EpisodeRecord
 from .policies import PolicyHost
 
 RECORDINGS_DIR = "recordings"
+_log = logging.getLogger("objective")
 
 
 def recording_name(seed: int) -> str:
@@ -85,11 +88,14 @@ class KeptWorld:
 
 
 class EpisodeWorker:
-    def __init__(self, spec: WorkerSpec, name: str = "", recordings: Path | None = None) -> None:
+    def __init__(self, spec: WorkerSpec, name: str = "", recordings: Path | None = None,
+                 stop: SharedStop | None = None) -> None:
         self.spec = spec
         self.name = name
         self.recordings = recordings
         """Where kept recordings go (``DIR/recordings`` locally; a scratch folder on a Ray node)."""
+        self.stop = stop
+        """The protective stop ``objective eval`` heard and forwards: every episode's guard asks it."""
         self.registry: Registry | None = None
         self.world: Any = None
         self.policy: PolicyHost | None = None
@@ -127,6 +133,7 @@ class EpisodeWorker:
     def run(self, seed: int) -> EpisodeRecord:
         """One episode; an exception of the run becomes an ERROR record with its reason."""
         started = time.monotonic()
+        _log.info("%s: seed %d started", self.name, seed)  # in logs/worker-N.log: which episode a worker runs
         try:
             record = self._run(seed)
         except (ObjectiveError, InternalError) as err:
@@ -158,7 +165,7 @@ class EpisodeWorker:
             else:
                 world = create_world(self.spec.world or default_world_name(), self._world_options(seed, self.spec.policy.text))
         if self.recordings is None or self.spec.record.value == "none":
-            return EpisodeRecord.from_result(seed, run_tree(loaded, context, options, world=world))
+            return EpisodeRecord.from_result(seed, run_tree(loaded, context, options, world=world, guard=self._guard(context, options)))
         return self._run_recorded(seed, loaded, context, options, world)
 
     def _run_recorded(self, seed: int, loaded: Any, context: Any, options: RunOptions, world: Any) -> EpisodeRecord:
@@ -173,7 +180,7 @@ class EpisodeWorker:
         worker = recorder.worker  # writes the recording, then renders its report
         try:
             try:
-                result: RunResult = run_tree(loaded, context, options, world=world)
+                result: RunResult = run_tree(loaded, context, options, world=world, guard=self._guard(context, options))
             except BaseException:
                 recorder.close()
                 worker.close()
@@ -192,6 +199,15 @@ class EpisodeWorker:
         scratch.rename(final)
         record.recording = f"{RECORDINGS_DIR}/{final.name}"
         return record
+
+    def _guard(self, context: Any, options: RunOptions) -> ProtectiveStop | None:
+        """The episode's protective stop: its own bus's inputs (as ``run_tree`` makes them) and the
+        forwarded stop; None (``run_tree``'s own) when nothing is forwarded."""
+        if self.stop is None or options.protective_stop is None:
+            return None
+        guard = ProtectiveStop(options.protective_stop, forwarded=self.stop.reason)
+        guard.listen(context.bus)
+        return guard
 
     # -- options ---
     def _options(self, seed: int) -> RunOptions:

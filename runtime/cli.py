@@ -35,7 +35,7 @@ from .command import COMMAND_GROUP, EXIT_BAD_INPUT, EXIT_SUCCESS, OBJECTIVE_FILE
 from .errors import INTERNAL, InternalError, ObjectiveError, error_kind
 from .interrupt import StopRequest, exit_code_for, signal_name, stop_on_signals
 from .ports import FINITE, NUMERIC_TYPES, Direction, PortInfo, PortType
-from .protective_stop import PROTECTIVE_STOP, StopInputs
+from .protective_stop import DEFAULT_STOP_NAME, PROTECTIVE_STOP, StopInputs
 from .registry import Registry
 from .terminal import printable
 
@@ -96,7 +96,7 @@ def add_discovery_argument(parser: argparse.ArgumentParser) -> None:
 
 def add_protective_stop_arguments(parser: argparse.ArgumentParser) -> None:
     """``--protective-stop NAME``, ``--deadman-topic`` and ``--deadman-period`` (``runtime.protective_stop``)."""
-    parser.add_argument("--protective-stop", default="/protective_stop", metavar="NAME",
+    parser.add_argument("--protective-stop", default=DEFAULT_STOP_NAME, metavar="NAME",
                         help="the std_msgs/Bool topic and std_srvs/Trigger service that stop a run (FAILURE); '' for none")
     parser.add_argument("--deadman-topic", default="", metavar="TOPIC",
                         help="a std_msgs/Bool heartbeat (true) that must keep arriving while a policy runs")
@@ -105,8 +105,10 @@ def add_protective_stop_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def protective_stop_inputs(args: argparse.Namespace) -> StopInputs:
-    """The ``StopInputs`` of ``add_protective_stop_arguments``' options."""
-    return StopInputs(args.protective_stop, args.protective_stop, args.deadman_topic, args.deadman_period)
+    """The ``StopInputs`` of ``add_protective_stop_arguments``' options (a ``--protective-stop``
+    left None, to tell whether it was given: the default name)."""
+    name = DEFAULT_STOP_NAME if args.protective_stop is None else args.protective_stop
+    return StopInputs(name, name, args.deadman_topic, args.deadman_period)
 
 
 def groot2_server(args: argparse.Namespace) -> Any:

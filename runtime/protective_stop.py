@@ -11,6 +11,10 @@ The optional deadman: with ``StopInputs.deadman_topic`` set, while a node that n
 (``needs_heartbeat``: ExecutePolicy) is RUNNING, a ``std_msgs/Bool`` ``true`` must arrive on it at
 least every ``deadman_period_s`` seconds of the run's clock (counted from when the node started
 running); silence longer than that, or a ``false``, is a protective stop.
+
+``objective eval`` runs its episodes in worker processes, on buses nobody outside can reach: its
+own process listens (``runtime.ros.stop_listener``) and forwards a stop through a ``SharedStop``,
+which each episode's guard asks at every tick (``forwarded``).
 """
 from __future__ import annotations
 
@@ -18,7 +22,7 @@ import logging
 import math
 import re
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Callable
 
 from .errors import ObjectiveError
 
@@ -59,10 +63,13 @@ def needs_heartbeat(node: Any) -> bool:
 class ProtectiveStop:
     """Whether the stop inputs asked for a stop (``reason``). ``listen`` puts the inputs on a run's
     bus; the Objective server feeds ``on_stop``, ``on_trigger`` and ``on_heartbeat`` from its own
-    node instead, and ``reset``s it before each run. The callbacks may run on another thread."""
+    node instead (``serve_on_node``), and ``reset``s it before each run. The callbacks may run on
+    another thread. ``forwarded``: asked at every ``reason``, a stop another process heard (its
+    reason, or None: ``SharedStop.reason``)."""
 
-    def __init__(self, inputs: StopInputs) -> None:
+    def __init__(self, inputs: StopInputs, forwarded: Callable[[], str | None] | None = None) -> None:
         self.inputs = inputs
+        self.forwarded = forwarded
         self.reset()
 
     def reset(self) -> None:
@@ -89,6 +96,19 @@ class ProtectiveStop:
         if inputs.deadman_topic:
             bus.create_subscription(inputs.deadman_topic, Bool, self.on_heartbeat)
 
+    def serve_on_node(self, node: Any, group: Any = None) -> None:
+        """The same inputs on an rclpy ``node`` of the caller's (the Objective server's, ``objective eval``'s)."""
+        from std_msgs.msg import Bool
+        from std_srvs.srv import Trigger
+
+        inputs = self.inputs
+        if inputs.topic:
+            node.create_subscription(Bool, inputs.topic, self.on_stop, 10, callback_group=group)
+        if inputs.service:
+            node.create_service(Trigger, inputs.service, self.on_trigger, callback_group=group)
+        if inputs.deadman_topic:
+            node.create_subscription(Bool, inputs.deadman_topic, self.on_heartbeat, 10, callback_group=group)
+
     def on_stop(self, msg: Any) -> None:
         """A ``std_msgs/Bool`` on the stop topic: ``true`` stops."""
         if msg.data and self.engaged is None:
@@ -113,6 +133,8 @@ class ProtectiveStop:
         """Why the run must stop now, or None. ``now_s``: the run's clock (a heartbeat counts as
         arriving at the first check that sees it); ``policy_running``: a node that needs a
         heartbeat was RUNNING after the last tick."""
+        if self.engaged is None and self.forwarded is not None:
+            self.engaged = self.forwarded()
         if self.engaged is not None or not self.inputs.deadman_topic:
             return self.engaged
         if self.heartbeats != self._heartbeats_seen:
@@ -127,3 +149,25 @@ class ProtectiveStop:
             self.engaged = (f"no heartbeat on the deadman '{self.inputs.deadman_topic}' for {now_s - since:.2f} s "
                             f"(period {self.inputs.deadman_period_s:g} s) while a policy ran")
         return self.engaged
+
+
+STOP_REASON_BYTES = 1024
+
+
+class SharedStop:
+    """A protective stop one process heard, for the runs of the processes it started (``spawn``:
+    pass it to them when they start): ``engage`` once there, ``reason`` at every tick here."""
+
+    def __init__(self, context: Any) -> None:
+        """``context``: the ``multiprocessing`` context the other processes are started with."""
+        self._engaged = context.Event()
+        self._reason = context.Array("c", STOP_REASON_BYTES)
+
+    def engage(self, reason: str) -> None:
+        if not self._engaged.is_set():
+            self._reason.value = reason.encode()[:STOP_REASON_BYTES - 1]
+            self._engaged.set()
+
+    def reason(self) -> str | None:
+        """Why the stop was engaged, or None while it is not."""
+        return self._reason.value.decode(errors="replace") if self._engaged.is_set() else None

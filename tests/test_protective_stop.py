@@ -1,9 +1,11 @@
 """The protective stop and the deadman: in process on the simulated clock (the stop lands, the
 tree is not ticked again, the controller goal is cancelled in the same tick, the run ends
-FAILURE) and over ROS 2 (a `objective run --ros` process stopped by a message on its topic)."""
+FAILURE) and over ROS 2 (a `objective run --ros` process stopped by a message on its topic); and
+`objective eval`'s, heard in its own process and forwarded to its workers' episodes."""
 from __future__ import annotations
 
 import json
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -213,3 +215,181 @@ def test_the_objective_server_ends_a_running_objective_as_failure_on_a_protectiv
     c.node.create_publisher(Bool, "/protective_stop", 10).publish(Bool(data=True))
     status, result = c.result(handle)
     assert result.status == "FAILURE" and result.reason.startswith("protective stop: '/protective_stop' is true at ")
+
+
+def test_a_stop_forwarded_to_an_eval_worker_ends_its_episode_in_that_tick_and_brings_the_arm_to_rest():
+    """`objective eval`'s path: the parent engages the SharedStop (here at 8 s of the episode's
+    clock, while the oracle's policy moves the arm); the worker's episode ends FAILURE at that tick
+    with the reason the parent heard, and the arm comes to rest within the controllers' stop time."""
+    from evaluation.config import WorkerSpec
+    from evaluation.executors import CONTEXT
+    from evaluation.policies import parse_policy
+    from evaluation.worker import EpisodeWorker
+    from runtime.protective_stop import SharedStop
+    from sim.controllers.base import ControllersConfig
+
+    stop_s, control_step_s = 8.0, 0.01
+    shared = SharedStop(CONTEXT)
+    spec = WorkerSpec(objective=Path("objectives/stack_cubes.xml").resolve(), world="kinematic",
+                      policy=parse_policy("oracle"), policy_latency="0.1", max_seconds=60.0)
+    worker = EpisodeWorker(spec, "worker-0", None, shared)
+    worker.warm_up()
+    try:
+        world = worker.world  # kept between episodes: the one the episode steps
+        step_to = world.step_to
+
+        def step_and_engage(t: float) -> None:
+            step_to(t)
+            if abs(t - stop_s) < 1e-9:
+                shared.engage("'/protective_stop' is true")
+
+        world.step_to = step_and_engage
+        record = worker.run(0)
+        assert (record.status.value, record.failure_kind) == ("FAILURE", "protective stop")
+        assert record.reason.startswith(f"protective stop: '/protective_stop' is true at {stop_s:.2f} s; halted 'ExecutePolicy'")
+        assert record.sim_seconds == pytest.approx(stop_s)
+        assert np.abs(world.cell.arm_velocity()).max() > 0.5  # moving when it was stopped
+        rest_s = ControllersConfig().stop_time + control_step_s
+        for k in range(1, round(rest_s / control_step_s) + 1):
+            step_to(record.sim_seconds + k * control_step_s)
+        assert np.abs(world.cell.arm_velocity()).max() == 0.0
+        later = worker.run(1)  # still engaged: a later episode ends at its first tick, the tree never ticked
+        assert (later.reason, later.ticks) == ("protective stop: '/protective_stop' is true at 0.01 s", 0)
+    finally:
+        worker.close()
+
+
+class OneSlot:
+    """An executor of one slot whose episodes end SUCCESS when the scheduler next waits."""
+
+    workers = 1
+
+    def __init__(self) -> None:
+        self.submitted: list[int] = []
+        self.seed: int | None = None
+
+    def idle_slots(self) -> int:
+        return 0 if self.seed is not None else 1
+
+    def running(self) -> int:
+        return 0 if self.seed is None else 1
+
+    def submit(self, seed: int) -> None:
+        self.submitted.append(seed)
+        self.seed = seed
+
+    def wait(self, timeout_s: float) -> list[Any]:
+        from evaluation.episode import EpisodeRecord, EpisodeStatus
+        from evaluation.executors import Event, EventKind
+
+        seed, self.seed = self.seed, None
+        return [Event(EventKind.DONE, seed, EpisodeRecord(seed, EpisodeStatus.SUCCESS))] if seed is not None else []
+
+    def close(self) -> None:
+        pass
+
+
+def test_the_evaluation_starts_no_episode_after_the_protective_stop_and_its_summary_says_so(tmp_path):
+    from evaluation.cli import summary_lines
+    from evaluation.config import EvalConfig, WorkerSpec
+    from evaluation.scheduler import run_episodes
+    from evaluation.stats import summarise
+    from evaluation.store import EvalStore
+
+    config = EvalConfig(spec=WorkerSpec(objective=tmp_path / "t.xml"), out=tmp_path / "out", episodes=5)
+    executor, store = OneSlot(), EvalStore(config.out, {"objective": "t"})
+    asked: list[bool] = []
+
+    def heard(running: bool) -> str | None:
+        asked.append(running)
+        return "'/protective_stop' was called" if len(executor.submitted) >= 2 else None
+
+    try:
+        loop = run_episodes(config, executor, store, protective_stop=heard)
+    finally:
+        store.close()
+    assert executor.submitted == [0, 1] and sorted(store.records) == [0, 1]
+    assert loop.protective_stop == "'/protective_stop' was called" and asked == [False, False, False]
+    summary = {**summarise(list(store.records.values()), 5), "failure_groups": [], "protective_stop": loop.protective_stop}
+    assert summary_lines(summary, config.out)[1] == (
+        "stopped by the protective stop ('/protective_stop' was called): no episode started after it, "
+        "the running ones ended FAILURE; run the same command again to run the rest")
+
+
+@pytest.mark.ros
+@pytest.mark.timeout(120)
+def test_a_stop_published_to_a_running_objective_eval_ends_its_episode_and_the_evaluation(ros_env, observer, tmp_path):
+    """`objective eval` listens in its own process: a Bool on /protective_stop while seed 0 runs
+    (a Wait far longer than the test) ends that episode FAILURE, starts no other, and the summary
+    says the protective stop stopped it (exit 1)."""
+    from tests.test_ros_run import finish, objective, wait_for
+
+    tree = tmp_path / "long_wait.xml"
+    tree.write_text('<root BTCPP_format="4"><BehaviorTree ID="T"><Wait seconds="100000"/></BehaviorTree></root>')
+    out = tmp_path / "out"
+    stop = observer.create_publisher("/protective_stop", Bool)
+    proc = objective("eval", str(tree), "--episodes", "3", "--out", str(out), "--world", "kinematic", "--record", "none",
+                     "--episode-timeout", "100", "--json", env=ros_env)
+    try:
+        wait_for(lambda: stop._publisher.get_subscription_count() > 0, observer, timeout=30.0, what="eval's stop subscription")
+        log = out / "logs" / "worker-0.log"
+        wait_for(lambda: log.is_file() and "seed 0 started" in log.read_text(), timeout=60.0, what="seed 0 starting")
+        stop.publish(Bool(data=True))
+        code, stdout, err = finish(proc, timeout=30.0)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert code == 1, err
+    summary = json.loads(stdout.strip().splitlines()[-1])
+    assert (summary["episodes"], summary["failures"], summary["complete"]) == (1, 1, False)
+    assert summary["protective_stop"] == "'/protective_stop' is true"
+    episode = json.loads((out / "episodes.jsonl").read_text().splitlines()[0])
+    assert (episode["seed"], episode["status"], episode["failure_kind"]) == (0, "FAILURE", "protective stop")
+    assert episode["reason"].startswith("protective stop: '/protective_stop' is true at ") and "halted 'Wait'" in episode["reason"]
+    assert ("stopped by the protective stop ('/protective_stop' is true): no episode started after it, "
+            "the running ones ended FAILURE; run the same command again to run the rest") in err
+    assert "Traceback" not in err
+
+
+def test_eval_without_rclpy_says_the_stop_is_not_listened_for_only_when_one_was_asked_for(monkeypatch, capsys):
+    import argparse
+    import sys
+
+    from evaluation.cli import add_arguments, stop_listener
+
+    monkeypatch.delitem(sys.modules, "runtime.ros.stop_listener", raising=False)
+    monkeypatch.setitem(sys.modules, "rclpy", None)  # as where rclpy is not installed
+    parser = argparse.ArgumentParser()
+    add_arguments(parser)
+    base = ["t.xml", "--episodes", "1", "--out", "out"]
+    assert stop_listener(parser.parse_args(base)) is None
+    assert capsys.readouterr().err == ""  # by default an evaluation does not need ROS 2
+    for given in (["--protective-stop", "/cell/stop"], ["--deadman-topic", "/deadman"]):
+        assert stop_listener(parser.parse_args(base + given)) is None
+        assert capsys.readouterr().err == ("warning: the protective stop is not listened for: rclpy does not import "
+                                           "(the [ros] extra or a sourced ROS 2)\n")
+    assert stop_listener(parser.parse_args(base + ["--protective-stop", ""])) is None
+    with pytest.raises(ObjectiveError, match=r"^--deadman-topic '/1st' is not a ROS 2 name: "):
+        stop_listener(parser.parse_args(base + ["--deadman-topic", "/1st"]))
+
+
+@pytest.mark.ros
+@pytest.mark.timeout(120)
+def test_objective_eval_s_deadman_stops_it_once_an_episode_runs_without_a_heartbeat(ros_env, tmp_path):
+    """The deadman of `objective eval` is watched in its own process on the wall clock while an
+    episode runs: no heartbeat at all ends the running episode and the evaluation."""
+    from tests.test_ros_run import finish, objective
+
+    tree = tmp_path / "long_wait.xml"
+    tree.write_text('<root BTCPP_format="4"><BehaviorTree ID="T"><Wait seconds="100000"/></BehaviorTree></root>')
+    out = tmp_path / "out"
+    proc = objective("eval", str(tree), "--episodes", "2", "--out", str(out), "--world", "kinematic", "--record", "none",
+                     "--episode-timeout", "100", "--deadman-topic", "/deadman", "--deadman-period", "1", "--json", env=ros_env)
+    code, stdout, err = finish(proc, timeout=90.0)
+    assert code == 1, err
+    summary = json.loads(stdout.strip().splitlines()[-1])
+    assert summary["protective_stop"].startswith("no heartbeat on the deadman '/deadman' for ")
+    assert (summary["episodes"], summary["failures"]) == (1, 1)
+    episode = json.loads((out / "episodes.jsonl").read_text().splitlines()[0])
+    assert (episode["status"], episode["failure_kind"]) == ("FAILURE", "protective stop")
+    assert episode["reason"].startswith("protective stop: no heartbeat on the deadman '/deadman' for ")

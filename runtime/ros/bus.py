@@ -611,6 +611,19 @@ def init_context(domain_id: int | None = None) -> Any:
     return context
 
 
+def spin_on_thread(executor: Any, name: str) -> threading.Thread:
+    """``executor`` spinning on a daemon thread of its own until its context is shut down."""
+    def spin() -> None:
+        try:
+            executor.spin()
+        except Exception:  # the context was shut down under the executor: its node is closing
+            pass
+
+    thread = threading.Thread(target=spin, name=name, daemon=True)
+    thread.start()
+    return thread
+
+
 class RosBus:
     """``runtime.bus.Bus`` over rclpy: one context, one node, one executor thread pool.
 

@@ -44,7 +44,6 @@ import rclpy
 from rclpy.action import ActionServer, CancelResponse, GoalResponse
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.executors import MultiThreadedExecutor
-from std_msgs.msg import Bool
 from std_srvs.srv import Trigger
 
 from objective_server_msgs.action import DoObjective
@@ -53,7 +52,7 @@ from objective_server_msgs.srv import ExecuteObjective, ListObjectives
 from runtime.controls import Visit
 from runtime.crash import describe_crash, write_traceback
 from runtime.errors import ObjectiveError
-from runtime.ros.bus import init_context
+from runtime.ros.bus import init_context, spin_on_thread
 from runtime.interrupt import StopRequest
 from runtime.loader import LoadedTree, default_objectives_dir, load_tree
 from runtime.objective_library import Library, PortOverride, override_entries
@@ -149,19 +148,6 @@ def feedback(root: Any, now_s: float, ticks: int) -> Any:
     return message
 
 
-def spin_on_thread(executor: Any, name: str) -> threading.Thread:
-    """``executor`` spinning on a daemon thread of its own until its context is shut down."""
-    def spin() -> None:
-        try:
-            executor.spin()
-        except Exception:  # the context was shut down under the executor: its node is closing
-            pass
-
-    thread = threading.Thread(target=spin, name=name, daemon=True)
-    thread.start()
-    return thread
-
-
 def subtree_search_paths(options: ServerOptions) -> list[Path]:
     """Where a run's SubTrees are searched after the library: ``search_paths``, then the shipped
     ``objectives/`` (the library ``objective run`` searches), unless the library is that one."""
@@ -208,12 +194,7 @@ class ObjectiveServer:
         if inputs is None:
             return None
         guard = ProtectiveStop(inputs)
-        if inputs.topic:
-            self.node.create_subscription(Bool, inputs.topic, guard.on_stop, 10, callback_group=group)
-        if inputs.service:
-            self.node.create_service(Trigger, inputs.service, guard.on_trigger, callback_group=group)
-        if inputs.deadman_topic:
-            self.node.create_subscription(Bool, inputs.deadman_topic, guard.on_heartbeat, 10, callback_group=group)
+        guard.serve_on_node(self.node, group)
         return guard
 
     # -- requests ----------------------------------------------------------------------------
