@@ -6,6 +6,7 @@ the unsafe points the controller commanded; each ends a run it cannot execute wi
 reasons (a malformed chunk, a policy that does not answer, a controller it cannot drive)."""
 from __future__ import annotations
 
+import importlib.util
 from typing import Any
 
 import numpy as np
@@ -17,6 +18,11 @@ from benchmarks.executors.objectives import Executor, objective_xml
 from runtime.bus import FixedLatency
 from runtime.loader import load_tree
 from runtime.registry import Registry
+
+needs_lerobot = pytest.mark.skipif(importlib.util.find_spec("lerobot") is None,
+                                   reason="the LeRobot extra is not installed (make lerobot)")
+LEROBOT_RTC = pytest.param("ExecuteWithLeRobotRtc", marks=needs_lerobot)
+"""LeRobot's rollout RTC queue runs LeRobot's own code: only where the extra is installed."""
 from runtime.runner import RunOptions, make_context, run_tree
 from sim.kinematic import KinematicWorld
 from tests.test_execute_policy import ScriptedPolicy, chunk_response, hold
@@ -105,6 +111,7 @@ def test_the_lerobot_queue_asks_when_half_a_chunk_is_left(registry):
     assert result.blackboard["chunks"] == 3
 
 
+@needs_lerobot
 def test_lerobots_rtc_engine_asks_at_its_queue_threshold_with_the_leftover_and_the_worst_delay(registry):
     """LeRobot's rollout RTC engine on the sim clock: 50-step chunks, a request once the queue
     holds 30 actions or fewer, with the queue's unexecuted actions cut to execution_horizon (10)
@@ -153,7 +160,7 @@ def test_a_chunk_the_checks_refuse_ends_the_synchronous_run_with_the_reason(regi
     assert result.extra["unsafe_points"]["count"] == 0
 
 
-@pytest.mark.parametrize("node", ["ExecuteWithLeRobotQueue", "ExecuteWithLeRobotRtc", "ExecuteNewestWinsOnJtc",
+@pytest.mark.parametrize("node", ["ExecuteWithLeRobotQueue", LEROBOT_RTC, "ExecuteNewestWinsOnJtc",
                                   "ExecuteOnJtcWithUpsampling"])
 def test_the_peers_play_a_jump_their_homes_do_not_check_and_the_probe_counts_it(registry, node):
     result = run(registry, small_xml(node), ScriptedPolicy(jump_at_step_10))
@@ -167,7 +174,7 @@ def with_rows(rows_of: Any) -> ScriptedPolicy:
     return ScriptedPolicy(lambda i, request: rows_of(request))
 
 
-@pytest.mark.parametrize("node", ["ExecuteChunksSynchronously", "ExecuteWithLeRobotQueue", "ExecuteWithLeRobotRtc", "ExecuteNewestWinsOnJtc",
+@pytest.mark.parametrize("node", ["ExecuteChunksSynchronously", "ExecuteWithLeRobotQueue", LEROBOT_RTC, "ExecuteNewestWinsOnJtc",
                                   "ExecuteOnJtcWithUpsampling"])
 def test_malformed_chunks_and_a_silent_policy_end_with_the_reason(registry, node):
     def nan_rows(request: Any) -> Any:
@@ -192,7 +199,7 @@ def test_malformed_chunks_and_a_silent_policy_end_with_the_reason(registry, node
     assert result.reason == (f"the policy service '{SERVICE}' did not answer the warmup request within policy_call_timeout = 3 s")
 
 
-@pytest.mark.parametrize("node", ["ExecuteWithLeRobotQueue", "ExecuteWithLeRobotRtc", "ExecuteNewestWinsOnJtc",
+@pytest.mark.parametrize("node", ["ExecuteWithLeRobotQueue", LEROBOT_RTC, "ExecuteNewestWinsOnJtc",
                                   "ExecuteOnJtcWithUpsampling"])
 def test_the_jtc_executors_refuse_the_admittance_controller(registry, node):
     xml = small_xml(node).replace(JTC, "/joint_trajectory_admittance_controller/follow_joint_trajectory").replace(
@@ -203,7 +210,7 @@ def test_the_jtc_executors_refuse_the_admittance_controller(registry, node):
     assert "MoveIt Pro's admittance controller" in result.reason
 
 
-@pytest.mark.parametrize("node", ["ExecuteChunksSynchronously", "ExecuteWithLeRobotQueue", "ExecuteWithLeRobotRtc", "ExecuteNewestWinsOnJtc",
+@pytest.mark.parametrize("node", ["ExecuteChunksSynchronously", "ExecuteWithLeRobotQueue", LEROBOT_RTC, "ExecuteNewestWinsOnJtc",
                                   "ExecuteOnJtcWithUpsampling"])
 def test_a_missing_policy_service_is_an_error_before_anything_moves(registry, node):
     """The ports name what they need (ExecutePolicy's), so the world check finds the missing service."""
