@@ -43,7 +43,7 @@ $(STAMP): pyproject.toml runtime/build_interfaces.py $(shell find runtime/ros/in
 	@touch $(STAMP)
 
 # Optional LeRobot extra (LeRobot 0.6.1, torch 2.11.0 from the registry) in the project's venv:
-# `pip install -e '.[lerobot]'` (docs/lerobot.md, Installing: what it downloads and how long it takes).
+# `pip install -e '.[lerobot]'` (docs/lerobot.md, What it costs: what it downloads and how long it takes).
 # `make test` runs the LeRobot tests when it is installed.
 LEROBOT_STAMP := $(VENV)/.lerobot-stamp
 
