@@ -195,7 +195,8 @@ def test_batched_kinematics_equals_pinocchio_on_the_cell_and_on_every_joint_kind
             for k, fid in enumerate(frame_ids):
                 placement = pin.updateFramePlacement(model, data, fid)
                 assert states.positions[i, k] == pytest.approx(placement.translation, abs=1e-12)
-                assert states.rotations[i, k] == pytest.approx(placement.rotation, abs=1e-12)
+                assert states.rotations(k)[i] == pytest.approx(placement.rotation, abs=1e-12)
+                assert states.axis(k, np.array([0.3, -0.2, 0.9]))[i] == pytest.approx(placement.rotation @ [0.3, -0.2, 0.9], abs=1e-12)
                 velocity = pin.getFrameVelocity(model, data, fid, pin.ReferenceFrame.LOCAL_WORLD_ALIGNED).vector
                 assert kinematics.states(q[i:i + 1], v[i:i + 1], k).twist[0] == pytest.approx(velocity, abs=1e-12)
 

@@ -42,10 +42,18 @@ class _Joint:
 class FrameStates:
     positions: np.ndarray
     """(N, F, 3): each frame's origin in the world."""
-    rotations: np.ndarray
-    """(N, F, 3, 3): each frame's orientation in the world."""
+    point_last_rotations: tuple[np.ndarray, ...]
+    """Each frame's orientation in the world, (3, 3, N) per frame."""
     twist: np.ndarray | None = None
     """(N, 6): one frame's linear then angular velocity, world axes at its origin, when asked."""
+
+    def rotations(self, frame: int) -> np.ndarray:
+        """(N, 3, 3): frame number ``frame``'s orientation at each point."""
+        return self.point_last_rotations[frame].transpose(2, 0, 1)
+
+    def axis(self, frame: int, axis: np.ndarray) -> np.ndarray:
+        """(N, 3): ``axis`` (in frame number ``frame``) in the world at each point."""
+        return np.matmul(np.asarray(axis, dtype=float), self.point_last_rotations[frame]).T
 
 
 def _joint_kind(joint: pin.JointModel) -> tuple[bool, np.ndarray, bool] | None:
@@ -111,7 +119,7 @@ class BatchKinematics:
         if v is not None and twist_frame is not None:
             v = np.atleast_2d(np.asarray(v, dtype=float))
             twist = self._twist(rotations, positions, frame_p[twist_frame], v, twist_frame)
-        return FrameStates(np.stack(frame_p).transpose(2, 0, 1), np.stack(frame_r).transpose(3, 0, 1, 2), twist)
+        return FrameStates(np.stack(frame_p).transpose(2, 0, 1), tuple(frame_r), twist)
 
     def _joint_poses(self, q: np.ndarray) -> tuple[list[np.ndarray], list[np.ndarray]]:
         """Each chain joint's world rotation and origin, in chain order. Arrays are laid out

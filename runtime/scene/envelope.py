@@ -20,8 +20,9 @@ Configured per cell in a YAML file beside joint_limits.yaml (the simulated cell'
         max_angle_deg: 90
 
 Speeds are the frame's velocity at a point (the Jacobian times the point's joint velocities);
-positions and the axis come from forward kinematics of the point's joint positions
-(pinocchio, through the planning scene's ``RobotModel``). ``narrowed`` applies a behavior's port
+positions and the axis come from forward kinematics of the point's joint positions, for all the
+points of a motion at once (``batch_kinematics.py``; pinocchio point by point for joints it does
+not cover). ``narrowed`` applies a behavior's port
 overrides, which may only tighten the cell's envelope.
 """
 from __future__ import annotations
@@ -176,7 +177,8 @@ def check_envelope(
     group's joints, the same rows) outside ``envelope``. At one point the keep-in boxes are
     reported before the tool axis, then the linear and the angular speed.
 
-    One forward-kinematics pass per point fills arrays; the checks then run on all points at once."""
+    The frames' poses and the TCP's velocity come for all points at once (``RobotModel.batch_kinematics``);
+    the checks then run on all points together."""
     full = np.atleast_2d(layout(np.atleast_2d(positions)))
     if len(full) == 0:
         return None
@@ -190,6 +192,10 @@ def check_envelope(
 
     order = 0
     for box in envelope.keep_in_boxes:
+        inside = poses.positions[:, [frames.index(f) for f in box.frames]]
+        if ((inside >= np.asarray(box.min_m) - tolerance) & (inside <= np.asarray(box.max_m) + tolerance)).all():
+            order += 6 * len(box.frames)
+            continue
         for frame in box.frames:
             xyz = poses.positions[:, frames.index(frame)]
             for k, axis in enumerate(AXES):
@@ -304,7 +310,7 @@ def _frame_states(envelope: CartesianEnvelope, robot: RobotModel, layout: Config
     if not kinematics.supported:
         return _frame_states_per_point(envelope, robot, full, v_full)
     states = kinematics.states(full, v_full, frames.index(envelope.tcp_frame))
-    axes = None if cone is None else states.rotations[:, frames.index(cone.frame)] @ np.asarray(cone.axis)
+    axes = None if cone is None else states.axis(frames.index(cone.frame), np.asarray(cone.axis))
     return _FrameStates(states.positions, axes, states.twist)
 
 
