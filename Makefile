@@ -137,8 +137,8 @@ test-all: setup
 	$(PY) -m pytest -q -m ''
 
 bench: setup
-	@ls benchmarks/*.py >/dev/null 2>&1 || { echo "no benchmarks yet"; exit 0; }; \
-	for b in benchmarks/*.py; do \
+	@ls benchmarks/bench_*.py >/dev/null 2>&1 || { echo "no benchmarks yet"; exit 0; }; \
+	for b in benchmarks/bench_*.py; do \
 	  case $$b in */bench_success_under_latency.py) echo "== $$b: hours at its defaults, run it on its own (docs/evaluation.md)"; continue;; esac; \
 	  echo "== $$b"; $(PY) $$b || exit 1; done
 
