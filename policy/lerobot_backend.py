@@ -70,6 +70,9 @@ ACTION_KEY = "action"
 VLM_DIRNAME = "vlm"
 """A checkpoint's local SmolVLM description folder (see ``tiny_smolvla``); used instead of the
 hub name its config records."""
+TOKENIZER_DIRNAME = "tokenizer"
+"""A checkpoint's own prompt tokenizer, given to LeRobot's tokenizer step in place of the one its
+processor names (``policy/pi05_offline.py`` saves one)."""
 METADATA_FILE = "objective_policy.json"
 """Optional file next to a checkpoint with what LeRobot's format does not keep: ``joint_names``
 (state/action columns), ``control_period`` (seconds per step at training), ``default_guidance_horizon``,
@@ -470,6 +473,8 @@ class LeRobotBackend:
         if getattr(config, "type", "") == "multi_task_dit" and clip.is_dir():
             config.text_encoder_name = str(clip)
             overrides["tokenizer_processor"] = {"tokenizer_name": str(clip)}
+        if (folder / TOKENIZER_DIRNAME).is_dir():
+            overrides["tokenizer_processor"] = {"tokenizer_name": str(folder / TOKENIZER_DIRNAME)}
         self.flow_sampled = config.type in FLOW_SAMPLED_TYPES and getattr(config, "objective", "") == "flow_matching"
         self.default_guidance = int(
             options.guidance_horizon or self.metadata.get("default_guidance_horizon") or DEFAULT_GUIDANCE_HORIZON
