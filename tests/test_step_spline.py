@@ -16,7 +16,7 @@ from hypothesis import strategies as st
 from scipy.interpolate import make_interp_spline, make_smoothing_spline
 
 from behaviors.execute_policy.shaping import fit_chunk
-from behaviors.execute_policy.step_spline import StepSpline, interpolating_polynomial, smoothing_spline, solve_pentadiagonal
+from behaviors.execute_policy.step_spline import DENSE_MAP_MAX_STEPS, StepSpline, interpolating_polynomial, smoothing_spline, solve_pentadiagonal
 
 TOLERANCE = 1e-9
 
@@ -57,8 +57,9 @@ def test_fit_chunk_equals_scipy_make_smoothing_spline(seed, steps, joints, track
     assert spline.last_step == reference.t[-1] == steps - 1
 
 
-def test_a_long_chunk_is_still_scipy_s_smoothing_spline():
-    steps = 3000
+@pytest.mark.parametrize("steps", [DENSE_MAP_MAX_STEPS, DENSE_MAP_MAX_STEPS + 1, 3000])
+def test_a_long_chunk_is_still_scipy_s_smoothing_spline(steps):
+    """Either side of the length where the kept linear maps give way to the banded solve."""
     chunk = _chunk(9, steps, 7, 1.0)
     reference = make_smoothing_spline(np.arange(steps, dtype=float), chunk, lam=1.0 / 300.0, axis=0)
     _assert_same_function(reference, fit_chunk(chunk, 300.0), steps)

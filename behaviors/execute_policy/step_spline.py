@@ -9,11 +9,13 @@ extrapolates).
 The smoothing spline of ``smoothing_spline`` is the same function as scipy's
 ``make_smoothing_spline(steps, y, lam=lam)`` (unit weights): the natural cubic spline that
 minimises ``sum_k (y_k - f(k))^2 + lam * integral f''(k)^2``, found by Reinsch's algorithm (Green &
-Silverman 1994, chapter 2). Its one linear system is pentadiagonal, so a fit costs time and memory
-linear in the chunk's steps (no n x n matrix is formed, nothing is cached between chunks).
+Silverman 1994, chapter 2). Its one linear system is pentadiagonal, solved in time and memory
+linear in the chunk's steps; a chunk of up to ``DENSE_MAP_MAX_STEPS`` steps is smoothed through
+that solve's linear maps, kept per length and weight.
 """
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -79,7 +81,28 @@ def smoothing_spline(positions: np.ndarray, lam: float) -> StepSpline:
     n = len(y)
     if n < MIN_SMOOTHING_STEPS:
         raise ValueError(f"smoothing_spline: needs at least {MIN_SMOOTHING_STEPS} steps, got {n}")
-    lam = float(lam)
+    if n <= DENSE_MAP_MAX_STEPS:
+        return StepSpline((_smoothing_operator(n, float(lam)) @ y).reshape(n - 1, 4, -1), float(n - 1))
+    return StepSpline(_power_form(*_reinsch(y, float(lam))), float(n - 1))
+
+
+DENSE_MAP_MAX_STEPS = 256
+"""Chunks of up to this many steps are smoothed through one (4 (N-1), N) map kept per length and
+weight (``_smoothing_operator``: one small matrix product, at most 2 MB); longer ones by the banded
+solve itself, whose time and memory are linear in the steps."""
+
+
+def _power_form(g: np.ndarray, gamma: np.ndarray) -> np.ndarray:
+    """(N-1, 4, ...) power-form coefficients of the pieces of the cubic with knot values ``g`` and
+    second derivatives ``gamma`` (N, ...)."""
+    g0, g1, s0, s1 = g[:-1], g[1:], gamma[:-1], gamma[1:]
+    # On [i, i+1]: f = g_i + b u + (s_i / 2) u^2 + ((s_(i+1) - s_i) / 6) u^3, with f(1) = g_(i+1).
+    return np.stack([g0, g1 - g0 - (2.0 * s0 + s1) / 6.0, 0.5 * s0, (s1 - s0) / 6.0], axis=1)
+
+
+def _reinsch(y: np.ndarray, lam: float) -> tuple[np.ndarray, np.ndarray]:
+    """The knot values ``g`` and second derivatives ``gamma`` (both (N, J)) of the smoothing
+    spline of (N, J) ``y``: one banded solve."""
     gamma = np.zeros_like(y)  # row i: the second derivative at step i
     # R + lam Q^T Q has constant diagonals: Q^T Q is (1, -4, 6, -4, 1) on every row.
     gamma[1:-1] = solve_pentadiagonal(2.0 / 3.0 + 6.0 * lam, 1.0 / 6.0 - 4.0 * lam, lam, y[:-2] - 2.0 * y[1:-1] + y[2:])
@@ -88,11 +111,17 @@ def smoothing_spline(positions: np.ndarray, lam: float) -> StepSpline:
     q_gamma[:-2] += gamma[1:-1]
     q_gamma[1:-1] -= 2.0 * gamma[1:-1]
     q_gamma[2:] += gamma[1:-1]
-    g = y - lam * q_gamma
-    g0, g1, s0, s1 = g[:-1], g[1:], gamma[:-1], gamma[1:]
-    # On [i, i+1]: f = g_i + b u + (s_i / 2) u^2 + ((s_(i+1) - s_i) / 6) u^3, with f(1) = g_(i+1).
-    coefficients = np.stack([g0, g1 - g0 - (2.0 * s0 + s1) / 6.0, 0.5 * s0, (s1 - s0) / 6.0], axis=1)
-    return StepSpline(coefficients, float(n - 1))
+    return y - lam * q_gamma, gamma
+
+
+@functools.lru_cache(maxsize=8)
+def _smoothing_operator(n: int, lam: float) -> np.ndarray:
+    """The (4 (N-1), N) linear map from a chunk's values to its smoothing spline's power-form
+    coefficients (``_reinsch`` of the identity), read-only: the smoothing is linear in the
+    values, and ExecutePolicy fits chunks of one length with one weight run after run."""
+    operator = _power_form(*_reinsch(np.eye(n), lam)).reshape(4 * (n - 1), n)
+    operator.setflags(write=False)
+    return operator
 
 
 def solve_pentadiagonal(d0: float, d1: float, d2: float, rhs: np.ndarray) -> np.ndarray:
