@@ -30,7 +30,7 @@ from control_msgs.msg import JointTolerance
 from trajectory_msgs.msg import JointTrajectory
 
 from runtime.errors import ObjectiveError, SourceLocation
-from runtime.timestamps import duration_msg
+from runtime.io.timestamps import duration_msg
 
 from .execute_policy.shaping import Samples
 

@@ -15,10 +15,10 @@ import numpy as np
 from ruckig import InputParameter, Result, Ruckig, Trajectory
 from sensor_msgs.msg import JointState
 
-from runtime.behavior import Status
-from runtime.ports import InputPort, NameKind, Names, PortType, Range
+from runtime.tree.behavior import Status
+from runtime.tree.ports import InputPort, NameKind, Names, PortType, Range
 
-from runtime.scene import JointLimits
+from runtime.motion.scene import JointLimits
 from runtime.errors import ObjectiveError, SetupError
 from .action_goal import Goal, GoalState
 from .controller_link import CONTROLLER_ACTION_TYPES, ControllerLink, GoalTolerances, trajectory_goal

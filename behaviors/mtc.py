@@ -30,11 +30,11 @@ from typing import Any, ClassVar
 import numpy as np
 from std_srvs.srv import SetBool
 
-from runtime.behavior import Behavior, Status
+from runtime.tree.behavior import Behavior, Status
 from runtime.errors import SetupError
-from runtime.ports import InOutPort, InputPort, NameKind, Names, OutputPort, PortType, Range
-from runtime.scene import ANY, SceneSnapshot
-from runtime.scene.kinematics import frame_pose
+from runtime.tree.ports import InOutPort, InputPort, NameKind, Names, OutputPort, PortType, Range
+from runtime.motion.scene import ANY, SceneSnapshot
+from runtime.motion.scene.kinematics import frame_pose
 
 from .action_goal import Goal, GoalState
 from .execute_policy.shaping import Samples

@@ -9,7 +9,7 @@ from typing import Any, Callable
 import numpy as np
 
 from runtime.errors import ObjectiveError, OptionError
-from runtime.scene import (
+from runtime.motion.scene import (
     CartesianEnvelope, CollisionResult, ConfigurationMap, EnvelopeOverrides, EnvelopeViolation, GroupError, JointLimit, JointLimits,
     LimitViolation, PlanningScene, PoseCheck, SceneSnapshot, check_envelope, narrowed, shrunk, tool_speed_ratio,
 )

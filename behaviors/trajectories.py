@@ -19,12 +19,12 @@ import yaml
 from sensor_msgs.msg import JointState
 from trajectory_msgs.msg import JointTrajectory
 
-from runtime.behavior import Behavior, Status
+from runtime.tree.behavior import Behavior, Status
 from runtime.errors import SetupError
-from runtime.ports import InputPort, NameKind, Names, OutputPort, PortType, Range
-from runtime.scene import JointLimits, SceneSnapshot
-from runtime.scene.kinematics import frame_pose, solve_ik
-from runtime.timestamps import time_msg
+from runtime.tree.ports import InputPort, NameKind, Names, OutputPort, PortType, Range
+from runtime.motion.scene import JointLimits, SceneSnapshot
+from runtime.motion.scene.kinematics import frame_pose, solve_ik
+from runtime.io.timestamps import time_msg
 
 from .action_goal import Goal, GoalState
 from .controller_link import CONTROLLER_ACTION_TYPES, ControllerKind, ControllerLink, GoalTolerances, trajectory_goal

@@ -8,11 +8,11 @@ from collections.abc import Sequence
 from control_msgs.action import FollowJointTrajectory
 from trajectory_msgs.msg import JointTrajectory
 
-from runtime.behavior import Behavior, Status
+from runtime.tree.behavior import Behavior, Status
 from runtime.errors import SetupError
-from runtime.bus import STATUS_SUCCEEDED
-from runtime.timestamps import time_msg
-from runtime.trajectory_points import trajectory_points
+from runtime.io.bus import STATUS_SUCCEEDED
+from runtime.io.timestamps import time_msg
+from runtime.motion.trajectory_points import trajectory_points
 
 from .action_goal import Goal, GoalState
 from .execute_policy.shaping import Samples

@@ -12,7 +12,7 @@ import enum
 from dataclasses import dataclass, field
 from typing import Any
 
-from runtime.runner import RunResult
+from runtime.app.runner import RunResult
 
 BASE_SUMMARY_KEYS = frozenset({"status", "failing_node", "reason", "failure_kind", "sim_seconds", "wall_seconds", "ticks",
                                "blackboard"})

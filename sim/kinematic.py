@@ -149,7 +149,7 @@ class KinematicCell:
         return q
 
     def tcp_pose(self) -> np.ndarray:
-        """Same pose as ``runtime.scene.frame_pose`` (same pinocchio calls), on one reused ``Data``."""
+        """Same pose as ``runtime.motion.scene.frame_pose`` (same pinocchio calls), on one reused ``Data``."""
         model, data = self._robot.model, self._fk_data
         pin.forwardKinematics(model, data, self._configuration())
         return pin.updateFramePlacement(model, data, self._tcp_frame).homogeneous.copy()

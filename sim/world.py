@@ -17,9 +17,9 @@ from geometry_msgs.msg import TransformStamped
 from sensor_msgs.msg import Image, JointState
 
 from policy.images import rgb_to_image
-from runtime.behavior import RunContext
-from runtime.joint_states import joint_state
-from runtime.timestamps import time_msg
+from runtime.tree.behavior import RunContext
+from runtime.motion.joint_states import joint_state
+from runtime.io.timestamps import time_msg
 from runtime.errors import OptionError
 
 from .cell_model import CAMERA_NAMES, CUBE_COLORS, CellOptions, image_size_problem

@@ -13,10 +13,10 @@ from behaviors.motion import plan_point_to_point
 from behaviors.safety import SafetyError, make_safety
 from behaviors.trajectories import check_motion
 from runtime.errors import OptionError
-from runtime.loader import load_tree
-from runtime.registry import Registry
-from runtime.runner import RunOptions, make_context, run_tree
-from runtime.scene import CartesianEnvelope, EnvelopeOverrides, KeepInBox, load_envelope, narrowed
+from runtime.tree.loader import load_tree
+from runtime.tree.registry import Registry
+from runtime.app.runner import RunOptions, make_context, run_tree
+from runtime.motion.scene import CartesianEnvelope, EnvelopeOverrides, KeepInBox, load_envelope, narrowed
 from sim.kinematic import KinematicWorld
 from sim.planning import make_cell_scene
 from sim.robot_model import ARM_JOINTS, CARTESIAN_LIMITS_PATH, JOINT_LIMITS_PATH, load_waypoints
@@ -154,7 +154,7 @@ def test_move_to_joint_state_refuses_a_motion_outside_the_envelope_before_the_co
 def test_the_planners_pose_check_agrees_with_the_envelope_check_and_keeps_its_margin(scene):
     """The planner's per-state check (``PoseCheck``) answers as ``check_envelope`` does for one
     configuration, and ``MotionSafety.pose_check`` keeps 1 degree inside the tool cone."""
-    from runtime.scene import PoseCheck, check_envelope
+    from runtime.motion.scene import PoseCheck, check_envelope
 
     safety = make_safety(scene, "manipulator", scene.gripper_joint)
     layout = scene.layout(safety.group, None)

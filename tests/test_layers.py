@@ -6,7 +6,7 @@ layers its package may use.
     policy      -> runtime                     (runs beside a real robot: nothing simulated)
     recording   -> runtime                     (``--record``/``--live`` and the report, one package whose
                                                 modules import one another in no circle; attached to
-                                                the runner as a run observer, ``runtime.observer``)
+                                                the runner as a run observer, ``runtime.app.observer``)
     sim         -> runtime, behaviors, policy   (the worked example)
     evaluation  -> all of the above
 
@@ -130,7 +130,7 @@ def test_allowed_imports_pass(tmp_path):
     for name in ALLOWED:
         (tmp_path / name).mkdir()
     (tmp_path / "sim" / "mod.py").write_text("from policy.adapter import X\nfrom behaviors import y\nfrom .world import z\n")
-    (tmp_path / "policy" / "mod.py").write_text("from runtime.bus import Bus\nfrom . import wire\n")
+    (tmp_path / "policy" / "mod.py").write_text("from runtime.io.bus import Bus\nfrom . import wire\n")
     (tmp_path / "recording" / "mod.py").write_text("import mcap\ndef f():\n    import foxglove\n    import matplotlib\n")
     (tmp_path / "sim" / "cell.py").write_text("import mujoco\n")
     (tmp_path / "evaluation" / "mod.py").write_text("from recording.report.html import CSS\nfrom sim import world\n")
@@ -160,10 +160,10 @@ def test_an_extra_reached_from_the_core_is_named(tmp_path, layer, source, named)
 def test_a_private_name_of_another_package_is_named(tmp_path):
     for name in ALLOWED:
         (tmp_path / name).mkdir()
-    (tmp_path / "evaluation" / "cli.py").write_text("from runtime.cli import _parse_set as parse_set\n")
+    (tmp_path / "evaluation" / "cli.py").write_text("from runtime.app.cli import _parse_set as parse_set\n")
     (tmp_path / "runtime" / "cli.py").write_text("from .loader import _private_helper\n")
     assert layer_violations(tmp_path) == [
-        "evaluation/cli.py:1: evaluation imports runtime.cli: _parse_set (a private name of runtime)"]
+        "evaluation/cli.py:1: evaluation imports runtime.app.cli: _parse_set (a private name of runtime)"]
 
 
 def import_cycles(root: Path, package: str) -> list[list[str]]:

@@ -16,9 +16,9 @@ import imageio.v3 as iio
 import numpy as np
 import pytest
 
-from runtime.cli import main
+from runtime.app.cli import main
 from runtime.errors import ObjectiveError
-from runtime.display import ProgressLine
+from runtime.app.display import ProgressLine
 from recording.report import load_recording, render_report
 from recording.report.data import CommandedGoal, Recording
 from recording.report import plots

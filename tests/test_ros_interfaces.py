@@ -228,12 +228,12 @@ def test_controller_manager_interfaces_match_upstream_jazzy():
 
 
 # --------------------------------------------------------------------------------------------
-# runtime/build_interfaces.py (`objective build-interfaces`)
+# runtime/app/build_interfaces.py (`objective build-interfaces`)
 # --------------------------------------------------------------------------------------------
 def _load_build_tool():
-    import runtime.build_interfaces
+    import runtime.app.build_interfaces
 
-    return runtime.build_interfaces
+    return runtime.app.build_interfaces
 
 
 def test_wheel_include_paths_are_rewritten_and_the_rewrite_is_idempotent():

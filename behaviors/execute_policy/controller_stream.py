@@ -15,7 +15,7 @@ from typing import Any
 from control_msgs.action import FollowJointTrajectory
 from moveit_pro_controllers_msgs.action import FollowJointTrajectoryWithAdmittance as FollowTrajectory
 
-from runtime.bus import STATUS_ABORTED, STATUS_SUCCEEDED
+from runtime.io.bus import STATUS_ABORTED, STATUS_SUCCEEDED
 
 from ..action_goal import Goal, GoalState
 from ..controller_link import ControllerKind, ControllerLink, GoalTolerances, jtc_stream_points, trajectory_goal

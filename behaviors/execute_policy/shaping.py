@@ -16,8 +16,8 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from runtime import seam_blend
-from runtime.seam_blend import blend_offset, velocity_basis
+from runtime.motion import seam_blend
+from runtime.motion.seam_blend import blend_offset, velocity_basis
 
 from .step_spline import MIN_SMOOTHING_STEPS, StepSpline, interpolating_polynomial, smoothing_spline
 
@@ -261,7 +261,7 @@ def join_at_seam(
     """The chunk's motion from ``seam`` to ``end``, continuous in position and velocity with
     the sent motion's state (``sent_position``, ``sent_velocity``) at the seam.
 
-    The offset between the two is blended out (``runtime.seam_blend``) over ``blend_duration``
+    The offset between the two is blended out (``runtime.motion.seam_blend``) over ``blend_duration``
     seconds; with ``max_acceleration`` (per joint) over longer where that would take more than
     ``BLEND_SHARE`` of the acceleration the chunk leaves free: a chunk that starts away from where the
     arm is (a policy that re-planned, or ran ahead of an arm that paused) joins more slowly
