@@ -22,7 +22,7 @@ from runtime.motion.scene import JointLimits
 from runtime.errors import ObjectiveError, SetupError
 from .action_goal import Goal, GoalState
 from .controller_link import CONTROLLER_ACTION_TYPES, ControllerLink, GoalTolerances, trajectory_goal
-from .execute_policy.shaping import Samples
+from runtime.motion.samples import Samples
 from .safety import SafetyError, make_safety
 from .trajectory_goal import GOAL_TIME_TOLERANCE_S, SendsTrajectoryGoal, trajectory_msg
 from .waiting import Deadline, when_ready

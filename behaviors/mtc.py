@@ -37,7 +37,7 @@ from runtime.motion.scene import ANY, SceneSnapshot
 from runtime.motion.scene.kinematics import frame_pose
 
 from .action_goal import Goal, GoalState
-from .execute_policy.shaping import Samples
+from runtime.motion.samples import Samples
 from .motion import PlanningError
 from .planning import (
     CHECK_STEP_RAD, GROUP_PORT, MOTION_PORTS, SEED_PORT, Motion, collision_free_ik, group_goal, motion_from_ports, plan_free_motion,

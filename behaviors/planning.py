@@ -23,7 +23,7 @@ from runtime.motion.scene.planner import PathPlanningError, PlannerSettings, pla
 from runtime.motion.scene.kinematics import IkSolver
 from runtime.io.timestamps import time_msg
 
-from .execute_policy.shaping import Samples
+from runtime.motion.samples import Samples
 from .motion import PlanningError
 from .poses import FrameError, ReadsRobotState, known_frames, pose_in_world
 from .robot_state import group_joint_state

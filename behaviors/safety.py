@@ -14,7 +14,7 @@ from runtime.motion.scene import (
     LimitViolation, PlanningScene, PoseCheck, SceneSnapshot, check_envelope, narrowed, shrunk, tool_speed_ratio,
 )
 
-from .execute_policy.shaping import Samples
+from runtime.motion.samples import Samples
 
 
 GRIPPER_BAND_FRACTION = 0.1

@@ -28,7 +28,7 @@ from runtime.io.timestamps import time_msg
 
 from .action_goal import Goal, GoalState
 from .controller_link import CONTROLLER_ACTION_TYPES, ControllerKind, ControllerLink, GoalTolerances, trajectory_goal
-from .execute_policy.shaping import Samples
+from runtime.motion.samples import Samples
 from .motion import DEFAULT_CONTROLLER, NO_MOTION_S, PlanningError
 from .poses import FrameError, ReadsRobotState, RobotState, matrix_to_pose, pose_in_world
 from .safety import MotionSafety, SafetyError, make_safety

@@ -15,7 +15,7 @@ from runtime.io.timestamps import time_msg
 from runtime.motion.trajectory_points import trajectory_points
 
 from .action_goal import Goal, GoalState
-from .execute_policy.shaping import Samples
+from runtime.motion.samples import Samples
 
 GOAL_TIME_TOLERANCE_S = 1.0
 """The controller's default: how late a goal may finish."""

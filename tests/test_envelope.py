@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from behaviors.execute_policy.checks import CheckKind
-from behaviors.execute_policy.shaping import Samples
+from runtime.motion.samples import Samples
 from behaviors.motion import plan_point_to_point
 from behaviors.safety import SafetyError, make_safety
 from behaviors.trajectories import check_motion

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from trajectory_msgs.msg import JointTrajectory
 
-from behaviors.execute_policy.shaping import Samples
+from runtime.motion.samples import Samples
 from behaviors.motion import PlanningError
 from behaviors.robot_state import GetJointState, group_joint_state
 from behaviors.trajectories import (

@@ -333,7 +333,7 @@ def test_goal_stamps_are_in_ros_time_on_a_robot_and_in_the_run_s_time_with_a_hos
     """A real robot's controllers read a goal's stamp as an instant of ROS time (the system clock
     without use_sim_time): a run on the `robot` world stamps its seams there; a hosted cell keeps
     the run's own clock, so its stamps are not moved."""
-    from behaviors.execute_policy.shaping import Samples
+    from runtime.motion.samples import Samples
     from behaviors.trajectory_goal import trajectory_msg
     from runtime.io.timestamps import to_seconds
 

@@ -41,7 +41,7 @@ from sensor_msgs.msg import JointState
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
 from behaviors.execute_policy.chunk import MAX_CHUNK_STEPS
-from behaviors.execute_policy.shaping import Samples
+from runtime.motion.samples import Samples
 from behaviors.safety import make_safety
 from runtime.io.bus import FixedLatency
 from runtime.tree.loader import load_tree

@@ -22,7 +22,7 @@ from ..controller_link import ControllerKind, ControllerLink, GoalTolerances, jt
 from ..trajectory_goal import trajectory_msg
 from .config import PolicyRunConfig
 from .planner import goal_takes_effect_s
-from .shaping import Samples
+from runtime.motion.samples import Samples
 from .states import Rollback
 
 MAX_LATE_RETRIES = 3

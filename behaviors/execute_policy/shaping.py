@@ -17,32 +17,10 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from runtime.motion import seam_blend
+from runtime.motion.samples import Samples
 from runtime.motion.seam_blend import blend_offset, velocity_basis
 
 from .step_spline import MIN_SMOOTHING_STEPS, StepSpline, interpolating_polynomial, smoothing_spline
-
-
-@dataclass(frozen=True)
-class Samples:
-    """A densified motion: ``times`` (M,), and (M, J) positions, velocities, accelerations."""
-
-    times: np.ndarray
-    positions: np.ndarray
-    velocities: np.ndarray
-    accelerations: np.ndarray
-
-    def __len__(self) -> int:
-        return len(self.times)
-
-    @property
-    def duration_s(self) -> float:
-        return float(self.times[-1] - self.times[0])
-
-    @classmethod
-    def at_rest(cls, position: np.ndarray) -> Samples:
-        """A motion of no length: ``position`` alone, at time 0."""
-        q = np.asarray(position, dtype=float).reshape(1, -1)
-        return cls(np.zeros(1), q, np.zeros_like(q), np.zeros_like(q))
 
 
 def fit_chunk(positions: np.ndarray, tracking_weight: float) -> StepSpline:

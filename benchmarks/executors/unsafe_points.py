@@ -24,7 +24,7 @@ import numpy as np
 from sensor_msgs.msg import JointState
 
 from behaviors.execute_policy import config as cfg
-from behaviors.execute_policy.shaping import Samples
+from runtime.motion.samples import Samples
 from behaviors.safety import MotionSafety, SafetyError, make_safety
 from runtime.tree.behavior import Behavior, Status
 from runtime.errors import SetupError
