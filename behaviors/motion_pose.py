@@ -15,7 +15,8 @@ import numpy as np
 from runtime.tree.ports import InputPort, NameKind, Names, PortType, Range
 from runtime.motion.scene.kinematics import solve_ik
 
-from .motion import PlanningError, _MoveToJoints
+from .motion import _MoveToJoints
+from .trajectory_goal import PlanningError
 from .poses import FrameError, RobotState, as_pose_stamped, pose_in_world
 
 

@@ -38,7 +38,7 @@ from runtime.motion.scene.kinematics import frame_pose
 
 from .action_goal import Goal, GoalState
 from runtime.motion.samples import Samples
-from .motion import PlanningError
+from .trajectory_goal import PlanningError
 from .planning import (
     CHECK_STEP_RAD, GROUP_PORT, MOTION_PORTS, SEED_PORT, Motion, collision_free_ik, group_goal, motion_from_ports, plan_free_motion,
     safety_for,

@@ -24,12 +24,11 @@ from runtime.motion.scene.kinematics import IkSolver
 from runtime.io.timestamps import time_msg
 
 from runtime.motion.samples import Samples
-from .motion import PlanningError
 from .poses import FrameError, ReadsRobotState, known_frames, pose_in_world
 from .robot_state import group_joint_state
 from .safety import MotionSafety, SafetyError, make_safety
 from .trajectories import check_motion, resample_within_envelope, time_path
-from .trajectory_goal import trajectory_msg
+from .trajectory_goal import PlanningError, trajectory_msg
 
 CHECK_STEP_RAD = 0.05
 """Joint step between the states ``check_motion`` checks (ExecuteTrajectory's)."""

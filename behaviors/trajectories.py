@@ -29,10 +29,9 @@ from runtime.io.timestamps import time_msg
 from .action_goal import Goal, GoalState
 from .controller_link import CONTROLLER_ACTION_TYPES, ControllerKind, ControllerLink, GoalTolerances, trajectory_goal
 from runtime.motion.samples import Samples
-from .motion import DEFAULT_CONTROLLER, NO_MOTION_S, PlanningError
 from .poses import FrameError, ReadsRobotState, RobotState, matrix_to_pose, pose_in_world
 from .safety import MotionSafety, SafetyError, make_safety
-from .trajectory_goal import GOAL_TIME_TOLERANCE_S, SendsTrajectoryGoal, trajectory_msg
+from .trajectory_goal import DEFAULT_CONTROLLER, GOAL_TIME_TOLERANCE_S, NO_MOTION_S, PlanningError, SendsTrajectoryGoal, trajectory_msg
 from .waiting import Deadline, when_ready
 
 JTC_ACTION = "/joint_trajectory_controller/follow_joint_trajectory"

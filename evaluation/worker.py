@@ -25,7 +25,8 @@ from runtime.tree.loader import load_tree
 from runtime.app.protective_stop import ProtectiveStop, SharedStop
 from runtime.tree.registry import Registry
 from runtime.tree.registry import default_world_name
-from runtime.app.runner import RunOptions, RunResult, create_world, make_context, run_tree
+from runtime.app.runner import RunOptions, RunResult, make_context, run_tree
+from runtime.app.world import create_world
 
 from .config import WorkerSpec
 from .episode import EpisodeRecord

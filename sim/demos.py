@@ -342,7 +342,8 @@ def record_episode(seed: int, options: DemoOptions, world_name: str) -> EpisodeR
     """Run the oracle once in a fresh world with layout ``seed``; its frames and status (in this process)."""
     from runtime.tree.loader import load_tree
     from runtime.tree.registry import Registry
-    from runtime.app.runner import RunOptions, create_world, make_context, run_tree
+    from runtime.app.runner import RunOptions, make_context, run_tree
+    from runtime.app.world import create_world
     from sim.oracle import parse_prompt
 
     top, bottom = parse_prompt(options.prompt)

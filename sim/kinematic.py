@@ -240,5 +240,6 @@ class KinematicWorld(CellWorld):
         super().__init__("kinematic", options, lambda arm, seed: KinematicCell.at_layout(arm, seed, size))
 
 
-def create(options: dict[str, Any]) -> KinematicWorld:
+def create_kinematic(options: dict[str, Any]) -> KinematicWorld:
+    """World ``kinematic``: perfect tracking and rigid grasps, no physics."""
     return KinematicWorld(options)

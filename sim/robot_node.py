@@ -31,7 +31,8 @@ from runtime.io.clock import WallClock
 from runtime.tree.events import EventLog
 from runtime.io.heap import PacedHeap
 from runtime.io.interrupt import StopRequest
-from runtime.app.runner import Pacing, create_world
+from runtime.app.runner import Pacing
+from runtime.app.world import create_world
 from runtime.io.timestamps import time_msg
 
 from .robot_model import CARTESIAN_LIMITS_PATH, COUPLINGS_PATH, JOINT_LIMITS_PATH, SRDF_PATH, WAYPOINTS_PATH, robot_xml

@@ -278,10 +278,3 @@ def create_vla_sim(options: dict[str, Any]) -> CellWorld:
     size = image_size_option(options, 224)
     cell_options = CellOptions(image_width=size, image_height=size)
     return CellWorld("vla_sim", options, lambda arm, seed: MujocoCell(cell_options, arm, seed))
-
-
-def create_kinematic(options: dict[str, Any]) -> CellWorld:  # noqa: D401
-    """World ``kinematic``: perfect tracking and rigid grasps, no physics (see sim/kinematic.py)."""
-    from .kinematic import KinematicWorld
-
-    return KinematicWorld(options)

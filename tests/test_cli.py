@@ -344,7 +344,7 @@ def test_the_cyclic_collector_runs_again_once_the_installed_behaviors_are_loaded
 
 @pytest.mark.parametrize("defaults, message", [
     ([], "this tree needs a world and none is named: pass --world NAME (worlds: kinematic, vla_sim)"),
-    ([("kinematic", "sim.world:create_kinematic"), ("vla_sim", "sim.world:create_vla_sim")],
+    ([("kinematic", "sim.kinematic:create_kinematic"), ("vla_sim", "sim.world:create_vla_sim")],
      "installed packages name 2 default worlds (kinematic, vla_sim): pass --world NAME (worlds: kinematic, vla_sim)"),
 ])
 def test_the_default_world_is_the_installation_s_choice(monkeypatch, cli, tmp_path, defaults, message):
@@ -352,7 +352,7 @@ def test_the_default_world_is_the_installation_s_choice(monkeypatch, cli, tmp_pa
 
     fake_entry_points(monkeypatch, runtime.tree.registry, {
         "objective.default_world": defaults,
-        "objective.worlds": [("vla_sim", "sim.world:create_vla_sim"), ("kinematic", "sim.world:create_kinematic")],
+        "objective.worlds": [("vla_sim", "sim.world:create_vla_sim"), ("kinematic", "sim.kinematic:create_kinematic")],
     })
     code, _, err = cli("run", str(tree_file(tmp_path, "<Robot/>")))
     assert code == 2 and err.strip() == f"error: {message}"

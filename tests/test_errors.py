@@ -9,6 +9,7 @@ from types import SimpleNamespace
 import pytest
 
 import runtime.app.runner as runner
+import runtime.app.world
 from runtime.app.cli import main
 from runtime.errors import INTERNAL, InternalError, ObjectiveError, ObjectiveRuntimeError, OptionError, SetupError
 from tests.data.nodes import make_registry
@@ -28,7 +29,7 @@ def robot_tree(tmp_path: Path) -> Path:
 def with_world(monkeypatch, create) -> None:
     """Install ``create`` as the only world, named ``w``."""
     point = SimpleNamespace(name="w", load=lambda: create)
-    monkeypatch.setattr(runner, "entry_points", lambda group: [point])
+    monkeypatch.setattr(runtime.app.world, "entry_points", lambda group: [point])
 
 
 def test_every_error_class_of_the_project_derives_from_the_root():

@@ -112,7 +112,7 @@ def test_every_layer_is_read():
     ("policy", "from sim.robot_model import ARM_JOINTS\n", "policy imports sim.robot_model"),
     ("sim", "from benchmarks.baselines import Stream\n", "sim imports benchmarks.baselines"),
     ("runtime", "import recording\n", "runtime imports recording"),
-    ("recording", "from sim.world import create_kinematic\n", "recording imports sim.world"),
+    ("recording", "from sim.world import create_vla_sim\n", "recording imports sim.world"),
     ("policy", "from recording.report import render_report\n", "policy imports recording.report"),
     ("evaluation", "from tests.fakes import FakeBus\n", "evaluation imports tests.fakes"),
 ])

@@ -241,7 +241,7 @@ def test_the_cell_publishes_camera_info_for_each_camera():
     from runtime.io.bus import InProcessBus
     from runtime.io.clock import SimClock
     from sim.sensor_topics import CAMERA_INFO_TOPICS
-    from sim.world import create_kinematic
+    from sim.kinematic import create_kinematic
 
     from runtime.tree.behavior import RunContext
     from runtime.tree.events import EventLog

@@ -11,7 +11,7 @@ import pytest
 from trajectory_msgs.msg import JointTrajectory
 
 from runtime.motion.samples import Samples
-from behaviors.motion import PlanningError
+from behaviors.trajectory_goal import PlanningError
 from behaviors.robot_state import GetJointState, group_joint_state
 from behaviors.trajectories import (
     PlanCartesianPath,

@@ -116,7 +116,7 @@ def test_zero_fts_tares_the_wrist_sensor_through_call_trigger_service():
     from runtime.io.clock import SimClock
     from runtime.tree.events import EventLog
     from sim.controllers import WRENCH_TOPIC
-    from sim.world import create_kinematic
+    from sim.kinematic import create_kinematic
 
     clock = SimClock()
     context = RunContext(clock=clock, bus=InProcessBus(clock), events=EventLog(clock))

@@ -339,7 +339,7 @@ def test_a_task_out_of_order_is_an_error_naming_the_stage(registry, tmp_path):
 def test_a_joint_goal_without_the_group_joints_fails_naming_them():
     from sensor_msgs.msg import JointState
 
-    from behaviors.motion import PlanningError
+    from behaviors.trajectory_goal import PlanningError
     from behaviors.planning import group_goal
 
     assert list(group_goal(JointState(name=["b", "a"], position=[2.0, 1.0]), ("a", "b"), "joint_goal")) == [1.0, 2.0]

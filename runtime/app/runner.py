@@ -26,7 +26,6 @@ import math
 import signal
 import time
 from dataclasses import dataclass, field
-from importlib.metadata import entry_points
 from pathlib import Path
 from typing import Any, Callable, Iterable, Protocol, Sequence
 
@@ -39,14 +38,14 @@ from runtime.tree.controls import SKIPPED, Visit, is_skipped, tick_tree
 from runtime.tree.crash import CRASH_LOG, culprit, describe_crash, write_traceback
 from runtime.errors import ObjectiveError, ObjectiveRuntimeError, OptionError, error_kind
 from runtime.tree.events import EventLog
-from runtime.extras import load_entry_point
 from runtime.io.heap import PacedHeap
 from runtime.io.interrupt import Interrupted, StopRequest, exit_code_for, signal_name
 from runtime.tree.loader import LoadedTree, load_tree
 from runtime.tree.ports import NameKind
 from .protective_stop import PROTECTIVE_STOP, ProtectiveStop, StopInputs, needs_heartbeat
-from runtime.tree.registry import WORLD_GROUP, Registry, default_world_name
+from runtime.tree.registry import Registry, default_world_name
 from runtime.io.scheduling import check_priority, realtime_priority
+from .world import create_world, world_hosts_servers
 from .world_check import check_tree, declared_interfaces, named_links
 
 Progress = Callable[[float, int, str], None]
@@ -247,33 +246,6 @@ def robot_time_offset_s(clock: Any) -> float:
     clock, which ROS 2 nodes read when ``use_sim_time`` is off (a controller that reads a goal's
     stamp as an instant, such as joint_trajectory_controller, compares it with that)."""
     return time.time() - clock.now()
-
-
-def world_hosts_servers(name: str) -> bool:
-    """Whether the world registered as ``name`` serves anything on the run's bus (services,
-    actions: a simulated cell does); its factory says otherwise with ``hosts_servers = False``.
-    True for a name nobody registered (``create_world`` reports that)."""
-    available = {ep.name: ep for ep in entry_points(group=WORLD_GROUP)}
-    if name not in available:
-        return True
-    try:
-        factory = available[name].load()
-    except ImportError:  # a world of an extra that is not installed: ``create_world`` says so if the tree needs it
-        return True
-    return bool(getattr(factory, "hosts_servers", True))
-
-
-def create_world(name: str, options: dict[str, Any]) -> Any:
-    """The world registered as ``name`` in the ``objective.worlds`` entry-point group."""
-    available = {ep.name: ep for ep in entry_points(group=WORLD_GROUP)}
-    if name not in available:
-        known = ", ".join(sorted(available)) or "none installed"
-        raise ObjectiveError(f"no world named '{name}' (worlds: {known})")
-    create = load_entry_point(available[name], f"world '{name}' cannot start")  # a world of an extra may be missing
-    try:
-        return create(options)
-    except ObjectiveError as err:  # a world refuses the user's options with an ObjectiveError (OptionError)
-        raise err.within(f"world '{name}'") from None
 
 
 def json_entries(board_items: Iterable[tuple[str, Any]]) -> dict[str, Any]:

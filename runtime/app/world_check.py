@@ -218,7 +218,7 @@ def started_world(name: str, options: dict[str, Any]) -> Iterator[StartedWorld]:
     """The world ``name`` (``--world-option`` ``options``) started on a simulated clock and an
     in-process bus, closed on exit: what ``objective validate --world`` checks against."""
     from runtime.tree.loader import throwaway_context
-    from .runner import create_world
+    from .world import create_world
 
     context = throwaway_context()
     world = create_world(name, {"seed": 0, "realtime": False, **options})
