@@ -14,7 +14,7 @@ export ROS_DOMAIN_ID ?= 42
 export MUJOCO_GL ?= egl
 export ROS_LOG_DIR ?= $(CURDIR)/build/ros_log
 
-.PHONY: setup demo test test-all bench clean lerobot lerobot-policy lerobot-diffusion chromium ray
+.PHONY: setup demo lint test test-all bench clean lerobot lerobot-policy lerobot-diffusion chromium ray
 
 # Every run then reads the project's bytecode instead of compiling ~150 modules from source: the
 # import system reads .pyc files even under PYTHONDONTWRITEBYTECODE=1 (which only stops it writing
@@ -37,7 +37,7 @@ $(STAMP): pyproject.toml runtime/app/build_interfaces.py $(shell find runtime/io
 	@test -x $(PY) || { echo "setup: creating $(VENV) with $(PYTHON)"; $(PYTHON) -m venv $(VENV); }
 	@echo "setup: installing the project and its pinned dependencies into $(VENV) (uv $(UV_VERSION))"
 	@set -o pipefail; $(PY) -m pip install --quiet uv==$(UV_VERSION) $(PIP_QUIET)
-	@$(VENV)/bin/uv pip install --quiet --python $(PY) --compile-bytecode -e '.[sim,record,ros,ros-build,test,monitor]'
+	@$(VENV)/bin/uv pip install --quiet --python $(PY) --compile-bytecode -e '.[sim,record,ros,ros-build,test,dev,monitor]'
 	@echo "setup: the ROS 2 interface packages (built once per machine and Python, then from its cache)"
 	@$(PY) -m runtime.app.build_interfaces --build-dir build/interfaces
 	@touch $(STAMP)
@@ -121,7 +121,11 @@ $(RAY_STAMP): $(STAMP) pyproject.toml
 demo: setup
 	$(VENV)/bin/objective run objectives/stack_cubes.xml
 
-test: setup
+# ruff's pyflakes rules and syntax errors (pyproject.toml, [tool.ruff]) over the whole tree: seconds.
+lint: setup
+	$(VENV)/bin/ruff check --quiet .
+
+test: lint
 	$(PY) -m pytest -q -rs
 
 # The fast tier (docs/testing.md): pure functions and the loader, no world, no ROS 2, no subprocess.

@@ -19,7 +19,7 @@ from runtime.tree.behavior import Status
 from runtime.tree.ports import InputPort, NameKind, Names, PortType, Range
 
 from runtime.motion.scene import JointLimits
-from runtime.errors import ObjectiveError, SetupError
+from runtime.errors import SetupError
 from .action_goal import Goal, GoalState
 from .controller_link import CONTROLLER_ACTION_TYPES, ControllerLink, GoalTolerances, trajectory_goal
 from .planning import Motion, plan_free_motion

@@ -99,7 +99,7 @@ def slowest_imports(count: int = 15) -> None:
         parts = line.split("|")
         if len(parts) == 3 and parts[1].strip().isdigit():
             rows.append((int(parts[1]), parts[2].rstrip()))
-    print(f"# slowest imports (cumulative us) of runtime.app.cli + every registered behavior:")
+    print("# slowest imports (cumulative us) of runtime.app.cli + every registered behavior:")
     for us, name in sorted(rows, reverse=True)[:count]:
         print(f"#   {us:>9}  {name.strip()}")
 

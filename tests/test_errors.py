@@ -8,7 +8,6 @@ from types import SimpleNamespace
 
 import pytest
 
-import runtime.app.runner as runner
 import runtime.app.world
 from runtime.app.cli import main
 from runtime.errors import INTERNAL, InternalError, ObjectiveError, ObjectiveRuntimeError, OptionError, SetupError

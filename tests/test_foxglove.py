@@ -23,7 +23,7 @@ from runtime.app.cli import main
 from recording.scene_view import LinkTree, TfEncoder, object_markers, stamp_of
 from recording.mcap_writer import LATCHED_QOS, SENSOR_DATA_QOS, OfferedQos
 from recording.report.data import clock_origin_ns
-from tests.test_recording import CAMERAS, POLICY_XML, read_events, read_mcap, record_run
+from tests.test_recording import CAMERAS, read_events, read_mcap, record_run
 
 TYPE_NAME = re.compile(r"^[A-Za-z0-9_]+/(msg|srv|action)/[A-Za-z0-9_]+$")
 

@@ -17,7 +17,7 @@ from hypothesis import strategies as st
 from runtime.motion.scene import Box, pose_matrix, swept
 from sim.layouts import layout
 from sim.planning import CUBE_SIZE, make_cell_scene
-from sim.robot_model import ARM_JOINTS, GRIPPER_DRIVER_JOINT, load_waypoints
+from sim.robot_model import ARM_JOINTS, load_waypoints
 
 WAYPOINTS = [np.array([wp[j] for j in ARM_JOINTS]) for wp in load_waypoints().values()]
 CUBES = {c: (np.array([x, y, CUBE_SIZE / 2]), np.array([np.cos(yaw / 2), 0, 0, np.sin(yaw / 2)]))

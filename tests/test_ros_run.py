@@ -273,7 +273,6 @@ def test_a_failing_execute_policy_s_cancel_reaches_the_hosted_controller(ros_env
                                          points=[JointTrajectoryPoint(positions=position) for _ in range(30)])
         return response
 
-    started = time.monotonic()
     result = run_policy_over_ros(policy, 'total_action_steps="60"')
     assert result.status == "FAILURE"
     assert result.reason == "the policy answered ERROR for the chunk 2: model lost its weights"
@@ -314,7 +313,6 @@ def test_a_camera_that_stops_publishing_over_ros_stops_the_run_naming_its_topic(
         return response
 
     driver.start()
-    started = time.monotonic()
     try:
         result = run_policy_over_ros(policy, 'total_action_steps="80" image_topics="/thermal_camera/color" image_names="thermal"')
     finally:

@@ -62,7 +62,7 @@ ENDLESS = '<Repeat num_cycles="-1"><Script code="n += 1"/></Repeat>'
         # A Timeout halts the endless loop after 50 ms: one cycle per 10 ms tick (t = 0.01 ... 0.05 s).
         (f'<Sequence><Script code="n := 0"/><Timeout msec="50">{ENDLESS}</Timeout></Sequence>', "FAILURE", 5),
         # _while turns false: the loop is halted and skipped, the Sequence goes on.
-        (f'<Sequence><Script code="n := 0"/><Repeat num_cycles="-1" _while="n &lt; 7"><Script code="n += 1"/></Repeat>'
+        ('<Sequence><Script code="n := 0"/><Repeat num_cycles="-1" _while="n &lt; 7"><Script code="n += 1"/></Repeat>'
          '<AlwaysSuccess/></Sequence>', "SUCCESS", 7),
         # A Parallel sibling finishes first (its 30 ms end at the 4th tick) and the loop is halted.
         (f'<Sequence><Script code="n := 0"/><Parallel success_count="1">{ENDLESS}<Sleep msec="30"/></Parallel></Sequence>',
