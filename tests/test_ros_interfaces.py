@@ -152,7 +152,7 @@ def test_control_msgs_is_the_whole_jazzy_release():
         module = importlib.import_module(f"control_msgs.{kind}")
         for name in names:
             assert hasattr(module, name), f"control_msgs/{kind}/{name} is missing"
-    package = Path(__file__).resolve().parent.parent / "runtime" / "ros" / "interfaces" / "control_msgs"
+    package = Path(__file__).resolve().parent.parent / "runtime" / "io" / "ros" / "interfaces" / "control_msgs"
     shipped = {kind: sorted(f.stem for f in (package / kind).iterdir()) for kind in CONTROL_MSGS_JAZZY}
     assert shipped == CONTROL_MSGS_JAZZY
 
