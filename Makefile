@@ -132,7 +132,7 @@ test: lint
 FAST_TESTS := tests/test_compliance_maths.py tests/test_execute_policy_math.py tests/test_execute_policy_core.py \
 	tests/test_trajectory_maths.py tests/test_trajectory_points.py tests/test_step_spline.py tests/test_seam_blend.py \
 	tests/test_svg_chart.py tests/test_script.py tests/test_loader.py tests/test_errors.py tests/test_eval_stats.py \
-	tests/test_cdr.py tests/test_joint_states.py tests/test_layers.py
+	tests/test_cdr.py tests/test_joint_states.py tests/test_layers.py tests/test_import_cycles.py
 .PHONY: test-fast
 test-fast: setup
 	$(PY) -m pytest -q -rs $(FAST_TESTS)
