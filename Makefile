@@ -43,7 +43,7 @@ $(STAMP): pyproject.toml runtime/app/build_interfaces.py $(shell find runtime/io
 	@touch $(STAMP)
 
 # Optional LeRobot extra (LeRobot 0.6.1, torch 2.11.0 from the registry) in the project's venv:
-# `pip install -e '.[lerobot]'` (docs/lerobot.md, Installing: what it downloads and how long it takes).
+# `pip install -e '.[lerobot]'` (docs/lerobot.md, What it costs: what it downloads and how long it takes).
 # `make test` runs the LeRobot tests when it is installed.
 LEROBOT_STAMP := $(VENV)/.lerobot-stamp
 
@@ -132,7 +132,7 @@ test: lint
 FAST_TESTS := tests/test_compliance_maths.py tests/test_execute_policy_math.py tests/test_execute_policy_core.py \
 	tests/test_trajectory_maths.py tests/test_trajectory_points.py tests/test_step_spline.py tests/test_seam_blend.py \
 	tests/test_svg_chart.py tests/test_script.py tests/test_loader.py tests/test_errors.py tests/test_eval_stats.py \
-	tests/test_cdr.py tests/test_joint_states.py tests/test_layers.py tests/test_import_cycles.py
+	tests/test_cdr.py tests/test_joint_states.py tests/test_layers.py tests/test_import_cycles.py tests/test_docs.py
 .PHONY: test-fast
 test-fast: setup
 	$(PY) -m pytest -q -rs $(FAST_TESTS)
@@ -141,8 +141,8 @@ test-all: setup
 	$(PY) -m pytest -q -m ''
 
 bench: setup
-	@ls benchmarks/*.py >/dev/null 2>&1 || { echo "no benchmarks yet"; exit 0; }; \
-	for b in benchmarks/*.py; do \
+	@ls benchmarks/bench_*.py >/dev/null 2>&1 || { echo "no benchmarks yet"; exit 0; }; \
+	for b in benchmarks/bench_*.py; do \
 	  case $$b in */bench_success_under_latency.py) echo "== $$b: hours at its defaults, run it on its own (docs/evaluation.md)"; continue;; esac; \
 	  echo "== $$b"; $(PY) $$b || exit 1; done
 

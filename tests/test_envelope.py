@@ -171,3 +171,66 @@ def test_the_planners_pose_check_agrees_with_the_envelope_check_and_keeps_its_ma
                 if check_envelope(safety.envelope, scene.robot, layout, (home + [0, 0, 0, 0, a, 0])[None]) is not None)
     tilt[4] += edge - 0.005
     assert exact(tilt) and not safety.pose_check()(tilt)
+
+
+def test_batched_kinematics_equals_pinocchio_on_the_cell_and_on_every_joint_kind_it_covers(scene):
+    """``BatchKinematics`` (the envelope's forward kinematics over a whole motion) gives the poses
+    pinocchio gives (``oMf``) and the frame velocities (``getFrameVelocity``, world-aligned), on the
+    cell's UR5e + gripper and on a chain of every joint kind it covers; a chain with another kind
+    (a spherical joint) is marked unsupported, and the envelope then answers through pinocchio
+    point by point, with the same violation."""
+    import pinocchio as pin
+
+    from runtime.motion.scene.batch_kinematics import BatchKinematics
+    from runtime.motion.scene.envelope import _frame_states, _frame_states_per_point
+
+    def compare(model: pin.Model, frame_ids: list[int], q: np.ndarray, v: np.ndarray) -> None:
+        kinematics = BatchKinematics(model, frame_ids)
+        assert kinematics.supported
+        states = kinematics.states(q)
+        assert states.twist is None
+        data = model.createData()
+        for i in range(len(q)):
+            pin.forwardKinematics(model, data, q[i], v[i])
+            for k, fid in enumerate(frame_ids):
+                placement = pin.updateFramePlacement(model, data, fid)
+                assert states.positions[i, k] == pytest.approx(placement.translation, abs=1e-12)
+                assert states.rotations(k)[i] == pytest.approx(placement.rotation, abs=1e-12)
+                assert states.axis(k, np.array([0.3, -0.2, 0.9]))[i] == pytest.approx(placement.rotation @ [0.3, -0.2, 0.9], abs=1e-12)
+                velocity = pin.getFrameVelocity(model, data, fid, pin.ReferenceFrame.LOCAL_WORLD_ALIGNED).vector
+                assert kinematics.states(q[i:i + 1], v[i:i + 1], k).twist[0] == pytest.approx(velocity, abs=1e-12)
+
+    rng = np.random.default_rng(3)
+    robot = scene.robot
+    names = ["tcp", "wrist_3_link", "wrist_1_link", "base"] + [n for n in robot.link_names if "pad" in n]
+    q = np.array([pin.randomConfiguration(robot.model, -np.ones(robot.model.nq) * 3, np.ones(robot.model.nq) * 3) for _ in range(40)])
+    compare(robot.model, [robot.frame_id(n) for n in names], q, rng.normal(0.0, 1.0, (40, robot.model.nv)))
+
+    chain = pin.Model()
+    parent = 0
+    kinds = [pin.JointModelRX(), pin.JointModelRUBZ(), pin.JointModelPY(), pin.JointModelRevoluteUnaligned(0.3, -0.5, 0.8),
+             pin.JointModelPrismaticUnaligned(np.array([0.6, 0.0, 0.8])), pin.JointModelRZ()]
+    for k, kind in enumerate(kinds):
+        placement = pin.SE3(pin.rpy.rpyToMatrix(*rng.normal(0, 1, 3)), rng.normal(0, 0.3, 3))
+        parent = chain.addJoint(parent, kind, placement, f"j{k}")
+        chain.addJointFrame(parent)
+    tip = chain.addFrame(pin.Frame("tip", parent, pin.SE3(np.eye(3), np.array([0.1, 0.0, 0.2])), pin.FrameType.OP_FRAME))
+    q = np.array([pin.randomConfiguration(chain, -np.ones(chain.nq), np.ones(chain.nq)) for _ in range(20)])
+    compare(chain, [tip, tip - 1], q, rng.normal(0.0, 1.0, (20, chain.nv)))
+
+    ball = pin.Model()
+    ball_frame = ball.addJointFrame(ball.addJoint(0, pin.JointModelSpherical(), pin.SE3.Identity(), "ball"))
+    assert not BatchKinematics(ball, [ball_frame]).supported
+
+    # The envelope's two ways to its frame states agree on a motion of the cell's arm.
+    safety = make_safety(scene, "manipulator", None)
+    motion = motion_to(scene, HOME + np.array([0.8, -0.4, 0.6, 0.3, 1.2, -0.7]))
+    full = safety.scene.layout(safety.group, None)(motion.positions)
+    model = robot.model
+    v_full = np.zeros((len(full), model.nv))
+    v_full[:, [int(model.idx_vs[model.getJointId(j)]) for j in ARM_JOINTS]] = motion.velocities
+    batched = _frame_states(safety.envelope, robot, safety.scene.layout(safety.group, None), full, motion.velocities)
+    per_point = _frame_states_per_point(safety.envelope, robot, full, v_full)
+    assert batched.positions == pytest.approx(per_point.positions, abs=1e-12)
+    assert batched.axes == pytest.approx(per_point.axes, abs=1e-12)
+    assert batched.twists == pytest.approx(per_point.twists, abs=1e-12)

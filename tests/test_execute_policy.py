@@ -1303,3 +1303,22 @@ def test_same_seed_same_result(registry):
     assert a.result.status == b.result.status
     assert np.array_equal(a.world.cell.arm, b.world.cell.arm)
     assert a.summary == b.summary
+
+
+@pytest.mark.parametrize("controller, action", [
+    ("joint_trajectory_admittance_controller", ""),
+    ("joint_trajectory_controller", 'controller_action_name="/joint_trajectory_controller/follow_joint_trajectory"'),
+])
+def test_a_trajectory_controller_switched_off_at_run_time_is_a_setup_error_naming_it(registry, controller, action):
+    """The names of the switch are known only when it runs, so the check before the first tick
+    cannot see it: the goal the inactive controller refuses ends the run as ERROR (a Retry would
+    send the same goal to the same controller), naming the controller and what to do."""
+    switch = (f"<Script code=\"off := '{controller}'\"/>"
+              '<SwitchController deactivate_controllers="{{off}}"/>{node}')
+    if controller == "joint_trajectory_controller":  # active first, then switched off by name at run time
+        switch = f'<SwitchController activate_controllers="{controller}" automatic_deactivation="true"/>' + switch
+    run = run_policy(registry, f"{BASE} {action}", ScriptedPolicy(hold()), wrap=switch, prepare=controller != "joint_trajectory_controller")
+    assert run.result.status == "ERROR", run.result.reason
+    assert f"the controller '/{controller}/" in run.result.reason
+    assert "is the controller active (a SwitchController before this node)" in run.result.reason
+    assert run.summary["steps_executed"] == 0

@@ -467,7 +467,10 @@ class ExecutePolicy(Behavior):
     # -- controller --------------------------------------------------------------------------
     def _watch_controller(self, now: float) -> Status | None:
         controller = self._controller()
-        news = controller.watch(now)
+        try:
+            news = controller.watch(now)
+        except SetupError as err:  # a goal refused as sent: refused again on a retry
+            raise self._setup_error(str(err)) from None
         self.metrics.goal_latency_max_s = controller.goal_latency_s
         if isinstance(news, Rollback):
             self._roll_back(news)

@@ -6,7 +6,8 @@ for a JTC led by the motion already sent, ``controller_link.jtc_stream_points``)
 ``states.Rollback`` to return to. ``watch`` follows the goal, and the goal it replaced until that
 one's result comes, and says what their news means for the run: nothing, a problem that ends it
 (an abort of either), or a rollback to plan the chunk again (``MAX_LATE_RETRIES`` times per
-chunk). The action client is built once (``ControllerLink``); ``reset`` starts a run.
+chunk); a goal the controller refuses as sent before any goal of the run has played (a controller
+that is not active, other joints) is a ``SetupError``: the same goal would be refused again. The action client is built once (``ControllerLink``); ``reset`` starts a run.
 """
 from __future__ import annotations
 
@@ -15,11 +16,12 @@ from typing import Any
 from control_msgs.action import FollowJointTrajectory
 from moveit_pro_controllers_msgs.action import FollowJointTrajectoryWithAdmittance as FollowTrajectory
 
+from runtime.errors import SetupError
 from runtime.io.bus import STATUS_ABORTED, STATUS_SUCCEEDED
 
 from ..action_goal import Goal, GoalState
 from ..controller_link import ControllerKind, ControllerLink, GoalTolerances, jtc_stream_points, trajectory_goal
-from ..trajectory_goal import trajectory_msg
+from ..trajectory_goal import NOT_ACCEPTED, REFUSED_GOAL_CODES, trajectory_msg
 from .config import PolicyRunConfig
 from .planner import goal_takes_effect_s
 from runtime.motion.samples import Samples
@@ -54,6 +56,8 @@ class ControllerStream:
         controller may have aborted it (a force or a path limit) before the new goal arrived,
         and then plays the new goal from rest; that abort ends the run all the same."""
         self.rollback: Rollback | None = None  # kept until the controller accepts the seam
+        self.played = False
+        """Whether a goal of this run has played: replaced while playing, or finished."""
         self.late_retries = 0  # of the chunk being sent
         self.goal_latency_s = 0.0
         """The slowest send -> accepted of a controller goal so far: zero in process, a tick or
@@ -83,6 +87,7 @@ class ControllerStream:
         message = self._goal_message(config, joints, samples, playing, rollback.takes_over_s, now_s, tick_period_s)
         if self.goal.state is GoalState.PLAYING:
             self.replaced = self.goal
+            self.played = True
         self.goal = Goal.send(self.link.client, message, now_s)
 
     def _goal_message(self, config: PolicyRunConfig, joints: list[str], samples: Samples, playing: Samples | None,
@@ -103,7 +108,9 @@ class ControllerStream:
 
     def watch(self, now_s: float) -> str | Rollback | None:
         """Follow the goal: None (nothing that changes the run), the problem that ends the run,
-        or the ``Rollback`` of a goal refused only for arriving after its seam."""
+        or the ``Rollback`` of a goal refused only for arriving after its seam; a ``SetupError``
+        when the controller refuses a goal as sent (rejected; or, before any goal of the run
+        played, ended with one of ``REFUSED_GOAL_CODES``)."""
         aborted = self._watch_replaced()
         if aborted is not None:
             return aborted
@@ -119,9 +126,13 @@ class ControllerStream:
         if self.goal.state is GoalState.REJECTED:
             self.goal = Goal()  # nothing of it is playing
             why = " (a joint_trajectory_controller gives its reason only in its own log)" if self.link.kind is ControllerKind.JTC else ""
-            return f"the controller '{name}' rejected the goal{why}"
+            raise SetupError(f"the controller '{name}' rejected the goal{why}: {NOT_ACCEPTED}")
         if self.goal.state is GoalState.ENDED and goal.state is not GoalState.ENDED:  # its result came now
             outcome = self.goal.outcome
+            if outcome.status == STATUS_SUCCEEDED or outcome.result.error_code == FollowTrajectory.Result.SUPERSEDED:
+                self.played = True
+            elif not self.played and outcome.result.error_code in REFUSED_GOAL_CODES:
+                raise SetupError(f"the controller '{name}' refused the goal: {outcome.result.error_string}: {NOT_ACCEPTED}")
             if outcome.status == STATUS_ABORTED or outcome.result.error_code not in (0,):
                 if outcome.result.error_code == FollowTrajectory.Result.SUPERSEDED:
                     return None

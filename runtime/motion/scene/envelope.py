@@ -20,8 +20,9 @@ Configured per cell in a YAML file beside joint_limits.yaml (the simulated cell'
         max_angle_deg: 90
 
 Speeds are the frame's velocity at a point (the Jacobian times the point's joint velocities);
-positions and the axis come from forward kinematics of the point's joint positions
-(pinocchio, through the planning scene's ``RobotModel``). ``narrowed`` applies a behavior's port
+positions and the axis come from forward kinematics of the point's joint positions, for all the
+points of a motion at once (``batch_kinematics.py``; pinocchio point by point for joints it does
+not cover). ``narrowed`` applies a behavior's port
 overrides, which may only tighten the cell's envelope.
 """
 from __future__ import annotations
@@ -176,7 +177,8 @@ def check_envelope(
     group's joints, the same rows) outside ``envelope``. At one point the keep-in boxes are
     reported before the tool axis, then the linear and the angular speed.
 
-    One forward-kinematics pass per point fills arrays; the checks then run on all points at once."""
+    The frames' poses and the TCP's velocity come for all points at once (``RobotModel.batch_kinematics``);
+    the checks then run on all points together."""
     full = np.atleast_2d(layout(np.atleast_2d(positions)))
     if len(full) == 0:
         return None
@@ -190,6 +192,10 @@ def check_envelope(
 
     order = 0
     for box in envelope.keep_in_boxes:
+        inside = poses.positions[:, [frames.index(f) for f in box.frames]]
+        if ((inside >= np.asarray(box.min_m) - tolerance) & (inside <= np.asarray(box.max_m) + tolerance)).all():
+            order += 6 * len(box.frames)
+            continue
         for frame in box.frames:
             xyz = poses.positions[:, frames.index(frame)]
             for k, axis in enumerate(AXES):
@@ -292,6 +298,27 @@ class _FrameStates:
 def _frame_states(envelope: CartesianEnvelope, robot: RobotModel, layout: ConfigurationMap, full: np.ndarray,
                   velocities: np.ndarray | None) -> _FrameStates:
     model = robot.model
+    frames = envelope.frames
+    cone = envelope.tool_cone
+    use_velocities = velocities is not None and envelope.needs_velocities
+    v_columns = [int(model.idx_vs[model.getJointId(j)]) for j in layout.group.joints]
+    v_full = None
+    if use_velocities:
+        v_full = np.zeros((len(full), model.nv))
+        v_full[:, v_columns] = np.atleast_2d(velocities)[:, : len(v_columns)]  # type: ignore[index]
+    kinematics = robot.batch_kinematics(frames)
+    if not kinematics.supported:
+        return _frame_states_per_point(envelope, robot, full, v_full)
+    states = kinematics.states(full, v_full, frames.index(envelope.tcp_frame))
+    axes = None if cone is None else states.axis(frames.index(cone.frame), np.asarray(cone.axis))
+    return _FrameStates(states.positions, axes, states.twist)
+
+
+def _frame_states_per_point(envelope: CartesianEnvelope, robot: RobotModel, full: np.ndarray,
+                            v_full: np.ndarray | None) -> _FrameStates:
+    """``_frame_states`` through pinocchio one point at a time: for chains with joints
+    ``BatchKinematics`` does not cover."""
+    model = robot.model
     data = model.createData()
     frame_ids = [robot.frame_id(name) for name in envelope.frames]
     count = len(full)
@@ -299,16 +326,12 @@ def _frame_states(envelope: CartesianEnvelope, robot: RobotModel, layout: Config
     cone = envelope.tool_cone
     rotations = np.empty((count, 3, 3)) if cone is not None else None
     cone_id = robot.frame_id(cone.frame) if cone is not None else 0
-    use_velocities = velocities is not None and envelope.needs_velocities
-    twists = np.empty((count, 6)) if use_velocities else None
+    twists = np.empty((count, 6)) if v_full is not None else None
     tcp_id = robot.frame_id(envelope.tcp_frame)
-    v_columns = [int(model.idx_vs[model.getJointId(j)]) for j in layout.group.joints]
-    v_full = np.zeros(model.nv)
     world_aligned = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
     for i, q in enumerate(full):
-        if use_velocities:
-            v_full[v_columns] = velocities[i, : len(v_columns)]  # type: ignore[index]
-            pin.forwardKinematics(model, data, q, v_full)
+        if v_full is not None:
+            pin.forwardKinematics(model, data, q, v_full[i])
         else:
             pin.forwardKinematics(model, data, q)
         for k, fid in enumerate(frame_ids):

@@ -22,6 +22,7 @@ import numpy as np
 import pinocchio as pin
 import yaml
 
+from .batch_kinematics import BatchKinematics
 from .hulls import with_convex_hulls
 from .srdf import Srdf, SrdfGroup, parse_srdf
 from runtime.errors import ObjectiveError
@@ -165,6 +166,7 @@ class RobotModel:
         self._check_couplings()
         self._check_srdf_names()
         self._groups: dict[str, JointGroup] = {}
+        self._batch_kinematics: dict[tuple[str, ...], BatchKinematics] = {}
 
     # -- construction ---------------------------------------------------------------------
     @classmethod
@@ -215,6 +217,14 @@ class RobotModel:
 
     def has_frame(self, name: str) -> bool:
         return name in self._frame_ids
+
+    def batch_kinematics(self, frames: Sequence[str]) -> BatchKinematics:
+        """Forward kinematics of ``frames`` over many configurations at once (built once per
+        set of frames and kept)."""
+        key = tuple(frames)
+        if key not in self._batch_kinematics:
+            self._batch_kinematics[key] = BatchKinematics(self.model, [self.frame_id(f) for f in key])
+        return self._batch_kinematics[key]
 
     def link_of_frame(self, frame_id: int) -> str:
         """The link (BODY frame) a frame is rigidly attached to; ``universe`` for the world."""

@@ -1,0 +1,187 @@
+"""Forward kinematics of a few frames over many configurations at once, in numpy.
+
+The Cartesian envelope reads the tool's pose and velocity at every densified point of a motion
+(hundreds per chunk). pinocchio answers one configuration per call; this module composes the
+joint transforms of the frames' kinematic chains for all configurations together, so a chunk
+costs a few array operations per joint instead of several pinocchio calls per point.
+
+It covers the joints of serial arms: revolute about a frame axis or any axis (bounded or
+continuous) and prismatic along one. ``BatchKinematics.supports`` says whether a chain has only
+those; callers use pinocchio point by point otherwise. Results equal pinocchio's (``oMf`` and
+``getFrameVelocity`` in ``LOCAL_WORLD_ALIGNED``) to rounding: tests/test_envelope.py compares them.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Sequence
+
+import numpy as np
+import pinocchio as pin
+
+_AXES = {"X": (1.0, 0.0, 0.0), "Y": (0.0, 1.0, 0.0), "Z": (0.0, 0.0, 1.0)}
+
+
+@dataclass(frozen=True)
+class _Joint:
+    parent: int
+    """Position of the parent joint in the chain; -1 for the world."""
+    rotation: np.ndarray
+    """(3, 3) placement in the parent joint's frame at zero."""
+    translation: np.ndarray
+    revolute: bool
+    """True: rotation about ``axis``; False: translation along it."""
+    axis: np.ndarray
+    """Unit axis in the joint's own frame."""
+    q_index: int
+    continuous: bool
+    """The configuration holds (cos, sin) of the angle (pinocchio's RUB joints)."""
+    v_index: int
+
+
+@dataclass(frozen=True)
+class FrameStates:
+    positions: np.ndarray
+    """(N, F, 3): each frame's origin in the world."""
+    point_last_rotations: tuple[np.ndarray, ...]
+    """Each frame's orientation in the world, (3, 3, N) per frame."""
+    twist: np.ndarray | None = None
+    """(N, 6): one frame's linear then angular velocity, world axes at its origin, when asked."""
+
+    def rotations(self, frame: int) -> np.ndarray:
+        """(N, 3, 3): frame number ``frame``'s orientation at each point."""
+        return self.point_last_rotations[frame].transpose(2, 0, 1)
+
+    def axis(self, frame: int, axis: np.ndarray) -> np.ndarray:
+        """(N, 3): ``axis`` (in frame number ``frame``) in the world at each point."""
+        return np.matmul(np.asarray(axis, dtype=float), self.point_last_rotations[frame]).T
+
+
+def _joint_kind(joint: pin.JointModel) -> tuple[bool, np.ndarray, bool] | None:
+    """(revolute, unit axis, continuous) of a joint this module handles, else None."""
+    name = joint.shortname()
+    if name in ("JointModelRX", "JointModelRY", "JointModelRZ"):
+        return True, np.array(_AXES[name[-1]]), False
+    if name in ("JointModelRUBX", "JointModelRUBY", "JointModelRUBZ"):
+        return True, np.array(_AXES[name[-1]]), True
+    if name in ("JointModelPX", "JointModelPY", "JointModelPZ"):
+        return False, np.array(_AXES[name[-1]]), False
+    if name in ("JointModelRevoluteUnaligned", "JointModelPrismaticUnaligned"):
+        axis = np.asarray(joint.extract().axis, dtype=float)
+        return name == "JointModelRevoluteUnaligned", axis / np.linalg.norm(axis), False
+    return None
+
+
+def _ancestors(model: pin.Model, joint_id: int) -> list[int]:
+    chain = []
+    while joint_id > 0:
+        chain.append(joint_id)
+        joint_id = int(model.parents[joint_id])
+    return chain[::-1]
+
+
+class BatchKinematics:
+    """World poses and velocities of ``frame_ids`` of ``model`` for ``(N, nq)`` configurations."""
+
+    def __init__(self, model: pin.Model, frame_ids: Sequence[int]) -> None:
+        joint_ids = sorted({j for fid in frame_ids for j in _ancestors(model, int(model.frames[fid].parentJoint))})
+        order = {j: k for k, j in enumerate(joint_ids)}
+        self.supported = True
+        self._joints: list[_Joint] = []
+        for j in joint_ids:
+            kind = _joint_kind(model.joints[j])
+            if kind is None:
+                self.supported = False
+                break
+            placement = model.jointPlacements[j]
+            parent = int(model.parents[j])
+            self._joints.append(_Joint(order[parent] if parent > 0 else -1, np.array(placement.rotation),
+                                       np.array(placement.translation), kind[0], kind[1],
+                                       int(model.idx_qs[j]), kind[2], int(model.idx_vs[j])))
+        self._frames = [(order.get(int(model.frames[fid].parentJoint), -1), np.array(model.frames[fid].placement.rotation),
+                         np.array(model.frames[fid].placement.translation)) for fid in frame_ids]
+        self._chains = [[order[j] for j in _ancestors(model, int(model.frames[fid].parentJoint))] for fid in frame_ids]
+
+    def states(self, q: np.ndarray, v: np.ndarray | None = None, twist_frame: int | None = None) -> FrameStates:
+        """The frames' world poses at each row of ``q`` (N, nq); with ``v`` (N, nv) and
+        ``twist_frame`` (a position in ``frame_ids``), that frame's velocity too."""
+        q = np.atleast_2d(np.asarray(q, dtype=float))
+        rotations, positions = self._joint_poses(q)
+        count = len(q)
+        frame_r, frame_p = [], []
+        for parent, rotation, translation in self._frames:
+            if parent < 0:
+                frame_r.append(np.broadcast_to(rotation[:, :, None], (3, 3, count)))
+                frame_p.append(np.broadcast_to(translation[:, None], (3, count)))
+            else:
+                frame_r.append(np.matmul(rotation.T, rotations[parent]))
+                frame_p.append(positions[parent] + np.matmul(translation, rotations[parent]))
+        twist = None
+        if v is not None and twist_frame is not None:
+            v = np.atleast_2d(np.asarray(v, dtype=float))
+            twist = self._twist(rotations, positions, frame_p[twist_frame], v, twist_frame)
+        return FrameStates(np.stack(frame_p).transpose(2, 0, 1), tuple(frame_r), twist)
+
+    def _joint_poses(self, q: np.ndarray) -> tuple[list[np.ndarray], list[np.ndarray]]:
+        """Each chain joint's world rotation and origin, in chain order. Arrays are laid out
+        point-last, (3, 3, N) and (3, N), so that each matrix element is one contiguous row."""
+        count = len(q)
+        identity = np.broadcast_to(np.eye(3)[:, :, None], (3, 3, count))
+        origin = np.zeros((3, count))
+        rotations: list[np.ndarray] = []
+        positions: list[np.ndarray] = []
+        for joint in self._joints:
+            parent_r, parent_p = (identity, origin) if joint.parent < 0 else (rotations[joint.parent], positions[joint.parent])
+            r0 = np.matmul(joint.rotation.T, parent_r)  # parent_r @ placement, element by element
+            p0 = parent_p + np.matmul(joint.translation, parent_r)
+            if joint.continuous:
+                angle = np.arctan2(q[:, joint.q_index + 1], q[:, joint.q_index])
+            else:
+                angle = q[:, joint.q_index]
+            if joint.revolute:
+                rotations.append(_rotated(r0, joint.axis, angle))
+                positions.append(p0)
+            else:
+                rotations.append(r0)
+                positions.append(p0 + np.matmul(joint.axis, r0) * angle)
+        return rotations, positions
+
+    def _twist(self, rotations: list[np.ndarray], positions: list[np.ndarray], origin: np.ndarray, v: np.ndarray,
+               frame: int) -> np.ndarray:
+        """(N, 6): linear then angular velocity of frame ``frame`` at ``origin`` (3, N), world
+        axes (pinocchio's LOCAL_WORLD_ALIGNED)."""
+        linear = np.zeros_like(origin)
+        angular = np.zeros_like(origin)
+        for k in self._chains[frame]:
+            joint = self._joints[k]
+            rate = v[:, joint.v_index]
+            axis = np.matmul(joint.axis, rotations[k])
+            if joint.revolute:
+                angular += axis * rate
+                linear += _cross(axis, origin - positions[k]) * rate
+            else:
+                linear += axis * rate
+        return np.vstack((linear, angular)).T
+
+
+def _rotated(r0: np.ndarray, axis: np.ndarray, angle: np.ndarray) -> np.ndarray:
+    """``r0 @ R(axis, angle)`` for rotations ``r0`` (3, 3, N), a unit ``axis`` and angles (N,).
+    About a coordinate axis only the other two columns turn; about any other axis, Rodrigues'
+    formula ``c r0 + s r0 [axis]x + (1 - c) (r0 axis) axis^T``."""
+    c, s = np.cos(angle), np.sin(angle)
+    coordinate = np.flatnonzero(axis == 1.0)
+    if len(coordinate) == 1:
+        i = int(coordinate[0])
+        j, k = (i + 1) % 3, (i + 2) % 3
+        rotated = np.empty_like(r0)
+        rotated[:, i] = r0[:, i]
+        rotated[:, j] = c * r0[:, j] + s * r0[:, k]
+        rotated[:, k] = c * r0[:, k] - s * r0[:, j]
+        return rotated
+    x, y, z = axis
+    cross = np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
+    return c * r0 + s * np.matmul(cross.T, r0) + (1.0 - c) * (np.matmul(axis, r0)[:, None, :] * axis[None, :, None])
+
+
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Column-wise cross product of two (3, N) arrays."""
+    return np.stack((a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]))

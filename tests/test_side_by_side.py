@@ -1,0 +1,47 @@
+"""benchmarks/side_by_side.py: one benchmark on two checkouts in turn, the ratio of each figure."""
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+
+FAKE = '''import json, sys
+print("a table a person reads")
+for points in (100, 200):
+    print(json.dumps({{"bench": "fake", "points": points, "method": "m", "p50_ms": {value} * points}}))
+'''
+
+
+def checkout(tmp_path: Path, name: str, value: float) -> Path:
+    root = tmp_path / name
+    (root / "benchmarks").mkdir(parents=True)
+    (root / "benchmarks" / "bench_fake.py").write_text(FAKE.format(value=value))
+    return root
+
+
+def run(*args: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([sys.executable, str(ROOT / "benchmarks" / "side_by_side.py"), *args],
+                          capture_output=True, text=True, check=False)
+
+
+def test_rows_are_matched_by_their_keys_and_each_field_gets_its_ratio(tmp_path):
+    """This checkout has no bench_fake.py, so the 'this' side is pointed at a copy through the
+    script's own path: the baseline's figures are half of this one's."""
+    base = checkout(tmp_path, "base", 0.5)
+    this = checkout(tmp_path, "this", 1.0)
+    (this / "benchmarks" / "side_by_side.py").write_text((ROOT / "benchmarks" / "side_by_side.py").read_text())
+    done = subprocess.run([sys.executable, str(this / "benchmarks" / "side_by_side.py"), "--baseline", str(base), "--rounds", "2",
+                           "--key", "points", "--field", "p50_ms", "bench_fake.py"], capture_output=True, text=True, check=False)
+    assert done.returncode == 0, done.stderr
+    lines = [line for line in done.stdout.splitlines() if not line.startswith("#")]
+    assert len(lines) == 2
+    assert "method=m points=100" in lines[0] and "baseline         50  this        100  this/baseline  2.000" in lines[0]
+    assert "method=m points=200" in lines[1] and "this/baseline  2.000" in lines[1]
+
+
+def test_a_missing_baseline_script_is_named():
+    done = run("--baseline", "/nonexistent", "--field", "p50_ms", "bench_pipeline.py")
+    assert done.returncode == 1
+    assert done.stderr.strip() == "side_by_side: /nonexistent/benchmarks/bench_pipeline.py does not exist"
