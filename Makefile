@@ -14,7 +14,7 @@ export ROS_DOMAIN_ID ?= 42
 export MUJOCO_GL ?= egl
 export ROS_LOG_DIR ?= $(CURDIR)/build/ros_log
 
-.PHONY: setup demo test test-all bench clean lerobot lerobot-policy lerobot-diffusion chromium ray
+.PHONY: setup demo lint test test-all bench clean lerobot lerobot-policy lerobot-diffusion chromium ray
 
 # Every run then reads the project's bytecode instead of compiling ~150 modules from source: the
 # import system reads .pyc files even under PYTHONDONTWRITEBYTECODE=1 (which only stops it writing
@@ -27,19 +27,19 @@ setup: $(STAMP)
 # over, and a second venv on the machine links its files from uv's cache (~/.cache/uv) in seconds.
 # uv reads no pip configuration (UV_INDEX_URL and friends name another index). The interface
 # packages build once per machine and Python (about a minute on two cores) and install from
-# ~/.cache/objective-runtime after that (runtime/build_interfaces.py). PIP_QUIET drops the one
+# ~/.cache/objective-runtime after that (runtime/app/build_interfaces.py). PIP_QUIET drops the one
 # warning per package that a pip configuration naming an index directory that is not there causes.
 UV_VERSION := 0.13.9
 PIP_QUIET := 2>&1 | { grep -v "is ignored: it is neither a file nor a directory" || true; }
 
-$(STAMP): pyproject.toml runtime/build_interfaces.py $(shell find runtime/ros/interfaces -type f 2>/dev/null)
+$(STAMP): pyproject.toml runtime/app/build_interfaces.py $(shell find runtime/io/ros/interfaces -type f 2>/dev/null)
 	@test -x $(PY) || test -n "$(PYTHON)" || { echo "make: no Python 3.12 found (python3.12, ~/.pyenv/versions/3.12.1); name one with PYTHON=..."; exit 2; }
 	@test -x $(PY) || { echo "setup: creating $(VENV) with $(PYTHON)"; $(PYTHON) -m venv $(VENV); }
 	@echo "setup: installing the project and its pinned dependencies into $(VENV) (uv $(UV_VERSION))"
 	@set -o pipefail; $(PY) -m pip install --quiet uv==$(UV_VERSION) $(PIP_QUIET)
-	@$(VENV)/bin/uv pip install --quiet --python $(PY) --compile-bytecode -e '.[sim,record,ros,ros-build,test,monitor]'
+	@$(VENV)/bin/uv pip install --quiet --python $(PY) --compile-bytecode -e '.[sim,record,ros,ros-build,test,dev,monitor]'
 	@echo "setup: the ROS 2 interface packages (built once per machine and Python, then from its cache)"
-	@$(PY) -m runtime.build_interfaces --build-dir build/interfaces
+	@$(PY) -m runtime.app.build_interfaces --build-dir build/interfaces
 	@touch $(STAMP)
 
 # Optional LeRobot extra (LeRobot 0.6.1, torch 2.11.0 from the registry) in the project's venv:
@@ -121,14 +121,18 @@ $(RAY_STAMP): $(STAMP) pyproject.toml
 demo: setup
 	$(VENV)/bin/objective run objectives/stack_cubes.xml
 
-test: setup
+# ruff's pyflakes rules and syntax errors (pyproject.toml, [tool.ruff]) over the whole tree: seconds.
+lint: setup
+	$(VENV)/bin/ruff check --quiet .
+
+test: lint
 	$(PY) -m pytest -q -rs
 
 # The fast tier (docs/testing.md): pure functions and the loader, no world, no ROS 2, no subprocess.
 FAST_TESTS := tests/test_compliance_maths.py tests/test_execute_policy_math.py tests/test_execute_policy_core.py \
 	tests/test_trajectory_maths.py tests/test_trajectory_points.py tests/test_step_spline.py tests/test_seam_blend.py \
 	tests/test_svg_chart.py tests/test_script.py tests/test_loader.py tests/test_errors.py tests/test_eval_stats.py \
-	tests/test_cdr.py tests/test_joint_states.py tests/test_layers.py tests/test_docs.py
+	tests/test_cdr.py tests/test_joint_states.py tests/test_layers.py tests/test_import_cycles.py tests/test_docs.py
 .PHONY: test-fast
 test-fast: setup
 	$(PY) -m pytest -q -rs $(FAST_TESTS)

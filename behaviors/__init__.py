@@ -5,7 +5,7 @@ to learn every behavior's XML ID, which is its class name.
 """
 from __future__ import annotations
 
-from runtime.registry import Registry
+from runtime.tree.registry import Registry
 
 
 def register(registry: Registry) -> None:

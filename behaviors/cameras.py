@@ -12,8 +12,8 @@ from typing import Any, ClassVar
 
 from sensor_msgs.msg import CameraInfo, Image
 
-from runtime.behavior import Behavior, Status
-from runtime.ports import InputPort, OutputPort, PortType, Range
+from runtime.tree.behavior import Behavior, Status
+from runtime.tree.ports import InputPort, OutputPort, PortType, Range
 
 from .waiting import Deadline, release_subscription
 

@@ -30,9 +30,9 @@ from control_msgs.msg import JointTolerance
 from trajectory_msgs.msg import JointTrajectory
 
 from runtime.errors import ObjectiveError, SourceLocation
-from runtime.timestamps import duration_msg
+from runtime.io.timestamps import duration_msg
 
-from .execute_policy.shaping import Samples
+from runtime.motion.samples import Samples
 
 TIME_EPS_S = 1e-6
 """Seconds within which two sample times are the same instant (stamps travel as nanoseconds)."""

@@ -18,10 +18,10 @@ from typing import Sequence
 from controller_manager_msgs.msg import ControllerState
 from controller_manager_msgs.srv import ListControllers, SwitchController as SwitchSrv
 
-from runtime.behavior import Behavior, Status
+from runtime.tree.behavior import Behavior, Status
 from runtime.errors import SetupError
-from runtime.ports import InputPort, NameKind, Names, PortType, Range
-from runtime.timestamps import duration_msg
+from runtime.tree.ports import InputPort, NameKind, Names, PortType, Range
+from runtime.io.timestamps import duration_msg
 
 from .waiting import Deadline, when_ready
 
@@ -107,7 +107,7 @@ class SwitchController(Behavior):
     )
 
     def lenient_names(self) -> tuple[str, ...]:
-        """BEST_EFFORT switches what it can: unknown controllers are no error then (``runtime.world_check``),
+        """BEST_EFFORT switches what it can: unknown controllers are no error then (``runtime.app.world_check``),
         nor when the strictness is known only when the node runs."""
         strictness = self.bindings["strictness"]
         strict = strictness.key is None and STRICTNESS.get(str(strictness.literal).strip().upper()) == SwitchSrv.Request.STRICT

@@ -11,8 +11,8 @@ from typing import ClassVar
 import numpy as np
 from geometry_msgs.msg import PoseStamped
 
-from runtime.behavior import Behavior, Status
-from runtime.ports import InputPort, NameKind, Names, OutputPort, PortType
+from runtime.tree.behavior import Behavior, Status
+from runtime.tree.ports import InputPort, NameKind, Names, OutputPort, PortType
 
 from .poses import NO_SCENE, FrameError, SceneBehavior, frame_in_world, matrix_to_pose, pose_in_world, pose_to_matrix
 

@@ -3,10 +3,10 @@ from __future__ import annotations
 
 from control_msgs.action import GripperCommand
 
-from runtime.behavior import Behavior, Status
-from runtime.bus import STATUS_SUCCEEDED
+from runtime.tree.behavior import Behavior, Status
+from runtime.io.bus import STATUS_SUCCEEDED
 from runtime.errors import SetupError
-from runtime.ports import InputPort, NameKind, Names, PortType, Range
+from runtime.tree.ports import InputPort, NameKind, Names, PortType, Range
 
 from .action_goal import Goal, GoalState
 from .waiting import Deadline, when_ready

@@ -9,10 +9,10 @@ from geometry_msgs.msg import TwistStamped, Vector3, WrenchStamped
 from std_msgs.msg import Empty
 from std_srvs.srv import Trigger
 
-from runtime.behavior import Behavior, Status
-from runtime.decorators import elapsed
-from runtime.ports import InputPort, OutputPort, PortType, Range
-from runtime.timestamps import time_msg
+from runtime.tree.behavior import Behavior, Status
+from runtime.tree.decorators import elapsed
+from runtime.tree.ports import InputPort, OutputPort, PortType, Range
+from runtime.io.timestamps import time_msg
 
 from .waiting import Deadline, when_ready
 

@@ -15,29 +15,21 @@ import numpy as np
 from ruckig import InputParameter, Result, Ruckig, Trajectory
 from sensor_msgs.msg import JointState
 
-from runtime.behavior import Status
-from runtime.ports import InputPort, NameKind, Names, PortType, Range
+from runtime.tree.behavior import Status
+from runtime.tree.ports import InputPort, NameKind, Names, PortType, Range
 
-from runtime.scene import JointLimits
-from runtime.errors import ObjectiveError, SetupError
+from runtime.motion.scene import JointLimits
+from runtime.errors import SetupError
 from .action_goal import Goal, GoalState
 from .controller_link import CONTROLLER_ACTION_TYPES, ControllerLink, GoalTolerances, trajectory_goal
-from .execute_policy.shaping import Samples
+from .planning import Motion, plan_free_motion
+from runtime.motion.samples import Samples
 from .safety import SafetyError, make_safety
-from .trajectory_goal import GOAL_TIME_TOLERANCE_S, SendsTrajectoryGoal, trajectory_msg
+from .trajectory_goal import DEFAULT_CONTROLLER, GOAL_TIME_TOLERANCE_S, NO_MOTION_S, PlanningError, SendsTrajectoryGoal, trajectory_msg
 from .waiting import Deadline, when_ready
 
-DEFAULT_CONTROLLER = "/joint_trajectory_admittance_controller/follow_joint_trajectory"
 SAMPLE_PERIOD = 0.02
-NO_MOTION_S = 1e-6
-"""Seconds below which a planned motion has no length: the arm is already at the goal, and
-the motion is the goal alone (one point at time 0), which succeeds at once without a goal
-to the controller (a controller refuses points that share one ``time_from_start``)."""
 JERK_PER_ACCELERATION = 10.0  # 1/s: max jerk = 10 x max acceleration
-
-
-class PlanningError(ObjectiveError, ValueError):
-    pass
 
 
 def plan_point_to_point(
@@ -153,8 +145,6 @@ class _MoveToJoints(SendsTrajectoryGoal):
 
     def _around(self, start: np.ndarray, goal: np.ndarray, snapshot) -> Samples:
         """The motion planned around what blocks the straight one (``behaviors.planning``)."""
-        from .planning import Motion, plan_free_motion  # behaviors.planning imports this module
-
         seed = int(self.get_input("seed")) if any(p.name == "seed" for p in self.ports) else 0
         motion = Motion(self.get_input("link_padding"), self.get_input("velocity_scaling_factor"),
                         self.get_input("acceleration_scaling_factor"), 1.0 / SAMPLE_PERIOD, seed=seed)

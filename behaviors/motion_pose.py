@@ -1,7 +1,7 @@
 """MoveToPose: put a robot frame (the TCP by default) at a pose, through the scene's IK.
 
 The target pose (a ``geometry_msgs/PoseStamped`` in any frame the pose behaviors know) is turned
-into joint positions with ``runtime.scene.solve_ik``, seeded with the current joint state so
+into joint positions with ``runtime.motion.scene.solve_ik``, seeded with the current joint state so
 the answer is the nearby solution, not a flipped elbow or wrist; the motion itself is
 MoveToJointState's: ruckig, within the limits, collision-checked before it starts. The path is
 straight in joint space, not in Cartesian space: keep approach moves short (a few cm).
@@ -12,10 +12,11 @@ import math
 
 import numpy as np
 
-from runtime.ports import InputPort, NameKind, Names, PortType, Range
-from runtime.scene.kinematics import solve_ik
+from runtime.tree.ports import InputPort, NameKind, Names, PortType, Range
+from runtime.motion.scene.kinematics import solve_ik
 
-from .motion import PlanningError, _MoveToJoints
+from .motion import _MoveToJoints
+from .trajectory_goal import PlanningError
 from .poses import FrameError, RobotState, as_pose_stamped, pose_in_world
 
 

@@ -30,15 +30,15 @@ from typing import Any, ClassVar
 import numpy as np
 from std_srvs.srv import SetBool
 
-from runtime.behavior import Behavior, Status
+from runtime.tree.behavior import Behavior, Status
 from runtime.errors import SetupError
-from runtime.ports import InOutPort, InputPort, NameKind, Names, OutputPort, PortType, Range
-from runtime.scene import ANY, SceneSnapshot
-from runtime.scene.kinematics import frame_pose
+from runtime.tree.ports import InOutPort, InputPort, NameKind, Names, OutputPort, PortType, Range
+from runtime.motion.scene import ANY, SceneSnapshot
+from runtime.motion.scene.kinematics import frame_pose
 
 from .action_goal import Goal, GoalState
-from .execute_policy.shaping import Samples
-from .motion import PlanningError
+from runtime.motion.samples import Samples
+from .trajectory_goal import PlanningError
 from .planning import (
     CHECK_STEP_RAD, GROUP_PORT, MOTION_PORTS, SEED_PORT, Motion, collision_free_ik, group_goal, motion_from_ports, plan_free_motion,
     safety_for,

@@ -1,7 +1,7 @@
 """MoveIt Pro's free-space planning behaviors: PlanToJointGoal and ComputeInverseKinematics, and
 the pieces the MTC stages share with them (``behaviors.mtc``).
 
-A free-space motion is planned by ``runtime.scene.planner`` (a straight joint move when it is
+A free-space motion is planned by ``runtime.motion.scene.planner`` (a straight joint move when it is
 free, otherwise OMPL's RRT-Connect with shortcutting) on the planning scene's own collision checks,
 then timed within the joint velocity and acceleration limits (scaled), at rest at each corner of
 the path, and checked with ExecuteTrajectory's checks (``check_motion``) before it is written.
@@ -15,21 +15,20 @@ from typing import Any, ClassVar
 import numpy as np
 from sensor_msgs.msg import JointState
 
-from runtime.behavior import Behavior, Status
+from runtime.tree.behavior import Behavior, Status
 from runtime.errors import SetupError
-from runtime.ports import InputPort, NameKind, Names, OutputPort, PortType, Range
-from runtime.scene import SceneSnapshot
-from runtime.scene.planner import PathPlanningError, PlannerSettings, plan_path, scene_validity, segment_states
-from runtime.scene.kinematics import IkSolver
-from runtime.timestamps import time_msg
+from runtime.tree.ports import InputPort, NameKind, Names, OutputPort, PortType, Range
+from runtime.motion.scene import SceneSnapshot
+from runtime.motion.scene.planner import PathPlanningError, PlannerSettings, plan_path, scene_validity, segment_states
+from runtime.motion.scene.kinematics import IkSolver
+from runtime.io.timestamps import time_msg
 
-from .execute_policy.shaping import Samples
-from .motion import PlanningError
+from runtime.motion.samples import Samples
 from .poses import FrameError, ReadsRobotState, known_frames, pose_in_world
 from .robot_state import group_joint_state
 from .safety import MotionSafety, SafetyError, make_safety
 from .trajectories import check_motion, resample_within_envelope, time_path
-from .trajectory_goal import trajectory_msg
+from .trajectory_goal import PlanningError, trajectory_msg
 
 CHECK_STEP_RAD = 0.05
 """Joint step between the states ``check_motion`` checks (ExecuteTrajectory's)."""

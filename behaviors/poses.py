@@ -26,9 +26,9 @@ from geometry_msgs.msg import Pose, PoseStamped
 from sensor_msgs.msg import JointState
 from visualization_msgs.msg import MarkerArray
 
-from runtime.behavior import Behavior, Condition, Status
-from runtime.timestamps import time_msg
-from runtime.ports import InputPort, NameKind, Names, OutputPort, PortType, Range
+from runtime.tree.behavior import Behavior, Condition, Status
+from runtime.io.timestamps import time_msg
+from runtime.tree.ports import InputPort, NameKind, Names, OutputPort, PortType, Range
 from runtime.errors import ObjectiveError, SetupError
 
 from .visualization import axis_markers, text_marker

@@ -15,9 +15,9 @@ from typing import ClassVar
 from geometry_msgs.msg import PoseStamped
 from sensor_msgs.msg import JointState
 
-from runtime.behavior import Behavior, Status
-from runtime.ports import InputPort, NameKind, Names, OutputPort, PortType
-from runtime.timestamps import time_msg
+from runtime.tree.behavior import Behavior, Status
+from runtime.tree.ports import InputPort, NameKind, Names, OutputPort, PortType
+from runtime.io.timestamps import time_msg
 
 from .poses import NO_SCENE, WORLD_FRAME, FrameError, SceneBehavior, frame_in_world, matrix_to_pose
 from .safety import SafetyError, make_safety

@@ -9,12 +9,12 @@ from typing import Any, Callable
 import numpy as np
 
 from runtime.errors import ObjectiveError, OptionError
-from runtime.scene import (
+from runtime.motion.scene import (
     CartesianEnvelope, CollisionResult, ConfigurationMap, EnvelopeOverrides, EnvelopeViolation, GroupError, JointLimit, JointLimits,
     LimitViolation, PlanningScene, PoseCheck, SceneSnapshot, check_envelope, narrowed, shrunk, tool_speed_ratio,
 )
 
-from .execute_policy.shaping import Samples
+from runtime.motion.samples import Samples
 
 
 GRIPPER_BAND_FRACTION = 0.1

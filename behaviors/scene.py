@@ -10,8 +10,8 @@ from __future__ import annotations
 
 from typing import Any
 
-from runtime.behavior import Status
-from runtime.ports import InputPort, NameKind, Names, PortType
+from runtime.tree.behavior import Status
+from runtime.tree.ports import InputPort, NameKind, Names, PortType
 
 from .poses import NO_SCENE, FrameError, SceneBehavior
 

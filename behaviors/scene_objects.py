@@ -20,10 +20,10 @@ from __future__ import annotations
 import math
 from typing import Any, Callable
 
-from runtime.behavior import Status
+from runtime.tree.behavior import Status
 from runtime.errors import PortError
-from runtime.ports import InputPort, NameKind, Names, PortType, Range
-from runtime.scene import Box
+from runtime.tree.ports import InputPort, NameKind, Names, PortType, Range
+from runtime.motion.scene import Box
 
 from .poses import NO_SCENE, FrameError, SceneBehavior, as_pose_stamped, pose_in_world
 from .scene import describe_objects

@@ -11,8 +11,8 @@ from typing import Any
 
 import numpy as np
 
-from runtime.behavior import Behavior, Status
-from runtime.ports import UINT32_MAX, InputPort, NameKind, Names, PortType, Range
+from runtime.tree.behavior import Behavior, Status
+from runtime.tree.ports import UINT32_MAX, InputPort, NameKind, Names, PortType, Range
 
 from .poses import FrameError, ReadsRobotState, frame_in_world, offset_matrix
 from .scene_objects import ChecksPorts, box_dimensions, object_id

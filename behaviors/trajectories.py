@@ -19,20 +19,19 @@ import yaml
 from sensor_msgs.msg import JointState
 from trajectory_msgs.msg import JointTrajectory
 
-from runtime.behavior import Behavior, Status
+from runtime.tree.behavior import Behavior, Status
 from runtime.errors import SetupError
-from runtime.ports import InputPort, NameKind, Names, OutputPort, PortType, Range
-from runtime.scene import JointLimits, SceneSnapshot
-from runtime.scene.kinematics import frame_pose, solve_ik
-from runtime.timestamps import time_msg
+from runtime.tree.ports import InputPort, NameKind, Names, OutputPort, PortType, Range
+from runtime.motion.scene import JointLimits, SceneSnapshot
+from runtime.motion.scene.kinematics import frame_pose, solve_ik
+from runtime.io.timestamps import time_msg
 
 from .action_goal import Goal, GoalState
 from .controller_link import CONTROLLER_ACTION_TYPES, ControllerKind, ControllerLink, GoalTolerances, trajectory_goal
-from .execute_policy.shaping import Samples
-from .motion import DEFAULT_CONTROLLER, NO_MOTION_S, PlanningError
+from runtime.motion.samples import Samples
 from .poses import FrameError, ReadsRobotState, RobotState, matrix_to_pose, pose_in_world
 from .safety import MotionSafety, SafetyError, make_safety
-from .trajectory_goal import GOAL_TIME_TOLERANCE_S, SendsTrajectoryGoal, trajectory_msg
+from .trajectory_goal import DEFAULT_CONTROLLER, GOAL_TIME_TOLERANCE_S, NO_MOTION_S, PlanningError, SendsTrajectoryGoal, trajectory_msg
 from .waiting import Deadline, when_ready
 
 JTC_ACTION = "/joint_trajectory_controller/follow_joint_trajectory"

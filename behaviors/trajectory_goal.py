@@ -8,14 +8,15 @@ from collections.abc import Sequence
 from control_msgs.action import FollowJointTrajectory
 from trajectory_msgs.msg import JointTrajectory
 
-from runtime.behavior import Behavior, Status
+from runtime.tree.behavior import Behavior, Status
 from runtime.errors import SetupError
-from runtime.bus import STATUS_SUCCEEDED
-from runtime.timestamps import time_msg
-from runtime.trajectory_points import trajectory_points
+from runtime.io.bus import STATUS_SUCCEEDED
+from runtime.io.timestamps import time_msg
+from runtime.motion.trajectory_points import trajectory_points
 
 from .action_goal import Goal, GoalState
-from .execute_policy.shaping import Samples
+from runtime.errors import ObjectiveError
+from runtime.motion.samples import Samples
 
 GOAL_TIME_TOLERANCE_S = 1.0
 """The controller's default: how late a goal may finish."""
@@ -23,7 +24,17 @@ REFUSED_GOAL_CODES = (FollowJointTrajectory.Result.INVALID_GOAL, FollowJointTraj
 """Result codes of a goal the controller refused as sent (not running, other joints, a malformed
 trajectory): the same goal is refused again, so the run ends as ERROR (the admittance controller
 shares the codes)."""
+DEFAULT_CONTROLLER = "/joint_trajectory_admittance_controller/follow_joint_trajectory"
+NO_MOTION_S = 1e-6
+"""Seconds below which a planned motion has no length: the arm is already at the goal, and
+the motion is the goal alone (one point at time 0), which succeeds at once without a goal
+to the controller (a controller refuses points that share one ``time_from_start``)."""
 NOT_ACCEPTED = "is the controller active (a SwitchController before this node), and does it drive these joints?"
+
+
+
+class PlanningError(ObjectiveError, ValueError):
+    """No motion reaches the goal within the limits and the planning scene."""
 
 
 def trajectory_msg(samples: Samples, joints: Sequence[str], stamp_s: float = 0.0, stamp_offset_s: float = 0.0) -> JointTrajectory:

@@ -12,10 +12,10 @@ from typing import Any, ClassVar
 
 from geometry_msgs.msg import PoseStamped
 
-from runtime.behavior import Behavior, Status
-from runtime.controls import COMPLETED, DecoratorNode, TickGenerator, halt_child
-from runtime.ports import InputPort, OutputPort, PortType, Range
-from runtime.timestamps import time_msg
+from runtime.tree.behavior import Behavior, Status
+from runtime.tree.controls import COMPLETED, DecoratorNode, TickGenerator, halt_child
+from runtime.tree.ports import InputPort, OutputPort, PortType, Range
+from runtime.io.timestamps import time_msg
 
 
 def pose_stamped(frame_id: str, position_xyz: list[float], orientation_xyzw: list[float], stamp_s: float) -> PoseStamped:

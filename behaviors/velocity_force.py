@@ -17,10 +17,10 @@ import numpy as np
 from geometry_msgs.msg import WrenchStamped
 from std_msgs.msg import Float64MultiArray
 
-from runtime.behavior import Behavior, Status
-from runtime.decorators import elapsed
-from runtime.ports import InputPort, NameKind, Names, PortType, Range
-from runtime.scene.kinematics import frame_jacobian, frame_pose
+from runtime.tree.behavior import Behavior, Status
+from runtime.tree.decorators import elapsed
+from runtime.tree.ports import InputPort, NameKind, Names, PortType, Range
+from runtime.motion.scene.kinematics import frame_jacobian, frame_pose
 
 from .poses import FrameError, ReadsRobotState
 from .safety import SafetyError, make_safety

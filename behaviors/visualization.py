@@ -16,10 +16,10 @@ from std_msgs.msg import ColorRGBA
 from tf2_msgs.msg import TFMessage
 from visualization_msgs.msg import Marker, MarkerArray
 
-from runtime.behavior import Behavior, Status
-from runtime.decorators import elapsed
-from runtime.ports import InputPort, PortType, Range
-from runtime.timestamps import duration_msg, time_msg
+from runtime.tree.behavior import Behavior, Status
+from runtime.tree.decorators import elapsed
+from runtime.tree.ports import InputPort, PortType, Range
+from runtime.io.timestamps import duration_msg, time_msg
 
 MARKER_TOPIC = "/visualization_marker_array"
 TF_TOPIC = "/tf"

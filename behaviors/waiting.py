@@ -3,7 +3,7 @@ from __future__ import annotations
 
 from typing import Callable
 
-from runtime.behavior import Behavior
+from runtime.tree.behavior import Behavior
 from runtime.errors import SetupError
 
 

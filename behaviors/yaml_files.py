@@ -18,8 +18,8 @@ import yaml
 from geometry_msgs.msg import PoseStamped
 from sensor_msgs.msg import JointState
 
-from runtime.behavior import Behavior, Status
-from runtime.ports import InputPort, OutputPort, PortType
+from runtime.tree.behavior import Behavior, Status
+from runtime.tree.ports import InputPort, OutputPort, PortType
 from runtime.errors import ObjectiveError
 
 MAX_YAML_BYTES = 5 * 1024 * 1024

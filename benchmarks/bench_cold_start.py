@@ -1,5 +1,5 @@
 """Cold start: whole ``objective run objectives/stack_cubes.xml`` processes, with and without the
-on-disk cache (``runtime/disk_cache.py``: the composed robot MJCF, the simplified visual meshes,
+on-disk cache (``runtime/app/disk_cache.py``: the composed robot MJCF, the simplified visual meshes,
 the compiled cell and the planning model's MuJoCo facts).
 
 A cold start is everything before the tree does its work: interpreter start-up, imports, the
@@ -36,7 +36,7 @@ from pathlib import Path
 import common  # noqa: F401  (environment and sys.path first)
 from common import ROOT, median, report, rounded
 
-from runtime.disk_cache import ENV_DIR, ENV_SWITCH
+from runtime.app.disk_cache import ENV_DIR, ENV_SWITCH
 
 OBJECTIVE = Path("objectives") / "stack_cubes.xml"
 OBJECTIVE_BIN = Path(".venv") / "bin" / "objective"
@@ -92,14 +92,14 @@ def measure(runs: int, full: bool, scratch: Path, checkouts: list[Path]) -> list
 
 
 def slowest_imports(count: int = 15) -> None:
-    done = subprocess.run([sys.executable, "-X", "importtime", "-c", "import runtime.cli, runtime.registry as r; r.Registry.from_entry_points()"],
+    done = subprocess.run([sys.executable, "-X", "importtime", "-c", "import runtime.app.cli, runtime.tree.registry as r; r.Registry.from_entry_points()"],
                           cwd=ROOT, capture_output=True, text=True)
     rows = []
     for line in done.stderr.splitlines():
         parts = line.split("|")
         if len(parts) == 3 and parts[1].strip().isdigit():
             rows.append((int(parts[1]), parts[2].rstrip()))
-    print(f"# slowest imports (cumulative us) of runtime.cli + every registered behavior:")
+    print("# slowest imports (cumulative us) of runtime.app.cli + every registered behavior:")
     for us, name in sorted(rows, reverse=True)[:count]:
         print(f"#   {us:>9}  {name.strip()}")
 

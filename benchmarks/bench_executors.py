@@ -27,7 +27,7 @@ def make_executor(kind: str, context):
     if kind == "single":
         return SingleThreadedExecutor(context=context)
     if kind == "multi":
-        return MultiThreadedExecutor(num_threads=12, context=context)  # as runtime.ros.run
+        return MultiThreadedExecutor(num_threads=12, context=context)  # as runtime.io.ros.run
     from rclpy.experimental import EventsExecutor
 
     return EventsExecutor(context=context)

@@ -21,9 +21,9 @@ from common import report, rounded
 
 import zmq
 
-from runtime.groot2 import MAX_REQUEST_BYTES, Groot2Options, Groot2Server
-from runtime.registry import Registry
-from runtime.runner import RunOptions, run_file
+from runtime.app.groot2 import MAX_REQUEST_BYTES, Groot2Options, Groot2Server
+from runtime.tree.registry import Registry
+from runtime.app.runner import RunOptions, run_file
 
 XML = """<root BTCPP_format="4"><BehaviorTree ID="Main"><Parallel success_count="1" failure_count="1">
   <Wait seconds="{seconds}"/>

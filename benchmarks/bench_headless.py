@@ -42,8 +42,8 @@ from common import ROOT, report, rounded  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-from runtime.registry import WORLD_GROUP, Registry  # noqa: E402
-from runtime.runner import RunOptions, run_file  # noqa: E402
+from runtime.tree.registry import WORLD_GROUP, Registry  # noqa: E402
+from runtime.app.runner import RunOptions, run_file  # noqa: E402
 
 OBJECTIVE = ROOT / "objectives" / "stack_cubes.xml"
 IMAGE_SIZE = 224
@@ -96,9 +96,9 @@ PROFILE_PARTS = {
     "cell_step": ("sim/mujoco_cell.py", "step"),
     "control_loop": ("sim/controllers/manager.py", "advance"),
     "render": ("sim/mujoco_cell.py", "render"),
-    "tree": ("runtime/controls.py", "tick_tree"),
+    "tree": ("runtime/tree/controls.py", "tick_tree"),
     "world_step": ("sim/world.py", "step_to"),
-    "run": ("runtime/runner.py", "run_file"),
+    "run": ("runtime/app/runner.py", "run_file"),
 }
 
 

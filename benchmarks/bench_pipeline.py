@@ -11,7 +11,7 @@ point is checked (the worst case; a colliding chunk stops at its first hit).
 
 Two rows per point count, alternating repeat by repeat so both see the same machine load:
 ``early_out`` (what ExecutePolicy runs: ``check_path`` settles proven-free runs of points with one
-check, ``runtime/scene/swept.py``) and ``per_point`` (every point checked on its own, the same
+check, ``runtime/motion/scene/swept.py``) and ``per_point`` (every point checked on its own, the same
 answers); ``speedup`` is per_point's median over early_out's, for the whole pipeline and for the
 collision stage.
 

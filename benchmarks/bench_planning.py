@@ -11,7 +11,7 @@ its 1 s timeout, its plan time (median and p95; the straight check included), an
 joint-space length (rad) of the planned path beside that of the straight move between the same
 configurations.
 
-The planner is the runtime's (``runtime.scene.planner``: OMPL's RRT-Connect and shortcutting,
+The planner is the runtime's (``runtime.motion.scene.planner``: OMPL's RRT-Connect and shortcutting,
 one thread) with the state check the planning behaviors give it (``behaviors.planning.state_validity``:
 the planning scene's collision check and the cell's Cartesian envelope).
 
@@ -34,7 +34,7 @@ PADDING_M = 0.01
 
 
 def cell_scene(with_obstacle: bool):
-    from runtime.scene import Box, pose_matrix
+    from runtime.motion.scene import Box, pose_matrix
     from sim.layouts import layout
     from sim.planning import make_cell_scene
 
@@ -49,7 +49,7 @@ def make_queries(count: int, seed: int) -> list[tuple[np.ndarray, np.ndarray]]:
     """``count`` (start, goal) pairs, free in both scenes, from TCP poses looking down."""
     from behaviors.planning import state_validity
     from behaviors.safety import make_safety
-    from runtime.scene import solve_ik
+    from runtime.motion.scene import solve_ik
 
     home = np.array([-1.8732, -1.7159, 1.7867, -1.6416, -1.5708, -0.3024])
     rng = np.random.default_rng(seed)
@@ -74,7 +74,7 @@ def measure_ompl(scene, queries, seed: int) -> list[tuple[float, bool, float | N
     """Per query: milliseconds, solved, path length (rad), straight move free."""
     from behaviors.planning import state_validity
     from behaviors.safety import make_safety
-    from runtime.scene.planner import PathPlanningError, PlannerSettings, motion_is_free, plan_path
+    from runtime.motion.scene.planner import PathPlanningError, PlannerSettings, motion_is_free, plan_path
 
     safety = make_safety(scene, "manipulator", scene.gripper_joint)
     is_free = state_validity(safety, PADDING_M, scene.snapshot(), 0.0)

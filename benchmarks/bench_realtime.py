@@ -47,7 +47,7 @@ import common  # noqa: F401  (environment and sys.path first)
 from common import ROOT, median, report
 
 OBJECTIVE = ROOT / "objectives" / "stack_cubes.xml"
-OBJECTIVE_CLI = [sys.executable, "-m", "runtime.cli"]
+OBJECTIVE_CLI = [sys.executable, "-m", "runtime.app.cli"]
 BUSY_LOOP = "import time, sys\nend = time.monotonic() + float(sys.argv[1])\nwhile time.monotonic() < end:\n    pass\n"
 RUN_TIMEOUT_S = 240.0
 SETUPS = {"realtime": "realtime", "recorded": "realtime, recorded", "ros": "ros, one process", "robot": "ros, robot apart"}

@@ -31,8 +31,8 @@ from pathlib import Path
 import common  # noqa: F401  (environment and sys.path first)
 from common import ROOT, median, report, rounded
 
-from runtime.registry import Registry
-from runtime.runner import RunOptions, run_file
+from runtime.tree.registry import Registry
+from runtime.app.runner import RunOptions, run_file
 
 OBJECTIVE = ROOT / "objectives" / "stack_cubes.xml"
 

@@ -20,9 +20,9 @@ import common  # noqa: F401  (environment and sys.path first)
 from common import ROOT, median, report, rounded
 
 from recording.recorder import Recorder
-from runtime.registry import Registry
+from runtime.tree.registry import Registry
 from recording.report.worker import ReportWorker
-from runtime.runner import RunOptions, run_file
+from runtime.app.runner import RunOptions, run_file
 
 OBJECTIVE = ROOT / "objectives" / "stack_cubes.xml"
 

@@ -38,10 +38,10 @@ import numpy as np
 from moveit_pro_ml_msgs.srv import GetActionChunk
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
-from runtime.bus import TraceLatency
-from runtime.loader import load_tree
-from runtime.registry import Registry
-from runtime.runner import RunOptions, make_context, run_tree
+from runtime.io.bus import TraceLatency
+from runtime.tree.loader import load_tree
+from runtime.tree.registry import Registry
+from runtime.app.runner import RunOptions, make_context, run_tree
 from benchmarks.baselines import (
     GlitchingPolicy,
     Stream,

@@ -3,7 +3,7 @@
 The policy does nothing (a fixed 50 x 7 chunk), so only the transport is measured:
 
 - ``inprocess``: ``InProcessBus`` service call, the headless default (a function call);
-- ``ros``: real ROS 2 on loopback: two ``runtime.ros.RosBus`` nodes in this process (Fast DDS,
+- ``ros``: real ROS 2 on loopback: two ``runtime.io.ros.RosBus`` nodes in this process (Fast DDS,
   ``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST``), client polling the future as the runner does;
 - ``http``: the HTTP adapter hop: an in-process GetActionChunk call served by
   ``PolicyAdapter(HttpBackend)`` (``policy/node.py``), which converts the messages and posts
@@ -29,8 +29,8 @@ from moveit_pro_ml_msgs.srv import GetActionChunk
 from sensor_msgs.msg import JointState
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
-from runtime.bus import FixedLatency, InProcessBus
-from runtime.clock import WallClock
+from runtime.io.bus import FixedLatency, InProcessBus
+from runtime.io.clock import WallClock
 from policy.backend import PolicyResponse
 from policy.images import rgb_to_image
 
@@ -107,7 +107,7 @@ def inprocess_path(request: Any) -> Callable[[], Any]:
 
 
 def ros_path(request: Any, handler: Callable[[Any], Any], closers: list[Callable[[], None]]) -> Callable[[], Any]:
-    from runtime.ros import RosBus
+    from runtime.io.ros import RosBus
 
     tag = uuid.uuid4().hex[:8]
     name = f"/bench_{tag}/get_action_chunk"

@@ -2,7 +2,7 @@
 
 Modules, in the order an evaluation uses them:
 
-- ``cli``: the command's arguments (``runtime.cli`` adds them) and its output;
+- ``cli``: the command's arguments (``runtime.app.cli`` adds them) and its output;
 - ``config``: ``EvalConfig``/``WorkerSpec`` and the identity that guards a resumed DIR;
 - ``policies``: the policy specs, and the only import of the policy side (``policy``);
 - ``worker``: ``EpisodeWorker``, which loads once and runs one episode per seed;

@@ -9,9 +9,9 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from runtime.cli import add_protective_stop_arguments, parse_set, positive_float, protective_stop_inputs
-from runtime.bus import DEFAULT_POLICY_LATENCY
-from runtime.command import OBJECTIVE_FILE_HELP, POLICY_HELP, Command
+from runtime.app.cli import add_protective_stop_arguments, parse_set, positive_float, protective_stop_inputs
+from runtime.io.bus import DEFAULT_POLICY_LATENCY
+from runtime.app.command import OBJECTIVE_FILE_HELP, POLICY_HELP, Command
 
 HELP = "run an Objective over many seeded episodes and report its success rate"
 
@@ -54,10 +54,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def stop_listener(args: argparse.Namespace) -> Any:
-    """The node that listens for the protective stop in this process (``runtime.ros.stop_listener``),
+    """The node that listens for the protective stop in this process (``runtime.app.stop_listener``),
     or None: ``--protective-stop ''`` and no deadman, or no rclpy (said only when a stop input was
     given: by default an evaluation does not need ROS 2). ObjectiveError for a name ROS 2 refuses."""
-    from runtime.protective_stop import SharedStop
+    from runtime.app.protective_stop import SharedStop
 
     from .executors import CONTEXT
 
@@ -66,7 +66,7 @@ def stop_listener(args: argparse.Namespace) -> Any:
     if not (inputs.topic or inputs.deadman_topic):
         return None
     try:
-        from runtime.ros.stop_listener import StopListener
+        from runtime.app.stop_listener import StopListener
     except ImportError as err:
         if args.protective_stop is not None or args.deadman_topic:
             print(f"warning: the protective stop is not listened for: {err.name or err} does not import "
@@ -117,7 +117,7 @@ def summary_lines(summary: dict[str, Any], out: Path) -> list[str]:
 
 
 def cmd_eval(args: argparse.Namespace, registry: Any) -> int:
-    from runtime.interrupt import StopRequest, stop_on_signals
+    from runtime.io.interrupt import StopRequest, stop_on_signals
 
     from .evaluate import evaluate
     from .progress import ProgressBar

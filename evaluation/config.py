@@ -8,7 +8,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Iterable
 
-from runtime.bus import DEFAULT_POLICY_LATENCY  # the same default as objective run
+from runtime.io.bus import DEFAULT_POLICY_LATENCY  # the same default as objective run
 from runtime.errors import ObjectiveError
 
 from .policies import PolicySpec, check_latency, parse_policy, policy_digest

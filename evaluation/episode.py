@@ -9,10 +9,12 @@ world's final state, whatever a newer behavior reports: read generically) and th
 from __future__ import annotations
 
 import enum
+import math
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
-from runtime.runner import RunResult
+from runtime.app.runner import RunResult
 
 BASE_SUMMARY_KEYS = frozenset({"status", "failing_node", "reason", "failure_kind", "sim_seconds", "wall_seconds", "ticks",
                                "blackboard"})
@@ -79,8 +81,6 @@ class EpisodeRecord:
 
     def numbers(self) -> dict[str, float]:
         """Every number of the run's summary by dotted path, plus ``sim_seconds`` and ``wall_seconds``."""
-        from .stats import flatten_numbers
-
         out = flatten_numbers(self.run)
         out["sim_seconds"], out["wall_seconds"] = self.sim_seconds, self.wall_seconds
         return out
@@ -114,3 +114,15 @@ class EpisodeRecord:
         for key in WALL_CLOCK_FIELDS:
             data.pop(key)
         return data
+
+
+def flatten_numbers(tree: Mapping[str, Any], prefix: str = "") -> dict[str, float]:
+    """Every number in a nested summary dict, keyed by its dotted path (booleans and lists left out)."""
+    out: dict[str, float] = {}
+    for key, value in tree.items():
+        path = f"{prefix}{key}"
+        if isinstance(value, Mapping):
+            out.update(flatten_numbers(value, path + "."))
+        elif isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value):
+            out[path] = float(value)
+    return out

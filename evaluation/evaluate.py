@@ -7,10 +7,10 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Protocol
 
-from runtime.interrupt import StopRequest, exit_code_for, held_back, signal_name
-from runtime.loader import validate
-from runtime.protective_stop import SharedStop
-from runtime.registry import Registry
+from runtime.io.interrupt import StopRequest, exit_code_for, held_back, signal_name
+from runtime.tree.loader import validate
+from runtime.app.protective_stop import SharedStop
+from runtime.tree.registry import Registry
 
 from .config import EvalConfig, ExecutorKind, identity
 from .executors import Executor, LocalExecutor
@@ -52,7 +52,7 @@ def make_executor(config: EvalConfig, protective_stop: SharedStop | None = None)
 
 
 class StopSource(Protocol):
-    """Where the protective stop is heard (``runtime.ros.stop_listener.StopListener``)."""
+    """Where the protective stop is heard (``runtime.app.stop_listener.StopListener``)."""
 
     shared: SharedStop
 

@@ -28,7 +28,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Protocol
 
-from runtime.protective_stop import SharedStop
+from runtime.app.protective_stop import SharedStop
 
 from .config import WorkerSpec
 from .episode import EpisodeRecord

@@ -16,7 +16,7 @@ from typing import Any
 
 from policy.specs import PolicyKind, PolicySpec, PolicySpecError
 from policy.specs import parse_policy as parse_policy_spec
-from runtime.bus import parse_latency
+from runtime.io.bus import parse_latency
 from runtime.errors import ObjectiveError, OptionError
 
 __all__ = ["PolicyHost", "PolicyKind", "PolicySpec", "check_latency", "parse_policy", "policy_digest"]

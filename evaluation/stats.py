@@ -60,18 +60,6 @@ def _quantile(data: list[float], q: float) -> float:
     return data[low] + (data[high] - data[low]) * (position - low)
 
 
-def flatten_numbers(tree: Mapping[str, Any], prefix: str = "") -> dict[str, float]:
-    """Every number in a nested summary dict, keyed by its dotted path (booleans and lists left out)."""
-    out: dict[str, float] = {}
-    for key, value in tree.items():
-        path = f"{prefix}{key}"
-        if isinstance(value, Mapping):
-            out.update(flatten_numbers(value, path + "."))
-        elif isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value):
-            out[path] = float(value)
-    return out
-
-
 def failure_groups(records: Iterable[EpisodeRecord]) -> list[dict[str, Any]]:
     """Episodes that did not succeed, grouped by status, failing node and failure kind (by the
     reason itself where the failing node gave no kind); largest first. ``reason`` names the group."""

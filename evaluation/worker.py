@@ -19,13 +19,14 @@ import traceback
 from pathlib import Path
 from typing import Any
 
-from runtime.bus import FixedLatency
+from runtime.io.bus import FixedLatency
 from runtime.errors import INTERNAL, InternalError, ObjectiveError, error_kind
-from runtime.loader import load_tree
-from runtime.protective_stop import ProtectiveStop, SharedStop
-from runtime.registry import Registry
-from runtime.registry import default_world_name
-from runtime.runner import RunOptions, RunResult, create_world, make_context, run_tree
+from runtime.tree.loader import load_tree
+from runtime.app.protective_stop import ProtectiveStop, SharedStop
+from runtime.tree.registry import Registry
+from runtime.tree.registry import default_world_name
+from runtime.app.runner import RunOptions, RunResult, make_context, run_tree
+from runtime.app.world import create_world
 
 from .config import WorkerSpec
 from .episode import EpisodeRecord

@@ -32,9 +32,9 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 from trajectory_msgs.msg import JointTrajectoryPoint
 
-from runtime.timestamps import duration_msg, time_msg, to_seconds
+from runtime.io.timestamps import duration_msg, time_msg, to_seconds
 from runtime.errors import ObjectiveError, OptionError
-from runtime.interrupt import describe_error, raised_by_code
+from runtime.io.interrupt import describe_error, raised_by_code
 
 from .backend import PolicyBackend, PolicyRequest, PolicyResponse, PolicyStatus
 from .images import image_to_rgb, rgb_to_image

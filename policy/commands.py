@@ -1,6 +1,6 @@
 """The policy side's commands: ``serve``, ``adapter`` and ``smoke-test``.
 
-Registered in the ``objective.commands`` entry-point group (see ``runtime.command.Command``); each
+Registered in the ``objective.commands`` entry-point group (see ``runtime.app.command.Command``); each
 imports its module only when it runs, so ``objective --help`` loads nothing heavy.
 """
 from __future__ import annotations
@@ -9,10 +9,10 @@ import argparse
 import sys
 from pathlib import Path
 
-from runtime.cli import log_to_stderr, positive_float, tcp_port
-from runtime.command import EXIT_BAD_INPUT, EXIT_FAILURE, EXIT_SUCCESS, Command
+from runtime.app.cli import log_to_stderr, positive_float, tcp_port
+from runtime.app.command import EXIT_BAD_INPUT, EXIT_FAILURE, EXIT_SUCCESS, Command
 from runtime.errors import ObjectiveError
-from runtime.registry import Registry
+from runtime.tree.registry import Registry
 
 
 def _policy_logging() -> None:

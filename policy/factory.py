@@ -34,7 +34,7 @@ from pathlib import Path
 from typing import Any, Callable
 
 from runtime.errors import OptionError
-from runtime.interrupt import describe_error, raised_by_code
+from runtime.io.interrupt import describe_error, raised_by_code
 
 from .backend import PolicyBackend
 

@@ -82,8 +82,8 @@ def run_adapter_node(config: AdapterConfig, stop: threading.Event | None = None)
     import rclpy
     from rclpy.executors import ExternalShutdownException
 
-    from runtime.clock import WallClock
-    from runtime.ros import RosBus
+    from runtime.io.clock import WallClock
+    from runtime.io.ros import RosBus
 
     stop = stop or threading.Event()
     restore = stop_on_signals(stop)

@@ -62,7 +62,7 @@ from typing import Any, Callable
 import numpy as np
 
 from runtime.errors import OptionError
-from runtime.interrupt import describe_error, raised_by_code
+from runtime.io.interrupt import describe_error, raised_by_code
 
 from .backend import PolicyBackend, PolicyRequest
 from .factory import build_backend, is_factory_spec

@@ -203,7 +203,7 @@ def group_joints(config: SmokeConfig) -> tuple[str, ...]:
     description; ValueError naming the groups for an unknown one."""
     joints = config.joints
     if not joints:
-        from runtime.scene import GroupError, RobotModel
+        from runtime.motion.scene import GroupError, RobotModel
 
         try:
             joints = tuple(RobotModel.from_urdf(config.urdf, config.srdf).group(config.joint_group).joints)
@@ -236,8 +236,8 @@ def run_smoke_test(config: SmokeConfig, bus: Any = None) -> SmokeReport:
     report = SmokeReport()
     own_bus = bus is None
     if own_bus:
-        from runtime.clock import WallClock
-        from runtime.ros import RosBus
+        from runtime.io.clock import WallClock
+        from runtime.io.ros import RosBus
 
         bus = RosBus(WallClock(), node_name="policy_smoke_test")
     try:

@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from runtime.command import POLICY_SPECS
+from runtime.app.command import POLICY_SPECS
 from runtime.errors import OptionError
 
 from .factory import FactoryError, build_backend, factory_file, is_factory_spec

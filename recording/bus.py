@@ -1,4 +1,4 @@
-"""``RecordingBus``: a ``runtime.bus.Bus`` that records what passes through it, then forwards.
+"""``RecordingBus``: a ``runtime.io.bus.Bus`` that records what passes through it, then forwards.
 
 Why a proxy: behaviors and worlds only ever talk through ``context.bus``, so wrapping it sees
 every service call, action goal, feedback and result of a run without the runtime knowing the

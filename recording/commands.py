@@ -5,9 +5,9 @@ import argparse
 import sys
 from pathlib import Path
 
-from runtime.command import EXIT_FAILURE, EXIT_SUCCESS, Command
-from runtime.registry import Registry
-from runtime.terminal import printable
+from runtime.app.command import EXIT_FAILURE, EXIT_SUCCESS, Command
+from runtime.tree.registry import Registry
+from runtime.app.terminal import printable
 
 
 def _add_arguments(parser: argparse.ArgumentParser) -> None:

@@ -1,4 +1,4 @@
-"""The recording as a run observer (``runtime.observer``): ``objective run --record DIR`` / ``--live``.
+"""The recording as a run observer (``runtime.app.observer``): ``objective run --record DIR`` / ``--live``.
 
 ``attach`` puts a ``Recorder`` on the run's bus (into ``options.record_dir`` and/or served live);
 ``finished`` writes the summary and renders the report into the directory; ``aborted`` writes
@@ -13,8 +13,8 @@ from typing import Any
 
 from runtime.errors import ObjectiveError
 from runtime.extras import missing_module_message
-from runtime.interrupt import held_back
-from runtime.runner import RunEnd
+from runtime.io.interrupt import held_back
+from runtime.app.runner import RunEnd
 
 NEEDED_MODULES = ("mcap", "mcap_ros2")
 """What a recording needs beyond the core (the ``[record]`` extra); ``--live`` needs foxglove too."""

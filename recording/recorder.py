@@ -39,9 +39,9 @@ import os
 from pathlib import Path
 from typing import Any, Callable, Iterable, TextIO
 
-from runtime.crash import CRASH_LOG
+from runtime.tree.crash import CRASH_LOG
 from runtime.errors import ObjectiveError
-from runtime.events import Event
+from runtime.tree.events import Event
 from .bag_metadata import BAG_METADATA_FILE, bag_metadata_yaml
 from .bus import JOINT_STATES_HZ, RecordingBus
 from .live import LiveOptions, LiveView

@@ -30,8 +30,8 @@ from std_msgs.msg import ColorRGBA
 from tf2_msgs.msg import TFMessage
 from visualization_msgs.msg import Marker, MarkerArray
 
-from runtime.disk_cache import cached, content_key
-from runtime.scene.collision import Box, Capsule, Cylinder, Mesh, Sphere
+from runtime.app.disk_cache import cached, content_key
+from runtime.motion.scene.collision import Box, Capsule, Cylinder, Mesh, Sphere
 from .event_messages import stamp_of  # noqa: F401  (where the tests and the recorder find it)
 from .mcap_writer import SerializedMessage, cdr_bytes
 from .tf_model import TF_STATIC_TOPIC, TF_TOPIC, LinkDriver, LinkTf, TfModel, TfTemplate, link_coefficients
@@ -332,7 +332,7 @@ def _stamp_template(template: bytes, stamp: Time) -> bytes:
 
 
 def robot_markers_cdr(robot: Any, stamp: Time) -> SerializedMessage:
-    """``robot_markers`` serialized, from the on-disk cache (``runtime.disk_cache``) when the
+    """``robot_markers`` serialized, from the on-disk cache (``runtime.app.disk_cache``) when the
     robot's collision geometry is what it was: building them is a tenth of a second of Python
     (thousands of triangle vertices) that every recorded run would pay."""
     try:

@@ -97,7 +97,7 @@ def error_kind(error: BaseException) -> str:
 
 
 class InternalError(ObjectiveRuntimeError):
-    """A bug: an unexpected exception told in one paragraph (``runtime.crash.describe_crash``),
+    """A bug: an unexpected exception told in one paragraph (``runtime.tree.crash.describe_crash``),
     naming the crash report that holds its traceback."""
 
 

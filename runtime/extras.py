@@ -7,10 +7,13 @@ from __future__ import annotations
 
 import contextlib
 import importlib.util
+from pathlib import Path
 from typing import Any, Iterator
 
-from .build_interfaces import INTERFACES_DIR
 from .errors import ObjectiveError
+
+INTERFACES_DIR = Path(__file__).resolve().parent / "io" / "ros" / "interfaces"
+"""The sources of the project's ROS 2 interface packages (``objective build-interfaces`` builds them)."""
 
 EXTRA_OF_MODULE = {
     "mujoco": "sim",

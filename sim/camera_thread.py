@@ -17,7 +17,7 @@ from typing import Any, Callable
 
 from sensor_msgs.msg import Image
 
-from runtime.clock import next_due
+from runtime.io.clock import next_due
 
 STOP_WAIT_S = 5.0
 log = logging.getLogger("objective")

@@ -32,7 +32,7 @@ from typing import Any
 import mujoco
 import numpy as np
 
-from runtime.disk_cache import cached_file, content_key
+from runtime.app.disk_cache import cached_file, content_key
 from sim.render_meshes import simplify_visual_meshes
 from sim.robot_model import FT_SITE, GRIPPER_PREFIX, build_robot_spec, mesh_files, robot_xml
 from runtime.errors import OptionError

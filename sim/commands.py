@@ -1,6 +1,6 @@
 """The simulated cell's command: ``record-demos`` (oracle demonstrations as a LeRobot dataset).
 
-Registered in the ``objective.commands`` entry-point group (see ``runtime.command.Command``).
+Registered in the ``objective.commands`` entry-point group (see ``runtime.app.command.Command``).
 """
 from __future__ import annotations
 
@@ -8,10 +8,10 @@ import argparse
 import sys
 from pathlib import Path
 
-from runtime.command import EXIT_BAD_INPUT, EXIT_FAILURE, EXIT_SUCCESS, Command
+from runtime.app.command import EXIT_BAD_INPUT, EXIT_FAILURE, EXIT_SUCCESS, Command
 from runtime.errors import ObjectiveError
 from runtime.extras import missing_module_message
-from runtime.registry import Registry
+from runtime.tree.registry import Registry
 
 
 def _arguments(demos: argparse.ArgumentParser) -> None:
@@ -86,7 +86,7 @@ def _key_value(text: str) -> tuple[str, str]:
 
 def _sim_robot(args: argparse.Namespace, registry: Registry) -> int:
     from runtime.errors import ObjectiveError
-    from runtime.interrupt import StopRequest, stop_on_signals
+    from runtime.io.interrupt import StopRequest, stop_on_signals
 
     from .robot_node import SimRobotOptions, describe, print_summary, run_sim_robot
 

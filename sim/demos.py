@@ -340,9 +340,10 @@ class EpisodeRecording:
 
 def record_episode(seed: int, options: DemoOptions, world_name: str) -> EpisodeRecording:
     """Run the oracle once in a fresh world with layout ``seed``; its frames and status (in this process)."""
-    from runtime.loader import load_tree
-    from runtime.registry import Registry
-    from runtime.runner import RunOptions, create_world, make_context, run_tree
+    from runtime.tree.loader import load_tree
+    from runtime.tree.registry import Registry
+    from runtime.app.runner import RunOptions, make_context, run_tree
+    from runtime.app.world import create_world
     from sim.oracle import parse_prompt
 
     top, bottom = parse_prompt(options.prompt)

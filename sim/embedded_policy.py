@@ -11,9 +11,9 @@ from typing import Any
 from policy.adapter import DEFAULT_SERVICE_NAME, PolicyAdapter
 from policy.specs import PolicySpec, PolicySpecError, parse_policy
 from policy.specs import make_backend as make_spec_backend
-from runtime.bus import parse_latency
+from runtime.io.bus import parse_latency
 from runtime.errors import ObjectiveError
-from runtime.interrupt import describe_error, raised_by_code
+from runtime.io.interrupt import describe_error, raised_by_code
 
 def make_backend(spec: PolicySpec | str | None, cell: Any) -> Any:
     """The backend named by ``spec`` (None for ``none``); PolicySpecError (an OptionError) for a spec that names none."""

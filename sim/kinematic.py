@@ -149,7 +149,7 @@ class KinematicCell:
         return q
 
     def tcp_pose(self) -> np.ndarray:
-        """Same pose as ``runtime.scene.frame_pose`` (same pinocchio calls), on one reused ``Data``."""
+        """Same pose as ``runtime.motion.scene.frame_pose`` (same pinocchio calls), on one reused ``Data``."""
         model, data = self._robot.model, self._fk_data
         pin.forwardKinematics(model, data, self._configuration())
         return pin.updateFramePlacement(model, data, self._tcp_frame).homogeneous.copy()
@@ -240,5 +240,6 @@ class KinematicWorld(CellWorld):
         super().__init__("kinematic", options, lambda arm, seed: KinematicCell.at_layout(arm, seed, size))
 
 
-def create(options: dict[str, Any]) -> KinematicWorld:
+def create_kinematic(options: dict[str, Any]) -> KinematicWorld:
+    """World ``kinematic``: perfect tracking and rigid grasps, no physics."""
     return KinematicWorld(options)

@@ -36,11 +36,11 @@ import numpy as np
 import pinocchio as pin
 from lxml import etree
 
-from runtime.disk_cache import cached, cached_file, content_key
-from runtime.scene import hulls
-from runtime.scene.hulls import geometry_bytes, load_geometry, with_convex_hulls
-from runtime.scene.model import JointCoupling, RobotModel
-from runtime.scene.srdf import Srdf
+from runtime.app.disk_cache import cached, cached_file, content_key
+from runtime.motion.scene import hulls
+from runtime.motion.scene.hulls import geometry_bytes, load_geometry, with_convex_hulls
+from runtime.motion.scene.model import JointCoupling, RobotModel
+from runtime.motion.scene.srdf import Srdf
 
 
 @dataclass(frozen=True)
@@ -49,7 +49,7 @@ class MjcfRobot:
 
     model: pin.Model
     collision_model: pin.GeometryModel
-    """Collision geometry, every mesh as its convex hull (``runtime.scene.hulls``)."""
+    """Collision geometry, every mesh as its convex hull (``runtime.motion.scene.hulls``)."""
     body_parents: dict[str, str]
     """Parent body of every robot body (the root's parent is ``"universe"``)."""
     renamed: dict[str, str]
@@ -261,7 +261,7 @@ def load_mjcf(source: str | os.PathLike | mujoco.MjSpec, root_body: str | None =
 
     ``source`` is an ``MjSpec`` (copied, never modified), an MJCF file path or an XML string.
     MuJoCo's part (a compile: ~1 s with meshes) comes from the on-disk cache
-    (``runtime.disk_cache``) when the MJCF text, its mesh files, ``root_body``, this module and
+    (``runtime.app.disk_cache``) when the MJCF text, its mesh files, ``root_body``, this module and
     MuJoCo's version are what they were; so does the collision geometry (meshes loaded by
     assimp, hulls built by qhull: ~0.3 s), keyed by the same and the versions of pinocchio, coal,
     assimp and qhull.

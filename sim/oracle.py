@@ -564,7 +564,7 @@ class SceneKinematics:
     """
 
     def __init__(self, robot: object, group: str = "manipulator", tcp_frame: str = "tcp") -> None:
-        from runtime.scene.kinematics import IkSolver, frame_pose
+        from runtime.motion.scene.kinematics import IkSolver, frame_pose
 
         self._frame_pose = frame_pose
         self.robot, self.group, self.tcp_frame = robot, group, tcp_frame

@@ -27,7 +27,7 @@ import numpy as np
 from geometry_msgs.msg import TransformStamped
 
 from policy.backend import PolicyRequest, PolicyResponse
-from runtime.timestamps import time_msg
+from runtime.io.timestamps import time_msg
 
 from .oracle import COLORS, ArmKinematics, OracleBackend, OracleConfig
 
@@ -63,7 +63,7 @@ class RosCubePeek:
     """``OraclePeek`` over ROS 2 topics (cube poses) and the current request (time)."""
 
     def __init__(self, kinematics: ArmKinematics, bus: Any, wait_s: float = CUBE_POSE_WAIT_S) -> None:
-        """``bus`` is a ``runtime.ros.RosBus`` (or any bus whose subscriptions keep ``latest``)."""
+        """``bus`` is a ``runtime.io.ros.RosBus`` (or any bus whose subscriptions keep ``latest``)."""
         self.kinematics = kinematics
         self.bus = bus
         self.wait_s = wait_s
@@ -108,8 +108,8 @@ class RemoteOracleBackend:
 
     def load(self) -> None:
         os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
-        from runtime.clock import WallClock
-        from runtime.ros import RosBus
+        from runtime.io.clock import WallClock
+        from runtime.io.ros import RosBus
 
         from .oracle import SceneKinematics
 

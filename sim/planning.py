@@ -17,7 +17,7 @@ from typing import Mapping
 import numpy as np
 import pinocchio as pin
 
-from runtime.scene import Box, PlanningScene, load_envelope, load_joint_limits, pose_matrix
+from runtime.motion.scene import Box, PlanningScene, load_envelope, load_joint_limits, pose_matrix
 from runtime.errors import OptionError
 
 from .cell_model import CUBE_COLORS, TABLE_CENTER_XY, TABLE_HALF_SIZE, TABLE_TOP_Z

@@ -33,7 +33,7 @@ import fast_simplification
 import mujoco
 import numpy as np
 
-from runtime.disk_cache import cached, content_key
+from runtime.app.disk_cache import cached, content_key
 
 VISUAL_SUFFIX = "_visual"
 """Name suffix of the simplified copy of a mesh that collision geoms also use."""
@@ -134,7 +134,7 @@ class SimplifiedMesh:
 @functools.lru_cache(maxsize=None)
 def simplified_mesh(path: str, scale: tuple[float, float, float], keep: float, tolerance: float) -> SimplifiedMesh:
     """``decimate(weld(load_mesh_file(path, scale), tolerance), keep)``, once per process, and
-    from the on-disk cache (``runtime.disk_cache``) when the mesh file's bytes, the settings,
+    from the on-disk cache (``runtime.app.disk_cache``) when the mesh file's bytes, the settings,
     the libraries' versions and this module are what they were.
 
     The arrays are read-only: every cell built in this process shares them.

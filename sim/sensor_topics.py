@@ -12,7 +12,7 @@ from typing import Any
 
 from sensor_msgs.msg import CameraInfo
 
-from runtime.timestamps import time_msg
+from runtime.io.timestamps import time_msg
 
 from .cell_model import CAMERA_FOVY_DEG, CAMERA_NAMES
 

@@ -14,7 +14,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from runtime.scene import Box, PlanningScene
+from runtime.motion.scene import Box, PlanningScene
 
 
 class BoxCell(Protocol):

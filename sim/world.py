@@ -17,9 +17,9 @@ from geometry_msgs.msg import TransformStamped
 from sensor_msgs.msg import Image, JointState
 
 from policy.images import rgb_to_image
-from runtime.behavior import RunContext
-from runtime.joint_states import joint_state
-from runtime.timestamps import time_msg
+from runtime.tree.behavior import RunContext
+from runtime.motion.joint_states import joint_state
+from runtime.io.timestamps import time_msg
 from runtime.errors import OptionError
 
 from .cell_model import CAMERA_NAMES, CUBE_COLORS, CellOptions, image_size_problem
@@ -278,10 +278,3 @@ def create_vla_sim(options: dict[str, Any]) -> CellWorld:
     size = image_size_option(options, 224)
     cell_options = CellOptions(image_width=size, image_height=size)
     return CellWorld("vla_sim", options, lambda arm, seed: MujocoCell(cell_options, arm, seed))
-
-
-def create_kinematic(options: dict[str, Any]) -> CellWorld:  # noqa: D401
-    """World ``kinematic``: perfect tracking and rigid grasps, no physics (see sim/kinematic.py)."""
-    from .kinematic import KinematicWorld
-
-    return KinematicWorld(options)

@@ -4,7 +4,7 @@ from __future__ import annotations
 from typing import Any
 
 from behaviors.action_goal import Goal, GoalState
-from runtime import bus
+from runtime.io import bus
 
 
 class Future(bus.Future):

@@ -8,8 +8,8 @@ import pytest
 from moveit_pro_ml_msgs.srv import GetActionChunk
 from sensor_msgs.msg import Image
 
-from runtime.bus import InProcessBus
-from runtime.clock import SimClock
+from runtime.io.bus import InProcessBus
+from runtime.io.clock import SimClock
 from policy.adapter import (
     PolicyAdapter,
     array_to_multiarray,

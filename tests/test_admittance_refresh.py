@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from runtime.bus import FixedLatency, InProcessBus
-from runtime.clock import SimClock
+from runtime.io.bus import FixedLatency, InProcessBus
+from runtime.io.clock import SimClock
 from sim.controllers import TRAJECTORY_CONTROLLER, VELOCITY_CONTROLLER, ControllersConfig, make_controllers
 from sim.controllers.compliance import damped_pseudo_inverse
 from tests.test_controllers import DT, JACOBIAN, FakeHardware

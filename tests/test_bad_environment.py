@@ -9,8 +9,8 @@ from pathlib import Path
 
 import pytest
 
-from runtime.cli import main
-from runtime.ros.bus import domain_id_problem
+from runtime.app.cli import main
+from runtime.io.ros.bus import domain_id_problem
 from sim import mujoco_gl_problem
 
 REPO = Path(__file__).resolve().parent.parent
@@ -18,7 +18,7 @@ REPO = Path(__file__).resolve().parent.parent
 
 def objective(*argv: str, **env: str) -> subprocess.CompletedProcess[str]:
     environment = {**os.environ, "PYTHONPATH": str(REPO), "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST", **env}
-    return subprocess.run([sys.executable, "-m", "runtime.cli", *argv], cwd=REPO, env=environment,
+    return subprocess.run([sys.executable, "-m", "runtime.app.cli", *argv], cwd=REPO, env=environment,
                           capture_output=True, text=True, timeout=120)
 
 

@@ -15,15 +15,15 @@ from moveit_pro_ml_msgs.srv import GetActionChunk
 
 from benchmarks.executors import register
 from benchmarks.executors.objectives import Executor, objective_xml
-from runtime.bus import FixedLatency
-from runtime.loader import load_tree
-from runtime.registry import Registry
+from runtime.io.bus import FixedLatency
+from runtime.tree.loader import load_tree
+from runtime.tree.registry import Registry
 
 needs_lerobot = pytest.mark.skipif(importlib.util.find_spec("lerobot") is None,
                                    reason="the LeRobot extra is not installed (make lerobot)")
 LEROBOT_RTC = pytest.param("ExecuteWithLeRobotRtc", marks=needs_lerobot)
 """LeRobot's rollout RTC queue runs LeRobot's own code: only where the extra is installed."""
-from runtime.runner import RunOptions, make_context, run_tree
+from runtime.app.runner import RunOptions, make_context, run_tree
 from sim.kinematic import KinematicWorld
 from tests.test_execute_policy import ScriptedPolicy, chunk_response, hold
 

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from runtime import build_interfaces as tool
+from runtime.app import build_interfaces as tool
 
 
 @pytest.fixture

@@ -4,11 +4,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from runtime.scene import Box
+from runtime.motion.scene import Box
 from sim.cell_model import CUBE_COLORS
 from sim.planning import CubeContact, cube_object, make_cell_scene, sync_cubes
 from sim.robot_model import ARM_JOINTS, load_waypoints
-from sim.world import create_kinematic
+from sim.kinematic import create_kinematic
 
 
 def resting_cubes() -> dict[str, tuple[np.ndarray, np.ndarray]]:

@@ -10,8 +10,8 @@ from pathlib import Path
 import pytest
 from lxml import etree
 
-from runtime.cli import main
-from runtime.loader import display_path
+from runtime.app.cli import main
+from runtime.tree.loader import display_path
 from tests.data.nodes import make_registry
 from tools.cli_synopsis import synopsis
 
@@ -93,7 +93,7 @@ def test_run_bad_input_exit_2_without_traceback(cli, tmp_path):
 def test_policy_latency_trace_replays_each_call_and_repeats_the_last(tmp_path):
     """Pins ``--policy-latency trace:FILE``: call i takes line i (the warmup is the first call),
     blank lines and # comments are skipped, and the last value repeats."""
-    from runtime.bus import parse_latency
+    from runtime.io.bus import parse_latency
 
     trace = tmp_path / "robot latencies.txt"
     trace.write_text("# measured on the robot\n0.4\n\n0.05  # a fast one\n3\n0.1\n")
@@ -303,23 +303,23 @@ def test_installed_commands_come_from_the_entry_point_group(cli):
 
 
 def test_a_broken_or_clashing_command_is_left_out_with_a_warning(monkeypatch, cli):
-    import runtime.cli
+    import runtime.app.cli
 
-    fake_entry_points(monkeypatch, runtime.cli, {"objective.commands": [
+    fake_entry_points(monkeypatch, runtime.app.cli, {"objective.commands": [
         ("broken", "no_such_module_xyz:COMMAND"), ("run", "policy.commands:SERVE"),
-        ("not-a-command", "runtime.cli:main"), ("smoke", "policy.commands:SMOKE_TEST"),
+        ("not-a-command", "runtime.app.cli:main"), ("smoke", "policy.commands:SMOKE_TEST"),
     ]})
     code, _, err = cli("smoke", "/s", "--joints", "a;a")
     assert code == 2 and "error: --joints names a joint twice: a;a" in err
     assert "warning: command 'broken' (no_such_module_xyz:COMMAND) failed to load: ModuleNotFoundError" in err
     assert "warning: command 'run' (policy.commands:SERVE) is defined twice; keeping the first" in err
-    assert "warning: command 'not-a-command' (runtime.cli:main) is not a runtime.command.Command" in err
+    assert "warning: command 'not-a-command' (runtime.app.cli:main) is not a runtime.app.command.Command" in err
 
 
 def test_the_engine_s_own_commands_load_no_installed_command(monkeypatch, cli, tmp_path, capsys):
-    import runtime.cli
+    import runtime.app.cli
 
-    fake_entry_points(monkeypatch, runtime.cli, {"objective.commands": [("broken", "no_such_module_xyz:COMMAND")]})
+    fake_entry_points(monkeypatch, runtime.app.cli, {"objective.commands": [("broken", "no_such_module_xyz:COMMAND")]})
     code, out, err = cli("validate", str(tree_file(tmp_path, "<AlwaysSuccess/>")))
     assert code == 0 and "warning" not in err
     with pytest.raises(SystemExit):
@@ -344,20 +344,20 @@ def test_the_cyclic_collector_runs_again_once_the_installed_behaviors_are_loaded
 
 @pytest.mark.parametrize("defaults, message", [
     ([], "this tree needs a world and none is named: pass --world NAME (worlds: kinematic, vla_sim)"),
-    ([("kinematic", "sim.world:create_kinematic"), ("vla_sim", "sim.world:create_vla_sim")],
+    ([("kinematic", "sim.kinematic:create_kinematic"), ("vla_sim", "sim.world:create_vla_sim")],
      "installed packages name 2 default worlds (kinematic, vla_sim): pass --world NAME (worlds: kinematic, vla_sim)"),
 ])
 def test_the_default_world_is_the_installation_s_choice(monkeypatch, cli, tmp_path, defaults, message):
-    import runtime.registry
+    import runtime.tree.registry
 
-    fake_entry_points(monkeypatch, runtime.registry, {
+    fake_entry_points(monkeypatch, runtime.tree.registry, {
         "objective.default_world": defaults,
-        "objective.worlds": [("vla_sim", "sim.world:create_vla_sim"), ("kinematic", "sim.world:create_kinematic")],
+        "objective.worlds": [("vla_sim", "sim.world:create_vla_sim"), ("kinematic", "sim.kinematic:create_kinematic")],
     })
     code, _, err = cli("run", str(tree_file(tmp_path, "<Robot/>")))
     assert code == 2 and err.strip() == f"error: {message}"
-    fake_entry_points(monkeypatch, runtime.registry, {"objective.default_world": [("vla_sim", "sim.world:create_vla_sim")]})
-    assert runtime.registry.default_world_name() == "vla_sim"
+    fake_entry_points(monkeypatch, runtime.tree.registry, {"objective.default_world": [("vla_sim", "sim.world:create_vla_sim")]})
+    assert runtime.tree.registry.default_world_name() == "vla_sim"
 
 
 # -- ends of a run other than SUCCESS/FAILURE, and what reaches the terminal ------------------
@@ -416,7 +416,7 @@ def test_control_and_bidi_characters_from_an_objective_are_escaped_everywhere(cl
     assert code == 1
     assert BIDI not in err and ESC not in err and "\x9b" not in err and "\r" not in err
     assert "[INFO] \\x1b[31mred\n" in err and "[INFO] a\\rb\n" in err
-    assert f"FAILURE after 0.01 s: 'evil\\u202egpj.exe' (" in err and "failed: csi\\x9b2J\\nnext" in err
+    assert "FAILURE after 0.01 s: 'evil\\u202egpj.exe' (" in err and "failed: csi\\x9b2J\\nnext" in err
     code, out, err = cli("validate", str(path))
     assert code == 0 and BIDI not in out and "t\\u202e.xml" in out
     code, out, err = cli("show", str(path))
@@ -442,7 +442,7 @@ def test_a_line_separator_in_a_node_name_cannot_forge_a_line_of_objective_show(c
 
 
 def test_printable_escapes_only_what_a_terminal_would_act_on():
-    from runtime.terminal import printable
+    from runtime.app.terminal import printable
 
     assert printable("Pick 'cube' ü → 機器人 🤖") == "Pick 'cube' ü → 機器人 🤖"
     assert printable(f"a{BIDI}b\u2066c\u200bd\r\n\te{ESC}\x85\u2028") == "a\\u202eb\\u2066c\\u200bd\\r\\n\\te\\x1b\\x85\\u2028"
@@ -473,7 +473,7 @@ def test_version_prints_the_installed_version(capsys):
 def test_the_policy_option_s_help_lists_every_form_the_spec_parser_takes(command):
     """``run --help`` listed "oracle (default), replay:FILE or none"; FILE.py:NAME, http(s):// and
     lerobot:DIR worked too."""
-    from runtime.cli import build_parser
+    from runtime.app.cli import build_parser
 
     parser = build_parser()
     sub = next(a for a in parser._actions if a.dest == "command").choices[command]
@@ -484,7 +484,7 @@ def test_the_policy_option_s_help_lists_every_form_the_spec_parser_takes(command
 
 
 def test_every_positional_argument_has_help():
-    from runtime.cli import build_parser
+    from runtime.app.cli import build_parser
 
     parser = build_parser()
     for name, sub in next(a for a in parser._actions if a.dest == "command").choices.items():

@@ -18,8 +18,8 @@ from moveit_pro_controllers_msgs.action import FollowJointTrajectoryWithAdmittan
 from std_msgs.msg import Float64MultiArray
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
-from runtime.bus import STATUS_ABORTED, STATUS_CANCELED, STATUS_SUCCEEDED, FixedLatency, InProcessBus
-from runtime.clock import SimClock
+from runtime.io.bus import STATUS_ABORTED, STATUS_CANCELED, STATUS_SUCCEEDED, FixedLatency, InProcessBus
+from runtime.io.clock import SimClock
 from sim.controllers import (
     BEST_EFFORT,
     GRIPPER_ACTION,
@@ -40,7 +40,7 @@ from sim.controllers import (
 )
 from sim.controllers.admittance import GoalError, parse_goal
 from sim.controllers.trajectory import blend_duration
-from runtime.timestamps import time_msg
+from runtime.io.timestamps import time_msg
 
 Action = FollowJointTrajectoryWithAdmittance
 Result = Action.Result

@@ -11,15 +11,15 @@ import logging
 
 import pytest
 
-from runtime import builtin, controls, decorators, utility
-from runtime.behavior import Behavior, RunContext, Status
-from runtime.blackboard import Blackboard
-from runtime.bus import InProcessBus
-from runtime.clock import SimClock
-from runtime.conditions import ConditionGuard, attach_conditions, unwrap
-from runtime.controls import tick_root
+from runtime.tree import builtin, controls, decorators, utility
+from runtime.tree.behavior import Behavior, RunContext, Status
+from runtime.tree.blackboard import Blackboard
+from runtime.io.bus import InProcessBus
+from runtime.io.clock import SimClock
+from runtime.tree.conditions import ConditionGuard, attach_conditions, unwrap
+from runtime.tree.controls import tick_root
 from runtime.errors import LoadError, ObjectiveError, PortError, SourceLocation
-from runtime.registry import Registry
+from runtime.tree.registry import Registry
 
 R, S, F = Status.RUNNING, Status.SUCCESS, Status.FAILURE
 SKIPPED = Status.INVALID
@@ -59,7 +59,7 @@ def clock() -> SimClock:
 
 @pytest.fixture
 def context(clock: SimClock) -> RunContext:
-    from runtime.events import EventLog
+    from runtime.tree.events import EventLog
 
     return RunContext(clock=clock, bus=InProcessBus(clock), events=EventLog(clock))
 

@@ -115,7 +115,7 @@ def test_a_diffusion_checkpoint_at_noise_scale_zero_answers_one_chunk_per_observ
 def test_training_script_trains_saves_and_the_backend_serves_one_chunk(tmp_path):
     """`make lerobot-diffusion` in miniature on a tiny kinematic recording: a few steps, LeRobot's
     format with the data hash and seeds beside it, then one chunk through the backend."""
-    from runtime.cli import main as objective
+    from runtime.app.cli import main as objective
 
     dataset = tmp_path / "demos"
     assert objective(["record-demos", str(dataset), "--episodes", "1", "--seed", "7", "--world", "kinematic",

@@ -12,8 +12,8 @@ import mujoco  # noqa: E402
 import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 
-from runtime import disk_cache  # noqa: E402
-from runtime.scene import RobotModel  # noqa: E402
+from runtime.app import disk_cache  # noqa: E402
+from runtime.motion.scene import RobotModel  # noqa: E402
 from sim.mjcf import robot_model_from_mjcf  # noqa: E402
 from sim.cell_model import CellOptions, build_cell_spec, compile_cell  # noqa: E402
 from sim.robot_model import COUPLINGS_PATH, SRDF_PATH, robot_xml  # noqa: E402
@@ -138,7 +138,7 @@ def test_cached_planning_model_is_the_compiled_one(cache, monkeypatch):
 
 
 def _pose(robot: RobotModel, q: np.ndarray, frame: str) -> np.ndarray:
-    from runtime.scene import frame_pose
+    from runtime.motion.scene import frame_pose
 
     return frame_pose(robot, q, frame)
 

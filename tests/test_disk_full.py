@@ -21,7 +21,7 @@ from evaluation.config import RecordMode, WorkerSpec
 from evaluation.episode import EpisodeStatus
 from evaluation.policies import parse_policy
 from evaluation.worker import EpisodeWorker
-from runtime.cli import main
+from runtime.app.cli import main
 from recording.mcap_writer import McapRos2Writer
 from recording.report.worker import ReportWorker
 

@@ -8,15 +8,15 @@ import numpy as np
 import pytest
 
 from behaviors.execute_policy.checks import CheckKind
-from behaviors.execute_policy.shaping import Samples
+from runtime.motion.samples import Samples
 from behaviors.motion import plan_point_to_point
 from behaviors.safety import SafetyError, make_safety
 from behaviors.trajectories import check_motion
 from runtime.errors import OptionError
-from runtime.loader import load_tree
-from runtime.registry import Registry
-from runtime.runner import RunOptions, make_context, run_tree
-from runtime.scene import CartesianEnvelope, EnvelopeOverrides, KeepInBox, load_envelope, narrowed
+from runtime.tree.loader import load_tree
+from runtime.tree.registry import Registry
+from runtime.app.runner import RunOptions, make_context, run_tree
+from runtime.motion.scene import CartesianEnvelope, EnvelopeOverrides, KeepInBox, load_envelope, narrowed
 from sim.kinematic import KinematicWorld
 from sim.planning import make_cell_scene
 from sim.robot_model import ARM_JOINTS, CARTESIAN_LIMITS_PATH, JOINT_LIMITS_PATH, load_waypoints
@@ -154,7 +154,7 @@ def test_move_to_joint_state_refuses_a_motion_outside_the_envelope_before_the_co
 def test_the_planners_pose_check_agrees_with_the_envelope_check_and_keeps_its_margin(scene):
     """The planner's per-state check (``PoseCheck``) answers as ``check_envelope`` does for one
     configuration, and ``MotionSafety.pose_check`` keeps 1 degree inside the tool cone."""
-    from runtime.scene import PoseCheck, check_envelope
+    from runtime.motion.scene import PoseCheck, check_envelope
 
     safety = make_safety(scene, "manipulator", scene.gripper_joint)
     layout = scene.layout(safety.group, None)
@@ -181,8 +181,8 @@ def test_batched_kinematics_equals_pinocchio_on_the_cell_and_on_every_joint_kind
     point by point, with the same violation."""
     import pinocchio as pin
 
-    from runtime.scene.batch_kinematics import BatchKinematics
-    from runtime.scene.envelope import _frame_states, _frame_states_per_point
+    from runtime.motion.scene.batch_kinematics import BatchKinematics
+    from runtime.motion.scene.envelope import _frame_states, _frame_states_per_point
 
     def compare(model: pin.Model, frame_ids: list[int], q: np.ndarray, v: np.ndarray) -> None:
         kinematics = BatchKinematics(model, frame_ids)

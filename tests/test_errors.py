@@ -8,8 +8,8 @@ from types import SimpleNamespace
 
 import pytest
 
-import runtime.runner as runner
-from runtime.cli import main
+import runtime.app.world
+from runtime.app.cli import main
 from runtime.errors import INTERNAL, InternalError, ObjectiveError, ObjectiveRuntimeError, OptionError, SetupError
 from tests.data.nodes import make_registry
 
@@ -28,7 +28,7 @@ def robot_tree(tmp_path: Path) -> Path:
 def with_world(monkeypatch, create) -> None:
     """Install ``create`` as the only world, named ``w``."""
     point = SimpleNamespace(name="w", load=lambda: create)
-    monkeypatch.setattr(runner, "entry_points", lambda group: [point])
+    monkeypatch.setattr(runtime.app.world, "entry_points", lambda group: [point])
 
 
 def test_every_error_class_of_the_project_derives_from_the_root():
@@ -36,8 +36,8 @@ def test_every_error_class_of_the_project_derives_from_the_root():
     from behaviors.execute_policy.config import ConfigError
     from behaviors.poses import FrameError
     from policy.wire import WireError
-    from runtime.ports import ConversionError
-    from runtime.scene.model import GroupError
+    from runtime.tree.ports import ConversionError
+    from runtime.motion.scene.model import GroupError
     from sim.controllers.admittance import GoalError
 
     for cls in (ChunkError, ConfigError, FrameError, WireError, ConversionError, GroupError, GoalError, OptionError,
@@ -135,8 +135,8 @@ def test_the_report_shows_every_policy_run(tmp_path):
 
 def test_a_missing_policy_service_is_explained_for_the_mode_the_run_is_in():
     from behaviors.execute_policy.behavior import ExecutePolicy
-    from runtime.bus import InProcessBus
-    from runtime.clock import SimClock
+    from runtime.io.bus import InProcessBus
+    from runtime.io.clock import SimClock
 
     def hint(bus) -> str:
         return ExecutePolicy._policy_hint(SimpleNamespace(context=SimpleNamespace(bus=bus)))
@@ -146,8 +146,8 @@ def test_a_missing_policy_service_is_explained_for_the_mode_the_run_is_in():
 
 
 def test_an_unknown_controller_the_tree_computes_ends_the_run_as_error(tmp_path):
-    from runtime.registry import Registry
-    from runtime.runner import RunOptions, run_file
+    from runtime.tree.registry import Registry
+    from runtime.app.runner import RunOptions, run_file
 
     path = tmp_path / "switch.xml"
     path.write_text("""<root BTCPP_format="4"><BehaviorTree ID="Main"><RetryUntilSuccessful num_attempts="3"><Sequence>

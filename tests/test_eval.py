@@ -22,7 +22,7 @@ from evaluation.config import RecordMode, WorkerSpec
 from evaluation.episode import EpisodeStatus
 from evaluation.policies import parse_policy
 from evaluation.worker import EpisodeWorker
-from runtime.cli import main
+from runtime.app.cli import main
 
 ROOT = Path(__file__).resolve().parent.parent
 STACK = ROOT / "objectives" / "stack_cubes.xml"

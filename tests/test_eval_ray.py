@@ -17,7 +17,7 @@ from evaluation.config import RecordMode, WorkerSpec  # noqa: E402
 from evaluation.episode import EpisodeRecord  # noqa: E402
 from evaluation.policies import parse_policy  # noqa: E402
 from evaluation.worker import EpisodeWorker  # noqa: E402
-from runtime.cli import main  # noqa: E402
+from runtime.app.cli import main  # noqa: E402
 
 from .test_eval import PLUGIN, STACK, episodes, faults_objective  # noqa: E402
 

@@ -14,15 +14,15 @@ from moveit_pro_ml_msgs.srv import GetActionChunk
 from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
-import runtime.bus as bus_module
-from runtime.bus import FixedLatency
+import runtime.io.bus as bus_module
+from runtime.io.bus import FixedLatency
 from runtime.errors import PortError
-from runtime.loader import load_tree
+from runtime.tree.loader import load_tree
 from recording.report.data import Recording
 from recording.report.plots import stall_spans
-from runtime.registry import Registry
-from runtime.runner import RunOptions, make_context, run_tree
-from runtime.scene import Box, pose_matrix
+from runtime.tree.registry import Registry
+from runtime.app.runner import RunOptions, make_context, run_tree
+from runtime.motion.scene import Box, pose_matrix
 from sim.kinematic import KinematicWorld
 from sim.robot_model import ARM_JOINTS
 
@@ -794,7 +794,7 @@ def test_heavy_tailed_latency_warns_once_during_the_run_with_the_figures(registr
     more than half the committed window (1.9 s). The sizing rule is checked at every answer, not
     only at the warmup, so heavy-tailed latency warns, once, naming the estimate and how it was
     made."""
-    from runtime.bus import TraceLatency
+    from runtime.io.bus import TraceLatency
 
     run = run_policy(registry, BASE, ScriptedPolicy(hold()), latency=TraceLatency([0.2, 0.2, 1.2, 1.3, 0.2]))
     assert run.result.status == "SUCCESS", run.result.reason
@@ -810,7 +810,7 @@ def test_heavy_tailed_latency_warns_once_during_the_run_with_the_figures(registr
 def test_a_latency_that_outgrows_the_chunk_s_tail_too_warns_a_second_time(registry):
     # As above, then one call takes 2.8 s: more than half the 50-step chunk (2.5 s), which the
     # arm plays beyond each window while it waits. The warning about pauses follows the first.
-    from runtime.bus import TraceLatency
+    from runtime.io.bus import TraceLatency
 
     run = run_policy(registry, BASE, ScriptedPolicy(hold()), latency=TraceLatency([0.2, 0.2, 1.2, 2.8, 0.2]))
     assert run.result.status == "SUCCESS", run.result.reason
@@ -1092,7 +1092,7 @@ def test_a_run_the_controller_finishes_early_on_its_own_clock_counts_every_step_
     # gets there. The controller's success says every step was played: the count is the
     # window's, not the part of it the runtime's clock had reached.
     import sim.controllers.admittance as admittance
-    from runtime.timestamps import time_msg, to_seconds
+    from runtime.io.timestamps import time_msg, to_seconds
 
     parse = admittance.parse_goal
 

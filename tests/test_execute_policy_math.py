@@ -26,7 +26,7 @@ from behaviors.execute_policy.timing import (
     sizing_warning,
     window_covers_latency,
 )
-from runtime.bus import STATUS_ABORTED, STATUS_CANCELED, STATUS_SUCCEEDED
+from runtime.io.bus import STATUS_ABORTED, STATUS_CANCELED, STATUS_SUCCEEDED
 
 GROUP = ["j1", "j2"]
 

@@ -19,11 +19,11 @@ import yaml
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 
-from runtime.cli import main
+from runtime.app.cli import main
 from recording.scene_view import LinkTree, TfEncoder, object_markers, stamp_of
 from recording.mcap_writer import LATCHED_QOS, SENSOR_DATA_QOS, OfferedQos
 from recording.report.data import clock_origin_ns
-from tests.test_recording import CAMERAS, POLICY_XML, read_events, read_mcap, record_run
+from tests.test_recording import CAMERAS, read_events, read_mcap, record_run
 
 TYPE_NAME = re.compile(r"^[A-Za-z0-9_]+/(msg|srv|action)/[A-Za-z0-9_]+$")
 
@@ -159,8 +159,8 @@ def test_tree_statuses_and_events_are_topics(recorded, messages):
 
 
 def test_object_markers_delete_what_left_the_scene():
-    from runtime.scene.collision import Box
-    from runtime.scene.scene import WorldObject
+    from runtime.motion.scene.collision import Box
+    from runtime.motion.scene.scene import WorldObject
 
     box = WorldObject("crate", Box((0.1, 0.2, 0.3)), tuple(np.eye(4).reshape(-1)))
     first = object_markers({"crate": box}, (), stamp_of(5))

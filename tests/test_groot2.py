@@ -19,12 +19,12 @@ import pytest
 import zmq
 
 import behaviortreepy as btcpp
-from runtime.behavior import Status
-from runtime.controls import tick_tree
-from runtime.groot2 import HOOKS_REFUSED, Groot2Options, Groot2Server, monitored_tree
-from runtime.loader import load_tree
-from runtime.registry import Registry
-from runtime.runner import RunOptions, make_context, run_tree
+from runtime.tree.behavior import Status
+from runtime.tree.controls import tick_tree
+from runtime.app.groot2 import HOOKS_REFUSED, Groot2Options, Groot2Server, monitored_tree
+from runtime.tree.loader import load_tree
+from runtime.tree.registry import Registry
+from runtime.app.runner import RunOptions, make_context, run_tree
 
 pytestmark = pytest.mark.timeout(60)
 
@@ -107,7 +107,7 @@ def free_pair() -> int:
 
 @pytest.fixture(scope="module")
 def registry():
-    from runtime.builtin import register
+    from runtime.tree.builtin import register
 
     registry = Registry()
     register(registry)
@@ -262,7 +262,7 @@ def test_objective_run_groot2_serves_and_a_taken_port_is_an_error(tmp_path):
     try:
         tree = tmp_path / "t.xml"
         tree.write_text(XML)
-        proc = subprocess.run([sys.executable, "-m", "runtime.cli", "run", str(tree), "--groot2", str(port)],
+        proc = subprocess.run([sys.executable, "-m", "runtime.app.cli", "run", str(tree), "--groot2", str(port)],
                               capture_output=True, text=True, timeout=60)
         assert proc.returncode == 2
         assert f"--groot2: cannot listen on 127.0.0.1 ports {port} and {port + 1}" in proc.stderr
@@ -272,7 +272,7 @@ def test_objective_run_groot2_serves_and_a_taken_port_is_an_error(tmp_path):
     # A realtime run watched mid-run: the tree, then its Wait RUNNING; SIGINT still halts it.
     tree.write_text('<root BTCPP_format="4"><BehaviorTree ID="T"><Sequence><Wait name="long" seconds="30"/>'
                     "</Sequence></BehaviorTree></root>")
-    proc = subprocess.Popen([sys.executable, "-m", "runtime.cli", "run", str(tree), "--realtime", "--groot2", "0"],
+    proc = subprocess.Popen([sys.executable, "-m", "runtime.app.cli", "run", str(tree), "--realtime", "--groot2", "0"],
                             stderr=subprocess.PIPE, text=True)
     try:
         lines = [proc.stderr.readline()]
@@ -366,7 +366,7 @@ def test_nested_subtrees_and_unset_entries_are_behaviortree_cpps(registry):
 def test_a_message_on_the_blackboard_is_sent_as_its_fields(registry):
     from geometry_msgs.msg import PoseStamped
 
-    from runtime.groot2 import blackboard_dump
+    from runtime.app.groot2 import blackboard_dump
 
     loaded = load_tree(NESTED, registry, make_context(RunOptions()))
     pose = PoseStamped()
@@ -396,7 +396,7 @@ def ours(registry):
 def test_a_request_frame_over_the_cap_is_never_read(ours):
     """A 1 MiB frame (the cap is 64 KiB) is dropped by ZeroMQ unread: no reply, no memory kept;
     other clients are served as before."""
-    from runtime.groot2 import MAX_REQUEST_BYTES
+    from runtime.app.groot2 import MAX_REQUEST_BYTES
 
     server, _, client = ours
     assert MAX_REQUEST_BYTES == 64 << 10
@@ -411,7 +411,7 @@ def test_a_request_frame_over_the_cap_is_never_read(ours):
 
 
 def test_a_blackboard_request_and_its_reply_are_bounded(registry):
-    from runtime.groot2 import MonitorLimits
+    from runtime.app.groot2 import MonitorLimits
 
     context = make_context(RunOptions())
     loaded = load_tree(XML, registry, context)
@@ -435,7 +435,7 @@ def test_the_tick_never_waits_for_an_answer_being_computed(ours, monkeypatch):
     the tick side's ``update`` takes the new statuses at once."""
     import threading
 
-    import runtime.groot2 as groot2
+    import runtime.app.groot2 as groot2
 
     server, loaded, client = ours
     entered, release = threading.Event(), threading.Event()
@@ -462,7 +462,7 @@ def test_the_tick_never_waits_for_an_answer_being_computed(ours, monkeypatch):
 
 
 def test_the_server_rests_so_that_it_works_at_most_its_share(ours, monkeypatch):
-    import runtime.groot2 as groot2
+    import runtime.app.groot2 as groot2
 
     assert groot2.rest_after(0.01, 0.1) == pytest.approx(0.09)  # 10 ms of work in 100 ms: a tenth
     rests: list[tuple[float, float]] = []

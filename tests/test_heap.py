@@ -1,4 +1,4 @@
-"""The heap of a paced loop (``runtime.heap``): what set-up made is frozen and garbage is collected
+"""The heap of a paced loop (``runtime.io.heap``): what set-up made is frozen and garbage is collected
 between ticks; and the ROS 2 type support a run's clients need is loaded before its first tick."""
 from __future__ import annotations
 
@@ -9,11 +9,11 @@ from pathlib import Path
 
 import pytest
 
-from runtime.heap import MIDDLE_EVERY, OLDEST_EVERY, PacedHeap
-from runtime.loader import load_tree
-from runtime.registry import Registry
-from runtime.runner import RunOptions, make_context, run_tree
-from runtime.world_check import declared_interfaces
+from runtime.io.heap import MIDDLE_EVERY, OLDEST_EVERY, PacedHeap
+from runtime.tree.loader import load_tree
+from runtime.tree.registry import Registry
+from runtime.app.runner import RunOptions, make_context, run_tree
+from runtime.app.world_check import declared_interfaces
 
 WAIT_XML = """<root BTCPP_format="4"><BehaviorTree ID="Main"><Sleep msec="50"/></BehaviorTree></root>"""
 
@@ -113,13 +113,12 @@ def test_type_support_is_loaded_and_the_named_clients_exist_before_the_first_tic
         "os.environ['ROS_DOMAIN_ID'] = str(random.randint(100, 199)); os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'\n"
         "from control_msgs.action import GripperCommand\n"
         "from std_srvs.srv import Trigger\n"
-        "from runtime.clock import WallClock\n"
-        "from runtime.ports import NameKind\n"
-        "from runtime.ros.bus import RosBus\n"
-        "from runtime.ros.run import prepare_links\n"
+        "from runtime.io.clock import WallClock\n"
+        "from runtime.io.ros.bus import RosBus\n"
+        "from runtime.io.ros.run import prepare_links\n"
         "assert GripperCommand._TYPE_SUPPORT is None\n"
         "with RosBus(WallClock(), node_name='prepare', serves=False) as bus:\n"
-        "    prepare_links(bus, [GripperCommand], [('/t', NameKind.SERVICE, (Trigger,)), ('/g', NameKind.ACTION, (GripperCommand,))])\n"
+        "    prepare_links(bus, [GripperCommand], services=[('/t', Trigger)], actions=[('/g', (GripperCommand,))])\n"
         "    assert GripperCommand._TYPE_SUPPORT is not None\n"
         "    assert [c.name for c in bus._clients] == ['/t'] and [c.name for c in bus._action_clients] == ['/g']\n"
     )
@@ -131,8 +130,8 @@ def test_the_services_and_actions_a_tree_names_are_listed_once_with_their_types(
     from moveit_pro_controllers_msgs.action import FollowJointTrajectoryWithAdmittance
     from moveit_pro_ml_msgs.srv import GetActionChunk
 
-    from runtime.ports import NameKind
-    from runtime.world_check import named_links
+    from runtime.tree.ports import NameKind
+    from runtime.app.world_check import named_links
 
     context = make_context(RunOptions())
     loaded = load_tree(Path(__file__).parent.parent / "objectives" / "stack_cubes.xml", registry, context)
@@ -151,8 +150,8 @@ def test_a_ros_node_keeps_one_client_per_name_and_type(monkeypatch):
     from control_msgs.action import GripperCommand
     from std_srvs.srv import Trigger
 
-    from runtime.clock import WallClock
-    from runtime.ros.bus import RosBus
+    from runtime.io.clock import WallClock
+    from runtime.io.ros.bus import RosBus
 
     monkeypatch.setenv("ROS_DOMAIN_ID", str(random.randint(100, 199)))
     monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")

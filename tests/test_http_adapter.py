@@ -16,8 +16,8 @@ import numpy as np
 import pytest
 from moveit_pro_ml_msgs.srv import GetActionChunk
 
-from runtime.bus import InProcessBus
-from runtime.clock import SimClock
+from runtime.io.bus import InProcessBus
+from runtime.io.clock import SimClock
 from policy.adapter import request_to_msg
 from policy.backend import PolicyRequest, PolicyResponse
 from policy.http_client import ClientConfig, HttpBackend, InferUrlError, check_infer_url, redact_url
@@ -277,7 +277,7 @@ def test_urls_are_printed_without_their_secrets(url, shown):
     "user:s3cret@127.0.0.1:8000", "http://user:s3cret@127.0.0.1:99999", "https://127.0.0.1/infer?key=s3cret",
 ])
 def test_the_adapter_never_echoes_a_password_from_its_url(url, capsys):
-    from runtime.cli import main
+    from runtime.app.cli import main
 
     assert main(["adapter", "--infer-url", url]) == 2
     err = capsys.readouterr().err
@@ -294,7 +294,7 @@ def test_tls_files_need_https(tmp_path):
 
 
 def test_adapter_command_refuses_a_remote_plain_http_url_at_start_up():
-    proc = subprocess.run([sys.executable, "-m", "runtime.cli", "adapter", "--infer-url", "http://10.1.2.3:8000"],
+    proc = subprocess.run([sys.executable, "-m", "runtime.app.cli", "adapter", "--infer-url", "http://10.1.2.3:8000"],
                           cwd=ROOT, capture_output=True, text=True, timeout=30)
     assert proc.returncode == 2
     assert "error: refusing plain http to 10.1.2.3, which is not a loopback address" in proc.stderr
@@ -359,15 +359,15 @@ def test_mutual_tls_needs_the_client_certificate(serve, pki):
 def test_adapter_node_process_serves_over_ros2_and_stops_on_sigterm(serve):
     import uuid
 
-    from runtime.clock import WallClock
-    from runtime.ros import RosBus
+    from runtime.io.clock import WallClock
+    from runtime.io.ros import RosBus
 
     recorder = Recorder()
     server = serve(recorder)
     service = f"/t{uuid.uuid4().hex[:8]}/get_action_chunk"
     env = {**os.environ, KEY_ENV: KEY, "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"}
     proc = subprocess.Popen(
-        [sys.executable, "-m", "runtime.cli", "adapter", "--infer-url", server.url, "--service-name", service],
+        [sys.executable, "-m", "runtime.app.cli", "adapter", "--infer-url", server.url, "--service-name", service],
         cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
     )
     bus = RosBus(WallClock(), node_name="adapter_test_caller")

@@ -5,8 +5,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from runtime import build_interfaces
-from runtime.build_interfaces import provided_elsewhere
+from runtime.app import build_interfaces
+from runtime.app.build_interfaces import provided_elsewhere
 
 
 def ament_prefix(root: Path, *packages: str) -> Path:

@@ -124,9 +124,9 @@ def test_ctrl_c_of_a_recorded_realtime_run_reaches_only_the_run_not_its_report_w
 
 def test_an_interrupted_run_cancels_the_moving_gripper(tmp_path):
     """In process, on the simulated clock: the stop lands while the gripper is half way."""
-    from runtime.interrupt import StopRequest
-    from runtime.registry import Registry
-    from runtime.runner import RunOptions, run_file
+    from runtime.io.interrupt import StopRequest
+    from runtime.tree.registry import Registry
+    from runtime.app.runner import RunOptions, run_file
 
     path = tmp_path / "close.xml"
     path.write_text(
@@ -183,8 +183,8 @@ def test_a_recording_killed_with_sigkill_opens_as_partial(tmp_path):
 def test_a_second_sigint_while_the_recording_finishes_keeps_its_summary_and_end(tmp_path, monkeypatch, capsys):
     """Ctrl-C stops the run; a second one arrives while the recording is being finished: it waits
     until the summary and the recording's end are written, then only stops the report."""
-    from runtime import runner
-    from runtime.cli import main
+    from runtime.app import runner
+    from runtime.app.cli import main
     from recording import Recorder
 
     tree = tmp_path / "wait.xml"

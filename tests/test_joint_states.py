@@ -1,12 +1,12 @@
-"""runtime.joint_states builds the JointState rosidl's constructors build, only faster."""
+"""runtime.motion.joint_states builds the JointState rosidl's constructors build, only faster."""
 from __future__ import annotations
 
 from rclpy.serialization import deserialize_message, serialize_message
 from sensor_msgs.msg import JointState, _joint_state
 from std_msgs.msg import Header
 
-from runtime.joint_states import joint_state
-from runtime.timestamps import time_msg
+from runtime.motion.joint_states import joint_state
+from runtime.io.timestamps import time_msg
 
 NAMES = ("shoulder_pan_joint", "elbow_joint", "robotiq_85_left_knuckle_joint")
 

@@ -16,12 +16,12 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
-from runtime.bus import STATUS_ABORTED, STATUS_SUCCEEDED
-from runtime.timestamps import duration_msg, time_msg
+from runtime.io.bus import STATUS_ABORTED, STATUS_SUCCEEDED
+from runtime.io.timestamps import duration_msg, time_msg
 from controller_manager_msgs.srv import SwitchController
 
-from runtime.bus import FixedLatency, InProcessBus
-from runtime.clock import SimClock
+from runtime.io.bus import FixedLatency, InProcessBus
+from runtime.io.clock import SimClock
 from sim.controllers import (
     FT_BROADCASTER,
     JTC_ACTION,

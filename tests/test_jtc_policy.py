@@ -13,8 +13,8 @@ import pytest
 from geometry_msgs.msg import WrenchStamped
 
 from behaviors.wrench_watch import WrenchWatch, threshold_crossing
-from runtime.bus import FixedLatency, InProcessBus
-from runtime.clock import SimClock
+from runtime.io.bus import FixedLatency, InProcessBus
+from runtime.io.clock import SimClock
 from tests.test_execute_policy import BASE, ScriptedPolicy, _record_commands, box_appears_ahead, hold, registry, run_policy  # noqa: F401
 
 JTC = "/joint_trajectory_controller/follow_joint_trajectory"

@@ -11,8 +11,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from runtime.registry import Registry
-from runtime.runner import RunOptions, RunResult, run_file
+from runtime.tree.registry import Registry
+from runtime.app.runner import RunOptions, RunResult, run_file
 
 ROOT = Path(__file__).resolve().parent.parent
 OBJECTIVE = ROOT / "objectives" / "stack_cubes_jtc.xml"
@@ -79,9 +79,9 @@ def test_a_push_into_an_object_the_scene_does_not_know_stops_the_arm_on_the_jtc(
     topic, the goal is cancelled and the arm comes to rest."""
     from moveit_pro_ml_msgs.srv import GetActionChunk
 
-    from runtime.bus import FixedLatency
-    from runtime.loader import load_tree
-    from runtime.runner import make_context, run_tree
+    from runtime.io.bus import FixedLatency
+    from runtime.tree.loader import load_tree
+    from runtime.app.runner import make_context, run_tree
     from sim.world import create_vla_sim
     from tests.test_execute_policy import ScriptedPolicy, hold
 

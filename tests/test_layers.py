@@ -6,11 +6,22 @@ layers its package may use.
     policy      -> runtime                     (runs beside a real robot: nothing simulated)
     recording   -> runtime                     (``--record``/``--live`` and the report, one package whose
                                                 modules import one another in no circle; attached to
-                                                the runner as a run observer, ``runtime.observer``)
+                                                the runner as a run observer, ``runtime.app.observer``)
     sim         -> runtime, behaviors, policy   (the worked example)
     evaluation  -> all of the above
 
 ``tests``, ``benchmarks`` and ``tools`` sit on top and may import anything; no layer imports them.
+
+Inside ``runtime``, its rooms flow one way too (``ROOMS``):
+
+    runtime.errors, runtime.extras   what every room uses: import nothing else of runtime
+    runtime.io       bus, ROS 2, clocks        -> errors, extras
+    runtime.motion   robot, scene, motion      -> errors, extras, io
+    runtime.tree     the tree engine           -> errors, extras, io
+    runtime.app      runner, CLI, server, ...  -> all of the above
+
+so the tree engine, the bus and ROS 2, and motion import nothing of the application, and the tree
+engine nothing of motion (behaviors bring the two together).
 Imports inside functions count: a lazy import is still a dependency. No layer imports another
 package's private names (``_name``).
 
@@ -39,6 +50,17 @@ ALLOWED = {
     "evaluation": {"runtime", "behaviors", "policy", "recording", "sim", "evaluation"},
 }
 PROJECT_PACKAGES = set(ALLOWED) | {"tests", "benchmarks", "tools"}
+BASE = {"runtime", "runtime.errors", "runtime.extras"}
+ROOMS = {
+    "runtime.errors": BASE,
+    "runtime.extras": BASE,
+    "runtime.io": BASE | {"runtime.io"},
+    "runtime.motion": BASE | {"runtime.io", "runtime.motion"},
+    "runtime.tree": BASE | {"runtime.io", "runtime.tree"},
+    "runtime.app": BASE | {"runtime.io", "runtime.motion", "runtime.tree", "runtime.app"},
+}
+"""The rooms of ``runtime`` -> what their modules may import of ``runtime`` (``runtime`` alone: its
+``__init__``)."""
 EXTRA_MODULES = {module: extra for module, extra in EXTRA_OF_MODULE.items() if extra in ("sim", "record")}
 """Third-party modules the core must never import: those of the ``[sim]`` and ``[record]`` extras."""
 EXTRAS_ALLOWED = {"sim": {"sim"}, "recording": {"record"}, "evaluation": {"sim", "record"}}
@@ -85,10 +107,25 @@ def layer_violations(root: Path) -> list[str]:
                 elif top in EXTRA_MODULES and EXTRA_MODULES[top] not in extras:
                     problems.append(f"{where} (a module of the [{EXTRA_MODULES[top]}] extra; "
                                     f"{layer} may use {', '.join(sorted(extras)) or 'no extra'})")
+                if layer == "runtime":
+                    problems += room_violations(where, module, name)
                 private = [n for n in names if n.startswith("_") and not n.startswith("__")]
                 if top in PROJECT_PACKAGES and top != layer and private:
                     problems.append(f"{where}: {', '.join(private)} (a private name of {top})")
     return problems
+
+
+def room_of(module: str) -> str | None:
+    """The room of ``runtime`` that holds ``module`` (a dotted name), or None outside them."""
+    return next((room for room in ROOMS if module == room or module.startswith(room + ".")), None)
+
+
+def room_violations(where: str, module: str, imported: str) -> list[str]:
+    """The problem, if any, of ``module`` (in ``runtime``) importing ``imported``."""
+    room, target = room_of(module), room_of(imported) or imported
+    if room is None or not imported.startswith("runtime") or target in ROOMS[room]:
+        return []
+    return [f"{where} ({room} may import only {', '.join(sorted(ROOMS[room]))})"]
 
 
 def test_no_import_crosses_a_layer_the_wrong_way():
@@ -99,6 +136,9 @@ def test_every_layer_is_read():
     """The check reads the real packages (an empty walk would pass vacuously)."""
     counts = {layer: len(list((ROOT / layer).rglob("*.py"))) for layer in ALLOWED}
     assert all(count >= 3 for count in counts.values()), counts
+    rooms = {room: len(list((ROOT / Path(*room.split("."))).rglob("*.py"))) for room in ROOMS if "." in room}
+    assert all(count >= 4 for room, count in rooms.items() if room not in ("runtime.errors", "runtime.extras")), rooms
+    assert all((ROOT / "runtime" / f"{name}.py").is_file() for name in ("errors", "extras"))
     lines = imported_modules(ROOT / "sim" / "world.py", "sim.world")
     assert (lines and any(name == "sim.embedded_policy" for _, name in lines)
             and any(name == "policy.images" for _, name in lines))
@@ -112,7 +152,7 @@ def test_every_layer_is_read():
     ("policy", "from sim.robot_model import ARM_JOINTS\n", "policy imports sim.robot_model"),
     ("sim", "from benchmarks.baselines import Stream\n", "sim imports benchmarks.baselines"),
     ("runtime", "import recording\n", "runtime imports recording"),
-    ("recording", "from sim.world import create_kinematic\n", "recording imports sim.world"),
+    ("recording", "from sim.world import create_vla_sim\n", "recording imports sim.world"),
     ("policy", "from recording.report import render_report\n", "policy imports recording.report"),
     ("evaluation", "from tests.fakes import FakeBus\n", "evaluation imports tests.fakes"),
 ])
@@ -126,14 +166,37 @@ def test_each_wrong_way_import_is_named_with_file_and_line(tmp_path, layer, sour
     assert problem.startswith(f"{layer}/mod.py:{line}: {crossing} ({layer} may import only ")
 
 
+@pytest.mark.parametrize("room, source, imported", [
+    ("tree", "from runtime.app.runner import run_file\n", "runtime.app.runner"),
+    ("tree", "def f():\n    from ..motion.scene import PlanningScene\n", "runtime.motion.scene"),
+    ("io", "from ..tree.ports import NameKind\n", "runtime.tree.ports"),
+    ("io", "def f():\n    from runtime.app import cli\n", "runtime.app"),
+    ("motion", "from runtime.app.world import World\n", "runtime.app.world"),
+    ("motion", "from runtime.tree.behavior import RunContext\n", "runtime.tree.behavior"),
+])
+def test_each_wrong_way_import_between_rooms_is_named(tmp_path, room, source, imported):
+    for name in ALLOWED:
+        (tmp_path / name).mkdir()
+    (tmp_path / "runtime" / room).mkdir()
+    (tmp_path / "runtime" / room / "mod.py").write_text(source)
+    [problem] = layer_violations(tmp_path)
+    line = source.count("\n", 0, source.index("import")) + 1
+    assert problem.startswith(f"runtime/{room}/mod.py:{line}: runtime imports {imported} (runtime.{room} may import only ")
+
+
 def test_allowed_imports_pass(tmp_path):
     for name in ALLOWED:
         (tmp_path / name).mkdir()
     (tmp_path / "sim" / "mod.py").write_text("from policy.adapter import X\nfrom behaviors import y\nfrom .world import z\n")
-    (tmp_path / "policy" / "mod.py").write_text("from runtime.bus import Bus\nfrom . import wire\n")
+    (tmp_path / "policy" / "mod.py").write_text("from runtime.io.bus import Bus\nfrom . import wire\n")
     (tmp_path / "recording" / "mod.py").write_text("import mcap\ndef f():\n    import foxglove\n    import matplotlib\n")
     (tmp_path / "sim" / "cell.py").write_text("import mujoco\n")
     (tmp_path / "evaluation" / "mod.py").write_text("from recording.report.html import CSS\nfrom sim import world\n")
+    for room in ("app", "tree", "motion"):
+        (tmp_path / "runtime" / room).mkdir()
+    (tmp_path / "runtime" / "app" / "mod.py").write_text("from ..tree.loader import load_tree\nfrom runtime.motion import scene\n")
+    (tmp_path / "runtime" / "tree" / "mod.py").write_text("from runtime.io.bus import Bus\nfrom ..errors import SetupError\n")
+    (tmp_path / "runtime" / "motion" / "mod.py").write_text("from runtime.io.timestamps import time_msg\nfrom . import samples\n")
     assert layer_violations(tmp_path) == []
 
 
@@ -160,47 +223,7 @@ def test_an_extra_reached_from_the_core_is_named(tmp_path, layer, source, named)
 def test_a_private_name_of_another_package_is_named(tmp_path):
     for name in ALLOWED:
         (tmp_path / name).mkdir()
-    (tmp_path / "evaluation" / "cli.py").write_text("from runtime.cli import _parse_set as parse_set\n")
+    (tmp_path / "evaluation" / "cli.py").write_text("from runtime.app.cli import _parse_set as parse_set\n")
     (tmp_path / "runtime" / "cli.py").write_text("from .loader import _private_helper\n")
     assert layer_violations(tmp_path) == [
-        "evaluation/cli.py:1: evaluation imports runtime.cli: _parse_set (a private name of runtime)"]
-
-
-def import_cycles(root: Path, package: str) -> list[list[str]]:
-    """The groups of ``package``'s modules that import one another in a circle (lazy imports count)."""
-    modules = {}
-    for path in sorted((root / package).rglob("*.py")):
-        module = ".".join(path.relative_to(root).with_suffix("").parts)
-        modules[module.removesuffix(".__init__")] = (path, module)
-    graph = {}
-    for name, (path, module) in modules.items():
-        imported: set[str] = set()
-        for _, target, names in imported_names(path, module):
-            imported |= {t for t in (target, *(f"{target}.{n}" for n in names)) if t in modules and t != name}
-        graph[name] = imported
-    reach = {name: _reachable(graph, name) for name in graph}
-    groups = {tuple(sorted(m for m in reach[name] if name in reach[m])) for name in graph if name in reach[name]}
-    return sorted(list(group) for group in groups)
-
-
-def _reachable(graph: dict[str, set[str]], start: str) -> set[str]:
-    reach, stack = set(), [start]
-    while stack:
-        for nxt in graph[stack.pop()]:
-            if nxt not in reach:
-                reach.add(nxt)
-                stack.append(nxt)
-    return reach
-
-
-def test_the_recording_and_its_report_import_each_other_in_no_circle():
-    assert len(list((ROOT / "recording" / "report").glob("*.py"))) >= 5
-    assert import_cycles(ROOT, "recording") == []
-
-
-def test_a_circle_is_found(tmp_path):
-    (tmp_path / "recording" / "report").mkdir(parents=True)
-    (tmp_path / "recording" / "session.py").write_text("from .report.data import load\n")
-    (tmp_path / "recording" / "report" / "data.py").write_text("def f():\n    from ..session import Session\n")
-    (tmp_path / "recording" / "files.py").write_text("import json\n")
-    assert import_cycles(tmp_path, "recording") == [["recording.report.data", "recording.session"]]
+        "evaluation/cli.py:1: evaluation imports runtime.app.cli: _parse_set (a private name of runtime)"]

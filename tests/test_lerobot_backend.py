@@ -139,7 +139,7 @@ def test_bad_options_and_missing_checkpoints_are_named(tmp_path):
 
 def test_record_demos_without_the_lerobot_extra_names_the_venv_that_has_it(tmp_path, capsys, monkeypatch):
     import sim.demos
-    from runtime.cli import main
+    from runtime.app.cli import main
 
     def missing(options):
         raise ModuleNotFoundError("No module named 'torch'", name="torch")
@@ -392,7 +392,7 @@ def test_stack_cubes_lerobot_objective_carries_the_rtc_tail_into_predict_action_
     normalized output, untouched, starting at the request instant."""
     import json
 
-    from runtime.cli import main
+    from runtime.app.cli import main
     from policy.lerobot_backend import LeRobotBackend
 
     calls: list[dict] = []
@@ -446,7 +446,7 @@ def test_record_demos_writes_a_lerobot_dataset_of_oracle_steps(tmp_path, capsys)
     force_offline()  # before anything imports lerobot
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
-    from runtime.cli import main
+    from runtime.app.cli import main
 
     out = tmp_path / "demos"
     code = main(["record-demos", str(out), "--episodes", "1", "--seed", "3", "--world", "kinematic",
@@ -471,7 +471,7 @@ def test_record_demos_keeps_the_chosen_cameras_and_stops_after_the_plan_with_dem
     dataset has those cameras, meta/demos.json the settings, and fewer frames than --steps."""
     import json
 
-    from runtime.cli import main
+    from runtime.app.cli import main
 
     out = tmp_path / "demos"
     code = main(["record-demos", str(out), "--episodes", "1", "--seed", "3", "--world", "kinematic", "--image-size", "32",

@@ -61,7 +61,7 @@ def trained(tmp_path_factory, env) -> Path:
     """Two kinematic episodes recorded by the project, then two steps of ``lerobot-train``."""
     root = tmp_path_factory.mktemp("lerobot_train")
     demos, out = root / "demos", root / "train"
-    run([sys.executable, "-m", "runtime.cli", "record-demos", str(demos), "--episodes", "2", "--seed", "3",
+    run([sys.executable, "-m", "runtime.app.cli", "record-demos", str(demos), "--episodes", "2", "--seed", "3",
          "--world", "kinematic", "--image-size", "32", "--steps", "20", "--keep-failed", "--cameras", "wrist"],
         env, timeout=120)
     train = Path(sys.executable).with_name("lerobot-train")
@@ -83,7 +83,7 @@ def test_a_checkpoint_saved_by_lerobot_train_is_served_and_answers_a_chunk_over_
         adapter = start("adapter", "--infer-url", url, "--service-name", service, "--timeout", "20", env=env)
         read_line(adapter, rf"serving {service} -> ", timeout=60)
         smoke = subprocess.run(
-            [sys.executable, "-m", "runtime.cli", "smoke-test", service, "--joints", ARM, "--gripper-joint", GRIPPER,
+            [sys.executable, "-m", "runtime.app.cli", "smoke-test", service, "--joints", ARM, "--gripper-joint", GRIPPER,
              "--synthetic-joints", "--image-names", "wrist", "--synthetic-images", "--expected-steps", "8",
              "--timeout", "20"],
             cwd=REPO, env=env, capture_output=True, text=True, timeout=120)

@@ -5,11 +5,11 @@ from pathlib import Path
 
 import pytest
 
-from runtime.behavior import NodeKind, Status
-from runtime.controls import tick_tree
+from runtime.tree.behavior import NodeKind, Status
+from runtime.tree.controls import tick_tree
 from runtime.errors import LoadError, ObjectiveError, PortError
-from runtime.loader import LoadedTree, load_tree, throwaway_context, validate
-from runtime.subtree import SubTree
+from runtime.tree.loader import LoadedTree, load_tree, throwaway_context, validate
+from runtime.tree.subtree import SubTree
 from tests.data.nodes import make_registry
 
 DATA = Path(__file__).parent / "data"

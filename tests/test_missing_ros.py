@@ -14,8 +14,8 @@ from pathlib import Path
 
 import pytest
 
-import runtime.build_interfaces as build_interfaces
-from runtime import cli
+import runtime.app.build_interfaces as build_interfaces
+from runtime.app import cli
 from runtime.extras import is_ros_module, missing_module_message, project_interface_packages
 
 REPO = Path(__file__).resolve().parent.parent
@@ -36,7 +36,7 @@ class Missing:
 
 
 sys.meta_path.insert(0, Missing())
-from runtime.cli import main
+from runtime.app.cli import main
 sys.exit(main(sys.argv[1:]))
 """
 

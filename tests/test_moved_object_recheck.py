@@ -13,7 +13,7 @@ import pytest
 from hypothesis import HealthCheck, assume, event, given, settings
 from hypothesis import strategies as st
 
-from runtime.scene import pose_matrix
+from runtime.motion.scene import pose_matrix
 from sim.planning import cube_object
 
 from .test_path_early_out import CUBES, cell_scene, key, make_path, paths
@@ -66,7 +66,7 @@ def test_nothing_moved_since_is_free_and_a_new_object_means_a_full_check():
     assert scene.check_path(Q, None, 0.01) is None
     assert scene.check_path(Q, None, 0.01, free_at=scene.version) is None
     structure, poses = scene.version
-    from runtime.scene import Box
+    from runtime.motion.scene import Box
 
     scene.add_object("wall", Box((2.0, 2.0, 2.0)), pose_matrix([0.0, 0.0, 0.5]))  # around the robot
     try:

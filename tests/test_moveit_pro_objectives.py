@@ -13,9 +13,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from runtime.loader import validate
-from runtime.registry import Registry
-from runtime.runner import RunOptions, RunResult, run_file
+from runtime.tree.loader import validate
+from runtime.tree.registry import Registry
+from runtime.app.runner import RunOptions, RunResult, run_file
 
 OBJECTIVE = Path(__file__).resolve().parent.parent / "objectives" / "moveit_pro" / "stack_cubes_with_the_vla_policy.xml"
 UPSTREAM_SHA256 = "6410fefbb528af46348fe6e69994906272d7bd86a0591654719c85230433f358"

@@ -17,12 +17,12 @@ from visualization_msgs.msg import Marker, MarkerArray
 
 from behaviors.controllers import SwitchController, plan_switch
 from behaviors.poses import MARKER_TOPIC, TransformPose, matrix_to_pose, pose_markers
-from runtime.behavior import Status
-from runtime.blackboard import Blackboard
+from runtime.tree.behavior import Status
+from runtime.tree.blackboard import Blackboard
 from runtime.errors import SetupError
-from runtime.registry import Registry
-from runtime.runner import RunOptions, RunResult, run_file
-from runtime.scene.collision import pose_matrix
+from runtime.tree.registry import Registry
+from runtime.app.runner import RunOptions, RunResult, run_file
+from runtime.motion.scene.collision import pose_matrix
 from tests.test_scene_behaviors import make_context, make_node, make_scene, robot, tick  # noqa: F401
 
 JTAC = "joint_trajectory_admittance_controller"

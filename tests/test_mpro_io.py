@@ -22,11 +22,11 @@ from behaviors.robot_state import ClearSnapshot, UpdatePlanningSceneService
 from behaviors.vectors import pose_stamped
 from behaviors.visualization import MARKER_TOPIC, PublishTF, VisualizePath, VisualizePose
 from behaviors.yaml_files import LoadPoseStampedVectorFromYaml, SavePoseStampedToYaml, pose_from_dict, pose_to_dict, YamlFileError
-from runtime.behavior import Status
-from runtime.blackboard import Blackboard
+from runtime.tree.behavior import Status
+from runtime.tree.blackboard import Blackboard
 from runtime.errors import SetupError, SourceLocation
-from runtime.registry import Registry
-from runtime.runner import RunOptions, run_file
+from runtime.tree.registry import Registry
+from runtime.app.runner import RunOptions, run_file
 from sim.sensor_topics import pinhole_camera_info
 from tests.test_scene_behaviors import make_context, make_node, tick
 
@@ -238,13 +238,13 @@ def test_get_image_and_camera_info_from_the_cell(registry, tmp_path):
 
 
 def test_the_cell_publishes_camera_info_for_each_camera():
-    from runtime.bus import InProcessBus
-    from runtime.clock import SimClock
+    from runtime.io.bus import InProcessBus
+    from runtime.io.clock import SimClock
     from sim.sensor_topics import CAMERA_INFO_TOPICS
-    from sim.world import create_kinematic
+    from sim.kinematic import create_kinematic
 
-    from runtime.behavior import RunContext
-    from runtime.events import EventLog
+    from runtime.tree.behavior import RunContext
+    from runtime.tree.events import EventLog
 
     clock = SimClock()
     context = RunContext(clock=clock, bus=InProcessBus(clock), events=EventLog(clock))

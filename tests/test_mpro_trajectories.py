@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 from trajectory_msgs.msg import JointTrajectory
 
-from behaviors.execute_policy.shaping import Samples
-from behaviors.motion import PlanningError
+from runtime.motion.samples import Samples
+from behaviors.trajectory_goal import PlanningError
 from behaviors.robot_state import GetJointState, group_joint_state
 from behaviors.trajectories import (
     PlanCartesianPath,
@@ -24,13 +24,13 @@ from behaviors.trajectories import (
 )
 from behaviors.trajectory_goal import trajectory_msg
 from behaviors.poses import matrix_to_pose
-from runtime.blackboard import Blackboard
-from runtime.behavior import Status
-from runtime.registry import Registry
-from runtime.runner import RunOptions, run_file
-from runtime.scene.collision import pose_matrix
-from runtime.scene.kinematics import frame_pose
-from runtime.scene.limits import JointLimit, JointLimits
+from runtime.tree.blackboard import Blackboard
+from runtime.tree.behavior import Status
+from runtime.tree.registry import Registry
+from runtime.app.runner import RunOptions, run_file
+from runtime.motion.scene.collision import pose_matrix
+from runtime.motion.scene.kinematics import frame_pose
+from runtime.motion.scene.limits import JointLimit, JointLimits
 from sim.robot_model import ARM_JOINTS
 from tests.test_scene_behaviors import HOME, make_context, make_node, make_scene, publish_joint_states, robot, tick  # noqa: F401
 
@@ -236,7 +236,7 @@ def test_a_planned_trajectory_validates_executes_and_moves_the_arm(registry, tmp
 
 def test_validate_trajectory_finds_a_collision_with_the_table(robot):
     from behaviors.trajectories import ValidateTrajectory
-    from runtime.scene.kinematics import solve_ik
+    from runtime.motion.scene.kinematics import solve_ik
 
     scene = cell_scene(envelope=False)  # the envelope's keep-in box refuses it first
     below = solve_ik(robot, "manipulator", pose_matrix((0.0, 0.45, -0.03), DOWN), seeds=[HOME], frame="tcp")

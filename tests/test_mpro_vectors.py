@@ -11,12 +11,12 @@ import pytest
 from geometry_msgs.msg import PoseStamped
 
 from behaviors.vectors import CreatePoseStamped, element_at, pose_stamped
-from runtime.behavior import Status
-from runtime.blackboard import Blackboard
+from runtime.tree.behavior import Status
+from runtime.tree.blackboard import Blackboard
 from runtime.errors import PortError
-from runtime.ports import ConversionError, PortType, convert
-from runtime.registry import Registry
-from runtime.runner import RunOptions, run_file
+from runtime.tree.ports import ConversionError, PortType, convert
+from runtime.tree.registry import Registry
+from runtime.app.runner import RunOptions, run_file
 from tests.test_scene_behaviors import make_context, make_node, tick
 
 
@@ -64,7 +64,7 @@ def test_create_pose_stamped_with_a_wrong_length_fails_naming_the_port():
 def test_a_literal_for_a_pose_port_is_a_load_error_naming_file_line_and_port(registry, tmp_path):
     path = tmp_path / "bad.xml"
     path.write_text('<root BTCPP_format="4"><BehaviorTree ID="Main">\n<VisualizePose pose="0;0;0"/>\n</BehaviorTree></root>')
-    from runtime.loader import validate
+    from runtime.tree.loader import validate
 
     with pytest.raises(PortError) as err:
         validate(path, registry).trees_or_raise()

@@ -10,11 +10,11 @@ from geometry_msgs.msg import Twist, Wrench, WrenchStamped
 from std_msgs.msg import Float64MultiArray
 
 from behaviors.velocity_force import ForceExceedsThreshold, PublishVelocityForceCommand, check_axes, commands_topic, joint_velocities
-from runtime.behavior import Status
-from runtime.blackboard import Blackboard
-from runtime.registry import Registry
-from runtime.runner import RunOptions, run_file
-from runtime.scene.kinematics import frame_jacobian, frame_pose
+from runtime.tree.behavior import Status
+from runtime.tree.blackboard import Blackboard
+from runtime.tree.registry import Registry
+from runtime.app.runner import RunOptions, run_file
+from runtime.motion.scene.kinematics import frame_jacobian, frame_pose
 from sim.robot_model import ARM_JOINTS
 from tests.test_mpro_trajectories import cell_scene
 from tests.test_scene_behaviors import HOME, make_context, make_node, publish_joint_states, tick
@@ -111,12 +111,12 @@ def test_push_until_contact_stops_on_the_table_and_returns_home():
 
 def test_zero_fts_tares_the_wrist_sensor_through_call_trigger_service():
     from behaviors.messages import CallTriggerService
-    from runtime.behavior import RunContext
-    from runtime.bus import InProcessBus
-    from runtime.clock import SimClock
-    from runtime.events import EventLog
+    from runtime.tree.behavior import RunContext
+    from runtime.io.bus import InProcessBus
+    from runtime.io.clock import SimClock
+    from runtime.tree.events import EventLog
     from sim.controllers import WRENCH_TOPIC
-    from sim.world import create_kinematic
+    from sim.kinematic import create_kinematic
 
     clock = SimClock()
     context = RunContext(clock=clock, bus=InProcessBus(clock), events=EventLog(clock))

@@ -7,8 +7,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from runtime.registry import Registry
-from runtime.runner import RunOptions, run_file
+from runtime.tree.registry import Registry
+from runtime.app.runner import RunOptions, run_file
 
 DOWN = "0.7071068;0.7071068;0;0"
 """The TCP orientation at Home: z down, x along world +y."""
@@ -61,7 +61,7 @@ def test_a_wall_between_the_arm_and_its_goal_is_planned_around_on_both_controlle
 
 def ik_down_at(xyz: str) -> list[float]:
     """The IK solution (seeded from Home) of the TCP looking down (DOWN) at ``xyz``."""
-    from runtime.scene import solve_ik
+    from runtime.motion.scene import solve_ik
     from sim.robot_model import planning_robot_model
 
     target = np.eye(4)
@@ -73,8 +73,8 @@ def ik_down_at(xyz: str) -> list[float]:
 def wall_blocks_the_straight_move(goal: list[float], start_xyz: str = LEFT) -> bool:
     """Whether the wall stops the straight joint move from the IK solution at ``start_xyz``
     (or Home) to ``goal``, as the planner checks it (10 mm padding)."""
-    from runtime.scene import Box, pose_matrix
-    from runtime.scene.planner import motion_is_free, scene_validity
+    from runtime.motion.scene import Box, pose_matrix
+    from runtime.motion.scene.planner import motion_is_free, scene_validity
 
     scene = cell_scene()
     scene.add_object("wall", Box((0.04, 0.30, 0.20)), pose_matrix((0.0, 0.45, 0.10)))
@@ -251,8 +251,8 @@ def test_approval_can_be_required_through_a_service(answer, status):
     from std_srvs.srv import SetBool
 
     from behaviors.mtc import MTCSolution, WaitForMTCSolutionApproval
-    from runtime.behavior import Status
-    from runtime.blackboard import Blackboard
+    from runtime.tree.behavior import Status
+    from runtime.tree.blackboard import Blackboard
     from tests.test_scene_behaviors import make_context, make_node, tick
 
     context = make_context(None)
@@ -282,8 +282,8 @@ PARK, BARRIER_SIZE, BARRIER_AT = "-0.5;0.25;0.12", (0.04, 0.3, 0.25), (-0.36, 0.
 
 
 def test_the_barrier_of_the_example_blocks_the_straight_move_from_the_park_to_home():
-    from runtime.scene import Box, pose_matrix
-    from runtime.scene.planner import motion_is_free, scene_validity
+    from runtime.motion.scene import Box, pose_matrix
+    from runtime.motion.scene.planner import motion_is_free, scene_validity
 
     assert f'position_xyz="{PARK}"' in EXAMPLE.read_text()
     assert 'dimensions="0.04;0.3;0.25" position_xyz="-0.36;0.35;0.125"' in EXAMPLE.read_text()
@@ -315,7 +315,7 @@ def test_the_example_plans_around_the_box_over_ros(tmp_path):
     tree = tmp_path / "to_home.xml"
     tree.write_text(cut)
     env = dict(os.environ, ROS_DOMAIN_ID=str(random.randint(100, 199)), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
-    proc = subprocess.run([sys.executable, "-m", "runtime.cli", "run", str(tree), "--ros", "--world", "kinematic"],
+    proc = subprocess.run([sys.executable, "-m", "runtime.app.cli", "run", str(tree), "--ros", "--world", "kinematic"],
                           cwd=EXAMPLE.parents[2], env=env, capture_output=True, text=True, timeout=100)
     assert proc.returncode == 0, proc.stderr
     assert proc.stderr.strip().splitlines()[-1].startswith("SUCCESS after ")
@@ -339,7 +339,7 @@ def test_a_task_out_of_order_is_an_error_naming_the_stage(registry, tmp_path):
 def test_a_joint_goal_without_the_group_joints_fails_naming_them():
     from sensor_msgs.msg import JointState
 
-    from behaviors.motion import PlanningError
+    from behaviors.trajectory_goal import PlanningError
     from behaviors.planning import group_goal
 
     assert list(group_goal(JointState(name=["b", "a"], position=[2.0, 1.0]), ("a", "b"), "joint_goal")) == [1.0, 2.0]
@@ -362,8 +362,8 @@ def test_approval_is_asked_for_over_ros_and_a_rejection_fails_the_run(tmp_path, 
 
     from std_srvs.srv import SetBool
 
-    from runtime.clock import WallClock
-    from runtime.ros import RosBus
+    from runtime.io.clock import WallClock
+    from runtime.io.ros import RosBus
 
     tree = tmp_path / "approve.xml"
     tree.write_text(f"""<root BTCPP_format="4" main_tree_to_execute="Main"><BehaviorTree ID="Main"><Sequence>
@@ -372,7 +372,7 @@ def test_approval_is_asked_for_over_ros_and_a_rejection_fails_the_run(tmp_path, 
     monkeypatch.setenv("ROS_DOMAIN_ID", str(random.randint(100, 199)))
     monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     env = dict(os.environ)
-    runner = subprocess.Popen([sys.executable, "-m", "runtime.cli", "run", str(tree), "--ros", "--world", "kinematic"],
+    runner = subprocess.Popen([sys.executable, "-m", "runtime.app.cli", "run", str(tree), "--ros", "--world", "kinematic"],
                               cwd=EXAMPLE.parents[2], env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     bus = RosBus(WallClock(), node_name="test_approver")
     try:
@@ -400,8 +400,8 @@ def test_approval_is_asked_for_over_ros_and_a_rejection_fails_the_run(tmp_path, 
 
 def test_two_nodes_waiting_on_one_approval_service_is_an_error():
     from behaviors.mtc import MTCSolution, WaitForMTCSolutionApproval
-    from runtime.behavior import Status
-    from runtime.blackboard import Blackboard
+    from runtime.tree.behavior import Status
+    from runtime.tree.blackboard import Blackboard
     from runtime.errors import SetupError
     from tests.test_scene_behaviors import make_context, make_node, tick
 

@@ -11,9 +11,9 @@ from builtin_interfaces.msg import Duration
 from moveit_pro_controllers_msgs.action import FollowJointTrajectoryWithAdmittance
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
-from runtime.bus import FixedLatency, InProcessBus
-from runtime.cli import main
-from runtime.clock import SimClock
+from runtime.io.bus import FixedLatency, InProcessBus
+from runtime.app.cli import main
+from runtime.io.clock import SimClock
 from sim.cell_model import CellOptions
 from sim.controllers import TRAJECTORY_ACTION, TRAJECTORY_CONTROLLER, VELOCITY_CONTROLLER, make_controllers
 from sim.mujoco_cell import MujocoCell

@@ -30,9 +30,9 @@ from std_srvs.srv import Trigger  # noqa: E402
 from objective_server_msgs.action import DoObjective  # noqa: E402
 from objective_server_msgs.msg import KeyValue, PortOverride  # noqa: E402
 from objective_server_msgs.srv import ExecuteObjective, ListObjectives  # noqa: E402
-from runtime.registry import Registry  # noqa: E402
-from runtime.ros.objective_server import ObjectiveServer, ServerOptions  # noqa: E402
-from runtime.runner import RunOptions  # noqa: E402
+from runtime.tree.registry import Registry  # noqa: E402
+from runtime.app.server.objective_server import ObjectiveServer, ServerOptions  # noqa: E402
+from runtime.app.runner import RunOptions  # noqa: E402
 
 REPO = Path(__file__).resolve().parent.parent
 CONTROLLER_STATUS = "/joint_trajectory_admittance_controller/follow_joint_trajectory/_action/status"
@@ -316,7 +316,7 @@ def test_cancel_mid_policy_stops_the_arm(serve, client):
 
 
 def test_groot2_on_the_server_shows_each_run(ros_env, registry, client, library):
-    from runtime.groot2 import Groot2Options, Groot2Server
+    from runtime.app.groot2 import Groot2Options, Groot2Server
     from tests.test_groot2 import Client as GrootClient, header
 
     with Groot2Server(Groot2Options(port=0)) as groot2:
@@ -353,7 +353,7 @@ def test_execute_objective_starts_one_and_answers_at_once(serve, client, library
 
 def test_the_command_serves_until_sigterm(ros_env, library):
     env = {k: v for k, v in os.environ.items() if k != "ROS_AUTOMATIC_DISCOVERY_RANGE"}  # localhost all the same
-    proc = subprocess.Popen([sys.executable, "-m", "runtime.cli", "server", str(library)], cwd=REPO, env=env,
+    proc = subprocess.Popen([sys.executable, "-m", "runtime.app.cli", "server", str(library)], cwd=REPO, env=env,
                             stderr=subprocess.PIPE, text=True)
     c = None
     try:
@@ -384,7 +384,7 @@ def test_the_server_keeps_discovery_on_this_machine(serve, monkeypatch, library)
 def test_a_goal_running_when_the_server_is_stopped_gets_its_result(ros_env, library):
     """SIGTERM to `objective server` mid-goal: the run is halted, the goal ends ABORTED with the
     reason, its client receives the result, and the server exits 0 without a stray exception."""
-    proc = subprocess.Popen([sys.executable, "-m", "runtime.cli", "server", str(library), "--realtime"], cwd=REPO,
+    proc = subprocess.Popen([sys.executable, "-m", "runtime.app.cli", "server", str(library), "--realtime"], cwd=REPO,
                             env=dict(os.environ), stderr=subprocess.PIPE, text=True)
     c = None
     try:
@@ -455,7 +455,7 @@ def test_the_list_gives_a_file_s_load_error(serve, client, tmp_path):
 
 # -- objective client: the server driven from the project's own CLI -----------------------------------
 def client_cli(capsys, *argv: str) -> tuple[int, str, str]:
-    from runtime.cli import main
+    from runtime.app.cli import main
 
     code = main(["client", *argv])
     out, err = capsys.readouterr()
@@ -490,7 +490,7 @@ def test_the_client_lists_starts_with_overrides_and_cancels(serve, library, caps
 
 def test_a_client_s_sigint_cancels_its_goal_and_exits_130(serve, library):
     serve(library, realtime=True)
-    proc = subprocess.Popen([sys.executable, "-m", "runtime.cli", "client", "start", "Long Wait"], cwd=REPO,
+    proc = subprocess.Popen([sys.executable, "-m", "runtime.app.cli", "client", "start", "Long Wait"], cwd=REPO,
                             env=dict(os.environ), stderr=subprocess.PIPE, text=True)
     c = Client()
     try:

@@ -1,4 +1,4 @@
-"""Run observers (``runtime.observer``): what ``--record``/``--live`` attach to the runner through the
+"""Run observers (``runtime.app.observer``): what ``--record``/``--live`` attach to the runner through the
 ``objective.run_observers`` entry-point group, told how each run ended."""
 from __future__ import annotations
 
@@ -7,9 +7,9 @@ from typing import Any
 
 import pytest
 
-import runtime.observer
+import runtime.app.observer
 from runtime.errors import ObjectiveError
-from runtime.runner import RunOptions, run_file
+from runtime.app.runner import RunOptions, run_file
 from tests.data.nodes import make_registry
 
 WAIT = '<root BTCPP_format="4"><BehaviorTree ID="W"><Wait seconds="0.05"/></BehaviorTree></root>'
@@ -35,7 +35,7 @@ class EntryPoint:
 
 
 def installed(monkeypatch, *points: EntryPoint) -> None:
-    monkeypatch.setattr(runtime.observer, "entry_points", lambda group: list(points) if group == "objective.run_observers" else [])
+    monkeypatch.setattr(runtime.app.observer, "entry_points", lambda group: list(points) if group == "objective.run_observers" else [])
 
 
 @pytest.fixture

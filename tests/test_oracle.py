@@ -349,8 +349,8 @@ def test_scene_tcp_is_where_mujoco_puts_the_tcp_site(kinematics):
 def test_plans_for_seeded_layouts_pass_the_collision_check_executepolicy_makes(kinematics, seed):
     """Table and cubes in the scene, 10 mm padding; only gripper contact with the top cube is allowed
     (what the stacking Objective's SetCollisionRule allows)."""
-    from runtime.scene.collision import Box
-    from runtime.scene.scene import PlanningScene
+    from runtime.motion.scene.collision import Box
+    from runtime.motion.scene.scene import PlanningScene
     from sim.layouts import layout
 
     robot = kinematics.robot

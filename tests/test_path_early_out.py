@@ -1,7 +1,7 @@
 """The path check's early-out answers exactly what checking every point on its own answers.
 
 ``check_path`` settles runs of points that a proven motion bound shows collision-free with one
-check (``runtime.scene.swept``). On random paths near the table, the cubes and the robot itself
+check (``runtime.motion.scene.swept``). On random paths near the table, the cubes and the robot itself
 (in the real cell scene, with and without a carried cube), the fast path and the plain per-point
 check must agree on every colliding step, its pair and its distance; and the bound itself must
 hold for random pairs of configurations.
@@ -14,10 +14,10 @@ import pytest
 from hypothesis import HealthCheck, event, given, settings
 from hypothesis import strategies as st
 
-from runtime.scene import Box, pose_matrix, swept
+from runtime.motion.scene import Box, pose_matrix, swept
 from sim.layouts import layout
 from sim.planning import CUBE_SIZE, make_cell_scene
-from sim.robot_model import ARM_JOINTS, GRIPPER_DRIVER_JOINT, load_waypoints
+from sim.robot_model import ARM_JOINTS, load_waypoints
 
 WAYPOINTS = [np.array([wp[j] for j in ARM_JOINTS]) for wp in load_waypoints().values()]
 CUBES = {c: (np.array([x, y, CUBE_SIZE / 2]), np.array([np.cos(yaw / 2), 0, 0, np.sin(yaw / 2)]))

@@ -12,8 +12,8 @@ from builtin_interfaces.msg import Duration
 from moveit_pro_controllers_msgs.action import FollowJointTrajectoryWithAdmittance
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
-from runtime.bus import FixedLatency, InProcessBus
-from runtime.clock import SimClock
+from runtime.io.bus import FixedLatency, InProcessBus
+from runtime.io.clock import SimClock
 from sim.cell_model import CellOptions
 from sim.controllers import (
     TRAJECTORY_ACTION,

@@ -1,11 +1,11 @@
-"""runtime.scene.planner: collision-free joint paths on the planning scene's own checks."""
+"""runtime.motion.scene.planner: collision-free joint paths on the planning scene's own checks."""
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from runtime.scene import Box, pose_matrix, solve_ik
-from runtime.scene.planner import (
+from runtime.motion.scene import Box, pose_matrix, solve_ik
+from runtime.motion.scene.planner import (
     PathPlanningError, PlannerSettings, motion_is_free, plan_path, scene_validity, segment_states,
 )
 from sim.cell_model import CUBE_COLORS

@@ -13,7 +13,7 @@ from policy.factory import FactoryError, build_backend, is_factory_spec, load_fa
 from policy.replay import RecordedChunk, ReplayBackend, write_replay
 from policy.server import BackendOptions, make_backend
 from policy.specs import PolicyKind, PolicySpecError, parse_policy
-from runtime.cli import main
+from runtime.app.cli import main
 from sim.robot_model import ARM_JOINTS, GRIPPER_DRIVER_JOINT, load_waypoints
 
 HOLD = '''

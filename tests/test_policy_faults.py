@@ -24,10 +24,10 @@ from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 import policy.node as node_mod
 import policy.server as server_mod
 from behaviors.execute_policy.chunk import MAX_CHUNK_STEPS
-from runtime.bus import FixedLatency
-from runtime.loader import load_tree
-from runtime.registry import Registry
-from runtime.runner import RunOptions, make_context, run_tree
+from runtime.io.bus import FixedLatency
+from runtime.tree.loader import load_tree
+from runtime.tree.registry import Registry
+from runtime.app.runner import RunOptions, make_context, run_tree
 from sim.kinematic import KinematicWorld
 
 R = GetActionChunk.Response

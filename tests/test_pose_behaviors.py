@@ -21,15 +21,15 @@ from behaviors.poses import (
     pose_to_matrix,
     stack_check,
 )
-from runtime import builtin
+from runtime.tree import builtin
 from runtime.errors import SetupError
-from runtime.behavior import RunContext, Status
-from runtime.blackboard import Blackboard
-from runtime.loader import load_tree
-from runtime.registry import Registry
-from runtime.runner import RunOptions, make_context as make_run_context, run_tree
-from runtime.scene.collision import pose_matrix
-from runtime.scene.scene import PlanningScene
+from runtime.tree.behavior import RunContext, Status
+from runtime.tree.blackboard import Blackboard
+from runtime.tree.loader import load_tree
+from runtime.tree.registry import Registry
+from runtime.app.runner import RunOptions, make_context as make_run_context, run_tree
+from runtime.motion.scene.collision import pose_matrix
+from runtime.motion.scene.scene import PlanningScene
 from sim.robot_model import ARM_JOINTS
 from tests.test_scene_behaviors import HOME, make_context, make_node, make_scene, publish_joint_states, robot, tick  # noqa: F401
 
@@ -386,7 +386,7 @@ class RecordingController:
 
 @pytest.fixture
 def motion_context(robot) -> RunContext:
-    from runtime.scene.limits import load_joint_limits
+    from runtime.motion.scene.limits import load_joint_limits
     from sim.robot_model import GRIPPER_DRIVER_JOINT, JOINT_LIMITS_PATH
 
     joints = ARM_JOINTS + (GRIPPER_DRIVER_JOINT,)
@@ -449,7 +449,7 @@ def test_move_to_pose_refuses_a_colliding_target(motion_context):
 
 # -- end to end: the shipped Objective on the kinematic cell ------------------------------------
 def test_check_objective_fails_on_the_initial_layout():
-    from runtime.runner import run_file
+    from runtime.app.runner import run_file
 
     result = run_file(OBJECTIVES / "check_cube_on_cube.xml", Registry.from_entry_points(), RunOptions(seed=0, world="kinematic"))
     assert (result.status, result.ticks, result.failing_node) == ("FAILURE", 1, "top cube on bottom cube")
@@ -469,7 +469,7 @@ def test_check_objective_fails_on_the_initial_layout():
     ],
 )
 def test_move_to_waypoint_subtree_on_the_cell(tmp_path, instance, status, reason):
-    from runtime.runner import run_file
+    from runtime.app.runner import run_file
 
     path = tmp_path / "move.xml"
     path.write_text(f"""<root BTCPP_format="4"><BehaviorTree ID="Main"><Sequence>

@@ -16,7 +16,7 @@ from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 from benchmarks.executors.positions_upsampling import (
     UpsamplingParams, fill_cubic_spline_velocities, is_positions_only, preprocess_incoming_trajectory, synthesize_timing,
 )
-from runtime.timestamps import duration_msg, to_seconds
+from runtime.io.timestamps import duration_msg, to_seconds
 from sim.controllers.jtc import validate_trajectory
 from sim.controllers.jtc_trajectory import JtcPoints, JtcTrajectory
 from sim.controllers.trajectory import TrajectoryState

@@ -14,8 +14,8 @@ from std_msgs.msg import Bool
 from std_srvs.srv import Trigger
 
 from runtime.errors import ObjectiveError
-from runtime.protective_stop import StopInputs
-from runtime.runner import RunOptions
+from runtime.app.protective_stop import StopInputs
+from runtime.app.runner import RunOptions
 from tests.test_objective_server import client, library, registry, serve  # noqa: F401  (fixtures)
 from tests.test_ros_run import observer, ros_env  # noqa: F401  (fixtures)
 from tests.test_safety_properties import CONTROLLER, READY, RecordingWorld, run_chunks
@@ -124,10 +124,10 @@ def test_a_stop_brings_the_arm_to_rest_within_the_controllers_stop_time(objectiv
     """The cell's own controllers, both kinds: stopped while the oracle's policy moves the arm,
     the run ends FAILURE at that instant and the controller that had the goal brings the arm to
     rest within its stop time (plus one control step)."""
-    from runtime.bus import FixedLatency
-    from runtime.loader import load_tree
-    from runtime.registry import Registry
-    from runtime.runner import make_context, run_tree
+    from runtime.io.bus import FixedLatency
+    from runtime.tree.loader import load_tree
+    from runtime.tree.registry import Registry
+    from runtime.app.runner import make_context, run_tree
     from sim.controllers.base import ControllersConfig
     from sim.kinematic import KinematicWorld
 
@@ -225,7 +225,7 @@ def test_a_stop_forwarded_to_an_eval_worker_ends_its_episode_in_that_tick_and_br
     from evaluation.executors import CONTEXT
     from evaluation.policies import parse_policy
     from evaluation.worker import EpisodeWorker
-    from runtime.protective_stop import SharedStop
+    from runtime.app.protective_stop import SharedStop
     from sim.controllers.base import ControllersConfig
 
     stop_s, control_step_s = 8.0, 0.01
@@ -357,7 +357,7 @@ def test_eval_without_rclpy_says_the_stop_is_not_listened_for_only_when_one_was_
 
     from evaluation.cli import add_arguments, stop_listener
 
-    monkeypatch.delitem(sys.modules, "runtime.ros.stop_listener", raising=False)
+    monkeypatch.delitem(sys.modules, "runtime.app.stop_listener", raising=False)
     monkeypatch.setitem(sys.modules, "rclpy", None)  # as where rclpy is not installed
     parser = argparse.ArgumentParser()
     add_arguments(parser)

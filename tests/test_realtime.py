@@ -20,12 +20,12 @@ from builtin_interfaces.msg import Duration
 from moveit_pro_controllers_msgs.action import FollowJointTrajectoryWithAdmittance
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
-from runtime.behavior import RunContext
-from runtime.bus import FixedLatency, InProcessBus
-from runtime.clock import SimClock
-from runtime.events import EventLog
-from runtime.registry import Registry
-from runtime.runner import RunOptions, run_file
+from runtime.tree.behavior import RunContext
+from runtime.io.bus import FixedLatency, InProcessBus
+from runtime.io.clock import SimClock
+from runtime.tree.events import EventLog
+from runtime.tree.registry import Registry
+from runtime.app.runner import RunOptions, run_file
 from sim.controllers import TRAJECTORY_ACTION, TRAJECTORY_CONTROLLER, VELOCITY_CONTROLLER
 from sim.kinematic import KinematicWorld
 from sim.robot_model import ARM_JOINTS
@@ -162,7 +162,7 @@ def stop(processes: list[subprocess.Popen]) -> None:
 
 
 def _loaded_realtime_run(registry: Registry, world: str, max_seconds: float) -> tuple[dict, CommandLog]:
-    import runtime.runner as runner
+    import runtime.app.runner as runner
 
     log = CommandLog()
     create = runner.create_world
@@ -267,8 +267,8 @@ def test_a_slow_in_process_policy_answers_late_without_holding_a_tick(registry, 
     for it, its chunks still arrive (late, as a remote server's would) and are executed, and the
     thread is gone when the run is. The bound on a tick's work is generous (a loaded machine):
     the point is 0.5 s blocked against not blocked."""
-    from runtime.loader import load_tree
-    from runtime.runner import make_context, run_tree
+    from runtime.tree.loader import load_tree
+    from runtime.app.runner import make_context, run_tree
     from tests.fakes import SLOW_INFER_S
 
     if setup == "ros":
@@ -292,9 +292,9 @@ def test_a_stop_during_a_long_inference_ends_the_run_without_waiting_for_the_ans
     tick is free, so the run halts at once; closing the bus waits for the inference at most
     ``STOP_WAIT_S`` and drops its answer."""
     from policy.adapter import PolicyAdapter
-    from runtime.interrupt import StopRequest
-    from runtime.loader import load_tree
-    from runtime.runner import make_context, run_tree
+    from runtime.io.interrupt import StopRequest
+    from runtime.tree.loader import load_tree
+    from runtime.app.runner import make_context, run_tree
     from tests.fakes import FakeBackend
 
     model_done = threading.Event()  # never set while the run lasts: the model answers after 10 s
@@ -359,7 +359,7 @@ def test_a_paced_bus_delivers_a_worker_s_answer_once_it_is_done_and_the_latency_
 
 def test_on_a_simulated_clock_an_own_thread_service_answers_at_the_call():
     """Its handler runs on the service's thread while the call waits for it, the clock standing
-    still (``runtime.bus``: so a hung handler can be given up on)."""
+    still (``runtime.io.bus``: so a hung handler can be given up on)."""
     from std_srvs.srv import Trigger
 
     bus = InProcessBus(SimClock(), default_latency=FixedLatency(0.0))

@@ -15,13 +15,13 @@ from sensor_msgs.msg import Image, JointState
 from std_srvs.srv import Trigger
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
-from runtime.bus import FixedLatency, InProcessBus
-from runtime.clock import SimClock
-from runtime.cli import main
+from runtime.io.bus import FixedLatency, InProcessBus
+from runtime.io.clock import SimClock
+from runtime.app.cli import main
 from recording import McapRos2Writer, RecordingBus
 from recording.schema import message_class, message_definition, type_name
 from recording.report.data import clock_origin_ns
-from runtime.timestamps import duration_msg, time_msg
+from runtime.io.timestamps import duration_msg, time_msg
 
 CAMERAS = ("/scene_camera/color", "/wrist_camera/color", "/overview_camera/color")
 CONTROLLER = "/joint_trajectory_admittance_controller"

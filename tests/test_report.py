@@ -16,9 +16,9 @@ import imageio.v3 as iio
 import numpy as np
 import pytest
 
-from runtime.cli import main
+from runtime.app.cli import main
 from runtime.errors import ObjectiveError
-from runtime.display import ProgressLine
+from runtime.app.display import ProgressLine
 from recording.report import load_recording, render_report
 from recording.report.data import CommandedGoal, Recording
 from recording.report import plots
@@ -378,7 +378,7 @@ def test_a_chunk_of_anything_but_records_is_refused_at_its_first_byte(tmp_path, 
     (rec / "events.jsonl").write_text("")
     zstd_chunk_file(rec / "run.mcap", 8 << 20, 8 << 20)  # 8 MiB of zeros: opcode 0, nine bytes at a time
     assert main(["report", str(rec)]) == 2
-    assert f"chunk 1 holds opcode 0x00 at byte 0 of 8388608: not a recording's chunk" in capsys.readouterr().err
+    assert "chunk 1 holds opcode 0x00 at byte 0 of 8388608: not a recording's chunk" in capsys.readouterr().err
 
 
 # -- a failed run: the rejected chunk, its whole reason, the time axis ending with the run ---------

@@ -5,7 +5,7 @@ import json
 
 import pytest
 
-from runtime.cli import main
+from runtime.app.cli import main
 from tests.test_scene import SRDF, URDF
 
 LIMITS = """joint_limits:

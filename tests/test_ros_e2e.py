@@ -35,7 +35,7 @@ import pytest
 pytestmark = [pytest.mark.ros, pytest.mark.timeout(180)]
 
 REPO = Path(__file__).resolve().parent.parent
-OBJECTIVE = [sys.executable, "-m", "runtime.cli"]
+OBJECTIVE = [sys.executable, "-m", "runtime.app.cli"]
 WORLD = "kinematic"
 """The MuJoCo cell (``vla_sim``) renders three cameras at 30 Hz on top of physics; on a shared
 2-core machine that does not keep real time, so the pipeline test runs on the kinematic cell,

@@ -152,7 +152,7 @@ def test_control_msgs_is_the_whole_jazzy_release():
         module = importlib.import_module(f"control_msgs.{kind}")
         for name in names:
             assert hasattr(module, name), f"control_msgs/{kind}/{name} is missing"
-    package = Path(__file__).resolve().parent.parent / "runtime" / "ros" / "interfaces" / "control_msgs"
+    package = Path(__file__).resolve().parent.parent / "runtime" / "io" / "ros" / "interfaces" / "control_msgs"
     shipped = {kind: sorted(f.stem for f in (package / kind).iterdir()) for kind in CONTROL_MSGS_JAZZY}
     assert shipped == CONTROL_MSGS_JAZZY
 
@@ -228,12 +228,12 @@ def test_controller_manager_interfaces_match_upstream_jazzy():
 
 
 # --------------------------------------------------------------------------------------------
-# runtime/build_interfaces.py (`objective build-interfaces`)
+# runtime/app/build_interfaces.py (`objective build-interfaces`)
 # --------------------------------------------------------------------------------------------
 def _load_build_tool():
-    import runtime.build_interfaces
+    import runtime.app.build_interfaces
 
-    return runtime.build_interfaces
+    return runtime.app.build_interfaces
 
 
 def test_wheel_include_paths_are_rewritten_and_the_rewrite_is_idempotent():

@@ -26,15 +26,15 @@ from moveit_pro_ml_msgs.srv import GetActionChunk  # noqa: E402
 from sensor_msgs.msg import JointState  # noqa: E402
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint  # noqa: E402
 
-from runtime.clock import WallClock  # noqa: E402
+from runtime.io.clock import WallClock  # noqa: E402
 from runtime.errors import ObjectiveError  # noqa: E402
-from runtime.loader import load_tree  # noqa: E402
-from runtime.registry import Registry  # noqa: E402
-from runtime.ros import RosBus  # noqa: E402
-from runtime.runner import RunOptions, make_context, run_tree  # noqa: E402
+from runtime.tree.loader import load_tree  # noqa: E402
+from runtime.tree.registry import Registry  # noqa: E402
+from runtime.io.ros import RosBus  # noqa: E402
+from runtime.app.runner import RunOptions, make_context, run_tree  # noqa: E402
 
 REPO = Path(__file__).resolve().parent.parent
-OBJECTIVE = [sys.executable, "-m", "runtime.cli"]
+OBJECTIVE = [sys.executable, "-m", "runtime.app.cli"]
 R = GetActionChunk.Response
 GRIPPER = "robotiq_85_left_knuckle_joint"
 ARM = ["shoulder_pan_joint", "shoulder_lift_joint", "elbow_joint", "wrist_1_joint", "wrist_2_joint", "wrist_3_joint"]
@@ -179,8 +179,8 @@ def test_policy_latency_is_refused_with_ros(ros_env):
 
 
 def test_the_discovery_range_opens_only_with_the_flag_and_only_with_ros(ros_env, capsys):
-    from runtime.cli import main
-    from runtime.ros.run import set_discovery_range
+    from runtime.app.cli import main
+    from runtime.io.ros.run import set_discovery_range
 
     assert main(["run", "objectives/cell/open_gripper.xml", "--discovery-range", "subnet"]) == 2
     assert capsys.readouterr().err.strip() == (
@@ -273,7 +273,6 @@ def test_a_failing_execute_policy_s_cancel_reaches_the_hosted_controller(ros_env
                                          points=[JointTrajectoryPoint(positions=position) for _ in range(30)])
         return response
 
-    started = time.monotonic()
     result = run_policy_over_ros(policy, 'total_action_steps="60"')
     assert result.status == "FAILURE"
     assert result.reason == "the policy answered ERROR for the chunk 2: model lost its weights"
@@ -314,7 +313,6 @@ def test_a_camera_that_stops_publishing_over_ros_stops_the_run_naming_its_topic(
         return response
 
     driver.start()
-    started = time.monotonic()
     try:
         result = run_policy_over_ros(policy, 'total_action_steps="80" image_topics="/thermal_camera/color" image_names="thermal"')
     finally:
@@ -333,9 +331,9 @@ def test_goal_stamps_are_in_ros_time_on_a_robot_and_in_the_run_s_time_with_a_hos
     """A real robot's controllers read a goal's stamp as an instant of ROS time (the system clock
     without use_sim_time): a run on the `robot` world stamps its seams there; a hosted cell keeps
     the run's own clock, so its stamps are not moved."""
-    from behaviors.execute_policy.shaping import Samples
+    from runtime.motion.samples import Samples
     from behaviors.trajectory_goal import trajectory_msg
-    from runtime.timestamps import to_seconds
+    from runtime.io.timestamps import to_seconds
 
     context = make_context(RunOptions(ros=True, world=world))
     try:

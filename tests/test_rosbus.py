@@ -1,4 +1,4 @@
-"""RosBus: the runtime.bus API over real rclpy, two buses (nodes) in one process on loopback."""
+"""RosBus: the runtime.io.bus API over real rclpy, two buses (nodes) in one process on loopback."""
 from __future__ import annotations
 
 import threading
@@ -15,9 +15,9 @@ from control_msgs.msg import GripperCommand as Command  # noqa: E402
 from moveit_pro_ml_msgs.srv import GetActionChunk  # noqa: E402
 from std_msgs.msg import String  # noqa: E402
 
-from runtime.bus import STATUS_ABORTED, STATUS_CANCELED, STATUS_SUCCEEDED  # noqa: E402
-from runtime.clock import WallClock  # noqa: E402
-from runtime.ros import RosBus  # noqa: E402
+from runtime.io.bus import STATUS_ABORTED, STATUS_CANCELED, STATUS_SUCCEEDED  # noqa: E402
+from runtime.io.clock import WallClock  # noqa: E402
+from runtime.io.ros import RosBus  # noqa: E402
 
 
 def wait_for(condition: Callable[[], bool], *buses: RosBus, timeout: float = 5.0, what: str = "condition") -> None:
@@ -330,7 +330,6 @@ def test_a_cancel_sent_just_before_close_is_served_by_the_node_s_own_server(buse
     wait_for(lambda: gripper.goals and gripper.goals[0].goal_id, bus, what="the goal bound")
     cancel = sent.result().cancel_goal_async()
     assert bus.cancels_in_flight() == 1
-    start = time.monotonic()
     bus.close()
     assert gripper.cancel_requests == 1 and gripper.goals[0].is_cancel_requested
     assert cancel.done() and cancel.result() is True
@@ -340,7 +339,7 @@ def test_a_cancel_sent_just_before_close_is_served_by_the_node_s_own_server(buse
 def test_close_waits_for_an_unanswered_cancel_only_so_long(buses, names, monkeypatch):
     """A server that never serves the cancel (its owner stopped spinning) delays close() by at
     most CANCEL_DELIVERY_S."""
-    import runtime.ros.bus as ros_bus
+    import runtime.io.ros.bus as ros_bus
 
     monkeypatch.setattr(ros_bus, "CANCEL_DELIVERY_S", 0.5)
     server_bus, client_bus, gripper, client = _gripper_pair(buses, names, serve_in_spin_once=True)
@@ -432,7 +431,7 @@ def test_the_cell_s_jtc_and_broadcaster_serve_over_ros(buses, names):
     from geometry_msgs.msg import WrenchStamped
     from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
-    from runtime.timestamps import duration_msg
+    from runtime.io.timestamps import duration_msg
     from sim.controllers import JTC_ACTION, JTC_CONTROLLER, LIST_SERVICE, VELOCITY_CONTROLLER, WRENCH_TOPIC, make_controllers
     from tests.test_controllers import ARM, HOME, FakeHardware
 

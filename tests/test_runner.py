@@ -7,11 +7,11 @@ from typing import Any
 
 import pytest
 
-from runtime.behavior import Status
+from runtime.tree.behavior import Status
 from runtime.errors import ObjectiveError
-from runtime.interrupt import StopRequest
-from runtime.loader import load_tree
-from runtime.runner import RunOptions, json_entries, make_context, run_file, run_tree
+from runtime.io.interrupt import StopRequest
+from runtime.tree.loader import load_tree
+from runtime.app.runner import RunOptions, json_entries, make_context, run_file, run_tree
 from tests.data.nodes import Forever, make_registry
 
 

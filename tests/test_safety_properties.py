@@ -41,15 +41,15 @@ from sensor_msgs.msg import JointState
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
 from behaviors.execute_policy.chunk import MAX_CHUNK_STEPS
-from behaviors.execute_policy.shaping import Samples
+from runtime.motion.samples import Samples
 from behaviors.safety import make_safety
-from runtime.bus import FixedLatency
-from runtime.loader import load_tree
-from runtime.protective_stop import StopInputs
-from runtime.registry import Registry
-from runtime.scene.kinematics import frame_jacobian, frame_poses
-from runtime.runner import RunOptions, make_context, run_tree
-from runtime.timestamps import time_msg
+from runtime.io.bus import FixedLatency
+from runtime.tree.loader import load_tree
+from runtime.app.protective_stop import StopInputs
+from runtime.tree.registry import Registry
+from runtime.motion.scene.kinematics import frame_jacobian, frame_poses
+from runtime.app.runner import RunOptions, make_context, run_tree
+from runtime.io.timestamps import time_msg
 from sim.layouts import layout
 from sim.planning import CUBE_SIZE, make_cell_scene
 from sim.controllers.trajectory import quintic_coefficients, quintic_powers

@@ -11,7 +11,7 @@ import numpy as np  # noqa: E402
 import pinocchio as pin  # noqa: E402
 import pytest  # noqa: E402
 
-from runtime.scene import (  # noqa: E402
+from runtime.motion.scene import (  # noqa: E402
     Box,
     GroupError,
     PlanningScene,
@@ -155,7 +155,7 @@ def _probe_below_gripper(scene: PlanningScene, q: np.ndarray, gap: float) -> flo
 
 
 def test_a_distance_just_under_the_padding_reads_below_it():
-    from runtime.scene.collision import CollisionResult, millimetres_apart
+    from runtime.motion.scene.collision import CollisionResult, millimetres_apart
 
     assert millimetres_apart(6.5, 10.0) == ("6.5", "10.0")
     assert millimetres_apart(9.96, 10.0) == ("9.96", "10.00")

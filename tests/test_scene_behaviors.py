@@ -14,16 +14,16 @@ from sensor_msgs.msg import JointState
 
 from behaviors.scene import AttachObject, DetachObject, SetCollisionRule
 from behaviors.sim_control import ResetSim
-from runtime.behavior import RunContext, Status
-from runtime.blackboard import Blackboard
-from runtime.bus import InProcessBus
-from runtime.clock import SimClock
-from runtime.events import EventLog
-from runtime.registry import Registry
-from runtime.runner import RunOptions, RunResult, run_file
-from runtime.scene.collision import Box, pose_matrix
-from runtime.scene.model import RobotModel
-from runtime.scene.scene import PlanningScene
+from runtime.tree.behavior import RunContext, Status
+from runtime.tree.blackboard import Blackboard
+from runtime.io.bus import InProcessBus
+from runtime.io.clock import SimClock
+from runtime.tree.events import EventLog
+from runtime.tree.registry import Registry
+from runtime.app.runner import RunOptions, RunResult, run_file
+from runtime.motion.scene.collision import Box, pose_matrix
+from runtime.motion.scene.model import RobotModel
+from runtime.motion.scene.scene import PlanningScene
 from sim.layouts import layout
 from sim.robot_model import ARM_JOINTS, GRIPPER_DRIVER_JOINT, WAYPOINTS_PATH, load_waypoints, planning_robot_model
 

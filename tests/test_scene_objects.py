@@ -10,10 +10,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from runtime.cli import main
-from runtime.loader import load_tree
-from runtime.registry import Registry
-from runtime.runner import RunOptions, make_context, run_tree
+from runtime.app.cli import main
+from runtime.tree.loader import load_tree
+from runtime.tree.registry import Registry
+from runtime.app.runner import RunOptions, make_context, run_tree
 from sim.kinematic import KinematicWorld
 from sim.mujoco_cell import MujocoCell
 from sim.robot_model import ARM_JOINTS, load_waypoints

@@ -1,4 +1,4 @@
-"""The tick thread's real-time priority (``runtime.scheduling``, ``--realtime-priority``)."""
+"""The tick thread's real-time priority (``runtime.io.scheduling``, ``--realtime-priority``)."""
 from __future__ import annotations
 
 import errno
@@ -8,8 +8,8 @@ import os
 import pytest
 
 from runtime.errors import ObjectiveError
-from runtime.runner import RunOptions
-from runtime.scheduling import realtime_priority
+from runtime.app.runner import RunOptions
+from runtime.io.scheduling import realtime_priority
 
 
 def test_no_priority_leaves_the_thread_as_it_is():
@@ -61,7 +61,7 @@ def test_run_options_name_a_priority_that_cannot_work(options, message):
 def test_a_paced_run_reports_what_its_ticks_ran_at(tmp_path, capsys):
     import json
 
-    from runtime.cli import main
+    from runtime.app.cli import main
 
     tree = tmp_path / "wait.xml"
     tree.write_text('<root BTCPP_format="4"><BehaviorTree ID="Main"><Sleep msec="30"/></BehaviorTree></root>')

@@ -1,4 +1,4 @@
-"""The script language (runtime.script) and the script leaves (runtime.script_nodes).
+"""The script language (runtime.tree.script) and the script leaves (runtime.tree.script_nodes).
 
 Where BT.CPP and this runtime should agree, the same script also runs in BehaviorTree.CPP 4.8
 through behaviortreepy and the blackboard values are compared.
@@ -9,15 +9,15 @@ from xml.sax.saxutils import quoteattr
 
 import pytest
 
-from runtime.behavior import RunContext, Status
-from runtime.blackboard import Blackboard
-from runtime.bus import InProcessBus
-from runtime.clock import SimClock
+from runtime.tree.behavior import RunContext, Status
+from runtime.tree.blackboard import Blackboard
+from runtime.io.bus import InProcessBus
+from runtime.io.clock import SimClock
 from runtime.errors import LoadError, PortError, ScriptRunError, SourceLocation
-from runtime.events import EventLog
-from runtime.registry import Registry
-from runtime.script import MAX_DEPTH, MAX_SOURCE_CHARS, MAX_STRING_CHARS, ScriptError, compile_script, evaluate_condition
-from runtime.script_nodes import NODES, Script, ScriptCondition, SetBlackboard, compile_at_load
+from runtime.tree.events import EventLog
+from runtime.tree.registry import Registry
+from runtime.tree.script import MAX_DEPTH, MAX_SOURCE_CHARS, MAX_STRING_CHARS, ScriptError, compile_script, evaluate_condition
+from runtime.tree.script_nodes import NODES, Script, ScriptCondition, SetBlackboard, compile_at_load
 
 
 def run(source: str, board: Blackboard | None = None, **entries) -> object:

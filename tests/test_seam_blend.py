@@ -1,9 +1,9 @@
-"""The seam blend (runtime/seam_blend.py), shared by ExecutePolicy's shaping and the simulated
+"""The seam blend (runtime/motion/seam_blend.py), shared by ExecutePolicy's shaping and the simulated
 trajectory controllers: its shape, its peaks and its length."""
 import numpy as np
 import pytest
 
-from runtime.seam_blend import (
+from runtime.motion.seam_blend import (
     POSITION_BLEND_PEAK,
     VELOCITY_BLEND_PEAK,
     acceleration_basis,

@@ -608,7 +608,7 @@ def test_start_warnings_match_the_configuration(config, warnings):
 @pytest.mark.parametrize("port", ["70000", "-1", "３０", "1_000"])
 def test_serve_refuses_a_port_that_is_not_one_with_a_usage_error(capsys, port):
     """On main 70000 and -1 reached the socket and printed an unexpected OverflowError."""
-    from runtime.cli import main
+    from runtime.app.cli import main
 
     with pytest.raises(SystemExit) as exit_info:
         main(["serve", "--backend", "replay", f"--port={port}"])
@@ -635,7 +635,7 @@ def test_serve_refuses_a_keyless_server_on_all_interfaces(tmp_path):
 # `objective serve` as a process
 # --------------------------------------------------------------------------------------------
 def _objective(*args: str, env: dict | None = None) -> subprocess.Popen:
-    return subprocess.Popen([sys.executable, "-m", "runtime.cli", *args], cwd=ROOT, env=env,
+    return subprocess.Popen([sys.executable, "-m", "runtime.app.cli", *args], cwd=ROOT, env=env,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
 
 
@@ -691,8 +691,8 @@ def test_serve_process_reports_its_port_serves_and_stops_on_sigterm(tmp_path):
 # --------------------------------------------------------------------------------------------
 @pytest.mark.ros
 def test_remote_oracle_answers_what_the_embedded_oracle_answers():
-    from runtime.clock import WallClock
-    from runtime.ros import RosBus
+    from runtime.io.clock import WallClock
+    from runtime.io.ros import RosBus
     from geometry_msgs.msg import TransformStamped
     from sim.layouts import layout
     from sim.planning import CUBE_SIZE
@@ -750,10 +750,10 @@ def test_remote_oracle_without_cube_poses_answers_error_naming_the_topics():
 
 
 def test_kinematic_world_publishes_cube_poses_for_the_remote_oracle():
-    from runtime.behavior import RunContext
-    from runtime.bus import InProcessBus
-    from runtime.clock import SimClock
-    from runtime.events import EventLog
+    from runtime.tree.behavior import RunContext
+    from runtime.io.bus import InProcessBus
+    from runtime.io.clock import SimClock
+    from runtime.tree.events import EventLog
     from geometry_msgs.msg import TransformStamped
     from sim.kinematic import KinematicWorld
     from sim.oracle_remote import pose_from_msg

@@ -20,7 +20,7 @@ from pathlib import Path
 
 import pytest
 
-from runtime.cli import main
+from runtime.app.cli import main
 from sim.robot_node import describe
 from tests.test_ros_e2e import ONE_CHUNK, env, policy, read_line, start, stop  # noqa: F401 (fixtures)
 
@@ -112,10 +112,10 @@ def test_use_sim_time_needs_ros(capsys):
 
 
 def test_use_sim_time_without_a_clock_on_the_graph_names_what_to_start():
-    from runtime.clock import WallClock
+    from runtime.io.clock import WallClock
     from runtime.errors import ObjectiveError
-    from runtime.ros import RosBus
-    from runtime.ros.run import follow_graph_clock
+    from runtime.io.ros import RosBus
+    from runtime.io.ros.run import follow_graph_clock
 
     clock = WallClock()
     with RosBus(clock, node_name="no_clock_here") as bus:
@@ -128,10 +128,10 @@ def test_use_sim_time_moves_forward_to_a_fresher_clock_reading_never_back():
     # one moves the run's clock forward to it; an older one after that leaves it where it is.
     from rosgraph_msgs.msg import Clock
 
-    from runtime.clock import WallClock
-    from runtime.ros import RosBus
-    from runtime.ros.run import CLOCK_TOPIC, follow_graph_clock
-    from runtime.timestamps import time_msg
+    from runtime.io.clock import WallClock
+    from runtime.io.ros import RosBus
+    from runtime.io.ros.run import CLOCK_TOPIC, follow_graph_clock
+    from runtime.io.timestamps import time_msg
 
     def publish_until(publisher, stamp_s: float, done) -> None:
         deadline = time.monotonic() + 5.0
@@ -172,7 +172,7 @@ def test_sim_robot_describe_writes_what_the_robot_world_loads(tmp_path, capsys):
     assert main(["sim-robot", "--describe", str(tmp_path)]) == 0
     options = capsys.readouterr().out.split()
     assert options[0] == "--world-option" and f"mjcf={tmp_path / 'robot.xml'}" in options
-    from runtime.robot_world import create
+    from runtime.app.robot_world import create
 
     world = create(dict(option.split("=", 1) for option in options if option != "--world-option"))
     assert world.limits is not None and world.gripper_joint == "robotiq_85_left_knuckle_joint"

@@ -14,7 +14,7 @@ from moveit_pro_ml_msgs.srv import GetActionChunk
 from sensor_msgs.msg import Image, JointState
 from trajectory_msgs.msg import JointTrajectoryPoint
 
-from runtime.cli import main
+from runtime.app.cli import main
 from policy.adapter import PolicyAdapter, array_to_multiarray
 from policy.backend import PolicyResponse
 from policy.images import rgb_to_image
@@ -163,8 +163,8 @@ def echo_backend() -> FakeBackend:
 @pytest.fixture
 def cell():
     """A fake robot on ROS 2: joint states, one camera, and an adapter serving an echo backend."""
-    from runtime.clock import WallClock
-    from runtime.ros import RosBus
+    from runtime.io.clock import WallClock
+    from runtime.io.ros import RosBus
 
     tag = f"/t{uuid.uuid4().hex[:8]}"
     bus = RosBus(WallClock(), node_name="fake_cell")
@@ -262,7 +262,7 @@ def test_smoke_test_fails_when_the_service_is_missing():
 def test_smoke_test_command_prints_the_verdict_and_exits_0(cell):
     tag, _ = cell
     proc = subprocess.run(
-        [sys.executable, "-m", "runtime.cli", "smoke-test", f"{tag}/get_action_chunk", "--joints", ";".join(ARM),
+        [sys.executable, "-m", "runtime.app.cli", "smoke-test", f"{tag}/get_action_chunk", "--joints", ";".join(ARM),
          "--gripper-joint", GRIPPER, "--image-names", "scene;wrist", "--synthetic-images", "--expected-steps", "50",
          "--joint-states-topic", f"{tag}/joint_states"],
         cwd=ROOT, env={**os.environ, "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"}, capture_output=True, text=True,

@@ -16,8 +16,8 @@ from pathlib import Path
 
 import pytest
 
-from runtime.registry import WORLD_GROUP, Registry
-from runtime.runner import RunOptions, run_file
+from runtime.tree.registry import WORLD_GROUP, Registry
+from runtime.app.runner import RunOptions, run_file
 
 ROOT = Path(__file__).resolve().parent.parent
 OBJECTIVE = ROOT / "objectives" / "stack_cubes.xml"

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from runtime.cli import main
+from runtime.app.cli import main
 from policy.replay import RecordedChunk, write_replay
 from sim.robot_model import ARM_JOINTS, GRIPPER_DRIVER_JOINT, load_waypoints
 
@@ -100,7 +100,7 @@ def straight_down_policy():
     from moveit_pro_ml_msgs.srv import GetActionChunk
     from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
-    from runtime.scene.kinematics import IkSolver, frame_pose
+    from runtime.motion.scene.kinematics import IkSolver, frame_pose
     from sim.planning import make_cell_scene
 
     cube = (np.array([0.3, 0.3, 0.015]), np.array([1.0, 0.0, 0.0, 0.0]))
@@ -148,9 +148,9 @@ def test_a_policy_driving_the_gripper_into_the_table_is_rejected_before_it_moves
     z = -0.096 m on the kinematic cell and strike the table at 53 N on vla_sim)."""
     from moveit_pro_ml_msgs.srv import GetActionChunk
 
-    from runtime.loader import load_tree
-    from runtime.registry import Registry
-    from runtime.runner import RunOptions, make_context, run_tree
+    from runtime.tree.loader import load_tree
+    from runtime.tree.registry import Registry
+    from runtime.app.runner import RunOptions, make_context, run_tree
 
     # The collision rules are under test: the cell's Cartesian envelope (whose keep-in box the chunk
     # leaves too, and which is checked first) is left out.

@@ -6,7 +6,7 @@ import json
 
 import pytest
 
-from runtime.cli import main
+from runtime.app.cli import main
 
 
 @pytest.mark.slow

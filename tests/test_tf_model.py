@@ -12,7 +12,7 @@ from tf2_msgs.msg import TFMessage
 from recording.cdr import JointStateEncoder, joint_state_arrays
 from recording.scene_view import LinkTree, tf_model
 from recording.tf_model import TfModel, TfWriter
-from runtime.scene.model import JointCoupling, RobotModel
+from runtime.motion.scene.model import JointCoupling, RobotModel
 
 
 def _se3(seed: int) -> pin.SE3:

@@ -1,4 +1,4 @@
-"""runtime.trajectory_points builds the messages rosidl's constructor builds, only faster."""
+"""runtime.motion.trajectory_points builds the messages rosidl's constructor builds, only faster."""
 from __future__ import annotations
 
 import numpy as np
@@ -7,8 +7,8 @@ from rclpy.serialization import deserialize_message, serialize_message
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 from trajectory_msgs.msg import _joint_trajectory_point
 
-from runtime.timestamps import duration_msg, split_seconds, split_seconds_array
-from runtime.trajectory_points import trajectory_points
+from runtime.io.timestamps import duration_msg, split_seconds, split_seconds_array
+from runtime.motion.trajectory_points import trajectory_points
 
 
 def _constructed(times, positions, velocities=None, accelerations=None) -> list[JointTrajectoryPoint]:

@@ -9,9 +9,9 @@ from pathlib import Path
 import behaviortreepy as bt
 import pytest
 
-from runtime.cli import main
-from runtime.loader import validate
-from runtime.registry import Registry
+from runtime.app.cli import main
+from runtime.tree.loader import validate
+from runtime.tree.registry import Registry
 
 LOOPS = ("LoopInt", "LoopDouble", "LoopString", "LoopBool")
 

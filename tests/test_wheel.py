@@ -40,7 +40,7 @@ pytestmark = pytest.mark.timeout(600)
 
 ROOT = Path(__file__).resolve().parents[1]
 PYTHON = f"python{sys.version_info.major}.{sys.version_info.minor}"  # the venvs' lib/ folder
-INTERFACES = sorted(p.name for p in (ROOT / "runtime" / "ros" / "interfaces").iterdir() if (p / "package.xml").is_file())
+INTERFACES = sorted(p.name for p in (ROOT / "runtime" / "io" / "ros" / "interfaces").iterdir() if (p / "package.xml").is_file())
 EXTRA_MODULES = ("mujoco", "matplotlib", "foxglove", "mcap", "imageio")
 """What the core must run without: the [sim] and [record] extras' modules."""
 
@@ -216,7 +216,7 @@ def test_the_interface_sources_and_their_builder_ship(installed, outside):
     proc = _run([str(installed / "objective"), "build-interfaces", "--help"], cwd=outside)
     assert proc.returncode == 0 and "--build-dir" in proc.stdout, proc.stderr
     site = installed.parent / "lib" / PYTHON / "site-packages"
-    interfaces = site / "runtime" / "ros" / "interfaces"
+    interfaces = site / "runtime" / "io" / "ros" / "interfaces"
     for package, source in [("moveit_pro_ml_msgs", "srv/GetActionChunk.srv"),
                             ("moveit_pro_controllers_msgs", "action/FollowJointTrajectoryWithAdmittance.action"),
                             ("control_msgs", "msg/GripperCommand.msg"),

@@ -21,12 +21,12 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from runtime.behavior import NodeKind
+from runtime.tree.behavior import NodeKind
 from runtime.errors import ObjectiveError
-from runtime.loader import load_tree
-from runtime.ports import MESSAGE_CLASSES, NUMERIC_TYPES, Direction, PortInfo, PortType, Range, convert, range_problem
-from runtime.registry import NodeSpec, Registry
-from runtime.runner import RunOptions, make_context
+from runtime.tree.loader import load_tree
+from runtime.tree.ports import MESSAGE_CLASSES, NUMERIC_TYPES, Direction, PortInfo, PortType, Range, convert, range_problem
+from runtime.tree.registry import NodeSpec, Registry
+from runtime.app.runner import RunOptions, make_context
 
 ROOT = Path(__file__).resolve().parent.parent
 SEEDS = sorted((ROOT / "objectives").rglob("*.xml"))
@@ -253,7 +253,7 @@ def test_cli_exits_2_without_a_traceback_on_hostile_files(tmp_path):
     (tmp_path / "binary.xml").write_bytes(bytes(range(256)) * 8)
     files.append(str(tmp_path / "binary.xml"))
     env = {**os.environ, "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"}
-    proc = subprocess.run([sys.executable, "-m", "runtime.cli", "validate", *files], capture_output=True, text=True,
+    proc = subprocess.run([sys.executable, "-m", "runtime.app.cli", "validate", *files], capture_output=True, text=True,
                           timeout=BOUND_S - 5, cwd=ROOT, env=env)
     assert proc.returncode == 2, proc.stderr
     assert "Traceback" not in proc.stderr and "Traceback" not in proc.stdout
@@ -312,7 +312,7 @@ def _one_node_tree(spec: NodeSpec, values: dict[str, str]) -> str:
 
 @pytest.fixture(scope="module")
 def validate_cli(registry):
-    from runtime.cli import main
+    from runtime.app.cli import main
 
     def run(path: Path, capsys) -> tuple[int, str, str]:
         code = main(["validate", str(path)], registry=registry)

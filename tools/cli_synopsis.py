@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import argparse
 
-from runtime.cli import build_parser
+from runtime.app.cli import build_parser
 
 WIDTH = 100
 

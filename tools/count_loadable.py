@@ -19,8 +19,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from runtime.errors import ObjectiveError
-from runtime.loader import validate
-from runtime.registry import Registry
+from runtime.tree.loader import validate
+from runtime.tree.registry import Registry
 
 _UNKNOWN = re.compile(r"unknown node '([^']+)'|undefined SubTree '([^']+)'")
 

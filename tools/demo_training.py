@@ -610,7 +610,7 @@ def evaluate(checkpoint: Path, episodes: int, seed_start: int, image_size: int, 
     eval`` of the same folder refuse to resume), with its command and summary in ``evaluation.json``
     there; returns that summary."""
     out = evaluation_folder(checkpoint)
-    command = [sys.executable, "-m", "runtime.cli", "eval", str(objective),
+    command = [sys.executable, "-m", "runtime.app.cli", "eval", str(objective),
                "--policy", f"lerobot:{checkpoint}", "--episodes", str(episodes), "--seed-start", str(seed_start),
                "--workers", str(min(workers, episodes)), "--out", str(out), "--world-option", f"image_size={image_size}",
                "--record", "none", "--json"] + (["--world", world] if world else [])

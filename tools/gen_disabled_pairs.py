@@ -22,7 +22,7 @@ import pinocchio as pin
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from runtime.scene import RobotModel, parse_srdf  # noqa: E402
+from runtime.motion.scene import RobotModel, parse_srdf  # noqa: E402
 from sim.mjcf import robot_model_from_mjcf  # noqa: E402
 from sim.robot_model import COUPLINGS_PATH, GRIPPER_DRIVER_JOINT, SRDF_PATH, build_robot_spec  # noqa: E402
 

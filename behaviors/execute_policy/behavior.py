@@ -30,10 +30,10 @@ from control_msgs.action import GripperCommand
 from moveit_pro_ml_msgs.srv import GetActionChunk
 from sensor_msgs.msg import Image, JointState
 
-from runtime.behavior import Behavior, Status
+from runtime.tree.behavior import Behavior, Status
 from runtime.errors import PortError, SetupError
-from runtime.ports import Direction
-from runtime.terminal import bounded
+from runtime.tree.ports import Direction
+from runtime.app.terminal import bounded
 
 from . import config as cfg
 from ..controller_link import ControllerLink
@@ -93,7 +93,7 @@ class ExecutePolicy(Behavior):
 
     ports = cfg.PORTS
     needs_world = True
-    needs_heartbeat = True  # a deadman (``runtime.protective_stop``) watches it while it runs
+    needs_heartbeat = True  # a deadman (``runtime.app.protective_stop``) watches it while it runs
     description = (
         "Run a learned policy served over GetActionChunk: chunks are smoothed, blended at seams, "
         "checked against limits and the planning scene, and streamed to the trajectory controller "

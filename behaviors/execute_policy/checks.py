@@ -13,7 +13,7 @@ import numpy as np
 
 from ..safety import MotionSafety
 from .chunk import Chunk
-from .shaping import Samples
+from runtime.motion.samples import Samples
 from .stream import StepGrid, Window
 
 

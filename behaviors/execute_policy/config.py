@@ -10,9 +10,9 @@ from moveit_pro_controllers_msgs.action import FollowJointTrajectoryWithAdmittan
 from moveit_pro_ml_msgs.srv import GetActionChunk
 from sensor_msgs.msg import Image, JointState
 
-from runtime.ports import InputPort, NameKind, Names, OutputPort, PortType, Range
+from runtime.tree.ports import InputPort, NameKind, Names, OutputPort, PortType, Range
 from runtime.errors import ObjectiveError
-from runtime.scene import EnvelopeOverrides
+from runtime.motion.scene import EnvelopeOverrides
 
 DEFAULT_CONTROLLER_ACTION = "/joint_trajectory_admittance_controller/follow_joint_trajectory"
 

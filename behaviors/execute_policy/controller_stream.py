@@ -16,15 +16,15 @@ from typing import Any
 from control_msgs.action import FollowJointTrajectory
 from moveit_pro_controllers_msgs.action import FollowJointTrajectoryWithAdmittance as FollowTrajectory
 
-from runtime.bus import STATUS_ABORTED, STATUS_SUCCEEDED
 from runtime.errors import SetupError
+from runtime.io.bus import STATUS_ABORTED, STATUS_SUCCEEDED
 
 from ..action_goal import Goal, GoalState
 from ..controller_link import ControllerKind, ControllerLink, GoalTolerances, jtc_stream_points, trajectory_goal
 from ..trajectory_goal import NOT_ACCEPTED, REFUSED_GOAL_CODES, trajectory_msg
 from .config import PolicyRunConfig
 from .planner import goal_takes_effect_s
-from .shaping import Samples
+from runtime.motion.samples import Samples
 from .states import Rollback
 
 MAX_LATE_RETRIES = 3

@@ -17,7 +17,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
-from runtime.bus import STATUS_ABORTED, STATUS_CANCELED, STATUS_SUCCEEDED
+from runtime.io.bus import STATUS_ABORTED, STATUS_CANCELED, STATUS_SUCCEEDED
 
 from ..action_goal import Goal, GoalState
 from ..gripper import gripper_command

@@ -18,7 +18,8 @@ import numpy as np
 
 from .checks import CheckFailure
 from .chunk import Chunk
-from .shaping import NO_TAIL, ChunkMotion, Samples, Tail, densify, fit_chunk, join_at_seam, plan_tail, runout_chunk_steps
+from .shaping import NO_TAIL, ChunkMotion, Tail, densify, fit_chunk, join_at_seam, plan_tail, runout_chunk_steps
+from runtime.motion.samples import Samples
 from .states import GoalState, SentMotion
 from .at_rest import Arrival, arrives_at_rest, take_over_time, window_arrival_step
 from .stream import StepGrid, Window, WindowError, drained_seconds

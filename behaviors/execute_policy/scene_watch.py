@@ -11,7 +11,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
-from .shaping import Samples
+from runtime.motion.samples import Samples
 
 SCENE_WATCH_PERIOD_S = 0.05  # how often the rest of the sent motion is checked against the live scene
 

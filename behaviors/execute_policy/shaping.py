@@ -16,33 +16,11 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from runtime import seam_blend
-from runtime.seam_blend import blend_offset, velocity_basis
+from runtime.motion import seam_blend
+from runtime.motion.samples import Samples
+from runtime.motion.seam_blend import blend_offset, velocity_basis
 
 from .step_spline import MIN_SMOOTHING_STEPS, StepSpline, interpolating_polynomial, smoothing_spline
-
-
-@dataclass(frozen=True)
-class Samples:
-    """A densified motion: ``times`` (M,), and (M, J) positions, velocities, accelerations."""
-
-    times: np.ndarray
-    positions: np.ndarray
-    velocities: np.ndarray
-    accelerations: np.ndarray
-
-    def __len__(self) -> int:
-        return len(self.times)
-
-    @property
-    def duration_s(self) -> float:
-        return float(self.times[-1] - self.times[0])
-
-    @classmethod
-    def at_rest(cls, position: np.ndarray) -> Samples:
-        """A motion of no length: ``position`` alone, at time 0."""
-        q = np.asarray(position, dtype=float).reshape(1, -1)
-        return cls(np.zeros(1), q, np.zeros_like(q), np.zeros_like(q))
 
 
 def fit_chunk(positions: np.ndarray, tracking_weight: float) -> StepSpline:
@@ -261,7 +239,7 @@ def join_at_seam(
     """The chunk's motion from ``seam`` to ``end``, continuous in position and velocity with
     the sent motion's state (``sent_position``, ``sent_velocity``) at the seam.
 
-    The offset between the two is blended out (``runtime.seam_blend``) over ``blend_duration``
+    The offset between the two is blended out (``runtime.motion.seam_blend``) over ``blend_duration``
     seconds; with ``max_acceleration`` (per joint) over longer where that would take more than
     ``BLEND_SHARE`` of the acceleration the chunk leaves free: a chunk that starts away from where the
     arm is (a policy that re-planned, or ran ahead of an arm that paused) joins more slowly

@@ -19,7 +19,8 @@ from typing import Any
 
 from ..action_goal import Goal, GoalState
 from .chunk import Chunk
-from .shaping import ChunkMotion, Samples
+from .shaping import ChunkMotion
+from runtime.motion.samples import Samples
 from .stream import StepGrid
 
 

@@ -34,9 +34,9 @@ from behaviors.execute_policy.policy_link import PolicyLink
 from behaviors.execute_policy.states import InFlight
 from behaviors.safety import MotionSafety, SafetyError, make_safety
 from behaviors.wrench_watch import WrenchWatch
-from runtime.behavior import Behavior, Status
+from runtime.tree.behavior import Behavior, Status
 from runtime.errors import SetupError
-from runtime.ports import Direction
+from runtime.tree.ports import Direction
 
 STARTUP_WAIT_S = 5.0
 RTC_PORTS = ("policy_uses_real_time_chunking", "guidance_horizon")

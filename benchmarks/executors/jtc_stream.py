@@ -24,10 +24,10 @@ from trajectory_msgs.msg import JointTrajectory
 from behaviors.action_goal import Goal, GoalState
 from behaviors.controller_link import ControllerKind, ControllerLink, GoalTolerances, trajectory_goal
 from behaviors.execute_policy.behavior import FailureKind
-from runtime.behavior import Status
-from runtime.bus import STATUS_SUCCEEDED
-from runtime.timestamps import time_msg
-from runtime.trajectory_points import trajectory_points
+from runtime.tree.behavior import Status
+from runtime.io.bus import STATUS_SUCCEEDED
+from runtime.io.timestamps import time_msg
+from runtime.motion.trajectory_points import trajectory_points
 from sim.controllers.jtc_trajectory import JtcPoints, JtcTrajectory, merge_at_arrival, replace_at_arrival
 
 from benchmarks.baselines import cubic_spline_velocities

@@ -26,9 +26,9 @@ import numpy as np
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
 from behaviors.execute_policy.planner import goal_takes_effect_s
-from runtime.behavior import Status
-from runtime.bus import Publisher
-from runtime.timestamps import duration_msg
+from runtime.tree.behavior import Status
+from runtime.io.bus import Publisher
+from runtime.io.timestamps import duration_msg
 from sim.controllers.jtc import read_points
 from sim.controllers.jtc_trajectory import JtcTrajectory, merge_at_arrival, replace_at_arrival
 

@@ -26,8 +26,8 @@ from typing import Any
 import numpy as np
 
 from behaviors.execute_policy.planner import goal_takes_effect_s
-from runtime.behavior import Status
-from runtime.ports import InputPort, PortType, Range
+from runtime.tree.behavior import Status
+from runtime.tree.ports import InputPort, PortType, Range
 
 from benchmarks.baselines import lerobot_queue_or_reimplementation
 

@@ -34,8 +34,8 @@ from typing import Any
 import numpy as np
 
 from behaviors.execute_policy.policy_link import Carryover
-from runtime.behavior import Status
-from runtime.ports import InputPort, PortType, Range
+from runtime.tree.behavior import Status
+from runtime.tree.ports import InputPort, PortType, Range
 
 from .base import PORTS, Received
 from .jtc_stream import StreamsToJtc

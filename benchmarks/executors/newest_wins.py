@@ -19,7 +19,7 @@ import math
 import numpy as np
 
 from behaviors.execute_policy.planner import goal_takes_effect_s
-from runtime.behavior import Status
+from runtime.tree.behavior import Status
 
 from .base import Received
 from .jtc_stream import StreamsToJtc

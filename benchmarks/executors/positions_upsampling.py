@@ -32,7 +32,7 @@ from dataclasses import dataclass
 import numpy as np
 from trajectory_msgs.msg import JointTrajectory
 
-from runtime.timestamps import duration_msg, to_seconds
+from runtime.io.timestamps import duration_msg, to_seconds
 
 from benchmarks.baselines import cubic_spline_velocities
 

@@ -23,7 +23,7 @@ from behaviors.execute_policy.planner import (
 from behaviors.execute_policy.controller_stream import ControllerStream
 from behaviors.execute_policy.states import HeldChunk, Rollback, SentMotion
 from behaviors.execute_policy.stream import StepGrid
-from runtime.behavior import Status
+from runtime.tree.behavior import Status
 
 from .base import ChunkExecutor, Received
 

@@ -24,11 +24,11 @@ import numpy as np
 from sensor_msgs.msg import JointState
 
 from behaviors.execute_policy import config as cfg
-from behaviors.execute_policy.shaping import Samples
+from runtime.motion.samples import Samples
 from behaviors.safety import MotionSafety, SafetyError, make_safety
-from runtime.behavior import Behavior, Status
+from runtime.tree.behavior import Behavior, Status
 from runtime.errors import SetupError
-from runtime.ports import InputPort, OutputPort, PortType
+from runtime.tree.ports import InputPort, OutputPort, PortType
 
 PADDING_DEFAULT_M = next(p.default for p in cfg.PORTS if p.name == "link_padding")
 

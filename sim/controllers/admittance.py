@@ -54,9 +54,9 @@ from dataclasses import dataclass
 import numpy as np
 from moveit_pro_controllers_msgs.action import FollowJointTrajectoryWithAdmittance
 
-from runtime.timestamps import time_msg, to_seconds
-from runtime.bus import Bus, ServerGoalHandle
-from runtime.clock import Clock
+from runtime.io.timestamps import time_msg, to_seconds
+from runtime.io.bus import Bus, ServerGoalHandle
+from runtime.io.clock import Clock
 from runtime.errors import ObjectiveError
 
 from ..hardware import Hardware

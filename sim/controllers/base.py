@@ -11,7 +11,7 @@ import math
 from dataclasses import dataclass, field
 from typing import Any
 
-from runtime.clock import Clock
+from runtime.io.clock import Clock
 
 from ..hardware import Hardware
 from .compliance import AdmittanceParams

@@ -12,9 +12,9 @@ from __future__ import annotations
 
 from geometry_msgs.msg import WrenchStamped
 
-from runtime.bus import Bus
-from runtime.clock import Clock
-from runtime.timestamps import time_msg
+from runtime.io.bus import Bus
+from runtime.io.clock import Clock
+from runtime.io.timestamps import time_msg
 
 from ..hardware import Hardware
 from .base import FT_STATE_INTERFACES, Controller, ControllersConfig

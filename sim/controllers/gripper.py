@@ -17,8 +17,8 @@ from dataclasses import dataclass
 
 from control_msgs.action import GripperCommand
 
-from runtime.bus import Bus, ServerGoalHandle
-from runtime.clock import Clock
+from runtime.io.bus import Bus, ServerGoalHandle
+from runtime.io.clock import Clock
 
 from ..hardware import Hardware
 from .base import Controller, ControllersConfig

@@ -42,9 +42,9 @@ import numpy as np
 from control_msgs.action import FollowJointTrajectory
 from trajectory_msgs.msg import JointTrajectory
 
-from runtime.bus import Bus, ServerGoalHandle
-from runtime.clock import Clock
-from runtime.timestamps import time_msg, to_seconds
+from runtime.io.bus import Bus, ServerGoalHandle
+from runtime.io.clock import Clock
+from runtime.io.timestamps import time_msg, to_seconds
 
 from ..hardware import Hardware
 from .base import ArmController, ControllersConfig, JtcParams

@@ -34,8 +34,8 @@ from typing import Callable
 from controller_manager_msgs.msg import ControllerState
 from controller_manager_msgs.srv import ListControllers, SwitchController
 
-from runtime.bus import Bus
-from runtime.clock import Clock
+from runtime.io.bus import Bus
+from runtime.io.clock import Clock
 
 from ..hardware import Hardware
 from .admittance import JointTrajectoryAdmittanceController

@@ -17,8 +17,8 @@ import numpy as np
 from std_msgs.msg import Float64MultiArray
 from std_srvs.srv import Trigger
 
-from runtime.bus import Bus
-from runtime.clock import Clock
+from runtime.io.bus import Bus
+from runtime.io.clock import Clock
 
 from ..hardware import Hardware
 from .base import ArmController, ControllersConfig

@@ -24,7 +24,7 @@ A case file is a BTCPP_format="4" XML document starting with a comment of ``key:
                        REFUSED alone: the tree is refused at load)
     refused: TEXT      with ``expect: REFUSED``, what both engines' load errors say
 
-Our side ticks through ``runtime.controls.tick_tree``, the one tick loop the runner uses; BT.CPP
+Our side ticks through ``runtime.tree.controls.tick_tree``, the one tick loop the runner uses; BT.CPP
 is ticked with ``tickExactlyOnce`` (one pass per tick, the semantics ``tick_tree`` implements; its
 ``tickOnce`` re-ticks on a wake-up signal and never returns from an endless synchronous loop).
 
@@ -39,14 +39,14 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, ClassVar
 
-from runtime import builtin
-from runtime.behavior import Behavior, NodeKind, RunContext, Status
-from runtime.bus import InProcessBus
-from runtime.clock import SimClock
-from runtime.controls import COMPLETED, tick_tree
+from runtime.tree import builtin
+from runtime.tree.behavior import Behavior, NodeKind, RunContext, Status
+from runtime.io.bus import InProcessBus
+from runtime.io.clock import SimClock
+from runtime.tree.controls import COMPLETED, tick_tree
 from runtime.errors import LoadError
-from runtime.events import EventLog
-from runtime.registry import Registry
+from runtime.tree.events import EventLog
+from runtime.tree.registry import Registry
 
 CASES_DIR = Path(__file__).parent / "cases"
 LETTERS = {"R": "RUNNING", "S": "SUCCESS", "F": "FAILURE"}
@@ -177,7 +177,7 @@ def _our_value(board: Any, key: str) -> Any:
 
 
 def run_ours(case: Case) -> Run:
-    from runtime.loader import load_tree
+    from runtime.tree.loader import load_tree
 
     registry = Registry()
     builtin.register(registry)
@@ -281,14 +281,14 @@ def run_btcpp(case: Case) -> Run:
 
 
 def run_in_runner(case: Case) -> tuple[str, int]:
-    """Run the case with ``runtime.runner.run_tree``, the loop ``objective run`` uses.
+    """Run the case with ``runtime.app.runner.run_tree``, the loop ``objective run`` uses.
 
     Returns how the run ended ("SUCCESS", "FAILURE", "SKIPPED" or "ERROR") and after how many
     ticks; the runner ticks every ``dt_ms`` (10 ms when the case sets none).
     """
     from runtime.errors import ObjectiveError
-    from runtime.loader import load_tree
-    from runtime.runner import RunOptions, make_context, run_tree
+    from runtime.tree.loader import load_tree
+    from runtime.app.runner import RunOptions, make_context, run_tree
 
     registry = Registry()
     builtin.register(registry)

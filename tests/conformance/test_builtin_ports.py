@@ -9,9 +9,9 @@ from __future__ import annotations
 
 import pytest
 
-from runtime import builtin
-from runtime.ports import Direction
-from runtime.registry import Registry
+from runtime.tree import builtin
+from runtime.tree.ports import Direction
+from runtime.tree.registry import Registry
 
 IN, OUT, INOUT = "input", "output", "inout"
 LOOP = {"queue": (INOUT, None), "if_empty": (IN, "SUCCESS"), "value": (OUT, None)}

@@ -27,8 +27,8 @@ HAVE_BTCPP = importlib.util.find_spec("behaviortreepy") is not None
 
 
 def test_there_are_cases_for_every_builtin_node() -> None:
-    from runtime import builtin, utility
-    from runtime.registry import Registry
+    from runtime.tree import builtin, utility
+    from runtime.tree.registry import Registry
 
     registry = Registry()
     builtin.register(registry)

@@ -1,6 +1,6 @@
 """How `objective run` ends on BT.CPP's edge cases: endless loops, a skipped root, script errors.
 
-Loops: no node loops inside a tick (see ``runtime.controls``), so an endless synchronous loop is
+Loops: no node loops inside a tick (see ``runtime.tree.controls``), so an endless synchronous loop is
 one iteration per tick and a Timeout, a ``_while``, a Parallel sibling, ``--max-seconds`` or a
 signal can stop it. These run in a subprocess with a wall-clock bound: a regression fails the
 test instead of hanging the suite.
@@ -15,10 +15,10 @@ from pathlib import Path
 
 import pytest
 
-from runtime.behavior import Status
-from runtime.cli import main
-from runtime.loader import load_tree
-from runtime.runner import RunOptions, make_context, run_tree
+from runtime.tree.behavior import Status
+from runtime.app.cli import main
+from runtime.tree.loader import load_tree
+from runtime.app.runner import RunOptions, make_context, run_tree
 from tests.data.nodes import Forever, make_registry
 
 LOOP_BOUND_S = 60
@@ -37,13 +37,13 @@ def tree_file(tmp_path: Path, body: str, name: str = "t.xml") -> Path:
 
 
 def run_cli(tmp_path: Path, body: str, *args: str) -> tuple[int, dict, str]:
-    """`python -m runtime.cli run FILE --json` in a subprocess, killed after LOOP_BOUND_S."""
+    """`python -m runtime.app.cli run FILE --json` in a subprocess, killed after LOOP_BOUND_S."""
     lib = tmp_path / "lib"
     lib.mkdir(exist_ok=True)
     path = tree_file(tmp_path, body)
     env = {**os.environ, "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"}
     code = (
-        "import sys; from runtime.cli import main; from tests.data.nodes import make_registry; "
+        "import sys; from runtime.app.cli import main; from tests.data.nodes import make_registry; "
         "sys.exit(main(sys.argv[1:], registry=make_registry()))"
     )
     proc = subprocess.run(
@@ -62,7 +62,7 @@ ENDLESS = '<Repeat num_cycles="-1"><Script code="n += 1"/></Repeat>'
         # A Timeout halts the endless loop after 50 ms: one cycle per 10 ms tick (t = 0.01 ... 0.05 s).
         (f'<Sequence><Script code="n := 0"/><Timeout msec="50">{ENDLESS}</Timeout></Sequence>', "FAILURE", 5),
         # _while turns false: the loop is halted and skipped, the Sequence goes on.
-        (f'<Sequence><Script code="n := 0"/><Repeat num_cycles="-1" _while="n &lt; 7"><Script code="n += 1"/></Repeat>'
+        ('<Sequence><Script code="n := 0"/><Repeat num_cycles="-1" _while="n &lt; 7"><Script code="n += 1"/></Repeat>'
          '<AlwaysSuccess/></Sequence>', "SUCCESS", 7),
         # A Parallel sibling finishes first (its 30 ms end at the 4th tick) and the loop is halted.
         (f'<Sequence><Script code="n := 0"/><Parallel success_count="1">{ENDLESS}<Sleep msec="30"/></Parallel></Sequence>',

@@ -3,9 +3,9 @@ from __future__ import annotations
 
 from typing import Any, ClassVar
 
-from runtime.behavior import Behavior, NodeKind, Status
-from runtime.ports import InputPort, OutputPort, PortType, Range
-from runtime.registry import Registry
+from runtime.tree.behavior import Behavior, NodeKind, Status
+from runtime.tree.ports import InputPort, OutputPort, PortType, Range
+from runtime.tree.registry import Registry
 
 
 class Typed(Behavior):
@@ -112,7 +112,7 @@ TEST_NODES = (Typed, Copy, FailWith, Forever, Robot, Check, Crash, BrokenAtLoad)
 
 def make_registry() -> Registry:
     """The runtime's own nodes plus the test nodes (no plug-ins: tests stay fast and isolated)."""
-    from runtime import builtin
+    from runtime.tree import builtin
 
     registry = Registry()
     builtin.register(registry)

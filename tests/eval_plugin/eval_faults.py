@@ -7,8 +7,8 @@ from __future__ import annotations
 import os
 import time
 
-from runtime.behavior import Behavior, Status
-from runtime.ports import InputPort, PortType
+from runtime.tree.behavior import Behavior, Status
+from runtime.tree.ports import InputPort, PortType
 
 
 class FaultBySeed(Behavior):

@@ -1,0 +1,108 @@
+"""Text views for the CLI: the loaded tree (``objective show``) and the progress line of a run."""
+from __future__ import annotations
+
+import time
+from typing import TextIO
+
+import py_trees
+
+from runtime.tree.behavior import NodeMixin
+from runtime.tree.loader import CONDITION_ATTRIBUTES, LoadedTree
+from runtime.tree.subtree import SubTree
+from .terminal import printable
+
+
+def _quote(value: str) -> str:
+    return f'"{value}"' if (not value or any(c in value for c in ' ;"')) else value
+
+
+def describe_node(node: py_trees.behaviour.Behaviour, tree: LoadedTree) -> str:
+    """One line: ``Kind ID "name"  port=value ...  (file:line)``."""
+    info = tree.info(node)
+    if isinstance(node, SubTree):
+        parts = [f"SubTree {node.tree_id}"]
+        if node.name != node.tree_id:
+            parts.append(f'"{node.name}"')
+        ports = [f"{k}={{{v}}}" for k, v in sorted(node.remapping.items())]
+        ports += [f"{k}={_quote(v)}" for k, v in sorted(node.literals.items())]
+        if node.autoremap:
+            ports.append("_autoremap=true")
+        parts.extend(ports)
+    elif isinstance(node, NodeMixin) and hasattr(node, "bindings"):
+        parts = [f"{type(node).kind.value} {node.xml_id}"]
+        if node.name != node.xml_id:
+            parts.append(f'"{node.name}"')
+        written = info.values if info is not None else {}
+        for name, binding in node.bindings.items():
+            if name not in written:
+                continue  # defaults are listed by `objective behaviors`
+            value = f"{{{binding.key}}}" if binding.key is not None else _quote(written[name])
+            parts.append(f"{name}={value}")
+        parts.extend(f"{k}={_quote(written[k])}" for k in CONDITION_ATTRIBUTES if k in written)
+    else:
+        parts = [f"{type(node).__name__} \"{node.name}\""]
+    if info is not None:
+        parts.append(f"({info.location})")
+    return "  ".join(parts)
+
+
+def tree_text(tree: LoadedTree) -> str:
+    """The tree as indented text, one node per line."""
+    lines = [f"BehaviorTree {tree.tree_id}"]
+
+    def visit(node: py_trees.behaviour.Behaviour, depth: int) -> None:
+        if getattr(node, "transparent", False) and len(node.children) == 1:
+            visit(node.children[0], depth)  # a condition guard: its node's line shows the scripts
+            return
+        lines.append("  " * depth + describe_node(node, tree))
+        for child in node.children:
+            visit(child, depth + 1)
+
+    visit(tree.root, 1)
+    return "\n".join(lines)
+
+
+class ProgressLine:
+    """A single self-overwriting status line on a terminal, at most ``rate_hz`` updates per second.
+
+    The CLI only creates it when the stream is a TTY, so logs and pipes stay quiet.
+    """
+
+    def __init__(self, stream: TextIO, rate_hz: float = 10.0) -> None:
+        self.stream = stream
+        self.min_interval = 1.0 / rate_hz
+        self._last = -float("inf")
+        self._width = 0
+        self._reporters: list[py_trees.behaviour.Behaviour] = []
+
+    def attach(self, root: py_trees.behaviour.Behaviour) -> None:
+        """Also show the policy's progress: nodes with ``run_summary()`` (ExecutePolicy) are asked at display time."""
+        self._reporters = [n for n in root.iterate() if callable(getattr(n, "run_summary", None))]
+
+    def policy_text(self) -> str:
+        """``steps 120  chunks 6  latency 0.012/0.020 s  stalls 0.00 s`` of the policy run, if one started."""
+        for node in self._reporters:
+            data = (node.run_summary() or {}).get("execute_policy") or {}
+            if "chunks" in data:
+                return (f"steps {data['steps_executed']}  chunks {data['chunks']}  "
+                        f"latency p50/max {data['latency_p50_s']:.3f}/{data['latency_max_s']:.3f} s  "
+                        f"stalls {data['stall_seconds']:.2f} s")
+        return ""
+
+    def __call__(self, sim_seconds: float, ticks: int, running: str) -> None:
+        now = time.monotonic()  # pacing the display itself, not behavior time
+        if now - self._last < self.min_interval:
+            return
+        self._last = now
+        policy = self.policy_text()
+        text = f"t={sim_seconds:8.2f}s  ticks={ticks:7d}  " + (f"{policy}  " if policy else "") + f"running: {printable(running)}"
+        text = text[:160]
+        self.stream.write("\r" + text.ljust(self._width))
+        self.stream.flush()
+        self._width = len(text)
+
+    def clear(self) -> None:
+        if self._width:
+            self.stream.write("\r" + " " * self._width + "\r")
+            self.stream.flush()
+            self._width = 0

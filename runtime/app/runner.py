@@ -1,0 +1,689 @@
+"""The tick loop: advance the clock, step the world, deliver bus traffic, tick the tree.
+
+One tick per ``1 / tick_hz`` seconds of clock time (100 Hz by default):
+
+    clock.advance(period); world.step_to(clock.now()); bus.spin_once(); tick the root once
+
+until the root returns SUCCESS or FAILURE (or ``max_seconds`` of clock time pass). On a
+``SimClock`` this runs as fast as the CPU allows and is deterministic; on a ``WallClock``
+(``--realtime``) ``advance`` sleeps to keep the rate. Whatever happens, the tree is halted
+(RUNNING nodes get ``terminate(INVALID)``, so a moving robot is stopped) and the world and the
+bus are closed.
+
+How the run ended is a ``RunEnd``: SUCCESS, FAILURE, INTERRUPTED (SIGINT/SIGTERM, see
+``runtime.io.interrupt``: the tree is halted as a preemption) or ERROR (bad input found while
+running, or an unexpected exception, told in one paragraph by ``runtime.tree.crash`` with its
+traceback in a log file). Each has its exit code (``RunResult.exit_code``).
+
+A world (the simulated cell) is started only when some node of the tree has
+``needs_world = True``; worlds are found by name in the ``objective.worlds`` entry-point group.
+"""
+from __future__ import annotations
+
+import enum
+import json
+import math
+import signal
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable, Iterable, Protocol, Sequence
+
+import py_trees
+
+from runtime.tree.behavior import RunContext, Status
+from runtime.io.bus import InProcessBus, parse_latency
+from runtime.io.clock import SimClock, WallClock
+from runtime.tree.controls import SKIPPED, Visit, is_skipped, tick_tree
+from runtime.tree.crash import CRASH_LOG, culprit, describe_crash, write_traceback
+from runtime.errors import ObjectiveError, ObjectiveRuntimeError, OptionError, error_kind
+from runtime.tree.events import EventLog
+from runtime.io.heap import PacedHeap
+from runtime.io.interrupt import Interrupted, StopRequest, exit_code_for, signal_name
+from runtime.tree.loader import LoadedTree, load_tree
+from runtime.tree.ports import NameKind
+from .protective_stop import PROTECTIVE_STOP, ProtectiveStop, StopInputs, needs_heartbeat
+from runtime.tree.registry import Registry, default_world_name
+from runtime.io.scheduling import check_priority, realtime_priority
+from .world import create_world, world_hosts_servers
+from .world_check import check_tree, declared_interfaces, named_links
+
+Progress = Callable[[float, int, str], None]
+"""Called after every tick with (clock seconds, ticks so far, name of the running node)."""
+
+
+class TickWatcher(Protocol):
+    """Told of every tick of a run (the Groot2 monitor, the Objective server's feedback)."""
+
+    def started(self, loaded: LoadedTree) -> None:
+        """Before the first tick."""
+
+    def ticked(self, now_s: float, visited: list[Visit]) -> None:
+        """After every tick: the clock, and every node the tick visited with the status it reported."""
+
+    def stopped(self) -> None:
+        """After the tree finished or was halted, before the world and the bus close."""
+
+
+@dataclass
+class RunOptions:
+    seed: int = 0
+    realtime: bool = False
+    tick_hz: float = 100.0
+    max_seconds: float | None = None
+    """Stop (FAILURE) after this much clock time; None runs until the tree finishes."""
+    world: str | None = None
+    """World to start when the tree needs one; None means the installation's default
+    (the one entry of the ``objective.default_world`` entry-point group)."""
+    sets: dict[str, str] = field(default_factory=dict)
+    """Root blackboard entries set before the first tick (``--set name=value``), as strings."""
+    policy_latency: str | None = None
+    """Latency model of policy service calls (``runtime.io.bus.parse_latency`` syntax), for the world."""
+    record_dir: Path | None = None
+    """Record the run into this directory (``--record``): done by a run observer (``runtime.app.observer``)."""
+    live_port: int | None = None
+    """Serve the run's topics to Foxglove on this port while it runs (``--live``; 0: any free
+    port): done by a run observer (``runtime.app.observer``)."""
+    world_options: dict[str, Any] = field(default_factory=dict)
+    ros: bool = False
+    """Run on real ROS 2 (``runtime.io.ros.run``): a RosBus node, paced by a WallClock (implies
+    ``realtime``); the world serves no policy of its own unless ``world_options`` names one."""
+    ros_node_name: str = "objective_runtime"
+    use_sim_time: bool = False
+    """With ``ros``: start the clock at the time the graph's ``/clock`` reads (a simulated robot's
+    own clock, ``objective sim-robot``), so the stamps sent to its controllers are on its time."""
+    realtime_priority: int | None = None
+    """In a paced run: tick at this SCHED_FIFO priority (1-99, ``runtime.io.scheduling``); None:
+    the default priority."""
+    protective_stop: StopInputs | None = field(default_factory=StopInputs)
+    """Where the run listens for a protective stop and a deadman's heartbeat
+    (``runtime.app.protective_stop``); None: nowhere."""
+    log_dir: Path | None = None
+    """Where the traceback of an unexpected exception goes: the recording directory when
+    recording, else this (None: ``build/logs/`` under the working directory)."""
+
+    @property
+    def observed(self) -> bool:
+        """True when a run observer has work (``--record`` or ``--live``)."""
+        return self.record_dir is not None or self.live_port is not None
+
+    @property
+    def paced(self) -> bool:
+        """True when the run follows wall-clock time (``--realtime``, or ``--ros``)."""
+        return self.realtime or self.ros
+
+    def check(self) -> None:
+        """Raise ObjectiveError for options that cannot work (before anything starts)."""
+        if not (self.tick_hz > 0 and math.isfinite(self.tick_hz)):
+            raise ObjectiveError(f"tick rate must be a positive number of Hz, got {self.tick_hz}")
+        if self.max_seconds is not None and not self.max_seconds > 0:
+            raise ObjectiveError(f"--max-seconds must be positive, got {self.max_seconds}")
+        if self.policy_latency is not None:
+            try:
+                parse_latency(self.policy_latency, self.seed)
+            except OptionError as err:
+                raise ObjectiveError(f"--policy-latency: {err}") from None
+        for name in self.sets:
+            if not name or name.strip() != name:
+                raise ObjectiveError(f"--set needs name=value with a non-empty name, got {name!r}")
+        if self.protective_stop is not None:
+            self.protective_stop.check()
+        if self.realtime_priority is not None:
+            if not self.paced:
+                raise ObjectiveError("--realtime-priority sets the priority of a paced run's ticks: it needs --realtime or --ros")
+            problem = check_priority(self.realtime_priority)
+            if problem is not None:
+                raise ObjectiveError(f"--realtime-priority: {problem}")
+        if self.use_sim_time and not self.ros:
+            raise ObjectiveError("--use-sim-time follows the ROS graph's /clock: it needs --ros")
+        if self.ros and self.policy_latency is not None:
+            raise ObjectiveError(
+                "--policy-latency models latency on the in-process bus; with --ros the policy's latency is real"
+            )
+
+
+TIMEOUT = "timeout"
+"""The failure kind of a run stopped by ``--max-seconds``."""
+
+
+class RunEnd(enum.Enum):
+    """How a run ended."""
+
+    SUCCESS = "SUCCESS"
+    FAILURE = "FAILURE"
+    SKIPPED = "SKIPPED"
+    """Every child of the root was skipped: nothing ran, nothing failed (exit 0, as BT.CPP's SKIPPED)."""
+    INTERRUPTED = "INTERRUPTED"
+    """SIGINT or SIGTERM: the tree was halted as a preemption (goals cancelled, robot stopped)."""
+    ERROR = "ERROR"
+    """Bad input found while running (e.g. a port value out of range) or an unexpected exception."""
+
+
+@dataclass
+class RunResult:
+    status: str
+    """A ``RunEnd`` value: "SUCCESS", "FAILURE", "SKIPPED" (every child of the root was skipped:
+    nothing ran), "INTERRUPTED" or "ERROR"."""
+    failing_node: str | None
+    reason: str
+    sim_seconds: float
+    wall_seconds: float
+    ticks: int
+    blackboard: dict[str, Any]
+    extra: dict[str, Any] = field(default_factory=dict)
+    failing_location: str | None = None
+    signum: int | None = None
+    """The signal that interrupted the run (INTERRUPTED only)."""
+    stopped_by: str | None = None
+    """Who stopped the run when no signal did (``StopRequest.cancel``; INTERRUPTED only)."""
+    running_nodes: list[str] = field(default_factory=list)
+    """Leaves that were RUNNING when the run was interrupted or broke off, halted since."""
+    log_file: str | None = None
+    """The full traceback of an unexpected exception (ERROR only)."""
+    failure_kind: str | None = None
+    """What kind of ending a FAILURE or ERROR was, for grouping runs: the failing node's kind
+    (``Behavior.failure_kind``, e.g. ``velocity limit``; ``timeout`` for ``--max-seconds``), a user
+    error's class name (``SetupError``) or ``internal`` (a bug); None when nobody says."""
+
+    @property
+    def exit_code(self) -> int:
+        """0 SUCCESS and SKIPPED (nothing failed), 1 FAILURE, 2 ERROR, 128 + the signal's number
+        when INTERRUPTED (130, 143)."""
+        if self.status == RunEnd.INTERRUPTED.value:
+            return exit_code_for(self.signum or signal.SIGINT)
+        return {RunEnd.SUCCESS.value: 0, RunEnd.SKIPPED.value: 0, RunEnd.FAILURE.value: 1}.get(self.status, 2)
+
+    def to_json(self) -> dict[str, Any]:
+        """The summary object ``objective run --json`` prints (extras merged at the top level)."""
+        summary: dict[str, Any] = {
+            "status": self.status,
+            "failing_node": self.failing_node,
+            "reason": self.reason,
+            "sim_seconds": round(self.sim_seconds, 6),
+            "wall_seconds": round(self.wall_seconds, 3),
+            "ticks": self.ticks,
+            "blackboard": self.blackboard,
+        }
+        if self.failure_kind is not None:
+            summary["failure_kind"] = self.failure_kind
+        if self.stopped_by is not None:
+            summary["stopped_by"] = self.stopped_by
+        elif self.status == RunEnd.INTERRUPTED.value:
+            summary["signal"] = signal_name(self.signum or signal.SIGINT)
+        if self.status in (RunEnd.INTERRUPTED.value, RunEnd.ERROR.value) or self.failure_kind == PROTECTIVE_STOP:
+            summary["running_nodes"] = list(self.running_nodes)
+        if self.log_file is not None:
+            summary["log_file"] = self.log_file
+        for key, value in self.extra.items():
+            summary.setdefault(key, value)
+        return summary
+
+
+def make_context(options: RunOptions) -> RunContext:
+    """Clock, bus and event log for one run: in-process, or a RosBus node with ``options.ros``."""
+    if options.ros:
+        from runtime.io.ros.run import follow_graph_clock, make_ros_bus  # rclpy is imported only for ROS runs
+
+        wall = WallClock()
+        bus = make_ros_bus(wall, options.ros_node_name, serves=world_hosts_servers(options.world or default_world_name()))
+        stamp_offset_s = 0.0
+        if options.use_sim_time:
+            try:
+                follow_graph_clock(bus, wall)
+            except BaseException:
+                bus.close()
+                raise
+        elif not world_hosts_servers(options.world or default_world_name()):
+            stamp_offset_s = robot_time_offset_s(wall)  # a real robot's controllers stamp with ROS time
+        return RunContext(clock=wall, bus=bus, events=EventLog(wall), seed=options.seed, stamp_offset_s=stamp_offset_s)
+    clock = WallClock() if options.realtime else SimClock()
+    bus = InProcessBus(clock, paced=options.realtime)
+    return RunContext(clock=clock, bus=bus, events=EventLog(clock), seed=options.seed)
+
+
+def robot_time_offset_s(clock: Any) -> float:
+    """What to add to ``clock``'s time for the ROS time of a robot without ``/clock``: the system
+    clock, which ROS 2 nodes read when ``use_sim_time`` is off (a controller that reads a goal's
+    stamp as an instant, such as joint_trajectory_controller, compares it with that)."""
+    return time.time() - clock.now()
+
+
+def json_entries(board_items: Iterable[tuple[str, Any]]) -> dict[str, Any]:
+    """The entries that JSON can carry (numpy values as lists/numbers); others are left out."""
+    out: dict[str, Any] = {}
+    for key, value in board_items:
+        if hasattr(value, "tolist"):
+            value = value.tolist()
+        try:
+            json.dumps(value, allow_nan=False)
+        except (TypeError, ValueError):
+            continue
+        out[key] = value
+    return out
+
+
+def _unwrap(node: py_trees.behaviour.Behaviour) -> py_trees.behaviour.Behaviour:
+    """The node a transparent wrapper (a condition guard) stands for."""
+    while getattr(node, "transparent", False) and len(node.children) == 1:
+        node = node.children[0]
+    return node
+
+
+def _failing(root: py_trees.behaviour.Behaviour, visited: list[Visit]) -> tuple[py_trees.behaviour.Behaviour, str, str | None] | None:
+    """The node to blame for the root's FAILURE in this tick, with its reason and failure kind.
+
+    Follow the failure down from the root: at each node, go to the child that reported FAILURE
+    most recently in this tick and gives a reason (the most recent one when none does); stop at a
+    node none of whose children failed (a leaf that failed, or a Timeout/Inverter that turned its
+    child's result into a failure). A failure a ForceSuccess forgave is therefore never blamed.
+    """
+    last: dict[int, tuple[int, Status, str]] = {}
+    for order, (node, status, message) in enumerate(visited):
+        last[id(node)] = (order, status, message)
+
+    def failed_at(node: py_trees.behaviour.Behaviour) -> int | None:
+        record = last.get(id(node))
+        return record[0] if record is not None and record[1] is Status.FAILURE else None
+
+    def reason(node: py_trees.behaviour.Behaviour) -> str:
+        return last[id(node)][2] or _unwrap(node).feedback_message
+
+    def blame(node: py_trees.behaviour.Behaviour) -> py_trees.behaviour.Behaviour:
+        """The failing leaf under ``node``: the most recent failure that gives a reason, so a
+        Fallback's closing AlwaysFailure (no reason) blames the check that failed before it."""
+        failing = sorted((c for c in node.children if failed_at(c) is not None), key=failed_at, reverse=True)
+        leaves = [blame(child) for child in failing]
+        return next((leaf for leaf in leaves if reason(leaf)), leaves[0]) if leaves else node
+
+    if failed_at(root) is None:
+        return None
+    node = blame(root)
+    inner = _unwrap(node)
+    return inner, reason(node), getattr(inner, "failure_kind", None)
+
+
+_STATUS_NAMES = {status: status.value for status in Status}  # an enum's .value is a slow property
+_RUNNING = Status.RUNNING.value
+
+
+class StatusEvents:
+    """Emits a ``node_status`` event each time a node reports a status different from its last one.
+
+    ``node`` in the event is the node's index in ``root.iterate()`` order (names are not
+    unique); a recording stores the tree in the same order. A RUNNING node that a parent halted
+    (it was not ticked again and is idle now) is reported once as ``INVALID`` with "halted".
+    """
+
+    def __init__(self, events: EventLog, nodes: list[py_trees.behaviour.Behaviour]) -> None:
+        self.events, self.nodes = events, nodes
+        self.index = {id(node): i for i, node in enumerate(nodes)}
+        self.last: dict[int, str] = {}
+        self.running: set[int] = set()
+        """The nodes whose last reported status is RUNNING: the only ones that can be halted."""
+
+    def _emit(self, i: int, status: str, message: str) -> None:
+        if self.last.get(i) != status:
+            self.last[i] = status
+            if status == _RUNNING:
+                self.running.add(i)
+            else:
+                self.running.discard(i)
+            self.events.emit("node_status", self.nodes[i].name, node=i, status=status, message=message)
+
+    def update(self, visited: list[Visit]) -> None:
+        seen = set()
+        for node, status, message in visited:
+            i = self.index.get(id(node))
+            if i is not None:
+                seen.add(i)
+                self._emit(i, "SKIPPED" if status is SKIPPED and is_skipped(node) else _STATUS_NAMES[status], message)
+        self.halted(seen)
+
+    def halted(self, seen: set[int] = frozenset()) -> None:
+        if self.running.issubset(seen):  # every RUNNING node reported again in this tick
+            return
+        for i, last in list(self.last.items()):
+            if last == Status.RUNNING.value and i not in seen and self.nodes[i].status is Status.INVALID:
+                self._emit(i, Status.INVALID.value, "halted")
+
+
+def _halt(root: py_trees.behaviour.Behaviour) -> bool:
+    """Halt the RUNNING branch; True when something was running."""
+    if any(node.status is Status.RUNNING for node in root.iterate()):
+        root.stop(Status.INVALID)
+        return True
+    return False
+
+
+@dataclass
+class Pacing:
+    """How well a wall-clock run kept its tick rate: ticks whose work took longer than a period,
+    and the wall time between the starts of consecutive ticks.
+
+    The clock never makes up for lost ticks (``WallClock.advance``), so a late tick only delays
+    that tick; these numbers say whether the world or the tree was too slow for real time.
+    """
+
+    period: float
+    late_ticks: int = 0
+    worst_tick_s: float = 0.0
+    scheduling: str = "default"
+    """What the tick thread ran at (``runtime.io.scheduling.realtime_priority``)."""
+    intervals_s: list[float] = field(default_factory=list)
+    _last_start: float | None = None
+
+    def record(self, started_s: float, ended_s: float) -> None:
+        """One tick's work, from ``started_s`` to ``ended_s`` (``time.monotonic()``)."""
+        seconds = ended_s - started_s
+        self.worst_tick_s = max(self.worst_tick_s, seconds)
+        if seconds > self.period:
+            self.late_ticks += 1
+        if self._last_start is not None:
+            self.intervals_s.append(started_s - self._last_start)
+        self._last_start = started_s
+
+    def as_dict(self) -> dict[str, Any]:
+        out: dict[str, Any] = {"late_ticks": self.late_ticks, "worst_tick_s": round(self.worst_tick_s, 4), "period_s": self.period,
+                               "scheduling": self.scheduling}
+        if self.intervals_s:
+            ordered = sorted(self.intervals_s)
+            for name, q in (("p50", 0.5), ("p99", 0.99)):
+                out[f"interval_{name}_s"] = round(ordered[min(int(q * len(ordered)), len(ordered) - 1)], 4)
+            out["interval_max_s"] = round(ordered[-1], 4)
+        return out
+
+
+def outcome(status: Status, timed_out: bool) -> RunEnd:
+    """How a finished run ended, from the root's last result: SUCCESS, FAILURE or SKIPPED (as in BT.CPP)."""
+    if status is Status.FAILURE or timed_out:
+        return RunEnd.FAILURE
+    return RunEnd.SKIPPED if status is SKIPPED else RunEnd.SUCCESS
+
+
+@dataclass
+class Breakoff:
+    """Why the tick loop stopped before the tree finished: a signal or an exception."""
+
+    signum: int | None = None
+    error: BaseException | None = None
+    cause: str | None = None
+    """Who asked to stop, when it was not a signal (``StopRequest.cancel``)."""
+    protective_stop: str | None = None
+    """Why the protective stop was engaged (``runtime.app.protective_stop``): the run ends FAILURE."""
+
+    @property
+    def end(self) -> RunEnd:
+        if self.protective_stop is not None:
+            return RunEnd.FAILURE
+        return RunEnd.INTERRUPTED if self.signum is not None else RunEnd.ERROR
+
+
+def running_leaves(root: py_trees.behaviour.Behaviour) -> list[py_trees.behaviour.Behaviour]:
+    """The RUNNING nodes with no RUNNING child: what the tree was doing."""
+    return [
+        node for node in root.iterate()
+        if node.status is Status.RUNNING and not any(c.status is Status.RUNNING for c in node.children)
+    ]
+
+
+def run_tree(
+    loaded: LoadedTree,
+    context: RunContext,
+    options: RunOptions,
+    progress: Progress | None = None,
+    world: Any = None,
+    stop: StopRequest | None = None,
+    watchers: Sequence[TickWatcher] = (),
+    guard: ProtectiveStop | None = None,
+) -> RunResult:
+    """Tick ``loaded`` (bound to ``context``) to completion and summarise the run.
+
+    Starts the world named by ``options.world`` when the tree needs one (unless ``world`` is
+    given). Before every tick it looks at ``stop`` (set by ``runtime.io.interrupt`` on SIGINT or
+    SIGTERM) and, after the bus delivered what is due, ``guard`` (the protective stop: by default
+    one listening on the run's bus per ``options.protective_stop``; it ends the run FAILURE). Bad
+    input found while running (e.g. a port reading a blackboard entry nobody wrote), an unexpected
+    exception or an interruption ends the run as ERROR or INTERRUPTED; the tree is halted and
+    everything closed either way.
+    """
+    options.check()
+    root = loaded.root
+    nodes = list(root.iterate())
+    for key, value in options.sets.items():
+        loaded.blackboard.set(key, value)
+    stopping = stop is not None and stop.requested  # a signal while loading: no world to start and close
+    if world is None and not stopping and any(getattr(type(n), "needs_world", False) for n in nodes):
+        world_options = {
+            "seed": options.seed,
+            "realtime": options.paced,
+            "policy_latency": options.policy_latency,
+            "record_dir": options.record_dir,
+            **options.world_options,
+        }
+        if options.ros:  # the policy comes from the ROS graph (an adapter), not from the world
+            world_options.setdefault("policy", "none")
+        world = create_world(options.world or default_world_name(), world_options)
+    period = context.tick_period_s = 1.0 / options.tick_hz  # the run's nodes read it from the context
+    clock, bus = context.clock, context.bus
+    if stop is not None and callable(getattr(bus, "stop_waiting_when", None)):
+        bus.stop_waiting_when(lambda: stop.requested)  # a hung in-process policy never holds a signal back
+    ticks = 0
+    blame: tuple[py_trees.behaviour.Behaviour, str, str | None] | None = None
+    status = Status.INVALID
+    timed_out = False
+    breakoff: Breakoff | None = None
+    running: list[py_trees.behaviour.Behaviour] = []
+    statuses = StatusEvents(context.events, nodes)
+    if callable(getattr(progress, "attach", None)):
+        progress.attach(root)  # type: ignore[union-attr]
+    pacing = Pacing(period) if options.paced else None
+    wall_start = time.monotonic()
+    try:
+        try:
+            if guard is None and options.protective_stop is not None:  # listening from the start
+                guard = ProtectiveStop(options.protective_stop)
+                guard.listen(bus)
+            if world is not None:
+                context.world = world
+                try:
+                    world.start(context)
+                except ObjectiveError as err:
+                    raise err.within(f"world '{getattr(world, 'name', '?')}'") from None
+                check_tree(loaded, context)  # a name the world does not have: ERROR before anything moves
+            for node in nodes:
+                node.setup()
+            if options.ros:  # the clients the behaviors create while they run then cost no late tick
+                from runtime.io.ros.run import prepare_links
+
+                links = named_links(loaded.nodes)
+                prepare_links(bus, declared_interfaces(nodes),
+                              services=[(name, types[0]) for name, kind, types in links if kind is NameKind.SERVICE],
+                              actions=[(name, types) for name, kind, types in links if kind is NameKind.ACTION])
+            policy_running = False
+            context.events.emit("run_started", loaded.tree_id, seed=options.seed)
+            for watcher in watchers:
+                watcher.started(loaded)
+            # options.check() allows a priority only in a paced run
+            with PacedHeap(pacing is not None) as heap, realtime_priority(options.realtime_priority) as scheduling:
+                if pacing is not None:
+                    pacing.scheduling = scheduling
+                while True:
+                    if stop is not None and stop.signum is not None:
+                        breakoff = Breakoff(signum=stop.signum, cause=stop.cause)
+                        break
+                    if options.max_seconds is not None and clock.now() + period > options.max_seconds + 1e-9:
+                        timed_out = True
+                        break
+                    clock.advance(period)
+                    tick_start = time.monotonic()
+                    if world is not None:
+                        world.step_to(clock.now())
+                    bus.spin_once()
+                    why = guard.reason(clock.now(), policy_running) if guard is not None else None
+                    if why is not None:  # the tree is not ticked again: halted below, its goals cancelled
+                        breakoff = Breakoff(protective_stop=why)
+                        context.events.emit("protective_stop", loaded.tree_id, reason=why)
+                        break
+                    ticks += 1  # counted before it runs: a tick that raised was still ticked
+                    tick = tick_tree(root)
+                    status, visited = tick.status, tick.visited
+                    policy_running = any(seen is Status.RUNNING and needs_heartbeat(n) for n, seen, _ in visited)
+                    statuses.update(visited)
+                    if pacing is not None:
+                        pacing.record(tick_start, time.monotonic())
+                    if progress is not None:
+                        tip = root.tip()
+                        progress(clock.now(), ticks, tip.name if tip is not None else "")
+                    for watcher in watchers:
+                        watcher.ticked(clock.now(), visited)
+                    heap.between_ticks()
+                    if status is not Status.RUNNING:
+                        if status is Status.FAILURE:
+                            blame = _failing(root, visited)
+                        break
+        except Interrupted as err:  # a second signal: stop now, still halting and summarising
+            breakoff = Breakoff(signum=err.signum)
+        except Exception as err:  # ObjectiveError (bad input) or a bug: the run ends as ERROR
+            breakoff = Breakoff(error=err)
+        running = running_leaves(root)
+        if timed_out:
+            tip = root.tip()
+            where = f" while '{tip.name}' was RUNNING" if tip is not None else ""
+            reason = f"stopped after --max-seconds {options.max_seconds:g} s of clock time{where}"
+            blame = (tip if tip is not None else root, reason, TIMEOUT)
+        end = breakoff.end.value if breakoff is not None else outcome(status, timed_out).value
+        context.events.emit("run_finished", loaded.tree_id, status=end)
+    finally:
+        summary_world = None
+        try:
+            if _halt(root) and options.ros:
+                from runtime.io.ros.run import deliver_pending
+
+                # let the cancels of a halted run reach the graph, and the hosted controllers act on them
+                deliver_pending(bus, None if world is None else lambda: world.step_to(clock.now()))
+        except Exception as err:  # a node's terminate() broke: still close the world and the bus
+            breakoff = breakoff or Breakoff(error=err)
+        finally:
+            try:
+                statuses.halted()
+                for watcher in watchers:
+                    watcher.stopped()
+                if world is not None:
+                    try:
+                        summary_world = world.summary()
+                    finally:
+                        world.close()
+            finally:
+                bus.close()
+    wall_seconds = time.monotonic() - wall_start
+
+    extra: dict[str, Any] = {}
+    for node in nodes:
+        summarise = getattr(node, "run_summary", None)
+        if callable(summarise):
+            extra.update(summarise() or {})
+    if summary_world:
+        extra["world"] = summary_world
+    if pacing is not None:
+        extra["pacing"] = pacing.as_dict()
+
+    result = RunResult(
+        status=outcome(status, timed_out).value,
+        failing_node=None,
+        reason="",
+        sim_seconds=clock.now(),
+        wall_seconds=wall_seconds,
+        ticks=ticks,
+        blackboard=json_entries(loaded.blackboard.items()),
+        extra=extra,
+        running_nodes=[node.name for node in running],
+    )
+    if breakoff is not None:
+        _describe_breakoff(result, breakoff, running, loaded, nodes, options)
+    elif blame is not None:
+        node, reason, result.failure_kind = blame
+        info = loaded.info(node)
+        result.failing_node, result.reason = node.name, reason or ""
+        result.failing_location = str(info.location) if info is not None else None
+    return result
+
+
+def _describe_breakoff(result: RunResult, breakoff: Breakoff, running: list[py_trees.behaviour.Behaviour],
+                       loaded: LoadedTree, nodes: list[py_trees.behaviour.Behaviour], options: RunOptions) -> None:
+    """Fill ``result`` for a run a signal or an exception ended (status, node, reason, log file)."""
+    result.status = breakoff.end.value
+    where = ", ".join(f"'{n.name}'" + _at(loaded, n) for n in running)
+    halted = f"; halted {where} (RUNNING)" if where else ""
+    if breakoff.protective_stop is not None:
+        result.reason = f"protective stop: {breakoff.protective_stop} at {result.sim_seconds:.2f} s{halted}"
+        result.failure_kind = PROTECTIVE_STOP
+        return
+    if breakoff.signum is not None:
+        result.signum = int(breakoff.signum)
+        result.stopped_by = breakoff.cause
+        cause = breakoff.cause or f"interrupted by {signal_name(breakoff.signum)}"
+        result.reason = f"{cause} at {result.sim_seconds:.2f} s{halted}"
+        return
+    error, culprit_name = breakoff.error, None
+    assert error is not None
+    result.failure_kind = error_kind(error)
+    if isinstance(error, ObjectiveRuntimeError) and not error.callers:
+        node = culprit(error, nodes)  # the node that raised it: its place, and the SubTree calls it is inside
+        info = loaded.info(node) if node is not None else None
+        if info is not None and error.location in (None, info.location):
+            error = info.error(error)
+    if not isinstance(error, ObjectiveRuntimeError):
+        node = culprit(error, nodes)
+        culprit_name = node.name if node is not None else None
+        directory = options.record_dir or options.log_dir
+        log_file = write_traceback(error, directory, CRASH_LOG if options.record_dir is not None else None)
+        result.log_file = str(log_file) if log_file is not None else None
+        info = loaded.info(node) if node is not None else None
+        error = describe_crash(error, node, log_file, info.location if info is not None else None)
+    result.reason = str(error)
+    result.failing_node = culprit_name or error.node
+    result.failing_location = str(error.location) if error.location else None
+
+
+def _at(loaded: LoadedTree, node: py_trees.behaviour.Behaviour) -> str:
+    info = loaded.info(node)
+    return f" ({info.location})" if info is not None else ""
+
+
+def run_file(
+    source: Path | str,
+    registry: Registry,
+    options: RunOptions,
+    tree_id: str | None = None,
+    search_paths: Iterable[Path] = (),
+    objectives_dir: Path | None = None,
+    progress: Progress | None = None,
+    stop: StopRequest | None = None,
+    watchers: Sequence[TickWatcher] = (),
+) -> RunResult:
+    """Load ``source`` and run it: what ``objective run`` does (``stop``: see ``runtime.io.interrupt``)."""
+    options.check()
+    context = make_context(options)
+    loaded = load_tree(source, registry, context, tree_id, search_paths, objectives_dir)
+    return run_loaded(loaded, context, options, progress, stop, watchers)
+
+
+def run_loaded(loaded: LoadedTree, context: RunContext, options: RunOptions, progress: Progress | None = None,
+               stop: StopRequest | None = None, watchers: Sequence[TickWatcher] = (),
+               guard: ProtectiveStop | None = None) -> RunResult:
+    """Run a loaded tree (``run_file`` after the loading), with the run observers the options ask
+    for (``runtime.app.observer``: the recording, the live view) and ``watchers`` told of every tick."""
+    if not options.observed:
+        return run_tree(loaded, context, options, progress, stop=stop, watchers=watchers, guard=guard)
+    from .observer import attach_observers
+
+    observers = attach_observers(loaded, context, options)
+    try:
+        result = run_tree(loaded, context, options, progress, stop=stop, watchers=watchers, guard=guard)
+    except BaseException as err:  # the run did not start (e.g. no such world): the observers say so
+        for observer in observers:
+            observer.aborted(err, stop)
+        raise
+    for observer in observers:
+        observer.finished(result, stop)
+    return result

@@ -1,0 +1,65 @@
+"""What a simulated (or real) world provides to a run.
+
+The runner owns the loop: ``clock.advance(period)``, ``world.step_to(clock.now())``,
+``bus.spin_once()``, then one tick of the tree. A world therefore keeps its own time equal to
+the clock after each ``step_to``; its controllers run at their own rate in between. Worlds are
+found through the ``objective.worlds`` entry-point group: each names ``create(options) -> World``.
+"""
+from __future__ import annotations
+
+from importlib.metadata import entry_points
+from typing import Any, Protocol
+
+from runtime.errors import ObjectiveError
+from runtime.extras import load_entry_point
+from runtime.tree.behavior import RunContext
+from runtime.tree.registry import WORLD_GROUP
+
+
+class World(Protocol):
+    name: str
+
+    def start(self, context: RunContext) -> None:
+        """Serve topics, services and actions on ``context.bus``; fill ``context.scene``."""
+        ...
+
+    def step_to(self, t: float) -> None:
+        """Advance physics and controllers until clock time ``t``."""
+        ...
+
+    def reset(self, seed: int) -> None:
+        """Restore the initial state with a layout drawn from ``seed``."""
+        ...
+
+    def summary(self) -> dict[str, Any]:
+        """JSON-serialisable facts for the run summary (may be empty)."""
+        ...
+
+    def close(self) -> None: ...
+
+
+def world_hosts_servers(name: str) -> bool:
+    """Whether the world registered as ``name`` serves anything on the run's bus (services,
+    actions: a simulated cell does); its factory says otherwise with ``hosts_servers = False``.
+    True for a name nobody registered (``create_world`` reports that)."""
+    available = {ep.name: ep for ep in entry_points(group=WORLD_GROUP)}
+    if name not in available:
+        return True
+    try:
+        factory = available[name].load()
+    except ImportError:  # a world of an extra that is not installed: ``create_world`` says so if the tree needs it
+        return True
+    return bool(getattr(factory, "hosts_servers", True))
+
+
+def create_world(name: str, options: dict[str, Any]) -> Any:
+    """The world registered as ``name`` in the ``objective.worlds`` entry-point group."""
+    available = {ep.name: ep for ep in entry_points(group=WORLD_GROUP)}
+    if name not in available:
+        known = ", ".join(sorted(available)) or "none installed"
+        raise ObjectiveError(f"no world named '{name}' (worlds: {known})")
+    create = load_entry_point(available[name], f"world '{name}' cannot start")  # a world of an extra may be missing
+    try:
+        return create(options)
+    except ObjectiveError as err:  # a world refuses the user's options with an ObjectiveError (OptionError)
+        raise err.within(f"world '{name}'") from None
