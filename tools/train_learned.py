@@ -58,7 +58,8 @@ def frame_settings(args: argparse.Namespace, seeds: tuple[int, ...]):
     return PlanFrameSettings(
         seeds=seeds, every=args.every, hold_after_plan_s=2.0, home=tuple(HOME_CONFIGURATION) + (0.0,),
         joint_names=arm + (GRIPPER_JOINT,), cameras=(), image_size=64, crops=(), size=64, chunk=args.chunk,
-        control_period_s=0.1, gripper_velocity=0.5, motion_noise_rad=args.motion_noise)
+        control_period_s=0.1, gripper_velocity=0.5, motion_noise_rad=args.motion_noise,
+        grasp_height_m=args.grasp_height)
 
 
 def load_frames(args: argparse.Namespace):
@@ -100,6 +101,9 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--part", type=int, default=50, help="layouts per cache file (a part played is kept)")
     parser.add_argument("--every", type=int, default=1, help="a frame every this many policy steps")
     parser.add_argument("--motion-noise", type=float, default=0.04, help="recovery noise of the played motion (rad)")
+    parser.add_argument("--grasp-height", type=float, default=0.022,
+                        help="the oracle's grasp height above the table in the played plans (m; 0: the oracle's own, "
+                             "0.018, which leaves the pads a hair over the 10 mm collision padding above the table)")
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--frames-only", action="store_true", help="play the frames into the cache and stop")
     parser.add_argument("--seed", type=int, default=0, help="seeds the model's weights, the batches and the noise")
@@ -115,6 +119,9 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--noise-scale", type=float, default=1.0,
                         help="objective_policy.json's noise_scale: 1 samples as trained (0, a zero start, lies off the "
                              "training's noise and answers chunks 0.07 rad from the labels)")
+    parser.add_argument("--chunk-samples", type=int, default=16,
+                        help="objective_policy.json's chunk_samples: the served chunk is the mean of this many flow samples")
+    parser.add_argument("--integration-steps", type=int, default=20, help="Euler steps of the served flow")
     parser.add_argument("--eval-episodes", type=int, default=50, help="held-out seeds evaluated after training (0: none)")
     parser.add_argument("--eval-seed-start", type=int, default=100)
     parser.add_argument("--eval-workers", type=int, default=1)
@@ -149,7 +156,8 @@ def main(argv: list[str] | None = None) -> int:
 
         shutil.rmtree(staging)
     spec = LearnedStackSpec(joint_dim=frames.state.shape[1], cube_dim=cubes.shape[1], chunk_size=args.chunk,
-                            hidden_dim=args.hidden, layers=args.layers)
+                            hidden_dim=args.hidden, layers=args.layers,
+                            integration_steps=args.integration_steps)
     config, policy = build_learned_stack(spec, write_tiny_clip(staging / CLIP_DIRNAME, seed=args.seed))
     from lerobot.policies.factory import make_pre_post_processors
 
@@ -167,7 +175,8 @@ def main(argv: list[str] | None = None) -> int:
     metadata = {
         "joint_names": list(frame_settings(args, ()).joint_names), "control_period": 0.1, "prompts": [PROMPT],
         "ignored_images": ["scene", "wrist", "overview"], "default_guidance_horizon": 10,
-        "noise_scale": args.noise_scale, "cube_locator": locator.to_json(), "relative_actions": True,
+        "noise_scale": args.noise_scale, "chunk_samples": args.chunk_samples,
+        "action_range": action_range(frames.action), "cube_locator": locator.to_json(), "relative_actions": True,
         "training": {
             "policy_type": "multi_task_dit", "objective": "flow_matching", "seed": args.seed, **run,
             "batch": args.batch, "lr": args.lr, "threads": args.threads, "hidden": args.hidden, "layers": args.layers,
@@ -209,6 +218,12 @@ def frame_cubes(seeds: list[int]) -> "np.ndarray":
         placed = layout(seed)
         by_seed[seed] = layout_features([placed["blue"], placed["green"]])
     return np.stack([by_seed[seed] for seed in seeds]).astype(np.float32)
+
+
+def action_range(action: Any) -> dict:
+    """The labels' range per joint (``objective_policy.json``'s ``action_range``: the served chunk stays inside it)."""
+    flat = action.reshape(-1, action.shape[-1])
+    return {"min": [round(float(v), 5) for v in flat.min(0).values], "max": [round(float(v), 5) for v in flat.max(0).values]}
 
 
 def min_max_stats(values: Any) -> dict:
