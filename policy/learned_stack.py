@@ -14,7 +14,8 @@
   trains a projection of its output.
 
 :func:`sample_chunk` integrates the DiT's flow from noise to a chunk (Euler, ``num_integration_steps``)
-like ``FlowMatchingObjective.conditional_sample``, with a given starting noise and, when a previous
+like ``FlowMatchingObjective.conditional_sample``, as the mean of several samples (one sample's chunk
+carries a small step-to-step jitter), with given starting noises and, when a previous
 chunk's leftover is given, LeRobot's RTC guidance (``RTCProcessor.denoise_step``) at every step.
 LeRobot's DiT runs time from 0 (noise) to 1 (data) with velocity ``data - noise``; LeRobot's RTC code
 is written for time from 1 (noise) to 0 with velocity ``noise - data`` (SmolVLA's convention), so the
@@ -47,7 +48,7 @@ class LearnedStackSpec:
     hidden_dim: int = 128
     layers: int = 4
     heads: int = 4
-    integration_steps: int = 10
+    integration_steps: int = 20
     text_width: int = 32
 
     @property
@@ -105,12 +106,14 @@ def build_learned_stack(spec: LearnedStackSpec, clip_folder: str | Path) -> tupl
 
 
 def sample_chunk(policy: Any, batch: dict[str, Any], noise: Any = None, rtc: Any = None,
-                 guidance: dict[str, Any] | None = None) -> Any:
-    """A normalized chunk (B, horizon, A) from the preprocessed ``batch`` (module doc).
+                 guidance: dict[str, Any] | None = None, samples: int = 1) -> Any:
+    """A normalized chunk (B, horizon, A) from the preprocessed ``batch`` (module doc): the mean of
+    ``samples`` flows integrated from independent starting noises.
 
-    ``noise``: the starting noise (B, horizon, A), else a standard normal draw. ``rtc``: an
-    ``RTCProcessor``; with ``guidance`` (``inference_delay``, ``prev_chunk_left_over``,
-    ``execution_horizon``) every step is guided toward the leftover.
+    ``noise``: the starting noises (B * samples, horizon, A; sample ``k`` of row ``b`` at
+    ``b * samples + k``), else standard normal draws. ``rtc``: an ``RTCProcessor``; with
+    ``guidance`` (``inference_delay``, ``prev_chunk_left_over``, ``execution_horizon``) every step of
+    every sample is guided toward the leftover.
     """
     import torch
 
@@ -119,15 +122,16 @@ def sample_chunk(policy: Any, batch: dict[str, Any], noise: Any = None, rtc: Any
     state = batch["observation.state"]
     if state.ndim == 2:  # the one observation step the encoder expects
         batch["observation.state"] = state.unsqueeze(1)
-    conditioning = policy.observation_encoder.encode(batch)
+    conditioning = policy.observation_encoder.encode(batch).repeat_interleave(samples, dim=0)
+    rows = conditioning.shape[0] // samples
     shape = (conditioning.shape[0], config.horizon, config.action_feature.shape[0])
     x = torch.randn(shape) if noise is None else noise.reshape(shape).to(conditioning.dtype)
     model = policy.noise_predictor
     steps = config.num_integration_steps
     guidance = guidance or {}
     leftover = guidance.get("prev_chunk_left_over")
-    if leftover is not None and leftover.ndim == 2:
-        leftover = leftover.unsqueeze(0)
+    if leftover is not None:
+        leftover = (leftover if leftover.ndim == 3 else leftover.unsqueeze(0)).repeat_interleave(samples, dim=0)
     for index in range(steps):
         t = index / steps
         t_batch = torch.full((shape[0],), t, dtype=x.dtype)
@@ -143,4 +147,4 @@ def sample_chunk(policy: Any, batch: dict[str, Any], noise: Any = None, rtc: Any
             with torch.no_grad():
                 v = velocity(x)
         x = (x - v / steps).detach()
-    return x
+    return x.reshape(rows, samples, *shape[1:]).mean(dim=1)

@@ -80,7 +80,10 @@ METADATA_FILE = "objective_policy.json"
 ``ignored_images`` (request image names the policy does not use), ``noise_scale`` (see
 :class:`LeRobotOptions`) and ``cube_locator`` (the perception stage of a policy that observes located
 cubes: ``policy.cube_locator.CubeLocatorConfig``) and ``relative_actions`` (true: the policy's chunk is
-the joints' offset from the observed state, see :meth:`LeRobotBackend.infer`)."""
+the joints' offset from the observed state, see :meth:`LeRobotBackend.infer`) and ``chunk_samples``
+(a flow the backend samples itself: its chunk is the mean of this many samples, 1 if absent) and
+``action_range`` (``{"min": [...], "max": [...]}`` per action column: the answered chunk is clipped
+into the range of the labels the policy was trained on)."""
 CLIP_DIRNAME = "clip"
 """A checkpoint's local CLIP text-encoder folder (see ``learned_stack``); used instead of the hub name."""
 FLOW_SAMPLED_TYPES = frozenset({"multi_task_dit"})
@@ -111,6 +114,29 @@ def checked_noise_scale(value: Any, where: str) -> float:
     if not math.isfinite(scale) or scale < 0:
         raise OptionError(f"{where}: noise_scale must be a finite number >= 0 (1 samples as trained), got {value!r}")
     return scale
+
+
+def checked_chunk_samples(value: Any, where: str) -> int:
+    """A flow-sampled chunk's sample count: an integer >= 1."""
+    if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+        raise OptionError(f"{where}: chunk_samples must be an integer >= 1, got {value!r}")
+    return value
+
+
+def checked_action_range(value: Any, action_dim: int, where: str) -> tuple[list[float], list[float]] | None:
+    """The metadata's ``action_range`` as (low, high), ``action_dim`` finite numbers each with low <= high (None if absent)."""
+    if value is None:
+        return None
+    try:
+        low, high = [float(v) for v in value["min"]], [float(v) for v in value["max"]]
+    except (TypeError, KeyError, ValueError):
+        low, high = [], []
+    valid = len(low) == len(high) == action_dim and all(math.isfinite(a) and math.isfinite(b) and a <= b
+                                                          for a, b in zip(low, high))
+    if not valid:
+        raise OptionError(f"{where}: action_range must be {{\"min\": [...], \"max\": [...]}} with {action_dim} finite "
+                          f"numbers each, min <= max, got {value!r}")
+    return low, high
 
 
 def noise_shape(config: Any) -> tuple[int, int, int]:
@@ -440,6 +466,10 @@ class LeRobotBackend:
         """The perception stage (``CubeLocatorConfig``) when the metadata names one."""
         self.relative = False
         """The chunk is relative to the observed joints (the metadata's ``relative_actions``)."""
+        self.chunk_samples = 1
+        """A flow-sampled chunk is the mean of this many samples (the metadata's ``chunk_samples``)."""
+        self.action_range: tuple[Any, Any] | None = None
+        """(low, high) per action column the chunk is clipped into (the metadata's ``action_range``)."""
         self.located: np.ndarray | None = None
         """The cube features located in the current episode's first request."""
         self._mappings: dict[tuple[str, ...], dict[str, str]] = {}
@@ -515,6 +545,7 @@ class LeRobotBackend:
         self.crops = {IMAGE_PREFIX + name: checked_crop(name, box) for name, box in crops.items()}
         self.ignored_images = frozenset(self.metadata.get("ignored_images") or ())
         self.relative = bool(self.metadata.get("relative_actions", False))
+        self.chunk_samples = checked_chunk_samples(self.metadata.get("chunk_samples", 1), str(metadata_path))
         self.locator = None
         if "cube_locator" in self.metadata:
             from .cube_locator import CubeLocatorConfig
@@ -527,6 +558,7 @@ class LeRobotBackend:
         if self.locator is not None:
             self.state_dim -= 3 * len(self.locator.colors)  # x, y, yaw per located cube follow the joints
         self.action_dim = int(config.output_features[ACTION_KEY].shape[0])
+        self.action_range = checked_action_range(self.metadata.get("action_range"), self.action_dim, str(metadata_path))
         names = options.joint_names or self.metadata.get("joint_names")
         if names is not None and len(names) != self.action_dim:
             raise OptionError(
@@ -610,12 +642,15 @@ class LeRobotBackend:
             if self.flow_sampled:
                 from .learned_stack import sample_chunk
 
-                normalized = sample_chunk(self.policy, batch, self._starting_noise().get("noise"), self.rtc_processor, guidance)
+                noise = self._starting_noise(self.chunk_samples).get("noise")
+                normalized = sample_chunk(self.policy, batch, noise, self.rtc_processor, guidance, self.chunk_samples)
             else:
                 normalized = self.policy.predict_action_chunk(batch, **guidance, **self._starting_noise())
             absolute = self.postprocessor(normalized)
             if self.relative:
                 absolute = absolute + joints.to(absolute.dtype)
+            if self.action_range is not None:
+                absolute = torch.clamp(absolute, *(torch.as_tensor(bound, dtype=absolute.dtype) for bound in self.action_range))
         elapsed = time.perf_counter() - started
         self.calls += 1
         warning = self.latency.record(elapsed)
@@ -747,14 +782,15 @@ class LeRobotBackend:
         relative = RelativeActionsProcessorStep(enabled=True)
         return reanchor_relative_rtc_prefix(absolute, current, relative, normalizer, "cpu")[0].numpy()
 
-    def _starting_noise(self) -> dict[str, Any]:
-        """The ``noise`` keyword of ``predict_action_chunk`` at a noise scale other than 1 (empty at 1:
-        LeRobot samples its own)."""
+    def _starting_noise(self, samples: int = 1) -> dict[str, Any]:
+        """The ``noise`` keyword of ``predict_action_chunk`` (``samples`` draws stacked) at a noise scale
+        other than 1 (empty at 1: LeRobot samples its own)."""
         if self.noise_scale == 1.0:
             return {}
         import torch
 
-        return {"noise": self.noise_scale * torch.randn(noise_shape(self.config), device=self.options.device)}
+        rows, *rest = noise_shape(self.config)
+        return {"noise": self.noise_scale * torch.randn((rows * samples, *rest), device=self.options.device)}
 
     def _columns(self, request: PolicyRequest) -> list[int]:
         """Request column of each checkpoint action dimension."""

@@ -119,6 +119,8 @@ def test_the_pipeline_saves_a_lerobot_checkpoint_with_its_perception_and_data(ti
     assert metadata["cube_locator"]["position"]["image"] == "scene"
     assert metadata["cube_locator"]["yaw"]["image"] == "overview"
     assert metadata["relative_actions"] is True
+    assert (metadata["noise_scale"], metadata["chunk_samples"]) == (1.0, 16)
+    assert len(metadata["action_range"]["min"]) == len(metadata["action_range"]["max"]) == 7
     training = metadata["training"]
     assert (training["seed"], training["steps"], training["layout_seeds"]) == (0, 2, [50000, 50001])
     assert len(training["data_sha256"]) == 64
@@ -146,6 +148,9 @@ def test_the_served_policy_locates_the_cubes_and_answers_a_chunk_that_rtc_guides
     first = backend.infer(request)
     assert first.message == "" and first.actions.shape == (50, 7) and first.policy_actions.shape == (50, 7)
     assert first.actions[0] == pytest.approx(request.joint_positions, abs=0.5)  # relative to the observed joints
+    trained_range = json.loads((tiny_learned / "objective_policy.json").read_text())["action_range"]
+    assert np.all(first.actions >= np.array(trained_range["min"]) - 1e-6)  # never beyond the labels it was shown
+    assert np.all(first.actions <= np.array(trained_range["max"]) + 1e-6)
     placed = layout(120)
     assert backend.located[[0, 1, 3, 4]] == pytest.approx([*placed["blue"][:2], *placed["green"][:2]], abs=0.005)
     leftover = first.policy_actions[20:] + 0.5  # a previous chunk the policy would not answer now
@@ -160,6 +165,9 @@ def test_the_served_policy_locates_the_cubes_and_answers_a_chunk_that_rtc_guides
                                              previous_action_chunk=leftover, frozen_prefix_steps=3))
     assert unanchored.message == ("this policy's chunks are relative to the observed joints: previous_action_chunk needs "
                                   "previous_anchor_state (the joints of the request that answered it)")
+    backend.action_range = None  # unclipped, the two-step model's chunk leaves the labels' range
+    assert np.any(backend.infer(request).actions > np.array(trained_range["max"]) + 1e-3) or \
+        np.any(backend.infer(request).actions < np.array(trained_range["min"]) - 1e-3)
     missing = backend.infer(PolicyRequest(request.prompt, names, request.joint_positions, {"wrist": images["wrist"]},
                                           new_episode=True))
     assert missing.message == ("the policy locates the cubes in images [scene, overview]; the request has no "

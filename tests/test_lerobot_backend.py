@@ -260,7 +260,7 @@ def test_metadata_crops_a_camera_before_the_resize_and_drops_only_the_ignored_im
 
 
 @needs_lerobot
-def test_noise_scale_zero_answers_one_chunk_per_observation_and_bad_scales_are_named(checkpoint, backend, tmp_path):
+def test_noise_scale_zero_answers_one_chunk_per_observation_and_bad_metadata_values_are_named(checkpoint, backend, tmp_path):
     request = PolicyRequest(PROMPT, JOINTS, np.zeros(7), frames(), new_episode=True)
     sampled = [backend.infer(request).actions for _ in range(2)]
     assert backend.describe()["noise_scale"] == 1.0
@@ -289,6 +289,12 @@ def test_noise_scale_zero_answers_one_chunk_per_observation_and_bad_scales_are_n
         make_lerobot_backend(copy, committed_window=None).load()
     with pytest.raises(ValueError, match=r"the noise_scale option: noise_scale must be a finite number >= 0 .*-1"):
         make_lerobot_backend(checkpoint, committed_window=None, noise_scale=-1).load()
+    (copy / "objective_policy.json").write_text(json.dumps({**metadata, "action_range": {"min": [0.0]}}))
+    with pytest.raises(ValueError, match=r"objective_policy.json: action_range must be .*min <= max, got \{'min': \[0.0\]\}"):
+        make_lerobot_backend(copy, committed_window=None).load()
+    (copy / "objective_policy.json").write_text(json.dumps({**metadata, "chunk_samples": 0}))
+    with pytest.raises(ValueError, match=r"objective_policy.json: chunk_samples must be an integer >= 1, got 0"):
+        make_lerobot_backend(copy, committed_window=None).load()
 
 
 @needs_lerobot

@@ -37,7 +37,7 @@ import json
 import logging
 import multiprocessing
 import time
-from dataclasses import MISSING, dataclass, fields
+from dataclasses import MISSING, dataclass, fields, replace
 from pathlib import Path
 from typing import Any
 
@@ -96,6 +96,8 @@ class PlanFrameSettings:
     """The detour may go on down the moved descent before it stops."""
     first_steps: int = 0
     """Only the first this many policy steps of each layout are played (0: the whole episode)."""
+    grasp_height_m: float = 0.0
+    """The oracle's grasp height above the table (0: ``OracleConfig``'s)."""
 
     def key(self) -> str:
         """A hash of the settings; an optional one at its default is left out."""
@@ -219,6 +221,8 @@ def _play_part(settings: PlanFrameSettings, task: str, seeds: tuple[int, ...]) -
         raise ValueError(f"plan frames need the arm joints and one gripper column, got {list(settings.joint_names)}")
     gripper_column = gripper[0]
     config = OracleConfig() if settings.gripper_velocity is None else OracleConfig(max_gripper_velocity=settings.gripper_velocity)
+    if settings.grasp_height_m > 0:
+        config = replace(config, grasp_height=settings.grasp_height_m)
     home = np.asarray(settings.home, dtype=float)
     top, bottom = parse_prompt(task)
     crops = {camera: checked_crop(camera, box) for camera, box in settings.crops}

@@ -61,7 +61,8 @@ def frame_settings(args: argparse.Namespace, seeds: tuple[int, ...]):
     return PlanFrameSettings(
         seeds=seeds, every=args.every, hold_after_plan_s=2.0, home=tuple(HOME_CONFIGURATION) + (0.0,),
         joint_names=arm + (GRIPPER_JOINT,), cameras=(), image_size=64, crops=(), size=64, chunk=args.chunk,
-        control_period_s=0.1, gripper_velocity=0.5, motion_noise_rad=args.motion_noise)
+        control_period_s=0.1, gripper_velocity=0.5, motion_noise_rad=args.motion_noise,
+        grasp_height_m=args.grasp_height)
 
 
 def load_frames(args: argparse.Namespace):
@@ -103,20 +104,27 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--part", type=int, default=50, help="layouts per cache file (a part played is kept)")
     parser.add_argument("--every", type=int, default=1, help="a frame every this many policy steps")
     parser.add_argument("--motion-noise", type=float, default=0.04, help="recovery noise of the played motion (rad)")
+    parser.add_argument("--grasp-height", type=float, default=0.022,
+                        help="the oracle's grasp height above the table in the played plans (m; 0: the oracle's own, "
+                             "0.018, which leaves the pads a hair over the 10 mm collision padding above the table)")
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--frames-only", action="store_true", help="play the frames into the cache and stop")
     parser.add_argument("--seed", type=int, default=0, help="seeds the model's weights, the batches and the noise")
     parser.add_argument("--steps", type=int, default=6000)
     parser.add_argument("--minutes", type=float, default=30.0, help="training stops after this long, whatever the steps")
     parser.add_argument("--batch", type=int, default=64)
-    parser.add_argument("--lr", type=float, default=3e-4)
+    parser.add_argument("--lr", type=float, default=1e-3)
     parser.add_argument("--threads", type=int, default=1, help="torch threads")
     parser.add_argument("--hidden", type=int, default=64, help="the DiT's width")
     parser.add_argument("--layers", type=int, default=3, help="the DiT's layers")
     parser.add_argument("--position-noise", type=float, default=0.001, help="std of the located positions' error (m)")
     parser.add_argument("--yaw-noise", type=float, default=0.035, help="std of the located yaws' error (rad)")
-    parser.add_argument("--noise-scale", type=float, default=0.0,
-                        help="objective_policy.json's noise_scale: 0 answers the flow's central chunk (smooth)")
+    parser.add_argument("--noise-scale", type=float, default=1.0,
+                        help="objective_policy.json's noise_scale: 1 samples as trained (0, a zero start, lies off the "
+                             "training's noise and answers chunks 0.07 rad from the labels)")
+    parser.add_argument("--chunk-samples", type=int, default=16,
+                        help="objective_policy.json's chunk_samples: the served chunk is the mean of this many flow samples")
+    parser.add_argument("--integration-steps", type=int, default=20, help="Euler steps of the served flow")
     parser.add_argument("--eval-episodes", type=int, default=50, help="held-out seeds evaluated after training (0: none)")
     parser.add_argument("--eval-seed-start", type=int, default=100)
     parser.add_argument("--eval-workers", type=int, default=1)
@@ -151,14 +159,17 @@ def main(argv: list[str] | None = None) -> int:
 
         shutil.rmtree(staging)
     spec = LearnedStackSpec(joint_dim=frames.state.shape[1], cube_dim=cubes.shape[1], chunk_size=args.chunk,
-                            hidden_dim=args.hidden, layers=args.layers)
+                            hidden_dim=args.hidden, layers=args.layers,
+                            integration_steps=args.integration_steps)
     config, policy = build_learned_stack(spec, write_tiny_clip(staging / CLIP_DIRNAME, seed=args.seed))
     from lerobot.policies.factory import make_pre_post_processors
 
-    preprocessor, _ = make_pre_post_processors(config, dataset_stats=stats)
+    preprocessor, postprocessor = make_pre_post_processors(config, dataset_stats=stats)
     LOG.info("multi_task_dit (flow matching): %.2f M trainable parameters; %d frames", sum(
         p.numel() for p in policy.parameters() if p.requires_grad) / 1e6, len(state))
     run = train(policy, preprocessor, state, action, cubes.shape[1], args)
+    run["fit_rad"] = training_fit_rad(policy, preprocessor, postprocessor, state, action, args.seed)
+    LOG.info("sampled chunks against their labels on training frames: %.4f rad mean", run["fit_rad"])
     cell = MujocoCell(CellOptions())
     try:
         locator = locator_config(cell)
@@ -167,7 +178,8 @@ def main(argv: list[str] | None = None) -> int:
     metadata = {
         "joint_names": list(frame_settings(args, ()).joint_names), "control_period": 0.1, "prompts": [PROMPT],
         "ignored_images": ["scene", "wrist", "overview"], "default_guidance_horizon": 10,
-        "noise_scale": args.noise_scale, "cube_locator": locator.to_json(), "relative_actions": True,
+        "noise_scale": args.noise_scale, "chunk_samples": args.chunk_samples,
+        "action_range": action_range(frames.action), "cube_locator": locator.to_json(), "relative_actions": True,
         "training": {
             "policy_type": "multi_task_dit", "objective": "flow_matching", "seed": args.seed, **run,
             "batch": args.batch, "lr": args.lr, "threads": args.threads, "hidden": args.hidden, "layers": args.layers,
@@ -211,6 +223,12 @@ def frame_cubes(seeds: list[int]) -> "np.ndarray":
     return np.stack([by_seed[seed] for seed in seeds]).astype(np.float32)
 
 
+def action_range(action: Any) -> dict:
+    """The labels' range per joint (``objective_policy.json``'s ``action_range``: the served chunk stays inside it)."""
+    flat = action.reshape(-1, action.shape[-1])
+    return {"min": [round(float(v), 5) for v in flat.min(0).values], "max": [round(float(v), 5) for v in flat.max(0).values]}
+
+
 def min_max_stats(values: Any) -> dict:
     """LeRobot's normalization statistics of (N, D) ``values``."""
     return {"min": values.min(0).values, "max": values.max(0).values, "mean": values.mean(0), "std": values.std(0)}
@@ -235,6 +253,22 @@ def perceived(cubes: Any, position_noise_m: float, yaw_noise_rad: float, generat
     noisy = cubes + noise * scale
     noisy[:, 2::3] = torch.remainder(noisy[:, 2::3] + math.pi / 4, math.pi / 2) - math.pi / 4
     return noisy
+
+
+def training_fit_rad(policy: Any, preprocessor: Any, postprocessor: Any, state: Any, action: Any, seed: int,
+                     rows: int = 256) -> float:
+    """Mean absolute error (rad) of sampled chunks against their labels on ``rows`` evenly spaced training
+    frames (the cubes exact, the noise seeded): how well the chunk model fits what it was trained on."""
+    import torch
+
+    from policy.learned_stack import sample_chunk
+
+    picked = torch.linspace(0, len(state) - 1, min(rows, len(state))).long()
+    batch = preprocessor({"observation.state": state[picked], "action": action[picked], "task": [PROMPT] * len(picked)})
+    with torch.random.fork_rng(), torch.no_grad():
+        torch.manual_seed(seed)
+        chunks = postprocessor(sample_chunk(policy, batch))
+    return round(float((chunks - action[picked]).abs().mean()), 5)
 
 
 def train(policy: Any, preprocessor: Any, state: Any, action: Any, cube_dim: int, args: argparse.Namespace) -> dict:
