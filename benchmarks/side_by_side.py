@@ -1,12 +1,15 @@
-"""One benchmark run on two checkouts in turn, on one machine and one venv: the ratio of each figure.
+"""One benchmark run on two checkouts in turn, on one machine: the ratio of each figure.
 
 Runs ``BASELINE/benchmarks/SCRIPT`` and this checkout's ``benchmarks/SCRIPT`` alternately (baseline,
 this, baseline, this ...) ``--rounds`` times with the same arguments; each run imports its own
-checkout's code (a benchmark puts its checkout first on ``sys.path``). Rows are matched by their
+checkout's code (a benchmark puts its checkout first on ``sys.path``) with the checkout's own
+``.venv`` when it has one (``make setup`` there: the installed entry points name one layout of
+modules), else this Python. Rows are matched by their
 non-numeric fields and numeric keys named by ``--key`` (e.g. ``points``); for every numeric field
 asked for with ``--field`` it prints the median over the rounds for each checkout and the ratio
 this / baseline. Alternating keeps the ratio meaningful when the machine's load drifts. A baseline
-is a second worktree of this repository, e.g. ``git worktree add /tmp/base <commit>``.
+is a second worktree of this repository, e.g. ``git worktree add /tmp/base <commit>``
+(then ``make setup`` in it when the two checkouts' modules differ in layout).
 
     .venv/bin/python benchmarks/side_by_side.py --baseline /tmp/base --rounds 5 \\
         --key points --field p50_ms --field limits_ms -- bench_pipeline.py --repeats 50
@@ -24,9 +27,16 @@ from typing import Any
 HERE = Path(__file__).resolve().parents[1]
 
 
+def python_of(checkout: Path) -> str:
+    """The checkout's own venv's Python when it has one (its entry points name its own modules),
+    else this one."""
+    own = checkout / ".venv" / "bin" / "python"
+    return str(own) if own.is_file() else sys.executable
+
+
 def run_rows(checkout: Path, script: str, args: list[str]) -> list[dict[str, Any]]:
     """The JSON rows one run of ``script`` in ``checkout`` prints."""
-    done = subprocess.run([sys.executable, str(checkout / "benchmarks" / script), *args], cwd=checkout,
+    done = subprocess.run([python_of(checkout), str(checkout / "benchmarks" / script), *args], cwd=checkout,
                           capture_output=True, text=True, check=False)
     if done.returncode != 0:
         raise SystemExit(f"side_by_side: {checkout / 'benchmarks' / script} exited {done.returncode}:\n{done.stderr[-2000:]}")
