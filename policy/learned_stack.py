@@ -28,6 +28,7 @@ from pathlib import Path
 from typing import Any
 
 from .lerobot_offline import force_offline
+from .word_tokenizer import word_level_tokenizer
 
 force_offline()
 
@@ -59,18 +60,12 @@ class LearnedStackSpec:
 def write_tiny_clip(folder: str | Path, width: int = 32, seed: int = 0) -> Path:
     """A CLIP text encoder (random weights drawn with ``seed``) and a word-level tokenizer in ``folder``."""
     import torch
-    from tokenizers import Tokenizer, normalizers, pre_tokenizers
-    from tokenizers.models import WordLevel
-    from transformers import CLIPTextConfig, CLIPTextModel, PreTrainedTokenizerFast
+    from transformers import CLIPTextConfig, CLIPTextModel
 
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     vocab = {token: index for index, token in enumerate(SPECIAL_TOKENS + PROMPT_WORDS)}
-    core = Tokenizer(WordLevel(vocab, unk_token="[UNK]"))
-    core.normalizer = normalizers.Lowercase()
-    core.pre_tokenizer = pre_tokenizers.Whitespace()
-    tokenizer = PreTrainedTokenizerFast(tokenizer_object=core, unk_token="[UNK]", pad_token="[PAD]",
-                                        eos_token="[EOS]", model_max_length=16)
+    tokenizer = word_level_tokenizer(list(vocab), pad_token="[PAD]", eos_token="[EOS]", model_max_length=16)
     tokenizer.save_pretrained(folder)
     config = CLIPTextConfig(vocab_size=len(vocab), hidden_size=width, intermediate_size=2 * width, num_hidden_layers=1,
                             num_attention_heads=2, max_position_embeddings=16, projection_dim=width,

@@ -24,6 +24,7 @@ import numpy as np
 from .lerobot_backend import TOKENIZER_DIRNAME, enable_rtc
 from .lerobot_checkpoint import save_checkpoint
 from .lerobot_offline import force_offline
+from .word_tokenizer import word_level_tokenizer
 
 force_offline()
 
@@ -45,17 +46,9 @@ class Pi05Spec:
 
 def write_tokenizer(folder: str | Path, words: list[str] = PROMPT_WORDS) -> Path:
     """A word-level tokenizer over ``words`` (lower-cased, split on white space), saved in ``folder``."""
-    from tokenizers import Tokenizer, normalizers, pre_tokenizers
-    from tokenizers.models import WordLevel
-    from transformers import PreTrainedTokenizerFast
-
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
-    vocab = {token: index for index, token in enumerate(["[PAD]", "[UNK]", *dict.fromkeys(words)])}
-    core = Tokenizer(WordLevel(vocab, unk_token="[UNK]"))
-    core.normalizer = normalizers.Lowercase()
-    core.pre_tokenizer = pre_tokenizers.Whitespace()
-    PreTrainedTokenizerFast(tokenizer_object=core, unk_token="[UNK]", pad_token="[PAD]").save_pretrained(folder)
+    word_level_tokenizer(["[PAD]", "[UNK]", *words], pad_token="[PAD]").save_pretrained(folder)
     return folder
 
 

@@ -13,9 +13,8 @@ word-level tokenizer over the words of the cell's prompts. With SmolVLA's action
 the text width) the policy has about 4 to 5 million parameters and answers a 50-step chunk in
 tens of milliseconds on a CPU.
 
-The tokenizer is word-level on purpose: the prompts are short and drawn from a small vocabulary
-("stack the blue cube on the green cube"), so words are the meaningful units and an unknown word
-maps to ``[UNK]`` rather than to noise.
+The tokenizer is word-level (``policy/word_tokenizer.py``): the prompts are short and drawn from a
+small vocabulary.
 
 Importing this module keeps the hub offline (:mod:`policy.lerobot_offline`).
 """
@@ -27,6 +26,7 @@ from pathlib import Path
 from .lerobot_backend import VLM_DIRNAME, enable_rtc
 from .lerobot_checkpoint import save_checkpoint, write_metadata  # noqa: F401  (kept importable from here)
 from .lerobot_offline import force_offline
+from .word_tokenizer import word_level_tokenizer
 
 force_offline()
 
@@ -76,10 +76,7 @@ class TinySmolVLASpec:
 
 def write_tiny_vlm(folder: str | Path, spec: TinySmolVLASpec = TinySmolVLASpec()) -> Path:
     """Write the tiny SmolVLM folder (config, word-level tokenizer, processor); returns it."""
-    from tokenizers import Tokenizer, normalizers, pre_tokenizers
-    from tokenizers.models import WordLevel
     from transformers import (
-        PreTrainedTokenizerFast,
         SmolVLMConfig,
         SmolVLMImageProcessor,
         SmolVLMProcessor,
@@ -90,12 +87,8 @@ def write_tiny_vlm(folder: str | Path, spec: TinySmolVLASpec = TinySmolVLASpec()
     folder.mkdir(parents=True, exist_ok=True)
     words = list(dict.fromkeys(PROMPT_WORDS + list(spec.extra_words)))
     vocab = {token: index for index, token in enumerate(SPECIAL_TOKENS + words)}
-    core = Tokenizer(WordLevel(vocab, unk_token="[UNK]"))
-    core.normalizer = normalizers.Lowercase()
-    core.pre_tokenizer = pre_tokenizers.Whitespace()
-    tokenizer = PreTrainedTokenizerFast(
-        tokenizer_object=core,
-        unk_token="[UNK]",
+    tokenizer = word_level_tokenizer(
+        list(vocab),
         pad_token="[PAD]",
         additional_special_tokens=SPECIAL_TOKENS[2:],
         extra_special_tokens={
