@@ -83,7 +83,9 @@ cubes: ``policy.cube_locator.CubeLocatorConfig``) and ``relative_actions`` (true
 the joints' offset from the observed state, see :meth:`LeRobotBackend.infer`) and ``chunk_samples``
 (a flow the backend samples itself: its chunk is the mean of this many samples, 1 if absent) and
 ``action_range`` (``{"min": [...], "max": [...]}`` per action column: the answered chunk is clipped
-into the range of the labels the policy was trained on)."""
+into the range of the labels the policy was trained on) and ``stack_keypoints`` (with ``cube_locator``:
+the located cubes also reach the policy as the arm's joints at the stack's four poses, as offsets
+from the observed joints: ``policy.stack_keypoints.KeypointConfig``)."""
 CLIP_DIRNAME = "clip"
 """A checkpoint's local CLIP text-encoder folder (see ``learned_stack``); used instead of the hub name."""
 FLOW_SAMPLED_TYPES = frozenset({"multi_task_dit"})
@@ -472,6 +474,10 @@ class LeRobotBackend:
         """(low, high) per action column the chunk is clipped into (the metadata's ``action_range``)."""
         self.located: np.ndarray | None = None
         """The cube features located in the current episode's first request."""
+        self.keypoint_config: Any = None
+        """``KeypointConfig`` when the metadata names ``stack_keypoints``."""
+        self.keypoints: np.ndarray | None = None
+        """(4, arm joints): the current episode's keypoints (``stack_keypoints``)."""
         self._mappings: dict[tuple[str, ...], dict[str, str]] = {}
 
     # -- lifecycle ---
@@ -551,12 +557,21 @@ class LeRobotBackend:
             from .cube_locator import CubeLocatorConfig
 
             self.locator = CubeLocatorConfig.from_json(self.metadata["cube_locator"], str(metadata_path))
+        self.keypoint_config = None
+        if "stack_keypoints" in self.metadata:
+            from .stack_keypoints import KeypointConfig
+
+            if self.locator is None:
+                raise OptionError(f"checkpoint '{folder}': {METADATA_FILE} has stack_keypoints without a cube_locator")
+            self.keypoint_config = KeypointConfig.from_json(self.metadata["stack_keypoints"], str(metadata_path))
         fed = sorted(self.ignored_images & {camera_name(k) for k in self.camera_keys})
         if fed:
             raise OptionError(f"checkpoint '{folder}': {METADATA_FILE} ignores images [{', '.join(fed)}] that are cameras it uses")
         self.state_dim = int(config.input_features[STATE_KEY].shape[0]) if STATE_KEY in config.input_features else 0
         if self.locator is not None:
             self.state_dim -= 3 * len(self.locator.colors)  # x, y, yaw per located cube follow the joints
+        if self.keypoint_config is not None:
+            self.state_dim -= 4 * len(self.keypoint_config.chain.joint_names)  # then the keypoints' offsets
         self.action_dim = int(config.output_features[ACTION_KEY].shape[0])
         self.action_range = checked_action_range(self.metadata.get("action_range"), self.action_dim, str(metadata_path))
         names = options.joint_names or self.metadata.get("joint_names")
@@ -623,6 +638,10 @@ class LeRobotBackend:
             columns = self._columns(request)
             if self.locator is not None and (request.new_episode or self.located is None):
                 self.located = self._locate(request)
+                if self.keypoint_config is not None:
+                    from .stack_keypoints import stack_keypoints
+
+                    self.keypoints = stack_keypoints(self.located, self.keypoint_config)
             observation = self._observation(request)
             guidance = self._guidance(request)
         except (ValueError, CameraMappingError) as exc:
@@ -697,6 +716,16 @@ class LeRobotBackend:
             state = state[joint_order(request.joint_names, self.joint_names)]
         if self.locator is not None:
             state = np.concatenate([state, self.located])
+        if self.keypoint_config is not None:
+            from .stack_keypoints import keypoint_features
+
+            names = list(self.joint_names or request.joint_names)
+            missing = [n for n in self.keypoint_config.chain.joint_names if n not in names]
+            if missing:
+                raise OptionError(f"the policy's keypoints are of joints [{', '.join(missing)}], which the state "
+                                  f"[{', '.join(names)}] does not have")
+            arm = [names.index(n) for n in self.keypoint_config.chain.joint_names]
+            state = np.concatenate([state, keypoint_features(state[arm], self.keypoints)]).astype(np.float32)
         observation: dict[str, Any] = {STATE_KEY: torch.from_numpy(state), "task": request.prompt}
         mapping = self._camera_mapping(self._fed_images(request))
         for name, key in mapping.items():

@@ -56,6 +56,7 @@ from typing import Callable, Protocol, Sequence
 import numpy as np
 
 from policy.backend import PolicyRequest, PolicyResponse
+from policy.stack_keypoints import StackGeometry, stack_poses, tcp_yaw, top_down_pose, wrap_quarter
 from runtime.errors import ObjectiveError
 
 COLORS = ("red", "green", "blue")
@@ -145,36 +146,6 @@ def cube_yaw(quat_wxyz: Sequence[float]) -> float:
     up_axis = int(np.argmax(np.abs(rotation[2, :])))
     side = rotation[:, (up_axis + 1) % 3]
     return wrap_quarter(math.atan2(side[1], side[0]))
-
-
-def wrap_quarter(angle: float) -> float:
-    """``angle`` modulo pi/2, in [-pi/4, pi/4)."""
-    return (angle + math.pi / 4) % (math.pi / 2) - math.pi / 4
-
-
-def tcp_yaw(pose: np.ndarray) -> float:
-    """Heading of the TCP's x axis projected on the table."""
-    return math.atan2(pose[1, 0], pose[0, 0])
-
-
-def aligned_yaw(face_yaw: float, reference: float) -> float:
-    """The yaw equal to ``face_yaw`` modulo pi/2 that is closest to ``reference``."""
-    return reference + wrap_quarter(face_yaw - reference)
-
-
-def top_down_pose(position: Sequence[float], yaw: float) -> np.ndarray:
-    """TCP pose at ``position`` pointing straight down, its x axis at heading ``yaw``.
-
-    With z = -world z and x = (cos yaw, sin yaw, 0), the fingers (closing along y) close along
-    (sin yaw, -cos yaw, 0).
-    """
-    c, s = math.cos(yaw), math.sin(yaw)
-    pose = np.eye(4)
-    pose[:3, 0] = (c, s, 0.0)
-    pose[:3, 1] = (s, -c, 0.0)
-    pose[:3, 2] = (0.0, 0.0, -1.0)
-    pose[:3, 3] = position
-    return pose
 
 
 # ---------------------------------------------------------------------------------------------
@@ -367,13 +338,11 @@ def plan_stack(
     top_pos, top_quat = (np.asarray(v, dtype=float) for v in top_pose)
     bottom_pos, bottom_quat = (np.asarray(v, dtype=float) for v in bottom_pose)
     q_start = np.asarray(q_start, dtype=float)
-    current_yaw = tcp_yaw(kinematics.tcp_pose(q_start))
-
-    grasp_yaw = aligned_yaw(cube_yaw(top_quat), current_yaw)
-    grasp = top_pos + np.array([0.0, 0.0, config.grasp_height])
-    # The held cube keeps its offset to the TCP; rotate to the bottom cube's faces for a neat stack.
-    place_yaw = aligned_yaw(cube_yaw(bottom_quat), grasp_yaw)
-    place = bottom_pos + np.array([0.0, 0.0, config.cube_size + config.place_clearance + config.grasp_height])
+    poses = stack_poses(top_pos, cube_yaw(top_quat), bottom_pos, cube_yaw(bottom_quat),
+                        tcp_yaw(kinematics.tcp_pose(q_start)), StackGeometry(
+                            config.grasp_height, config.approach_height, config.cube_size, config.place_clearance))
+    grasp_yaw, place_yaw = poses.grasp_yaw_rad, poses.place_yaw_rad
+    grasp, place = poses.grasp[:3, 3], poses.place[:3, 3]
     up = np.array([0.0, 0.0, config.approach_height])
 
     def ik(position: np.ndarray, yaw: float, seed: np.ndarray, what: str) -> np.ndarray:

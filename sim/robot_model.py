@@ -165,3 +165,37 @@ def load_waypoints(path: str | os.PathLike = WAYPOINTS_PATH) -> dict[str, dict[s
             raise ValueError(f"{path}: waypoint {name!r} needs equally long 'joints' and 'positions' lists")
         out[str(name)] = {str(j): float(v) for j, v in zip(joints, values)}
     return out
+
+
+def arm_chain():
+    """The arm's kinematic chain from the base to the TCP (``policy.stack_keypoints.ArmChain``), read
+    from the planning model: what a policy that solves for the arm's joints carries in its checkpoint."""
+    import numpy as np
+    import pinocchio as pin
+
+    from policy.stack_keypoints import ArmChain
+
+    model = planning_robot_model().model
+    tcp = model.frames[model.getFrameId(TCP_SITE)]
+    joints, joint = [], tcp.parentJoint
+    while joint > 0:
+        joints.append(joint)
+        joint = model.parents[joint]
+    joints.reverse()
+    names = tuple(model.names[j] for j in joints)
+    if names != ARM_JOINTS:
+        raise ValueError(f"the chain to {TCP_SITE!r} is {list(names)}, not the arm's joints {list(ARM_JOINTS)}")
+    named_axes = {"RX": (1.0, 0.0, 0.0), "RY": (0.0, 1.0, 0.0), "RZ": (0.0, 0.0, 1.0)}
+    axes = []
+    for j in joints:
+        kind = model.joints[j].shortname().removeprefix("JointModel")
+        if kind in named_axes:
+            axes.append(np.array(named_axes[kind]))
+        elif kind == "RevoluteUnaligned":
+            axes.append(np.asarray(model.joints[j].extract().axis, dtype=float))
+        else:
+            raise ValueError(f"joint {model.names[j]!r} is a {kind} joint; the arm chain takes revolute joints only")
+    q_index = [model.joints[j].idx_q for j in joints]
+    return ArmChain(names, tuple(model.jointPlacements[j].homogeneous.copy() for j in joints), tuple(axes),
+                    pin.SE3(tcp.placement).homogeneous.copy(), model.lowerPositionLimit[q_index].copy(),
+                    model.upperPositionLimit[q_index].copy())

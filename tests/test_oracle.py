@@ -15,16 +15,14 @@ from sim.oracle import (
     OracleConfig,
     PromptError,
     SceneKinematics,
-    aligned_yaw,
     cube_yaw,
     linear_path,
     min_jerk,
     parse_prompt,
     plan_stack,
     segment_duration,
-    tcp_yaw,
-    top_down_pose,
 )
+from policy.stack_keypoints import aligned_yaw, tcp_yaw, top_down_pose
 from sim.robot_model import GRIPPER_DRIVER_JOINT
 
 HOME = np.array([-1.5708, -1.5708, 1.5708, -1.5708, -1.5708, 0.0])

@@ -65,17 +65,98 @@ def frame_settings(args: argparse.Namespace, seeds: tuple[int, ...]):
         grasp_height_m=args.grasp_height)
 
 
-def load_frames(args: argparse.Namespace):
-    """The plan frames of ``args.layouts`` layouts, played ``args.part`` layouts at a time into the cache."""
+def load_frames(args: argparse.Namespace, first: int | None = None, count: int | None = None):
+    """The plan frames of ``count`` layouts from ``first`` (default: the training's), played ``args.part``
+    layouts at a time into the cache."""
     from tools.plan_frames import make_plan_frames
 
-    end = args.layout_seed + args.layouts
+    first = args.layout_seed if first is None else first
+    end = first + (args.layouts if count is None else count)
     parts = [make_plan_frames(frame_settings(args, tuple(range(start, min(start + args.part, end)))), PROMPT,
-                              args.cache, workers=args.workers) for start in range(args.layout_seed, end, args.part)]
+                              args.cache, workers=args.workers) for start in range(first, end, args.part)]
     frames = parts[0]
     for part in parts[1:]:
         frames = frames.joined(part)
     return frames
+
+
+def keypoint_config(args: argparse.Namespace):
+    """The policy's keypoint configuration: the arm's chain and Home from the planning model, the
+    geometry of the played plans (``--grasp-height``)."""
+    import numpy as np
+
+    from policy.stack_keypoints import KeypointConfig, StackGeometry
+    from sim.cell_model import HOME_CONFIGURATION, CellOptions
+    from sim.oracle import OracleConfig
+    from sim.robot_model import arm_chain
+
+    oracle = OracleConfig()
+    size = CellOptions().cube_size
+    geometry = StackGeometry(args.grasp_height if args.grasp_height > 0 else oracle.grasp_height,
+                             oracle.approach_height, oracle.cube_size, oracle.place_clearance)
+    return KeypointConfig(arm_chain(), np.asarray(HOME_CONFIGURATION, dtype=float), geometry, size / 2)
+
+
+class LocatedFeatures:
+    """What the perception stage gives the chunk model for each frame's layout: the located cubes
+    (``cube_features``) and their keypoints (``stack_keypoints``), exact and with ``draws`` draws
+    of the perception's error per layout (each with its keypoints solved again)."""
+
+    def __init__(self, rows: "np.ndarray", cubes: "np.ndarray", keypoints: "np.ndarray") -> None:
+        self.rows = rows
+        """Each frame's layout index."""
+        self.cubes = cubes
+        """(layouts, 1 + draws, 6): draw 0 exact."""
+        self.keypoints = keypoints
+        """(layouts, 1 + draws, 4, 6)."""
+
+    @classmethod
+    def of_layouts(cls, seeds: list[int], config: Any, args: argparse.Namespace) -> "LocatedFeatures":
+        import numpy as np
+
+        from policy.cube_locator import layout_features
+        from policy.stack_keypoints import stack_keypoints
+        from sim.layouts import layout
+
+        order = sorted(set(seeds))
+        index = {seed: i for i, seed in enumerate(order)}
+        cubes = np.empty((len(order), 1 + args.perception_draws, 6))
+        for i, seed in enumerate(order):
+            placed = layout(seed)
+            cubes[i, 0] = layout_features([placed["blue"], placed["green"]])
+            rng = np.random.default_rng([args.seed, seed])
+            for draw in range(1, 1 + args.perception_draws):
+                cubes[i, draw] = perceived_numpy(cubes[i, 0], args.position_noise, args.yaw_noise, rng)
+        keypoints = np.stack([[stack_keypoints(c, config) for c in layout_cubes] for layout_cubes in cubes])
+        return cls(np.array([index[seed] for seed in seeds]), cubes, keypoints)
+
+    def features(self, frames: Any, state: Any, draws: Any) -> Any:
+        """(len(frames), 30) float32 for frame numbers ``frames`` observed at ``state`` (their joints, the
+        arm's six first), each with perception draw ``draws`` (0: exact): the cubes, then the keypoints'
+        offsets from the observed arm joints."""
+        import numpy as np
+        import torch
+
+        layouts, draws = self.rows[np.asarray(frames)], np.asarray(draws)
+        arm = np.asarray(state)[:, : self.keypoints.shape[-1]].astype(float)
+        offsets = (self.keypoints[layouts, draws] - arm[:, None, :]).reshape(len(arm), -1)
+        return torch.from_numpy(np.concatenate([self.cubes[layouts, draws], offsets], axis=1).astype(np.float32))
+
+    def exact(self, state: Any) -> Any:
+        """``features`` of every frame (``state``: all frames' joints) with the exact cubes."""
+        import numpy as np
+
+        return self.features(np.arange(len(state)), state.numpy(), np.zeros(len(state), dtype=int))
+
+
+def perceived_numpy(cubes: "np.ndarray", position_noise_m: float, yaw_noise_rad: float, rng: Any) -> "np.ndarray":
+    """``cubes`` (x, y, yaw per cube) with the perception's error drawn: Gaussian, yaw wrapped to a quarter turn."""
+    import numpy as np
+
+    scale = np.array([position_noise_m, position_noise_m, yaw_noise_rad] * (len(cubes) // 3))
+    noisy = cubes + rng.standard_normal(cubes.shape) * scale
+    noisy[2::3] = np.remainder(noisy[2::3] + math.pi / 4, math.pi / 2) - math.pi / 4
+    return noisy
 
 
 def locator_config(cell: Any):
@@ -119,6 +200,10 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--layers", type=int, default=3, help="the DiT's layers")
     parser.add_argument("--position-noise", type=float, default=0.001, help="std of the located positions' error (m)")
     parser.add_argument("--yaw-noise", type=float, default=0.035, help="std of the located yaws' error (rad)")
+    parser.add_argument("--perception-draws", type=int, default=8,
+                        help="perception errors drawn per layout (each with its keypoints solved); a batch row takes one")
+    parser.add_argument("--validation-layouts", type=int, default=20,
+                        help="layouts after the training ones whose frames measure the fit on unseen layouts (0: none)")
     parser.add_argument("--noise-scale", type=float, default=1.0,
                         help="objective_policy.json's noise_scale: 1 samples as trained (0, a zero start, lies off the "
                              "training's noise and answers chunks 0.07 rad from the labels)")
@@ -149,8 +234,9 @@ def main(argv: list[str] | None = None) -> int:
 
     torch.manual_seed(args.seed)
     torch.set_num_threads(args.threads)
-    cubes = frame_cubes(frames.seeds)
-    state = torch.cat([frames.state, torch.from_numpy(cubes)], dim=1)
+    keypoints = keypoint_config(args)
+    located = LocatedFeatures.of_layouts(frames.seeds, keypoints, args)
+    state = torch.cat([frames.state, located.exact(frames.state)], dim=1)
     action = frames.action - frames.state[:, None, :]  # relative to the observed joints
     stats = {"observation.state": min_max_stats(state), "action": min_max_stats(action.reshape(-1, action.shape[-1]))}
     staging = args.out.with_name(args.out.name + ".building")
@@ -158,7 +244,8 @@ def main(argv: list[str] | None = None) -> int:
         import shutil
 
         shutil.rmtree(staging)
-    spec = LearnedStackSpec(joint_dim=frames.state.shape[1], cube_dim=cubes.shape[1], chunk_size=args.chunk,
+    spec = LearnedStackSpec(joint_dim=frames.state.shape[1], cube_dim=state.shape[1] - frames.state.shape[1],
+                            chunk_size=args.chunk,
                             hidden_dim=args.hidden, layers=args.layers,
                             integration_steps=args.integration_steps)
     config, policy = build_learned_stack(spec, write_tiny_clip(staging / CLIP_DIRNAME, seed=args.seed))
@@ -167,9 +254,15 @@ def main(argv: list[str] | None = None) -> int:
     preprocessor, postprocessor = make_pre_post_processors(config, dataset_stats=stats)
     LOG.info("multi_task_dit (flow matching): %.2f M trainable parameters; %d frames", sum(
         p.numel() for p in policy.parameters() if p.requires_grad) / 1e6, len(state))
-    run = train(policy, preprocessor, state, action, cubes.shape[1], args)
+    run = train(policy, preprocessor, frames.state, action, located, args)
     run["fit_rad"] = training_fit_rad(policy, preprocessor, postprocessor, state, action, args.seed)
     LOG.info("sampled chunks against their labels on training frames: %.4f rad mean", run["fit_rad"])
+    if args.validation_layouts > 0:
+        unseen = load_frames(args, args.layout_seed + args.layouts, args.validation_layouts)
+        unseen_state = torch.cat([unseen.state, LocatedFeatures.of_layouts(unseen.seeds, keypoints, args).exact(unseen.state)], 1)
+        run["unseen_fit_rad"] = training_fit_rad(policy, preprocessor, postprocessor, unseen_state,
+                                                 unseen.action - unseen.state[:, None, :], args.seed)
+        LOG.info("... on frames of %d unseen layouts: %.4f rad mean", args.validation_layouts, run["unseen_fit_rad"])
     cell = MujocoCell(CellOptions())
     try:
         locator = locator_config(cell)
@@ -180,10 +273,12 @@ def main(argv: list[str] | None = None) -> int:
         "ignored_images": ["scene", "wrist", "overview"], "default_guidance_horizon": 10,
         "noise_scale": args.noise_scale, "chunk_samples": args.chunk_samples,
         "action_range": action_range(frames.action), "cube_locator": locator.to_json(), "relative_actions": True,
+        "stack_keypoints": keypoints.to_json(),
         "training": {
             "policy_type": "multi_task_dit", "objective": "flow_matching", "seed": args.seed, **run,
             "batch": args.batch, "lr": args.lr, "threads": args.threads, "hidden": args.hidden, "layers": args.layers,
             "position_noise_m": args.position_noise, "yaw_noise_rad": args.yaw_noise,
+            "perception_draws": args.perception_draws,
             "layout_seeds": [args.layout_seed, args.layout_seed + args.layouts - 1], "layouts_dropped": frames.dropped,
             "frames": len(state), "motion_noise_rad": args.motion_noise, "data_sha256": frames_hash(frames),
         },
@@ -209,20 +304,6 @@ def point_at_clip(folder: Path, built_at: Path) -> None:
         path.write_text(path.read_text(encoding="utf-8").replace(str(built_at), str(folder / "clip")), encoding="utf-8")
 
 
-def frame_cubes(seeds: list[int]) -> "np.ndarray":
-    """Each frame's cube features (``layout_features``) from its layout seed: blue, then green."""
-    import numpy as np
-
-    from policy.cube_locator import layout_features
-    from sim.layouts import layout
-
-    by_seed = {}
-    for seed in set(seeds):
-        placed = layout(seed)
-        by_seed[seed] = layout_features([placed["blue"], placed["green"]])
-    return np.stack([by_seed[seed] for seed in seeds]).astype(np.float32)
-
-
 def action_range(action: Any) -> dict:
     """The labels' range per joint (``objective_policy.json``'s ``action_range``: the served chunk stays inside it)."""
     flat = action.reshape(-1, action.shape[-1])
@@ -244,17 +325,6 @@ def frames_hash(frames: Any) -> str:
     return digest.hexdigest()
 
 
-def perceived(cubes: Any, position_noise_m: float, yaw_noise_rad: float, generator: Any) -> Any:
-    """``cubes`` (B, 3 per cube: x, y, yaw) with the perception's error drawn: Gaussian, yaw wrapped to a quarter turn."""
-    import torch
-
-    noise = torch.randn(cubes.shape, generator=generator)
-    scale = torch.tensor([position_noise_m, position_noise_m, yaw_noise_rad] * (cubes.shape[1] // 3))
-    noisy = cubes + noise * scale
-    noisy[:, 2::3] = torch.remainder(noisy[:, 2::3] + math.pi / 4, math.pi / 2) - math.pi / 4
-    return noisy
-
-
 def training_fit_rad(policy: Any, preprocessor: Any, postprocessor: Any, state: Any, action: Any, seed: int,
                      rows: int = 256) -> float:
     """Mean absolute error (rad) of sampled chunks against their labels on ``rows`` evenly spaced training
@@ -271,8 +341,9 @@ def training_fit_rad(policy: Any, preprocessor: Any, postprocessor: Any, state: 
     return round(float((chunks - action[picked]).abs().mean()), 5)
 
 
-def train(policy: Any, preprocessor: Any, state: Any, action: Any, cube_dim: int, args: argparse.Namespace) -> dict:
-    """AdamW on random batches for ``args.steps`` or ``args.minutes``; the cubes get the perception's error."""
+def train(policy: Any, preprocessor: Any, joints: Any, action: Any, located: LocatedFeatures, args: argparse.Namespace) -> dict:
+    """AdamW on random batches for ``args.steps`` or ``args.minutes``; each row's located features with
+    one of its layout's perception draws."""
     import torch
 
     from tools.demo_training import learning_rate_factor
@@ -283,14 +354,14 @@ def train(policy: Any, preprocessor: Any, state: Any, action: Any, cube_dim: int
     policy.train()
     started, losses, step = time.monotonic(), [], 0
     budget_s = args.minutes * 60.0
-    joints = state.shape[1] - cube_dim
     while step < args.steps and time.monotonic() - started < budget_s:
         progress = max(step / args.steps, (time.monotonic() - started) / budget_s)
         for group in optimizer.param_groups:
             group["lr"] = args.lr * learning_rate_factor(step, max(1, args.steps // 20), progress)
-        rows = torch.randint(len(state), (args.batch,), generator=generator)
-        observed = state[rows].clone()
-        observed[:, joints:] = perceived(observed[:, joints:], args.position_noise, args.yaw_noise, generator)
+        rows = torch.randint(len(joints), (args.batch,), generator=generator)
+        draws = torch.randint(1, 1 + args.perception_draws, (args.batch,), generator=generator) \
+            if args.perception_draws > 0 else torch.zeros(args.batch, dtype=torch.long)
+        observed = torch.cat([joints[rows], located.features(rows.numpy(), joints[rows].numpy(), draws.numpy())], dim=1)
         batch = preprocessor({"observation.state": observed, "action": action[rows], "task": [PROMPT] * args.batch})
         batch["observation.state"] = batch["observation.state"].unsqueeze(1)
         loss, _ = policy.forward(batch)
