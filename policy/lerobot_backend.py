@@ -85,7 +85,7 @@ the joints' offset from the observed state, see :meth:`LeRobotBackend.infer`) an
 ``action_range`` (``{"min": [...], "max": [...]}`` per action column: the answered chunk is clipped
 into the range of the labels the policy was trained on) and ``stack_keypoints`` (with ``cube_locator``:
 the located cubes also reach the policy as the arm's joints at the stack's four poses, as offsets
-from the observed joints: ``policy.stack_keypoints.KeypointConfig``)."""
+from the observed joints and their fine copy: ``policy.stack_keypoints.keypoint_features``)."""
 CLIP_DIRNAME = "clip"
 """A checkpoint's local CLIP text-encoder folder (see ``learned_stack``); used instead of the hub name."""
 FLOW_SAMPLED_TYPES = frozenset({"multi_task_dit"})
@@ -571,7 +571,9 @@ class LeRobotBackend:
         if self.locator is not None:
             self.state_dim -= 3 * len(self.locator.colors)  # x, y, yaw per located cube follow the joints
         if self.keypoint_config is not None:
-            self.state_dim -= 4 * len(self.keypoint_config.chain.joint_names)  # then the keypoints' offsets
+            from .stack_keypoints import keypoint_feature_count
+
+            self.state_dim -= keypoint_feature_count(len(self.keypoint_config.chain.joint_names))  # then the keypoints'
         self.action_dim = int(config.output_features[ACTION_KEY].shape[0])
         self.action_range = checked_action_range(self.metadata.get("action_range"), self.action_dim, str(metadata_path))
         names = options.joint_names or self.metadata.get("joint_names")

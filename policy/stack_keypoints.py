@@ -264,6 +264,19 @@ def stack_keypoints(cubes: np.ndarray, config: KeypointConfig) -> np.ndarray:
     return np.stack([pre_grasp, grasp, pre_place, chain.solve_ik(poses.place, pre_place)])
 
 
+FINE_SCALE_RAD = 0.05
+"""The scale of the keypoint offsets' fine copy: ``tanh(offset / FINE_SCALE_RAD)`` resolves the last
+centimetres of an approach, which the offsets themselves (normalised over their range of radians) blur."""
+
+
+def keypoint_feature_count(arm_joints: int) -> int:
+    """How many values ``keypoint_features`` gives for an arm of ``arm_joints`` joints."""
+    return 2 * len(KEYPOINTS) * arm_joints
+
+
 def keypoint_features(arm_rad: np.ndarray, keypoints: np.ndarray) -> np.ndarray:
-    """The keypoints' offsets from the observed arm joints, flattened (keypoint by keypoint)."""
-    return (np.asarray(keypoints, dtype=float) - np.asarray(arm_rad, dtype=float)[None, :]).reshape(-1)
+    """The keypoints' offsets from the observed arm joints, flattened keypoint by keypoint, then their fine
+    copy (``FINE_SCALE_RAD``). Batched: ``arm_rad`` (..., J) and ``keypoints`` (..., 4, J) give (..., 8 J)."""
+    arm = np.asarray(arm_rad, dtype=float)
+    offsets = (np.asarray(keypoints, dtype=float) - arm[..., None, :]).reshape(*arm.shape[:-1], -1)
+    return np.concatenate([offsets, np.tanh(offsets / FINE_SCALE_RAD)], axis=-1)

@@ -9,9 +9,11 @@ import pytest
 
 from policy.cube_locator import layout_features
 from policy.stack_keypoints import (
+    FINE_SCALE_RAD,
     KeypointConfig,
     KeypointError,
     StackGeometry,
+    keypoint_feature_count,
     keypoint_features,
     stack_keypoints,
     stack_poses,
@@ -74,13 +76,18 @@ def test_the_poses_point_down_and_square_the_cubes():
     assert poses.grasp[:3, 2] == pytest.approx([0.0, 0.0, -1.0])
 
 
-def test_the_features_are_the_keypoints_offsets_from_the_observed_arm():
-    keypoints = np.arange(24.0).reshape(4, 6)
-    arm = np.array([1.0, 2.0, 3.0, 4.0, 5.0, 6.0])
+def test_the_features_are_the_keypoints_offsets_from_the_observed_arm_then_their_fine_copy():
+    keypoints = np.arange(24.0).reshape(4, 6) * 0.01
+    arm = np.array([1.0, 2.0, 3.0, 4.0, 5.0, 6.0]) * 0.01
     features = keypoint_features(arm, keypoints)
-    assert features.shape == (24,)
+    assert features.shape == (48,) == (keypoint_feature_count(6),)
     assert features[:6] == pytest.approx(keypoints[0] - arm)
-    assert features[18:] == pytest.approx(keypoints[3] - arm)
+    assert features[18:24] == pytest.approx(keypoints[3] - arm)
+    assert features[24:30] == pytest.approx(np.tanh((keypoints[0] - arm) / FINE_SCALE_RAD))
+    assert features[24] == pytest.approx(np.tanh(-0.01 / 0.05))  # 1 cm-ish off: -0.197, where the offset reads -0.01
+    batched = keypoint_features(np.stack([arm, arm + 0.5]), np.stack([keypoints, keypoints]))
+    assert batched.shape == (2, 48)
+    assert batched[0] == pytest.approx(features) and batched[1, :6] == pytest.approx(keypoints[0] - arm - 0.5)
 
 
 def test_the_configuration_round_trips_and_broken_ones_name_what_is_wrong(config):

@@ -46,10 +46,20 @@ GRIPPER_JOINT = "robotiq_85_left_knuckle_joint"
 HELD_OUT = range(100, 150)
 
 
+def policy_start_rad() -> tuple[float, ...]:
+    """The arm where the Objective hands it to the policy: the ``Home`` waypoint
+    (sim/config/waypoints.yaml) that ``Prepare for Policy`` moves to, in the planning model's joint order."""
+    from sim.oracle import SceneKinematics
+    from sim.robot_model import load_waypoints, planning_robot_model
+
+    home = load_waypoints()["Home"]
+    return tuple(float(home[name]) for name in SceneKinematics(planning_robot_model()).joint_names)
+
+
 def frame_settings(args: argparse.Namespace, seeds: tuple[int, ...]):
-    """The plan frames' settings (``tools.plan_frames``): no camera, a frame every step, the recorder's
-    demonstration settings (gripper at 0.5 rad/s, 0.04 rad recovery noise, 2 s held after the plan)."""
-    from sim.cell_model import HOME_CONFIGURATION
+    """The plan frames' settings (``tools.plan_frames``): from the arm where the Objective starts the
+    policy (``policy_start_rad``), no camera, a frame every step, the recorder's demonstration settings
+    (gripper at 0.5 rad/s, 0.04 rad recovery noise, 2 s held after the plan)."""
     from sim.robot_model import planning_robot_model
     from sim.oracle import SceneKinematics
     from tools.plan_frames import PlanFrameSettings
@@ -59,7 +69,7 @@ def frame_settings(args: argparse.Namespace, seeds: tuple[int, ...]):
         raise SystemExit(f"--layout-seed {args.layout_seed}: the layouts would include held-out seeds {reserved[0]}..{reserved[-1]}")
     arm = tuple(SceneKinematics(planning_robot_model()).joint_names)
     return PlanFrameSettings(
-        seeds=seeds, every=args.every, hold_after_plan_s=2.0, home=tuple(HOME_CONFIGURATION) + (0.0,),
+        seeds=seeds, every=args.every, hold_after_plan_s=2.0, home=policy_start_rad() + (0.0,),
         joint_names=arm + (GRIPPER_JOINT,), cameras=(), image_size=64, crops=(), size=64, chunk=args.chunk,
         control_period_s=0.1, gripper_velocity=0.5, motion_noise_rad=args.motion_noise,
         grasp_height_m=args.grasp_height)
@@ -81,12 +91,12 @@ def load_frames(args: argparse.Namespace, first: int | None = None, count: int |
 
 
 def keypoint_config(args: argparse.Namespace):
-    """The policy's keypoint configuration: the arm's chain and Home from the planning model, the
-    geometry of the played plans (``--grasp-height``)."""
+    """The policy's keypoint configuration: the arm's chain from the planning model, the IK's first seed
+    where the policy starts (``policy_start_rad``), the geometry of the played plans (``--grasp-height``)."""
     import numpy as np
 
     from policy.stack_keypoints import KeypointConfig, StackGeometry
-    from sim.cell_model import HOME_CONFIGURATION, CellOptions
+    from sim.cell_model import CellOptions
     from sim.oracle import OracleConfig
     from sim.robot_model import arm_chain
 
@@ -94,7 +104,7 @@ def keypoint_config(args: argparse.Namespace):
     size = CellOptions().cube_size
     geometry = StackGeometry(args.grasp_height if args.grasp_height > 0 else oracle.grasp_height,
                              oracle.approach_height, oracle.cube_size, oracle.place_clearance)
-    return KeypointConfig(arm_chain(), np.asarray(HOME_CONFIGURATION, dtype=float), geometry, size / 2)
+    return KeypointConfig(arm_chain(), np.asarray(policy_start_rad(), dtype=float), geometry, size / 2)
 
 
 class LocatedFeatures:
@@ -131,15 +141,17 @@ class LocatedFeatures:
         return cls(np.array([index[seed] for seed in seeds]), cubes, keypoints)
 
     def features(self, frames: Any, state: Any, draws: Any) -> Any:
-        """(len(frames), 30) float32 for frame numbers ``frames`` observed at ``state`` (their joints, the
+        """(len(frames), 54) float32 for frame numbers ``frames`` observed at ``state`` (their joints, the
         arm's six first), each with perception draw ``draws`` (0: exact): the cubes, then the keypoints'
-        offsets from the observed arm joints."""
+        features (``policy.stack_keypoints.keypoint_features``)."""
         import numpy as np
         import torch
 
+        from policy.stack_keypoints import keypoint_features
+
         layouts, draws = self.rows[np.asarray(frames)], np.asarray(draws)
         arm = np.asarray(state)[:, : self.keypoints.shape[-1]].astype(float)
-        offsets = (self.keypoints[layouts, draws] - arm[:, None, :]).reshape(len(arm), -1)
+        offsets = keypoint_features(arm, self.keypoints[layouts, draws])
         return torch.from_numpy(np.concatenate([self.cubes[layouts, draws], offsets], axis=1).astype(np.float32))
 
     def exact(self, state: Any) -> Any:
