@@ -13,7 +13,7 @@ that seeds the latency estimate), STREAM, then DONE. The parts, each with its ow
 
 In STREAM each tick follows the controller goal, streams the gripper column, then does what
 ``states.StreamState`` says: send the next request when it is due, read an answered one, or plan
-a held chunk again. ``planner.plan_chunk`` decides (Planned / Wait / Reject), ``checks.PointChecks``
+a held chunk again. ``planner.plan_chunk`` decides (Planned / Wait / Failure), ``checks.PointChecks``
 checks every point, and only ``ControllerStream.send`` sends a motion to the controller. The bus
 clients are built once (``setup``, or the first run when a name comes from the blackboard); each
 run resets the parts (``initialise``). Halting the node cancels the controller goal: the
@@ -21,7 +21,6 @@ controller brings the arm to a smooth stop.
 """
 from __future__ import annotations
 
-import enum
 from types import SimpleNamespace
 from typing import Any
 
@@ -41,6 +40,7 @@ from ..wrench_watch import WrenchWatch
 from .checks import PointChecks
 from .chunk import Chunk, ChunkError, period_problem, read_chunk, read_policy_chunk
 from .controller_stream import ControllerStream
+from .failure import Failure, FailureKind
 from .gripper import GripperStream
 from .metrics import POLICY_RUNS, RunMetrics, summarise_runs
 from .observation import ObservationError, StaleObservation, robot_state
@@ -48,8 +48,6 @@ from .planner import (
     Arrival,
     PlanInput,
     Planned,
-    SHORT_CHUNK,
-    Reject,
     ShapingConfig,
     earliest_seam_step,
     goal_takes_effect_s,
@@ -67,18 +65,6 @@ from ..safety import MotionSafety, SafetyError, make_safety
 STARTUP_WAIT_S = 5.0
 FIRST_CHUNK_GAP_RAD = 0.2
 """A first chunk whose step 0 is further than this from the arm (on any joint) is warned about."""
-
-
-class FailureKind(enum.Enum):
-    """What kind of FAILURE ended the run, besides a rejected chunk's ``checks.CheckKind``."""
-
-    MALFORMED_CHUNK = "malformed chunk"
-    POLICY_ERROR = "policy error"
-    POLICY_TIMEOUT = "policy timeout"
-    CONTROLLER = "controller"
-    GRIPPER = "gripper"
-    SCENE_CHANGED = "scene changed"
-    STALE_OBSERVATION = "stale observation"
 
 
 class ExecutePolicy(Behavior):
@@ -177,7 +163,7 @@ class ExecutePolicy(Behavior):
                 return self._warmup()
             return self._stream()
         except StaleObservation as err:  # a publisher stopped: what the world did, not the setup
-            return self._stop(Status.FAILURE, str(err), FailureKind.STALE_OBSERVATION)
+            return self._fail(Failure(FailureKind.STALE_OBSERVATION, str(err)))
         except (ObservationError, SafetyError) as err:  # e.g. joint states without the group's joints
             raise self._setup_error(str(err)) from None
 
@@ -265,18 +251,16 @@ class ExecutePolicy(Behavior):
     def _warmup(self) -> Status:
         config, now, policy = self.config, self.context.clock.now(), self._policy_link()
         if policy.timed_out(now, config.policy_call_timeout):
-            return self._finish(
-                Status.FAILURE,
-                kind=FailureKind.POLICY_TIMEOUT,
-                message=f"warming up the policy service '{config.policy_service_name}' timed out after {config.policy_call_timeout:g} s "
-                "(raise policy_call_timeout, or make the server finish its own warmup before it reports ready)",
-            )
+            return self._finish(Status.FAILURE, Failure(
+                FailureKind.POLICY_TIMEOUT,
+                f"warming up the policy service '{config.policy_service_name}' timed out after {config.policy_call_timeout:g} s "
+                "(raise policy_call_timeout, or make the server finish its own warmup before it reports ready)"))
         answer = policy.answer(now)
         if answer is None:
             return Status.RUNNING
         if answer.error is not None:  # a transport failure of the warmup call
-            return self._finish(Status.FAILURE, f"warming up the policy service '{config.policy_service_name}' failed: {answer.error}",
-                                FailureKind.POLICY_ERROR)
+            return self._finish(Status.FAILURE, Failure(
+                FailureKind.POLICY_ERROR, f"warming up the policy service '{config.policy_service_name}' failed: {answer.error}"))
         response = answer.response
         if response.status == GetActionChunk.Response.ERROR or response.status == GetActionChunk.Response.UNKNOWN:
             # The warmup is the run's first request with its prompt, joints and cameras: a refusal
@@ -301,7 +285,7 @@ class ExecutePolicy(Behavior):
             self.gripper.stream(now)
             problem = self.gripper.follow()
             if problem is not None:
-                return self._stop(Status.FAILURE, problem, FailureKind.GRIPPER)
+                return self._fail(Failure(FailureKind.GRIPPER, problem))
         self._track_progress(now)
         policy = self._policy_link()
         state = stream_state(self.held, policy.request)
@@ -320,8 +304,7 @@ class ExecutePolicy(Behavior):
         sent = self._sent_motion()
         collision = self.scene_watch.check(self.rules, sent.samples, now, self._gripper_now())
         if collision is not None:
-            return self._stop(Status.FAILURE, f"the planning scene changed: {collision} in the remaining path; robot stopped",
-                              FailureKind.SCENE_CHANGED)
+            return self._fail(Failure(FailureKind.SCENE_CHANGED, f"the planning scene changed: {collision} in the remaining path; robot stopped"))
         if stream_finished(sent, policy.request, self._controller().goal):
             # The controller's success says it played every step sent, whatever this run's clock
             # reads (a robot's clock may run ahead of it).
@@ -359,17 +342,14 @@ class ExecutePolicy(Behavior):
     def _receive(self, now: float) -> Status | None:
         config, policy = self.config, self._policy_link()
         if policy.timed_out(now, config.policy_call_timeout):
-            return self._stop(
-                Status.FAILURE,
-                kind=FailureKind.POLICY_TIMEOUT,
-                message=f"the policy service '{config.policy_service_name}' did not answer within policy_call_timeout = {config.policy_call_timeout:g} s",
-            )
+            return self._fail(Failure(
+                FailureKind.POLICY_TIMEOUT,
+                f"the policy service '{config.policy_service_name}' did not answer within policy_call_timeout = {config.policy_call_timeout:g} s"))
         answer = policy.answer(now)
         if answer is None:
             return None
         if answer.error is not None:
-            return self._stop(Status.FAILURE, f"calling the policy service '{config.policy_service_name}' failed: {answer.error}",
-                              FailureKind.POLICY_ERROR)
+            return self._fail(Failure(FailureKind.POLICY_ERROR, f"calling the policy service '{config.policy_service_name}' failed: {answer.error}"))
         response, flight = answer.response, answer.flight
         policy.latency.update(answer.round_trip_s)
         self.metrics.latencies.append(answer.round_trip_s)
@@ -377,18 +357,18 @@ class ExecutePolicy(Behavior):
         if response.status == GetActionChunk.Response.NO_MORE_ACTIONS:
             return self._stop(Status.SUCCESS, f"the policy has no more actions: {response.message}".rstrip(": "))
         if response.status != GetActionChunk.Response.CHUNK_PRODUCED:
-            return self._stop(Status.FAILURE, self._status_reason(response, f"chunk {self.metrics.chunks + 1}"), FailureKind.POLICY_ERROR)
+            return self._fail(Failure(FailureKind.POLICY_ERROR, self._status_reason(response, f"chunk {self.metrics.chunks + 1}")))
         self.metrics.chunks += 1
         self.received = None  # until this chunk is read
         period = period_problem(response.native_control_period)
         if period is not None:
-            return self._reject(f"chunk {self.metrics.chunks} rejected: {period}", FailureKind.MALFORMED_CHUNK.value)
+            return self._fail(Failure(FailureKind.MALFORMED_CHUNK, f"chunk {self.metrics.chunks} rejected: {period}"))
         self._check_period(response.native_control_period, self.metrics.chunks)
         try:
             chunk = read_chunk(response.chunk, self.safety.group_joints, config.gripper_joint_name or None)
             policy_chunk = read_policy_chunk(response.policy_action_chunk) if config.policy_uses_real_time_chunking else None
         except ChunkError as err:
-            return self._reject(f"chunk {self.metrics.chunks} rejected: {err}", FailureKind.MALFORMED_CHUNK.value)
+            return self._fail(Failure(FailureKind.MALFORMED_CHUNK, f"chunk {self.metrics.chunks} rejected: {err}"))
         if config.policy_uses_real_time_chunking and policy_chunk is None and not self.warned_no_policy_chunk:
             self.warned_no_policy_chunk = True
             self._warn(f"policy_uses_real_time_chunking is true but chunk {self.metrics.chunks} carries no policy_action_chunk: "
@@ -398,7 +378,7 @@ class ExecutePolicy(Behavior):
         self.received = (chunk, flight.request_step)
         problem = cfg.committed_window_problem(config.committed_action_steps, chunk.steps) if self.metrics.chunks == 1 else None
         if problem is not None:
-            return self._reject(f"chunk 1 rejected: {problem}", SHORT_CHUNK)
+            return self._fail(Failure(FailureKind.SHORT_CHUNK, f"chunk 1 rejected: {problem}"))
         if self.metrics.chunks == 1:
             self._check_first_chunk_start(chunk, flight.anchor)
         self._controller().new_chunk()
@@ -426,8 +406,8 @@ class ExecutePolicy(Behavior):
             arrival=Arrival(grid.step_at_or_after(held.flight.future.ready_at),  # arrival, not when we looked
                             goal_takes_effect_s(now, self.context.tick_period_s, controller.planned_latency_s)),
         ))
-        if isinstance(plan, Reject):
-            return self._reject(plan.reason, plan.kind)
+        if isinstance(plan, Failure):
+            return self._fail(plan)
         if not isinstance(plan, Planned):  # Wait
             self.held = held
             return None
@@ -476,7 +456,7 @@ class ExecutePolicy(Behavior):
             self._roll_back(news)
             return None
         if news is not None:
-            return self._stop(Status.FAILURE, news, FailureKind.CONTROLLER)
+            return self._fail(Failure(FailureKind.CONTROLLER, news))
         return None
 
     def _roll_back(self, rollback: Rollback) -> None:
@@ -503,13 +483,15 @@ class ExecutePolicy(Behavior):
         self.metrics.steps_executed = max(self.metrics.steps_executed, sent.grid.steps_executed_by(now))
 
     # -- endings -----------------------------------------------------------------------------
-    def _reject(self, reason: str, kind: str) -> Status:
-        """End the run with a rejected chunk; ``kind`` is a ``CheckKind``'s value, ``SHORT_CHUNK``
-        or ``FailureKind.MALFORMED_CHUNK``'s."""
-        self.metrics.rejections += 1
-        self.rejection = self.metrics.rejection_reason = reason
-        self.context.events.emit("chunk_rejected", self.name, reason=reason, failure_kind=kind, **self._rejected_chunk())
-        return self._stop(Status.FAILURE, reason, kind)
+    def _fail(self, failure: Failure) -> Status:
+        """End the run with ``failure`` (the robot stopped); a rejected chunk is counted and its
+        values go with the ``chunk_rejected`` event."""
+        if failure.rejects_chunk:
+            self.metrics.rejections += 1
+            self.rejection = self.metrics.rejection_reason = failure.detail
+            self.context.events.emit("chunk_rejected", self.name, reason=failure.detail, failure_kind=failure.kind.value,
+                                     **self._rejected_chunk())
+        return self._stop(Status.FAILURE, failure)
 
     def _rejected_chunk(self) -> dict[str, Any]:
         """The chunk being rejected, on the clock, for the report to plot: ``joints``, ``times`` and
@@ -521,21 +503,24 @@ class ExecutePolicy(Behavior):
         return {"joints": list(self.safety.group_joints), "times": [grid.time(request_step + k) for k in range(chunk.steps)],
                 "positions": np.asarray(chunk.arm, dtype=float).round(6).tolist()}
 
-    def _stop(self, status: Status, message: str, kind: FailureKind | str | None = None) -> Status:
+    def _stop(self, status: Status, ending: Failure | str) -> Status:
+        """Cancel the goals and end the run (``_finish``)."""
         stall_s = stall_at_stop_s(self.sent_motion, self.context.clock.now())
         self.metrics.stall_seconds += stall_s
         self._cancel_goals()
-        return self._finish(status, message, kind, stall_s)
+        return self._finish(status, ending, stall_s)
 
-    def _finish(self, status: Status, message: str, kind: FailureKind | str | None = None, stall_s: float = 0.0) -> Status:
-        """End the run with ``status``; a FAILURE says its ``kind`` (``Behavior.failure_kind``);
-        ``stall_s``: how long the arm had been waiting for a chunk when it ended. ``message`` may
+    def _finish(self, status: Status, ending: Failure | str, stall_s: float = 0.0) -> Status:
+        """End the run with ``status`` and ``ending``: a ``Failure`` (its kind is the run's
+        ``Behavior.failure_kind``) or the message of a SUCCESS, or of a FAILURE without a kind;
+        ``stall_s``: how long the arm had been waiting for a chunk when it ended. The message may
         carry the policy's own text: it is kept ``bounded``."""
-        message = bounded(message)
+        kind = ending.kind if isinstance(ending, Failure) else None
+        message = bounded(ending.detail if isinstance(ending, Failure) else ending)
         self.phase = Phase.DONE
         self.message = self.metrics.message = message
         self.feedback_message = message
-        self.failure_kind = kind.value if isinstance(kind, FailureKind) else kind
+        self.failure_kind = kind.value if kind is not None else None
         self._write_outputs()
         self.context.events.emit("policy_finished", self.name, status=status.value, message=message, stall_s=stall_s)
         if status is Status.SUCCESS:

@@ -25,7 +25,8 @@ from sensor_msgs.msg import Image, JointState
 
 from behaviors.controller_link import ControllerLink
 from behaviors.execute_policy import config as cfg
-from behaviors.execute_policy.behavior import FailureKind
+from behaviors.execute_policy.failure import Failure, FailureKind
+from behaviors.execute_policy.checks import CheckKind
 from behaviors.execute_policy.chunk import Chunk, ChunkError, period_problem, read_chunk, read_policy_chunk
 from behaviors.execute_policy.gripper import GripperStream, join_targets
 from behaviors.execute_policy.metrics import RunMetrics, summarise_runs
@@ -120,7 +121,7 @@ class ChunkExecutor(Behavior):
                 return self._warmup()
             return self._run()
         except StaleObservation as err:
-            return self.finish(Status.FAILURE, str(err), FailureKind.STALE_OBSERVATION)
+            return self.fail(Failure(FailureKind.STALE_OBSERVATION, str(err)))
         except (ObservationError, SafetyError) as err:
             raise self.setup_error(str(err)) from None
 
@@ -187,13 +188,12 @@ class ChunkExecutor(Behavior):
         now = self.context.clock.now()
         crossing = self.wrench.crossing() if self.wrench is not None else None
         if crossing is not None:
-            return self.finish(Status.FAILURE, f"force-torque threshold exceeded on '{self.config.wrench_topic}': {crossing}; robot stopped",
-                               FailureKind.CONTROLLER)
+            return self.fail(Failure(FailureKind.CONTROLLER, f"force-torque threshold exceeded on '{self.config.wrench_topic}': {crossing}; robot stopped"))
         if self.gripper is not None:
             self.gripper.stream(now)
             problem = self.gripper.follow()
             if problem is not None:
-                return self.finish(Status.FAILURE, problem, FailureKind.GRIPPER)
+                return self.fail(Failure(FailureKind.GRIPPER, problem))
         return self.run_tick(now) or Status.RUNNING
 
     # -- the policy --------------------------------------------------------------------------
@@ -234,7 +234,7 @@ class ChunkExecutor(Behavior):
             chunk = read_chunk(response.chunk, self.safety.group_joints, self.config.gripper_joint_name or None)
             policy_chunk = read_policy_chunk(response.policy_action_chunk) if self.reads_policy_chunk else None
         except ChunkError as err:
-            return self.reject(f"chunk {index} rejected: {err}", FailureKind.MALFORMED_CHUNK.value)
+            return self.fail(Failure(FailureKind.MALFORMED_CHUNK, f"chunk {index} rejected: {err}"))
         settled = self.safety.settle_gripper_column(chunk.gripper)
         self.metrics.gripper_clamped += settled.clamped
         return Received(Chunk(chunk.arm, settled.values), flight, index, policy_chunk)
@@ -244,20 +244,20 @@ class ChunkExecutor(Behavior):
         it timed out, failed or is not a chunk."""
         config, name = self.config, self.config.policy_service_name
         if self.policy.timed_out(now, config.policy_call_timeout):
-            return self.finish(Status.FAILURE, f"the policy service '{name}' did not answer the {what} request within "
-                               f"policy_call_timeout = {config.policy_call_timeout:g} s", FailureKind.POLICY_TIMEOUT)
+            return self.fail(Failure(FailureKind.POLICY_TIMEOUT, f"the policy service '{name}' did not answer the {what} request within "
+                                     f"policy_call_timeout = {config.policy_call_timeout:g} s"))
         answer = self.policy.answer(now)
         if answer is None:
             return None
         if answer.error is not None:
-            return self.finish(Status.FAILURE, f"calling the policy service '{name}' failed: {answer.error}", FailureKind.POLICY_ERROR)
+            return self.fail(Failure(FailureKind.POLICY_ERROR, f"calling the policy service '{name}' failed: {answer.error}"))
         response = answer.response
         self.metrics.latencies.append(answer.round_trip_s)
         if response.status not in (GetActionChunk.Response.CHUNK_PRODUCED, GetActionChunk.Response.NO_MORE_ACTIONS):
             names = {0: "UNKNOWN", 3: "ERROR"}
             detail = response.message or "no message"
-            return self.finish(Status.FAILURE, f"the policy answered {names.get(response.status, response.status)} for the {what}: {detail}",
-                               FailureKind.POLICY_ERROR)
+            return self.fail(Failure(FailureKind.POLICY_ERROR,
+                                     f"the policy answered {names.get(response.status, response.status)} for the {what}: {detail}"))
         return response, answer.flight
 
     # -- checks ------------------------------------------------------------------------------
@@ -277,18 +277,20 @@ class ChunkExecutor(Behavior):
         self.gripper.schedule = list(zip((float(t) for t in times_s), joined))
 
     # -- endings -----------------------------------------------------------------------------
-    def reject(self, reason: str, kind: str) -> Status:
-        self.metrics.rejections += 1
-        self.metrics.rejection_reason = reason
-        return self.finish(Status.FAILURE, reason, kind)
+    def fail(self, failure: Failure) -> Status:
+        """End the run with ``failure`` (the robot stopped); a rejected chunk is counted."""
+        if failure.rejects_chunk:
+            self.metrics.rejections += 1
+            self.metrics.rejection_reason = failure.detail
+        return self.finish(Status.FAILURE, failure.detail, failure.kind)
 
-    def finish(self, status: Status, message: str, kind: FailureKind | str | None = None) -> Status:
+    def finish(self, status: Status, message: str, kind: FailureKind | CheckKind | None = None) -> Status:
         """End the run with ``status`` (the robot stopped unless it succeeded)."""
         if status is not Status.SUCCESS:
             self._stop_motion()
         self.phase = Phase.DONE
         self.message = self.metrics.message = self.feedback_message = message
-        self.failure_kind = kind.value if isinstance(kind, FailureKind) else kind
+        self.failure_kind = kind.value if kind is not None else None
         self._write_outputs()
         return status
 

@@ -23,7 +23,7 @@ from trajectory_msgs.msg import JointTrajectory
 
 from behaviors.action_goal import Goal, GoalState
 from behaviors.controller_link import ControllerKind, ControllerLink, GoalTolerances, trajectory_goal
-from behaviors.execute_policy.behavior import FailureKind
+from behaviors.execute_policy.failure import Failure, FailureKind
 from runtime.tree.behavior import Status
 from runtime.io.bus import STATUS_SUCCEEDED
 from runtime.io.timestamps import time_msg
@@ -164,7 +164,7 @@ class StreamsToJtc(ChunkExecutor):
     def run_tick(self, now: float) -> Status | None:
         problem = self.stream.follow(now)
         if problem is not None:
-            return self.finish(Status.FAILURE, problem, FailureKind.CONTROLLER)
+            return self.fail(Failure(FailureKind.CONTROLLER, problem))
         if self.asking:
             received = self.receive(now)
             if isinstance(received, Status):

@@ -15,10 +15,10 @@ import numpy as np
 
 from behaviors.action_goal import GoalState
 from behaviors.execute_policy.at_rest import Arrival
-from behaviors.execute_policy.behavior import FailureKind
+from behaviors.execute_policy.failure import Failure, FailureKind
 from behaviors.execute_policy.checks import PointChecks
 from behaviors.execute_policy.planner import (
-    PlanInput, Planned, Reject, ShapingConfig, earliest_seam_step, goal_takes_effect_s, plan_chunk,
+    PlanInput, Planned, ShapingConfig, earliest_seam_step, goal_takes_effect_s, plan_chunk,
 )
 from behaviors.execute_policy.controller_stream import ControllerStream
 from behaviors.execute_policy.states import HeldChunk, Rollback, SentMotion
@@ -48,7 +48,7 @@ class ExecuteChunksSynchronously(ChunkExecutor):
             self.held = Received(news.held.chunk, news.held.flight, news.chunk_index)
             self.window_steps = 0
         elif news is not None:
-            return self.finish(Status.FAILURE, news, FailureKind.CONTROLLER)
+            return self.fail(Failure(FailureKind.CONTROLLER, news))
         if self.asking:
             received = self.receive(now)
             if isinstance(received, Status):
@@ -77,8 +77,8 @@ class ExecuteChunksSynchronously(ChunkExecutor):
             checks=PointChecks(self.safety, self.rules, config.link_padding, self.gripper_position(), grid),
             arrival=Arrival(grid.step_at_or_after(held.flight.future.ready_at), goal_takes_effect_s(now, tick_s, self.stream.planned_latency_s)),
         ))
-        if isinstance(plan, Reject):
-            return self.reject(plan.reason, plan.kind)
+        if isinstance(plan, Failure):
+            return self.fail(plan)
         if not isinstance(plan, Planned):
             return None  # waits for the controller's answer to the previous goal
         self.held = None
