@@ -84,7 +84,7 @@ class ExecuteChunksSynchronously(ChunkExecutor):
         self.held = None
         samples = plan.sent.samples
         assert samples is not None
-        rollback = Rollback(HeldChunk(held.chunk, None, held.flight), SentMotion(grid), self.stream.goal, 0.0, held.index, plan.takes_over_s)
+        rollback = Rollback(HeldChunk(held.chunk, held.flight, held.index), SentMotion(grid), self.stream.goal, 0.0, held.index, plan.takes_over_s)
         self.stream.new_chunk()
         self.stream.send(config, self.safety.group_joints, samples, None, rollback, now, tick_s)
         self.window_steps = plan.window.steps
