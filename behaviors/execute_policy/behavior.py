@@ -115,10 +115,9 @@ class ExecutePolicy(Behavior):
         """Start a run: the session's (config, limits, links) and this node's ``StreamRun``."""
         self.run = None
         self.session.begin()
-        config, safety, links = self.session.config, self.session.safety, self.session.links
-        assert links is not None
-        if self.controller is None or self.controller.link is not links.controller:
-            self.controller = ControllerStream(links.controller, self.context.stamp_offset_s)
+        config, safety, link = self.session.config, self.session.safety, self.session.controller_link
+        if self.controller is None or self.controller.link is not link:
+            self.controller = ControllerStream(link, self.context.stamp_offset_s)
         self.controller.reset()
         self.run = StreamRun(
             shaping=ShapingConfig(config.dt, config.committed_action_steps, config.policy_tracking_weight,

@@ -239,6 +239,11 @@ class PolicySession:
         return self.links.policy
 
     @property
+    def controller_link(self) -> ControllerLink:
+        assert self.links is not None, "begin() connects the links"
+        return self.links.controller
+
+    @property
     def gripper(self) -> GripperStream | None:
         return self.links.gripper if self.links is not None else None
 
