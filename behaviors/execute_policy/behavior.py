@@ -144,9 +144,6 @@ class ExecutePolicy(Behavior):
         self.session.request(now_s, new_episode=True, request_step=0, frozen=self._frozen())
         return None
 
-    def play(self, now_s: float) -> Status | None:
-        return self._stream(now_s)
-
     def cancel_motion(self) -> None:
         self._controller().cancel()
         self._run().held = None
@@ -155,7 +152,8 @@ class ExecutePolicy(Behavior):
         return stall_at_stop_s(self._run().sent_motion, now_s)
 
     # -- STREAM ------------------------------------------------------------------------------
-    def _stream(self, now: float) -> Status:
+    def play(self, now: float) -> Status:
+        """One STREAM tick: the controller, the robot watch, then what ``StreamState`` says."""
         session, run = self.session, self._run()
         status = self._watch_controller(now)  # first: an abort the controller already made is the reason
         if status is not None:

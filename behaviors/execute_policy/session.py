@@ -421,7 +421,7 @@ class PolicySession:
 
     def gripper_position(self) -> float | None:
         """The gripper joint's position in the newest joint state (None without a gripper or a state)."""
-        joint = self.config.gripper_joint_name if self.run is not None else ""
+        joint = self.config.gripper_joint_name
         state = self.links.joint_states.latest if self.links is not None else None
         if not joint or state is None or joint not in state.name:
             return None
