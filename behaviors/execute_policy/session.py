@@ -270,7 +270,7 @@ class PolicySession:
         config = self.config
         missing = []
         if not links.policy.ready():
-            missing.append(f"policy service '{config.policy_service_name}' ({self._policy_hint()})")
+            missing.append(f"policy service '{config.policy_service_name}' ({policy_hint(self.node.context.bus)})")
         if not links.controller.ready():  # a name served with another type is an ERROR here
             missing.append(f"controller action '{config.controller_action_name}'")
         if links.gripper is not None and not links.gripper.ready():
@@ -525,14 +525,6 @@ class PolicySession:
         self.node.context.logger.warning("%s: %s", self.node.name, text)
         self.node.context.events.emit("warning", self.node.name, message=text)
 
-    def _policy_hint(self) -> str:
-        """What to do about a missing policy service, in the mode this run is in."""
-        served = getattr(self.node.context.bus, "served", None)
-        if not callable(served):  # a ROS 2 graph: the adapter serves the policy
-            return "start the adapter (`objective adapter`) before running the Objective"
-        names = ", ".join(sorted(served())) or "none"
-        return f"in this run the world serves the policy chosen with --policy; services here: {names}"
-
     def _check_sizing(self, what: str, detail: str = "") -> None:
         """Warn, with the figures, when the latency outgrows the sent window: once, and
         once more if it later outgrows what the chunk's tail covers as well."""
@@ -593,6 +585,15 @@ class PolicySession:
             )
         run.metrics.gripper_clamped += settled.clamped
         return settled.values
+
+
+def policy_hint(bus: Any) -> str:
+    """What to do about a missing policy service, in the mode the run on ``bus`` is in."""
+    served = getattr(bus, "served", None)
+    if not callable(served):  # a ROS 2 graph: the adapter serves the policy
+        return "start the adapter (`objective adapter`) before running the Objective"
+    names = ", ".join(sorted(served())) or "none"
+    return f"in this run the world serves the policy chosen with --policy; services here: {names}"
 
 
 def status_reason(response: Any, what: str) -> str:
