@@ -134,12 +134,9 @@ def test_the_report_shows_every_policy_run(tmp_path):
 
 
 def test_a_missing_policy_service_is_explained_for_the_mode_the_run_is_in():
-    from behaviors.execute_policy.behavior import ExecutePolicy
+    from behaviors.execute_policy.session import policy_hint as hint
     from runtime.io.bus import InProcessBus
     from runtime.io.clock import SimClock
-
-    def hint(bus) -> str:
-        return ExecutePolicy._policy_hint(SimpleNamespace(context=SimpleNamespace(bus=bus)))
 
     assert hint(object()) == "start the adapter (`objective adapter`) before running the Objective"  # a ROS 2 graph
     assert hint(InProcessBus(SimClock())) == "in this run the world serves the policy chosen with --policy; services here: none"

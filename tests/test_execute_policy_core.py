@@ -1,5 +1,5 @@
 """ExecutePolicy's pure core without a world: the immutable step grid, the planner's
-Planned / Wait / Reject decisions, and the stream's named states and their transitions."""
+Planned / Wait / Failure decisions, and the stream's named states and their transitions."""
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -7,11 +7,11 @@ import pytest
 
 from behaviors.execute_policy.checks import CheckFailure, CheckKind
 from behaviors.execute_policy.chunk import Chunk
+from behaviors.execute_policy.failure import Failure, FailureKind
 from behaviors.execute_policy.planner import (
     Arrival,
     PlanInput,
     Planned,
-    Reject,
     ShapingConfig,
     Wait,
     WaitReason,
@@ -66,7 +66,7 @@ def ramp(steps: int = 50, speed: float = 0.05) -> Chunk:
 
 
 def plan(sent: SentMotion, chunk: Chunk, *, index=1, request_step=0, frozen=2, earliest=2,
-         goal=GoalState.NONE, checks=None) -> Planned | Wait | Reject:
+         goal=GoalState.NONE, checks=None) -> Planned | Wait | Failure:
     return plan_chunk(PlanInput(sent, goal, chunk, index, request_step, frozen, earliest,
                                 START if sent.motion is None else None, SHAPING, checks or FakeChecks()))
 
@@ -224,12 +224,12 @@ def test_rejections_name_the_chunk_and_the_reason():
     start = SentMotion(StepGrid(0.0, DT, 20, 100))
     outside = CheckFailure(CheckKind.POSITION_LIMIT, "j1 at 9 rad")
     too_fast = CheckFailure(CheckKind.VELOCITY_LIMIT, "velocity of j1")
-    assert plan(start, ramp(), checks=FakeChecks(values_reason=outside)) == Reject("chunk 1 rejected: j1 at 9 rad", "position limit")
-    assert plan(start, ramp(), checks=FakeChecks(limits_reason=too_fast)) == Reject("chunk 1 rejected: velocity of j1", "velocity limit")
+    assert plan(start, ramp(), checks=FakeChecks(values_reason=outside)) == Failure(CheckKind.POSITION_LIMIT, "chunk 1 rejected: j1 at 9 rad")
+    assert plan(start, ramp(), checks=FakeChecks(limits_reason=too_fast)) == Failure(CheckKind.VELOCITY_LIMIT, "chunk 1 rejected: velocity of j1")
     _, first = first_plan()
     short = plan(first.sent, ramp(steps=3), index=2, request_step=19, frozen=3, earliest=21, goal=GoalState.PLAYING)
-    assert isinstance(short, Reject) and short.reason.startswith("chunk 2 rejected: chunk 2 has 3 steps but takes over at its step 3")
-    assert short.kind == "chunk too short"
+    assert isinstance(short, Failure) and short.detail.startswith("chunk 2 rejected: chunk 2 has 3 steps but takes over at its step 3")
+    assert short.kind is FailureKind.SHORT_CHUNK and short.rejects_chunk
 
 
 def test_a_path_unsafe_all_along_its_tail_is_sent_without_one():
@@ -239,7 +239,7 @@ def test_a_path_unsafe_all_along_its_tail_is_sent_without_one():
     assert planned.sent.motion.rest_time == planned.sent.motion.end and planned.sent.grid.tail == NO_TAIL
     assert np.allclose(planned.sent.samples.velocities[-1], 0.0, atol=1e-9)  # at rest where the window ends
     unsafe = plan(start, ramp(), checks=FakeChecks(path_horizon_s=1.0))
-    assert unsafe == Reject("chunk 1 rejected: beyond the horizon", "world collision")
+    assert unsafe == Failure(CheckKind.WORLD_COLLISION, "chunk 1 rejected: beyond the horizon")
 
 
 def test_a_window_with_too_few_run_steps_after_it_for_a_runout_ends_at_rest():

@@ -9,7 +9,8 @@ one it aborts short of its target without having stalled, ends the run. A goal t
 reports it as succeeded or, like ros2_controllers' GripperActionController without
 ``allow_stalling``, as aborted. A goal preempted by the next one ends CANCELED: normal too.
 
-``GripperStream`` holds one run's gripper schedule and goals: ``queue`` plans a window's targets,
+``GripperStream`` holds one run's gripper schedule and goals: ``queue`` plans a window's targets
+(``queue_at``: targets at given times),
 ``stream`` sends those that are due, ``follow`` reads the answers.
 """
 from __future__ import annotations
@@ -106,6 +107,12 @@ class GripperStream:
         targets = join_targets(before, [float(chunk.gripper[s - window.request_step]) for s in steps], max_velocity_rad_s * grid.dt)
         self.plan = dict(zip(steps, targets))
         self.schedule = [(grid.time(s), target) for s, target in self.plan.items()]
+
+    def queue_at(self, times_s: Any, targets: Any, max_step_rad: float) -> None:
+        """Plan the targets ``targets[k]`` due at ``times_s[k]``, taken over from the target sent
+        last with no step larger than ``max_step_rad`` (``join_targets``)."""
+        joined = join_targets(self.last_target, [float(v) for v in targets], max_step_rad)
+        self.schedule = list(zip((float(t) for t in times_s), joined))
 
     def stream(self, now_s: float) -> None:
         """Send the newest target due by ``now_s`` unless it is within ``GRIPPER_DEADBAND_RAD`` of the last one sent."""

@@ -1,5 +1,5 @@
 """Where a chunk's seam is planned: a pure function from the sent motion, the chunk and the
-time to Planned / Wait / Reject. Nothing here talks to the bus or reads the clock.
+time to Planned / Wait / Failure (a rejected chunk). Nothing here talks to the bus or reads the clock.
 
 ``plan_chunk`` picks the chunk's window on the step grid (``StepGrid.plan_window``), decides
 whether it can join the motion the controller plays or must wait, blends it into that motion
@@ -18,15 +18,12 @@ import numpy as np
 
 from .checks import CheckFailure
 from .chunk import Chunk
+from .failure import Failure, FailureKind
 from .shaping import NO_TAIL, ChunkMotion, Tail, densify, fit_chunk, join_at_seam, plan_tail, runout_chunk_steps
 from runtime.motion.samples import Samples
 from .states import GoalState, SentMotion
 from .at_rest import Arrival, arrives_at_rest, take_over_time, window_arrival_step
 from .stream import StepGrid, Window, WindowError, drained_seconds
-
-SHORT_CHUNK = "chunk too short"
-"""The kind of a rejected chunk with nothing left to execute after its seam (``WindowError``)."""
-
 
 class Checks(Protocol):
     """The point checks a plan must pass; each returns why it fails, or None."""
@@ -73,13 +70,6 @@ class Wait:
 
 
 @dataclass(frozen=True)
-class Reject:
-    reason: str
-    kind: str
-    """What kind of rejection (a ``CheckKind``'s value, or ``SHORT_CHUNK``)."""
-
-
-@dataclass(frozen=True)
 class Planned:
     window: Window
     seam_time_s: float  # of the window's seam step
@@ -88,23 +78,28 @@ class Planned:
     takes_over_s: float  # the goal's stamp: the seam, or within its step for a first chunk (take_over_time)
 
 
-def plan_chunk(inp: PlanInput) -> Planned | Wait | Reject:
+def rejected(index: int, why: CheckFailure) -> Failure:
+    """Chunk ``index`` rejected for failing a check."""
+    return Failure(why.kind, f"chunk {index} rejected: {why}")
+
+
+def plan_chunk(inp: PlanInput) -> Planned | Wait | Failure:
     if inp.goal is GoalState.SENT:
         # Whether the controller plays the previous goal decides how this chunk joins (a refused
         # goal rolls the stream back).
         return Wait(WaitReason.GOAL_UNANSWERED)
     from_rest = inp.arrival if arrives_at_rest(inp.sent.motion, inp.arrival, inp.sent.grid) else None  # see ``at_rest``
     plan = _plan(inp, from_rest)
-    if isinstance(plan, Reject) and from_rest is not None:
+    if isinstance(plan, Failure) and from_rest is not None:
         # A window started at the arrival step gives the start from rest a fraction of a step
         # less (the goal takes over within the step): a short window may need the whole step.
         later = _plan(inp, None)
-        if not isinstance(later, Reject):
+        if not isinstance(later, Failure):
             return later
     return plan
 
 
-def _plan(inp: PlanInput, from_rest: Arrival | None) -> Planned | Wait | Reject:
+def _plan(inp: PlanInput, from_rest: Arrival | None) -> Planned | Wait | Failure:
     """``plan_chunk`` with the window started at the arrival step (``from_rest``) or at the
     earliest seam (None)."""
     shaping, grid, chunk, index = inp.config, inp.sent.grid, inp.chunk, inp.index
@@ -114,10 +109,10 @@ def _plan(inp: PlanInput, from_rest: Arrival | None) -> Planned | Wait | Reject:
                                   runout_reserve=runout_chunk_steps(nominal_runout_s(shaping), shaping.dt),
                                   arrival_step=window_arrival_step(from_rest, grid, inp.earliest_seam_step))
     except WindowError as err:
-        return Reject(f"chunk {index} rejected: {err}", SHORT_CHUNK)
+        return Failure(FailureKind.SHORT_CHUNK, f"chunk {index} rejected: {err}")
     outside = inp.checks.values(chunk, window)
     if outside is not None:
-        return Reject(f"chunk {index} rejected: {outside}", outside.kind.value)
+        return rejected(index, outside)
     seam_time = grid.time(window.seam_step)
     if previous is not None and seam_time > previous.rest_time + 1e-9 and inp.goal is not GoalState.ENDED:
         # Too late to join the motion the controller is still playing (its runout included): a
@@ -143,7 +138,7 @@ def _plan(inp: PlanInput, from_rest: Arrival | None) -> Planned | Wait | Reject:
     # A chunk over the limits on its own is the policy's; the join is planned within them.
     reason = inp.checks.limits(densify(motion.chunk_alone(), shaping.num_interpolation_points), window)
     if reason is not None:
-        return Reject(f"chunk {index} rejected: {reason}", reason.kind.value)
+        return rejected(index, reason)
     samples = densify(motion, shaping.num_interpolation_points)
     reason = inp.checks.path(samples, window)
     for shorter in shorter_tails(tail) if reason is not None else ():
@@ -159,7 +154,7 @@ def _plan(inp: PlanInput, from_rest: Arrival | None) -> Planned | Wait | Reject:
             motion, samples, reason, tail = candidate, candidate_samples, None, shorter
             break
     if reason is not None:
-        return Reject(f"chunk {index} rejected: {reason}", reason.kind.value)
+        return rejected(index, reason)
     stall = drained_seconds(None if previous is None else previous.full_speed_end, seam_time)
     new_grid = grid.with_window(window, tail, chunk.steps)
     return Planned(window, seam_time, SentMotion(new_grid, motion, samples), stall, takes_over)

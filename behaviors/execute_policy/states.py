@@ -17,6 +17,8 @@ import enum
 from dataclasses import dataclass
 from typing import Any
 
+import numpy as np
+
 from ..action_goal import Goal, GoalState
 from .chunk import Chunk
 from .shaping import ChunkMotion
@@ -55,8 +57,11 @@ class HeldChunk:
     """A chunk received and read, with the request it answers."""
 
     chunk: Chunk
-    response: Any
     flight: InFlight
+    index: int
+    """The chunk's number in the run, from 1."""
+    policy_chunk: np.ndarray | None = None
+    """The policy's own chunk (``policy_action_chunk``), when it was read and sent."""
 
 
 @dataclass(frozen=True)

@@ -15,8 +15,10 @@ repository root are on ``PYTHONPATH``:
 - ``CountUnsafeCommands`` (``unsafe_points``): the benchmark's probe beside each executor, counting
   the controller's commanded states that violate a limit or come within the padding of a collision.
 
-Each shares ExecutePolicy's ports (less real-time chunking), start-up, policy requests and chunk
-contract (``base``); the peers of ros2_controllers and LeRobot check nothing, as at home.
+Each runs ExecutePolicy's policy session (``behaviors.execute_policy.session``, through ``base``):
+its ports (less real-time chunking), start-up, warmup, requests, chunk contract, gripper, endings
+and outputs; they differ only in how they play the chunks. The peers of ros2_controllers and
+LeRobot check nothing, as at home.
 """
 from __future__ import annotations
 

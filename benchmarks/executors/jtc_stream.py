@@ -23,7 +23,8 @@ from trajectory_msgs.msg import JointTrajectory
 
 from behaviors.action_goal import Goal, GoalState
 from behaviors.controller_link import ControllerKind, ControllerLink, GoalTolerances, trajectory_goal
-from behaviors.execute_policy.behavior import FailureKind
+from behaviors.execute_policy.failure import Failure, FailureKind
+from behaviors.execute_policy.states import HeldChunk
 from runtime.tree.behavior import Status
 from runtime.io.bus import STATUS_SUCCEEDED
 from runtime.io.timestamps import time_msg
@@ -32,7 +33,7 @@ from sim.controllers.jtc_trajectory import JtcPoints, JtcTrajectory, merge_at_ar
 
 from benchmarks.baselines import cubic_spline_velocities
 
-from .base import ChunkExecutor, Received
+from .base import ChunkExecutor
 
 
 RUNOUT_ACCELERATION_FRACTION = 0.5
@@ -141,19 +142,20 @@ class StreamsToJtc(ChunkExecutor):
     runout = True
 
     def start_run(self, now: float) -> Status | None:
-        if self.link.kind is not ControllerKind.JTC:
-            raise self.setup_error(f"{self.xml_id} streams to a joint_trajectory_controller (control_msgs/FollowJointTrajectory); "
+        link = self.session.controller_link
+        if link.kind is not ControllerKind.JTC:
+            raise self.session.setup_error(f"{self.xml_id} streams to a joint_trajectory_controller (control_msgs/FollowJointTrajectory); "
                                    f"controller_action_name '{self.config.controller_action_name}' is served by "
-                                   f"{self.link.kind.label if self.link.kind else 'nothing'}")
+                                   f"{link.kind.label if link.kind else 'nothing'}")
         config = self.config
         tolerances = GoalTolerances(config.goal_path_tolerance, max(0.5, 5 * config.dt))
-        self.stream = JtcStream(self.link, self.safety.group_joints, self.context.stamp_offset_s, tolerances,
+        self.stream = JtcStream(link, self.safety.group_joints, self.context.stamp_offset_s, tolerances,
                                 RUNOUT_ACCELERATION_FRACTION * self.safety.limits.max_acceleration)
-        self.stream.start(now, self.arm_position())
-        self.ask(now, new_episode=True)
+        self.stream.start(now, self.session.arm_position())
+        self.session.request(now, new_episode=True)
         return None
 
-    def take(self, received: Received, now: float) -> Status | None:
+    def take(self, received: HeldChunk, now: float) -> Status | None:
         """A chunk came: send what it changes."""
         raise NotImplementedError
 
@@ -164,9 +166,9 @@ class StreamsToJtc(ChunkExecutor):
     def run_tick(self, now: float) -> Status | None:
         problem = self.stream.follow(now)
         if problem is not None:
-            return self.finish(Status.FAILURE, problem, FailureKind.CONTROLLER)
-        if self.asking:
-            received = self.receive(now)
+            return self.session.fail(Failure(FailureKind.CONTROLLER, problem))
+        if self.session.asking:
+            received = self.session.receive(now)
             if isinstance(received, Status):
                 return received
             status = self.take(received, now) if received is not None else None
@@ -179,4 +181,4 @@ class StreamsToJtc(ChunkExecutor):
         unchecked: a peer's home runs no ExecutePolicy checks (the benchmark's probe counts the
         unsafe points the controller commands)."""
         self.stream.send(self.stream.plan(lands_s, times_s, arm, self.runout), self.context.clock.now())
-        self.queue_gripper(times_s, gripper)
+        self.session.queue_gripper_at(times_s, gripper)

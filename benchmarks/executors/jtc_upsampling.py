@@ -26,13 +26,13 @@ import numpy as np
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
 from behaviors.execute_policy.planner import goal_takes_effect_s
+from behaviors.execute_policy.states import HeldChunk
 from runtime.tree.behavior import Status
 from runtime.io.bus import Publisher
 from runtime.io.timestamps import duration_msg
 from sim.controllers.jtc import read_points
 from sim.controllers.jtc_trajectory import JtcTrajectory, merge_at_arrival, replace_at_arrival
 
-from .base import Received
 from .newest_wins import ExecuteNewestWinsOnJtc
 from .positions_upsampling import UpsamplingParams, preprocess_incoming_trajectory
 
@@ -101,17 +101,24 @@ class ExecuteOnJtcWithUpsampling(ExecuteNewestWinsOnJtc):
     description = ("Benchmark executor (benchmarks/executors): chunks published on arrival, positions only, to the stock "
                    "joint_trajectory_controller with positions_upsampling (ros2_controllers #2491, #2573); no checks.")
 
+    def __init__(self, name: str) -> None:
+        super().__init__(name)
+        self.publisher: Publisher | None = None
+        """The controller's trajectory topic (``topic_of`` its action), created on the first run."""
+
+    def initialise(self) -> None:
+        super().initialise()
+        if self.publisher is None:
+            self.publisher = self.context.bus.create_publisher(topic_of(self.config.controller_action_name), JointTrajectory)
+
     def start_run(self, now: float) -> Status | None:
         status = super().start_run(now)  # the controller's kind checked, the first request out
+        assert self.publisher is not None
         self.stream = UpsamplingTopic(self.publisher, self.safety.group_joints, UpsamplingParams(True, 1.0 / self.config.dt))
-        self.stream.start(now, self.arm_position())
+        self.stream.start(now, self.session.arm_position())
         return status
 
-    def _connect(self) -> None:
-        super()._connect()
-        self.publisher = self.context.bus.create_publisher(topic_of(self.config.controller_action_name), JointTrajectory)
-
-    def take(self, received: Received, now: float) -> Status | None:
+    def take(self, received: HeldChunk, now: float) -> Status | None:
         """Publish the chunk's steps still to play, from its arrival at the controller."""
         config, chunk = self.config, received.chunk
         lands = goal_takes_effect_s(now, self.context.tick_period_s, 0.0)
@@ -121,5 +128,5 @@ class ExecuteOnJtcWithUpsampling(ExecuteNewestWinsOnJtc):
         if steps <= 0:
             return None
         self.stream.publish(lands, chunk.arm[:steps])
-        self.queue_gripper(lands + config.dt * np.arange(1, steps + 1), None if chunk.gripper is None else chunk.gripper[:steps])
+        self.session.queue_gripper_at(lands + config.dt * np.arange(1, steps + 1), None if chunk.gripper is None else chunk.gripper[:steps])
         return None

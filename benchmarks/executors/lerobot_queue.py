@@ -26,12 +26,13 @@ from typing import Any
 import numpy as np
 
 from behaviors.execute_policy.planner import goal_takes_effect_s
+from behaviors.execute_policy.states import HeldChunk
 from runtime.tree.behavior import Status
 from runtime.tree.ports import InputPort, PortType, Range
 
 from benchmarks.baselines import lerobot_queue_or_reimplementation
 
-from .base import PORTS, Received
+from .base import PORTS
 from .jtc_stream import StreamsToJtc
 
 TIME_EPS_S = 1e-9
@@ -75,13 +76,13 @@ class ExecuteWithLeRobotQueue(StreamsToJtc):
             self.next_step += 1
         if self.metrics.steps_executed >= total:
             if self.stream.finished:
-                return self.finish(Status.SUCCESS, f"executed {self.metrics.steps_executed} steps")
-        elif not self.asking and self.queue.ready(self.chunk_steps or 1, self.get_input("chunk_size_threshold")):
+                return self.session.stop(Status.SUCCESS, f"executed {self.metrics.steps_executed} steps")
+        elif not self.session.asking and self.queue.ready(self.chunk_steps or 1, self.get_input("chunk_size_threshold")):
             self.observed_timestep = max(self.queue.latest_action, 0)
-            self.ask(now)
+            self.session.request(now)
         return None
 
-    def take(self, received: Received, now: float) -> Status | None:
+    def take(self, received: HeldChunk, now: float) -> Status | None:
         """Aggregate the chunk into the queue and send the queue's knots."""
         chunk = received.chunk
         actions = chunk.arm if chunk.gripper is None else np.column_stack([chunk.arm, chunk.gripper])

@@ -34,10 +34,11 @@ from typing import Any
 import numpy as np
 
 from behaviors.execute_policy.policy_link import Carryover
+from behaviors.execute_policy.states import HeldChunk
 from runtime.tree.behavior import Status
 from runtime.tree.ports import InputPort, PortType, Range
 
-from .base import PORTS, Received
+from .base import PORTS
 from .jtc_stream import StreamsToJtc
 from .lerobot_queue import TIME_EPS_S, ExecuteWithLeRobotQueue
 
@@ -94,8 +95,8 @@ class ExecuteWithLeRobotRtc(ExecuteWithLeRobotQueue):
             self.next_step += 1
         if self.metrics.steps_executed >= total:
             if self.stream.finished:
-                return self.finish(Status.SUCCESS, f"executed {self.metrics.steps_executed} steps")
-        elif not self.asking and self.queue.qsize() <= self.get_input("queue_threshold"):
+                return self.session.stop(Status.SUCCESS, f"executed {self.metrics.steps_executed} steps")
+        elif not self.session.asking and self.queue.qsize() <= self.get_input("queue_threshold"):
             self.ask_rtc(now)
         return None
 
@@ -108,12 +109,12 @@ class ExecuteWithLeRobotRtc(ExecuteWithLeRobotQueue):
         config = dataclasses.replace(self.config, policy_uses_real_time_chunking=True, guidance_horizon=self.rtc_config.execution_horizon)
         if leftover is not None and len(leftover):
             prefix = self.prefix_length(leftover, target_steps=self.rtc_config.execution_horizon)
-            self.policy.carryover = Carryover(prefix.numpy(), 0, self.anchor)
+            self.session.policy.carryover = Carryover(prefix.numpy(), 0, self.anchor)
         else:
-            self.policy.carryover = None
-        self.ask(now, frozen=delay, config=config)
+            self.session.policy.carryover = None
+        self.session.request(now, frozen=delay, config=config)
 
-    def take(self, received: Received, now: float) -> Status | None:
+    def take(self, received: HeldChunk, now: float) -> Status | None:
         """Merge the chunk into the queue from its delay on, and send the queue's knots."""
         import torch
 

@@ -19,9 +19,9 @@ import math
 import numpy as np
 
 from behaviors.execute_policy.planner import goal_takes_effect_s
+from behaviors.execute_policy.states import HeldChunk
 from runtime.tree.behavior import Status
 
-from .base import Received
 from .jtc_stream import StreamsToJtc
 
 
@@ -47,14 +47,14 @@ class ExecuteNewestWinsOnJtc(StreamsToJtc):
         self.metrics.steps_executed = self.played(now)
         config = self.config
         if self.metrics.steps_executed >= config.total_action_steps:
-            if not self.asking and self.stream.finished:
-                return self.finish(Status.SUCCESS, f"executed {self.metrics.steps_executed} steps")
-        elif not self.asking and now + 1e-9 >= self.asked_s + config.committed_action_steps * config.dt:
+            if not self.session.asking and self.stream.finished:
+                return self.session.stop(Status.SUCCESS, f"executed {self.metrics.steps_executed} steps")
+        elif not self.session.asking and now + 1e-9 >= self.asked_s + config.committed_action_steps * config.dt:
             self.asked_s = now
-            self.ask(now)
+            self.session.request(now)
         return None
 
-    def take(self, received: Received, now: float) -> Status | None:
+    def take(self, received: HeldChunk, now: float) -> Status | None:
         """Send the chunk from its arrival at the controller."""
         config, chunk = self.config, received.chunk
         lands = goal_takes_effect_s(now, self.context.tick_period_s, 0.0)
