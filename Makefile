@@ -89,11 +89,12 @@ lerobot-diffusion: lerobot
 		--minutes 30 --threads 1 --eval-episodes 50 --eval-seed-start 100
 
 # The learned policy that stacks (docs/lerobot.md): plays the oracle's plan for 600 layouts straight
-# into the cell (layout seeds 40000-40599, a frame every policy step, the grasp 4 mm higher than the
-# oracle's own, no camera rendered; kept in build/plan_frames/), trains LeRobot's Multi-Task DiT with
-# flow matching on the joints and the cubes' poses (with the perception's error) with one torch
-# thread for 30 minutes, saves build/policies/learned with its perception stage's camera
-# configuration, and evaluates it with objectives/stack_cubes_learned.xml on held-out seeds 100-149.
+# into the cell from the Home waypoint (layout seeds 40000-40599, a frame every policy step, the grasp
+# 7 mm higher than the oracle's own, no camera rendered; kept in build/plan_frames/), trains LeRobot's
+# Multi-Task DiT with flow matching on the joints, the cubes' poses (with the perception's error) and
+# the stack's keypoints with one torch thread for 30 minutes, saves build/policies/learned with its
+# perception stage's configuration, and evaluates it with objectives/stack_cubes_learned.xml on
+# held-out seeds 100-149.
 .PHONY: learned-policy
 learned-policy: lerobot
 	HF_HUB_OFFLINE=1 MUJOCO_GL=egl ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST $(PY) tools/train_learned.py \

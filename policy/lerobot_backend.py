@@ -573,7 +573,7 @@ class LeRobotBackend:
         if self.keypoint_config is not None:
             from .stack_keypoints import keypoint_feature_count
 
-            self.state_dim -= keypoint_feature_count(len(self.keypoint_config.chain.joint_names))  # then the keypoints'
+            self.state_dim -= keypoint_feature_count(len(self.keypoint_config.chain.joint_names))  # then the keypoints' features
         self.action_dim = int(config.output_features[ACTION_KEY].shape[0])
         self.action_range = checked_action_range(self.metadata.get("action_range"), self.action_dim, str(metadata_path))
         names = options.joint_names or self.metadata.get("joint_names")

@@ -5,6 +5,7 @@ from __future__ import annotations
 import importlib.util
 import json
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -104,8 +105,25 @@ def tiny_learned(tmp_path_factory):
     root = tmp_path_factory.mktemp("learned")
     out = root / "ck"
     assert main(["--out", str(out), "--cache", str(root / "frames"), "--layouts", "2", "--layout-seed", "50000",
-                 "--workers", "1", "--steps", "2", "--batch", "4", "--eval-episodes", "0"]) == 0
+                 "--workers", "1", "--steps", "2", "--batch", "4", "--eval-episodes", "0",
+                 "--validation-layouts", "1"]) == 0
     return out
+
+
+def test_the_demonstrations_start_where_the_objective_hands_the_policy_the_arm():
+    """Prepare for Policy moves to the Home waypoint, not the cell's reset pose: the plans start there."""
+    import xml.etree.ElementTree as ET
+
+    from sim.robot_model import load_waypoints
+    from tools.train_learned import frame_settings, parse_args
+
+    prepare = ET.parse(Path(__file__).resolve().parent.parent / "objectives" / "stack_cubes.xml").getroot()
+    moves = [n.get("waypoint_name") for n in prepare.iter("SubTree") if n.get("ID") == "Move to Waypoint"]
+    assert moves == ["Home"]
+    home = load_waypoints()["Home"]
+    settings = frame_settings(parse_args([]), (40000,))
+    assert settings.home == pytest.approx([home[name] for name in settings.joint_names[:6]] + [0.0])
+    assert settings.home[:6] == pytest.approx((-1.8732, -1.7159, 1.7867, -1.6416, -1.5708, -0.3024))
 
 
 @needs_lerobot
@@ -124,6 +142,8 @@ def test_the_pipeline_saves_a_lerobot_checkpoint_with_its_perception_and_data(ti
     training = metadata["training"]
     assert (training["seed"], training["steps"], training["layout_seeds"]) == (0, 2, [50000, 50001])
     assert len(training["data_sha256"]) == 64
+    assert metadata["stack_keypoints"]["home_rad"] == pytest.approx([-1.8732, -1.7159, 1.7867, -1.6416, -1.5708, -0.3024])
+    assert training["unseen_fit_rad"] > 0
 
 
 @needs_lerobot

@@ -44,6 +44,8 @@ LOG = logging.getLogger("train_learned")
 PROMPT = "stack the blue cube on the green cube"
 GRIPPER_JOINT = "robotiq_85_left_knuckle_joint"
 HELD_OUT = range(100, 150)
+CHUNK_STEPS = 50
+"""Policy steps per chunk (5 s at the control period of 0.1 s)."""
 
 
 def policy_start_rad() -> tuple[float, ...]:
@@ -70,7 +72,7 @@ def frame_settings(args: argparse.Namespace, seeds: tuple[int, ...]):
     arm = tuple(SceneKinematics(planning_robot_model()).joint_names)
     return PlanFrameSettings(
         seeds=seeds, every=args.every, hold_after_plan_s=2.0, home=policy_start_rad() + (0.0,),
-        joint_names=arm + (GRIPPER_JOINT,), cameras=(), image_size=64, crops=(), size=64, chunk=args.chunk,
+        joint_names=arm + (GRIPPER_JOINT,), cameras=(), image_size=64, crops=(), size=64, chunk=CHUNK_STEPS,
         control_period_s=0.1, gripper_velocity=0.5, motion_noise_rad=args.motion_noise,
         grasp_height_m=args.grasp_height)
 
@@ -197,7 +199,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--part", type=int, default=50, help="layouts per cache file (a part played is kept)")
     parser.add_argument("--every", type=int, default=1, help="a frame every this many policy steps")
     parser.add_argument("--motion-noise", type=float, default=0.04, help="recovery noise of the played motion (rad)")
-    parser.add_argument("--grasp-height", type=float, default=0.022,
+    parser.add_argument("--grasp-height", type=float, default=0.025,
                         help="the oracle's grasp height above the table in the played plans (m; 0: the oracle's own, "
                              "0.018, which leaves the pads a hair over the 10 mm collision padding above the table)")
     parser.add_argument("--workers", type=int, default=2)
@@ -231,7 +233,6 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
 def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s: %(message)s")
-    args.chunk = 50
     frames = load_frames(args)
     LOG.info("%d frames of %d layouts (%d dropped)", len(frames), len(set(frames.seeds)), len(frames.dropped))
     if args.frames_only:
@@ -257,7 +258,7 @@ def main(argv: list[str] | None = None) -> int:
 
         shutil.rmtree(staging)
     spec = LearnedStackSpec(joint_dim=frames.state.shape[1], cube_dim=state.shape[1] - frames.state.shape[1],
-                            chunk_size=args.chunk,
+                            chunk_size=CHUNK_STEPS,
                             hidden_dim=args.hidden, layers=args.layers,
                             integration_steps=args.integration_steps)
     config, policy = build_learned_stack(spec, write_tiny_clip(staging / CLIP_DIRNAME, seed=args.seed))
