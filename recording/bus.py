@@ -182,9 +182,6 @@ class RecordingBus:
         """Called with each recorded ``/joint_states`` message and its time (e.g. to send ``/tf``)."""
         self.record_topic(JOINT_STATES_TOPIC, JointState, joint_states_hz)
 
-    def __getattr__(self, name: str) -> Any:
-        return getattr(self.inner, name)
-
     @property
     def produces_on_read(self) -> bool:
         return self.inner.produces_on_read

@@ -162,7 +162,7 @@ class CellWorld:
         self.joint_states = bus.create_publisher("/joint_states", JointState, reliable=reliable)
         rate = number_option(self.options, "camera_rate_hz", 10.0)  # used on real ROS only
         self.camera_thread = None
-        if getattr(bus, "produces_on_read", True):  # in process: a frame is rendered when it is read
+        if bus.produces_on_read:  # in process: a frame is rendered when it is read
             for name, topic in CAMERA_TOPICS.items():
                 bus.create_lazy_publisher(topic, Image, functools.partial(self._camera_frame, name), rate_hz=rate)
             if self.options.get("realtime"):  # a first frame makes the renderer (GL context, meshes): not in a tick

@@ -32,7 +32,7 @@ from typing import Any, Callable, Iterable, Protocol, Sequence
 import py_trees
 
 from runtime.tree.behavior import RunContext, Status
-from runtime.io.bus import InProcessBus, parse_latency
+from runtime.io.bus import InProcessBus, InterruptibleWaits, capability, parse_latency
 from runtime.io.clock import SimClock, WallClock
 from runtime.tree.controls import SKIPPED, Visit, is_skipped, tick_tree
 from runtime.tree.crash import CRASH_LOG, culprit, describe_crash, write_traceback
@@ -465,8 +465,9 @@ def run_tree(
         world = create_world(options.world or default_world_name(), world_options)
     period = context.tick_period_s = 1.0 / options.tick_hz  # the run's nodes read it from the context
     clock, bus = context.clock, context.bus
-    if stop is not None and callable(getattr(bus, "stop_waiting_when", None)):
-        bus.stop_waiting_when(lambda: stop.requested)  # a hung in-process policy never holds a signal back
+    waits = capability(bus, InterruptibleWaits)
+    if stop is not None and waits is not None:
+        waits.stop_waiting_when(lambda: stop.requested)  # a hung in-process policy never holds a signal back
     ticks = 0
     blame: tuple[py_trees.behaviour.Behaviour, str, str | None] | None = None
     status = Status.INVALID
