@@ -27,11 +27,11 @@ import signal
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Iterable, Protocol, Sequence
+from typing import Any, Callable, Iterable, Protocol, Sequence, runtime_checkable
 
 import py_trees
 
-from runtime.tree.behavior import RunContext, Status
+from runtime.tree.behavior import RunContext, Status, SummarisesRun
 from runtime.io.bus import InProcessBus, InterruptibleWaits, capability, parse_latency
 from runtime.io.clock import SimClock, WallClock
 from runtime.tree.controls import SKIPPED, Visit, is_skipped, tick_tree
@@ -50,6 +50,17 @@ from .world_check import check_tree, declared_interfaces, named_links
 
 Progress = Callable[[float, int, str], None]
 """Called after every tick with (clock seconds, ticks so far, name of the running node)."""
+
+
+@runtime_checkable
+class TreeProgress(Protocol):
+    """A ``Progress`` that also looks at the tree's nodes (``runtime.app.display.ProgressLine``)."""
+
+    def __call__(self, sim_seconds: float, ticks: int, running: str) -> None: ...
+
+    def attach(self, root: py_trees.behaviour.Behaviour) -> None:
+        """Before the first tick: the tree's root."""
+        ...
 
 
 class TickWatcher(Protocol):
@@ -475,8 +486,8 @@ def run_tree(
     breakoff: Breakoff | None = None
     running: list[py_trees.behaviour.Behaviour] = []
     statuses = StatusEvents(context.events, nodes)
-    if callable(getattr(progress, "attach", None)):
-        progress.attach(root)  # type: ignore[union-attr]
+    if isinstance(progress, TreeProgress):
+        progress.attach(root)
     pacing = Pacing(period) if options.paced else None
     wall_start = time.monotonic()
     try:
@@ -580,9 +591,8 @@ def run_tree(
 
     extra: dict[str, Any] = {}
     for node in nodes:
-        summarise = getattr(node, "run_summary", None)
-        if callable(summarise):
-            extra.update(summarise() or {})
+        if isinstance(node, SummarisesRun):
+            extra.update(node.run_summary() or {})
     if summary_world:
         extra["world"] = summary_world
     if pacing is not None:
