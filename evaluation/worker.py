@@ -26,7 +26,7 @@ from runtime.app.protective_stop import ProtectiveStop, SharedStop
 from runtime.tree.registry import Registry
 from runtime.tree.registry import default_world_name
 from runtime.app.runner import RunOptions, RunResult, make_context, run_tree
-from runtime.app.world import create_world
+from runtime.app.world import KeepsEpisodes, create_world
 
 from .config import WorkerSpec
 from .episode import EpisodeRecord
@@ -113,7 +113,7 @@ class EpisodeWorker:
         self.needs_world = any(getattr(type(n), "needs_world", False) for n in loaded.root.iterate())
         if self.needs_world:
             world = create_world(self.spec.world or default_world_name(), self._world_options(0, "none"))
-            if callable(getattr(world, "begin_episode", None)):
+            if isinstance(world, KeepsEpisodes):
                 self.world = world
                 try:
                     self.policy = PolicyHost(self.spec.policy, getattr(world, "cell", None))

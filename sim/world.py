@@ -127,7 +127,8 @@ class CellClock:
 
 class CellWorld:
     """A cell's services on the bus, stepped at 500 Hz of the runtime clock; its controllers
-    run on the cell's own clock (``CellClock``)."""
+    run on the cell's own clock (``CellClock``). A ``runtime.app.world.World``, and
+    ``KeepsEpisodes`` and ``PlacesBoxes`` besides."""
 
     def __init__(self, name: str, options: dict[str, Any], make_cell: Callable[[np.ndarray, int], Cell]) -> None:
         unknown = sorted(set(options) - set(COMMON_OPTIONS))
