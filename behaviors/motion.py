@@ -15,6 +15,7 @@ import numpy as np
 from ruckig import InputParameter, Result, Ruckig, Trajectory
 from sensor_msgs.msg import JointState
 
+from runtime.io.bus import Subscription
 from runtime.tree.behavior import Status
 from runtime.tree.ports import InputPort, NameKind, Names, PortType, Range
 
@@ -70,6 +71,8 @@ class _MoveToJoints(SendsTrajectoryGoal):
     """Shared lifecycle: resolve the target, plan, check, send, wait for the controller."""
 
     needs_world = True
+    joint_states: Subscription | None = None
+    """The start state's subscription, from ``initialise`` until the node stops."""
     common_ports = (
         InputPort("joint_group_name", PortType.STRING, "manipulator", "SRDF joint group to move.", names=Names(NameKind.JOINT_GROUP)),
         InputPort("velocity_scaling_factor", PortType.FLOAT, 0.5, "Fraction of the joint velocity limits, in (0, 1].", valid=Range(0.0, 1.0, min_open=True)),
@@ -153,10 +156,8 @@ class _MoveToJoints(SendsTrajectoryGoal):
     def terminate(self, new_status: Status) -> None:
         if new_status is Status.INVALID:
             self.goal = self.goal.cancel()
-        sub = getattr(self, "joint_states", None)
-        destroy = getattr(self.context.bus, "destroy_subscription", None) if hasattr(self, "context") else None
-        if sub is not None and destroy is not None:
-            destroy(sub)
+        if self.joint_states is not None:
+            self.context.bus.destroy_subscription(self.joint_states)
             self.joint_states = None
 
 

@@ -11,6 +11,7 @@ from typing import Any
 
 import numpy as np
 
+from runtime.app.world import PlacesBoxes
 from runtime.tree.behavior import Behavior, Status
 from runtime.tree.ports import UINT32_MAX, InputPort, NameKind, Names, PortType, Range
 
@@ -104,7 +105,7 @@ class PlaceSimBox(ChecksPorts, ReadsRobotState, Behavior):
 
     def update(self) -> Status:
         world, scene = self.context.world, self.context.scene
-        if world is None or not callable(getattr(world, "place_box", None)) or scene is None:
+        if not isinstance(world, PlacesBoxes) or scene is None:
             return self.fail(NO_SIM_WORLD.format(node="PlaceSimBox"))
         try:
             name, size = self.checked_input("object_id"), self.checked_input("dimensions")
@@ -128,7 +129,7 @@ class RemoveSimBox(ChecksPorts, Behavior):
 
     def update(self) -> Status:
         world = self.context.world
-        if world is None or not callable(getattr(world, "remove_box", None)):
+        if not isinstance(world, PlacesBoxes):
             return self.fail(NO_SIM_WORLD.format(node="RemoveSimBox"))
         try:
             name = self.checked_input("object_id")

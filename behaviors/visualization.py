@@ -16,6 +16,7 @@ from std_msgs.msg import ColorRGBA
 from tf2_msgs.msg import TFMessage
 from visualization_msgs.msg import Marker, MarkerArray
 
+from runtime.io.bus import RecordsTopics, capability
 from runtime.tree.behavior import Behavior, Status
 from runtime.tree.decorators import elapsed
 from runtime.tree.ports import InputPort, PortType, Range
@@ -98,9 +99,9 @@ class _Publishes(Behavior):
     def publisher(self) -> Any:
         if getattr(self, "_publisher", None) is None:
             bus = self.context.bus
-            record = getattr(bus, "record_topic", None)  # a RecordingBus: markers land in the bag
-            if record is not None:
-                record(self.topic, self.msg_type)
+            recorder = capability(bus, RecordsTopics)  # a recorded run: markers land in the bag
+            if recorder is not None:
+                recorder.record_topic(self.topic, self.msg_type)
             self._publisher = bus.create_publisher(self.topic, self.msg_type)
         return self._publisher
 

@@ -31,10 +31,8 @@ def when_ready(is_ready: Callable[[], bool], deadline: Deadline, what: str) -> b
 
 
 def release_subscription(node: Behavior, attribute: str = "subscription") -> None:
-    """Destroy the subscription a node keeps in ``attribute`` (if the bus can), once."""
+    """Destroy the subscription a node keeps in ``attribute`` (None: none), once."""
     sub = getattr(node, attribute, None)
-    context = getattr(node, "context", None)
-    destroy = getattr(context.bus, "destroy_subscription", None) if context is not None else None
-    if sub is not None and destroy is not None:
-        destroy(sub)
+    if sub is not None:
+        node.context.bus.destroy_subscription(sub)
         setattr(node, attribute, None)

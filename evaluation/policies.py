@@ -16,7 +16,7 @@ from typing import Any
 
 from policy.specs import PolicyKind, PolicySpec, PolicySpecError
 from policy.specs import parse_policy as parse_policy_spec
-from runtime.io.bus import parse_latency
+from runtime.io.bus import Bus, SimulatedLatency, capability, parse_latency
 from runtime.errors import ObjectiveError, OptionError
 
 __all__ = ["PolicyHost", "PolicyKind", "PolicySpec", "check_latency", "parse_policy", "policy_digest"]
@@ -65,7 +65,7 @@ class PolicyHost:
         if self.backend is not None:
             self.backend.load()
 
-    def serve(self, bus: Any, seed: int, latency: str) -> None:
+    def serve(self, bus: Bus, seed: int, latency: str) -> None:
         if self.backend is None:
             return
         from policy.adapter import DEFAULT_SERVICE_NAME, PolicyAdapter
@@ -75,8 +75,9 @@ class PolicyHost:
 
             torch.manual_seed(seed)
         PolicyAdapter(self.backend).serve(bus, DEFAULT_SERVICE_NAME)
-        if hasattr(bus, "set_latency"):
-            bus.set_latency(DEFAULT_SERVICE_NAME, parse_latency(latency, seed))
+        modelled = capability(bus, SimulatedLatency)
+        if modelled is not None:
+            modelled.set_latency(DEFAULT_SERVICE_NAME, parse_latency(latency, seed))
 
 
 def _make_backend(spec: PolicySpec, cell: Any) -> Any:

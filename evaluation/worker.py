@@ -19,14 +19,14 @@ import traceback
 from pathlib import Path
 from typing import Any
 
-from runtime.io.bus import FixedLatency
+from runtime.io.bus import FixedLatency, SimulatedLatency, capability
 from runtime.errors import INTERNAL, InternalError, ObjectiveError, error_kind
 from runtime.tree.loader import load_tree
 from runtime.app.protective_stop import ProtectiveStop, SharedStop
 from runtime.tree.registry import Registry
 from runtime.tree.registry import default_world_name
 from runtime.app.runner import RunOptions, RunResult, make_context, run_tree
-from runtime.app.world import create_world
+from runtime.app.world import KeepsEpisodes, create_world
 
 from .config import WorkerSpec
 from .episode import EpisodeRecord
@@ -113,7 +113,7 @@ class EpisodeWorker:
         self.needs_world = any(getattr(type(n), "needs_world", False) for n in loaded.root.iterate())
         if self.needs_world:
             world = create_world(self.spec.world or default_world_name(), self._world_options(0, "none"))
-            if callable(getattr(world, "begin_episode", None)):
+            if isinstance(world, KeepsEpisodes):
                 self.world = world
                 try:
                     self.policy = PolicyHost(self.spec.policy, getattr(world, "cell", None))
@@ -152,11 +152,12 @@ class EpisodeWorker:
         assert self.registry is not None, "warm_up() first"
         options = self._options(seed)
         context = make_context(options)
-        if self.spec.policy_latency.strip().lower() != "measured" and hasattr(context.bus, "default_latency"):
+        modelled = capability(context.bus, SimulatedLatency)
+        if self.spec.policy_latency.strip().lower() != "measured" and modelled is not None:
             # Every other service (switching controllers, ...) answers on the next tick, as it does
             # on an idle machine, instead of after the measured wall time: that would make the
             # episode depend on the machine's load.
-            context.bus.default_latency = FixedLatency(0.0)
+            modelled.default_latency = FixedLatency(0.0)
         loaded = load_tree(self.spec.objective, self.registry, context, self.spec.tree,
                            self.spec.search_paths, self.spec.objectives_dir)
         world: Any = None

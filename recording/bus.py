@@ -33,6 +33,9 @@ from geometry_msgs.msg import WrenchStamped
 from sensor_msgs.msg import Image, JointState
 from std_msgs.msg import String
 
+from runtime.io.bus import Bus, Publisher, ServerGoalHandle
+from runtime.io.clock import Clock
+
 from .mcap_writer import SENSOR_DATA_QOS, McapRos2Writer
 
 WRENCH_TOPIC = "/force_torque_sensor_broadcaster/wrench"
@@ -160,9 +163,13 @@ class _RecordingActionClient:
 
 
 class RecordingBus:
-    """Forwards every call to ``inner`` and records the traffic into ``writer`` (see the module doc)."""
+    """A ``runtime.io.bus.Bus`` that forwards every call to ``inner`` and records the traffic into
+    ``writer`` (see the module doc); a ``BusWrapper`` too, so what only ``inner`` can do is found
+    with ``runtime.io.bus.capability``."""
 
-    def __init__(self, inner: Any, writer: McapRos2Writer, joint_states_hz: float = JOINT_STATES_HZ) -> None:
+    clock: Clock
+
+    def __init__(self, inner: Bus, writer: McapRos2Writer, joint_states_hz: float = JOINT_STATES_HZ) -> None:
         self.inner = inner
         self.clock = inner.clock
         self.writer = writer
@@ -175,12 +182,20 @@ class RecordingBus:
         """Called with each recorded ``/joint_states`` message and its time (e.g. to send ``/tf``)."""
         self.record_topic(JOINT_STATES_TOPIC, JointState, joint_states_hz)
 
-    def __getattr__(self, name: str) -> Any:
-        return getattr(self.inner, name)
+    @property
+    def produces_on_read(self) -> bool:
+        return self.inner.produces_on_read
+
+    @property
+    def serves(self) -> bool:
+        return self.inner.serves
 
     def spin_once(self) -> None:
         self.inner.spin_once()
         self.writer.flush_if_due()
+
+    def close(self) -> None:
+        self.inner.close()
 
     # -- topics ---
     def record_topic(self, name: str, msg_type: type, max_hz: float | None = None) -> None:
@@ -200,6 +215,22 @@ class RecordingBus:
         # Best effort connects to reliable and best-effort publishers alike.
         self._recorded_topics[name] = self.inner.create_subscription(name, msg_type, record, reliable=False)
 
+    def create_publisher(self, name: str, msg_type: type, reliable: bool = True) -> Publisher:
+        return self.inner.create_publisher(name, msg_type, reliable)
+
+    def create_lazy_publisher(
+        self,
+        name: str,
+        msg_type: type,
+        produce: Callable[[], Any],
+        reliable: bool = True,
+        rate_hz: float = 30.0,
+    ) -> None:
+        self.inner.create_lazy_publisher(name, msg_type, produce, reliable, rate_hz)
+
+    def destroy_publisher(self, name: str) -> None:
+        self.inner.destroy_publisher(name)
+
     def create_subscription(self, name: str, msg_type: type, callback: Callable[[Any], None] | None = None, reliable: bool = True) -> Any:
         sub = self.inner.create_subscription(name, msg_type, callback, reliable)
         if msg_type is JointState:
@@ -210,11 +241,15 @@ class RecordingBus:
         return sub
 
     def destroy_subscription(self, sub: Any) -> None:
-        destroy = getattr(self.inner, "destroy_subscription", None)
-        if destroy is not None:
-            destroy(getattr(sub, "_recording_inner", sub))
+        self.inner.destroy_subscription(sub._recording_inner if isinstance(sub, _FrameTap) else sub)
 
     # -- services ---
+    def create_service(self, name: str, srv_type: type, handler: Callable[[Any], Any], own_thread: bool = False) -> Any:
+        return self.inner.create_service(name, srv_type, handler, own_thread)
+
+    def destroy_service(self, name: str) -> None:
+        self.inner.destroy_service(name)
+
     def create_client(self, name: str, srv_type: type) -> Any:
         return _RecordingClient(self.inner.create_client(name, srv_type), self)
 
@@ -254,8 +289,23 @@ class RecordingBus:
         future.add_done_callback(answered)
 
     # -- actions ---
+    def create_action_server(
+        self,
+        name: str,
+        action_type: type,
+        on_goal: Callable[[ServerGoalHandle], bool],
+        on_cancel: Callable[[ServerGoalHandle], bool] | None = None,
+    ) -> Any:
+        return self.inner.create_action_server(name, action_type, on_goal, on_cancel)
+
+    def destroy_action_server(self, name: str) -> None:
+        self.inner.destroy_action_server(name)
+
     def create_action_client(self, name: str, action_type: type) -> Any:
         return _RecordingActionClient(self.inner.create_action_client(name, action_type), self)
+
+    def action_types(self, name: str) -> list[str]:
+        return self.inner.action_types(name)
 
     def _goal(self, name: str, goal: Any, future: Any) -> None:
         now = self.clock.now()

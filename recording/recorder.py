@@ -37,7 +37,7 @@ import json
 import math
 import os
 from pathlib import Path
-from typing import Any, Callable, Iterable, TextIO
+from typing import Any, Callable, Iterable, Protocol, TextIO, runtime_checkable
 
 from runtime.tree.crash import CRASH_LOG
 from runtime.errors import ObjectiveError
@@ -93,6 +93,16 @@ def node_record(index: int, node: Any, ids: dict[int, int], tree: Any) -> dict[s
     }
 
 
+@runtime_checkable
+class BufferingSink(Protocol):
+    """A sink that buffers what it is given (the MCAP writer, the hand-off to the recording
+    worker): ``Tee.flush_if_due`` flushes it once per tick."""
+
+    def flush_if_due(self) -> None:
+        """Write out what is buffered when it is time to."""
+        ...
+
+
 class Tee:
     """Writes each message to several sinks (the MCAP file and a live view); a sink whose write
     fails (``OSError``: a full disk) is dropped and ``on_error`` told."""
@@ -106,9 +116,8 @@ class Tee:
 
     def flush_if_due(self) -> None:
         for sink in list(self.sinks):
-            flush = getattr(sink, "flush_if_due", None)
-            if flush is not None:
-                self._guarded(sink, flush)
+            if isinstance(sink, BufferingSink):
+                self._guarded(sink, sink.flush_if_due)
 
     def write(self, topic: str, msg: Any, seconds: float) -> None:
         for sink in list(self.sinks):

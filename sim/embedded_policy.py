@@ -11,7 +11,7 @@ from typing import Any
 from policy.adapter import DEFAULT_SERVICE_NAME, PolicyAdapter
 from policy.specs import PolicySpec, PolicySpecError, parse_policy
 from policy.specs import make_backend as make_spec_backend
-from runtime.io.bus import parse_latency
+from runtime.io.bus import Bus, SimulatedLatency, capability, parse_latency
 from runtime.errors import ObjectiveError
 from runtime.io.interrupt import describe_error, raised_by_code
 
@@ -28,7 +28,7 @@ def make_backend(spec: PolicySpec | str | None, cell: Any) -> Any:
     return make_spec_backend(spec, oracle)
 
 
-def serve_embedded_policy(bus: Any, spec: str | None, cell: Any, latency: str | None, seed: int) -> PolicyAdapter | None:
+def serve_embedded_policy(bus: Bus, spec: str | None, cell: Any, latency: str | None, seed: int) -> PolicyAdapter | None:
     """Serve the backend on the bus under ``/get_action_chunk`` with the latency model."""
     backend = make_backend(spec, cell)
     if backend is None:
@@ -43,6 +43,7 @@ def serve_embedded_policy(bus: Any, spec: str | None, cell: Any, latency: str | 
         name = getattr(backend, "name", type(backend).__name__)
         raise PolicySpecError(f"policy backend '{name}' failed to load: {describe_error(err)}") from None
     adapter = PolicyAdapter(backend).serve(bus, DEFAULT_SERVICE_NAME)
-    if latency and hasattr(bus, "set_latency"):
-        bus.set_latency(DEFAULT_SERVICE_NAME, parse_latency(latency, seed))
+    modelled = capability(bus, SimulatedLatency)  # None: a real graph, whose latency is its own
+    if latency and modelled is not None:
+        modelled.set_latency(DEFAULT_SERVICE_NAME, parse_latency(latency, seed))
     return adapter

@@ -127,7 +127,8 @@ class CellClock:
 
 class CellWorld:
     """A cell's services on the bus, stepped at 500 Hz of the runtime clock; its controllers
-    run on the cell's own clock (``CellClock``)."""
+    run on the cell's own clock (``CellClock``). A ``runtime.app.world.World``, and
+    ``KeepsEpisodes`` and ``PlacesBoxes`` besides."""
 
     def __init__(self, name: str, options: dict[str, Any], make_cell: Callable[[np.ndarray, int], Cell]) -> None:
         unknown = sorted(set(options) - set(COMMON_OPTIONS))
@@ -162,7 +163,7 @@ class CellWorld:
         self.joint_states = bus.create_publisher("/joint_states", JointState, reliable=reliable)
         rate = number_option(self.options, "camera_rate_hz", 10.0)  # used on real ROS only
         self.camera_thread = None
-        if getattr(bus, "produces_on_read", True):  # in process: a frame is rendered when it is read
+        if bus.produces_on_read:  # in process: a frame is rendered when it is read
             for name, topic in CAMERA_TOPICS.items():
                 bus.create_lazy_publisher(topic, Image, functools.partial(self._camera_frame, name), rate_hz=rate)
             if self.options.get("realtime"):  # a first frame makes the renderer (GL context, meshes): not in a tick

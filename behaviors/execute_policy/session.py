@@ -35,6 +35,7 @@ from sensor_msgs.msg import Image, JointState
 
 from runtime.app.terminal import bounded
 from runtime.errors import PortError, SetupError
+from runtime.io.bus import Bus, ServedListing, capability
 from runtime.tree.behavior import Behavior, Status
 from runtime.tree.ports import Direction
 
@@ -185,13 +186,12 @@ class PolicySession:
         return self.links
 
     def _close_subscriptions(self) -> None:
-        destroy = getattr(self.node.context.bus, "destroy_subscription", None)
-        if destroy is None or self.links is None:
+        if self.links is None:
             return
-        links = self.links
+        links, bus = self.links, self.node.context.bus
         for sub in [links.joint_states, *links.cameras, links.wrench.subscription if links.wrench else None]:
             if sub is not None:
-                destroy(sub)
+                bus.destroy_subscription(sub)
 
     def begin(self) -> SessionRun:
         """Start a run (the node's ``initialise``): read and validate the config, build the robot's
@@ -587,12 +587,12 @@ class PolicySession:
         return settled.values
 
 
-def policy_hint(bus: Any) -> str:
+def policy_hint(bus: Bus) -> str:
     """What to do about a missing policy service, in the mode the run on ``bus`` is in."""
-    served = getattr(bus, "served", None)
-    if not callable(served):  # a ROS 2 graph: the adapter serves the policy
+    listing = capability(bus, ServedListing)
+    if listing is None:  # a ROS 2 graph: the adapter serves the policy
         return "start the adapter (`objective adapter`) before running the Objective"
-    names = ", ".join(sorted(served())) or "none"
+    names = ", ".join(sorted(listing.served())) or "none"
     return f"in this run the world serves the policy chosen with --policy; services here: {names}"
 
 

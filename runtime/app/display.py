@@ -6,7 +6,7 @@ from typing import TextIO
 
 import py_trees
 
-from runtime.tree.behavior import NodeMixin
+from runtime.tree.behavior import NodeMixin, SummarisesRun
 from runtime.tree.loader import CONDITION_ATTRIBUTES, LoadedTree
 from runtime.tree.subtree import SubTree
 from .terminal import printable
@@ -73,11 +73,11 @@ class ProgressLine:
         self.min_interval = 1.0 / rate_hz
         self._last = -float("inf")
         self._width = 0
-        self._reporters: list[py_trees.behaviour.Behaviour] = []
+        self._reporters: list[SummarisesRun] = []
 
     def attach(self, root: py_trees.behaviour.Behaviour) -> None:
         """Also show the policy's progress: nodes with ``run_summary()`` (ExecutePolicy) are asked at display time."""
-        self._reporters = [n for n in root.iterate() if callable(getattr(n, "run_summary", None))]
+        self._reporters = [n for n in root.iterate() if isinstance(n, SummarisesRun)]
 
     def policy_text(self) -> str:
         """``steps 120  chunks 6  latency 0.012/0.020 s  stalls 0.00 s`` of the policy run, if one started."""

@@ -89,7 +89,7 @@ class ProtectiveStop:
         if inputs.topic:
             bus.create_subscription(inputs.topic, Bool, self.on_stop)
         if inputs.service:
-            if getattr(bus, "serves", True):
+            if bus.serves:
                 bus.create_service(inputs.service, Trigger, self.on_trigger)
             else:  # a run against a real robot's graph serves nothing (``RosBus(serves=False)``)
                 _log.warning("protective stop: this run serves no services; stop it on the topic '%s'", inputs.topic)

@@ -27,12 +27,12 @@ import signal
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Iterable, Protocol, Sequence
+from typing import Any, Callable, Iterable, Protocol, Sequence, runtime_checkable
 
 import py_trees
 
-from runtime.tree.behavior import RunContext, Status
-from runtime.io.bus import InProcessBus, parse_latency
+from runtime.tree.behavior import RunContext, Status, SummarisesRun
+from runtime.io.bus import InProcessBus, InterruptibleWaits, capability, parse_latency
 from runtime.io.clock import SimClock, WallClock
 from runtime.tree.controls import SKIPPED, Visit, is_skipped, tick_tree
 from runtime.tree.crash import CRASH_LOG, culprit, describe_crash, write_traceback
@@ -50,6 +50,17 @@ from .world_check import check_tree, declared_interfaces, named_links
 
 Progress = Callable[[float, int, str], None]
 """Called after every tick with (clock seconds, ticks so far, name of the running node)."""
+
+
+@runtime_checkable
+class TreeProgress(Protocol):
+    """A ``Progress`` that also looks at the tree's nodes (``runtime.app.display.ProgressLine``)."""
+
+    def __call__(self, sim_seconds: float, ticks: int, running: str) -> None: ...
+
+    def attach(self, root: py_trees.behaviour.Behaviour) -> None:
+        """Before the first tick: the tree's root."""
+        ...
 
 
 class TickWatcher(Protocol):
@@ -465,8 +476,9 @@ def run_tree(
         world = create_world(options.world or default_world_name(), world_options)
     period = context.tick_period_s = 1.0 / options.tick_hz  # the run's nodes read it from the context
     clock, bus = context.clock, context.bus
-    if stop is not None and callable(getattr(bus, "stop_waiting_when", None)):
-        bus.stop_waiting_when(lambda: stop.requested)  # a hung in-process policy never holds a signal back
+    waits = capability(bus, InterruptibleWaits)
+    if stop is not None and waits is not None:
+        waits.stop_waiting_when(lambda: stop.requested)  # a hung in-process policy never holds a signal back
     ticks = 0
     blame: tuple[py_trees.behaviour.Behaviour, str, str | None] | None = None
     status = Status.INVALID
@@ -474,8 +486,8 @@ def run_tree(
     breakoff: Breakoff | None = None
     running: list[py_trees.behaviour.Behaviour] = []
     statuses = StatusEvents(context.events, nodes)
-    if callable(getattr(progress, "attach", None)):
-        progress.attach(root)  # type: ignore[union-attr]
+    if isinstance(progress, TreeProgress):
+        progress.attach(root)
     pacing = Pacing(period) if options.paced else None
     wall_start = time.monotonic()
     try:
@@ -579,9 +591,8 @@ def run_tree(
 
     extra: dict[str, Any] = {}
     for node in nodes:
-        summarise = getattr(node, "run_summary", None)
-        if callable(summarise):
-            extra.update(summarise() or {})
+        if isinstance(node, SummarisesRun):
+            extra.update(node.run_summary() or {})
     if summary_world:
         extra["world"] = summary_world
     if pacing is not None:

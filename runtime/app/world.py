@@ -8,7 +8,7 @@ found through the ``objective.worlds`` entry-point group: each names ``create(op
 from __future__ import annotations
 
 from importlib.metadata import entry_points
-from typing import Any, Protocol
+from typing import Any, Protocol, runtime_checkable
 
 from runtime.errors import ObjectiveError
 from runtime.extras import load_entry_point
@@ -36,6 +36,32 @@ class World(Protocol):
         ...
 
     def close(self) -> None: ...
+
+
+@runtime_checkable
+class KeepsEpisodes(Protocol):
+    """A world that one evaluation worker keeps for many episodes (``sim.world``'s cells): put
+    back to a seed before each run's ``start``. An evaluation creates any other world anew for
+    every episode."""
+
+    def begin_episode(self, seed: int) -> None:
+        """Before ``start`` with a new run's context: the world as a newly created one with
+        ``seed`` would have it."""
+        ...
+
+
+@runtime_checkable
+class PlacesBoxes(Protocol):
+    """A simulated world that boxes appear in and leave mid-run (PlaceSimBox, RemoveSimBox)."""
+
+    def place_box(self, name: str, size_m: Any, pose: Any, mirror: bool = True) -> None:
+        """Make a fixed box appear at ``pose`` (4x4, world frame), or move it there, mirrored
+        into the planning scene unless ``mirror`` is False. ValueError says why not."""
+        ...
+
+    def remove_box(self, name: str) -> None:
+        """Take a placed box out (and out of the planning scene). ValueError says why not."""
+        ...
 
 
 def world_hosts_servers(name: str) -> bool:

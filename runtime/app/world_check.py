@@ -17,6 +17,7 @@ import difflib
 from dataclasses import dataclass, field, replace
 from typing import Any, Iterable, Iterator
 
+from runtime.io.bus import ServedListing, capability
 from runtime.tree.behavior import RunContext
 from runtime.errors import ObjectiveError, PortError, SetupError
 from runtime.tree.ports import Direction, NameKind, Names, PortType
@@ -60,14 +61,12 @@ class WorldFacts:
             )
         if "waypoints" in context.resources:
             facts["waypoints"] = frozenset(context.resources["waypoints"])
-        bus = context.bus
-        if callable(getattr(bus, "served", None)) and callable(getattr(bus, "action_servers", None)):
-            states = _controller_states(bus)
-            facts.update(services=bus.served(), actions=bus.action_servers(),
+        listing = capability(context.bus, ServedListing)  # None: the graph serves elsewhere (ROS 2), nothing is checked
+        if listing is not None:
+            states = _controller_states(listing)
+            facts.update(services=listing.served(), actions=listing.action_servers(), topics=listing.published(),
                          controllers=None if states is None else frozenset(states),
                          active_controllers=None if states is None else frozenset(n for n, s in states.items() if s == "active"))
-        if callable(getattr(bus, "published", None)):
-            facts["topics"] = bus.published()
         return cls(**facts)
 
     def problem(self, names: Names, value: str) -> str | None:
@@ -232,13 +231,13 @@ def started_world(name: str, options: dict[str, Any]) -> Iterator[StartedWorld]:
             context.bus.close()
 
 
-def _controller_states(bus: Any) -> dict[str, str] | None:
+def _controller_states(listing: ServedListing) -> dict[str, str] | None:
     """Each controller an in-process controller manager lists, with its state (None when none is served)."""
-    listers = [name for name, srv_type in bus.served().items() if srv_type.__name__ == "ListControllers"]
+    listers = [name for name, srv_type in listing.served().items() if srv_type.__name__ == "ListControllers"]
     if len(listers) != 1:
         return None
-    srv_type = bus.served()[listers[0]]
-    return {c.name: c.state for c in bus.call_now(listers[0], srv_type.Request()).controller}
+    srv_type = listing.served()[listers[0]]
+    return {c.name: c.state for c in listing.call_now(listers[0], srv_type.Request()).controller}
 
 
 def _model_frames(robot: Any) -> Iterable[str]:

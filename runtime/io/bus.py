@@ -32,7 +32,7 @@ import threading
 import time
 import uuid
 from dataclasses import dataclass
-from typing import Any, Callable, Generic, Protocol, TypeVar
+from typing import Any, Callable, Generic, Protocol, TypeVar, runtime_checkable
 
 from .clock import Clock
 from runtime.errors import OptionError
@@ -183,14 +183,23 @@ class ActionClient(Protocol):
     ) -> Future[ClientGoalHandle]: ...
 
 
+@runtime_checkable
 class Bus(Protocol):
-    """What behaviors and worlds use to talk; see ``InProcessBus`` and ``runtime.io.ros.RosBus``."""
+    """What behaviors and worlds use to talk: every bus has all of it (``InProcessBus``,
+    ``runtime.io.ros.RosBus``, ``runtime.io.ros.run.HostingBus``, ``recording.bus.RecordingBus``;
+    ``tests/test_bus_protocol.py`` holds each to it). What only some buses can do is a protocol
+    of its own below (``ServedListing``, ``SimulatedLatency``, ``InterruptibleWaits``,
+    ``RecordsTopics``), found with ``capability``."""
 
     clock: Clock
+    """The runtime clock: it stamps ``ready_at`` of futures and ``received_at`` of messages."""
     produces_on_read: bool
     """True when a lazy topic's message is produced as a subscriber reads it (in process); False
     when topics are pushed at a rate to readers elsewhere (ROS 2), so a frame costs whether or
     not it is read."""
+    serves: bool
+    """False when the bus may serve nothing (a run against a real robot's graph, whose drivers
+    serve: ``RosBus(serves=False)``); ``create_service`` and ``create_action_server`` then raise."""
 
     def create_service(self, name: str, srv_type: type, handler: Callable[[Any], Any], own_thread: bool = False) -> Any:
         """Serve ``name`` with ``handler(request) -> response``. ``own_thread``: a slow handler
@@ -199,9 +208,33 @@ class Bus(Protocol):
         waits for it, see the module's docstring)."""
         ...
 
-    def create_client(self, name: str, srv_type: type) -> ServiceClient: ...
+    def destroy_service(self, name: str) -> None:
+        """Stop serving ``name`` (nothing when it is not served)."""
+        ...
 
-    def create_publisher(self, name: str, msg_type: type, reliable: bool = True) -> Publisher: ...
+    def create_client(self, name: str, srv_type: type) -> ServiceClient:
+        """A client of service ``name``."""
+        ...
+
+    def create_publisher(self, name: str, msg_type: type, reliable: bool = True) -> Publisher:
+        """A publisher on topic ``name``; ``reliable``: ROS's reliable QoS, else best effort."""
+        ...
+
+    def create_lazy_publisher(
+        self,
+        name: str,
+        msg_type: type,
+        produce: Callable[[], Any],
+        reliable: bool = True,
+        rate_hz: float = 30.0,
+    ) -> None:
+        """Serve topic ``name`` with ``produce()`` (None: nothing this time): when a subscriber
+        reads it where ``produces_on_read``, else at ``rate_hz`` while the topic has subscribers."""
+        ...
+
+    def destroy_publisher(self, name: str) -> None:
+        """Stop publishing on ``name``: its publishers and its lazy publisher."""
+        ...
 
     def create_subscription(
         self,
@@ -209,7 +242,14 @@ class Bus(Protocol):
         msg_type: type,
         callback: Callable[[Any], None] | None = None,
         reliable: bool = True,
-    ) -> Subscription: ...
+    ) -> Subscription:
+        """A subscription to topic ``name``: ``callback(msg)`` on each message (in ``spin_once``),
+        the newest in ``latest``."""
+        ...
+
+    def destroy_subscription(self, sub: Subscription) -> None:
+        """Stop delivering to ``sub`` (nothing when it is not subscribed)."""
+        ...
 
     def create_action_server(
         self,
@@ -217,9 +257,18 @@ class Bus(Protocol):
         action_type: type,
         on_goal: Callable[[ServerGoalHandle], bool],
         on_cancel: Callable[[ServerGoalHandle], bool] | None = None,
-    ) -> Any: ...
+    ) -> Any:
+        """Serve action ``name``: ``on_goal(handle)`` accepts a goal (True) or rejects it;
+        ``on_cancel(handle)`` accepts a cancel request (None: every one is accepted)."""
+        ...
 
-    def create_action_client(self, name: str, action_type: type) -> ActionClient: ...
+    def destroy_action_server(self, name: str) -> None:
+        """Stop serving action ``name`` (nothing when it is not served)."""
+        ...
+
+    def create_action_client(self, name: str, action_type: type) -> ActionClient:
+        """A client of action ``name``."""
+        ...
 
     def action_types(self, name: str) -> list[str]:
         """The types served under action ``name``, as ``pkg/action/Type`` (empty: not served)."""
@@ -229,7 +278,92 @@ class Bus(Protocol):
         """Deliver what is due now (callbacks of matured futures, queued messages)."""
         ...
 
-    def close(self) -> None: ...
+    def close(self) -> None:
+        """Stop serving and delivering; release what the bus holds (threads, nodes)."""
+        ...
+
+
+# --------------------------------------------------------------------------------------------
+# What only some buses can do
+# --------------------------------------------------------------------------------------------
+@runtime_checkable
+class ServedListing(Protocol):
+    """A bus that knows every service, action and topic served on it, and can call a service at
+    once: the in-process bus, where everything is served in this process (on ROS 2 the graph's
+    servers live elsewhere)."""
+
+    def served(self) -> dict[str, type]:
+        """Every service served on this bus now, with its type."""
+        ...
+
+    def action_servers(self) -> dict[str, type]:
+        """Every action served on this bus now, with its type."""
+        ...
+
+    def published(self) -> dict[str, type]:
+        """Every topic published on this bus now, with its message type."""
+        ...
+
+    def call_now(self, name: str, request: Any) -> Any:
+        """The answer of service ``name`` to ``request``, at once and without a latency."""
+        ...
+
+
+@runtime_checkable
+class SimulatedLatency(Protocol):
+    """A bus whose service answers arrive after a modelled latency (the in-process bus)."""
+
+    default_latency: LatencyModel
+    """The latency of every service without a model of its own."""
+
+    def set_latency(self, service_name: str, model: LatencyModel) -> None:
+        """Answer ``service_name`` after ``model``'s latency."""
+        ...
+
+    def latency_for(self, service_name: str) -> LatencyModel:
+        """The latency model of ``service_name``."""
+        ...
+
+
+@runtime_checkable
+class InterruptibleWaits(Protocol):
+    """A bus whose service calls may wait for their handler (the in-process bus on a simulated
+    clock), and stop waiting when told to."""
+
+    def stop_waiting_when(self, condition: Callable[[], bool]) -> None:
+        """A call waiting for its handler gives up as soon as ``condition()`` holds."""
+        ...
+
+
+@runtime_checkable
+class RecordsTopics(Protocol):
+    """A bus that records its traffic (``recording.bus.RecordingBus``)."""
+
+    def record_topic(self, name: str, msg_type: type, max_hz: float | None = None) -> None:
+        """Record every message on ``name`` (at most ``max_hz`` per second of clock time)."""
+        ...
+
+
+@runtime_checkable
+class BusWrapper(Protocol):
+    """A bus that forwards to another (``recording.bus.RecordingBus``): what only some buses can
+    do is looked for in ``inner`` too (``capability``)."""
+
+    inner: Bus
+
+
+C = TypeVar("C")
+
+
+def capability(bus: Bus, kind: type[C]) -> C | None:
+    """``bus`` as a ``kind`` (one of the protocols above), or the bus it wraps
+    (``BusWrapper.inner``, as deep as it goes) when that one is; None when none of them is."""
+    found: Any = bus
+    while not isinstance(found, kind):
+        if not isinstance(found, BusWrapper):
+            return None
+        found = found.inner
+    return found
 
 
 def interface_type_name(interface: type, kind: str) -> str:
@@ -604,9 +738,12 @@ class _InProcessActionClient:
 
 
 class InProcessBus:
-    """Everything in one process, on one clock. Deterministic given the latency models."""
+    """Everything in one process, on one clock. Deterministic given the latency models. A
+    ``Bus``, and a ``ServedListing``, ``SimulatedLatency`` and ``InterruptibleWaits`` besides."""
 
+    clock: Clock
     produces_on_read = True
+    serves = True
 
     def __init__(self, clock: Clock, default_latency: LatencyModel | None = None, paced: bool = False) -> None:
         self.clock = clock
@@ -683,7 +820,7 @@ class InProcessBus:
         msg_type: type,
         produce: Callable[[], Any],
         reliable: bool = True,
-        rate_hz: float | None = None,
+        rate_hz: float = 30.0,
     ) -> None:
         """Serve ``name`` by calling ``produce()`` whenever a subscriber reads ``latest``.
 
@@ -734,6 +871,7 @@ class InProcessBus:
     def action_servers(self) -> dict[str, type]:
         """Every action served on this bus now, with its type."""
         return {name: server.action_type for name, server in self._action_servers.items()}
+
     def action_types(self, name: str) -> list[str]:
         server = self._action_servers.get(name)
         return [] if server is None else [interface_type_name(server.action_type, "action")]

@@ -10,7 +10,7 @@ from __future__ import annotations
 import enum
 import logging
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any, ClassVar, Iterator
+from typing import TYPE_CHECKING, Any, ClassVar, Iterator, Protocol, runtime_checkable
 
 import py_trees
 
@@ -24,6 +24,17 @@ if TYPE_CHECKING:
     from .events import EventLog
 
 Status = py_trees.common.Status
+
+
+@runtime_checkable
+class SummarisesRun(Protocol):
+    """A node that adds facts to the run's summary (ExecutePolicy: its chunks, latencies and
+    stalls); the runner merges them into the summary, the progress line and the Objective server's
+    feedback show them while it runs."""
+
+    def run_summary(self) -> dict[str, Any] | None:
+        """JSON-serialisable facts of this node's runs so far (None or empty: none)."""
+        ...
 
 
 class NodeKind(enum.Enum):

@@ -49,6 +49,7 @@ from std_srvs.srv import Trigger
 from objective_server_msgs.action import DoObjective
 from objective_server_msgs.msg import ObjectiveInfo, ObjectivePort
 from objective_server_msgs.srv import ExecuteObjective, ListObjectives
+from runtime.tree.behavior import SummarisesRun
 from runtime.tree.controls import Visit
 from runtime.tree.crash import describe_crash, write_traceback
 from runtime.errors import ObjectiveError
@@ -141,9 +142,8 @@ def feedback(root: Any, now_s: float, ticks: int) -> Any:
     message.ticks = ticks
     progress: dict[str, Any] = {}
     for node in leaves:
-        summarise = getattr(node, "run_summary", None)
-        if callable(summarise):
-            progress.update(summarise() or {})
+        if isinstance(node, SummarisesRun):
+            progress.update(node.run_summary() or {})
     message.progress_json = json.dumps(progress, default=str)
     return message
 

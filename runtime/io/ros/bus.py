@@ -631,7 +631,9 @@ class RosBus:
     of futures. ROS timers (lazy publishers) run on wall time.
     """
 
+    clock: Clock
     produces_on_read = False
+    serves: bool
 
     def __init__(
         self,

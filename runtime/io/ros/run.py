@@ -28,9 +28,12 @@ from __future__ import annotations
 
 import os
 import time
-from typing import Any, Callable, Iterable
+from typing import TYPE_CHECKING, Any, Callable, Iterable
 
 from runtime.io.clock import WallClock
+
+if TYPE_CHECKING:
+    from runtime.io.bus import ActionClient, Bus, Publisher, ServerGoalHandle, ServiceClient, Subscription
 
 DEFAULT_NODE_NAME = "objective_runtime"
 HALT_GRACE_S = 0.25
@@ -57,7 +60,7 @@ def set_discovery_range(opened: str | None = None) -> str:
     return os.environ.setdefault(DISCOVERY_VARIABLE, "LOCALHOST")
 
 
-def make_ros_bus(clock: WallClock, node_name: str = DEFAULT_NODE_NAME, serves: bool = True) -> Any:
+def make_ros_bus(clock: WallClock, node_name: str = DEFAULT_NODE_NAME, serves: bool = True) -> Bus:
     """The runner's bus on ROS 2: a ``HostingBus`` when the world hosts servers (``serves``),
     else one ``RosBus`` that serves nothing (the ``robot`` world: the robot's drivers serve).
     Discovery stays on this machine unless the range was opened (``set_discovery_range``)."""
@@ -77,7 +80,9 @@ class HostingBus:
     executor). ``spin_once`` and ``close`` handle both; the cancels the behaviors' node sends to
     the hosted action servers are served before either node leaves the graph."""
 
+    clock: WallClock
     produces_on_read = False
+    serves = True
 
     def __init__(self, clock: WallClock, node_name: str = DEFAULT_NODE_NAME) -> None:
         from runtime.io.ros.bus import RosBus
@@ -90,19 +95,66 @@ class HostingBus:
         except BaseException:
             self.calls.close()
             raise
-        self.create_service = self.servers.create_service
-        self.destroy_service = self.servers.destroy_service
-        self.create_action_server = self.servers.create_action_server
-        self.destroy_action_server = self.servers.destroy_action_server
-        self.create_client = self.calls.create_client
-        self.create_publisher = self.calls.create_publisher
-        self.create_lazy_publisher = self.calls.create_lazy_publisher
-        self.destroy_publisher = self.calls.destroy_publisher
-        self.create_subscription = self.calls.create_subscription
-        self.destroy_subscription = self.calls.destroy_subscription
-        self.create_action_client = self.calls.create_action_client
-        self.action_types = self.calls.action_types  # what the graph serves under a name
 
+    # -- on the hosted servers' node ---
+    def create_service(self, name: str, srv_type: type, handler: Callable[[Any], Any], own_thread: bool = False) -> Any:
+        return self.servers.create_service(name, srv_type, handler, own_thread)
+
+    def destroy_service(self, name: str) -> None:
+        self.servers.destroy_service(name)
+
+    def create_action_server(
+        self,
+        name: str,
+        action_type: type,
+        on_goal: Callable[[ServerGoalHandle], bool],
+        on_cancel: Callable[[ServerGoalHandle], bool] | None = None,
+    ) -> Any:
+        return self.servers.create_action_server(name, action_type, on_goal, on_cancel)
+
+    def destroy_action_server(self, name: str) -> None:
+        self.servers.destroy_action_server(name)
+
+    # -- on the behaviors' node ---
+    def create_client(self, name: str, srv_type: type) -> ServiceClient:
+        return self.calls.create_client(name, srv_type)
+
+    def create_publisher(self, name: str, msg_type: type, reliable: bool = True) -> Publisher:
+        return self.calls.create_publisher(name, msg_type, reliable)
+
+    def create_lazy_publisher(
+        self,
+        name: str,
+        msg_type: type,
+        produce: Callable[[], Any],
+        reliable: bool = True,
+        rate_hz: float = 30.0,
+    ) -> None:
+        self.calls.create_lazy_publisher(name, msg_type, produce, reliable, rate_hz)
+
+    def destroy_publisher(self, name: str) -> None:
+        self.calls.destroy_publisher(name)
+
+    def create_subscription(
+        self,
+        name: str,
+        msg_type: type,
+        callback: Callable[[Any], None] | None = None,
+        reliable: bool = True,
+    ) -> Subscription:
+        return self.calls.create_subscription(name, msg_type, callback, reliable)
+
+    def destroy_subscription(self, sub: Subscription) -> None:
+        self.calls.destroy_subscription(sub)  # type: ignore[arg-type]
+
+    def create_action_client(self, name: str, action_type: type) -> ActionClient:
+        return self.calls.create_action_client(name, action_type)
+
+    def action_types(self, name: str) -> list[str]:
+        """What the graph serves under action ``name``."""
+        return self.calls.action_types(name)
+
+    # -- both ---
     def spin_once(self) -> None:
         self.calls.spin_once()
         self.servers.spin_once()
@@ -136,7 +188,7 @@ CLOCK_WAIT_S = 10.0
 """Wall time ``--use-sim-time`` waits for the first ``/clock`` message."""
 
 
-def follow_graph_clock(bus: Any, clock: WallClock, timeout_s: float = CLOCK_WAIT_S) -> float:
+def follow_graph_clock(bus: Bus, clock: WallClock, timeout_s: float = CLOCK_WAIT_S) -> float:
     """Set ``clock`` to the time the graph's ``/clock`` reads (``--use-sim-time``) and keep it
     there; returns the first reading.
 
@@ -166,7 +218,7 @@ def follow_graph_clock(bus: Any, clock: WallClock, timeout_s: float = CLOCK_WAIT
     return now
 
 
-def prepare_links(bus: Any, interfaces: Iterable[type], services: Iterable[tuple[str, type]],
+def prepare_links(bus: Bus, interfaces: Iterable[type], services: Iterable[tuple[str, type]],
                   actions: Iterable[tuple[str, tuple[type, ...]]]) -> None:
     """Before the first tick, what behaviors would otherwise pay for in a tick when they start:
     rclpy's C type support of every service and action type the tree declares (``interfaces``;
@@ -199,7 +251,7 @@ def graph_description(node_name: str = DEFAULT_NODE_NAME) -> str:
     return f"on ROS 2 as node /{node_name} (ROS_DOMAIN_ID={domain}, {DISCOVERY_VARIABLE}={scope})"
 
 
-def deliver_pending(bus: Any, step_world: Callable[[], None] | None = None, seconds: float = HALT_GRACE_S) -> None:
+def deliver_pending(bus: Bus, step_world: Callable[[], None] | None = None, seconds: float = HALT_GRACE_S) -> None:
     """Keep spinning ``bus`` for ``seconds`` of wall time (after a halt, before closing), stepping
     the hosted world (``step_world``) too, so its controllers bring the arm to rest on the cancels."""
     deadline = time.monotonic() + seconds
