@@ -23,7 +23,7 @@ from __future__ import annotations
 import enum
 import importlib
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Sequence
 
 import numpy as np
 from control_msgs.msg import JointTolerance
@@ -99,6 +99,23 @@ class ControllerLink:
                 return False
             self.kind, self.client = kind, self.bus.create_action_client(self.name, kind.action_type)
         return self.client.server_is_ready()
+
+
+def controller_topic(action_name: str, topic: str) -> str:
+    """The controller's topic ``topic`` beside its action ``action_name`` (both in the
+    controller's namespace): ``/jtc/follow_joint_trajectory`` -> ``/jtc/<topic>``."""
+    return action_name.rstrip("/").rsplit("/", 1)[0] + "/" + topic
+
+
+def reference_position(state: Any, joints: Sequence[str]) -> np.ndarray | None:
+    """The reference a ``JointTrajectoryControllerState`` says the controller commands to
+    ``joints`` (in that order); None without a state or when it lacks one of them."""
+    if state is None or len(state.reference.positions) != len(state.joint_names):
+        return None
+    names = list(state.joint_names)
+    if any(j not in names for j in joints):
+        return None
+    return np.array([state.reference.positions[names.index(j)] for j in joints], dtype=float)
 
 
 @dataclass(frozen=True)

@@ -23,7 +23,7 @@ needs_lerobot = pytest.mark.skipif(importlib.util.find_spec("lerobot") is None,
                                    reason="the LeRobot extra is not installed (make lerobot)")
 LEROBOT_RTC = pytest.param("ExecuteWithLeRobotRtc", marks=needs_lerobot)
 """LeRobot's rollout RTC queue runs LeRobot's own code: only where the extra is installed."""
-from runtime.app.runner import RunOptions, make_context, run_tree
+from runtime.app.runner import RunOptions, make_context, run_file, run_tree
 from sim.kinematic import KinematicWorld
 from tests.test_execute_policy import ScriptedPolicy, chunk_response, hold
 
@@ -75,6 +75,21 @@ def test_the_synchronous_newest_wins_and_upsampling_executors_stack_the_cubes_wi
     assert summary["rejections"] == 0 and summary["chunks"] >= 300 // 49
     probe = result.extra["unsafe_points"]
     assert probe["count"] == 0 and probe["probed"] > 2500  # every tick of the run, about 30 s
+
+
+@pytest.mark.parametrize("executor", [Executor.RTC, Executor.SYNC], ids=lambda e: e.value)
+def test_on_the_physics_cell_a_motion_from_rest_starts_where_the_controller_holds_the_arm(registry, executor, tmp_path):
+    """At rest at Home the physics cell's arm sags a few mrad off the Home its JTC commands; a
+    chunk that started from the measured state would make the JTC (interpolating from what it
+    commands) jump there within one control step (about 160 rad/s^2 on the elbow). Started from
+    the controller's reference, nothing the controller commands is unsafe."""
+    path = tmp_path / "bench.xml"
+    path.write_text(objective_xml(executor))
+    result = run_file(path, registry, RunOptions(seed=100, world="vla_sim", max_seconds=60.0))
+    assert (result.status, result.reason) == ("SUCCESS", "")
+    probe = result.extra["unsafe_points"]
+    assert (probe["count"], probe["first"]) == (0, "")
+    assert probe["probed"] > 2500
 
 
 def test_lerobots_queue_joins_the_oracles_second_chunk_with_a_jump_the_probe_counts(registry):

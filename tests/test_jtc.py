@@ -10,14 +10,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from control_msgs.action import FollowJointTrajectory
-from control_msgs.msg import JointTolerance
+from control_msgs.msg import JointTolerance, JointTrajectoryControllerState
 from geometry_msgs.msg import WrenchStamped
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
 from runtime.io.bus import STATUS_ABORTED, STATUS_SUCCEEDED
-from runtime.io.timestamps import duration_msg, time_msg
+from runtime.io.timestamps import duration_msg, time_msg, to_seconds
 from controller_manager_msgs.srv import SwitchController
 
 from runtime.io.bus import FixedLatency, InProcessBus
@@ -293,6 +293,20 @@ def test_by_default_a_new_trajectory_starts_from_the_measured_state():
     times = [entry[0] for entry in cell.hw.log]
     k = times.index(min(times, key=lambda t: abs(t - 0.6)))
     np.testing.assert_allclose(cell.hw.log[k][1], cell.hw.log[k - 1][1], atol=1e-12)  # the measured position at arrival
+
+
+def test_the_controller_state_carries_the_reference_the_measured_feedback_and_their_error(cell):
+    state = cell.bus.create_subscription("/joint_trajectory_controller/controller_state", JointTrajectoryControllerState,
+                                         reliable=False)
+    cell.hw.stuck_joint = 2
+    send(cell, jtc_goal(move(0.1)))
+    cell.run(1.2)
+    msg = state.latest
+    assert list(msg.joint_names) == list(ARM)
+    np.testing.assert_allclose(msg.reference.positions, HOME + 0.1, atol=1e-9)  # it holds the goal's last point
+    np.testing.assert_allclose(msg.feedback.positions, cell.hw.q, atol=1e-12)  # where the arm is: joint 3 stuck
+    assert msg.error.positions[2] == pytest.approx(0.1) and max(abs(e) for k, e in enumerate(msg.error.positions) if k != 2) < 1e-9
+    assert to_seconds(msg.header.stamp) == pytest.approx(cell.clock.now())
 
 
 def test_the_broadcaster_publishes_the_wrist_wrench_while_active(cell):

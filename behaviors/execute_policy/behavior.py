@@ -213,7 +213,7 @@ class ExecutePolicy(Behavior):
         """Plan ``held`` (``planner.plan_chunk``); send it, hold it, or end the run with its rejection."""
         session, sent, controller = self.session, self._sent_motion(), self._controller()
         config, safety, grid = session.config, session.safety, sent.grid
-        rest_position = session.arm_position() if sent.motion is None else None
+        rest_position = session.rest_position() if sent.motion is None else None
         plan = plan_chunk(PlanInput(
             sent=sent,
             goal=controller.goal.state,

@@ -30,6 +30,7 @@ from typing import Any, Mapping, Protocol
 
 import numpy as np
 from control_msgs.action import GripperCommand
+from control_msgs.msg import JointTrajectoryControllerState
 from moveit_pro_ml_msgs.srv import GetActionChunk
 from sensor_msgs.msg import Image, JointState
 
@@ -40,7 +41,7 @@ from runtime.tree.behavior import Behavior, Status
 from runtime.tree.ports import Direction
 
 from . import config as cfg
-from ..controller_link import ControllerLink
+from ..controller_link import ControllerLink, controller_topic, reference_position
 from ..safety import MotionSafety, SafetyError, make_safety
 from ..wrench_watch import WrenchWatch
 from .chunk import Chunk, ChunkError, period_problem, read_chunk, read_policy_chunk
@@ -121,6 +122,8 @@ class SessionLinks:
     controller: ControllerLink
     gripper: GripperStream | None
     joint_states: Any
+    controller_state: Any
+    """The controller's ``~/controller_state`` (where a motion from rest starts)."""
     cameras: list[Any] = field(default_factory=list)
     wrench: WrenchWatch | None = None
 
@@ -179,6 +182,8 @@ class PolicySession:
             gripper=(GripperStream(bus.create_action_client(config.gripper_command_action_name, GripperCommand),
                                    config.gripper_command_action_name) if config.has_gripper else None),
             joint_states=bus.create_subscription(config.joint_states_topic, JointState, reliable=True),
+            controller_state=bus.create_subscription(controller_topic(config.controller_action_name, "controller_state"),
+                                                     JointTrajectoryControllerState, reliable=False),
             # Best-effort matches both kinds of camera driver (most publish best-effort sensor-data QoS).
             cameras=[bus.create_subscription(t, Image, reliable=False) for t in config.image_topics],
             wrench=WrenchWatch(bus, config.wrench_topic, config.absolute_force_torque_threshold) if config.wrench_topic else None,
@@ -189,7 +194,7 @@ class PolicySession:
         if self.links is None:
             return
         links, bus = self.links, self.node.context.bus
-        for sub in [links.joint_states, *links.cameras, links.wrench.subscription if links.wrench else None]:
+        for sub in [links.joint_states, links.controller_state, *links.cameras, links.wrench.subscription if links.wrench else None]:
             if sub is not None:
                 bus.destroy_subscription(sub)
 
@@ -412,10 +417,18 @@ class PolicySession:
                 return self.fail(Failure(FailureKind.GRIPPER, problem))
         return None
 
-    def arm_position(self) -> np.ndarray:
-        """The joint group's positions in the newest joint state."""
+    def rest_position(self) -> np.ndarray:
+        """Where a motion from rest starts: the reference the controller commands, when it
+        publishes its state (``~/controller_state``) for the group's joints, else the measured
+        positions of the newest joint state. A JTC that interpolates from its desired state (as
+        a JTC that plays streamed goals should) starts the next trajectory from its reference; at
+        rest under load the measured state lies off it (a few mrad in the simulated cell), and a
+        first point there would be a jump the controller plays within one control step."""
         links = self.links
         assert links is not None
+        reference = reference_position(links.controller_state.latest, self.safety.group_joints)
+        if reference is not None:
+            return reference
         state = robot_state(links.joint_states.latest, self.safety.group_joints, None, self.config.joint_states_topic)
         return np.asarray(state.position, dtype=float)
 

@@ -151,7 +151,7 @@ class StreamsToJtc(ChunkExecutor):
         tolerances = GoalTolerances(config.goal_path_tolerance, max(0.5, 5 * config.dt))
         self.stream = JtcStream(link, self.safety.group_joints, self.context.stamp_offset_s, tolerances,
                                 RUNOUT_ACCELERATION_FRACTION * self.safety.limits.max_acceleration)
-        self.stream.start(now, self.session.arm_position())
+        self.stream.start(now, self.session.rest_position())
         self.session.request(now, new_episode=True)
         return None
 

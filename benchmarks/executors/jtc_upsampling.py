@@ -25,6 +25,7 @@ from __future__ import annotations
 import numpy as np
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
+from behaviors.controller_link import controller_topic
 from behaviors.execute_policy.planner import goal_takes_effect_s
 from behaviors.execute_policy.states import HeldChunk
 from runtime.tree.behavior import Status
@@ -35,11 +36,6 @@ from sim.controllers.jtc_trajectory import JtcTrajectory, merge_at_arrival, repl
 
 from .newest_wins import ExecuteNewestWinsOnJtc
 from .positions_upsampling import UpsamplingParams, preprocess_incoming_trajectory
-
-
-def topic_of(action_name: str) -> str:
-    """The controller's trajectory topic beside its FollowJointTrajectory action."""
-    return action_name.rstrip("/").rsplit("/", 1)[0] + "/joint_trajectory"
 
 
 class UpsamplingTopic:
@@ -104,18 +100,18 @@ class ExecuteOnJtcWithUpsampling(ExecuteNewestWinsOnJtc):
     def __init__(self, name: str) -> None:
         super().__init__(name)
         self.publisher: Publisher | None = None
-        """The controller's trajectory topic (``topic_of`` its action), created on the first run."""
+        """The controller's trajectory topic (beside its action), created on the first run."""
 
     def initialise(self) -> None:
         super().initialise()
         if self.publisher is None:
-            self.publisher = self.context.bus.create_publisher(topic_of(self.config.controller_action_name), JointTrajectory)
+            self.publisher = self.context.bus.create_publisher(controller_topic(self.config.controller_action_name, "joint_trajectory"), JointTrajectory)
 
     def start_run(self, now: float) -> Status | None:
         status = super().start_run(now)  # the controller's kind checked, the first request out
         assert self.publisher is not None
         self.stream = UpsamplingTopic(self.publisher, self.safety.group_joints, UpsamplingParams(True, 1.0 / self.config.dt))
-        self.stream.start(now, self.session.arm_position())
+        self.stream.start(now, self.session.rest_position())
         return status
 
     def take(self, received: HeldChunk, now: float) -> Status | None:

@@ -73,7 +73,7 @@ class ExecuteChunksSynchronously(ChunkExecutor):
         plan = plan_chunk(PlanInput(
             sent=SentMotion(grid), goal=GoalState.NONE, chunk=held.chunk, index=held.index, request_step=0, frozen=0,
             earliest_seam_step=earliest_seam_step(grid, now, tick_s, self.stream.planned_latency_s),
-            rest_position=self.session.arm_position(), config=shaping,
+            rest_position=self.session.rest_position(), config=shaping,
             checks=PointChecks(self.safety, self.session.run.rules, config.link_padding, self.session.gripper_position(), grid),
             arrival=Arrival(grid.step_at_or_after(held.flight.future.ready_at), goal_takes_effect_s(now, tick_s, self.stream.planned_latency_s)),
         ))

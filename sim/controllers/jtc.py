@@ -28,7 +28,10 @@ does is what ros2_controllers' JTC does with the cell's parameters (``JtcParams`
 - **Cancel, abort, deactivation**: the arm comes to rest smoothly (``stop_trajectory``), as JTC
   with ``constraints.decelerate_on_cancel`` does.
 
-Feedback (desired, actual, error) goes out at ``action_monitor_rate`` (20 Hz). The trajectory is
+Feedback (desired, actual, error) goes out at ``action_monitor_rate`` (20 Hz). The controller's
+state (``control_msgs/msg/JointTrajectoryControllerState`` on ``~/controller_state``: the
+reference it commands, the measured feedback, their error) is published as JTC publishes it,
+produced when read (in process) or at ``STATE_RATE_HZ`` while it has subscribers (over ROS 2). The trajectory is
 sampled at the control step's own time (JTC commands the sample one control period ahead, for the
 hardware's next write; the simulated hardware applies a command at once).
 """
@@ -40,6 +43,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from control_msgs.action import FollowJointTrajectory
+from control_msgs.msg import JointTrajectoryControllerState
 from trajectory_msgs.msg import JointTrajectory
 
 from runtime.io.bus import Bus, ServerGoalHandle
@@ -50,6 +54,10 @@ from ..hardware import Hardware
 from .base import ArmController, ControllersConfig, JtcParams
 from .jtc_trajectory import JtcPoints, JtcTrajectory, merge_at_arrival, replace_at_arrival
 from .trajectory import TIME_EPS, TrajectoryState, stop_trajectory
+
+STATE_RATE_HZ = 50.0
+"""Hz of ``~/controller_state`` over ROS 2 (the rate of ros2_controllers' JTC
+``state_publish_rate`` default)."""
 
 Result = FollowJointTrajectory.Result
 FLOAT_EPSILON = float(np.finfo(np.float32).eps)
@@ -190,6 +198,23 @@ class JointTrajectoryController(ArmController):
         self.peak_torque_nm = 0.0
         bus.create_action_server(self.action_name, FollowJointTrajectory, self._on_goal, self._on_cancel)
         bus.create_subscription(self.topic, JointTrajectory, self._on_topic)
+        self.state_topic = f"/{name}/controller_state"
+        bus.create_lazy_publisher(self.state_topic, JointTrajectoryControllerState, self.controller_state, rate_hz=STATE_RATE_HZ)
+
+    def controller_state(self) -> JointTrajectoryControllerState:
+        """``~/controller_state`` now: the reference commanded, the measured feedback, the error."""
+        now = self.clock.now()
+        reference, feedback = self._trajectory.sample(now), self._measured_state()
+        msg = JointTrajectoryControllerState()
+        msg.header.stamp = time_msg(now)
+        msg.joint_names = list(self.joint_names)
+        msg.reference.positions, msg.reference.velocities = reference.position.tolist(), reference.velocity.tolist()
+        msg.reference.accelerations = reference.acceleration.tolist()
+        msg.feedback.positions, msg.feedback.velocities = feedback.position.tolist(), feedback.velocity.tolist()
+        msg.error.positions = (reference.position - feedback.position).tolist()
+        msg.error.velocities = (reference.velocity - feedback.velocity).tolist()
+        msg.speed_scaling_factor = 1.0
+        return msg
 
     # -- ros2_control lifecycle ---
     def busy_reason(self) -> str | None:
