@@ -17,6 +17,7 @@ from typing import Any
 from policy.specs import PolicyKind, PolicySpec, PolicySpecError
 from policy.specs import parse_policy as parse_policy_spec
 from runtime.io.bus import Bus, SimulatedLatency, capability, parse_latency
+from runtime.app.world import KeepsEpisodes
 from runtime.errors import ObjectiveError, OptionError
 
 __all__ = ["PolicyHost", "PolicyKind", "PolicySpec", "check_latency", "parse_policy", "policy_digest"]
@@ -59,9 +60,9 @@ class PolicyHost:
     (``new_episode``), and a LeRobot backend's sampling noise is seeded with the episode's seed.
     """
 
-    def __init__(self, spec: PolicySpec, cell: Any) -> None:
+    def __init__(self, spec: PolicySpec, world: KeepsEpisodes) -> None:
         self.spec = spec
-        self.backend = _make_backend(spec, cell)
+        self.backend = _make_backend(spec, world)
         if self.backend is not None:
             self.backend.load()
 
@@ -80,10 +81,8 @@ class PolicyHost:
             modelled.set_latency(DEFAULT_SERVICE_NAME, parse_latency(latency, seed))
 
 
-def _make_backend(spec: PolicySpec, cell: Any) -> Any:
-    from sim.embedded_policy import make_backend
-
+def _make_backend(spec: PolicySpec, world: KeepsEpisodes) -> Any:
     try:
-        return make_backend(spec, cell)
+        return world.policy_backend(spec)
     except ObjectiveError as err:
         raise ObjectiveError(f"--policy {spec.text}: {err}") from None

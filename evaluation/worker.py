@@ -116,7 +116,7 @@ class EpisodeWorker:
             if isinstance(world, KeepsEpisodes):
                 self.world = world
                 try:
-                    self.policy = PolicyHost(self.spec.policy, getattr(world, "cell", None))
+                    self.policy = PolicyHost(self.spec.policy, world)
                 except ImportError as err:
                     raise ObjectiveError(f"--policy {self.spec.policy.text}: {err} (the LeRobot extra: `make lerobot` in a checkout, or pip install 'objective-runtime[lerobot]')") from None
                 except (ObjectiveError, OSError) as err:

@@ -24,7 +24,7 @@ from runtime.errors import OptionError
 
 from .cell_model import CAMERA_NAMES, CUBE_COLORS, CellOptions, image_size_problem
 from .controllers import JTC_CONTROLLER, TRAJECTORY_CONTROLLER, ControllersConfig, JtcParams, make_controllers
-from .embedded_policy import serve_embedded_policy
+from .embedded_policy import make_backend, serve_embedded_policy
 from .hardware import Hardware
 from .planning import CubeContact, make_cell_scene, sync_cubes
 from .oracle_remote import CUBE_POSE_TOPIC, cube_pose_msg
@@ -224,6 +224,10 @@ class CellWorld:
         self.cell.reset(seed, self.start_arm)
         self.cell.t = 0.0
         self.boxes = PlacedBoxes()  # the cell's reset parked every placed box
+
+    def policy_backend(self, spec: Any) -> Any:
+        """The embedded policy ``spec`` names, built for this cell (``embedded_policy.make_backend``)."""
+        return make_backend(spec, self.cell)
 
     def summary(self) -> dict[str, Any]:
         summary: dict[str, Any] = {

@@ -8,7 +8,8 @@ layers its package may use.
                                                 modules import one another in no circle; attached to
                                                 the runner as a run observer, ``runtime.app.observer``)
     sim         -> runtime, behaviors, policy   (the worked example)
-    evaluation  -> all of the above
+    evaluation  -> runtime, behaviors, policy, recording   (a world and its embedded policy are
+                                                reached through ``objective.worlds``, never imported)
 
 ``tests``, ``benchmarks`` and ``tools`` sit on top and may import anything; no layer imports them.
 
@@ -47,7 +48,7 @@ ALLOWED = {
     "policy": {"runtime", "policy"},
     "recording": {"runtime", "recording"},
     "sim": {"runtime", "behaviors", "policy", "sim"},
-    "evaluation": {"runtime", "behaviors", "policy", "recording", "sim", "evaluation"},
+    "evaluation": {"runtime", "behaviors", "policy", "recording", "evaluation"},
 }
 PROJECT_PACKAGES = set(ALLOWED) | {"tests", "benchmarks", "tools"}
 BASE = {"runtime", "runtime.errors", "runtime.extras"}
@@ -155,6 +156,7 @@ def test_every_layer_is_read():
     ("recording", "from sim.world import create_vla_sim\n", "recording imports sim.world"),
     ("policy", "from recording.report import render_report\n", "policy imports recording.report"),
     ("evaluation", "from tests.fakes import FakeBus\n", "evaluation imports tests.fakes"),
+    ("evaluation", "def f():\n    from sim.embedded_policy import make_backend\n", "evaluation imports sim.embedded_policy"),
 ])
 def test_each_wrong_way_import_is_named_with_file_and_line(tmp_path, layer, source, crossing):
     for name in ALLOWED:
@@ -191,7 +193,7 @@ def test_allowed_imports_pass(tmp_path):
     (tmp_path / "policy" / "mod.py").write_text("from runtime.io.bus import Bus\nfrom . import wire\n")
     (tmp_path / "recording" / "mod.py").write_text("import mcap\ndef f():\n    import foxglove\n    import matplotlib\n")
     (tmp_path / "sim" / "cell.py").write_text("import mujoco\n")
-    (tmp_path / "evaluation" / "mod.py").write_text("from recording.report.html import CSS\nfrom sim import world\n")
+    (tmp_path / "evaluation" / "mod.py").write_text("from recording.report.html import CSS\nfrom policy.specs import parse_policy\n")
     for room in ("app", "tree", "motion"):
         (tmp_path / "runtime" / room).mkdir()
     (tmp_path / "runtime" / "app" / "mod.py").write_text("from ..tree.loader import load_tree\nfrom runtime.motion import scene\n")

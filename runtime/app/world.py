@@ -49,6 +49,12 @@ class KeepsEpisodes(Protocol):
         ``seed`` would have it."""
         ...
 
+    def policy_backend(self, spec: Any) -> Any:
+        """The backend this world serves as its embedded policy for ``spec`` (a
+        ``policy.specs.PolicySpec``; None for ``none``), built for this world: what
+        ``objective run --policy`` serves on it. ObjectiveError for a spec it cannot serve."""
+        ...
+
 
 @runtime_checkable
 class PlacesBoxes(Protocol):
