@@ -167,7 +167,7 @@ def test_every_failure_kind_is_one_enum_with_the_summary_strings_evaluations_gro
     checks = ["position limit", "velocity limit", "acceleration limit", "workspace limit", "tool axis limit",
               "linear speed limit", "angular speed limit", "self collision", "world collision"]
     others = ["chunk too short", "malformed chunk", "policy error", "policy timeout", "controller", "gripper",
-              "scene changed", "stale observation"]
+              "scene changed", "stale observation", "force-torque threshold"]
     assert [kind.value for kind in FailureKind] == checks + others
     assert sorted(kind.value for kind in CHECK_KINDS) == sorted(checks)
     assert REJECTED_CHUNK_KINDS == CHECK_KINDS | {FailureKind.SHORT_CHUNK, FailureKind.MALFORMED_CHUNK}

@@ -32,6 +32,9 @@ class FailureKind(enum.Enum):
     GRIPPER = "gripper"
     SCENE_CHANGED = "scene changed"
     STALE_OBSERVATION = "stale observation"
+    FORCE_TORQUE = "force-torque threshold"
+    """A reading on ``wrench_topic`` over ``absolute_force_torque_threshold`` (the controller's own
+    force-torque abort is a ``CONTROLLER`` failure)."""
 
     @classmethod
     def of_limit(cls, quantity: str) -> FailureKind:

@@ -19,7 +19,7 @@ they differ only in how they play the chunks (the ``Player`` the session calls).
   settled into its range, and the warnings (step period, sizing, the first chunk's start, a
   real-time-chunking policy that sends no policy chunk);
 - each STREAM tick's robot watch (``watch_robot``): the force-torque threshold and the gripper goals;
-- the endings: ``fail`` (a ``failure.Failure``), ``stop`` (SUCCESS, or a FAILURE without a kind),
+- the endings: ``fail`` (a ``failure.Failure``), ``stop`` (SUCCESS, and the end ``fail`` makes),
   ``setup_error`` (ERROR: a mistake of the setup, never retried) and ``halt``; the node's output
   ports and the ``policy_*`` events.
 """
@@ -408,8 +408,9 @@ class PolicySession:
         assert links is not None
         crossing = links.wrench.crossing() if links.wrench is not None else None
         if crossing is not None:
-            return self.stop(Status.FAILURE,
-                             f"force-torque threshold exceeded on '{self.config.wrench_topic}': {crossing}; goal cancelled, robot stopped")
+            return self.fail(Failure(
+                FailureKind.FORCE_TORQUE,
+                f"force-torque threshold exceeded on '{self.config.wrench_topic}': {crossing}; goal cancelled, robot stopped"))
         if links.gripper is not None:
             links.gripper.stream(now_s)
             problem = links.gripper.follow()
@@ -468,7 +469,7 @@ class PolicySession:
 
     def stop(self, status: Status, ending: Failure | str) -> Status:
         """End the run with ``status``, the goals cancelled: ``ending`` is a ``Failure`` (its kind is
-        the node's ``failure_kind``) or the message of a SUCCESS, or of a FAILURE without a kind.
+        the node's ``failure_kind``; ``fail`` ends a run with one) or the message of a SUCCESS.
         The message may carry the policy's own text: it is kept ``bounded``."""
         run = self.run
         assert run is not None
