@@ -135,7 +135,7 @@ def test_the_report_shows_every_policy_run(tmp_path):
 
 
 def test_a_missing_policy_service_is_explained_for_the_mode_the_run_is_in():
-    from behaviors.execute_policy.session import policy_hint as hint
+    from behaviors.execute_policy.startup import policy_hint as hint
     from runtime.io.bus import InProcessBus
     from runtime.io.clock import SimClock
 
