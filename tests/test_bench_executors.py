@@ -54,10 +54,10 @@ def small_xml(node: str, ports: str = "") -> str:
 
 
 def run(registry: Registry, xml: str, policy: ScriptedPolicy | None = None, latency_s: float = 0.2, seed: int = 0,
-        max_seconds: float = 90.0) -> Any:
+        max_seconds: float = 90.0, world: KinematicWorld | None = None) -> Any:
     options = RunOptions(seed=seed, max_seconds=max_seconds, world="kinematic")
     context = make_context(options)
-    world = KinematicWorld({"seed": seed, "policy": "none" if policy is not None else "oracle"})
+    world = world or KinematicWorld({"seed": seed, "policy": "none" if policy is not None else "oracle"})
     loaded = load_tree(xml, registry, context)
     if policy is not None:
         context.bus.create_service(SERVICE, GetActionChunk, policy)
@@ -236,3 +236,21 @@ def test_a_missing_policy_service_is_an_error_before_anything_moves(registry, no
     result = run_tree(load_tree(small_xml(node), registry, context), context, options, world=world)
     assert result.status == "ERROR" and result.sim_seconds == 0.0
     assert f"{node}: port 'policy_service_name': no service '{SERVICE}' (services: " in result.reason
+
+
+@pytest.mark.parametrize("node", ["ExecuteChunksSynchronously", "ExecuteNewestWinsOnJtc"])
+def test_a_reading_over_the_threshold_on_the_wrench_topic_fails_with_execute_policys_kind_and_reason(registry, node):
+    """The force-torque watch is the session's: an executor's run ends as ExecutePolicy's does."""
+    world = KinematicWorld({"seed": 0, "policy": "none"})
+    wrench = "/force_torque_sensor_broadcaster/wrench"
+
+    def push_at_call_2(index: int, request: Any) -> Any:
+        if index == 2:
+            world.cell.external_wrench = np.array([0.0, 0.0, -80.0, 0.0, 0.0, 0.0])
+        return hold(velocity=TURN)(index, request)
+
+    result = run(registry, small_xml(node, f'wrench_topic="{wrench}"'), ScriptedPolicy(push_at_call_2), world=world)
+    assert (result.status, result.failure_kind) == ("FAILURE", "force-torque threshold")
+    assert result.reason == (f"force-torque threshold exceeded on '{wrench}': Fz = -80.00 N exceeds the absolute threshold "
+                             "45.00 N; goal cancelled, robot stopped")
+    assert not world.controllers["joint_trajectory_controller"].executing

@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from behaviors.execute_policy.checks import CheckKind
+from behaviors.execute_policy.failure import FailureKind
 from runtime.motion.samples import Samples
 from behaviors.motion import plan_point_to_point
 from behaviors.safety import SafetyError, make_safety
@@ -49,7 +49,7 @@ def test_a_motion_that_tilts_the_tool_is_refused_at_its_first_point_past_the_con
     tilted = HOME + np.array([0, 0, 0, 0, 1.2, 0])  # wrist_2 by 1.2 rad: the gripper axis 69 deg from down
     outside = safety.first_limit_violation(motion_to(scene, tilted))
     assert outside.family == "Cartesian limit" and outside.link == "tcp" and outside.quantity == "tool axis"
-    assert CheckKind.of_limit(outside.quantity) is CheckKind.TOOL_AXIS_LIMIT
+    assert FailureKind.of_limit(outside.quantity) is FailureKind.TOOL_AXIS_LIMIT
     assert 45.0 < outside.value < 46.0 and outside.limit == 45.0
     assert str(outside) == (f"step {outside.step} (t={outside.time:.3f} s): link tcp tool axis {outside.value:.4f} deg "
                             "from (0, 0, -1) exceeds the limit 45.0000 deg")
@@ -63,7 +63,7 @@ def test_a_wrist_below_the_table_top_names_the_link_the_axis_and_the_box(scene):
     safety = type(safety)(**{**safety.__dict__, "envelope": envelope})
     outside = safety.first_limit_violation(Samples.at_rest(HOME))  # Home: wrist_3_link at z 0.556 m
     assert str(outside) == "step 0 (t=0.000 s): link wrist_3_link z 0.5558 m below the limit 0.6000 m of keep-in box 'high'"
-    assert CheckKind.of_limit(outside.quantity) is CheckKind.WORKSPACE_LIMIT
+    assert FailureKind.of_limit(outside.quantity) is FailureKind.WORKSPACE_LIMIT
 
 
 def test_a_joint_limit_at_the_same_point_is_reported_first_and_speeds_after_positions(scene):
@@ -75,7 +75,7 @@ def test_a_joint_limit_at_the_same_point_is_reported_first_and_speeds_after_posi
     v[1] = [0, 0, 0, 0, 0, 0.5]
     outside = safety.first_limit_violation(Samples(np.array([0.0, 0.1]), q, v, np.zeros_like(q)))
     assert str(outside) == "step 1 (t=0.100 s): link tcp angular speed 0.5000 rad/s exceeds the limit 0.0100 rad/s"
-    assert CheckKind.of_limit(outside.quantity) is CheckKind.ANGULAR_SPEED_LIMIT
+    assert FailureKind.of_limit(outside.quantity) is FailureKind.ANGULAR_SPEED_LIMIT
 
 
 def test_a_planned_trajectory_faster_than_the_tcp_limit_is_refused_naming_the_point(scene):

@@ -87,11 +87,12 @@ def test_a_world_option_that_is_not_a_number_is_bad_input_not_a_crash():
 
 
 def test_a_rejected_chunk_says_which_check_it_failed():
-    from behaviors.execute_policy.checks import CheckFailure, CheckKind
+    from behaviors.execute_policy.checks import CheckFailure
+    from behaviors.execute_policy.failure import FailureKind
 
-    assert CheckKind.of_limit("velocity") is CheckKind.VELOCITY_LIMIT
-    assert CheckKind.of_collision("world") is CheckKind.WORLD_COLLISION
-    failure = CheckFailure(CheckKind.ACCELERATION_LIMIT, "densified step 3: joint j acceleration 9 exceeds the limit 5")
+    assert FailureKind.of_limit("velocity") is FailureKind.VELOCITY_LIMIT
+    assert FailureKind.of_collision("world") is FailureKind.WORLD_COLLISION
+    failure = CheckFailure(FailureKind.ACCELERATION_LIMIT, "densified step 3: joint j acceleration 9 exceeds the limit 5")
     assert f"chunk 6 rejected: {failure}" == "chunk 6 rejected: densified step 3: joint j acceleration 9 exceeds the limit 5"
 
 
@@ -134,7 +135,7 @@ def test_the_report_shows_every_policy_run(tmp_path):
 
 
 def test_a_missing_policy_service_is_explained_for_the_mode_the_run_is_in():
-    from behaviors.execute_policy.session import policy_hint as hint
+    from behaviors.execute_policy.startup import policy_hint as hint
     from runtime.io.bus import InProcessBus
     from runtime.io.clock import SimClock
 
@@ -156,3 +157,18 @@ def test_an_unknown_controller_the_tree_computes_ends_the_run_as_error(tmp_path)
     assert result.reason == (f"{path}:3: SwitchController: unknown controllers: scaled_joint_trajectory_controller (known: "
                              "force_torque_sensor_broadcaster, joint_trajectory_admittance_controller, joint_trajectory_controller, "
                              "robotiq_gripper_controller, velocity_force_controller)")
+
+
+def test_every_failure_kind_is_one_enum_with_the_summary_strings_evaluations_group_by():
+    """A failure's kind is one ``FailureKind`` whether a check failed or something else ended the
+    run; its value is the ``failure_kind`` of the summary and of an evaluation's groups."""
+    from behaviors.execute_policy.failure import CHECK_KINDS, REJECTED_CHUNK_KINDS, Failure, FailureKind
+
+    checks = ["position limit", "velocity limit", "acceleration limit", "workspace limit", "tool axis limit",
+              "linear speed limit", "angular speed limit", "self collision", "world collision"]
+    others = ["chunk too short", "malformed chunk", "policy error", "policy timeout", "controller", "gripper",
+              "scene changed", "stale observation", "force-torque threshold"]
+    assert [kind.value for kind in FailureKind] == checks + others
+    assert sorted(kind.value for kind in CHECK_KINDS) == sorted(checks)
+    assert REJECTED_CHUNK_KINDS == CHECK_KINDS | {FailureKind.SHORT_CHUNK, FailureKind.MALFORMED_CHUNK}
+    assert Failure(FailureKind.WORLD_COLLISION, "x").rejects_chunk and not Failure(FailureKind.CONTROLLER, "x").rejects_chunk

@@ -5,7 +5,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 import pytest
 
-from behaviors.execute_policy.checks import CheckFailure, CheckKind
+from behaviors.execute_policy.checks import CheckFailure
 from behaviors.execute_policy.chunk import Chunk
 from behaviors.execute_policy.failure import Failure, FailureKind
 from behaviors.execute_policy.planner import (
@@ -56,7 +56,7 @@ class FakeChecks:
 
     def path(self, samples, window):
         beyond = samples.times[-1] > self.path_horizon_s + 1e-9
-        return CheckFailure(CheckKind.WORLD_COLLISION, "beyond the horizon") if beyond else None
+        return CheckFailure(FailureKind.WORLD_COLLISION, "beyond the horizon") if beyond else None
 
 
 def ramp(steps: int = 50, speed: float = 0.05) -> Chunk:
@@ -222,10 +222,10 @@ def test_a_tail_unsafe_from_some_point_on_is_cut_short_before_it():
 
 def test_rejections_name_the_chunk_and_the_reason():
     start = SentMotion(StepGrid(0.0, DT, 20, 100))
-    outside = CheckFailure(CheckKind.POSITION_LIMIT, "j1 at 9 rad")
-    too_fast = CheckFailure(CheckKind.VELOCITY_LIMIT, "velocity of j1")
-    assert plan(start, ramp(), checks=FakeChecks(values_reason=outside)) == Failure(CheckKind.POSITION_LIMIT, "chunk 1 rejected: j1 at 9 rad")
-    assert plan(start, ramp(), checks=FakeChecks(limits_reason=too_fast)) == Failure(CheckKind.VELOCITY_LIMIT, "chunk 1 rejected: velocity of j1")
+    outside = CheckFailure(FailureKind.POSITION_LIMIT, "j1 at 9 rad")
+    too_fast = CheckFailure(FailureKind.VELOCITY_LIMIT, "velocity of j1")
+    assert plan(start, ramp(), checks=FakeChecks(values_reason=outside)) == Failure(FailureKind.POSITION_LIMIT, "chunk 1 rejected: j1 at 9 rad")
+    assert plan(start, ramp(), checks=FakeChecks(limits_reason=too_fast)) == Failure(FailureKind.VELOCITY_LIMIT, "chunk 1 rejected: velocity of j1")
     _, first = first_plan()
     short = plan(first.sent, ramp(steps=3), index=2, request_step=19, frozen=3, earliest=21, goal=GoalState.PLAYING)
     assert isinstance(short, Failure) and short.detail.startswith("chunk 2 rejected: chunk 2 has 3 steps but takes over at its step 3")
@@ -239,7 +239,7 @@ def test_a_path_unsafe_all_along_its_tail_is_sent_without_one():
     assert planned.sent.motion.rest_time == planned.sent.motion.end and planned.sent.grid.tail == NO_TAIL
     assert np.allclose(planned.sent.samples.velocities[-1], 0.0, atol=1e-9)  # at rest where the window ends
     unsafe = plan(start, ramp(), checks=FakeChecks(path_horizon_s=1.0))
-    assert unsafe == Failure(CheckKind.WORLD_COLLISION, "chunk 1 rejected: beyond the horizon")
+    assert unsafe == Failure(FailureKind.WORLD_COLLISION, "chunk 1 rejected: beyond the horizon")
 
 
 def test_a_window_with_too_few_run_steps_after_it_for_a_runout_ends_at_rest():

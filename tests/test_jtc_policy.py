@@ -105,7 +105,7 @@ def _spike_at_call(index: int, wrench: np.ndarray, velocity: np.ndarray = TURN *
 def test_a_reading_over_the_threshold_on_the_wrench_topic_cancels_the_jtc_goal_and_fails(registry):
     spike = _spike_at_call(2, np.array([0.0, 0.0, -80.0, 0.0, 0.0, 0.0]))
     run = run_policy(registry, on_jtc(f'wrench_topic="{WRENCH}"'), spike.policy, prepare=False, wrap=ON_JTC, before=spike)
-    assert run.result.status == "FAILURE"
+    assert (run.result.status, run.result.failure_kind) == ("FAILURE", "force-torque threshold")
     assert run.result.reason == (
         f"force-torque threshold exceeded on '{WRENCH}': Fz = -80.00 N exceeds the absolute threshold 45.00 N; "
         "goal cancelled, robot stopped"

@@ -1,11 +1,11 @@
 """Where a point is checked: the chunk's values against the joints' position limits, and every
 densified point against the position, velocity and acceleration limits, the Cartesian envelope
 and the planning scene (self-collision, and world collision with ``link_padding``). Each check
-returns why the points fail, a ``CheckFailure`` (its kind, and a sentence naming the run's policy step), or None.
+returns why the points fail, a ``CheckFailure`` (its kind, one of ``failure.CHECK_KINDS``, and a
+sentence naming the run's policy step), or None.
 """
 from __future__ import annotations
 
-import enum
 from dataclasses import dataclass, replace
 from typing import Any
 
@@ -13,40 +13,17 @@ import numpy as np
 
 from ..safety import MotionSafety
 from .chunk import Chunk
+from .failure import FailureKind
 from runtime.motion.samples import Samples
 from .stream import StepGrid, Window
-
-
-class CheckKind(enum.Enum):
-    """Which check a point failed: what an evaluation groups rejected chunks by."""
-
-    POSITION_LIMIT = "position limit"
-    VELOCITY_LIMIT = "velocity limit"
-    ACCELERATION_LIMIT = "acceleration limit"
-    WORKSPACE_LIMIT = "workspace limit"
-    TOOL_AXIS_LIMIT = "tool axis limit"
-    LINEAR_SPEED_LIMIT = "linear speed limit"
-    ANGULAR_SPEED_LIMIT = "angular speed limit"
-    SELF_COLLISION = "self collision"
-    WORLD_COLLISION = "world collision"
-
-    @classmethod
-    def of_limit(cls, quantity: str) -> CheckKind:
-        """The kind of a ``LimitViolation`` of ``quantity`` (position, velocity, acceleration) or
-        an ``EnvelopeViolation`` (workspace, tool axis, linear speed, angular speed)."""
-        return cls(f"{quantity} limit")
-
-    @classmethod
-    def of_collision(cls, kind: str) -> CheckKind:
-        """The kind of a ``CollisionResult`` of ``kind`` (self, world)."""
-        return cls(f"{kind} collision")
 
 
 @dataclass(frozen=True)
 class CheckFailure:
     """Why points fail a check: its kind and the sentence that says where (``str()`` gives it)."""
 
-    kind: CheckKind
+    kind: FailureKind
+    """One of ``failure.CHECK_KINDS``."""
     message: str
 
     def __str__(self) -> str:
@@ -74,14 +51,14 @@ class PointChecks:
             outside = None if rates is None else replace(rates, step=rates.step + seam)
         if outside is None:
             return None
-        return CheckFailure(CheckKind.of_limit(outside.quantity), f"{outside} (policy step {window.request_step + outside.step} of the run)")
+        return CheckFailure(FailureKind.of_limit(outside.quantity), f"{outside} (policy step {window.request_step + outside.step} of the run)")
 
     def limits(self, samples: Samples, window: Window) -> CheckFailure | None:
         violation = self.safety.first_limit_violation(samples)
         if violation is None:
             return None
         step = window.request_step + int(np.floor((violation.time - self.grid.time(window.request_step)) / self.grid.dt + 1e-9))
-        return CheckFailure(CheckKind.of_limit(violation.quantity), f"densified {violation} (policy step {step} of the run)")
+        return CheckFailure(FailureKind.of_limit(violation.quantity), f"densified {violation} (policy step {step} of the run)")
 
     def path(self, samples: Samples, window: Window) -> CheckFailure | None:
         """Limits first, then collisions."""
@@ -92,4 +69,4 @@ class PointChecks:
 
     def collision(self, samples: Samples) -> CheckFailure | None:
         hit = self.safety.first_collision(self.rules, samples, self.link_padding_m, self.gripper_position)
-        return None if hit is None else CheckFailure(CheckKind.of_collision(hit.kind), f"densified {hit}")
+        return None if hit is None else CheckFailure(FailureKind.of_collision(hit.kind), f"densified {hit}")

@@ -1,16 +1,18 @@
-"""ExecutePolicy's ports (the guide's table, with its defaults) and their validation."""
+"""ExecutePolicy's ports (the guide's table, with its defaults), the run's config read from them
+(``read_config``) and their validation."""
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Mapping
 
 from control_msgs.action import FollowJointTrajectory, GripperCommand
 from moveit_pro_controllers_msgs.action import FollowJointTrajectoryWithAdmittance
 from moveit_pro_ml_msgs.srv import GetActionChunk
 from sensor_msgs.msg import Image, JointState
 
-from runtime.tree.ports import InputPort, NameKind, Names, OutputPort, PortType, Range
+from runtime.tree.behavior import Behavior
+from runtime.tree.ports import Direction, InputPort, NameKind, Names, OutputPort, PortType, Range
 from runtime.errors import ObjectiveError
 from runtime.motion.scene import EnvelopeOverrides
 
@@ -111,6 +113,21 @@ class PolicyRunConfig:
     def observation_age_limit_s(self) -> float:
         """``max_observation_age``, or ``OBSERVATION_AGE_STEPS`` policy steps when it is 0."""
         return self.max_observation_age or OBSERVATION_AGE_STEPS * self.dt
+
+
+TUPLE_PORTS = ("absolute_force_torque_threshold", "image_topics", "image_names", "tcp_keep_in_box")
+"""The ports read as lists that ``PolicyRunConfig`` keeps as tuples."""
+
+
+def read_config(node: Behavior, fixed: Mapping[str, Any]) -> PolicyRunConfig:
+    """The run's config from ``node``'s input ports; ``fixed``: the values of the fields the node
+    has no port for."""
+    fields = PolicyRunConfig.__dataclass_fields__
+    values = {p.name: node.get_input(p.name) for p in node.ports if p.direction is Direction.INPUT and p.name in fields}
+    for key in TUPLE_PORTS:
+        if key in values:
+            values[key] = tuple(values[key])
+    return PolicyRunConfig(**values, **fixed)
 
 
 COMBINED_PORTS = ("gripper_command_action_name", "gripper_joint_name", "image_topics", "image_names",
