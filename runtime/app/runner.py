@@ -28,7 +28,7 @@ import signal
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Iterable, Protocol, Sequence, runtime_checkable
+from typing import Any, Callable, Iterable, Sequence
 
 import py_trees
 
@@ -43,39 +43,12 @@ from runtime.io.heap import PacedHeap
 from runtime.io.interrupt import Interrupted, StopRequest, exit_code_for, signal_name
 from runtime.tree.loader import LoadedTree, load_tree
 from runtime.tree.ports import NameKind
+from .observer import RunObserver, attach_observers
 from .protective_stop import PROTECTIVE_STOP, ProtectiveStop, StopInputs, needs_heartbeat
 from runtime.tree.registry import Registry, default_world_name
 from runtime.io.scheduling import check_priority, realtime_priority
 from .world import create_world, world_hosts_servers
 from .world_check import check_tree, declared_interfaces, named_links
-
-Progress = Callable[[float, int, str], None]
-"""Called after every tick with (clock seconds, ticks so far, name of the running node)."""
-
-
-@runtime_checkable
-class TreeProgress(Protocol):
-    """A ``Progress`` that also looks at the tree's nodes (``runtime.app.display.ProgressLine``)."""
-
-    def __call__(self, sim_seconds: float, ticks: int, running: str) -> None: ...
-
-    def attach(self, root: py_trees.behaviour.Behaviour) -> None:
-        """Before the first tick: the tree's root."""
-        ...
-
-
-class TickWatcher(Protocol):
-    """Told of every tick of a run (the Groot2 monitor, the Objective server's feedback)."""
-
-    def started(self, loaded: LoadedTree) -> None:
-        """Before the first tick."""
-
-    def ticked(self, now_s: float, visited: list[Visit]) -> None:
-        """After every tick: the clock, and every node the tick visited with the status it reported."""
-
-    def stopped(self) -> None:
-        """After the tree finished or was halted, before the world and the bus close."""
-
 
 @dataclass
 class RunOptions:
@@ -453,13 +426,17 @@ class RunLoop:
     unexpected exception or a signal ends the run (``start`` or ``tick`` returns False) as ERROR or
     INTERRUPTED; ``close`` is still what halts and summarises. Anything else raised from ``start`` or
     ``tick`` (a ``SystemExit``) halts and closes everything before it goes on.
+
+    Every step tells the ``observers`` (``runtime.app.observer.RunObserver``) what happened:
+    ``started``, ``ticked``, then ``finished`` from ``close``, or ``aborted`` from whichever step
+    raised.
     """
 
-    def __init__(self, loaded: LoadedTree, context: RunContext, options: RunOptions, progress: Progress | None = None,
-                 world: Any = None, stop: StopRequest | None = None, watchers: Sequence[TickWatcher] = (),
+    def __init__(self, loaded: LoadedTree, context: RunContext, options: RunOptions,
+                 observers: Sequence[RunObserver] = (), world: Any = None, stop: StopRequest | None = None,
                  guard: ProtectiveStop | None = None) -> None:
         self.loaded, self.context, self.options = loaded, context, options
-        self.progress, self.world, self.stop, self.watchers, self.guard = progress, world, stop, watchers, guard
+        self.observers, self.world, self.stop, self.guard = tuple(observers), world, stop, guard
         self.root = loaded.root
         self.nodes = list(self.root.iterate())
         self.clock, self.bus = context.clock, context.bus
@@ -480,11 +457,16 @@ class RunLoop:
         self.ticking = contextlib.ExitStack()
         """What holds while the tree ticks: the paced heap, the real-time priority."""
         self.heap = PacedHeap(False)
+        """The paced heap while the tree ticks (collecting between ticks); one that does nothing before."""
 
     # -- the three steps -----------------------------------------------------------------------
     def start(self) -> bool:
         """Start the world and set the nodes up; False when the run ended before its first tick."""
-        self._prepare()
+        try:
+            self._prepare()
+        except BaseException as err:  # nothing started: nothing to close
+            self._tell_aborted(err)
+            raise
         return self._step(self._start)
 
     def tick(self) -> bool:
@@ -492,18 +474,19 @@ class RunLoop:
         return self._step(self._tick)
 
     def close(self) -> RunResult:
-        """Halt the tree, close the world and the bus, and say how the run ended."""
-        self.ticking.close()
-        self.running = running_leaves(self.root)
-        if self.timed_out:
-            tip = self.root.tip()
-            where = f" while '{tip.name}' was RUNNING" if tip is not None else ""
-            reason = f"stopped after --max-seconds {self.options.max_seconds:g} s of clock time{where}"
-            self.blame = (tip if tip is not None else self.root, reason, TIMEOUT)
-        end = self.breakoff.end if self.breakoff is not None else outcome(self.status, self.timed_out)
-        self.context.events.emit("run_finished", self.loaded.tree_id, status=end.value)
-        summary_world = self._shut_down()
-        return self._result(summary_world, time.monotonic() - self.wall_start)
+        """Halt the tree, close the world and the bus, say how the run ended and tell the observers."""
+        try:
+            try:
+                self._end()
+            finally:
+                summary_world = self._shut_down()
+            result = self._result(summary_world, time.monotonic() - self.wall_start)
+        except BaseException as err:
+            self._tell_aborted(err)
+            raise
+        for observer in self.observers:
+            observer.finished(result, self.stop)
+        return result
 
     # -- inside the steps ----------------------------------------------------------------------
     def _prepare(self) -> None:
@@ -529,8 +512,6 @@ class RunLoop:
         stop = self.stop
         if stop is not None and waits is not None:
             waits.stop_waiting_when(lambda: stop.requested)  # a hung in-process policy never holds a signal back
-        if isinstance(self.progress, TreeProgress):
-            self.progress.attach(self.root)
         self.pacing = Pacing(self.period) if options.paced else None
         self.wall_start = time.monotonic()
 
@@ -543,11 +524,20 @@ class RunLoop:
             self.breakoff = Breakoff(signum=err.signum)
         except Exception as err:  # ObjectiveError (bad input) or a bug: the run ends as ERROR
             self.breakoff = Breakoff(error=err)
-        except BaseException:
-            self.ticking.close()
-            self._shut_down()
+        except BaseException as err:
+            try:
+                self.ticking.close()
+                self._shut_down()
+            except BaseException as later:  # raised on in place of ``err``
+                self._tell_aborted(later)
+                raise
+            self._tell_aborted(err)
             raise
         return False
+
+    def _tell_aborted(self, error: BaseException) -> None:
+        for observer in self.observers:
+            observer.aborted(error, self.stop)
 
     def _start(self) -> bool:
         context, options, loaded = self.context, self.options, self.loaded
@@ -571,8 +561,8 @@ class RunLoop:
                           services=[(name, types[0]) for name, kind, types in links if kind is NameKind.SERVICE],
                           actions=[(name, types) for name, kind, types in links if kind is NameKind.ACTION])
         context.events.emit("run_started", loaded.tree_id, seed=options.seed)
-        for watcher in self.watchers:
-            watcher.started(loaded)
+        for observer in self.observers:
+            observer.started(loaded)
         self.heap = self.ticking.enter_context(PacedHeap(self.pacing is not None))
         # options.check() allows a priority only in a paced run
         scheduling = self.ticking.enter_context(realtime_priority(options.realtime_priority))
@@ -605,17 +595,27 @@ class RunLoop:
         self.statuses.update(visited)
         if self.pacing is not None:
             self.pacing.record(tick_start, time.monotonic())
-        if self.progress is not None:
-            tip = self.root.tip()
-            self.progress(clock.now(), self.ticks, tip.name if tip is not None else "")
-        for watcher in self.watchers:
-            watcher.ticked(clock.now(), visited)
+        for observer in self.observers:
+            observer.ticked(clock.now(), visited)
         self.heap.between_ticks()
         if self.status is Status.RUNNING:
             return True
         if self.status is Status.FAILURE:
             self.blame = _failing(self.root, visited)
         return False
+
+    def _end(self) -> None:
+        """What the tree was doing when the run ended, who is to blame for a timeout; the
+        ``run_finished`` event."""
+        self.ticking.close()
+        self.running = running_leaves(self.root)
+        if self.timed_out:
+            tip = self.root.tip()
+            where = f" while '{tip.name}' was RUNNING" if tip is not None else ""
+            reason = f"stopped after --max-seconds {self.options.max_seconds:g} s of clock time{where}"
+            self.blame = (tip if tip is not None else self.root, reason, TIMEOUT)
+        end = self.breakoff.end if self.breakoff is not None else outcome(self.status, self.timed_out)
+        self.context.events.emit("run_finished", self.loaded.tree_id, status=end.value)
 
     def _shut_down(self) -> dict[str, Any] | None:
         """Halt the tree, then close the world and the bus (each even when what came before it
@@ -632,8 +632,6 @@ class RunLoop:
         finally:
             try:
                 self.statuses.halted()
-                for watcher in self.watchers:
-                    watcher.stopped()
                 if world is not None:
                     try:
                         summary_world = world.summary()
@@ -677,14 +675,13 @@ def run_tree(
     loaded: LoadedTree,
     context: RunContext,
     options: RunOptions,
-    progress: Progress | None = None,
+    observers: Sequence[RunObserver] = (),
     world: Any = None,
     stop: StopRequest | None = None,
-    watchers: Sequence[TickWatcher] = (),
     guard: ProtectiveStop | None = None,
 ) -> RunResult:
     """Tick ``loaded`` (bound to ``context``) to completion and summarise the run (``RunLoop``)."""
-    loop = RunLoop(loaded, context, options, progress, world, stop, watchers, guard)
+    loop = RunLoop(loaded, context, options, observers, world, stop, guard)
     if loop.start():
         while loop.tick():
             pass
@@ -740,33 +737,20 @@ def run_file(
     tree_id: str | None = None,
     search_paths: Iterable[Path] = (),
     objectives_dir: Path | None = None,
-    progress: Progress | None = None,
+    observers: Sequence[RunObserver] = (),
     stop: StopRequest | None = None,
-    watchers: Sequence[TickWatcher] = (),
 ) -> RunResult:
     """Load ``source`` and run it: what ``objective run`` does (``stop``: see ``runtime.io.interrupt``)."""
     options.check()
     context = make_context(options)
     loaded = load_tree(source, registry, context, tree_id, search_paths, objectives_dir)
-    return run_loaded(loaded, context, options, progress, stop, watchers)
+    return run_loaded(loaded, context, options, observers, stop)
 
 
-def run_loaded(loaded: LoadedTree, context: RunContext, options: RunOptions, progress: Progress | None = None,
-               stop: StopRequest | None = None, watchers: Sequence[TickWatcher] = (),
-               guard: ProtectiveStop | None = None) -> RunResult:
-    """Run a loaded tree (``run_file`` after the loading), with the run observers the options ask
-    for (``runtime.app.observer``: the recording, the live view) and ``watchers`` told of every tick."""
-    if not options.observed:
-        return run_tree(loaded, context, options, progress, stop=stop, watchers=watchers, guard=guard)
-    from .observer import attach_observers
-
-    observers = attach_observers(loaded, context, options)
-    try:
-        result = run_tree(loaded, context, options, progress, stop=stop, watchers=watchers, guard=guard)
-    except BaseException as err:  # the run did not start (e.g. no such world): the observers say so
-        for observer in observers:
-            observer.aborted(err, stop)
-        raise
-    for observer in observers:
-        observer.finished(result, stop)
-    return result
+def run_loaded(loaded: LoadedTree, context: RunContext, options: RunOptions, observers: Sequence[RunObserver] = (),
+               stop: StopRequest | None = None, guard: ProtectiveStop | None = None) -> RunResult:
+    """Run a loaded tree (``run_file`` after the loading) with ``observers``, and after them the run
+    observers the options ask for (``runtime.app.observer``: the recording, the live view)."""
+    if options.observed:
+        observers = [*observers, *attach_observers(loaded, context, options)]
+    return run_tree(loaded, context, options, observers, stop=stop, guard=guard)
