@@ -46,6 +46,7 @@ from runtime.tree.ports import NameKind
 from .observer import RunObserver, attach_observers
 from .protective_stop import PROTECTIVE_STOP, ProtectiveStop, StopInputs, needs_heartbeat
 from runtime.tree.registry import Registry, default_world_name
+from runtime.tree.world import World
 from runtime.io.scheduling import check_priority, realtime_priority
 from .world import create_world, world_hosts_servers
 from .world_check import check_tree, declared_interfaces, named_links
@@ -433,7 +434,7 @@ class RunLoop:
     """
 
     def __init__(self, loaded: LoadedTree, context: RunContext, options: RunOptions,
-                 observers: Sequence[RunObserver] = (), world: Any = None, stop: StopRequest | None = None,
+                 observers: Sequence[RunObserver] = (), world: World | None = None, stop: StopRequest | None = None,
                  guard: ProtectiveStop | None = None) -> None:
         self.loaded, self.context, self.options = loaded, context, options
         self.observers, self.world, self.stop, self.guard = tuple(observers), world, stop, guard
@@ -676,7 +677,7 @@ def run_tree(
     context: RunContext,
     options: RunOptions,
     observers: Sequence[RunObserver] = (),
-    world: Any = None,
+    world: World | None = None,
     stop: StopRequest | None = None,
     guard: ProtectiveStop | None = None,
 ) -> RunResult:
