@@ -17,6 +17,10 @@ traceback in a log file). Each has its exit code (``RunResult.exit_code``).
 
 A world (the simulated cell) is started only when some node of the tree has
 ``needs_world = True``; worlds are found by name in the ``objective.worlds`` entry-point group.
+
+``RunLoop`` is the loop (``start``, ``tick``, ``close``) and tells the run's observers
+(``runtime.app.observer.RunObserver``) of each step; ``run_tree`` drives it, ``run_loaded`` adds
+the observers the options ask for (the recording), ``run_file`` loads the tree first.
 """
 from __future__ import annotations
 
