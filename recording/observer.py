@@ -13,8 +13,11 @@ from typing import Any
 
 from runtime.errors import ObjectiveError
 from runtime.extras import missing_module_message
-from runtime.io.interrupt import held_back
-from runtime.app.runner import RunEnd
+from runtime.io.interrupt import StopRequest, held_back
+from runtime.tree.behavior import RunContext
+from runtime.tree.loader import LoadedTree
+from runtime.app.observer import RunObserver
+from runtime.app.runner import RunEnd, RunOptions, RunResult
 
 NEEDED_MODULES = ("mcap", "mcap_ros2")
 """What a recording needs beyond the core (the ``[record]`` extra); ``--live`` needs foxglove too."""
@@ -23,7 +26,7 @@ RECORDING_END_TIMEOUT_S = 30.0
 (what it received, the MCAP summary section, ``metadata.yaml``); past it, it is stopped."""
 
 
-def attach(loaded: Any, context: Any, options: Any) -> "RecordingObserver | None":
+def attach(loaded: LoadedTree, context: RunContext, options: RunOptions) -> "RecordingObserver | None":
     """The ``objective.run_observers`` factory: a recorder when the options ask for one."""
     if not options.observed:
         return None
@@ -46,7 +49,7 @@ def _check_installed(modules: tuple[str, ...]) -> None:
             raise ObjectiveError(f"--record/--live: {missing_module_message(module)}")
 
 
-class RecordingObserver:
+class RecordingObserver(RunObserver):
     """One recorded run: the recorder on its bus, then the summary and the report."""
 
     def __init__(self, recorder: Any, record_dir: Path | None, logger: Any) -> None:
@@ -55,7 +58,7 @@ class RecordingObserver:
         self.logger = logger
         self.worker = recorder.worker if record_dir is not None else None  # writes the recording, renders the report
 
-    def aborted(self, error: BaseException, stop: Any) -> None:
+    def aborted(self, error: BaseException, stop: StopRequest | None) -> None:
         if self.worker is None:
             self.recorder.close()
             return
@@ -66,7 +69,7 @@ class RecordingObserver:
         finally:
             self.worker.close(RECORDING_END_TIMEOUT_S)
 
-    def finished(self, result: Any, stop: Any) -> None:
+    def finished(self, result: RunResult, stop: StopRequest | None) -> None:
         """The summary and the end of the recording (a signal meanwhile waits), then the report. A
         recording that could not be written whole (a full disk) leaves the run's result as it is,
         with ``recording_incomplete`` saying why."""

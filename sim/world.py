@@ -127,7 +127,7 @@ class CellClock:
 
 class CellWorld:
     """A cell's services on the bus, stepped at 500 Hz of the runtime clock; its controllers
-    run on the cell's own clock (``CellClock``). A ``runtime.app.world.World``, and
+    run on the cell's own clock (``CellClock``). A ``runtime.tree.world.World``, and
     ``KeepsEpisodes`` and ``PlacesBoxes`` besides."""
 
     def __init__(self, name: str, options: dict[str, Any], make_cell: Callable[[np.ndarray, int], Cell]) -> None:

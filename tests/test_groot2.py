@@ -201,7 +201,7 @@ def test_statuses_before_during_and_after_a_run_are_behaviortree_cpps(both):
 def test_blackboards_are_behaviortree_cpps(both):
     (server, loaded, context), tree, ours, theirs = both
     tree.tick_while_running()
-    run_tree(loaded, context, RunOptions(), watchers=[server.watcher()])
+    run_tree(loaded, context, RunOptions(), [server.observer()])
     names = b"Main;Sub::3;second;nope"
     mine, real = ours.ask(header("B"), names), theirs.ask(header("B"), names)
     assert reply_header(mine) == reply_header(real)
@@ -240,7 +240,7 @@ def test_recording_gives_the_transitions_of_a_run(both):
     (server, loaded, context), _, ours, _ = both
     start = ours.ask(header("r"), b"start")
     assert int(start[1]) > 1_700_000_000_000_000  # the wall time in microseconds
-    run_tree(loaded, context, RunOptions(), watchers=[server.watcher()])
+    run_tree(loaded, context, RunOptions(), [server.observer()])
     data = ours.ask(header("t"))[1]
     transitions = [struct.unpack("<HB", data[i + 6:i + 9]) for i in range(0, len(data), 9)]
     assert (1, 1) in transitions and (1, 0) in transitions  # the Sequence went RUNNING, then back to IDLE
@@ -348,7 +348,7 @@ def test_nested_subtrees_and_unset_entries_are_behaviortree_cpps(registry):
         ours, theirs = Client(server.port), Client(port)
         try:
             tree.tick_while_running()
-            run_tree(loaded, context, RunOptions(), watchers=[server.watcher()])
+            run_tree(loaded, context, RunOptions(), [server.observer()])
             mine, real = tree_part(ours.ask(header("T"))[1]), tree_part(theirs.ask(header("T"))[1])
             assert [t.get("_fullpath") for t in mine] == ["", "mid", "mid/Inner::4", "mid/again"]
             assert all(map(same_element, mine, real)) and len(mine) == len(real)

@@ -12,6 +12,7 @@ import pytest
 from runtime.io.heap import MIDDLE_EVERY, OLDEST_EVERY, PacedHeap
 from runtime.tree.loader import load_tree
 from runtime.tree.registry import Registry
+from runtime.app.observer import RunObserver
 from runtime.app.runner import RunOptions, make_context, run_tree
 from runtime.app.world_check import declared_interfaces
 
@@ -62,18 +63,12 @@ def test_nothing_changes_when_disabled_or_when_the_caller_turned_the_collector_o
     assert not gc.isenabled()  # the caller's choice is kept
 
 
-class FreezeWatcher:
+class FreezeWatcher(RunObserver):
     def __init__(self) -> None:
         self.counts: list[int] = []
 
-    def started(self, loaded) -> None:
-        pass
-
     def ticked(self, now_s, visited) -> None:
         self.counts.append(gc.get_freeze_count() if not gc.isenabled() else 0)
-
-    def stopped(self) -> None:
-        pass
 
 
 @pytest.mark.parametrize("realtime", [True, False])
@@ -81,7 +76,7 @@ def test_a_paced_run_ticks_on_a_frozen_heap_and_a_simulated_one_does_not(registr
     options = RunOptions(realtime=realtime, max_seconds=5.0)
     context = make_context(options)
     watcher = FreezeWatcher()
-    result = run_tree(load_tree(WAIT_XML, registry, context), context, options, watchers=[watcher])
+    result = run_tree(load_tree(WAIT_XML, registry, context), context, options, [watcher])
 
     assert result.status == "SUCCESS", result.reason
     assert len(watcher.counts) >= 2  # the tick that starts the Sleep and the one that sees it end

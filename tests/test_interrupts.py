@@ -126,6 +126,7 @@ def test_an_interrupted_run_cancels_the_moving_gripper(tmp_path):
     """In process, on the simulated clock: the stop lands while the gripper is half way."""
     from runtime.io.interrupt import StopRequest
     from runtime.tree.registry import Registry
+    from runtime.app.observer import RunObserver
     from runtime.app.runner import RunOptions, run_file
 
     path = tmp_path / "close.xml"
@@ -136,11 +137,16 @@ def test_an_interrupted_run_cancels_the_moving_gripper(tmp_path):
     )
     stop = StopRequest()
 
-    def progress(now: float, ticks: int, tip: str) -> None:
-        if ticks == 20:
-            stop.on_signal(signal.SIGINT)
+    class SignalAtTick20(RunObserver):
+        ticks = 0
 
-    result = run_file(path, Registry.from_entry_points(), RunOptions(world="kinematic"), progress=progress, stop=stop)
+        def ticked(self, now_s: float, visited: list) -> None:
+            self.ticks += 1
+            if self.ticks == 20:
+                stop.on_signal(signal.SIGINT)
+
+    result = run_file(path, Registry.from_entry_points(), RunOptions(world="kinematic"),
+                      observers=[SignalAtTick20()], stop=stop)
     assert (result.status, result.exit_code, result.ticks, result.running_nodes) == ("INTERRUPTED", 130, 20, ["close"])
     assert 0.1 < result.extra["world"]["gripper"] < 0.5  # 1.6 rad/s for about 0.2 s: stopped on the way
 

@@ -8,6 +8,7 @@ from typing import Any
 import pytest
 
 import runtime.app.observer
+from runtime.app.observer import RunObserver
 from runtime.errors import ObjectiveError
 from runtime.app.runner import RunOptions, run_file
 from tests.data.nodes import make_registry
@@ -16,8 +17,8 @@ WAIT = '<root BTCPP_format="4"><BehaviorTree ID="W"><Wait seconds="0.05"/></Beha
 
 
 @dataclass
-class Watcher:
-    """An observer that notes what it is told."""
+class Watcher(RunObserver):
+    """An observer that notes how the run ended."""
 
     told: list[tuple[str, Any]] = field(default_factory=list)
 

@@ -9,6 +9,7 @@ import shutil
 import xml.etree.ElementTree as ET
 from html.parser import HTMLParser
 from pathlib import Path
+from types import SimpleNamespace
 from typing import Any
 
 import imageio.v2 as imageio
@@ -217,8 +218,8 @@ def test_progress_line_shows_the_policy_run():
 
     stream = io.StringIO()
     line = ProgressLine(stream)
-    line.attach(Policy())  # type: ignore[arg-type]
-    line(12.3, 1230, "ExecutePolicy")
+    line.started(SimpleNamespace(root=Policy()))  # type: ignore[arg-type]
+    line.show(12.3, 1230, "ExecutePolicy")
     assert stream.getvalue() == ("\rt=   12.30s  ticks=   1230  steps 120  chunks 6  latency p50/max 0.012/0.200 s  "
                                  "stalls 0.50 s  running: ExecutePolicy")
 

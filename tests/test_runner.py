@@ -1,6 +1,7 @@
 """The runner: ticks on the clock, statuses, the failing node, halting, worlds and summaries."""
 from __future__ import annotations
 
+import io
 import signal
 from pathlib import Path
 from typing import Any
@@ -11,8 +12,40 @@ from runtime.tree.behavior import Status
 from runtime.errors import ObjectiveError
 from runtime.io.interrupt import StopRequest
 from runtime.tree.loader import load_tree
+from runtime.app.display import ProgressLine
+from runtime.app.observer import RunObserver
 from runtime.app.runner import RunOptions, json_entries, make_context, run_file, run_tree
 from tests.data.nodes import Forever, make_registry
+
+
+class AfterTick(RunObserver):
+    """Calls ``act(ticks so far)`` after every tick."""
+
+    def __init__(self, act: Any) -> None:
+        self.act, self.ticks = act, 0
+
+    def ticked(self, now_s: float, visited: list) -> None:
+        self.ticks += 1
+        self.act(self.ticks)
+
+
+class Notes(RunObserver):
+    """Notes everything it is told."""
+
+    def __init__(self) -> None:
+        self.told: list[tuple[Any, ...]] = []
+
+    def started(self, loaded) -> None:
+        self.told.append(("started", loaded.tree_id))
+
+    def ticked(self, now_s: float, visited: list) -> None:
+        self.told.append(("ticked", round(now_s, 6), [node.name for node, _, _ in visited]))
+
+    def finished(self, result, stop) -> None:
+        self.told.append(("finished", result.status))
+
+    def aborted(self, error: BaseException, stop) -> None:
+        self.told.append(("aborted", str(error)))
 
 
 @pytest.fixture(scope="module")
@@ -157,11 +190,11 @@ def test_an_unexpected_exception_names_the_node_and_logs_the_traceback(run, tmp_
 def test_a_stop_request_halts_the_tree_as_a_preemption(run):
     stop = StopRequest()
 
-    def progress(now: float, ticks: int, tip: str) -> None:
+    def act(ticks: int) -> None:
         if ticks == 5:
             stop.on_signal(signal.SIGTERM)
 
-    result, loaded, context = run('<Sequence><Forever name="hold"/></Sequence>', progress=progress, stop=stop)
+    result, loaded, context = run('<Sequence><Forever name="hold"/></Sequence>', observers=[AfterTick(act)], stop=stop)
     assert (result.status, result.exit_code, result.ticks, result.signum) == ("INTERRUPTED", 143, 5, signal.SIGTERM)
     assert result.running_nodes == ["hold"]
     assert result.reason == f"interrupted by SIGTERM at 0.05 s; halted 'hold' ({loaded.info(loaded.root.children[0]).location}) (RUNNING)"
@@ -176,12 +209,12 @@ def test_a_stop_request_halts_the_tree_as_a_preemption(run):
 def test_a_second_signal_raises_at_once_and_the_run_still_ends_interrupted(run):
     stop = StopRequest()
 
-    def progress(now: float, ticks: int, tip: str) -> None:
+    def act(ticks: int) -> None:
         if ticks == 2:
             stop.on_signal(signal.SIGINT)
             stop.on_signal(signal.SIGINT)  # raises Interrupted here, in the middle of the loop
 
-    result, loaded, _ = run('<Forever name="hold"/>', progress=progress, stop=stop)
+    result, loaded, _ = run('<Forever name="hold"/>', observers=[AfterTick(act)], stop=stop)
     assert (result.status, result.exit_code, result.ticks) == ("INTERRUPTED", 130, 2)
     assert loaded.root.terminated == [Status.INVALID]
 
@@ -220,9 +253,11 @@ def test_world_is_stepped_before_each_tick_and_summaries_are_merged(run):
 
 
 def test_a_missing_world_is_a_clear_error(run):
+    notes = Notes()
     with pytest.raises(ObjectiveError) as info:
-        run("<Robot/>", RunOptions(world="no-such-world"))
+        run("<Robot/>", RunOptions(world="no-such-world"), observers=[notes])
     assert str(info.value).startswith("no world named 'no-such-world' (worlds: ")
+    assert notes.told == [("aborted", str(info.value))]
 
 
 def test_trees_that_need_no_world_start_none(run):
@@ -250,10 +285,33 @@ def test_runs_are_deterministic(registry, tmp_path):
     assert results[0].blackboard["greeting"] == "hello world"
 
 
-def test_progress_is_called_every_tick(run):
-    seen: list[tuple[float, int, str]] = []
-    result, _, _ = run('<Wait name="pause" seconds="0.03"/>', progress=lambda t, n, name: seen.append((round(t, 6), n, name)))
-    assert seen == [(0.01, 1, "pause"), (0.02, 2, "pause"), (0.03, 3, "pause"), (0.04, 4, "")]
+def test_observers_are_told_the_start_every_tick_and_the_end(run):
+    notes = Notes()
+    result, _, _ = run('<Wait name="pause" seconds="0.03"/>', observers=[notes])
+    assert result.status == "SUCCESS"
+    assert notes.told == [("started", "T"), *[("ticked", t, ["pause"]) for t in (0.01, 0.02, 0.03, 0.04)],
+                          ("finished", "SUCCESS")]
+
+
+def test_an_observer_is_told_of_an_exception_that_ends_the_run_abruptly(run):
+    class Exits(Notes):
+        def ticked(self, now_s: float, visited: list) -> None:
+            raise SystemExit(7)
+
+    world, notes = FakeWorld(), Exits()
+    with pytest.raises(SystemExit):
+        run('<Sequence><Robot/><Forever name="hold"/></Sequence>', world=world, observers=[notes])
+    assert notes.told == [("started", "T"), ("aborted", "7")]
+    assert world.calls[-1] == "close"  # halted and closed before it went on
+
+
+def test_the_progress_line_shows_the_running_node(run):
+    stream = io.StringIO()
+    result, _, _ = run('<Wait name="pause" seconds="0.03"/>', observers=[ProgressLine(stream, rate_hz=1e9)])
+    lines = stream.getvalue().split("\r")[1:]
+    assert result.status == "SUCCESS" and len(lines) == 4
+    assert lines[0] == "t=    0.01s  ticks=      1  running: pause"
+    assert lines[3].rstrip() == "t=    0.04s  ticks=      4  running:"
 
 
 @pytest.mark.parametrize("name, blackboard", [

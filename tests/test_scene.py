@@ -433,3 +433,23 @@ def test_bad_rows_are_named(scene):
         scene.check_state(np.zeros(5))
     with pytest.raises(ValueError, match="row 0 column 2 is not finite"):
         scene.check_state(np.array([0, 0, np.nan, 0, 0, 0]))
+
+
+def test_the_planning_scene_is_the_scene_a_run_context_names(scene):
+    """``RunContext.scene`` is typed by the tree's ``Scene`` protocol (the tree imports nothing of
+    the motion room): the planning scene has every member the protocol names, its methods with the
+    same parameters."""
+    import inspect
+
+    from runtime.tree.world import Scene
+
+    members = {name for name in vars(Scene) if not name.startswith("_")} | set(Scene.__annotations__)
+    assert {"robot", "layout", "check_path", "attachments"} <= members
+    for name in sorted(members):
+        assert hasattr(scene, name), f"PlanningScene has no '{name}'"
+        promised = vars(Scene).get(name)
+        if inspect.isfunction(promised):
+            assert (list(inspect.signature(getattr(PlanningScene, name)).parameters)
+                    == list(inspect.signature(promised).parameters)), name
+        elif isinstance(promised, property):
+            assert isinstance(inspect.getattr_static(PlanningScene, name), property), name

@@ -238,6 +238,7 @@ def _add_plugin_commands(sub: Any) -> None:
 def cmd_run(args: argparse.Namespace, registry: Registry, stop: StopRequest | None = None) -> int:
     """``objective run``; ``stop`` is where ``main``'s SIGINT/SIGTERM handlers ask the run to stop."""
     from .display import ProgressLine
+    from .observer import RunObserver
     from .runner import RunOptions, run_file
 
     options = RunOptions(
@@ -270,9 +271,10 @@ def cmd_run(args: argparse.Namespace, registry: Registry, stop: StopRequest | No
         logging.getLogger("objective").info("running %s", graph_description(options.ros_node_name))
     try:
         with groot2_server(args) as groot2:
-            watchers = [] if groot2 is None else [groot2.watcher()]
-            result = run_file(args.file, registry, options, args.tree, args.path, args.objectives_dir, progress, stop,
-                              watchers)
+            observers: list[RunObserver] = [] if progress is None else [progress]
+            if groot2 is not None:
+                observers.append(groot2.observer())
+            result = run_file(args.file, registry, options, args.tree, args.path, args.objectives_dir, observers, stop)
     finally:
         if progress is not None:
             progress.clear()

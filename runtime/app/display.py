@@ -7,8 +7,10 @@ from typing import TextIO
 import py_trees
 
 from runtime.tree.behavior import NodeMixin, SummarisesRun
+from runtime.tree.controls import Visit
 from runtime.tree.loader import CONDITION_ATTRIBUTES, LoadedTree
 from runtime.tree.subtree import SubTree
+from .observer import RunObserver
 from .terminal import printable
 
 
@@ -62,8 +64,9 @@ def tree_text(tree: LoadedTree) -> str:
     return "\n".join(lines)
 
 
-class ProgressLine:
-    """A single self-overwriting status line on a terminal, at most ``rate_hz`` updates per second.
+class ProgressLine(RunObserver):
+    """A single self-overwriting status line on a terminal, at most ``rate_hz`` updates per second:
+    the clock, the ticks, the policy's progress and the running node.
 
     The CLI only creates it when the stream is a TTY, so logs and pipes stay quiet.
     """
@@ -73,11 +76,23 @@ class ProgressLine:
         self.min_interval = 1.0 / rate_hz
         self._last = -float("inf")
         self._width = 0
+        self._root: py_trees.behaviour.Behaviour | None = None
+        self._ticks = 0
         self._reporters: list[SummarisesRun] = []
 
-    def attach(self, root: py_trees.behaviour.Behaviour) -> None:
-        """Also show the policy's progress: nodes with ``run_summary()`` (ExecutePolicy) are asked at display time."""
-        self._reporters = [n for n in root.iterate() if isinstance(n, SummarisesRun)]
+    def started(self, loaded: LoadedTree) -> None:
+        """The policy's progress comes from the nodes with ``run_summary()`` (ExecutePolicy), asked at display time."""
+        self._root, self._ticks = loaded.root, 0
+        self._reporters = [n for n in loaded.root.iterate() if isinstance(n, SummarisesRun)]
+
+    def ticked(self, now_s: float, visited: list[Visit]) -> None:
+        self._ticks += 1
+        now = time.monotonic()  # pacing the display itself, not behavior time
+        if now - self._last < self.min_interval:
+            return
+        self._last = now
+        tip = self._root.tip() if self._root is not None else None
+        self.show(now_s, self._ticks, tip.name if tip is not None else "")
 
     def policy_text(self) -> str:
         """``steps 120  chunks 6  latency 0.012/0.020 s  stalls 0.00 s`` of the policy run, if one started."""
@@ -89,11 +104,8 @@ class ProgressLine:
                         f"stalls {data['stall_seconds']:.2f} s")
         return ""
 
-    def __call__(self, sim_seconds: float, ticks: int, running: str) -> None:
-        now = time.monotonic()  # pacing the display itself, not behavior time
-        if now - self._last < self.min_interval:
-            return
-        self._last = now
+    def show(self, sim_seconds: float, ticks: int, running: str) -> None:
+        """Write the line now."""
         policy = self.policy_text()
         text = f"t={sim_seconds:8.2f}s  ticks={ticks:7d}  " + (f"{policy}  " if policy else "") + f"running: {printable(running)}"
         text = text[:160]

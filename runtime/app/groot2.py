@@ -67,10 +67,14 @@ from runtime.tree.ports import Direction, PortType
 from runtime.tree.subtree import SubTree
 
 from runtime.tree.loader import METADATA_ATTRIBUTES
+from .observer import RunObserver
 
 if TYPE_CHECKING:
+    from runtime.io.interrupt import StopRequest
     from runtime.tree.blackboard import Blackboard
     from runtime.tree.loader import LoadedTree
+
+    from .runner import RunResult
 
 DEFAULT_PORT = 1667
 PROTOCOL_ID = 2
@@ -337,7 +341,7 @@ class Groot2Server:
     """Answers Groot2 for the tree ``show`` was last given, from a thread of its own.
 
     ``show(loaded)`` before a run, ``update()`` after every tick (the runner does both through
-    ``Groot2Watcher``), ``close()`` at the end. Between runs it keeps answering with the last
+    ``Groot2Observer``), ``close()`` at the end. Between runs it keeps answering with the last
     tree and its final statuses; before the first, a full-tree request gets an error reply.
     """
 
@@ -434,9 +438,9 @@ class Groot2Server:
         self._thread.join(timeout=2.0)
         self._context.destroy(linger=0)
 
-    def watcher(self) -> "Groot2Watcher":
-        """What the runner calls (``runtime.app.runner.TickWatcher``) to show its tree here."""
-        return Groot2Watcher(self)
+    def observer(self) -> "Groot2Observer":
+        """The run observer that shows a run's tree here."""
+        return Groot2Observer(self)
 
     def __enter__(self) -> "Groot2Server":
         return self
@@ -533,9 +537,9 @@ def _now_us() -> int:
     return time.monotonic_ns() // 1000
 
 
-class Groot2Watcher:
-    """Connects a ``Groot2Server`` to the runner: ``started(loaded)`` shows the tree,
-    ``ticked`` takes its statuses, ``stopped`` takes them once more after the halt."""
+class Groot2Observer(RunObserver):
+    """Connects a ``Groot2Server`` to a run: ``started(loaded)`` shows the tree, ``ticked`` takes
+    its statuses, and the run's end (``finished`` or ``aborted``) takes them once more, after the halt."""
 
     def __init__(self, server: Groot2Server) -> None:
         self.server = server
@@ -546,5 +550,8 @@ class Groot2Watcher:
     def ticked(self, now_s: float, visited: list[Visit]) -> None:
         self.server.update(visited)
 
-    def stopped(self) -> None:
+    def finished(self, result: "RunResult", stop: "StopRequest | None") -> None:
+        self.server.update()
+
+    def aborted(self, error: BaseException, stop: "StopRequest | None") -> None:
         self.server.update()

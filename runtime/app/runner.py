@@ -17,9 +17,14 @@ traceback in a log file). Each has its exit code (``RunResult.exit_code``).
 
 A world (the simulated cell) is started only when some node of the tree has
 ``needs_world = True``; worlds are found by name in the ``objective.worlds`` entry-point group.
+
+``RunLoop`` is the loop (``start``, ``tick``, ``close``) and tells the run's observers
+(``runtime.app.observer.RunObserver``) of each step; ``run_tree`` drives it, ``run_loaded`` adds
+the observers the options ask for (the recording), ``run_file`` loads the tree first.
 """
 from __future__ import annotations
 
+import contextlib
 import enum
 import json
 import math
@@ -27,11 +32,11 @@ import signal
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Iterable, Protocol, Sequence, runtime_checkable
+from typing import Any, Callable, Iterable, Sequence
 
 import py_trees
 
-from runtime.tree.behavior import RunContext, Status, SummarisesRun
+from runtime.tree.behavior import NodeMixin, RunContext, Status, SummarisesRun
 from runtime.io.bus import InProcessBus, InterruptibleWaits, capability, parse_latency
 from runtime.io.clock import SimClock, WallClock
 from runtime.tree.controls import SKIPPED, Visit, is_skipped, tick_tree
@@ -42,39 +47,13 @@ from runtime.io.heap import PacedHeap
 from runtime.io.interrupt import Interrupted, StopRequest, exit_code_for, signal_name
 from runtime.tree.loader import LoadedTree, load_tree
 from runtime.tree.ports import NameKind
+from .observer import RunObserver, attach_observers
 from .protective_stop import PROTECTIVE_STOP, ProtectiveStop, StopInputs, needs_heartbeat
 from runtime.tree.registry import Registry, default_world_name
+from runtime.tree.world import World
 from runtime.io.scheduling import check_priority, realtime_priority
 from .world import create_world, world_hosts_servers
 from .world_check import check_tree, declared_interfaces, named_links
-
-Progress = Callable[[float, int, str], None]
-"""Called after every tick with (clock seconds, ticks so far, name of the running node)."""
-
-
-@runtime_checkable
-class TreeProgress(Protocol):
-    """A ``Progress`` that also looks at the tree's nodes (``runtime.app.display.ProgressLine``)."""
-
-    def __call__(self, sim_seconds: float, ticks: int, running: str) -> None: ...
-
-    def attach(self, root: py_trees.behaviour.Behaviour) -> None:
-        """Before the first tick: the tree's root."""
-        ...
-
-
-class TickWatcher(Protocol):
-    """Told of every tick of a run (the Groot2 monitor, the Objective server's feedback)."""
-
-    def started(self, loaded: LoadedTree) -> None:
-        """Before the first tick."""
-
-    def ticked(self, now_s: float, visited: list[Visit]) -> None:
-        """After every tick: the clock, and every node the tick visited with the status it reported."""
-
-    def stopped(self) -> None:
-        """After the tree finished or was halted, before the world and the bus close."""
-
 
 @dataclass
 class RunOptions:
@@ -437,186 +416,281 @@ def running_leaves(root: py_trees.behaviour.Behaviour) -> list[py_trees.behaviou
     ]
 
 
-def run_tree(
-    loaded: LoadedTree,
-    context: RunContext,
-    options: RunOptions,
-    progress: Progress | None = None,
-    world: Any = None,
-    stop: StopRequest | None = None,
-    watchers: Sequence[TickWatcher] = (),
-    guard: ProtectiveStop | None = None,
-) -> RunResult:
-    """Tick ``loaded`` (bound to ``context``) to completion and summarise the run.
+class RunLoop:
+    """One run of a loaded tree: ``start()``, then ``tick()`` while it says to go on, then ``close()``.
 
-    Starts the world named by ``options.world`` when the tree needs one (unless ``world`` is
-    given). Before every tick it looks at ``stop`` (set by ``runtime.io.interrupt`` on SIGINT or
-    SIGTERM) and, after the bus delivered what is due, ``guard`` (the protective stop: by default
-    one listening on the run's bus per ``options.protective_stop``; it ends the run FAILURE). Bad
-    input found while running (e.g. a port reading a blackboard entry nobody wrote), an unexpected
-    exception or an interruption ends the run as ERROR or INTERRUPTED; the tree is halted and
-    everything closed either way.
+    ``start`` starts the world named by ``options.world`` when the tree needs one (unless ``world``
+    is given), listens for the protective stop and sets every node up. Each ``tick`` first looks
+    at ``stop`` (set by ``runtime.io.interrupt`` on SIGINT or SIGTERM) and ``--max-seconds``, then
+    advances the clock, steps the world, delivers the bus traffic that is due, asks ``guard`` (the
+    protective stop: by default one listening on the run's bus per ``options.protective_stop``; it
+    ends the run FAILURE) and ticks the tree once. ``close`` halts the tree, closes the world and
+    the bus and says how the run ended.
+
+    Bad input found while running (e.g. a port reading a blackboard entry nobody wrote), an
+    unexpected exception or a signal ends the run (``start`` or ``tick`` returns False) as ERROR or
+    INTERRUPTED; ``close`` is still what halts and summarises. Anything else raised from ``start`` or
+    ``tick`` (a ``SystemExit``) halts and closes everything before it goes on.
+
+    Every step tells the ``observers`` (``runtime.app.observer.RunObserver``) what happened:
+    ``started``, ``ticked``, then ``finished`` from ``close``, or ``aborted`` from whichever step
+    raised.
     """
-    options.check()
-    root = loaded.root
-    nodes = list(root.iterate())
-    for key, value in options.sets.items():
-        loaded.blackboard.set(key, value)
-    stopping = stop is not None and stop.requested  # a signal while loading: no world to start and close
-    if world is None and not stopping and any(getattr(type(n), "needs_world", False) for n in nodes):
-        world_options = {
-            "seed": options.seed,
-            "realtime": options.paced,
-            "policy_latency": options.policy_latency,
-            "record_dir": options.record_dir,
-            **options.world_options,
-        }
-        if options.ros:  # the policy comes from the ROS graph (an adapter), not from the world
-            world_options.setdefault("policy", "none")
-        world = create_world(options.world or default_world_name(), world_options)
-    period = context.tick_period_s = 1.0 / options.tick_hz  # the run's nodes read it from the context
-    clock, bus = context.clock, context.bus
-    waits = capability(bus, InterruptibleWaits)
-    if stop is not None and waits is not None:
-        waits.stop_waiting_when(lambda: stop.requested)  # a hung in-process policy never holds a signal back
-    ticks = 0
-    blame: tuple[py_trees.behaviour.Behaviour, str, str | None] | None = None
-    status = Status.INVALID
-    timed_out = False
-    breakoff: Breakoff | None = None
-    running: list[py_trees.behaviour.Behaviour] = []
-    statuses = StatusEvents(context.events, nodes)
-    if isinstance(progress, TreeProgress):
-        progress.attach(root)
-    pacing = Pacing(period) if options.paced else None
-    wall_start = time.monotonic()
-    try:
-        try:
-            if guard is None and options.protective_stop is not None:  # listening from the start
-                guard = ProtectiveStop(options.protective_stop)
-                guard.listen(bus)
-            if world is not None:
-                context.world = world
-                try:
-                    world.start(context)
-                except ObjectiveError as err:
-                    raise err.within(f"world '{getattr(world, 'name', '?')}'") from None
-                check_tree(loaded, context)  # a name the world does not have: ERROR before anything moves
-            for node in nodes:
-                node.setup()
-            if options.ros:  # the clients the behaviors create while they run then cost no late tick
-                from runtime.io.ros.run import prepare_links
 
-                links = named_links(loaded.nodes)
-                prepare_links(bus, declared_interfaces(nodes),
-                              services=[(name, types[0]) for name, kind, types in links if kind is NameKind.SERVICE],
-                              actions=[(name, types) for name, kind, types in links if kind is NameKind.ACTION])
-            policy_running = False
-            context.events.emit("run_started", loaded.tree_id, seed=options.seed)
-            for watcher in watchers:
-                watcher.started(loaded)
-            # options.check() allows a priority only in a paced run
-            with PacedHeap(pacing is not None) as heap, realtime_priority(options.realtime_priority) as scheduling:
-                if pacing is not None:
-                    pacing.scheduling = scheduling
-                while True:
-                    if stop is not None and stop.signum is not None:
-                        breakoff = Breakoff(signum=stop.signum, cause=stop.cause)
-                        break
-                    if options.max_seconds is not None and clock.now() + period > options.max_seconds + 1e-9:
-                        timed_out = True
-                        break
-                    clock.advance(period)
-                    tick_start = time.monotonic()
-                    if world is not None:
-                        world.step_to(clock.now())
-                    bus.spin_once()
-                    why = guard.reason(clock.now(), policy_running) if guard is not None else None
-                    if why is not None:  # the tree is not ticked again: halted below, its goals cancelled
-                        breakoff = Breakoff(protective_stop=why)
-                        context.events.emit("protective_stop", loaded.tree_id, reason=why)
-                        break
-                    ticks += 1  # counted before it runs: a tick that raised was still ticked
-                    tick = tick_tree(root)
-                    status, visited = tick.status, tick.visited
-                    policy_running = any(seen is Status.RUNNING and needs_heartbeat(n) for n, seen, _ in visited)
-                    statuses.update(visited)
-                    if pacing is not None:
-                        pacing.record(tick_start, time.monotonic())
-                    if progress is not None:
-                        tip = root.tip()
-                        progress(clock.now(), ticks, tip.name if tip is not None else "")
-                    for watcher in watchers:
-                        watcher.ticked(clock.now(), visited)
-                    heap.between_ticks()
-                    if status is not Status.RUNNING:
-                        if status is Status.FAILURE:
-                            blame = _failing(root, visited)
-                        break
-        except Interrupted as err:  # a second signal: stop now, still halting and summarising
-            breakoff = Breakoff(signum=err.signum)
-        except Exception as err:  # ObjectiveError (bad input) or a bug: the run ends as ERROR
-            breakoff = Breakoff(error=err)
-        running = running_leaves(root)
-        if timed_out:
-            tip = root.tip()
-            where = f" while '{tip.name}' was RUNNING" if tip is not None else ""
-            reason = f"stopped after --max-seconds {options.max_seconds:g} s of clock time{where}"
-            blame = (tip if tip is not None else root, reason, TIMEOUT)
-        end = breakoff.end.value if breakoff is not None else outcome(status, timed_out).value
-        context.events.emit("run_finished", loaded.tree_id, status=end)
-    finally:
-        summary_world = None
+    def __init__(self, loaded: LoadedTree, context: RunContext, options: RunOptions,
+                 observers: Sequence[RunObserver] = (), world: World | None = None, stop: StopRequest | None = None,
+                 guard: ProtectiveStop | None = None) -> None:
+        self.loaded, self.context, self.options = loaded, context, options
+        self.observers, self.world, self.stop, self.guard = tuple(observers), world, stop, guard
+        self.root = loaded.root
+        self.nodes = list(self.root.iterate())
+        self.clock, self.bus = context.clock, context.bus
+        self.statuses = StatusEvents(context.events, self.nodes)
+        self.period = 0.0
+        """Clock seconds between two ticks (``1 / tick_hz``, once the options are checked)."""
+        self.pacing: Pacing | None = None
+        self.ticks = 0
+        self.status = Status.INVALID
+        """The root's status after the last tick."""
+        self.timed_out = False
+        self.breakoff: Breakoff | None = None
+        self.blame: tuple[py_trees.behaviour.Behaviour, str, str | None] | None = None
+        self.running: list[py_trees.behaviour.Behaviour] = []
+        """The leaves that were RUNNING when the run ended (halted since)."""
+        self.policy_running = False
+        self.wall_start = time.monotonic()
+        self.ticking = contextlib.ExitStack()
+        """What holds while the tree ticks: the paced heap, the real-time priority."""
+        self.heap = PacedHeap(False)
+        """The paced heap while the tree ticks (collecting between ticks); one that does nothing before."""
+
+    # -- the three steps -----------------------------------------------------------------------
+    def start(self) -> bool:
+        """Start the world and set the nodes up; False when the run ended before its first tick."""
         try:
-            if _halt(root) and options.ros:
+            self._prepare()
+        except BaseException as err:  # nothing started: nothing to close
+            self._tell_aborted(err)
+            raise
+        return self._step(self._start)
+
+    def tick(self) -> bool:
+        """One tick of the tree (unless the run stops first); True while the tree is RUNNING."""
+        return self._step(self._tick)
+
+    def close(self) -> RunResult:
+        """Halt the tree, close the world and the bus, say how the run ended and tell the observers."""
+        try:
+            try:
+                self._end()
+            finally:
+                summary_world = self._shut_down()
+            result = self._result(summary_world, time.monotonic() - self.wall_start)
+        except BaseException as err:
+            self._tell_aborted(err)
+            raise
+        for observer in self.observers:
+            observer.finished(result, self.stop)
+        return result
+
+    # -- inside the steps ----------------------------------------------------------------------
+    def _prepare(self) -> None:
+        """What comes before anything starts; what it raises ends the run with nothing to close."""
+        options = self.options
+        options.check()
+        for key, value in options.sets.items():
+            self.loaded.blackboard.set(key, value)
+        stopping = self.stop is not None and self.stop.requested  # a signal while loading: no world to start and close
+        if self.world is None and not stopping and any(isinstance(n, NodeMixin) and n.needs_world for n in self.nodes):
+            world_options = {
+                "seed": options.seed,
+                "realtime": options.paced,
+                "policy_latency": options.policy_latency,
+                "record_dir": options.record_dir,
+                **options.world_options,
+            }
+            if options.ros:  # the policy comes from the ROS graph (an adapter), not from the world
+                world_options.setdefault("policy", "none")
+            self.world = create_world(options.world or default_world_name(), world_options)
+        self.period = self.context.tick_period_s = 1.0 / options.tick_hz  # the run's nodes read it from the context
+        waits = capability(self.bus, InterruptibleWaits)
+        stop = self.stop
+        if stop is not None and waits is not None:
+            waits.stop_waiting_when(lambda: stop.requested)  # a hung in-process policy never holds a signal back
+        self.pacing = Pacing(self.period) if options.paced else None
+        self.wall_start = time.monotonic()
+
+    def _step(self, step: Callable[[], bool]) -> bool:
+        """``step()``; a signal or an exception ends the run instead (False). Whatever else is
+        raised (a ``SystemExit``) halts the tree and closes everything on its way out."""
+        try:
+            return step()
+        except Interrupted as err:  # a second signal: stop now, still halting and summarising
+            self.breakoff = Breakoff(signum=err.signum)
+        except Exception as err:  # ObjectiveError (bad input) or a bug: the run ends as ERROR
+            self.breakoff = Breakoff(error=err)
+        except BaseException as err:
+            try:
+                self.ticking.close()
+                self._shut_down()
+            except BaseException as later:  # raised on in place of ``err``
+                self._tell_aborted(later)
+                raise
+            self._tell_aborted(err)
+            raise
+        return False
+
+    def _tell_aborted(self, error: BaseException) -> None:
+        for observer in self.observers:
+            observer.aborted(error, self.stop)
+
+    def _start(self) -> bool:
+        context, options, loaded = self.context, self.options, self.loaded
+        if self.guard is None and options.protective_stop is not None:  # listening from the start
+            self.guard = ProtectiveStop(options.protective_stop)
+            self.guard.listen(self.bus)
+        if self.world is not None:
+            context.world = self.world
+            try:
+                self.world.start(context)
+            except ObjectiveError as err:
+                raise err.within(f"world '{self.world.name}'") from None
+            check_tree(loaded, context)  # a name the world does not have: ERROR before anything moves
+        for node in self.nodes:
+            node.setup()
+        if options.ros:  # the clients the behaviors create while they run then cost no late tick
+            from runtime.io.ros.run import prepare_links
+
+            links = named_links(loaded.nodes)
+            prepare_links(self.bus, declared_interfaces(self.nodes),
+                          services=[(name, types[0]) for name, kind, types in links if kind is NameKind.SERVICE],
+                          actions=[(name, types) for name, kind, types in links if kind is NameKind.ACTION])
+        context.events.emit("run_started", loaded.tree_id, seed=options.seed)
+        for observer in self.observers:
+            observer.started(loaded)
+        self.heap = self.ticking.enter_context(PacedHeap(self.pacing is not None))
+        # options.check() allows a priority only in a paced run
+        scheduling = self.ticking.enter_context(realtime_priority(options.realtime_priority))
+        if self.pacing is not None:
+            self.pacing.scheduling = scheduling
+        return True
+
+    def _tick(self) -> bool:
+        clock, stop, max_seconds = self.clock, self.stop, self.options.max_seconds
+        if stop is not None and stop.signum is not None:
+            self.breakoff = Breakoff(signum=stop.signum, cause=stop.cause)
+            return False
+        if max_seconds is not None and clock.now() + self.period > max_seconds + 1e-9:
+            self.timed_out = True
+            return False
+        clock.advance(self.period)
+        tick_start = time.monotonic()
+        if self.world is not None:
+            self.world.step_to(clock.now())
+        self.bus.spin_once()
+        why = self.guard.reason(clock.now(), self.policy_running) if self.guard is not None else None
+        if why is not None:  # the tree is not ticked again: halted by close(), its goals cancelled
+            self.breakoff = Breakoff(protective_stop=why)
+            self.context.events.emit("protective_stop", self.loaded.tree_id, reason=why)
+            return False
+        self.ticks += 1  # counted before it runs: a tick that raised was still ticked
+        tick = tick_tree(self.root)
+        self.status, visited = tick.status, tick.visited
+        self.policy_running = any(seen is Status.RUNNING and needs_heartbeat(n) for n, seen, _ in visited)
+        self.statuses.update(visited)
+        if self.pacing is not None:
+            self.pacing.record(tick_start, time.monotonic())
+        for observer in self.observers:
+            observer.ticked(clock.now(), visited)
+        self.heap.between_ticks()
+        if self.status is Status.RUNNING:
+            return True
+        if self.status is Status.FAILURE:
+            self.blame = _failing(self.root, visited)
+        return False
+
+    def _end(self) -> None:
+        """What the tree was doing when the run ended, who is to blame for a timeout; the
+        ``run_finished`` event."""
+        self.ticking.close()
+        self.running = running_leaves(self.root)
+        if self.timed_out:
+            tip = self.root.tip()
+            where = f" while '{tip.name}' was RUNNING" if tip is not None else ""
+            reason = f"stopped after --max-seconds {self.options.max_seconds:g} s of clock time{where}"
+            self.blame = (tip if tip is not None else self.root, reason, TIMEOUT)
+        end = self.breakoff.end if self.breakoff is not None else outcome(self.status, self.timed_out)
+        self.context.events.emit("run_finished", self.loaded.tree_id, status=end.value)
+
+    def _shut_down(self) -> dict[str, Any] | None:
+        """Halt the tree, then close the world and the bus (each even when what came before it
+        raised); the world's summary."""
+        world, summary_world = self.world, None
+        try:
+            if _halt(self.root) and self.options.ros:
                 from runtime.io.ros.run import deliver_pending
 
                 # let the cancels of a halted run reach the graph, and the hosted controllers act on them
-                deliver_pending(bus, None if world is None else lambda: world.step_to(clock.now()))
+                deliver_pending(self.bus, None if world is None else lambda: world.step_to(self.clock.now()))
         except Exception as err:  # a node's terminate() broke: still close the world and the bus
-            breakoff = breakoff or Breakoff(error=err)
+            self.breakoff = self.breakoff or Breakoff(error=err)
         finally:
             try:
-                statuses.halted()
-                for watcher in watchers:
-                    watcher.stopped()
+                self.statuses.halted()
                 if world is not None:
                     try:
                         summary_world = world.summary()
                     finally:
                         world.close()
             finally:
-                bus.close()
-    wall_seconds = time.monotonic() - wall_start
+                self.bus.close()
+        return summary_world
 
-    extra: dict[str, Any] = {}
-    for node in nodes:
-        if isinstance(node, SummarisesRun):
-            extra.update(node.run_summary() or {})
-    if summary_world:
-        extra["world"] = summary_world
-    if pacing is not None:
-        extra["pacing"] = pacing.as_dict()
+    def _result(self, summary_world: dict[str, Any] | None, wall_seconds: float) -> RunResult:
+        extra: dict[str, Any] = {}
+        for node in self.nodes:
+            if isinstance(node, SummarisesRun):
+                extra.update(node.run_summary() or {})
+        if summary_world:
+            extra["world"] = summary_world
+        if self.pacing is not None:
+            extra["pacing"] = self.pacing.as_dict()
+        result = RunResult(
+            status=outcome(self.status, self.timed_out).value,
+            failing_node=None,
+            reason="",
+            sim_seconds=self.clock.now(),
+            wall_seconds=wall_seconds,
+            ticks=self.ticks,
+            blackboard=json_entries(self.loaded.blackboard.items()),
+            extra=extra,
+            running_nodes=[node.name for node in self.running],
+        )
+        if self.breakoff is not None:
+            _describe_breakoff(result, self.breakoff, self.running, self.loaded, self.nodes, self.options)
+        elif self.blame is not None:
+            node, reason, result.failure_kind = self.blame
+            info = self.loaded.info(node)
+            result.failing_node, result.reason = node.name, reason or ""
+            result.failing_location = str(info.location) if info is not None else None
+        return result
 
-    result = RunResult(
-        status=outcome(status, timed_out).value,
-        failing_node=None,
-        reason="",
-        sim_seconds=clock.now(),
-        wall_seconds=wall_seconds,
-        ticks=ticks,
-        blackboard=json_entries(loaded.blackboard.items()),
-        extra=extra,
-        running_nodes=[node.name for node in running],
-    )
-    if breakoff is not None:
-        _describe_breakoff(result, breakoff, running, loaded, nodes, options)
-    elif blame is not None:
-        node, reason, result.failure_kind = blame
-        info = loaded.info(node)
-        result.failing_node, result.reason = node.name, reason or ""
-        result.failing_location = str(info.location) if info is not None else None
-    return result
+
+def run_tree(
+    loaded: LoadedTree,
+    context: RunContext,
+    options: RunOptions,
+    observers: Sequence[RunObserver] = (),
+    world: World | None = None,
+    stop: StopRequest | None = None,
+    guard: ProtectiveStop | None = None,
+) -> RunResult:
+    """Tick ``loaded`` (bound to ``context``) to completion and summarise the run (``RunLoop``)."""
+    loop = RunLoop(loaded, context, options, observers, world, stop, guard)
+    if loop.start():
+        while loop.tick():
+            pass
+    return loop.close()
 
 
 def _describe_breakoff(result: RunResult, breakoff: Breakoff, running: list[py_trees.behaviour.Behaviour],
@@ -668,33 +742,20 @@ def run_file(
     tree_id: str | None = None,
     search_paths: Iterable[Path] = (),
     objectives_dir: Path | None = None,
-    progress: Progress | None = None,
+    observers: Sequence[RunObserver] = (),
     stop: StopRequest | None = None,
-    watchers: Sequence[TickWatcher] = (),
 ) -> RunResult:
     """Load ``source`` and run it: what ``objective run`` does (``stop``: see ``runtime.io.interrupt``)."""
     options.check()
     context = make_context(options)
     loaded = load_tree(source, registry, context, tree_id, search_paths, objectives_dir)
-    return run_loaded(loaded, context, options, progress, stop, watchers)
+    return run_loaded(loaded, context, options, observers, stop)
 
 
-def run_loaded(loaded: LoadedTree, context: RunContext, options: RunOptions, progress: Progress | None = None,
-               stop: StopRequest | None = None, watchers: Sequence[TickWatcher] = (),
-               guard: ProtectiveStop | None = None) -> RunResult:
-    """Run a loaded tree (``run_file`` after the loading), with the run observers the options ask
-    for (``runtime.app.observer``: the recording, the live view) and ``watchers`` told of every tick."""
-    if not options.observed:
-        return run_tree(loaded, context, options, progress, stop=stop, watchers=watchers, guard=guard)
-    from .observer import attach_observers
-
-    observers = attach_observers(loaded, context, options)
-    try:
-        result = run_tree(loaded, context, options, progress, stop=stop, watchers=watchers, guard=guard)
-    except BaseException as err:  # the run did not start (e.g. no such world): the observers say so
-        for observer in observers:
-            observer.aborted(err, stop)
-        raise
-    for observer in observers:
-        observer.finished(result, stop)
-    return result
+def run_loaded(loaded: LoadedTree, context: RunContext, options: RunOptions, observers: Sequence[RunObserver] = (),
+               stop: StopRequest | None = None, guard: ProtectiveStop | None = None) -> RunResult:
+    """Run a loaded tree (``run_file`` after the loading) with ``observers``, and after them the run
+    observers the options ask for (``runtime.app.observer``: the recording, the live view)."""
+    if options.observed:
+        observers = [*observers, *attach_observers(loaded, context, options)]
+    return run_tree(loaded, context, options, observers, stop=stop, guard=guard)

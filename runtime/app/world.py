@@ -1,9 +1,7 @@
-"""What a simulated (or real) world provides to a run.
+"""Finding and creating worlds, and what only some worlds do.
 
-The runner owns the loop: ``clock.advance(period)``, ``world.step_to(clock.now())``,
-``bus.spin_once()``, then one tick of the tree. A world therefore keeps its own time equal to
-the clock after each ``step_to``; its controllers run at their own rate in between. Worlds are
-found through the ``objective.worlds`` entry-point group: each names ``create(options) -> World``.
+A world is a ``runtime.tree.world.World``. Worlds are found through the ``objective.worlds``
+entry-point group: each names ``create(options) -> World``.
 """
 from __future__ import annotations
 
@@ -12,30 +10,8 @@ from typing import Any, Protocol, runtime_checkable
 
 from runtime.errors import ObjectiveError
 from runtime.extras import load_entry_point
-from runtime.tree.behavior import RunContext
 from runtime.tree.registry import WORLD_GROUP
-
-
-class World(Protocol):
-    name: str
-
-    def start(self, context: RunContext) -> None:
-        """Serve topics, services and actions on ``context.bus``; fill ``context.scene``."""
-        ...
-
-    def step_to(self, t: float) -> None:
-        """Advance physics and controllers until clock time ``t``."""
-        ...
-
-    def reset(self, seed: int) -> None:
-        """Restore the initial state with a layout drawn from ``seed``."""
-        ...
-
-    def summary(self) -> dict[str, Any]:
-        """JSON-serialisable facts for the run summary (may be empty)."""
-        ...
-
-    def close(self) -> None: ...
+from runtime.tree.world import World
 
 
 @runtime_checkable
@@ -84,7 +60,7 @@ def world_hosts_servers(name: str) -> bool:
     return bool(getattr(factory, "hosts_servers", True))
 
 
-def create_world(name: str, options: dict[str, Any]) -> Any:
+def create_world(name: str, options: dict[str, Any]) -> World:
     """The world registered as ``name`` in the ``objective.worlds`` entry-point group."""
     available = {ep.name: ep for ep in entry_points(group=WORLD_GROUP)}
     if name not in available:

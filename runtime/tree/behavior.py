@@ -22,6 +22,7 @@ if TYPE_CHECKING:
     from runtime.io.bus import Bus
     from runtime.io.clock import Clock
     from .events import EventLog
+    from .world import Scene, World
 
 Status = py_trees.common.Status
 
@@ -49,10 +50,11 @@ class NodeKind(enum.Enum):
 class RunContext:
     """What every node of one run shares: time, the bus, the world model, the event log.
 
-    ``scene`` is the planning scene (None for trees that never move a robot); ``world`` is the
-    simulated world when the run hosts one (behaviors must not reach into it: it exists for
-    world-level nodes such as ResetSim and for the runner). ``resources`` holds per-run objects
-    that plug-ins share, keyed by name (e.g. the cell's waypoints). ``tick_period_s`` is the clock
+    ``scene`` is the planning scene the world fills in (None for trees that never move a robot);
+    ``world`` is the simulated world when the run hosts one (behaviors must not reach into it: it
+    exists for world-level nodes such as ResetSim and for the runner); both are protocols of
+    ``runtime.tree.world``. ``resources`` holds per-run objects that plug-ins share, each under a
+    name of its own (the world's ``waypoints``, ``{name: {joint: position}}``; ExecutePolicy's runs). ``tick_period_s`` is the clock
     time between two ticks of the tree (the runner's ``1 / tick_hz``). ``stamp_offset_s`` is what
     turns a time on ``clock`` into a stamp the robot's controllers read: 0 when they keep the run's
     time (in process, a hosted cell, a robot on ``/clock`` with ``--use-sim-time``); on a real robot
@@ -62,8 +64,8 @@ class RunContext:
     clock: Clock
     bus: Bus
     events: EventLog
-    scene: Any = None
-    world: Any = None
+    scene: Scene | None = None
+    world: World | None = None
     seed: int = 0
     tick_period_s: float = 0.01
     stamp_offset_s: float = 0.0

@@ -60,7 +60,8 @@ from runtime.app.objective_library import Library, PortOverride, override_entrie
 from runtime.app.protective_stop import ProtectiveStop, StopInputs
 from runtime.tree.registry import Registry
 from runtime.io.ros.run import set_discovery_range
-from runtime.app.runner import RunEnd, TickWatcher, RunOptions, RunResult, make_context, run_loaded, running_leaves
+from runtime.app.observer import RunObserver
+from runtime.app.runner import RunEnd, RunOptions, RunResult, make_context, run_loaded, running_leaves
 
 NODE_NAME = "objective_server"
 ACTION_NAME = "/do_objective"
@@ -109,8 +110,8 @@ class Outcome:
         return cls(RunEnd.ERROR.value, reason, summary={"status": RunEnd.ERROR.value, "reason": reason})
 
 
-class FeedbackWatcher:
-    """Publishes DoObjective feedback while a run goes (a ``runtime.app.runner.TickWatcher``)."""
+class FeedbackObserver(RunObserver):
+    """Publishes DoObjective feedback while a run goes."""
 
     def __init__(self, publish: Callable[[Any], None], period_s: float = FEEDBACK_PERIOD_S) -> None:
         self.publish, self.period_s = publish, period_s
@@ -128,9 +129,6 @@ class FeedbackWatcher:
             return
         self.last_sent = wall
         self.publish(feedback(self.root, now_s, self.ticks))
-
-    def stopped(self) -> None:
-        pass
 
 
 def feedback(root: Any, now_s: float, ticks: int) -> Any:
@@ -283,13 +281,13 @@ class ObjectiveServer:
             context.bus.close()
             return Outcome.error(str(describe_crash(err, None, write_traceback(err, options.log_dir),
                                                     consequence=f"'{name}' was not run")))
-        watchers: list[TickWatcher] = [FeedbackWatcher(publish)]
+        observers: list[RunObserver] = [FeedbackObserver(publish)]
         if self.options.groot2 is not None:
-            watchers.append(self.options.groot2.watcher())
+            observers.append(self.options.groot2.observer())
         if self.guard is not None:
             self.guard.reset()
         try:
-            return Outcome.of(run_loaded(loaded, context, options, stop=stop, watchers=watchers, guard=self.guard))
+            return Outcome.of(run_loaded(loaded, context, options, observers, stop, self.guard))
         except ObjectiveError as err:  # e.g. no such world: nothing ran
             return Outcome.error(str(err))
 
