@@ -88,7 +88,7 @@ def run(seconds: float, clients: bool) -> dict[str, Any]:
         stop = threading.Event()
         threads = hostile(server.port, stop, counts) if clients else []
         try:
-            result = run_file(path, Registry.from_entry_points(), RunOptions(realtime=True), watchers=[server.watcher()])
+            result = run_file(path, Registry.from_entry_points(), RunOptions(realtime=True), observers=[server.observer()])
         finally:
             stop.set()
             for thread in threads:
