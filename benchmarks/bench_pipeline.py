@@ -30,7 +30,9 @@ import numpy as np
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
 from behaviors.execute_policy.chunk import read_chunk
-from behaviors.execute_policy.shaping import densify, fit_chunk, join_at_seam, plan_tail
+from behaviors.execute_policy.seam import join_at_seam
+from behaviors.execute_policy.shaping import densify, fit_chunk
+from behaviors.execute_policy.tail import plan_tail
 from behaviors.safety import make_safety
 from benchmarks.baselines import TaskPolicy, benchmark_task
 from sim.layouts import layout

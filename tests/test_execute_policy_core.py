@@ -8,20 +8,10 @@ import pytest
 from behaviors.execute_policy.checks import CheckFailure
 from behaviors.execute_policy.chunk import Chunk
 from behaviors.execute_policy.failure import Failure, FailureKind
-from behaviors.execute_policy.planner import (
-    Arrival,
-    PlanInput,
-    Planned,
-    ShapingConfig,
-    Wait,
-    WaitReason,
-    earliest_seam_step,
-    next_request_step,
-    plan_chunk,
-    shorter_tails,
-    stall_at_stop_s,
-)
-from behaviors.execute_policy.shaping import NO_TAIL, RUNOUT_SLOWDOWN, Tail, runout_chunk_steps, runout_duration
+from behaviors.execute_policy.at_rest import Arrival
+from behaviors.execute_policy.planner import PlanInput, Planned, Wait, WaitReason, plan_chunk
+from behaviors.execute_policy.shaping import ShapingConfig
+from behaviors.execute_policy.tail import NO_TAIL, RUNOUT_SLOWDOWN, Tail, runout_chunk_steps, runout_duration, shorter_tails
 from behaviors.execute_policy.states import (
     SentMotion,
     Goal,
@@ -32,7 +22,8 @@ from behaviors.execute_policy.states import (
     stream_finished,
     stream_state,
 )
-from behaviors.execute_policy.stream import StepGrid
+from behaviors.execute_policy.stream import StepGrid, stall_at_stop_s
+from behaviors.execute_policy.timing import earliest_seam_step, next_request_step
 
 DT = 0.1
 SHAPING = ShapingConfig(dt=DT, committed_action_steps=20, policy_tracking_weight=300.0, num_interpolation_points=100,

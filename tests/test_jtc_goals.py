@@ -14,7 +14,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from behaviors.controller_link import JtcStreamGoal, jtc_stream_points
-from behaviors.execute_policy.shaping import densify, fit_chunk, join_at_seam
+from behaviors.execute_policy.seam import join_at_seam
+from behaviors.execute_policy.shaping import densify, fit_chunk
 from runtime.motion.samples import Samples
 from sim.controllers.jtc_trajectory import JtcPoints, JtcTrajectory, merge_at_arrival, replace_at_arrival
 from sim.controllers.trajectory import TIME_EPS

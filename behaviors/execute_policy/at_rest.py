@@ -7,17 +7,17 @@ provided its goal takes effect strictly before the earliest seam step begins
 (``window_arrival_step``); otherwise at the step before the earliest seam. Its goal takes over
 within that first step, when it takes effect (``take_over_time``): the arm rests until then, and
 the blend from rest catches up the fraction of a step. Where that fraction leaves a short window
-too little to pass the checks, ``planner.plan_chunk`` plans it again from the earliest seam.
-A chunk that finds the arm moving joins at the earliest seam. Pure functions.
+too little to pass the checks, the chunk is planned again from the earliest seam (``starts``
+lists both, in the order they are tried). A chunk that finds the arm moving joins at the
+earliest seam. Pure functions.
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
-from .shaping import ChunkMotion
-
 if TYPE_CHECKING:
+    from .shaping import ChunkMotion
     from .stream import StepGrid
 
 
@@ -26,7 +26,30 @@ class Arrival:
     """When a chunk came, on the step grid, and the earliest instant a goal sent now takes effect."""
 
     step: int  # the first step at or after the chunk arrived
-    goal_takes_effect_s: float  # now plus one tick and twice the goal delivery time (``planner.goal_takes_effect_s``)
+    goal_takes_effect_s: float  # now plus one tick and twice the goal delivery time (``timing.goal_takes_effect_s``)
+
+
+@dataclass(frozen=True)
+class Start:
+    """Where a chunk's window may start: ``step`` (``StepGrid.plan_window``'s ``start_step``),
+    and the arrival of a chunk that finds the arm at rest (None: the arm moves, or the window
+    starts at the earliest seam), for ``take_over_time``."""
+
+    step: int
+    from_rest: Arrival | None
+
+
+def starts(previous: ChunkMotion | None, arrival: Arrival | None, grid: StepGrid, earliest_seam_step: int) -> list[Start]:
+    """The starts to plan a chunk from, in order, until one is not refused: a chunk that finds
+    the arm at rest (``arrives_at_rest``) first at its arrival step (``from_rest_seam``), then,
+    should that fraction of a step leave its window too little to pass the checks, at the
+    earliest seam; any other chunk at the earliest seam."""
+    at_earliest = Start(earliest_seam_step, None)
+    if not arrives_at_rest(previous, arrival, grid):
+        return [at_earliest]
+    assert arrival is not None
+    step = from_rest_seam(earliest_seam_step, window_arrival_step(arrival, grid, earliest_seam_step))
+    return [Start(step, arrival), at_earliest]
 
 
 def arrives_at_rest(previous: ChunkMotion | None, arrival: Arrival | None, grid: StepGrid) -> bool:

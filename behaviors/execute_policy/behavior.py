@@ -36,22 +36,14 @@ from .chunk import Chunk
 from .controller_stream import ControllerStream
 from .failure import Failure, FailureKind
 from .metrics import POLICY_RUNS, summarise_runs
-from .planner import (
-    Arrival,
-    PlanInput,
-    Planned,
-    ShapingConfig,
-    earliest_seam_step,
-    goal_takes_effect_s,
-    next_request_step,
-    plan_chunk,
-    stall_at_stop_s,
-)
+from .at_rest import Arrival
+from .planner import PlanInput, Planned, plan_chunk
 from .scene_watch import SceneWatch
 from .session import PolicySession, SessionRun
+from .shaping import ShapingConfig
 from .states import HeldChunk, Rollback, SentMotion, StreamState, stream_finished, stream_state
-from .stream import StepGrid
-from .timing import frozen_prefix_steps, prefetch_margin
+from .stream import StepGrid, stall_at_stop_s
+from .timing import earliest_seam_step, frozen_prefix_steps, goal_takes_effect_s, next_request_step, prefetch_margin
 
 
 @dataclass
@@ -191,7 +183,7 @@ class ExecutePolicy(Behavior):
     def _frozen(self) -> int:
         estimate_s = self.session.metrics.latency_estimate_s = self.session.policy.latency.seconds
         tick_s = self.context.tick_period_s
-        return frozen_prefix_steps(estimate_s, self.session.config.dt, prefetch_margin(estimate_s, tick_s) + 2 * self._controller().planned_latency_s)
+        return frozen_prefix_steps(estimate_s, self.session.config.dt, prefetch_margin(estimate_s, tick_s, self._controller().planned_latency_s))
 
     def _maybe_request(self, now: float) -> None:
         grid = self._sent_motion().grid

@@ -23,7 +23,7 @@ from ..action_goal import Goal, GoalState
 from ..controller_link import ControllerKind, ControllerLink, GoalTolerances, jtc_stream_points, trajectory_goal
 from ..trajectory_goal import NOT_ACCEPTED, REFUSED_GOAL_CODES, trajectory_msg
 from .config import PolicyRunConfig
-from .planner import goal_takes_effect_s
+from .timing import goal_takes_effect_s
 from runtime.motion.samples import Samples
 from .states import Rollback
 

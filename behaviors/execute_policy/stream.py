@@ -9,13 +9,14 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, replace
-
-import numpy as np
+from typing import TYPE_CHECKING
 
 from runtime.errors import ObjectiveError
 
-from .at_rest import from_rest_seam
-from .shaping import NO_TAIL, RUNOUT_SLOWDOWN, Tail, runout_warp
+from .tail import NO_TAIL, Tail, tail_progress
+
+if TYPE_CHECKING:
+    from .states import SentMotion
 
 
 @dataclass(frozen=True)
@@ -40,30 +41,17 @@ class Window:
         return self.seam_step - self.request_step
 
 
-def runout_progress(steps_since_end: int, runout_steps: int) -> int:
-    """Chunk steps (rounded) the arm has covered ``steps_since_end`` run steps into a runout
-    that covers ``runout_steps`` chunk steps in ``RUNOUT_SLOWDOWN * runout_steps`` run steps."""
-    if runout_steps <= 0 or steps_since_end <= 0:
-        return 0
-    run_steps = RUNOUT_SLOWDOWN * runout_steps
-    if steps_since_end >= run_steps:
-        return runout_steps
-    covered, _, _ = runout_warp(np.array([steps_since_end / run_steps]), float(run_steps), 1.0)
-    return int(round(float(covered[0])))
-
-
-def tail_progress(steps_since_end: int, tail_extension_steps: int, tail_runout_steps: int) -> int:
-    """Chunk steps the arm has covered ``steps_since_end`` run steps after a window's end when no
-    chunk took over: one a step through the tail's extension, then through its runout."""
-    if steps_since_end <= tail_extension_steps:
-        return max(0, steps_since_end)
-    return tail_extension_steps + runout_progress(steps_since_end - tail_extension_steps, tail_runout_steps)
-
-
 def drained_seconds(motion_end: float | None, until: float) -> float:
     """Seconds by ``until`` that the sent motion (ending at ``motion_end``; None before the
     first chunk) has been drained: the arm in the runout, then at rest, waiting for a chunk."""
     return 0.0 if motion_end is None else max(0.0, until - motion_end)
+
+
+def stall_at_stop_s(sent: SentMotion | None, now_s: float) -> float:
+    """The wait so far when the run ends while the arm waits for a chunk (a stall too)."""
+    if sent is None or sent.grid.remaining == 0 or sent.motion is None:
+        return 0.0
+    return drained_seconds(sent.motion.full_speed_end, now_s)
 
 
 class WindowError(ObjectiveError, ValueError):
@@ -119,12 +107,12 @@ class StepGrid:
         return max(on_time, full_speed_end + self.tail.runout_steps - half_chunk)
 
     def plan_window(self, index: int, request_step: int, frozen: int, chunk_steps: int, earliest_seam: int,
-                    runout_reserve: int = 0, arrival_step: int | None = None) -> Window:
+                    runout_reserve: int = 0, start_step: int | None = None) -> Window:
         """The window a chunk of ``chunk_steps`` steps requested at ``request_step`` executes,
         given the first step it can still join at (``earliest_seam``, from its arrival). A late
         chunk's window leaves ``runout_reserve`` steps of the chunk for its own runout.
-        ``arrival_step`` (the first step at or after the chunk arrived; None: ``earliest_seam``)
-        places a chunk that finds the arm at rest: see ``at_rest.from_rest_seam``.
+        ``start_step`` (None: ``earliest_seam``) is where a chunk that does not take over at the
+        end of the sent motion starts: for one that finds the arm at rest, ``at_rest.from_rest_seam``.
 
         Raises WindowError when the chunk ends before the seam.
         """
@@ -139,7 +127,7 @@ class StepGrid:
         if on_time:
             seam = self.sent_end
         else:
-            seam = max(self.sent_end, from_rest_seam(earliest_seam, arrival_step))
+            seam = max(self.sent_end, earliest_seam if start_step is None else start_step)
         played = 0
         if not on_time:
             reached = 0

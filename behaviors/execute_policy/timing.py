@@ -1,4 +1,5 @@
-"""When to ask for the next chunk, and how many of its steps are frozen. Pure arithmetic.
+"""Timing: the latency estimate, when to ask for the next chunk, how many of its steps are
+frozen, and when a goal sent now takes effect. Pure arithmetic.
 
 All instants are on the run's step grid: step ``n`` happens at ``start + n * dt``. A request made
 at step ``r`` gets a chunk whose step 0 is step ``r``; the steps that elapse while the call is
@@ -9,7 +10,10 @@ from __future__ import annotations
 import enum
 import math
 from collections import deque
-from typing import Sequence
+from typing import TYPE_CHECKING, Sequence
+
+if TYPE_CHECKING:
+    from .stream import StepGrid
 
 LATENCY_WINDOW_CALLS = 20
 """Round trips the latency estimate looks back over (the warmup's included while it is among them)."""
@@ -55,9 +59,32 @@ def frozen_prefix_steps(latency_s: float, dt: float, margin_s: float) -> int:
     return max(1, math.ceil((latency_s + margin_s) / dt - 1e-9))
 
 
-def prefetch_margin(latency_s: float, tick_period_s: float) -> float:
-    """Slack added to the latency estimate: two ticks plus a tenth of the estimate."""
-    return 2.0 * tick_period_s + 0.1 * latency_s
+def prefetch_margin(latency_s: float, tick_period_s: float, goal_latency_s: float) -> float:
+    """Slack added to the latency estimate: two ticks plus a tenth of the estimate, plus twice
+    the goal delivery time (the chunk's goal must reach the controller by the seam)."""
+    return 2.0 * tick_period_s + 0.1 * latency_s + 2 * goal_latency_s
+
+
+def next_request_step(grid: StepGrid, frozen: int, now_s: float) -> int | None:
+    """The step to request the next chunk for, once it is due (so it lands ``frozen`` steps
+    later, at the next seam; ``StepGrid.ideal_request_step``); None before then. A late request
+    asks for the step of now."""
+    ideal = grid.ideal_request_step(frozen)
+    if now_s + 1e-9 < grid.time(ideal):
+        return None
+    return max(ideal, grid.step_at_or_before(now_s))
+
+
+def goal_takes_effect_s(now_s: float, tick_period_s: float, goal_latency_s: float) -> float:
+    """The earliest instant a goal sent now surely takes effect: it must reach the controller
+    first, so one tick plus twice the goal delivery time seen so far (zero in process; over ROS,
+    transport and the next spin)."""
+    return now_s + tick_period_s + 2 * goal_latency_s
+
+
+def earliest_seam_step(grid: StepGrid, now_s: float, tick_period_s: float, goal_latency_s: float) -> int:
+    """The first step a goal sent now can take over at (``goal_takes_effect_s``)."""
+    return grid.step_at_or_after(goal_takes_effect_s(now_s, tick_period_s, goal_latency_s))
 
 
 def window_covers_latency(window_steps: int, dt: float, latency_s: float) -> bool:

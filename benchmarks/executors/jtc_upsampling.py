@@ -26,7 +26,7 @@ import numpy as np
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
 from behaviors.controller_link import controller_topic
-from behaviors.execute_policy.planner import goal_takes_effect_s
+from behaviors.execute_policy.timing import goal_takes_effect_s
 from behaviors.execute_policy.states import HeldChunk
 from runtime.tree.behavior import Status
 from runtime.io.bus import Publisher

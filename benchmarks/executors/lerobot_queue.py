@@ -25,7 +25,7 @@ from typing import Any
 
 import numpy as np
 
-from behaviors.execute_policy.planner import goal_takes_effect_s
+from behaviors.execute_policy.timing import goal_takes_effect_s
 from behaviors.execute_policy.states import HeldChunk
 from runtime.tree.behavior import Status
 from runtime.tree.ports import InputPort, PortType, Range

@@ -17,12 +17,12 @@ from behaviors.action_goal import GoalState
 from behaviors.execute_policy.at_rest import Arrival
 from behaviors.execute_policy.failure import Failure, FailureKind
 from behaviors.execute_policy.checks import PointChecks
-from behaviors.execute_policy.planner import (
-    PlanInput, Planned, ShapingConfig, earliest_seam_step, goal_takes_effect_s, plan_chunk,
-)
+from behaviors.execute_policy.planner import PlanInput, Planned, plan_chunk
+from behaviors.execute_policy.shaping import ShapingConfig
 from behaviors.execute_policy.controller_stream import ControllerStream
 from behaviors.execute_policy.states import HeldChunk, Rollback, SentMotion
 from behaviors.execute_policy.stream import StepGrid
+from behaviors.execute_policy.timing import earliest_seam_step, goal_takes_effect_s
 from runtime.tree.behavior import Status
 
 from .base import ChunkExecutor

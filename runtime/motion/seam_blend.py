@@ -11,7 +11,7 @@ than an acceleration budget per joint (a closed form of the quintic's peaks); th
 part adds at most ``|c|`` (at the seam) and fades with the rest.
 
 Used by ExecutePolicy, which blends each chunk into the motion already sent
-(``behaviors/execute_policy/shaping.py``), and by the simulated trajectory controllers, which
+(``behaviors/execute_policy/seam.py``, evaluated in ``shaping.ChunkMotion``), and by the simulated trajectory controllers, which
 blend a new goal into the one they play (``sim/controllers/trajectory.py``).
 """
 from __future__ import annotations
