@@ -10,7 +10,7 @@ from behaviors.execute_policy.chunk import Chunk
 from behaviors.execute_policy.failure import Failure, FailureKind
 from behaviors.execute_policy.at_rest import Arrival
 from behaviors.execute_policy.planner import PlanInput, Planned, Wait, WaitReason, plan_chunk
-from behaviors.execute_policy.shaping import ShapingConfig
+from behaviors.execute_policy.config import ShapingConfig
 from behaviors.execute_policy.tail import NO_TAIL, RUNOUT_SLOWDOWN, Tail, runout_chunk_steps, runout_duration, shorter_tails
 from behaviors.execute_policy.states import (
     SentMotion,

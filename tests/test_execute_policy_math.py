@@ -7,8 +7,9 @@ from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 from behaviors.execute_policy.chunk import ChunkError, read_chunk, read_policy_chunk
 from behaviors.execute_policy.config import committed_window_problem
 from behaviors.execute_policy.gripper import result_problem
+from behaviors.execute_policy.checks import densify
 from behaviors.execute_policy.seam import join_at_seam
-from behaviors.execute_policy.shaping import densify, fit_chunk
+from behaviors.execute_policy.step_spline import fit_chunk
 from behaviors.execute_policy.stream import drained_seconds
 from behaviors.execute_policy.tail import NO_TAIL, Tail, plan_tail, runout_duration, runout_progress, tail_progress
 from behaviors.execute_policy.timing import (

@@ -133,7 +133,7 @@ def test_the_graph_holds_the_imports_of_the_real_packages():
     """The check reads the real packages (an empty graph would pass vacuously)."""
     graph = import_graph(ROOT)
     assert "runtime.tree.behavior" in graph["runtime.app.runner"]
-    assert "runtime.motion.seam_blend" in graph["behaviors.execute_policy.shaping"]
+    assert "behaviors.execute_policy.tail" in graph["behaviors.execute_policy.seam"]
     assert "runtime.app.world" in graph["runtime.app.world_check"]  # a lazy import, inside a function
 
 

@@ -1,9 +1,9 @@
-"""The seam blend (runtime/motion/seam_blend.py), shared by ExecutePolicy's shaping and the simulated
-trajectory controllers: its shape, its peaks and its length."""
+"""The seam blend (behaviors/execute_policy/seam.py), ExecutePolicy's and the simulated trajectory
+controllers': its shape, its peaks and its length."""
 import numpy as np
 import pytest
 
-from runtime.motion.seam_blend import (
+from behaviors.execute_policy.seam import (
     POSITION_BLEND_PEAK,
     VELOCITY_BLEND_PEAK,
     acceleration_basis,

@@ -15,8 +15,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.interpolate import make_interp_spline, make_smoothing_spline
 
-from behaviors.execute_policy.shaping import fit_chunk
-from behaviors.execute_policy.step_spline import DENSE_MAP_MAX_STEPS, StepSpline, interpolating_polynomial, smoothing_spline, solve_pentadiagonal
+from behaviors.execute_policy.step_spline import DENSE_MAP_MAX_STEPS, StepSpline, fit_chunk, interpolating_polynomial, smoothing_spline, solve_pentadiagonal
 
 TOLERANCE = 1e-9
 

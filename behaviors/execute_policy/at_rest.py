@@ -17,7 +17,7 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
-    from .shaping import ChunkMotion
+    from .seam import ChunkMotion
     from .stream import StepGrid
 
 

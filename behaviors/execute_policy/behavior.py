@@ -31,6 +31,7 @@ from runtime.tree.behavior import Behavior, Status
 from runtime.errors import PortError, SetupError
 
 from . import config as cfg
+from .config import ShapingConfig
 from .checks import PointChecks
 from .chunk import Chunk
 from .controller_stream import ControllerStream
@@ -40,7 +41,6 @@ from .at_rest import Arrival
 from .planner import PlanInput, Planned, plan_chunk
 from .scene_watch import SceneWatch
 from .session import PolicySession, SessionRun
-from .shaping import ShapingConfig
 from .states import HeldChunk, Rollback, SentMotion, StreamState, stream_finished, stream_state
 from .stream import StepGrid, stall_at_stop_s
 from .timing import earliest_seam_step, frozen_prefix_steps, goal_takes_effect_s, next_request_step, prefetch_margin
@@ -202,12 +202,13 @@ class ExecutePolicy(Behavior):
         return self._plan_and_send(held, now)
 
     def _plan_and_send(self, held: HeldChunk, now: float) -> Status | None:
-        """Plan ``held`` (``planner.plan_chunk``); send it, hold it, or end the run with its rejection."""
-        session, sent, controller = self.session, self._sent_motion(), self._controller()
-        config, safety, grid = session.config, session.safety, sent.grid
-        rest_position = session.rest_position() if sent.motion is None else None
+        """Plan ``held`` (``planner.plan_chunk``), then send the planned motion to the controller
+        (from here it is the sent motion), hold the chunk, or end the run with its rejection."""
+        session, run, before, controller = self.session, self._run(), self._sent_motion(), self._controller()
+        config, safety, grid = session.config, session.safety, before.grid
+        rest_position = session.rest_position() if before.motion is None else None
         plan = plan_chunk(PlanInput(
-            sent=sent,
+            sent=before,
             goal=controller.goal.state,
             chunk=held.chunk,
             index=self._session_run().chunks_received,
@@ -215,7 +216,7 @@ class ExecutePolicy(Behavior):
             frozen=held.flight.frozen,
             earliest_seam_step=earliest_seam_step(grid, now, self.context.tick_period_s, controller.planned_latency_s),
             rest_position=rest_position,
-            config=self._run().shaping,
+            config=run.shaping,
             checks=PointChecks(safety, self._rules(), config.link_padding, session.gripper_position(), grid),
             arrival=Arrival(grid.step_at_or_after(held.flight.future.ready_at),  # arrival, not when we looked
                             goal_takes_effect_s(now, self.context.tick_period_s, controller.planned_latency_s)),
@@ -223,23 +224,16 @@ class ExecutePolicy(Behavior):
         if isinstance(plan, Failure):
             return session.fail(plan)
         if not isinstance(plan, Planned):  # Wait
-            self._run().held = held
+            run.held = held
             return None
-        self._send_motion(held, plan, now)
-        return None
-
-    def _send_motion(self, held: HeldChunk, plan: Planned, now: float) -> None:
-        """Send the planned motion to the controller: from here it is the sent motion."""
-        session, run, window, controller, before = self.session, self._run(), plan.window, self._controller(), self._sent_motion()
-        config = session.config
-        samples = plan.sent.samples
+        window, samples = plan.window, plan.sent.samples
         assert samples is not None
         session.metrics.stall_seconds += plan.stall_s
         # Kept until the controller accepts the seam: a goal refused only for arriving late is
         # planned again from the same chunk (see _roll_back).
         rollback = Rollback(held, before, controller.goal, plan.stall_s, window.index, plan.takes_over_s)
         run.scene_watch.checked(session.gripper_position())  # what the samples were checked against
-        controller.send(config, session.safety.group_joints, samples, before.samples, rollback, now, self.context.tick_period_s)
+        controller.send(config, safety.group_joints, samples, before.samples, rollback, now, self.context.tick_period_s)
         run.sent_motion = plan.sent
         session.queue_gripper_window(held.chunk, window, plan.sent.grid)
         if config.policy_uses_real_time_chunking:  # read (and checked) when the answer came in
@@ -256,6 +250,7 @@ class ExecutePolicy(Behavior):
             latency=session.metrics.latencies[-1],
             stall_s=plan.stall_s,
         )
+        return None
 
     # -- controller --------------------------------------------------------------------------
     def _watch_controller(self, now: float) -> Status | None:

@@ -6,6 +6,8 @@ import math
 from dataclasses import dataclass
 from typing import Any, Mapping
 
+import numpy as np
+
 from control_msgs.action import FollowJointTrajectory, GripperCommand
 from moveit_pro_controllers_msgs.action import FollowJointTrajectoryWithAdmittance
 from moveit_pro_ml_msgs.srv import GetActionChunk
@@ -166,3 +168,14 @@ def committed_window_problem(window_steps: int, chunk_steps: int) -> str | None:
         return None
     return (f"committed_action_steps ({window_steps}) must be smaller than the policy's chunk size "
             f"({chunk_steps} steps): set committed_action_steps to at most {max(1, chunk_steps - 1)}")
+
+
+@dataclass(frozen=True)
+class ShapingConfig:
+    """The run's settings a chunk's motion is planned with (from ``config.PolicyRunConfig``)."""
+
+    dt: float
+    committed_action_steps: int
+    policy_tracking_weight: float
+    num_interpolation_points: int
+    max_acceleration: np.ndarray

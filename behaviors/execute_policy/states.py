@@ -21,7 +21,7 @@ import numpy as np
 
 from ..action_goal import Goal, GoalState
 from .chunk import Chunk
-from .shaping import ChunkMotion
+from .seam import ChunkMotion
 from runtime.motion.samples import Samples
 from .stream import StepGrid
 

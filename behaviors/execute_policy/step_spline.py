@@ -1,4 +1,8 @@
-"""Cubic splines on the integer steps of a chunk: fitting and fast evaluation.
+"""The chunk's fit: cubic splines on the integer steps of a chunk, fitted and evaluated fast.
+
+``fit_chunk`` smooths a chunk with a cubic smoothing spline (fixed smoothing, weighted by
+``policy_tracking_weight``; no per-chunk cross-validation, which costs ~90 ms); a chunk too short
+for one is interpolated exactly.
 
 A chunk's spline has its knots at the steps 0, 1, ..., N-1, so every piece is a cubic in
 ``u = k - i`` on ``[i, i + 1]``: ``StepSpline`` keeps each piece's four power-form coefficients
@@ -159,3 +163,17 @@ def _steps_by_joints(positions: np.ndarray) -> np.ndarray:
     if positions.ndim != 2:
         raise ValueError(f"a chunk's positions must be (steps, joints), got shape {positions.shape}")
     return positions
+
+
+def fit_chunk(positions: np.ndarray, tracking_weight: float) -> StepSpline:
+    """Smoothing spline through a (N, J) chunk, parameterised by step index.
+
+    The spline minimises ``w * sum((y_k - f(k))^2) + integral(f''(k)^2)`` with
+    ``w = tracking_weight``; counting time in steps makes the weight mean the same at any dt.
+    It equals scipy's ``make_smoothing_spline(steps, positions, lam=1 / w)``. Chunks too short
+    for a smoothing spline (fewer than 5 steps) are interpolated exactly.
+    """
+    positions = np.asarray(positions, dtype=float)
+    if len(positions) >= MIN_SMOOTHING_STEPS:
+        return smoothing_spline(positions, 1.0 / tracking_weight)
+    return interpolating_polynomial(positions)

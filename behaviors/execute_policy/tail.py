@@ -19,7 +19,8 @@ import numpy as np
 
 if TYPE_CHECKING:
     from .chunk import Chunk
-    from .shaping import ChunkMotion, ShapingConfig
+    from .config import ShapingConfig
+    from .seam import ChunkMotion
     from .stream import Window
 
 RUNOUT_SLOWDOWN = 2
@@ -159,7 +160,16 @@ def shorter_tails(tail: Tail) -> list[Tail]:
     return shorter + [NO_TAIL] if tail.steps > 0 else []
 
 
-def tails_to_try(motion: ChunkMotion, chunk: Chunk, window: Window, remaining_steps: int, shaping: ShapingConfig) -> list[tuple[Tail, ChunkMotion]]:
+@dataclass(frozen=True)
+class Ending:
+    """How a window's motion ends: followed by ``tail``, or at rest (``NO_TAIL``), and the motion
+    that ends so (``ending``)."""
+
+    tail: Tail
+    motion: ChunkMotion
+
+
+def tails_to_try(motion: ChunkMotion, chunk: Chunk, window: Window, remaining_steps: int, shaping: ShapingConfig) -> list[Ending]:
     """The window's endings, in the order the checks try them: its tail (``chunk_tail``; none
     for the run's last window, ``remaining_steps`` 0), then, should the checks refuse it, the
     tail cut short before the failing point (``shorter_tails``), each with the motion that ends
@@ -168,8 +178,8 @@ def tails_to_try(motion: ChunkMotion, chunk: Chunk, window: Window, remaining_st
     the unsafe point, or the window ends without one. A shorter tail that the seam's blend
     outlasts would not end at rest: left out."""
     tail = NO_TAIL if remaining_steps <= 0 else chunk_tail(motion, chunk, window, remaining_steps, shaping)
-    return [(tail, ending(motion, tail))] + [(shorter, ending(motion, shorter)) for shorter in shorter_tails(tail)
-                                            if comes_to_rest(motion, shorter)]
+    return [Ending(tail, ending(motion, tail))] + [Ending(shorter, ending(motion, shorter)) for shorter in shorter_tails(tail)
+                                                  if comes_to_rest(motion, shorter)]
 
 
 def runout_progress(steps_since_end: int, runout_steps: int) -> int:

@@ -18,7 +18,7 @@ from behaviors.execute_policy.at_rest import Arrival
 from behaviors.execute_policy.failure import Failure, FailureKind
 from behaviors.execute_policy.checks import PointChecks
 from behaviors.execute_policy.planner import PlanInput, Planned, plan_chunk
-from behaviors.execute_policy.shaping import ShapingConfig
+from behaviors.execute_policy.config import ShapingConfig
 from behaviors.execute_policy.controller_stream import ControllerStream
 from behaviors.execute_policy.states import HeldChunk, Rollback, SentMotion
 from behaviors.execute_policy.stream import StepGrid

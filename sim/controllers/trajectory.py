@@ -21,8 +21,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from runtime.motion import seam_blend
-from runtime.motion.seam_blend import blend_offset
+from behaviors.execute_policy import seam as seam_blend
+from behaviors.execute_policy.seam import blend_offset
 from runtime.errors import ObjectiveError
 
 TIME_EPS = 1e-6  # seconds: stamps travel as integer nanoseconds, rounded on both sides
@@ -228,14 +228,14 @@ DEVIATION_EPS = 1e-9
 def blend_duration(deviation: TrajectoryState, max_acceleration: float, min_duration: float) -> float:
     """Seconds over which the offset starting at ``deviation`` fades to zero, its position and
     velocity parts adding at most ``max_acceleration`` rad/s^2 to any joint
-    (``runtime.motion.seam_blend.blend_duration``); its acceleration part adds no more than itself."""
+    (``behaviors.execute_policy.seam.blend_duration``, ExecutePolicy's seam blend); its acceleration part adds no more than itself."""
     if max_acceleration <= 0:
         raise ValueError(f"max_acceleration must be > 0, got {max_acceleration}")
     return seam_blend.blend_duration(deviation.position, deviation.velocity, max_acceleration, max(min_duration, 1e-3))
 
 
 def absorb_deviation(new: Trajectory, start: float, deviation: TrajectoryState, duration: float) -> Trajectory:
-    """``new`` plus the seam blend (``runtime.motion.seam_blend.blend_offset``) that equals ``deviation``
+    """``new`` plus the seam blend (``behaviors.execute_policy.seam.blend_offset``) that equals ``deviation``
     at ``start`` and fades to zero (with its velocity and acceleration) at ``start + duration``,
     after which ``new`` is unchanged.
 
