@@ -84,7 +84,7 @@ def pipeline(safety: Any, snapshot: Any, msg: Any, points: int, clock: Callable[
     seam, end = 0.3, 0.3 + COMMITTED * DT  # a frozen prefix of 3 steps, then the committed window
     p0 = spline(3.0) + 0.002  # the committed motion's state at the seam, slightly off the chunk
     v0 = spline(3.0, nu=1) / DT
-    motion = join_at_seam(spline, DT, 0.0, seam, end, p0, v0, nominal_blend_s=0.5 * COMMITTED * DT)
+    motion = join_at_seam(spline, DT, 0.0, seam, end, p0, v0, nominal_s=0.5 * COMMITTED * DT)
     spare = CHUNK_STEPS - 1 - (3 + COMMITTED)  # the window's tail, as the planner makes it
     _, beyond_v, _ = motion.evaluate(end + DT * np.arange(spare + 1))
     motion = motion.with_tail(plan_tail(np.abs(beyond_v).max(axis=0), safety.limits.max_acceleration, DT, 0.25 * COMMITTED * DT, spare))

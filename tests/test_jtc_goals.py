@@ -37,11 +37,11 @@ def plans(seed: int, request_step: int, seam_step: int) -> tuple[Samples, Sample
     """The first window (steps 0..seam_step, from rest) and the next one, joined at ``seam_step``."""
     first = chunk(seed, np.zeros(JOINTS))
     spline_a = fit_chunk(first, 300.0)
-    motion_a = join_at_seam(spline_a, DT, 0.0, 0.0, (seam_step + 10) * DT, spline_a(0.0), np.zeros(JOINTS), nominal_blend_s=DT)
+    motion_a = join_at_seam(spline_a, DT, 0.0, 0.0, (seam_step + 10) * DT, spline_a(0.0), np.zeros(JOINTS), nominal_s=DT)
     seam = seam_step * DT
     p, v, _ = motion_a.evaluate(np.array([seam]))
     second = chunk(seed + 1, first[request_step])
-    motion_b = join_at_seam(fit_chunk(second, 300.0), DT, request_step * DT, seam, seam + 12 * DT, p[0], v[0], nominal_blend_s=6 * DT)
+    motion_b = join_at_seam(fit_chunk(second, 300.0), DT, request_step * DT, seam, seam + 12 * DT, p[0], v[0], nominal_s=6 * DT)
     return densify(motion_a, 100), densify(motion_b, 100)
 
 

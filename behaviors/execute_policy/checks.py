@@ -3,7 +3,8 @@ densified points of a motion (``densify``: what the checks see and the controlle
 every densified point against the position, velocity and acceleration limits, the Cartesian envelope
 and the planning scene (self-collision, and world collision with ``link_padding``). Each check
 returns why the points fail, a ``CheckFailure`` (its kind, one of ``failure.CHECK_KINDS``, and a
-sentence naming the run's policy step), or None.
+sentence naming the run's policy step), or None. ``first_passing`` checks a planned window: the
+chunk's own motion, then each of the window's endings in turn, and returns the first that passes.
 """
 from __future__ import annotations
 

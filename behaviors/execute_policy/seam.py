@@ -117,36 +117,6 @@ def nominal_blend_s(window_steps: int, dt: float) -> float:
     return max(dt, NOMINAL_BLEND_WINDOWS * window_steps * dt)
 
 
-def motion_ends_first(previous: ChunkMotion | None, seam_time_s: float, goal: GoalState) -> bool:
-    """Whether the seam comes too late to join the motion the controller still plays (its
-    runout included): a seam after its end would be refused. The chunk then waits for it to
-    finish and starts from rest (a pause, counted as a stall)."""
-    return previous is not None and seam_time_s > previous.rest_time + 1e-9 and goal is not GoalState.ENDED
-
-
-def state_at(motion: ChunkMotion | None, t: float, rest_position: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
-    """Position and velocity of the sent motion at ``t`` (at rest after it ends; at
-    ``rest_position`` before the first chunk)."""
-    if motion is None:
-        assert rest_position is not None, "the arm's position is needed before the first chunk"
-        return rest_position, np.zeros(len(rest_position))
-    if t > motion.rest_time + 1e-9:  # drained: the arm rests where the motion ended
-        p, _, _ = motion.evaluate(np.array([motion.rest_time]))
-        return p[0], np.zeros(p.shape[1])
-    p, v, _ = motion.evaluate(np.array([t]))
-    return p[0], v[0]
-
-
-def join(previous: ChunkMotion | None, spline: StepSpline, window: Window, grid: StepGrid, takes_over_s: float,
-         rest_position: np.ndarray | None, shaping: ShapingConfig) -> ChunkMotion:
-    """The chunk's motion (its fit ``spline``) over ``window``, taking over from the sent motion
-    ``previous`` at ``takes_over_s`` (``at_rest.take_over_time``) where the arm is then."""
-    position, velocity = state_at(previous, takes_over_s, rest_position)
-    return join_at_seam(spline, shaping.dt, grid.time(window.request_step), takes_over_s, grid.time(window.end_step),
-                        position, velocity, nominal_blend_s(window.steps, shaping.dt),
-                        max_acceleration=shaping.max_acceleration)
-
-
 BLEND_SHARE = 0.5
 """The blend may use this share of the acceleration the chunk's own motion leaves free (half,
 as the runout brakes with half the limit): a long way to join is covered gently."""
@@ -169,13 +139,13 @@ def join_at_seam(
     end: float,
     sent_position: np.ndarray,
     sent_velocity: np.ndarray,
-    nominal_blend_s: float,
+    nominal_s: float,
     max_acceleration: np.ndarray | None = None,
 ) -> ChunkMotion:
     """The chunk's motion from ``seam`` to ``end``, continuous in position and velocity with
     the sent motion's state (``sent_position``, ``sent_velocity``) at the seam.
 
-    The offset between the two is blended out (``blend_offset``) over ``nominal_blend_s``
+    The offset between the two is blended out (``blend_offset``) over ``nominal_s``
     seconds; with ``max_acceleration`` (per joint) over longer where that would take more than
     ``BLEND_SHARE`` of the acceleration the chunk leaves free: a chunk that starts away from where the
     arm is (a policy that re-planned, or ran ahead of an arm that paused) joins more slowly
@@ -187,9 +157,9 @@ def join_at_seam(
     offset_v = np.asarray(sent_velocity, dtype=float) - spline(k, nu=1) / dt
     if max_acceleration is not None:
         headroom = np.asarray(max_acceleration, dtype=float) - chunk_acceleration_peak(spline, dt, k)
-        duration = blend_duration(offset_p, offset_v, BLEND_SHARE * headroom, nominal_blend_s)
+        duration = blend_duration(offset_p, offset_v, BLEND_SHARE * headroom, nominal_s)
     else:
-        duration = nominal_blend_s
+        duration = nominal_s
     return ChunkMotion(spline, dt, chunk_start, seam, end, offset_p, offset_v, max(duration, 1e-6))
 
 
@@ -288,3 +258,33 @@ class ChunkMotion:
     def with_tail(self, tail: Tail) -> ChunkMotion:
         """The window followed by ``tail`` (the chunk's steps beyond it, then a runout)."""
         return replace(self.bare(), extension=tail.extension_s, runout=tail.runout_s)
+
+
+def motion_ends_first(previous: ChunkMotion | None, seam_time_s: float, goal: GoalState) -> bool:
+    """Whether the seam comes too late to join the motion the controller still plays (its
+    runout included): a seam after its end would be refused. The chunk then waits for it to
+    finish and starts from rest (a pause, counted as a stall)."""
+    return previous is not None and seam_time_s > previous.rest_time + 1e-9 and goal is not GoalState.ENDED
+
+
+def state_at(motion: ChunkMotion | None, t: float, rest_position: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+    """Position and velocity of the sent motion at ``t`` (at rest after it ends; at
+    ``rest_position`` before the first chunk)."""
+    if motion is None:
+        assert rest_position is not None, "the arm's position is needed before the first chunk"
+        return rest_position, np.zeros(len(rest_position))
+    if t > motion.rest_time + 1e-9:  # drained: the arm rests where the motion ended
+        p, _, _ = motion.evaluate(np.array([motion.rest_time]))
+        return p[0], np.zeros(p.shape[1])
+    p, v, _ = motion.evaluate(np.array([t]))
+    return p[0], v[0]
+
+
+def join(previous: ChunkMotion | None, spline: StepSpline, window: Window, grid: StepGrid, takes_over_s: float,
+         rest_position: np.ndarray | None, shaping: ShapingConfig) -> ChunkMotion:
+    """The chunk's motion (its fit ``spline``) over ``window``, taking over from the sent motion
+    ``previous`` at ``takes_over_s`` (``at_rest.take_over_time``) where the arm is then."""
+    position, velocity = state_at(previous, takes_over_s, rest_position)
+    return join_at_seam(spline, shaping.dt, grid.time(window.request_step), takes_over_s, grid.time(window.end_step),
+                        position, velocity, nominal_blend_s(window.steps, shaping.dt),
+                        max_acceleration=shaping.max_acceleration)

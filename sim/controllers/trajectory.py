@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from behaviors.execute_policy import seam as seam_blend
+from behaviors.execute_policy import seam
 from behaviors.execute_policy.seam import blend_offset
 from runtime.errors import ObjectiveError
 
@@ -228,10 +228,10 @@ DEVIATION_EPS = 1e-9
 def blend_duration(deviation: TrajectoryState, max_acceleration: float, min_duration: float) -> float:
     """Seconds over which the offset starting at ``deviation`` fades to zero, its position and
     velocity parts adding at most ``max_acceleration`` rad/s^2 to any joint
-    (``behaviors.execute_policy.seam.blend_duration``, ExecutePolicy's seam blend); its acceleration part adds no more than itself."""
+    (``behaviors.execute_policy.seam.blend_duration``: ExecutePolicy's seam blend); its acceleration part adds no more than itself."""
     if max_acceleration <= 0:
         raise ValueError(f"max_acceleration must be > 0, got {max_acceleration}")
-    return seam_blend.blend_duration(deviation.position, deviation.velocity, max_acceleration, max(min_duration, 1e-3))
+    return seam.blend_duration(deviation.position, deviation.velocity, max_acceleration, max(min_duration, 1e-3))
 
 
 def absorb_deviation(new: Trajectory, start: float, deviation: TrajectoryState, duration: float) -> Trajectory:
