@@ -136,11 +136,13 @@ class Publisher(Protocol):
 
 class Subscription(Protocol):
     name: str
-    latest: Any
     count: int
     received_at: float | None
     """Runtime clock seconds when ``latest`` arrived (None before the first message): its age is
     ``clock.now() - received_at``, whatever clock its publisher stamped it with."""
+
+    @property
+    def latest(self) -> Any: ...
 
     def has_publishers(self) -> bool: ...
 
@@ -191,8 +193,11 @@ class Bus(Protocol):
     of its own below (``ServedListing``, ``SimulatedLatency``, ``InterruptibleWaits``,
     ``RecordsTopics``), found with ``capability``."""
 
-    clock: Clock
-    """The runtime clock: it stamps ``ready_at`` of futures and ``received_at`` of messages."""
+    @property
+    def clock(self) -> Clock:
+        """The runtime clock: it stamps ``ready_at`` of futures and ``received_at`` of messages."""
+        ...
+
     produces_on_read: bool
     """True when a lazy topic's message is produced as a subscriber reads it (in process); False
     when topics are pushed at a rate to readers elsewhere (ROS 2), so a frame costs whether or
@@ -724,7 +729,7 @@ class _InProcessActionClient:
         server = self.bus._action_servers.get(self.name)
         if server is None:
             raise RuntimeError(f"action server '{self.name}' is not available")
-        expected = server.action_type.Goal
+        expected: type = getattr(server.action_type, "Goal")  # the action class's goal message class
         if not isinstance(goal, expected):
             raise TypeError(f"action '{self.name}' takes {expected.__name__}, got {type(goal).__name__}")
         server_goal = _InProcessServerGoal(server, goal)
@@ -847,7 +852,7 @@ class InProcessBus:
     def destroy_subscription(self, sub: Subscription) -> None:
         subs = self._subscriptions.get(sub.name, [])
         if sub in subs:
-            subs.remove(sub)  # type: ignore[arg-type]
+            subs.remove(sub)
 
     # -- actions ---
     def create_action_server(

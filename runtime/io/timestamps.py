@@ -4,6 +4,7 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
 from builtin_interfaces.msg import Duration, Time
 
 
@@ -13,7 +14,7 @@ def split_seconds(seconds: float) -> tuple[int, int]:
     return nanoseconds // 1_000_000_000, nanoseconds % 1_000_000_000
 
 
-def split_seconds_array(seconds: np.ndarray) -> tuple[list[int], list[int]]:
+def split_seconds_array(seconds: NDArray[np.float64]) -> tuple[list[int], list[int]]:
     """``split_seconds`` of every value, in one vectorised pass (the same integers: numpy's
     rounding, like Python's, takes a tie to the even neighbour, and both divisions floor)."""
     nanoseconds = np.round(np.asarray(seconds, dtype=float) * 1e9).astype(np.int64)
@@ -32,4 +33,5 @@ def duration_msg(seconds: float) -> Duration:
 
 def to_seconds(msg: Any) -> float:
     """Seconds of a Time or Duration message."""
-    return msg.sec + msg.nanosec * 1e-9
+    seconds: float = msg.sec + msg.nanosec * 1e-9
+    return seconds

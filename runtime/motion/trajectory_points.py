@@ -15,6 +15,7 @@ from __future__ import annotations
 import array
 
 import numpy as np
+from numpy.typing import NDArray
 from builtin_interfaces.msg import Duration
 from trajectory_msgs.msg import JointTrajectoryPoint
 
@@ -22,10 +23,10 @@ from runtime.io.timestamps import duration_msg, split_seconds_array
 
 
 def trajectory_points(
-    times_from_start_s: np.ndarray,
-    positions: np.ndarray,
-    velocities: np.ndarray | None = None,
-    accelerations: np.ndarray | None = None,
+    times_from_start_s: NDArray[np.float64],
+    positions: NDArray[np.float64],
+    velocities: NDArray[np.float64] | None = None,
+    accelerations: NDArray[np.float64] | None = None,
 ) -> list[JointTrajectoryPoint]:
     """One point per row: ``positions[k]`` (and the velocities and accelerations, when given)
     at ``times_from_start_s[k]``; the same messages as ``JointTrajectoryPoint(positions=...,

@@ -201,7 +201,7 @@ def make_bindings(
 def _binding(name: str, info: PortInfo, values: dict[str, str], location: SourceLocation | None, xml_id: str) -> PortBinding:
     """Port ``name``'s binding from its XML value (or its default); PortError if it has none that works."""
     if name in values:
-        raw = values[name]
+        raw: Any = values[name]
     elif info.required:
         raise PortError(f"missing required port '{name}'", location, xml_id)
     else:

@@ -131,7 +131,7 @@ class Blackboard:
             route = board._route(mapped)
         text += ", which is not set"
         if board.parent is not None and not is_private(mapped):
-            caller = board.parent
+            caller: Blackboard | None = board.parent
             while caller is not None and not holds(*caller.owner(mapped)):
                 caller = caller.parent
             if caller is not None:

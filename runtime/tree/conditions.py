@@ -26,11 +26,11 @@ control and decorator in ``runtime.tree.controls``/``runtime.tree.decorators`` r
 """
 from __future__ import annotations
 
-from typing import Any, Iterator
+from typing import Any, Iterator, cast
 
 import py_trees
 
-from .behavior import Status
+from .behavior import NodeMixin, Status
 from .controls import COMPLETED, SKIPPED, Behaviour, tick_child
 from runtime.errors import LoadError, ScriptRunError, SourceLocation
 from .script import Script, ScriptError, compile_script, evaluate_condition
@@ -86,7 +86,7 @@ class ConditionGuard(py_trees.composites.Composite):
         self.kind = getattr(node, "kind", None)
 
     # The guard's status and feedback are the node's own.
-    @property  # type: ignore[override]
+    @property
     def status(self) -> Status:
         return self.node.status
 
@@ -94,7 +94,7 @@ class ConditionGuard(py_trees.composites.Composite):
     def status(self, value: Status) -> None:
         self.node.status = value
 
-    @property  # type: ignore[override]
+    @property
     def feedback_message(self) -> str:
         return self.node.feedback_message
 
@@ -165,7 +165,7 @@ class ConditionGuard(py_trees.composites.Composite):
     # -- scripts -----------------------------------------------------------------------------
     def _condition(self, name: str, script: Script) -> bool:
         try:
-            return evaluate_condition(script, self.node.blackboard)
+            return evaluate_condition(script, cast(NodeMixin, self.node).blackboard)  # every built node is one
         except ScriptError as err:
             raise self._run_error(name, script, err) from None
 
@@ -174,7 +174,7 @@ class ConditionGuard(py_trees.composites.Composite):
         if script is None:
             return None
         try:
-            return script.evaluate(self.node.blackboard)
+            return script.evaluate(cast(NodeMixin, self.node).blackboard)
         except ScriptError as err:
             raise self._run_error(name, script, err) from None
 

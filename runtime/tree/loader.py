@@ -238,7 +238,8 @@ def _child_ids_problem(cls: type[NodeMixin], children: list[Any]) -> str | None:
     check = getattr(cls, "check_child_ids", None)
     if check is None:
         return None
-    return check([str(child.get("ID", "")) if child.tag in EXPLICIT_TAGS else str(child.tag) for child in children])
+    problem: str | None = check([str(child.get("ID", "")) if child.tag in EXPLICIT_TAGS else str(child.tag) for child in children])
+    return problem
 
 
 def _read_file(path: Path, display: str) -> bytes:
@@ -320,7 +321,7 @@ def _include_target(element: Any, base_dir: Path, include_dirs: Iterable[Path], 
     rel = element.get("path")
     if not rel:
         raise LoadError("<include> needs a path attribute", loc)
-    target = (base_dir / rel).resolve()
+    target: Path = (base_dir / rel).resolve()
     allowed = [base_dir.resolve(), *(Path(d).resolve() for d in include_dirs)]
     if not any(target.is_relative_to(d) for d in allowed):
         raise LoadError(
@@ -558,9 +559,11 @@ class _Builder:
         if model is not None:
             self._apply_model_defaults(cls, model, values, node_id)
 
-        node = None
+        # The registry's classes are NodeMixin and py_trees Behaviour at once (no intersection type).
+        make: Any = cls
+        node: Any = None
         try:
-            node = cls(name)
+            node = make(name)
             node.bind(self.context, blackboard, values, loc, node_id)
         except ObjectiveError as err:
             if self.collect and hasattr(node, "bindings"):
@@ -658,9 +661,9 @@ class _Builder:
                 known = ", ".join(sorted(model.ports)) or "none"
                 hint = did_you_mean(unknown[0], model.ports)
                 raise PortError(f"unknown port '{unknown[0]}'{hint} (ports: {known}; model at {model.location})", loc, tree_id)
-            for port in model.ports.values():
-                if port.name not in ports and port.default is not None:
-                    ports[port.name] = port.default
+            for declared in model.ports.values():
+                if declared.name not in ports and declared.default is not None:
+                    ports[declared.name] = declared.default
 
         remapping: dict[str, str] = {}
         literals: dict[str, str] = {}
@@ -735,7 +738,8 @@ class _Builder:
     def _child_count_problem(cls: type[NodeMixin], count: int) -> str | None:
         check = getattr(cls, "check_children", None)
         if check is not None:
-            return check(count)
+            problem: str | None = check(count)
+            return problem
         if cls.kind in (NodeKind.ACTION, NodeKind.CONDITION):
             return None if count == 0 else f"a {cls.kind.value} is a leaf and takes no children, got {count}"
         if cls.kind is NodeKind.DECORATOR:

@@ -233,7 +233,8 @@ def message_class(port_type: PortType) -> type:
     import importlib
 
     module, name = MESSAGE_CLASSES[port_type]
-    return getattr(importlib.import_module(module), name)
+    message_class: type = getattr(importlib.import_module(module), name)
+    return message_class
 
 
 def ros_name(port_type: PortType) -> str:
@@ -319,7 +320,7 @@ def _split(text: str) -> list[str]:
     return [part.strip() for part in text.split(";")]
 
 
-def _message_list(value: Any, port_type: PortType) -> list:
+def _message_list(value: Any, port_type: PortType) -> list[Any]:
     """A vector port's value: a list (copied, so the blackboard's list is never changed in place).
 
     An empty literal is the empty vector; a PoseStamped vector accepts only PoseStamped elements.

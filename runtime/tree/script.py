@@ -141,7 +141,7 @@ def _read_number(source: str, start: int) -> Token:
         if i == start + 2:
             raise ScriptError(f"invalid number '{source[start:i]}'", column)
         text = source[start:i]
-        value = _integer(source[start + 2 : i], 16, text, column)
+        value: int | float = _integer(source[start + 2 : i], 16, text, column)
     else:
         while i < n and source[i].isdigit():
             i += 1
@@ -290,7 +290,8 @@ def truth(value: Any, what: str = "the condition") -> bool:
     if _is_number(value):
         if isinstance(value, float) and math.isnan(value):
             raise ScriptError(f"{what} is NaN, which is neither true nor false")
-        return value != 0
+        nonzero: bool = value != 0
+        return nonzero
     if isinstance(value, str) and value.strip() in ("true", "True", "TRUE", "false", "False", "FALSE"):
         return value.strip().lower() == "true"
     raise ScriptError(f"{what} gave {_describe(value)}, which is neither true nor false")
@@ -431,7 +432,7 @@ class Chain(Node):
             rhs = node.evaluate(board)
             if op == "..":
                 if not (isinstance(value, str) or _is_number(value)) or not (isinstance(rhs, str) or _is_number(rhs)):
-                    result = NotImplemented
+                    result: Any = NotImplemented
                 else:
                     result = _joined(_text(value), _text(rhs), column)
             elif op in "&|^":
@@ -483,13 +484,14 @@ def _compare(op: str, lhs: Any, rhs: Any) -> bool | None:
     if op in ("==", "!="):
         same = abs(a - b) <= FLOAT_EPSILON if isinstance(a, float) else a == b
         return same if op == "==" else not same
+    # two floats or two strings: each comparison is a bool
     if op == "<":
-        return a < b
+        return bool(a < b)
     if op == "<=":
-        return a <= b
+        return bool(a <= b)
     if op == ">":
-        return a > b
-    return a >= b
+        return bool(a > b)
+    return bool(a >= b)
 
 
 @dataclass

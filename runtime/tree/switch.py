@@ -64,7 +64,8 @@ class _Switch(ControlNode):
         if not self.is_port_set(port):
             return None
         try:
-            return self.get_input(port)
+            value: str | None = self.get_input(port)
+            return value
         except PortError:  # BT.CPP: getInput fails, the case (or the variable) is passed over
             return None
 

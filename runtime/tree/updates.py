@@ -33,7 +33,8 @@ class _WatchesEntry:
             return False
         current, previous = board.version(key), self.last_seen
         self.last_seen = current
-        return current != previous
+        changed: bool = current != previous
+        return changed
 
 
 class WasEntryUpdated(_WatchesEntry, Behavior):

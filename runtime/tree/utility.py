@@ -63,7 +63,8 @@ class Wait(_TimedWait):
     ports = (InputPort("seconds", PortType.FLOAT, description="How long to wait, in seconds.", valid=Range(0.0, UINT32_MAX / 1000, "s")),)
 
     def wait_ms(self) -> float:
-        return self.get_input("seconds") * 1000.0
+        seconds: float = self.get_input("seconds")
+        return seconds * 1000.0
 
 
 LOG_LEVELS = {

@@ -59,7 +59,9 @@ from runtime.io.bus import (
     STATUS_EXECUTING,
     STATUS_SUCCEEDED,
     ActionResult,
+    ClientGoalHandle,
     Future,
+    Subscription,
 )
 from runtime.io.clock import Clock, next_due
 from runtime.errors import OptionError
@@ -196,7 +198,8 @@ class _OwnerCall:
 # --------------------------------------------------------------------------------------------
 class _RosClient:
     def __init__(self, bus: RosBus, name: str, srv_type: type) -> None:
-        self.bus, self.name, self.srv_type = bus, name, srv_type
+        self.bus, self.name = bus, name
+        self.srv_type: Any = srv_type  # a generated service class (untyped): Request, Response
         self._client = bus.node.create_client(srv_type, name, callback_group=bus._group)
 
     def service_is_ready(self) -> bool:
@@ -422,7 +425,8 @@ class _RosActionServer:
         on_goal: Callable[[Any], bool],
         on_cancel: Callable[[Any], bool] | None,
     ) -> None:
-        self.bus, self.name, self.action_type = bus, name, action_type
+        self.bus, self.name = bus, name
+        self.action_type: Any = action_type  # a generated action class (untyped): Goal, Result, Feedback
         self.on_goal, self.on_cancel = on_goal, on_cancel
         # rclpy hands the same goal message object to goal_callback and to the goal handle it
         # creates after acceptance; that identity pairs our handle with rclpy's.
@@ -555,7 +559,8 @@ class RosClientGoalHandle:
 
 class _RosActionClient:
     def __init__(self, bus: RosBus, name: str, action_type: type) -> None:
-        self.bus, self.name, self.action_type = bus, name, action_type
+        self.bus, self.name = bus, name
+        self.action_type: Any = action_type  # a generated action class (untyped): Goal, Result, Feedback
         self._client = _RclpyActionClient(bus.node, action_type, name, callback_group=bus._group)
 
     def server_is_ready(self) -> bool:
@@ -563,7 +568,7 @@ class _RosActionClient:
 
     def send_goal_async(
         self, goal: Any, feedback_callback: Callable[[Any], None] | None = None
-    ) -> Future[RosClientGoalHandle]:
+    ) -> Future[ClientGoalHandle]:
         if not isinstance(goal, self.action_type.Goal):
             raise TypeError(f"action '{self.name}' takes {self.action_type.__name__}.Goal, got {type(goal).__name__}")
         if not self._client.server_is_ready():
@@ -741,7 +746,8 @@ class RosBus:
             except Exception as exc:
                 self.node.get_logger().error(f"service '{name}': handler raised {exc!r}; answering a default response")
                 return response
-            if not isinstance(answer, srv_type.Response):
+            response_class: type = getattr(srv_type, "Response")  # the generated service class's
+            if not isinstance(answer, response_class):
                 self.node.get_logger().error(
                     f"service '{name}': handler returned {type(answer).__name__}, not "
                     f"{srv_type.__name__}.Response; answering a default response"
@@ -815,8 +821,8 @@ class RosBus:
         self._subscriptions.append(sub)
         return sub
 
-    def destroy_subscription(self, sub: _RosSubscription) -> None:
-        if sub in self._subscriptions:
+    def destroy_subscription(self, sub: Subscription) -> None:
+        if isinstance(sub, _RosSubscription) and sub in self._subscriptions:
             self._subscriptions.remove(sub)
             self.node.destroy_subscription(sub._subscription)
 

@@ -145,7 +145,7 @@ class HostingBus:
         return self.calls.create_subscription(name, msg_type, callback, reliable)
 
     def destroy_subscription(self, sub: Subscription) -> None:
-        self.calls.destroy_subscription(sub)  # type: ignore[arg-type]
+        self.calls.destroy_subscription(sub)
 
     def create_action_client(self, name: str, action_type: type) -> ActionClient:
         return self.calls.create_action_client(name, action_type)

@@ -16,6 +16,7 @@ from dataclasses import dataclass
 from typing import Sequence
 
 import numpy as np
+from numpy.typing import NDArray
 import pinocchio as pin
 
 _AXES = {"X": (1.0, 0.0, 0.0), "Y": (0.0, 1.0, 0.0), "Z": (0.0, 0.0, 1.0)}
@@ -25,12 +26,12 @@ _AXES = {"X": (1.0, 0.0, 0.0), "Y": (0.0, 1.0, 0.0), "Z": (0.0, 0.0, 1.0)}
 class _Joint:
     parent: int
     """Position of the parent joint in the chain; -1 for the world."""
-    rotation: np.ndarray
+    rotation: NDArray[np.float64]
     """(3, 3) placement in the parent joint's frame at zero."""
-    translation: np.ndarray
+    translation: NDArray[np.float64]
     revolute: bool
     """True: rotation about ``axis``; False: translation along it."""
-    axis: np.ndarray
+    axis: NDArray[np.float64]
     """Unit axis in the joint's own frame."""
     q_index: int
     continuous: bool
@@ -40,23 +41,24 @@ class _Joint:
 
 @dataclass(frozen=True)
 class FrameStates:
-    positions: np.ndarray
+    positions: NDArray[np.float64]
     """(N, F, 3): each frame's origin in the world."""
-    point_last_rotations: tuple[np.ndarray, ...]
+    point_last_rotations: tuple[NDArray[np.float64], ...]
     """Each frame's orientation in the world, (3, 3, N) per frame."""
-    twist: np.ndarray | None = None
+    twist: NDArray[np.float64] | None = None
     """(N, 6): one frame's linear then angular velocity, world axes at its origin, when asked."""
 
-    def rotations(self, frame: int) -> np.ndarray:
+    def rotations(self, frame: int) -> NDArray[np.float64]:
         """(N, 3, 3): frame number ``frame``'s orientation at each point."""
         return self.point_last_rotations[frame].transpose(2, 0, 1)
 
-    def axis(self, frame: int, axis: np.ndarray) -> np.ndarray:
+    def axis(self, frame: int, axis: NDArray[np.float64]) -> NDArray[np.float64]:
         """(N, 3): ``axis`` (in frame number ``frame``) in the world at each point."""
-        return np.matmul(np.asarray(axis, dtype=float), self.point_last_rotations[frame]).T
+        world: NDArray[np.float64] = np.matmul(np.asarray(axis, dtype=float), self.point_last_rotations[frame]).T
+        return world
 
 
-def _joint_kind(joint: pin.JointModel) -> tuple[bool, np.ndarray, bool] | None:
+def _joint_kind(joint: pin.JointModel) -> tuple[bool, NDArray[np.float64], bool] | None:
     """(revolute, unit axis, continuous) of a joint this module handles, else None."""
     name = joint.shortname()
     if name in ("JointModelRX", "JointModelRY", "JointModelRZ"):
@@ -101,7 +103,7 @@ class BatchKinematics:
                          np.array(model.frames[fid].placement.translation)) for fid in frame_ids]
         self._chains = [[order[j] for j in _ancestors(model, int(model.frames[fid].parentJoint))] for fid in frame_ids]
 
-    def states(self, q: np.ndarray, v: np.ndarray | None = None, twist_frame: int | None = None) -> FrameStates:
+    def states(self, q: NDArray[np.float64], v: NDArray[np.float64] | None = None, twist_frame: int | None = None) -> FrameStates:
         """The frames' world poses at each row of ``q`` (N, nq); with ``v`` (N, nv) and
         ``twist_frame`` (a position in ``frame_ids``), that frame's velocity too."""
         q = np.atleast_2d(np.asarray(q, dtype=float))
@@ -121,14 +123,14 @@ class BatchKinematics:
             twist = self._twist(rotations, positions, frame_p[twist_frame], v, twist_frame)
         return FrameStates(np.stack(frame_p).transpose(2, 0, 1), tuple(frame_r), twist)
 
-    def _joint_poses(self, q: np.ndarray) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    def _joint_poses(self, q: NDArray[np.float64]) -> tuple[list[NDArray[np.float64]], list[NDArray[np.float64]]]:
         """Each chain joint's world rotation and origin, in chain order. Arrays are laid out
         point-last, (3, 3, N) and (3, N), so that each matrix element is one contiguous row."""
         count = len(q)
         identity = np.broadcast_to(np.eye(3)[:, :, None], (3, 3, count))
         origin = np.zeros((3, count))
-        rotations: list[np.ndarray] = []
-        positions: list[np.ndarray] = []
+        rotations: list[NDArray[np.float64]] = []
+        positions: list[NDArray[np.float64]] = []
         for joint in self._joints:
             parent_r, parent_p = (identity, origin) if joint.parent < 0 else (rotations[joint.parent], positions[joint.parent])
             r0 = np.matmul(joint.rotation.T, parent_r)  # parent_r @ placement, element by element
@@ -145,8 +147,8 @@ class BatchKinematics:
                 positions.append(p0 + np.matmul(joint.axis, r0) * angle)
         return rotations, positions
 
-    def _twist(self, rotations: list[np.ndarray], positions: list[np.ndarray], origin: np.ndarray, v: np.ndarray,
-               frame: int) -> np.ndarray:
+    def _twist(self, rotations: list[NDArray[np.float64]], positions: list[NDArray[np.float64]], origin: NDArray[np.float64], v: NDArray[np.float64],
+               frame: int) -> NDArray[np.float64]:
         """(N, 6): linear then angular velocity of frame ``frame`` at ``origin`` (3, N), world
         axes (pinocchio's LOCAL_WORLD_ALIGNED)."""
         linear = np.zeros_like(origin)
@@ -163,7 +165,7 @@ class BatchKinematics:
         return np.vstack((linear, angular)).T
 
 
-def _rotated(r0: np.ndarray, axis: np.ndarray, angle: np.ndarray) -> np.ndarray:
+def _rotated(r0: NDArray[np.float64], axis: NDArray[np.float64], angle: NDArray[np.float64]) -> NDArray[np.float64]:
     """``r0 @ R(axis, angle)`` for rotations ``r0`` (3, 3, N), a unit ``axis`` and angles (N,).
     About a coordinate axis only the other two columns turn; about any other axis, Rodrigues'
     formula ``c r0 + s r0 [axis]x + (1 - c) (r0 axis) axis^T``."""
@@ -179,9 +181,10 @@ def _rotated(r0: np.ndarray, axis: np.ndarray, angle: np.ndarray) -> np.ndarray:
         return rotated
     x, y, z = axis
     cross = np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
-    return c * r0 + s * np.matmul(cross.T, r0) + (1.0 - c) * (np.matmul(axis, r0)[:, None, :] * axis[None, :, None])
+    turned: NDArray[np.float64] = c * r0 + s * np.matmul(cross.T, r0) + (1.0 - c) * (np.matmul(axis, r0)[:, None, :] * axis[None, :, None])
+    return turned
 
 
-def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+def _cross(a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.float64]:
     """Column-wise cross product of two (3, N) arrays."""
     return np.stack((a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]))

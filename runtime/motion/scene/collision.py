@@ -32,6 +32,7 @@ from typing import Callable, Iterable, Sequence
 
 import coal
 import numpy as np
+from numpy.typing import NDArray
 import pinocchio as pin
 
 from . import swept
@@ -121,7 +122,7 @@ def _mesh_hull(path: str, scale: tuple[float, float, float]) -> coal.CollisionGe
     return hull
 
 
-def as_se3(pose: np.ndarray | pin.SE3) -> pin.SE3:
+def as_se3(pose: NDArray[np.float64] | pin.SE3) -> pin.SE3:
     if isinstance(pose, pin.SE3):
         return pose
     m = np.asarray(pose, dtype=float)
@@ -133,7 +134,7 @@ def as_se3(pose: np.ndarray | pin.SE3) -> pin.SE3:
     return pin.SE3(rotation, m[:3, 3])
 
 
-def pose_matrix(translation: Sequence[float] = (0.0, 0.0, 0.0), rotation: np.ndarray | None = None) -> np.ndarray:
+def pose_matrix(translation: Sequence[float] = (0.0, 0.0, 0.0), rotation: NDArray[np.float64] | None = None) -> NDArray[np.float64]:
     """A 4x4 pose from a translation and an optional 3x3 rotation."""
     m = np.eye(4)
     m[:3, 3] = translation
@@ -151,7 +152,7 @@ class WorldObject:
     """Row-major 4x4 pose in the world frame (a tuple so the object is immutable)."""
 
     @property
-    def matrix(self) -> np.ndarray:
+    def matrix(self) -> NDArray[np.float64]:
         return np.array(self.pose).reshape(4, 4)
 
 
@@ -168,7 +169,7 @@ class Attachment:
     """Other links it may touch (e.g. the fingers holding it)."""
 
     @property
-    def matrix(self) -> np.ndarray:
+    def matrix(self) -> NDArray[np.float64]:
         return np.array(self.pose_in_link).reshape(4, 4)
 
 
@@ -317,13 +318,13 @@ class CollisionChecker:
                     continue
                 add(j, i, _Pair("self", link, owners[i], False))
         for k in range(movable, len(owners)):
-            obj = owners[k]
+            owner = owners[k]
             for i in range(movable):
                 name = owners[i]
                 rule_name = name.removeprefix("attached:")
-                if allowed(obj, rule_name):
+                if allowed(owner, rule_name):
                     continue
-                add(i, k, _Pair("world", name, obj, True))
+                add(i, k, _Pair("world", name, owner, True))
 
         self.geometry_model = gm
         self.geometry_data = pin.GeometryData(gm)
@@ -355,17 +356,17 @@ class CollisionChecker:
     def world_names(self) -> frozenset[str]:
         return frozenset(self._world_ids)
 
-    def move(self, name: str, pose: np.ndarray) -> None:
+    def move(self, name: str, pose: NDArray[np.float64]) -> None:
         gid = self._world_ids[name]
         self.geometry_model.geometryObjects[gid].placement = as_se3(pose)
 
-    def check(self, q: np.ndarray) -> CollisionResult | None:
+    def check(self, q: NDArray[np.float64]) -> CollisionResult | None:
         """The first colliding pair at full configuration ``q``, or None."""
         if not pin.computeCollisions(self.robot.model, self.data, self._manager, self._callback, q):
             return None
         return self._result(self._callback.collisionPairIndex)
 
-    def check_many(self, Q: np.ndarray, times: np.ndarray | None, stop_at_first: bool,
+    def check_many(self, Q: NDArray[np.float64], times: NDArray[np.float64] | None, stop_at_first: bool,
                    early_out: bool = True) -> list[CollisionResult]:
         """First colliding pair of each colliding row of ``Q`` (N, nq); stops early if asked.
 
@@ -375,7 +376,7 @@ class CollisionChecker:
         levels = self._levels_for(Q, None) if early_out else []
         return self._check_many(self._all_pairs, levels, Q, stop_at_first, lambda step: self._last_hit(step, times))
 
-    def first_hit_of_objects(self, objects: Iterable[str], Q: np.ndarray, times: np.ndarray | None) -> CollisionResult | None:
+    def first_hit_of_objects(self, objects: Iterable[str], Q: NDArray[np.float64], times: NDArray[np.float64] | None) -> CollisionResult | None:
         """``check_many(Q, times, stop_at_first=True)`` for a path whose every row was found free
         with the world objects of ``objects`` placed elsewhere and everything else as now: only
         the pairs of ``objects`` can have changed, so only they are checked, and the first row
@@ -391,24 +392,26 @@ class CollisionChecker:
         hits = self._check_many(pairs, self._levels_for(Q, names), Q, True, lambda step: self._check_row(Q, step, times))
         return hits[0] if hits else None
 
-    def _check_row(self, Q: np.ndarray, step: int, times: np.ndarray | None) -> CollisionResult | None:
+    def _check_row(self, Q: NDArray[np.float64], step: int, times: NDArray[np.float64] | None) -> CollisionResult | None:
         """Row ``step`` checked against every pair, as ``check_many`` reports it."""
         if not self._collides(self._all_pairs, Q[step]):
             return None
         return self._last_hit(step, times)
 
-    def _last_hit(self, step: int, times: np.ndarray | None) -> CollisionResult:
+    def _last_hit(self, step: int, times: NDArray[np.float64] | None) -> CollisionResult:
         """The pair the last check of every pair stopped at, as row ``step``'s answer."""
         hit = self._result(self._callback.collisionPairIndex)
         t = None if times is None else float(times[step])
         return CollisionResult(hit.kind, hit.first, hit.second, hit.distance, hit.padding, step, t)
 
-    def _collides(self, pairs: _PairSet, q: np.ndarray) -> bool:
+    def _collides(self, pairs: _PairSet, q: NDArray[np.float64]) -> bool:
         if pairs.manager is None:
-            return pin.computeCollisions(self.robot.model, self.data, self.geometry_model, pairs.geometry_data, q, True)
-        return pin.computeCollisions(self.robot.model, self.data, pairs.manager, pairs.callback, q)
+            hit: bool = pin.computeCollisions(self.robot.model, self.data, self.geometry_model, pairs.geometry_data, q, True)
+            return hit
+        hit = pin.computeCollisions(self.robot.model, self.data, pairs.manager, pairs.callback, q)
+        return hit
 
-    def _check_many(self, pairs: _PairSet, levels: list[_PairSet], Q: np.ndarray, stop_at_first: bool,
+    def _check_many(self, pairs: _PairSet, levels: list[_PairSet], Q: NDArray[np.float64], stop_at_first: bool,
                     hit_at: Callable[[int], CollisionResult | None]) -> list[CollisionResult]:
         """Rows of ``Q`` where a pair of ``pairs`` collides, as ``hit_at(step)`` reports them
         (called right after that row's check), settling runs of rows at once with ``levels``."""
@@ -442,11 +445,11 @@ class CollisionChecker:
         return out
 
     @staticmethod
-    def _moving_columns(Q: np.ndarray) -> np.ndarray:
+    def _moving_columns(Q: NDArray[np.float64]) -> NDArray[np.intp]:
         return np.flatnonzero((Q != Q[0]).any(axis=0))
 
     def _pair_data(self, active: list[int] | None, budget_rad: float | None = None,
-                   per_rad: np.ndarray | None = None) -> pin.GeometryData:
+                   per_rad: NDArray[np.float64] | None = None) -> pin.GeometryData:
         """Geometry data with this checker's margins, inflated for a joint budget when one is
         given (see ``swept``), and only the ``active`` pairs switched on (None: all)."""
         data = pin.GeometryData(self.geometry_model)
@@ -462,7 +465,7 @@ class CollisionChecker:
                 data.activateCollisionPair(k)
         return data
 
-    def _levels_for(self, Q: np.ndarray, objects: frozenset[str] | None) -> list[_PairSet]:
+    def _levels_for(self, Q: NDArray[np.float64], objects: frozenset[str] | None) -> list[_PairSet]:
         """Inflated checkers for the joints that move in ``Q`` (compiled once per set of joints),
         of every pair or of ``objects``' pairs; none for a single row or an unsupported model."""
         if self._coefficients is None or Q.shape[0] < 2:
@@ -492,7 +495,7 @@ class CollisionChecker:
         return CollisionResult(pair.kind, pair.first, pair.second, float(distance),
                                self.padding if pair.padded else 0.0)
 
-    def clearance(self, q: np.ndarray, kind: str | None = None) -> Clearance | None:
+    def clearance(self, q: NDArray[np.float64], kind: str | None = None) -> Clearance | None:
         """Closest checked pair (distance without padding), optionally only ``self`` or
         ``world`` pairs; None if no such pair is checked."""
         if kind not in (None, "self", "world"):

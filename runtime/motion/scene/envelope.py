@@ -33,6 +33,7 @@ from dataclasses import dataclass, replace
 from typing import Any, Sequence
 
 import numpy as np
+from numpy.typing import NDArray
 import pinocchio as pin
 import yaml
 
@@ -120,7 +121,7 @@ def narrowed(envelope: CartesianEnvelope, overrides: EnvelopeOverrides, source: 
         if len(values) != 6 or any(lo >= hi for lo, hi in zip(values[:3], values[3:])):
             raise OptionError(f"tcp_keep_in_box needs 6 values xmin;ymin;zmin;xmax;ymax;zmax with each min below its max, "
                               f"got {';'.join(f'{v:g}' for v in values)}")
-        boxes = boxes + (KeepInBox("tcp_keep_in_box", (envelope.tcp_frame,), values[:3], values[3:]),)  # type: ignore[arg-type]
+        boxes = boxes + (KeepInBox("tcp_keep_in_box", (envelope.tcp_frame,), values[:3], values[3:]),)
     cone = envelope.tool_cone
     if overrides.tool_axis_max_angle_deg > 0:
         current = cone.max_angle_deg if cone is not None else 180.0
@@ -168,9 +169,9 @@ def check_envelope(
     envelope: CartesianEnvelope,
     robot: RobotModel,
     layout: ConfigurationMap,
-    positions: np.ndarray,
-    velocities: np.ndarray | None = None,
-    times: np.ndarray | None = None,
+    positions: NDArray[np.float64],
+    velocities: NDArray[np.float64] | None = None,
+    times: NDArray[np.float64] | None = None,
     tolerance: float = 1e-9,
 ) -> EnvelopeViolation | None:
     """The earliest point of ``(N, J)`` rows in ``layout``'s columns (``velocities`` of the
@@ -186,7 +187,7 @@ def check_envelope(
     poses = _frame_states(envelope, robot, layout, full, velocities)
     found: list[tuple[int, int, EnvelopeViolation]] = []  # step, order at one step, violation
 
-    def first(mask: np.ndarray) -> int | None:
+    def first(mask: NDArray[np.bool_]) -> int | None:
         hits = np.flatnonzero(mask)
         return int(hits[0]) if len(hits) else None
 
@@ -226,16 +227,20 @@ def check_envelope(
     return replace(violation, time=None if times is None else float(np.asarray(times)[step]))
 
 
+def _shifted(point: tuple[float, float, float], by: float) -> tuple[float, float, float]:
+    return (point[0] + by, point[1] + by, point[2] + by)
+
+
 def shrunk(envelope: CartesianEnvelope, margin_m: float, margin_deg: float) -> CartesianEnvelope:
     """``envelope`` with every keep-in box ``margin_m`` smaller on each side and the tool cone
     ``margin_deg`` narrower: what a planner keeps its states within, so that a motion timed and
     sampled between two of them stays within ``envelope`` itself."""
-    boxes = tuple(replace(box, min_m=tuple(v + margin_m for v in box.min_m), max_m=tuple(v - margin_m for v in box.max_m))
+    boxes = tuple(replace(box, min_m=_shifted(box.min_m, margin_m), max_m=_shifted(box.max_m, -margin_m))
                   for box in envelope.keep_in_boxes)
     cone = envelope.tool_cone
     if cone is not None:
         cone = replace(cone, max_angle_deg=max(0.0, cone.max_angle_deg - margin_deg))
-    return replace(envelope, keep_in_boxes=boxes, tool_cone=cone)  # type: ignore[arg-type]
+    return replace(envelope, keep_in_boxes=boxes, tool_cone=cone)
 
 
 class PoseCheck:
@@ -253,7 +258,7 @@ class PoseCheck:
         self.cone = None if cone is None else (
             robot.frame_id(cone.frame), np.asarray(cone.axis), np.asarray(cone.direction), math.cos(math.radians(cone.max_angle_deg)))
 
-    def __call__(self, q: np.ndarray) -> bool:
+    def __call__(self, q: NDArray[np.float64]) -> bool:
         full = self.layout(np.atleast_2d(q))[0]
         pin.forwardKinematics(self.model, self.data, full)
         for low, high, frame_ids in self.boxes:
@@ -270,7 +275,7 @@ class PoseCheck:
 
 
 def tool_speed_ratio(envelope: CartesianEnvelope, robot: RobotModel, layout: ConfigurationMap,
-                     positions: np.ndarray, velocities: np.ndarray) -> float:
+                     positions: NDArray[np.float64], velocities: NDArray[np.float64]) -> float:
     """The largest share of its limit the TCP's linear or angular speed reaches over ``(N, J)``
     rows of ``layout``'s columns with their joint ``velocities``: above 1, slowing the motion down
     evenly by that factor brings it within both speed limits (speeds scale with the time scale)."""
@@ -287,16 +292,16 @@ def tool_speed_ratio(envelope: CartesianEnvelope, robot: RobotModel, layout: Con
 
 @dataclass(frozen=True)
 class _FrameStates:
-    positions: np.ndarray
+    positions: NDArray[np.float64]
     """(N, F, 3): the origin of each of ``envelope.frames`` at each point."""
-    axes: np.ndarray | None
+    axes: NDArray[np.float64] | None
     """(N, 3): the tool cone's axis in the world, when there is a cone."""
-    twists: np.ndarray | None
+    twists: NDArray[np.float64] | None
     """(N, 6): the TCP frame's linear then angular velocity (world axes), when speeds are limited."""
 
 
-def _frame_states(envelope: CartesianEnvelope, robot: RobotModel, layout: ConfigurationMap, full: np.ndarray,
-                  velocities: np.ndarray | None) -> _FrameStates:
+def _frame_states(envelope: CartesianEnvelope, robot: RobotModel, layout: ConfigurationMap, full: NDArray[np.float64],
+                  velocities: NDArray[np.float64] | None) -> _FrameStates:
     model = robot.model
     frames = envelope.frames
     cone = envelope.tool_cone
@@ -305,7 +310,8 @@ def _frame_states(envelope: CartesianEnvelope, robot: RobotModel, layout: Config
     v_full = None
     if use_velocities:
         v_full = np.zeros((len(full), model.nv))
-        v_full[:, v_columns] = np.atleast_2d(velocities)[:, : len(v_columns)]  # type: ignore[index]
+        assert velocities is not None  # use_velocities says so
+        v_full[:, v_columns] = np.atleast_2d(velocities)[:, : len(v_columns)]
     kinematics = robot.batch_kinematics(frames)
     if not kinematics.supported:
         return _frame_states_per_point(envelope, robot, full, v_full)
@@ -314,8 +320,8 @@ def _frame_states(envelope: CartesianEnvelope, robot: RobotModel, layout: Config
     return _FrameStates(states.positions, axes, states.twist)
 
 
-def _frame_states_per_point(envelope: CartesianEnvelope, robot: RobotModel, full: np.ndarray,
-                            v_full: np.ndarray | None) -> _FrameStates:
+def _frame_states_per_point(envelope: CartesianEnvelope, robot: RobotModel, full: NDArray[np.float64],
+                            v_full: NDArray[np.float64] | None) -> _FrameStates:
     """``_frame_states`` through pinocchio one point at a time: for chains with joints
     ``BatchKinematics`` does not cover."""
     model = robot.model
@@ -349,7 +355,7 @@ def _vector_text(v: Sequence[float]) -> str:
 
 
 # -- the YAML file ------------------------------------------------------------------------------
-def load_envelope(path: str | os.PathLike, robot: RobotModel, default_tcp_frame: str) -> CartesianEnvelope:
+def load_envelope(path: str | os.PathLike[str], robot: RobotModel, default_tcp_frame: str) -> CartesianEnvelope:
     """The ``cartesian_limits`` of a YAML file, its frames checked against ``robot``; OptionError
     naming the file and the key for anything wrong."""
     try:

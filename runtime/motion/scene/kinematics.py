@@ -10,17 +10,18 @@ from dataclasses import dataclass
 from typing import Any, Sequence
 
 import numpy as np
+from numpy.typing import NDArray
 import pinocchio as pin
 
 from .model import RobotModel
 
 
-def frame_pose(robot: RobotModel, q_full: np.ndarray, frame: str) -> np.ndarray:
+def frame_pose(robot: RobotModel, q_full: NDArray[np.float64], frame: str) -> NDArray[np.float64]:
     """World pose (4x4) of a link, joint or site frame at full configuration ``q_full``."""
     return frame_poses(robot, q_full, [frame])[frame]
 
 
-def frame_poses(robot: RobotModel, q_full: np.ndarray, frames: Sequence[str]) -> dict[str, np.ndarray]:
+def frame_poses(robot: RobotModel, q_full: NDArray[np.float64], frames: Sequence[str]) -> dict[str, NDArray[np.float64]]:
     """World poses of several frames from one FK pass."""
     q = np.asarray(q_full, dtype=float)
     if q.shape != (robot.model.nq,):
@@ -34,7 +35,7 @@ def frame_poses(robot: RobotModel, q_full: np.ndarray, frames: Sequence[str]) ->
     return out
 
 
-def frame_jacobian(robot: RobotModel, q_full: np.ndarray, frame: str, joints: Sequence[str]) -> np.ndarray:
+def frame_jacobian(robot: RobotModel, q_full: NDArray[np.float64], frame: str, joints: Sequence[str]) -> NDArray[np.float64]:
     """6 x len(joints) Jacobian of ``frame`` at ``q_full``: linear then angular velocity, in
     world axes at the frame's origin (pinocchio's LOCAL_WORLD_ALIGNED), columns in ``joints`` order."""
     model = robot.model
@@ -49,7 +50,7 @@ def frame_jacobian(robot: RobotModel, q_full: np.ndarray, frame: str, joints: Se
 @dataclass(frozen=True)
 class IkResult:
     success: bool
-    positions: np.ndarray
+    positions: NDArray[np.float64]
     """Group joint values (the best found, even when not successful)."""
     position_error: float
     """Metres between the reached and the target position."""
@@ -66,7 +67,7 @@ class IkSolver:
     time (``solve_ik`` makes a fresh one per call).
     """
 
-    def __init__(self, robot: RobotModel, group: str, frame: str | None = None, reference: np.ndarray | None = None):
+    def __init__(self, robot: RobotModel, group: str, frame: str | None = None, reference: NDArray[np.float64] | None = None):
         self.robot, self.group = robot, group
         self.layout = robot.configuration_map(group, None, reference)
         self.joints = tuple(self.layout.group.joints)
@@ -77,8 +78,8 @@ class IkSolver:
 
     def solve(
         self,
-        target: np.ndarray,
-        seeds: Sequence[Sequence[float]] | np.ndarray | None = None,
+        target: NDArray[np.float64],
+        seeds: Sequence[Sequence[float]] | NDArray[np.float64] | None = None,
         position_tolerance: float = 1e-4,
         orientation_tolerance: float = 1e-3,
         position_only: bool = False,
@@ -131,10 +132,10 @@ class IkSolver:
 def solve_ik(
     robot: RobotModel,
     group: str,
-    target: np.ndarray,
-    seeds: Sequence[Sequence[float]] | np.ndarray | None = None,
+    target: NDArray[np.float64],
+    seeds: Sequence[Sequence[float]] | NDArray[np.float64] | None = None,
     frame: str | None = None,
-    reference: np.ndarray | None = None,
+    reference: NDArray[np.float64] | None = None,
     **options: Any,
 ) -> IkResult:
     """Joint values of ``group`` that put ``frame`` (default: the group's tip) at ``target``.

@@ -23,6 +23,7 @@ from dataclasses import dataclass
 from typing import Sequence
 
 import numpy as np
+from numpy.typing import NDArray
 import yaml
 from runtime.errors import OptionError
 
@@ -71,19 +72,19 @@ class JointLimits:
         return tuple(j.name for j in self.joints)
 
     @functools.cached_property
-    def lower(self) -> np.ndarray:
+    def lower(self) -> NDArray[np.float64]:
         return _read_only(np.array([j.lower for j in self.joints]))
 
     @functools.cached_property
-    def upper(self) -> np.ndarray:
+    def upper(self) -> NDArray[np.float64]:
         return _read_only(np.array([j.upper for j in self.joints]))
 
     @functools.cached_property
-    def max_velocity(self) -> np.ndarray:
+    def max_velocity(self) -> NDArray[np.float64]:
         return _read_only(np.array([j.max_velocity for j in self.joints]))
 
     @functools.cached_property
-    def max_acceleration(self) -> np.ndarray:
+    def max_acceleration(self) -> NDArray[np.float64]:
         return _read_only(np.array([j.max_acceleration for j in self.joints]))
 
     def __getitem__(self, name: str) -> JointLimit:
@@ -98,10 +99,10 @@ class JointLimits:
 
     def check(
         self,
-        positions: np.ndarray,
-        velocities: np.ndarray | None = None,
-        accelerations: np.ndarray | None = None,
-        times: np.ndarray | None = None,
+        positions: NDArray[np.float64],
+        velocities: NDArray[np.float64] | None = None,
+        accelerations: NDArray[np.float64] | None = None,
+        times: NDArray[np.float64] | None = None,
         tolerance: float = 1e-9,
     ) -> LimitViolation | None:
         """The earliest violation in ``(N, dof)`` arrays whose columns follow ``names``.
@@ -110,7 +111,7 @@ class JointLimits:
         """
         found: list[tuple[int, int, int, str, float, float]] = []  # step, order, column, ...
 
-        def earliest(mask: np.ndarray) -> tuple[int, int] | None:
+        def earliest(mask: NDArray[np.bool_]) -> tuple[int, int] | None:
             hits = np.flatnonzero(mask)  # row-major: the first is the earliest step, then column
             return divmod(int(hits[0]), mask.shape[1]) if len(hits) else None
 
@@ -134,7 +135,7 @@ class JointLimits:
         time = None if times is None else float(np.asarray(times)[step])
         return LimitViolation(step, time, self.joints[column].name, quantity, value, limit)
 
-    def check_steps(self, positions: np.ndarray, dt_s: float, tolerance: float = 1e-9) -> LimitViolation | None:
+    def check_steps(self, positions: NDArray[np.float64], dt_s: float, tolerance: float = 1e-9) -> LimitViolation | None:
         """``check`` for targets one step of ``dt_s`` apart (a policy's column of gripper goals):
         the velocity into step k is ``(q_k - q_(k-1)) / dt_s`` (from step 1 on), the
         acceleration at step k the second difference over ``dt_s^2`` (from step 2 on), each
@@ -145,19 +146,19 @@ class JointLimits:
         accelerations[2:] = np.diff(q, 2, axis=0) / (dt_s * dt_s)
         return self.check(q, velocities, accelerations, tolerance=tolerance)
 
-    def _as_rows(self, values: np.ndarray, what: str) -> np.ndarray:
+    def _as_rows(self, values: NDArray[np.float64], what: str) -> NDArray[np.float64]:
         a = np.atleast_2d(np.asarray(values, dtype=float))
         if a.shape[1] != len(self.joints):
             raise ValueError(f"{what} have {a.shape[1]} columns; expected {len(self.joints)} ({', '.join(self.names)})")
         return a
 
 
-def _read_only(values: np.ndarray) -> np.ndarray:
+def _read_only(values: NDArray[np.float64]) -> NDArray[np.float64]:
     values.setflags(write=False)
     return values
 
 
-def load_joint_limits(path: str | os.PathLike, position_limits: dict[str, tuple[float, float]]) -> JointLimits:
+def load_joint_limits(path: str | os.PathLike[str], position_limits: dict[str, tuple[float, float]]) -> JointLimits:
     """Combine model position limits ``{joint: (lower, upper)}`` with a joint_limits.yaml.
 
     Every joint in ``position_limits`` gets an entry; the YAML may not name unknown joints.

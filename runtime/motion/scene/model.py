@@ -19,6 +19,7 @@ from pathlib import Path
 from typing import Iterable, Mapping, Sequence
 
 import numpy as np
+from numpy.typing import NDArray
 import pinocchio as pin
 import yaml
 
@@ -48,7 +49,7 @@ class JointCoupling:
     offset: float = 0.0
 
 
-def load_couplings(path: str | os.PathLike) -> tuple[JointCoupling, ...]:
+def load_couplings(path: str | os.PathLike[str]) -> tuple[JointCoupling, ...]:
     """Read ``coupled_joints:`` from a YAML file: ``{joint: {driver, multiplier, offset}}``."""
     with open(path) as f:
         doc = yaml.safe_load(f) or {}
@@ -96,7 +97,7 @@ class ConfigurationMap:
     of the row.
     """
 
-    def __init__(self, robot: "RobotModel", group: JointGroup, gripper_joint: str | None, reference: np.ndarray):
+    def __init__(self, robot: "RobotModel", group: JointGroup, gripper_joint: str | None, reference: NDArray[np.float64]):
         self.group = group
         self.gripper_joint = gripper_joint
         self.columns: tuple[str, ...] = group.joints + ((gripper_joint,) if gripper_joint else ())
@@ -120,7 +121,7 @@ class ConfigurationMap:
     def dof(self) -> int:
         return len(self.columns)
 
-    def __call__(self, rows: np.ndarray) -> np.ndarray:
+    def __call__(self, rows: NDArray[np.float64]) -> NDArray[np.float64]:
         """``(N, dof) -> (N, nq)``; a single row ``(dof,) -> (nq,)``."""
         x = np.asarray(rows, dtype=float)
         single = x.ndim == 1
@@ -129,7 +130,7 @@ class ConfigurationMap:
             raise ValueError(
                 f"configuration rows have {x2.shape[1]} values; expected {self.dof} ({', '.join(self.columns)})"
             )
-        q = self.reference * self._keep + x2 @ self._gain + self._bias
+        q: NDArray[np.float64] = self.reference * self._keep + x2 @ self._gain + self._bias
         for idx, col in self._unbounded:
             q[:, idx] = np.cos(x2[:, col])
             q[:, idx + 1] = np.sin(x2[:, col])
@@ -174,8 +175,8 @@ class RobotModel:
         cls,
         model: pin.Model,
         collision_model: pin.GeometryModel,
-        srdf: str | os.PathLike | Srdf | None = None,
-        couplings: Iterable[JointCoupling] | str | os.PathLike = (),
+        srdf: str | os.PathLike[str] | Srdf | None = None,
+        couplings: Iterable[JointCoupling] | str | os.PathLike[str] = (),
         source: str = "",
     ) -> "RobotModel":
         """A robot from models a loader built (``sim.mjcf`` builds them from the simulator's MJCF),
@@ -185,10 +186,10 @@ class RobotModel:
     @classmethod
     def from_urdf(
         cls,
-        urdf: str | os.PathLike,
-        srdf: str | os.PathLike | Srdf | None = None,
-        package_dirs: Sequence[str | os.PathLike] = (),
-        couplings: Iterable[JointCoupling] | str | os.PathLike = (),
+        urdf: str | os.PathLike[str],
+        srdf: str | os.PathLike[str] | Srdf | None = None,
+        package_dirs: Sequence[str | os.PathLike[str]] = (),
+        couplings: Iterable[JointCoupling] | str | os.PathLike[str] = (),
     ) -> "RobotModel":
         """Load a robot from a URDF file (meshes through ``package://`` and ``package_dirs``).
 
@@ -231,7 +232,8 @@ class RobotModel:
         frames = self.model.frames
         while frame_id != 0 and frames[frame_id].type != pin.FrameType.BODY:
             frame_id = frames[frame_id].parentFrame
-        return frames[frame_id].name
+        name: str = frames[frame_id].name
+        return name
 
     def parent_link(self, link: str) -> str:
         return self._link_parent[link]
@@ -265,7 +267,8 @@ class RobotModel:
         jframe = self.frame_id(joint)
         for f in self.model.frames:
             if f.type == pin.FrameType.BODY and f.parentFrame == jframe:
-                return f.name
+                child: str = f.name
+                return child
         raise KeyError(f"joint {joint!r} has no child link")
 
     def driven_by(self, joint: str) -> list[tuple[str, float, float]]:
@@ -349,10 +352,11 @@ class RobotModel:
         return [frame.name] if frame.type == pin.FrameType.JOINT else []
 
     # -- configurations -------------------------------------------------------------------
-    def neutral(self) -> np.ndarray:
-        return pin.neutral(self.model)
+    def neutral(self) -> NDArray[np.float64]:
+        neutral: NDArray[np.float64] = pin.neutral(self.model)
+        return neutral
 
-    def configuration(self, positions: Mapping[str, float], reference: np.ndarray | None = None) -> np.ndarray:
+    def configuration(self, positions: Mapping[str, float], reference: NDArray[np.float64] | None = None) -> NDArray[np.float64]:
         """A full ``q`` from ``{joint: value}``; coupled joints follow their drivers."""
         q = np.array(self.neutral() if reference is None else reference, dtype=float)
         for joint, value in positions.items():
@@ -368,7 +372,7 @@ class RobotModel:
         return q
 
     def configuration_map(self, group: str, gripper_joint: str | None = None,
-                          reference: np.ndarray | None = None) -> ConfigurationMap:
+                          reference: NDArray[np.float64] | None = None) -> ConfigurationMap:
         """Map rows ``[joints of group..., gripper_joint]`` to full configurations."""
         resolved = self.group(group)
         if gripper_joint is not None:
@@ -379,7 +383,7 @@ class RobotModel:
         ref = self.neutral() if reference is None else np.asarray(reference, dtype=float)
         return ConfigurationMap(self, resolved, gripper_joint, ref)
 
-    def position_limits(self, joints: Sequence[str]) -> tuple[np.ndarray, np.ndarray]:
+    def position_limits(self, joints: Sequence[str]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """Lower and upper position limits of 1-DOF joints, from the model."""
         lower, upper = [], []
         for joint in joints:
@@ -393,13 +397,13 @@ class RobotModel:
         return np.array(lower), np.array(upper)
 
 
-def _srdf(srdf: str | os.PathLike | Srdf | None) -> Srdf | None:
+def _srdf(srdf: str | os.PathLike[str] | Srdf | None) -> Srdf | None:
     if srdf is None or isinstance(srdf, Srdf):
         return srdf
     return parse_srdf(srdf)
 
 
-def _couplings(couplings: Iterable[JointCoupling] | str | os.PathLike) -> tuple[JointCoupling, ...]:
+def _couplings(couplings: Iterable[JointCoupling] | str | os.PathLike[str]) -> tuple[JointCoupling, ...]:
     if isinstance(couplings, (str, os.PathLike)):
         return load_couplings(couplings)
     return tuple(couplings)

@@ -16,13 +16,18 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass
-from typing import Callable
+from typing import TYPE_CHECKING, Any, Callable
 
 import numpy as np
+from numpy.typing import NDArray
 
 from runtime.errors import ObjectiveError, SetupError
 
-Validity = Callable[[np.ndarray], bool]
+if TYPE_CHECKING:
+    from .model import ConfigurationMap
+    from .scene import PlanningScene, SceneSnapshot
+
+Validity = Callable[[NDArray[np.float64]], bool]
 """True when a configuration (the group's joint values) is collision-free."""
 
 
@@ -53,7 +58,7 @@ class PlannerSettings:
 
 @dataclass(frozen=True)
 class JointPath:
-    waypoints: np.ndarray
+    waypoints: NDArray[np.float64]
     """(N, dof): the start, the corners of the path, the goal; straight segments between."""
     search_s: float
     """Seconds RRT-Connect searched (0 when the straight move was free)."""
@@ -67,17 +72,17 @@ class JointPath:
         return float(np.linalg.norm(np.diff(self.waypoints, axis=0), axis=1).sum())
 
 
-def segment_states(a: np.ndarray, b: np.ndarray, step_rad: float) -> np.ndarray:
+def segment_states(a: NDArray[np.float64], b: NDArray[np.float64], step_rad: float) -> NDArray[np.float64]:
     """States from ``a`` (excluded) to ``b`` (included), none more than ``step_rad`` apart."""
     count = max(1, int(math.ceil(float(np.linalg.norm(b - a)) / step_rad)))
     return a + np.linspace(0.0, 1.0, count + 1)[1:, None] * (b - a)
 
 
-def motion_is_free(is_free: Validity, a: np.ndarray, b: np.ndarray, step_rad: float) -> bool:
+def motion_is_free(is_free: Validity, a: NDArray[np.float64], b: NDArray[np.float64], step_rad: float) -> bool:
     return all(is_free(q) for q in segment_states(a, b, step_rad))
 
 
-def plan_path(is_free: Validity, start: np.ndarray, goal: np.ndarray, lower: np.ndarray, upper: np.ndarray,
+def plan_path(is_free: Validity, start: NDArray[np.float64], goal: NDArray[np.float64], lower: NDArray[np.float64], upper: NDArray[np.float64],
               settings: PlannerSettings = PlannerSettings()) -> JointPath:
     """A collision-free path from ``start`` to ``goal`` within ``[lower, upper]``.
 
@@ -104,7 +109,7 @@ def plan_path(is_free: Validity, start: np.ndarray, goal: np.ndarray, lower: np.
     return _search(is_free, start, goal, lower, upper, settings)
 
 
-def _search(is_free: Validity, start: np.ndarray, goal: np.ndarray, lower: np.ndarray, upper: np.ndarray,
+def _search(is_free: Validity, start: NDArray[np.float64], goal: NDArray[np.float64], lower: NDArray[np.float64], upper: NDArray[np.float64],
             settings: PlannerSettings) -> JointPath:
     """RRT-Connect, then shortcutting, with OMPL; every OMPL object lives in this call only."""
     lower = np.maximum(lower, np.minimum(start, goal) - settings.margin_rad)
@@ -156,20 +161,21 @@ def _search(is_free: Validity, start: np.ndarray, goal: np.ndarray, lower: np.nd
     return JointPath(waypoints, searched, shortcut, False)
 
 
-def _state(space, q: np.ndarray):
+def _state(space: Any, q: NDArray[np.float64]) -> Any:
     state = space.allocState()
     for i, value in enumerate(q):
         state[i] = float(value)
     return state
 
 
-def scene_validity(scene, layout, padding_m: float, snapshot, gripper_position: float | None) -> Validity:
+def scene_validity(scene: PlanningScene, layout: ConfigurationMap, padding_m: float, snapshot: SceneSnapshot | None,
+                   gripper_position: float | None) -> Validity:
     """``is_free`` for ``plan_path`` from a PlanningScene: ``check_state`` with this padding,
     snapshot (collision rules and attachments) and layout, the gripper held at
     ``gripper_position`` when the layout has a gripper column."""
     extra = [] if layout.gripper_joint is None else [0.0 if gripper_position is None else float(gripper_position)]
 
-    def is_free(q: np.ndarray) -> bool:
+    def is_free(q: NDArray[np.float64]) -> bool:
         row = np.concatenate([q, extra]) if extra else q
         return scene.check_state(row, padding_m, snapshot=snapshot, layout=layout) is None
 

@@ -22,6 +22,7 @@ from dataclasses import dataclass
 from typing import Iterable, Mapping, Sequence
 
 import numpy as np
+from numpy.typing import NDArray
 import pinocchio as pin
 
 from .collision import (
@@ -65,7 +66,7 @@ def _lookup(rules: Mapping[tuple[str, str], bool], obj: str, link: str) -> bool:
     return False
 
 
-def _pose_tuple(pose: np.ndarray | pin.SE3) -> tuple[float, ...]:
+def _pose_tuple(pose: NDArray[np.float64] | pin.SE3) -> tuple[float, ...]:
     return tuple(as_se3(pose).homogeneous.reshape(-1).tolist())
 
 
@@ -78,7 +79,7 @@ class PlanningScene:
         group: str,
         gripper_joint: str | None = None,
         limits: JointLimits | None = None,
-        reference: np.ndarray | None = None,
+        reference: NDArray[np.float64] | None = None,
         envelope: CartesianEnvelope | None = None,
     ):
         self._lock = threading.RLock()
@@ -97,7 +98,7 @@ class PlanningScene:
         self._structure = 0  # bumped when the set of world objects changes
         self._poses = 0  # bumped when a world object moves
         self._moved_at: dict[str, int] = {}  # each object's ``_poses`` after its last move
-        self._checkers: dict[tuple, _PlacedChecker] = {}
+        self._checkers: dict[tuple[int, SceneSnapshot, float], _PlacedChecker] = {}
 
     # -- layouts and configurations -------------------------------------------------------
     @property
@@ -117,13 +118,14 @@ class PlanningScene:
             return self._layouts[key]
 
     def full_configuration(self, group_positions: Sequence[float], gripper_position: float | None = None,
-                           layout: ConfigurationMap | None = None) -> np.ndarray:
+                           layout: ConfigurationMap | None = None) -> NDArray[np.float64]:
         """Pinocchio's full ``q`` from group joint values (+ gripper value)."""
         rows = self._rows(np.asarray(group_positions, dtype=float)[None, :] if gripper_position is None
                           else np.append(np.asarray(group_positions, dtype=float), gripper_position)[None, :], layout)
-        return rows[0]
+        q: NDArray[np.float64] = rows[0]
+        return q
 
-    def _rows(self, Q: np.ndarray, layout: ConfigurationMap | None) -> np.ndarray:
+    def _rows(self, Q: NDArray[np.float64], layout: ConfigurationMap | None) -> NDArray[np.float64]:
         """Rows in a layout (with or without the gripper column) -> full configurations."""
         lay = layout or self.layout()
         Q = np.atleast_2d(np.asarray(Q, dtype=float))
@@ -139,7 +141,7 @@ class PlanningScene:
         return lay(Q)
 
     # -- world objects --------------------------------------------------------------------
-    def add_object(self, name: str, shape: Shape, pose: np.ndarray, fixed: bool = False) -> None:
+    def add_object(self, name: str, shape: Shape, pose: NDArray[np.float64], fixed: bool = False) -> None:
         """Add (or replace) a world object; ``pose`` is a 4x4 matrix in the world frame.
 
         ``fixed`` marks the cell's furniture (a table, a welded box): an object the task never
@@ -161,7 +163,7 @@ class PlanningScene:
         with self._lock:
             return (self._structure, self._poses)
 
-    def move_object(self, name: str, pose: np.ndarray | pin.SE3) -> None:
+    def move_object(self, name: str, pose: NDArray[np.float64] | pin.SE3) -> None:
         """Move a world object to ``pose``: a 4x4 matrix (its 3x3 block must be a rotation), or a
         ``pin.SE3``, taken as it is."""
         with self._lock:
@@ -177,7 +179,7 @@ class PlanningScene:
             self._fixed.discard(name)
             self._structure += 1
 
-    def object_pose(self, name: str) -> np.ndarray:
+    def object_pose(self, name: str) -> NDArray[np.float64]:
         with self._lock:
             return self._object(name).matrix
 
@@ -245,9 +247,9 @@ class PlanningScene:
         name: str,
         link: str,
         *,
-        q: np.ndarray | None = None,
+        q: NDArray[np.float64] | None = None,
         shape: Shape | None = None,
-        pose_in_link: np.ndarray | None = None,
+        pose_in_link: NDArray[np.float64] | None = None,
         touch_links: Iterable[str] = (),
     ) -> Attachment:
         """Carry an object with ``link``.
@@ -278,7 +280,7 @@ class PlanningScene:
             self._structure += 1
             return attachment
 
-    def detach(self, name: str, q: np.ndarray | None = None) -> None:
+    def detach(self, name: str, q: NDArray[np.float64] | None = None) -> None:
         """Stop carrying ``name``; with ``q`` (a layout row) it stays in the world where it is."""
         with self._lock:
             att = self._attachments.pop(name, None)
@@ -300,11 +302,11 @@ class PlanningScene:
             return SceneSnapshot(rules, tuple(sorted(self._attachments.values(), key=lambda a: a.name)))
 
     # -- queries --------------------------------------------------------------------------
-    def link_pose(self, q: np.ndarray, link: str, layout: ConfigurationMap | None = None) -> np.ndarray:
+    def link_pose(self, q: NDArray[np.float64], link: str, layout: ConfigurationMap | None = None) -> NDArray[np.float64]:
         """4x4 world pose of a link or frame at layout row ``q``."""
         return frame_pose(self.robot, self._rows(q, layout)[0], link)
 
-    def object_world_pose(self, name: str, q: np.ndarray, layout: ConfigurationMap | None = None) -> np.ndarray:
+    def object_world_pose(self, name: str, q: NDArray[np.float64], layout: ConfigurationMap | None = None) -> NDArray[np.float64]:
         """Where an object is: its world pose, or its carrying link's pose times its offset."""
         with self._lock:
             if name in self._attachments:
@@ -312,7 +314,7 @@ class PlanningScene:
                 return self.link_pose(q, att.link, layout) @ att.matrix
             return self._object(name).matrix
 
-    def check_state(self, q: np.ndarray, padding: float = 0.01, snapshot: SceneSnapshot | None = None,
+    def check_state(self, q: NDArray[np.float64], padding: float = 0.01, snapshot: SceneSnapshot | None = None,
                     layout: ConfigurationMap | None = None) -> CollisionResult | None:
         """First colliding pair at one layout row, or None when collision-free."""
         q_full = self._rows(q, layout)[0]
@@ -321,8 +323,8 @@ class PlanningScene:
 
     def check_path(
         self,
-        Q: np.ndarray,
-        times: np.ndarray | None = None,
+        Q: NDArray[np.float64],
+        times: NDArray[np.float64] | None = None,
         padding: float = 0.01,
         stop_at_first: bool = True,
         snapshot: SceneSnapshot | None = None,
@@ -351,7 +353,7 @@ class PlanningScene:
             return hits[0] if hits else None
         return hits
 
-    def min_distance(self, q: np.ndarray, kind: str | None = None, snapshot: SceneSnapshot | None = None,
+    def min_distance(self, q: NDArray[np.float64], kind: str | None = None, snapshot: SceneSnapshot | None = None,
                      layout: ConfigurationMap | None = None) -> Clearance | None:
         """Closest checked pair at ``q`` (unpadded signed distance), optionally only ``"self"``
         or ``"world"`` pairs; None if no such pair is checked. About 50 us: not per path point."""

@@ -68,13 +68,13 @@ _PARSER = etree.XMLParser(resolve_entities=False, no_network=True, remove_commen
 
 
 def _required(element: etree._Element, attribute: str, where: str) -> str:
-    value = element.get(attribute)
+    value: str | None = element.get(attribute)
     if not value:
         raise SrdfError(f"{where}:{element.sourceline}: <{element.tag}> needs a {attribute!r} attribute")
     return value
 
 
-def parse_srdf(source: str | os.PathLike) -> Srdf:
+def parse_srdf(source: str | os.PathLike[str]) -> Srdf:
     """Parse an SRDF file path or XML text."""
     text = str(source)
     if text.lstrip().startswith("<"):

@@ -21,6 +21,7 @@ collision" for a security margin inflated by that much), then at every q' with
 from __future__ import annotations
 
 import numpy as np
+from numpy.typing import NDArray
 import pinocchio as pin
 
 REVOLUTE = frozenset({"JointModelRX", "JointModelRY", "JointModelRZ", "JointModelRevoluteUnaligned"})
@@ -44,7 +45,7 @@ def _local_radius(geometry: pin.GeometryObject) -> float:
     return float(np.linalg.norm(placed, axis=1).max())
 
 
-def motion_radii(model: pin.Model, geometry_model: pin.GeometryModel) -> np.ndarray:
+def motion_radii(model: pin.Model, geometry_model: pin.GeometryModel) -> NDArray[np.float64]:
     """``R[g, j]`` (metres per radian, shape (ngeoms, njoints)); zero where joint j does not
     move geometry g. Column 0 (the universe) is always zero."""
     radii = np.zeros((len(geometry_model.geometryObjects), model.njoints))
@@ -61,7 +62,7 @@ def motion_radii(model: pin.Model, geometry_model: pin.GeometryModel) -> np.ndar
     return radii
 
 
-def pair_coefficients(radii: np.ndarray, pairs: list[tuple[int, int]]) -> np.ndarray:
+def pair_coefficients(radii: NDArray[np.float64], pairs: list[tuple[int, int]]) -> NDArray[np.float64]:
     """``C[p, j]``: how much pair p's distance can change per radian of joint j."""
     out = np.zeros((len(pairs), radii.shape[1]))
     for p, (a, b) in enumerate(pairs):
@@ -70,9 +71,10 @@ def pair_coefficients(radii: np.ndarray, pairs: list[tuple[int, int]]) -> np.nda
     return out
 
 
-def window_ends(Q_moving: np.ndarray, start: int, levels_rad: np.ndarray) -> np.ndarray:
+def window_ends(Q_moving: NDArray[np.float64], start: int, levels_rad: NDArray[np.float64]) -> NDArray[np.intp]:
     """For each level L, the first index after ``start`` where some column of ``Q_moving``
     has moved more than L from its value at ``start`` (``len(Q_moving)`` if none has)."""
     deviation = np.abs(Q_moving[start:] - Q_moving[start]).max(axis=1, initial=0.0)
     np.maximum.accumulate(deviation, out=deviation)
-    return start + deviation.searchsorted(levels_rad, side="right")
+    ends: NDArray[np.intp] = start + deviation.searchsorted(levels_rad, side="right")
+    return ends
