@@ -47,7 +47,8 @@ class ControllerKind(enum.Enum):
     JTC = "control_msgs/action/FollowJointTrajectory"
 
     @property
-    def action_type(self) -> type:
+    def action_type(self) -> Any:
+        """The generated action class (untyped): ``Goal``, ``Result``, ``Feedback``."""
         package, _, name = self.value.split("/")
         return getattr(importlib.import_module(f"{package}.action"), name)
 

@@ -13,7 +13,7 @@ from __future__ import annotations
 import enum
 import math
 from dataclasses import dataclass
-from typing import Sequence
+from typing import Any, Sequence
 
 from controller_manager_msgs.msg import ControllerState
 from controller_manager_msgs.srv import ListControllers, SwitchController as SwitchSrv
@@ -21,6 +21,7 @@ from controller_manager_msgs.srv import ListControllers, SwitchController as Swi
 from runtime.tree.behavior import Behavior, Status
 from runtime.errors import SetupError
 from runtime.tree.ports import InputPort, NameKind, Names, PortType, Range
+from runtime.io.bus import Future
 from runtime.io.timestamps import duration_msg
 
 from .waiting import Deadline, when_ready
@@ -140,7 +141,8 @@ class SwitchController(Behavior):
         self.lister = bus.create_client(self.get_input("controller_list_action_name"), ListControllers)
         self.switcher = bus.create_client(self.get_input("controller_switch_action_name"), SwitchSrv)
         self.deadline = Deadline(self, timeout if self.limited else math.inf)
-        self.phase, self.future = Phase.WAIT, None
+        self.phase = Phase.WAIT
+        self.future: Future[Any] | None = None
 
     def update(self) -> Status:
         if self.error:
@@ -153,6 +155,7 @@ class SwitchController(Behavior):
             self.future = self.lister.call_async(ListControllers.Request())
             self.phase = Phase.LIST
         if self.phase is Phase.LIST:
+            assert self.future is not None  # the listing's call
             if not self.future.done():
                 return self._waiting("listing controllers")
             states = list(self.future.result().controller)
@@ -174,6 +177,7 @@ class SwitchController(Behavior):
             self.plan = plan
             self.future = self.switcher.call_async(request)
             self.phase = Phase.SWITCH
+        assert self.future is not None  # the switch's call
         if not self.future.done():
             return self._waiting("switching controllers")
         response = self.future.result()
@@ -190,8 +194,9 @@ class SwitchController(Behavior):
         return Status.RUNNING
 
     def terminate(self, new_status: Status) -> None:
-        if getattr(self, "future", None) is not None and new_status is Status.INVALID:
-            self.future.cancel()
+        future = getattr(self, "future", None)
+        if future is not None and new_status is Status.INVALID:
+            future.cancel()
 
 
 NODES = (SwitchController,)

@@ -111,6 +111,7 @@ class _MoveToJoints(SendsTrajectoryGoal):
         ready = when_ready(self.controller.ready, self.deadline, f"controller action '{self.action}'")
         if ready is not True:
             return self.fail(ready) if isinstance(ready, str) else Status.RUNNING
+        assert self.joint_states is not None  # subscribed in setup
         state = self.joint_states.latest
         if state is None:
             if self.deadline.expired:
@@ -141,6 +142,7 @@ class _MoveToJoints(SendsTrajectoryGoal):
                 samples = self._around(start, goal, snapshot)
             except PlanningError as err:
                 return self.fail(f"the motion would collide: {collision}; no way around it: {err}")
+        assert self.controller.kind is not None  # the controller is ready
         goal = trajectory_goal(self.controller.kind, trajectory_msg(samples, joints),
                                GoalTolerances(self.get_input("path_tolerance"), GOAL_TIME_TOLERANCE_S))
         self.goal = Goal.send(self.controller.client, goal)

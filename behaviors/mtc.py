@@ -280,11 +280,13 @@ class TaskPlanner:
         motions = solution.motions
         if motions:
             first = motions[0]
+            assert first.samples is not None  # a motion
             gap = np.abs(first.samples.positions[0] - np.array([state.get(j, np.nan) for j in first.joints]))
             if not np.all(np.isfinite(gap)) or float(gap.max()) > START_TOLERANCE_RAD:
                 raise StageFailure(f"{stage.label}: the solution starts {float(np.nanmax(gap)):.3f} rad away from the "
                                    f"arm's current position (at most {START_TOLERANCE_RAD} rad)")
         for step in motions:
+            assert step.samples is not None  # a motion
             problem = check_motion(safety_for(self.scene, step.group), step.samples, 0.0, CHECK_STEP_RAD, snapshot)
             if problem:
                 raise StageFailure(f"{stage.label}: the solution's step '{step.stage}' {problem}")
@@ -594,7 +596,7 @@ class PlanMTCTask(ReadsRobotState, Behavior):
             return self.fail(f"task '{task.task_id}': {err}")
         self.set_output("solution", solution)
         motions = solution.motions
-        self.feedback_message = f"{len(solution.steps)} steps, {sum(m.samples.duration_s for m in motions):.2f} s of motion"
+        self.feedback_message = f"{len(solution.steps)} steps, {sum(m.samples.duration_s for m in motions if m.samples is not None):.2f} s of motion"
         return Status.SUCCESS
 
 
@@ -732,6 +734,7 @@ class ExecuteMTCSolution(ExecuteTrajectory):
                     obj, links, allowed = step.rule
                     (self.context.scene.allow if allowed else self.context.scene.disallow)(obj, links)
                     continue
+                assert step.samples is not None  # not a rule: a motion
                 try:
                     goal = self.checked_goal(safety_for(self.context.scene, step.group), step.samples)
                 except (PlanningError, FrameError) as err:

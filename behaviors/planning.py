@@ -18,7 +18,7 @@ from sensor_msgs.msg import JointState
 from runtime.tree.behavior import Behavior, Status
 from runtime.errors import SetupError
 from runtime.tree.ports import InputPort, NameKind, Names, OutputPort, PortType, Range
-from runtime.motion.scene import SceneSnapshot
+from runtime.motion.scene import CollisionResult, SceneSnapshot
 from runtime.motion.scene.planner import PathPlanningError, PlannerSettings, plan_path, scene_validity, segment_states
 from runtime.motion.scene.kinematics import IkSolver
 from runtime.io.timestamps import time_msg
@@ -105,7 +105,7 @@ def plan_free_motion(safety: MotionSafety, start: np.ndarray, goal: np.ndarray, 
         if err.in_collision is None:
             raise PlanningError(str(err)) from None
         q = start if err.in_collision == "start" else goal
-        reason = safety.scene.check_state(q, motion.padding_m, snapshot=snapshot, layout=safety.layout)
+        reason: CollisionResult | str | None = safety.scene.check_state(q, motion.padding_m, snapshot=snapshot, layout=safety.layout)
         if reason is None:
             reason = "it lies within 5 mm or 1 deg of the Cartesian envelope's edge, the margin the planner keeps from it"
         raise PlanningError(f"{err}: {reason}") from None
@@ -152,6 +152,7 @@ def collision_free_ik(safety: MotionSafety, target: np.ndarray, tip: str, seed_q
     where = f"({p[0]:.3f}, {p[1]:.3f}, {p[2]:.3f}) for '{tip}'"
     if collision is not None:
         raise PlanningError(f"every IK solution at {where} is in collision: {collision}")
+    assert nearest is not None  # no solution and none in collision: every seed failed
     raise PlanningError(f"the pose {where} is unreachable: no IK solution "
                         f"({nearest.position_error * 1000:.1f} mm, {nearest.orientation_error:.3f} rad away at best)")
 

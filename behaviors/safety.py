@@ -75,6 +75,7 @@ class MotionSafety:
 
     def gripper_band_rad(self) -> float:
         """How far outside its range a gripper target is clamped (``GRIPPER_BAND_FRACTION``)."""
+        assert self.gripper_joint is not None  # asked only of a group with a gripper
         limit = self.chunk_limits[self.gripper_joint]
         return GRIPPER_BAND_FRACTION * (limit.upper - limit.lower)
 
@@ -151,6 +152,7 @@ class MotionSafety:
             value = 0.0 if gripper_position is None else gripper_position
             rows = np.hstack([rows, np.full((len(rows), 1), value)])
         hit = self.scene.check_path(rows, samples.times, padding, snapshot=snapshot, layout=self.layout, free_at=free_at)
+        assert not isinstance(hit, list)  # stop_at_first: the first hit or None
         return hit
 
 
@@ -189,6 +191,7 @@ def make_safety(scene: Any, group: str, gripper_joint: str | None) -> MotionSafe
 def _gripper_limit(scene: PlanningScene, joint: str) -> JointLimit:
     """The gripper joint's limits from joint_limits.yaml, or its position range in the robot
     model when the file has no entry for it."""
+    assert scene.limits is not None  # make_safety reads the limits first
     try:
         return scene.limits[joint]
     except KeyError:

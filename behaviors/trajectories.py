@@ -21,7 +21,7 @@ from trajectory_msgs.msg import JointTrajectory
 
 from runtime.tree.behavior import Behavior, Status
 from runtime.errors import SetupError
-from runtime.tree.ports import InputPort, NameKind, Names, OutputPort, PortType, Range
+from runtime.tree.ports import InputPort, NameKind, Names, OutputPort, PortInfo, PortType, Range
 from runtime.motion.scene import JointLimits, SceneSnapshot
 from runtime.motion.scene.kinematics import frame_pose, solve_ik
 from runtime.io.timestamps import time_msg
@@ -130,7 +130,7 @@ def resample(timing: PathTiming, path: np.ndarray, rate_hz: float) -> Samples:
     velocities = np.gradient(positions, t, axis=0) if duration > 0 else np.zeros_like(positions)
     velocities[0] = velocities[-1] = 0.0
     accelerations = np.gradient(velocities, t, axis=0) if duration > 0 else np.zeros_like(positions)
-    return Samples(t, positions, velocities, accelerations)
+    return Samples(t, positions, velocities, accelerations)  # type: ignore[arg-type]  # numpy's stub: gradient of float64 is floating[Any]
 
 
 def resample_within(timing: PathTiming, path: np.ndarray, rate_hz: float, limits: JointLimits) -> Samples:
@@ -447,7 +447,7 @@ class ExecuteTrajectory(ReadsRobotState, SendsTrajectoryGoal):
         "controller_action_name serves) after checking it starts where the arm is, within the limits and collision-free; "
         "fails when the controller aborts."
     )
-    ports = (
+    ports: ClassVar[tuple[PortInfo, ...]] = (
         InputPort("joint_trajectory_msg", PortType.JOINT_TRAJECTORY, "{joint_trajectory_msg}", "The trajectory, e.g. from PlanCartesianPath."),
         InputPort("execution_pipeline", PortType.STRING, "jtac", "jtac (admittance controller) or jtc (joint_trajectory_controller): picks the default controller_action_name."),
         InputPort("controller_action_name", PortType.STRING, "", "The controller's action (empty: the pipeline's, /joint_trajectory_admittance_controller/... or /joint_trajectory_controller/...).",
@@ -528,6 +528,7 @@ class ExecuteTrajectory(ReadsRobotState, SendsTrajectoryGoal):
         tolerances = GoalTolerances(float(min(tolerances)) if tolerances else 0.1,
                                     GOAL_TIME_TOLERANCE_S if duration_tolerance < 0 else float(duration_tolerance),
                                     tuple(float(v) for v in threshold))
+        assert self.controller.kind is not None  # the controller is ready
         return trajectory_goal(self.controller.kind, trajectory_msg(samples, safety.group_joints), tolerances)
 
     def terminate(self, new_status: Status) -> None:

@@ -10,7 +10,7 @@ from dataclasses import dataclass
 from typing import Any, Sequence
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 import pinocchio as pin
 
 from .model import RobotModel
@@ -79,7 +79,7 @@ class IkSolver:
     def solve(
         self,
         target: NDArray[np.float64],
-        seeds: Sequence[Sequence[float]] | NDArray[np.float64] | None = None,
+        seeds: ArrayLike | None = None,
         position_tolerance: float = 1e-4,
         orientation_tolerance: float = 1e-3,
         position_only: bool = False,
@@ -133,7 +133,7 @@ def solve_ik(
     robot: RobotModel,
     group: str,
     target: NDArray[np.float64],
-    seeds: Sequence[Sequence[float]] | NDArray[np.float64] | None = None,
+    seeds: ArrayLike | None = None,
     frame: str | None = None,
     reference: NDArray[np.float64] | None = None,
     **options: Any,
