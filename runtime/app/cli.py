@@ -259,8 +259,12 @@ def cmd_run(args: argparse.Namespace, registry: Registry, stop: StopRequest | No
     )
     progress = ProgressLine(sys.stderr) if sys.stderr.isatty() else None
     if progress is not None:
+        def clear_progress(record: logging.LogRecord) -> bool:  # log lines replace the progress line
+            progress.clear()
+            return True
+
         for handler in logging.getLogger("objective").handlers:
-            handler.addFilter(lambda record: progress.clear() or True)  # log lines replace the progress line
+            handler.addFilter(clear_progress)
     if args.discovery_range is not None and not args.ros:
         raise ObjectiveError("--discovery-range sets who may discover the run's ROS 2 node: it needs --ros")
     if args.ros:
@@ -330,8 +334,8 @@ def cmd_validate(args: argparse.Namespace, registry: Registry) -> int:
                 failed += 1
                 print(f"error: {printable(err)}", file=sys.stderr)
                 continue
-            for err in found.errors:
-                print(f"error: {printable(err)}", file=sys.stderr)
+            for problem in found.errors:
+                print(f"error: {printable(problem)}", file=sys.stderr)
             if found.errors:
                 failed += 1
                 continue
@@ -478,8 +482,10 @@ def main(argv: Sequence[str] | None = None, registry: Registry | None = None) ->
             if plugin is not None:
                 code = plugin.run(args, registry)
             elif args.command == "run":
+                assert registry is not None  # found above: no plug-in command
                 code = cmd_run(args, registry, stop)
             else:
+                assert registry is not None  # found above: no plug-in command
                 code = COMMANDS[args.command](args, registry)
     except BrokenPipeError:
         _quiet_stdout()

@@ -32,7 +32,7 @@ import signal
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Iterable, Sequence
+from typing import AbstractSet, Any, Callable, Iterable, Sequence
 
 import py_trees
 
@@ -281,7 +281,7 @@ def _failing(root: py_trees.behaviour.Behaviour, visited: list[Visit]) -> tuple[
     def blame(node: py_trees.behaviour.Behaviour) -> py_trees.behaviour.Behaviour:
         """The failing leaf under ``node``: the most recent failure that gives a reason, so a
         Fallback's closing AlwaysFailure (no reason) blames the check that failed before it."""
-        failing = sorted((c for c in node.children if failed_at(c) is not None), key=failed_at, reverse=True)
+        failing = sorted((c for c in node.children if failed_at(c) is not None), key=lambda c: failed_at(c) or 0, reverse=True)
         leaves = [blame(child) for child in failing]
         return next((leaf for leaf in leaves if reason(leaf)), leaves[0]) if leaves else node
 
@@ -329,7 +329,7 @@ class StatusEvents:
                 self._emit(i, "SKIPPED" if status is SKIPPED and is_skipped(node) else _STATUS_NAMES[status], message)
         self.halted(seen)
 
-    def halted(self, seen: set[int] = frozenset()) -> None:
+    def halted(self, seen: AbstractSet[int] = frozenset()) -> None:
         if self.running.issubset(seen):  # every RUNNING node reported again in this tick
             return
         for i, last in list(self.last.items()):

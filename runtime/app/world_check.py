@@ -236,7 +236,7 @@ def _controller_states(listing: ServedListing) -> dict[str, str] | None:
     listers = [name for name, srv_type in listing.served().items() if srv_type.__name__ == "ListControllers"]
     if len(listers) != 1:
         return None
-    srv_type = listing.served()[listers[0]]
+    srv_type: Any = listing.served()[listers[0]]  # a generated service class (untyped)
     return {c.name: c.state for c in listing.call_now(listers[0], srv_type.Request()).controller}
 
 

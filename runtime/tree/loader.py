@@ -33,7 +33,7 @@ import os
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Iterable
+from typing import Any, Callable, Iterable, Sequence
 
 import py_trees
 from lxml import etree
@@ -862,7 +862,7 @@ def validate(
     search_paths: Iterable[Path] = (),
     objectives_dir: Path | None = None,
     context: Callable[[], RunContext] = throwaway_context,
-    check: Callable[[list[LoadedNode], bool], list[ObjectiveRuntimeError]] | None = None,
+    check: Callable[[list[LoadedNode], bool], Sequence[ObjectiveRuntimeError]] | None = None,
 ) -> Validation:
     """Load a file's trees, ``tree_id`` or every BehaviorTree written in it, each on a ``context()``,
     and find every error: a broken node is left out and the rest is built and checked. ``check``

@@ -14,6 +14,7 @@ otherwise).
 """
 from __future__ import annotations
 
+import builtins  # the class's method ``list`` hides the builtin in its annotations
 import json
 import os
 import time
@@ -105,7 +106,7 @@ class ObjectiveClient:
         """The ``/cancel_objective`` response (``success`` false: nothing was running)."""
         return self._call(self.canceller, CANCEL_SERVICE, Trigger.Request())
 
-    def start(self, name: str, overrides: list[PortOverride], blackboard: dict[str, str],
+    def start(self, name: str, overrides: builtins.list[PortOverride], blackboard: dict[str, str],
               on_feedback: Callable[[Any], None], stop: StopRequest) -> StartOutcome:
         """Run ``name`` on the server to its end; ``stop`` (a signal) cancels the goal."""
         if not self.action.wait_for_server(timeout_sec=self.wait_s):
