@@ -27,7 +27,7 @@ writer needs no lock.
 from __future__ import annotations
 
 import json
-from typing import Any, Callable
+from typing import Any, Callable, Protocol
 
 from geometry_msgs.msg import WrenchStamped
 from sensor_msgs.msg import Image, JointState
@@ -36,7 +36,7 @@ from std_msgs.msg import String
 from runtime.io.bus import Bus, Publisher, ServerGoalHandle
 from runtime.io.clock import Clock
 
-from .mcap_writer import SENSOR_DATA_QOS, McapRos2Writer
+from .mcap_writer import SENSOR_DATA_QOS
 
 WRENCH_TOPIC = "/force_torque_sensor_broadcaster/wrench"
 JOINT_STATES_TOPIC = "/joint_states"
@@ -162,6 +162,17 @@ class _RecordingActionClient:
         return getattr(self._recording_inner, name)
 
 
+class MessageWriter(Protocol):
+    """Where a ``RecordingBus`` writes: an ``McapRos2Writer``, or the recorder's ``Tee`` of sinks."""
+
+    @property
+    def qos(self) -> dict[str, Any]: ...
+
+    def write(self, topic: str, msg: Any, seconds: float) -> None: ...
+
+    def flush_if_due(self) -> None: ...
+
+
 class RecordingBus:
     """A ``runtime.io.bus.Bus`` that forwards every call to ``inner`` and records the traffic into
     ``writer`` (see the module doc); a ``BusWrapper`` too, so what only ``inner`` can do is found
@@ -169,7 +180,7 @@ class RecordingBus:
 
     clock: Clock
 
-    def __init__(self, inner: Bus, writer: McapRos2Writer, joint_states_hz: float = JOINT_STATES_HZ) -> None:
+    def __init__(self, inner: Bus, writer: MessageWriter, joint_states_hz: float = JOINT_STATES_HZ) -> None:
         self.inner = inner
         self.clock = inner.clock
         self.writer = writer

@@ -225,7 +225,7 @@ def _numbers(fmt: str, counted: bool) -> FieldWriter:
     return write
 
 
-def _flat_leaves(cls: type, prefix: str = "") -> list[tuple[str, str]] | None:
+def _flat_leaves(cls: type[Any], prefix: str = "") -> list[tuple[str, str]] | None:
     """(dotted attribute, struct format) of every field of a message made of numbers only, nested
     messages included (``Duration``, ``Point``, ``Pose``, ``Wrench``...); None for any other."""
     leaves: list[tuple[str, str]] = []
@@ -336,7 +336,7 @@ _COMPILED: dict[type, MessageEncoder | None] = {}
 a process, so what is compiled once holds for every recording."""
 
 
-def _message_encoder(cls: type) -> MessageEncoder | None:
+def _message_encoder(cls: type[Any]) -> MessageEncoder | None:
     if cls not in _COMPILED:
         _COMPILED[cls] = None  # (no message type contains itself; a second look sees "not known")
         names = list(cls.get_fields_and_field_types())
@@ -356,6 +356,10 @@ def message_encoder(cls: type) -> Callable[[Any, dict[int, bytes] | None], bytes
         return None  # the arrays' bytes are copied as they are in memory
     if cls is JointState:
         joint_states = JointStateEncoder()
-        return lambda msg, known=None: joint_states.encode(msg)
+
+        def encode_joint_state(msg: Any, known: dict[int, bytes] | None = None) -> bytes:
+            return joint_states.encode(msg)
+
+        return encode_joint_state
     encoder = _message_encoder(cls)
     return None if encoder is None else encoder.encode

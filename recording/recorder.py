@@ -37,7 +37,7 @@ import json
 import math
 import os
 from pathlib import Path
-from typing import Any, Callable, Iterable, Protocol, TextIO, runtime_checkable
+from typing import IO, Any, Callable, Iterable, Protocol, runtime_checkable
 
 from runtime.tree.crash import CRASH_LOG
 from runtime.errors import ObjectiveError
@@ -152,7 +152,7 @@ class Recorder:
         self.worker: Any = None
         self.handoff: Handoff | None = None
         self.writer: McapRos2Writer | None = None
-        self._events: TextIO | None = None
+        self._events: IO[str] | None = None
         self._lines: list[str] | None = None
         """Every line sent to the worker (while it writes ``events.jsonl``)."""
         self.incomplete: str | None = None
@@ -267,6 +267,7 @@ class Recorder:
         line = json.dumps(record, allow_nan=False) + "\n"
         if self._lines is not None:
             self._lines.append(line)  # kept until the end, in case the worker is lost
+            assert self.handoff is not None  # lines are kept for the worker only
             self.handoff.event(line, note)
         elif self._events is not None:
             try:
@@ -280,7 +281,8 @@ class Recorder:
             return
         record = self._write({"time": event.time, "kind": event.kind, "source": event.source, "data": event.data},
                              note=False)
-        sinks = [s for s in self.sink.sinks if s is not self.handoff or s.closed]  # the worker makes its own
+        handoff = self.handoff
+        sinks = [s for s in self.sink.sinks if handoff is None or s is not handoff or handoff.closed]  # the worker makes its own
         if sinks:
             topic, msg = event_message(event.kind, event.source, record["data"],
                                        self.clock_origin_ns + to_nanoseconds(event.time))

@@ -10,7 +10,7 @@ from __future__ import annotations
 import errno
 import os
 from pathlib import Path
-from typing import BinaryIO
+from typing import IO
 
 from .files import open_existing, open_new
 
@@ -60,7 +60,7 @@ def append_line(path: Path, line: str) -> None:
         pass
 
 
-def _cut_torn_line(stream: BinaryIO, block: int = 1 << 16) -> None:
+def _cut_torn_line(stream: IO[bytes], block: int = 1 << 16) -> None:
     """Truncate ``stream`` after its last newline and stay there."""
     end = stream.seek(0, 2)
     at = end

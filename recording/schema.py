@@ -69,7 +69,7 @@ def _field_type(t: Any, nested: list[idl.NamespacedType]) -> str:
     raise TypeError(f"cannot write rosidl type {t!r} as .msg text")
 
 
-def _fields_text(msg_class: type, nested: list[idl.NamespacedType]) -> str:
+def _fields_text(msg_class: type[Any], nested: list[idl.NamespacedType]) -> str:
     names = list(msg_class.get_fields_and_field_types())
     return "\n".join(f"{_field_type(t, nested)} {n}" for n, t in zip(names, msg_class.SLOT_TYPES)) + "\n"
 

@@ -111,8 +111,8 @@ def _quat_of(rotation: np.ndarray) -> np.ndarray:
         s = 2.0 * np.sqrt(1.0 + m[i, i] - m[j, j] - m[k, k])
         q = [0.0, 0.0, 0.0, (m[k, j] - m[j, k]) / s]
         q[i], q[j], q[k] = 0.25 * s, (m[j, i] + m[i, j]) / s, (m[k, i] + m[i, k]) / s
-    q = np.array(q)
-    return q / np.linalg.norm(q)
+    quaternion = np.array(q)
+    return quaternion / np.linalg.norm(quaternion)
 
 
 def link_coefficients(before: tuple[np.ndarray, np.ndarray], kind: str, axis: np.ndarray | None,

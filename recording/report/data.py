@@ -19,6 +19,7 @@ from pathlib import Path
 from typing import Any, Callable
 
 import numpy as np
+from numpy.typing import NDArray
 from mcap.exceptions import EndOfFile
 from mcap.records import Message, Metadata
 from rclpy.serialization import deserialize_message
@@ -110,7 +111,7 @@ def image_rgb(msg: Any) -> np.ndarray:
         raise ValueError(f"camera image encoding '{msg.encoding}' is not one the report can show ({', '.join(channels)})")
     n = channels[encoding]
     raw = np.frombuffer(bytes(msg.data), dtype=np.uint8)
-    rows = raw.reshape(msg.height, msg.step)[:, : msg.width * n].reshape(msg.height, msg.width, n)
+    rows: NDArray[np.uint8] = raw.reshape(msg.height, msg.step)[:, : msg.width * n].reshape(msg.height, msg.width, n)
     if encoding == "mono8":
         return np.repeat(rows, 3, axis=2)
     if encoding.startswith("bgr"):

@@ -289,7 +289,7 @@ def latency_plot(recording: Recording, path: Path) -> Path:
     for chunk, window in known:
         panel.dash_marker(chunk, 0.4, window, COMMANDED_COLOR)
     rejected = recording.of_kind("chunk_rejected")
-    body = []
+    body: list[str] = []
     if rejected:
         lines = wrapped(f"rejected: {rejected[-1]['data'].get('reason', '')}", panel.width - 12, 10)
         body.extend(text(panel.x + 6, panel.y + 14 + 12 * k, line, 10, color=STALL_COLOR) for k, line in enumerate(lines))

@@ -68,7 +68,7 @@ class ReportWorker:
     """One report, rendered by a process started before it is needed (see the module doc)."""
 
     def __init__(self) -> None:
-        self.process: subprocess.Popen[str] | None = None
+        self.process: subprocess.Popen[bytes] | None = None
 
     def start(self) -> None:
         try:
@@ -248,7 +248,7 @@ def _serve(read: Callable[[], bytes]) -> int | None:
             mine = session is not None and session.ended and Path(directory) == session.directory
             if encoder is not None and not mine:
                 encoder.discard()
-            answer = _answer(directory, session.recording if mine else None, encoder.close if mine and encoder else None)
+            answer = _answer(directory, session.recording if mine and session is not None else None, encoder.close if mine and encoder else None)
             try:
                 print(json.dumps(answer), flush=True)
             except OSError:  # the run stopped listening (it was interrupted): nothing to tell
