@@ -71,7 +71,9 @@ class CameraThread:
                         self._wake.wait()
                     if self._closing:
                         return
-                    (snapshot, t), self._pending = self._pending, None
+                    pending, self._pending = self._pending, None
+                    assert pending is not None  # the wait ends with one (or closing)
+                    snapshot, t = pending
                     self._busy = True
                 try:
                     for camera, publisher in self.publishers.items():

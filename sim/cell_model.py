@@ -27,7 +27,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from importlib.metadata import version
 from pathlib import Path
-from typing import Any
+from typing import Any, Sequence
 
 import mujoco
 import numpy as np
@@ -290,7 +290,7 @@ def _add_box_slot(spec: mujoco.MjSpec, slot: int) -> None:
     geom.conaffinity = 0
 
 
-def look_at_quat(pos: np.ndarray, target: np.ndarray, up: np.ndarray = np.array([0.0, 0.0, 1.0])) -> np.ndarray:
+def look_at_quat(pos: np.ndarray, target: np.ndarray | Sequence[float], up: np.ndarray = np.array([0.0, 0.0, 1.0])) -> np.ndarray:
     """Quaternion (w, x, y, z) of a MuJoCo camera at ``pos`` looking at ``target``.
 
     A MuJoCo camera looks along its -z axis with +y up in the image.

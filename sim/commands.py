@@ -91,8 +91,8 @@ def _sim_robot(args: argparse.Namespace, registry: Registry) -> int:
     from .robot_node import SimRobotOptions, describe, print_summary, run_sim_robot
 
     if args.describe is not None:
-        options = describe(args.describe)
-        print(" ".join(f"--world-option {option}" for option in options))
+        described = describe(args.describe)
+        print(" ".join(f"--world-option {option}" for option in described))
         return EXIT_SUCCESS
     options = SimRobotOptions(world=args.world, seed=args.seed, world_options=dict(args.world_option), node_name=args.node_name)
     with stop_on_signals(StopRequest()) as stop:

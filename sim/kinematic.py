@@ -42,7 +42,7 @@ class KinematicCell:
 
     def __post_init__(self) -> None:
         self.arm = np.asarray(self.arm, dtype=float).copy()
-        self.arm_velocity_now = np.zeros(6)
+        self.arm_velocity_now: np.ndarray = np.zeros(6)
         self.gripper = 0.0
         self.gripper_target = 0.0
         self.gripper_rate = 0.0
@@ -194,7 +194,8 @@ class KinematicCell:
 
     def _release(self) -> None:
         color, self.carried = self.carried, None
-        pos, quat = self.cubes[color]  # type: ignore[index]
+        assert color is not None  # released only while carrying
+        pos, quat = self.cubes[color]
         support = 0.0
         for other, (opos, _) in self.cubes.items():
             if other != color and np.all(np.abs(opos[:2] - pos[:2]) < CUBE_SIZE) and opos[2] < pos[2]:

@@ -52,7 +52,7 @@ class MujocoCell:
     """The cell's physics and sensors. ``t`` is the world time (runtime clock), which a reset
     does not rewind; MuJoCo's own ``data.time`` is not used for anything the outside sees."""
 
-    arm_joint_names = ARM_JOINTS
+    arm_joint_names: tuple[str, ...] = ARM_JOINTS
     gripper_joint_name = GRIPPER_DRIVER_JOINT
 
     def __init__(self, options: CellOptions | None = None, arm: np.ndarray | None = None, seed: int = 0) -> None:

@@ -51,9 +51,13 @@ import math
 import re
 import threading
 from dataclasses import dataclass, field
-from typing import Callable, Protocol, Sequence
+from typing import TYPE_CHECKING, Callable, Protocol, Sequence
 
 import numpy as np
+from numpy.typing import NDArray
+
+if TYPE_CHECKING:
+    from runtime.motion.scene.model import RobotModel
 
 from policy.backend import PolicyRequest, PolicyResponse
 from policy.stack_keypoints import StackGeometry, stack_poses, tcp_yaw, top_down_pose, wrap_quarter
@@ -69,8 +73,10 @@ COLORS = ("red", "green", "blue")
 class ArmKinematics(Protocol):
     """Forward and inverse kinematics of the arm's tool centre point (TCP), world frame."""
 
-    joint_names: Sequence[str]
-    """The arm joints, in the order ``q`` uses."""
+    @property
+    def joint_names(self) -> Sequence[str]:
+        """The arm joints, in the order ``q`` uses."""
+        ...
 
     def tcp_pose(self, q: np.ndarray) -> np.ndarray:
         """4 x 4 homogeneous pose of the TCP (z axis pointing out of the gripper) at ``q``."""
@@ -126,7 +132,7 @@ def parse_prompt(prompt: str) -> tuple[str, str]:
 # ---------------------------------------------------------------------------------------------
 # Poses (pure)
 # ---------------------------------------------------------------------------------------------
-def quat_to_matrix(quat_wxyz: Sequence[float]) -> np.ndarray:
+def quat_to_matrix(quat_wxyz: Sequence[float] | NDArray[np.float64]) -> np.ndarray:
     w, x, y, z = np.asarray(quat_wxyz, dtype=float) / np.linalg.norm(quat_wxyz)
     return np.array(
         [
@@ -137,7 +143,7 @@ def quat_to_matrix(quat_wxyz: Sequence[float]) -> np.ndarray:
     )
 
 
-def cube_yaw(quat_wxyz: Sequence[float]) -> float:
+def cube_yaw(quat_wxyz: Sequence[float] | NDArray[np.float64]) -> float:
     """Heading of the cube's side faces in [-pi/4, pi/4): a cube repeats every quarter turn.
 
     Whichever face is up, the two cube axes that lie (nearly) horizontal give the face normals.
@@ -353,11 +359,11 @@ def plan_stack(
 
     def line(a: np.ndarray, b: np.ndarray, yaw: float, seed: np.ndarray, what: str) -> np.ndarray:
         count = max(2, int(math.ceil(np.linalg.norm(b - a) / config.cartesian_step)) + 1)
-        samples, q = [], seed
+        rows, q = [], seed
         for s in np.linspace(0.0, 1.0, count):
             q = ik(a + s * (b - a), yaw, q, what)
-            samples.append(q)
-        samples = np.asarray(samples)
+            rows.append(q)
+        samples = np.asarray(rows)
         jumps = np.max(np.abs(np.diff(samples, axis=0)))
         if jumps > config.max_ik_jump:
             raise PlanError(f"the {what} line is not continuous in joint space (jump of {jumps:.2f} rad)")
@@ -532,14 +538,14 @@ class SceneKinematics:
     its paths, and a solution in another arm configuration would make the path jump.
     """
 
-    def __init__(self, robot: object, group: str = "manipulator", tcp_frame: str = "tcp") -> None:
+    def __init__(self, robot: RobotModel, group: str = "manipulator", tcp_frame: str = "tcp") -> None:
         from runtime.motion.scene.kinematics import IkSolver, frame_pose
 
         self._frame_pose = frame_pose
         self.robot, self.group, self.tcp_frame = robot, group, tcp_frame
-        self._layout = robot.configuration_map(group, None)  # type: ignore[attr-defined]
+        self._layout = robot.configuration_map(group, None)
         self.joint_names: tuple[str, ...] = tuple(self._layout.group.joints)
-        self._ik = IkSolver(robot, group, tcp_frame)  # type: ignore[arg-type]  # fails now on an unknown frame
+        self._ik = IkSolver(robot, group, tcp_frame)  # fails now on an unknown frame
         self._ik_lock = threading.Lock()
 
     def tcp_pose(self, q: np.ndarray) -> np.ndarray:
@@ -571,7 +577,7 @@ class CellPeek:
         return float(self.cell.time())  # type: ignore[attr-defined]
 
 
-def oracle_for_cell(cell: object, robot: object | None = None, config: OracleConfig | None = None) -> OracleBackend:
+def oracle_for_cell(cell: object, robot: RobotModel | None = None, config: OracleConfig | None = None) -> OracleBackend:
     """The oracle peeking at ``cell``, with IK on ``robot`` (default: the cell's planning model)."""
     if robot is None:
         from sim.robot_model import planning_robot_model

@@ -21,12 +21,16 @@ from __future__ import annotations
 import logging
 import os
 import time
-from typing import Any, Sequence
+from typing import TYPE_CHECKING, Any, Sequence
 
 import numpy as np
+from numpy.typing import NDArray
 from geometry_msgs.msg import TransformStamped
 
 from policy.backend import PolicyRequest, PolicyResponse
+
+if TYPE_CHECKING:
+    from runtime.motion.scene.model import RobotModel
 from runtime.io.timestamps import time_msg
 
 from .oracle import COLORS, ArmKinematics, OracleBackend, OracleConfig
@@ -41,7 +45,8 @@ of a run (its warmup) may wait that long; give that call a ``policy_call_timeout
 log = logging.getLogger("objective.oracle_remote")
 
 
-def cube_pose_msg(color: str, position: Sequence[float], quat_wxyz: Sequence[float], stamp: float) -> TransformStamped:
+def cube_pose_msg(color: str, position: Sequence[float] | NDArray[np.float64], quat_wxyz: Sequence[float] | NDArray[np.float64],
+                  stamp: float) -> TransformStamped:
     """The message a world publishes on ``CUBE_POSE_TOPIC`` for one cube (world frame)."""
     msg = TransformStamped()
     msg.header.stamp = time_msg(stamp)
@@ -97,7 +102,7 @@ class RemoteOracleBackend:
     name = "oracle"
 
     def __init__(self, config: OracleConfig | None = None, wait_s: float = CUBE_POSE_WAIT_S,
-                 robot: object | None = None, node_name: str = "oracle_peek") -> None:
+                 robot: RobotModel | None = None, node_name: str = "oracle_peek") -> None:
         self.config = config
         self.wait_s = wait_s
         self.robot = robot

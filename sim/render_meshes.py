@@ -84,7 +84,7 @@ def weld(vertices: np.ndarray, faces: np.ndarray, tolerance: float) -> tuple[np.
         raise ValueError(f"weld tolerance {tolerance}: too small for a mesh {np.ptp(vertices, axis=0)} m across")
     cluster, n = _group((cell[:, 0] * dims[1] + cell[:, 1]) * dims[2] + cell[:, 2])
     merged = np.column_stack([np.bincount(cluster, weights=vertices[:, k], minlength=n) for k in range(3)])
-    merged /= np.bincount(cluster, minlength=n)[:, None]
+    merged /= np.bincount(cluster, minlength=n)[:, None]  # type: ignore[misc]  # numpy's stub: bincount with weights is float64, not intp
 
     faces = cluster[faces]
     faces = faces[(faces[:, 0] != faces[:, 1]) & (faces[:, 1] != faces[:, 2]) & (faces[:, 2] != faces[:, 0])]

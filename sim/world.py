@@ -248,8 +248,9 @@ class CellWorld:
         return summary
 
     def close(self) -> None:
-        if getattr(self, "camera_thread", None) is not None:
-            self.camera_thread.close()
+        camera_thread = getattr(self, "camera_thread", None)
+        if camera_thread is not None:
+            camera_thread.close()
         self.cell.close()
 
     # -- publishing --------------------------------------------------------------------------

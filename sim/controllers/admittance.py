@@ -140,6 +140,7 @@ def parse_goal(goal, arm_joints: tuple[str, ...], now: float, admittance: Admitt
     columns: dict[str, np.ndarray | None] = {"velocities": None, "accelerations": None}
     columns.update(_point_columns(points, fields, names, order))
     positions = columns.pop("positions")
+    assert positions is not None  # _point_columns always has them
     times = np.array([float(p.time_from_start.sec) + float(p.time_from_start.nanosec) * 1e-9 for p in points])
     if times[0] < 0:
         raise GoalError(Result.INVALID_GOAL, f"point 0 has a negative time_from_start ({times[0]:.4f} s)")

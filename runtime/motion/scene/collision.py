@@ -134,7 +134,7 @@ def as_se3(pose: NDArray[np.float64] | pin.SE3) -> pin.SE3:
     return pin.SE3(rotation, m[:3, 3])
 
 
-def pose_matrix(translation: Sequence[float] = (0.0, 0.0, 0.0), rotation: NDArray[np.float64] | None = None) -> NDArray[np.float64]:
+def pose_matrix(translation: Sequence[float] | NDArray[np.float64] = (0.0, 0.0, 0.0), rotation: NDArray[np.float64] | None = None) -> NDArray[np.float64]:
     """A 4x4 pose from a translation and an optional 3x3 rotation."""
     m = np.eye(4)
     m[:3, 3] = translation
