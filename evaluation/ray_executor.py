@@ -251,6 +251,7 @@ class RayExecutor(SlotPool):
             if slot.state is SlotState.LOADING:
                 return [Event(EventKind.LOAD_FAILED, reason=reason.splitlines()[-1] if reason else reason, worker=slot.name)]
             seed = slot.seed
+            assert seed is not None  # a slot past LOADING runs a seed
             slot.state, slot.seed = SlotState.IDLE, None
             record = EpisodeRecord.error(seed, reason, worker=slot.name, kind=error_kind(cause))
             return [Event(EventKind.DONE, seed, record, worker=slot.name)]

@@ -115,13 +115,13 @@ def _plots(records: list[EpisodeRecord]) -> str:
     ax.legend(loc="lower right", fontsize=8)
     figures.append(fig)
     finished = [r for r in ordered if r.status is not EpisodeStatus.ERROR]
-    series = {
+    series: dict[str, list[float | None]] = {
         "episode time (sim s)": [r.sim_seconds for r in finished],
         "stall seconds": [r.numbers().get("execute_policy.stall_seconds") for r in finished],
         "policy latency p95 (s)": [r.numbers().get("execute_policy.latency_p95_s") for r in finished],
     }
-    for title, values in series.items():
-        values = [v for v in values if v is not None]
+    for title, column in series.items():
+        values = [v for v in column if v is not None]
         if not values:
             continue
         fig, ax = plt.subplots(figsize=(6, 3.2))

@@ -28,13 +28,16 @@ from __future__ import annotations
 
 import math
 from dataclasses import asdict, dataclass
-from typing import Any, Sequence
+from typing import Any, Sequence, cast
 
 import numpy as np
 
 from runtime.errors import ObjectiveError
 
 COLOR_CHANNEL = {"red": 0, "green": 1, "blue": 2}
+
+
+Vector3 = tuple[float, float, float]
 
 
 class CubeNotFound(ObjectiveError, ValueError):
@@ -45,8 +48,8 @@ class CubeNotFound(ObjectiveError, ValueError):
 class PinholeCamera:
     """A fixed camera: position (m, world), orientation (world-from-camera rotation, rows), fovy."""
 
-    position_m: tuple[float, float, float]
-    rotation: tuple[tuple[float, float, float], ...]
+    position_m: Vector3
+    rotation: tuple[Vector3, ...]
     """3 x 3: its columns are the camera's x (image right), y (image up) and z (out of the lens, backwards)."""
     fovy_deg: float
 
@@ -70,8 +73,8 @@ class CameraView:
     def from_json(cls, data: dict[str, Any]) -> CameraView:
         camera = data["camera"]
         return cls(str(data["image"]),
-                   PinholeCamera(tuple(float(v) for v in camera["position_m"]),
-                                 tuple(tuple(float(v) for v in row) for row in camera["rotation"]),
+                   PinholeCamera(cast(Vector3, tuple(float(v) for v in camera["position_m"])),  # written by to_json: 3 each
+                                 tuple(cast(Vector3, tuple(float(v) for v in row)) for row in camera["rotation"]),
                                  float(camera["fovy_deg"])),
                    float(data["plane_z_m"]))
 

@@ -727,6 +727,7 @@ class LeRobotBackend:
                 raise OptionError(f"the policy's keypoints are of joints [{', '.join(missing)}], which the state "
                                   f"[{', '.join(names)}] does not have")
             arm = [names.index(n) for n in self.keypoint_config.chain.joint_names]
+            assert self.keypoints is not None  # located before the first request
             state = np.concatenate([state, keypoint_features(state[arm], self.keypoints)]).astype(np.float32)
         observation: dict[str, Any] = {STATE_KEY: torch.from_numpy(state), "task": request.prompt}
         mapping = self._camera_mapping(self._fed_images(request))

@@ -413,7 +413,7 @@ class _Handler(BaseHTTPRequestHandler):
     def setup(self) -> None:
         super().setup()
         self.reader = _DeadlineReader(self.connection)
-        self.rfile = io.BufferedReader(self.reader)
+        self.rfile: io.BufferedReader = io.BufferedReader(self.reader)
 
     def handle_one_request(self) -> None:
         """One request; its line and headers must arrive within ``header_deadline_s`` of its

@@ -206,6 +206,7 @@ def group_joints(config: SmokeConfig) -> tuple[str, ...]:
         from runtime.motion.scene import GroupError, RobotModel
 
         try:
+            assert config.urdf is not None and config.joint_group is not None  # SmokeConfig checks: a group of a description
             joints = tuple(RobotModel.from_urdf(config.urdf, config.srdf).group(config.joint_group).joints)
         except GroupError as exc:
             raise OptionError(str(exc)) from None

@@ -102,10 +102,12 @@ def make_backend(spec: PolicySpec, oracle: Any = None) -> Any:
     if spec.kind is PolicyKind.REPLAY:
         from .replay import ReplayBackend
 
+        assert spec.path is not None  # a replay spec names its file
         return ReplayBackend(spec.path)
     if spec.kind is PolicyKind.LEROBOT:
         from .lerobot_backend import make_lerobot_backend
 
+        assert spec.path is not None  # a lerobot spec names its checkpoint
         return make_lerobot_backend(spec.path, warmup_on_load=True)
     if spec.kind is PolicyKind.HTTP:
         from .http_client import ClientConfig, HttpBackend

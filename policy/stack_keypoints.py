@@ -19,6 +19,7 @@ from dataclasses import dataclass
 from typing import Any, Sequence
 
 import numpy as np
+from numpy.typing import NDArray
 
 from runtime.errors import ObjectiveError
 
@@ -49,7 +50,7 @@ def aligned_yaw(face_yaw: float, reference: float) -> float:
     return reference + wrap_quarter(face_yaw - reference)
 
 
-def top_down_pose(position: Sequence[float], yaw: float) -> np.ndarray:
+def top_down_pose(position: Sequence[float] | NDArray[np.float64], yaw: float) -> np.ndarray:
     """TCP pose at ``position`` pointing straight down, its x axis at heading ``yaw``.
 
     With z = -world z and x = (cos yaw, sin yaw, 0), the fingers (closing along y) close along
@@ -89,7 +90,8 @@ class StackPoses:
     place_yaw_rad: float
 
 
-def stack_poses(top_position_m: Sequence[float], top_face_yaw_rad: float, bottom_position_m: Sequence[float],
+def stack_poses(top_position_m: Sequence[float] | NDArray[np.float64], top_face_yaw_rad: float,
+                bottom_position_m: Sequence[float] | NDArray[np.float64],
                 bottom_face_yaw_rad: float, tool_yaw_rad: float, geometry: StackGeometry) -> StackPoses:
     """The stack's tool poses for cubes at these centres and face yaws, the tool now heading ``tool_yaw_rad``."""
     top, bottom = np.asarray(top_position_m, dtype=float), np.asarray(bottom_position_m, dtype=float)

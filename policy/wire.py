@@ -55,7 +55,7 @@ DEFAULT_MAX_BODY_BYTES = 32 * 1024 * 1024
 """Bodies above this are refused (``413``): three 640 x 480 frames take about 3.7 MB."""
 CONTENT_TYPE = "application/json"
 
-_DTYPES = {"uint8": np.dtype("u1"), "float32": np.dtype("<f4"), "float64": np.dtype("<f8")}
+_DTYPES: dict[str, np.dtype[Any]] = {"uint8": np.dtype("u1"), "float32": np.dtype("<f4"), "float64": np.dtype("<f8")}
 _FLOAT_DTYPES = ("float32", "float64")
 _MAX_NDIM = 3
 _MAX_DIMENSION = 2**31 - 1
