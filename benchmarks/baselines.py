@@ -39,6 +39,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -48,6 +49,17 @@ from sim.controllers.jtc_trajectory import JtcPoints, JtcTrajectory, merge_at_ar
 # --------------------------------------------------------------------------------------------
 # The task and the policy
 # --------------------------------------------------------------------------------------------
+class ChunkSource(Protocol):
+    """What the streaming baselines ask for chunks: a ``TaskPolicy``, or a ``GlitchingPolicy`` around one."""
+
+    @property
+    def chunk_steps(self) -> int: ...
+
+    def reset(self) -> None: ...
+
+    def chunk(self, index: int, observed: np.ndarray) -> np.ndarray: ...
+
+
 @dataclass(frozen=True)
 class TaskPath:
     """``q(s) = start + sum_m amplitude[m] * (1 - cos(m * pi * s / duration))`` for s in [0, duration].
@@ -150,7 +162,7 @@ class Stream:
         return np.arange(len(self.positions)) * self.dt
 
 
-def run_sync(policy: TaskPolicy, trace: list[float], start: np.ndarray, dt: float, committed: int, total_steps: int) -> Stream:
+def run_sync(policy: ChunkSource, trace: list[float], start: np.ndarray, dt: float, committed: int, total_steps: int) -> Stream:
     """Stop, infer, execute ``committed`` steps of the chunk, repeat, until ``total_steps`` played."""
     policy.reset()
     q = np.asarray(start, dtype=float).copy()
@@ -264,7 +276,7 @@ class LeRobotQueue:
         return timed.get_action().numpy()
 
 
-def _import_robot_client() -> type:
+def _import_robot_client() -> type[Any]:
     """``lerobot.async_inference.robot_client.RobotClient``. Defining the class sets up its
     logger, which writes ``logs/robot_client_<time>.log`` under the working directory and
     reconfigures the root logger: it is imported from a scratch directory, and the root
@@ -297,7 +309,7 @@ def lerobot_queue_or_reimplementation(threshold: float = 0.5) -> LeRobotQueue | 
 
 
 def run_lerobot_aggregate(
-    policy: TaskPolicy,
+    policy: ChunkSource,
     trace: list[float],
     start: np.ndarray,
     dt: float,
@@ -363,7 +375,7 @@ def cubic_spline_velocities(times: np.ndarray, positions: np.ndarray, start_velo
 
 
 def run_jtc_newest_wins(
-    policy: TaskPolicy, trace: list[float], start: np.ndarray, dt: float, total_steps: int, request_every: int
+    policy: ChunkSource, trace: list[float], start: np.ndarray, dt: float, total_steps: int, request_every: int
 ) -> Stream:
     """ros2_controllers' newest-wins streaming into a JTC (see the module docstring): chunks are
     asked for during ``total_steps`` ticks from the first chunk's arrival, then the last one plays
@@ -371,7 +383,7 @@ def run_jtc_newest_wins(
     policy.reset()
     current = JtcTrajectory.hold(0.0, np.asarray(start, dtype=float))
     q = np.asarray(start, dtype=float).copy()
-    in_flight = (trace[0], policy.chunk(0, q))
+    in_flight: tuple[float, np.ndarray] | None = (trace[0], policy.chunk(0, q))
     out, seams = [q.copy()], []
     call, played, tick, asked = 1, 0, 0, 0
     while played < total_steps or in_flight is not None or tick * dt < current.end_time:

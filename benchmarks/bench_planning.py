@@ -106,7 +106,7 @@ def main() -> None:
         times = [r[0] for r in results]
         solved = [r for r in results if r[1]]
         straight_lengths = [float(np.linalg.norm(g - s)) for (s, g), r in zip(queries, results) if r[1]]
-        detours = [r[2] / float(np.linalg.norm(g - s)) for (s, g), r in zip(queries, results) if r[1] and not r[3]]
+        detours = [r[2] / float(np.linalg.norm(g - s)) for (s, g), r in zip(queries, results) if r[1] and not r[3] and r[2] is not None]
         within_1s = sum(1 for r in solved if r[0] <= 1000.0)
         rows.append({
             "bench": "planning",
@@ -118,7 +118,7 @@ def main() -> None:
             "median_ms": round(median(times), 2),
             "p95_ms": round(percentile(times, 95), 2),
             "median_ms_searched": round(median([r[0] for r in solved if not r[3]]), 2) if any(not r[3] for r in solved) else None,
-            "median_length_rad": round(median([r[2] for r in solved]), 3) if solved else None,
+            "median_length_rad": round(median([r[2] for r in solved if r[2] is not None]), 3) if solved else None,
             "median_straight_length_rad": round(median(straight_lengths), 3) if solved else None,
             "median_detour": round(median(detours), 2) if detours else None,
         })

@@ -86,13 +86,14 @@ def start(args: list[str], env: dict[str, str]) -> subprocess.Popen:
 def wait_line(process: subprocess.Popen, pattern: str, timeout_s: float) -> re.Match:
     deadline = time.monotonic() + timeout_s
     while time.monotonic() < deadline:
+        assert process.stdout is not None  # start() pipes it
         line = process.stdout.readline()
         if not line:
             break
         match = re.search(pattern, line)
         if match:
             return match
-    raise SystemExit(f"bench_realtime: no line matching {pattern!r} from {process.args}")
+    raise SystemExit(f"bench_realtime: no line matching {pattern!r} from {process.args!s}")
 
 
 def last_json(text: str) -> dict[str, Any]:

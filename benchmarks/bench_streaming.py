@@ -38,7 +38,7 @@ import numpy as np
 from moveit_pro_ml_msgs.srv import GetActionChunk
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
-from runtime.io.bus import TraceLatency
+from runtime.io.bus import SimulatedLatency, TraceLatency
 from runtime.tree.loader import load_tree
 from runtime.tree.registry import Registry
 from runtime.app.runner import RunOptions, make_context, run_tree
@@ -92,6 +92,7 @@ def run_ours(registry: Registry, policy: TaskPolicy | GlitchingPolicy, trace: li
         return response
 
     context.bus.create_service(SERVICE, GetActionChunk, serve)
+    assert isinstance(context.bus, SimulatedLatency)  # the in-process bus
     context.bus.set_latency(SERVICE, TraceLatency([float(np.mean(trace))] + trace))  # the warmup takes the mean
     log_t: list[float] = []
     log_q: list[np.ndarray] = []

@@ -145,7 +145,7 @@ def main() -> None:
     args = parser.parse_args()
     request = make_request()
     closers: list[Callable[[], None]] = []
-    rows = []
+    rows: list[dict[str, Any]] = []
 
     def measure(path: str, call: Callable[[], Any] | None, why: str = "") -> None:
         if call is None:

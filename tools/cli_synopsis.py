@@ -19,7 +19,7 @@ def argument_usage(action: argparse.Action) -> str:
     if action.choices is not None and not isinstance(action.choices, dict):
         value = "|".join(str(c) for c in action.choices)
     else:
-        value = action.metavar or action.dest.upper()
+        value = str(action.metavar or action.dest.upper())  # a str: no metavar here is a tuple
     if not action.option_strings:
         if action.nargs == "+":
             return f"{value}..."

@@ -74,13 +74,13 @@ def add_arguments(parser: argparse.ArgumentParser, *, out: Path, steps: int, min
     parser.add_argument("--early-share", type=float, default=0.0,
                         help="share of every batch drawn from the episodes' first --early-frames steps, in its recorded "
                              "and its played rows alike (0: uniform sampling)")
-    for moment, steps in (("approach", "the N steps before the first frame of an episode whose gripper holds the cube "
+    for moment, described in (("approach", "the N steps before the first frame of an episode whose gripper holds the cube "
                                         "(the descent and the closing)"),
                           ("lift", "the N steps from the first frame of an episode whose gripper holds the cube (the "
                                    "start of the carry)"),
                           ("place", "the N steps before the frame at which an episode's gripper lets go of the cube (the "
                                     "end of the carry and the setting down)")):
-        parser.add_argument(f"--{moment}-steps", type=int, default=0, help=f"with --{moment}-share: {steps} are drawn more often")
+        parser.add_argument(f"--{moment}-steps", type=int, default=0, help=f"with --{moment}-share: {described} are drawn more often")
         parser.add_argument(f"--{moment}-share", type=float, default=0.0,
                             help=f"share of every batch drawn from the --{moment}-steps steps, in its recorded and its played "
                                  "rows alike")
@@ -177,6 +177,7 @@ class DemoTensors:
         available = tuple(key.split(".", 2)[2] for key in self.meta.camera_keys)
         self.cameras = available if cameras is None else tuple(cameras)
         crops = dict(crops or {})
+        images: dict[str, list[Any]]
         states, actions, episodes, images = [], [], [], {f"observation.images.{c}": [] for c in self.cameras}
         self.tasks: list[str] = []
         offset = 0

@@ -40,7 +40,8 @@ def classify(robot: RobotModel, samples: int, seed: int) -> dict[tuple[str, str]
     for i in range(len(links)):
         for j in range(i + 1, len(links)):
             if links[i] != links[j]:
-                owners[len(owners)] = tuple(sorted((links[i], links[j])))
+                first, second = sorted((links[i], links[j]))
+                owners[len(owners)] = (first, second)
                 gm.addCollisionPair(pin.CollisionPair(i, j))
     gd = pin.GeometryData(gm)
     link_pairs = sorted(set(owners.values()))

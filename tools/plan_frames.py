@@ -291,6 +291,7 @@ def _play_part(settings: PlanFrameSettings, task: str, seeds: tuple[int, ...]) -
         stop_s = rng.uniform(DETOUR_FIRST_STOP * arrival_s, last_s)
         play(wrong, max(1, int(round(stop_s / period))), True, None, None)
 
+    frames: dict[str, list[Any]]
     states, actions, seeds_out, frames, dropped = [], [], [], {c: [] for c in settings.cameras}, []
     try:
         for seed in seeds:

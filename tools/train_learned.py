@@ -32,7 +32,7 @@ import math
 import sys
 import time
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, cast
 
 if TYPE_CHECKING:
     import numpy as np
@@ -176,14 +176,14 @@ def perceived_numpy(cubes: "np.ndarray", position_noise_m: float, yaw_noise_rad:
 def locator_config(cell: Any):
     """The perception's configuration, calibrated from the cell: the scene camera for positions (the
     cubes' centre plane), the overview camera for yaws (their top faces), both as the cell places them."""
-    from policy.cube_locator import CameraView, CubeLocatorConfig, PinholeCamera
+    from policy.cube_locator import CameraView, CubeLocatorConfig, PinholeCamera, Vector3
     from sim.cell_model import CAMERA_FOVY_DEG
 
     def view(name: str, plane_z_m: float) -> CameraView:
         index = cell.model.camera(name).id
         rotation = cell.data.cam_xmat[index].reshape(3, 3)
-        return CameraView(name, PinholeCamera(tuple(float(v) for v in cell.data.cam_xpos[index]),
-                                              tuple(tuple(float(v) for v in row) for row in rotation),
+        return CameraView(name, PinholeCamera(cast(Vector3, tuple(float(v) for v in cell.data.cam_xpos[index])),
+                                              tuple(cast(Vector3, tuple(float(v) for v in row)) for row in rotation),
                                               CAMERA_FOVY_DEG[name]), plane_z_m)
 
     size = cell.options.cube_size

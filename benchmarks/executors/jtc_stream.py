@@ -16,6 +16,7 @@ the next ends aborted, as JTC ends it.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Protocol
 
 import numpy as np
 from control_msgs.action import FollowJointTrajectory
@@ -92,9 +93,9 @@ class JtcStream:
         assert self.motion is not None, "start() first"
         before = self.motion.sample(lands_s)
         step_s = float(times_s[1] - times_s[0]) if len(times_s) > 1 else 0.0
-        runout = runout_knots(positions, step_s, self.runout_acceleration) if runout else np.empty((0, positions.shape[1]))
-        times_s = np.append(times_s, times_s[-1] + (times_s[1] - times_s[0]) * np.arange(1, len(runout) + 1)) if len(runout) else times_s
-        positions = np.vstack([positions, runout]) if len(runout) else positions
+        tail = runout_knots(positions, step_s, self.runout_acceleration) if runout else np.empty((0, positions.shape[1]))
+        times_s = np.append(times_s, times_s[-1] + (times_s[1] - times_s[0]) * np.arange(1, len(tail) + 1)) if len(tail) else times_s
+        positions = np.vstack([positions, tail]) if len(tail) else positions
         # The spline runs from the commanded state where the goal lands through the knots.
         velocities = cubic_spline_velocities(np.append(lands_s, times_s), np.vstack([before.position, positions]), before.velocity)[1:]
         points = JtcPoints.build(times_s - lands_s, positions, velocities)
@@ -134,6 +135,19 @@ class JtcStream:
         self.goal = self.goal.cancel()
 
 
+class KnotStream(Protocol):
+    """What ``StreamsToJtc`` follows every tick: a ``JtcStream``, or ``jtc_upsampling.UpsamplingTopic``."""
+
+    def start(self, now_s: float, position: np.ndarray) -> None: ...
+
+    def follow(self, now_s: float) -> str | None: ...
+
+    @property
+    def finished(self) -> bool: ...
+
+    def cancel(self) -> None: ...
+
+
 class StreamsToJtc(ChunkExecutor):
     """A benchmark executor that streams knots to the stock JTC through ``self.stream``: each
     tick follows the goal, hands an arrived chunk to ``take``, then does ``schedule``. ``runout``:
@@ -149,7 +163,7 @@ class StreamsToJtc(ChunkExecutor):
                                    f"{link.kind.label if link.kind else 'nothing'}")
         config = self.config
         tolerances = GoalTolerances(config.goal_path_tolerance, max(0.5, 5 * config.dt))
-        self.stream = JtcStream(link, self.safety.group_joints, self.context.stamp_offset_s, tolerances,
+        self.stream: KnotStream = JtcStream(link, self.safety.group_joints, self.context.stamp_offset_s, tolerances,
                                 RUNOUT_ACCELERATION_FRACTION * self.safety.limits.max_acceleration)
         self.stream.start(now, self.session.rest_position())
         self.session.request(now, new_episode=True)
@@ -180,5 +194,7 @@ class StreamsToJtc(ChunkExecutor):
         """Send the knots ``arm`` at ``times_s`` (landing at ``lands_s``) and the gripper targets,
         unchecked: a peer's home runs no ExecutePolicy checks (the benchmark's probe counts the
         unsafe points the controller commands)."""
-        self.stream.send(self.stream.plan(lands_s, times_s, arm, self.runout), self.context.clock.now())
+        stream = self.stream
+        assert isinstance(stream, JtcStream)  # the executors that send knots stream to the JTC's action
+        stream.send(stream.plan(lands_s, times_s, arm, self.runout), self.context.clock.now())
         self.session.queue_gripper_at(times_s, gripper)

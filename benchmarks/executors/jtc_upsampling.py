@@ -123,6 +123,7 @@ class ExecuteOnJtcWithUpsampling(ExecuteNewestWinsOnJtc):
         steps = min(config.total_action_steps - self.played(lands), chunk.steps)
         if steps <= 0:
             return None
+        assert isinstance(self.stream, UpsamplingTopic)  # start_run put it there
         self.stream.publish(lands, chunk.arm[:steps])
         self.session.queue_gripper_at(lands + config.dt * np.arange(1, steps + 1), None if chunk.gripper is None else chunk.gripper[:steps])
         return None

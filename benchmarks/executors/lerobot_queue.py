@@ -53,7 +53,9 @@ class ExecuteWithLeRobotQueue(StreamsToJtc):
                    "aggregation, one action per policy step to the stock joint_trajectory_controller.")
 
     def start_run(self, now: float) -> Status | None:
-        self.queue = lerobot_queue_or_reimplementation(self.get_input("chunk_size_threshold"))
+        # LeRobot's client queue or its reimplementation; ExecuteWithLeRobotRtc puts LeRobot's RTC
+        # ActionQueue (another API) here.
+        self.queue: Any = lerobot_queue_or_reimplementation(self.get_input("chunk_size_threshold"))
         self.origin_s = now  # control step k at origin + k * dt; step 0 is the observed start
         self.next_step = 1
         self.observed_timestep = 0  # of the request in flight

@@ -70,6 +70,7 @@ class ExecuteChunksSynchronously(ChunkExecutor):
         grid = StepGrid(held.flight.sent_at_s, config.dt, config.committed_action_steps, min(config.committed_action_steps, remaining))
         shaping = ShapingConfig(config.dt, config.committed_action_steps, config.policy_tracking_weight,
                                 config.num_interpolation_points, self.safety.limits.max_acceleration)
+        assert self.session.run is not None  # a chunk came: the run has started
         plan = plan_chunk(PlanInput(
             sent=SentMotion(grid), goal=GoalState.NONE, chunk=held.chunk, index=held.index, request_step=0, frozen=0,
             earliest_seam_step=earliest_seam_step(grid, now, tick_s, self.stream.planned_latency_s),

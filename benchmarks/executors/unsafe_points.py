@@ -70,7 +70,7 @@ class CountUnsafeCommands(Behavior):
         except SafetyError as err:
             raise SetupError(str(err)) from None
         name = self.get_input("controller_name")
-        controllers = getattr(self.context.world, "controllers", None)
+        controllers: Any = getattr(self.context.world, "controllers", None)  # not indexable: TypeError below
         try:
             self.controller = controllers[name]
         except (KeyError, TypeError):
