@@ -373,6 +373,23 @@ def test_a_recording_expands_at_most_a_bounded_multiple_of_its_size(recording):
         read_mcap(mcap, Recording(recording), tight)
 
 
+def test_a_record_over_the_size_limit_is_refused_naming_its_length():
+    from mcap.writer import CompressionType, Writer
+
+    from recording.report.mcap_reader import ReadLimits, records
+
+    buffer = io.BytesIO()
+    writer = Writer(buffer, compression=CompressionType.NONE)
+    writer.start()
+    channel = writer.register_channel("/t", "cdr", writer.register_schema("s", "ros2msg", b"x"))
+    writer.add_message(channel, 0, b"y" * 50_000, 0)
+    writer.finish()
+    data = buffer.getvalue()
+    with pytest.raises(ObjectiveError, match=r"a record after chunk 0 is over the \d+ bytes a recording's record may "
+                                             r"have \(CHUNK record has length \d+ that exceeds limit \d+\): not read"):
+        list(records(io.BytesIO(data), Path("x.mcap"), len(data), ReadLimits(max_chunk_bytes=100, expansion=1.0)))
+
+
 def test_a_chunk_of_anything_but_records_is_refused_at_its_first_byte(tmp_path, capsys):
     rec = tmp_path / "rec"
     rec.mkdir()

@@ -67,8 +67,9 @@ def records(stream: BinaryIO, path: Path, file_bytes: int, limits: ReadLimits = 
             else:
                 yield record
     except RecordLengthLimitExceeded as err:
-        raise ObjectiveError(f"{path}: a record after chunk {chunks} is {err.length} bytes long, over the "
-                             f"{limits.max_chunk_bytes + RECORD_OVERHEAD} a recording's record may have: "
+        # mcap's exception keeps the record's length in its message only ("... has length N ...").
+        raise ObjectiveError(f"{path}: a record after chunk {chunks} is over the "
+                             f"{limits.max_chunk_bytes + RECORD_OVERHEAD} bytes a recording's record may have ({err}): "
                              "not read") from None
 
 
