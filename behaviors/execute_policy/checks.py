@@ -71,6 +71,7 @@ class PointChecks:
         violation = self.safety.first_limit_violation(samples)
         if violation is None:
             return None
+        assert violation.time is not None  # samples are timed
         step = window.request_step + int(np.floor((violation.time - self.grid.time(window.request_step)) / self.grid.dt + 1e-9))
         return CheckFailure(FailureKind.of_limit(violation.quantity), f"densified {violation} (policy step {step} of the run)")
 

@@ -13,6 +13,7 @@ from dataclasses import dataclass
 from typing import Any, Sequence
 
 import numpy as np
+from numpy.typing import NDArray
 
 from runtime.errors import ObjectiveError
 
@@ -31,8 +32,8 @@ class ChunkError(ObjectiveError, ValueError):
 class Chunk:
     """A chunk's arm positions (N, J) in joint-group order and the gripper column (N,) if any."""
 
-    arm: np.ndarray
-    gripper: np.ndarray | None
+    arm: NDArray[np.float64]
+    gripper: NDArray[np.float64] | None
 
     @property
     def steps(self) -> int:
@@ -96,7 +97,7 @@ def read_chunk(
     return Chunk(arm, gripper)
 
 
-def read_policy_chunk(array: Any) -> np.ndarray | None:
+def read_policy_chunk(array: Any) -> NDArray[np.float64] | None:
     """A ``std_msgs/Float64MultiArray`` as (steps, dims), or None when it is empty (no data).
 
     The layout must put the step dimension first with ``data_offset`` 0, and its sizes must

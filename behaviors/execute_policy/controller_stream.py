@@ -11,7 +11,7 @@ that is not active, other joints) is a ``SetupError``: the same goal would be re
 """
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, Sequence
 
 from control_msgs.action import FollowJointTrajectory
 from moveit_pro_controllers_msgs.action import FollowJointTrajectoryWithAdmittance as FollowTrajectory
@@ -78,7 +78,7 @@ class ControllerStream:
         """A new chunk arrived: it has its own ``MAX_LATE_RETRIES``."""
         self.late_retries = 0
 
-    def send(self, config: PolicyRunConfig, joints: list[str], samples: Samples, playing: Samples | None,
+    def send(self, config: PolicyRunConfig, joints: Sequence[str], samples: Samples, playing: Samples | None,
              rollback: Rollback, now_s: float, tick_period_s: float) -> None:
         """Send the motion ``samples`` (from the seam on, taking over at ``rollback.takes_over_s``)
         after ``playing``, the samples the controller was sent last; ``rollback``: what a goal
@@ -90,7 +90,7 @@ class ControllerStream:
             self.played = True
         self.goal = Goal.send(self.link.client, message, now_s)
 
-    def _goal_message(self, config: PolicyRunConfig, joints: list[str], samples: Samples, playing: Samples | None,
+    def _goal_message(self, config: PolicyRunConfig, joints: Sequence[str], samples: Samples, playing: Samples | None,
                       seam_time_s: float, now_s: float, tick_period_s: float) -> Any:
         """The controller goal for ``samples`` (from the seam on): stamped at the seam for the
         admittance controller; for a JTC, led by the motion already sent from where the arm will
@@ -104,6 +104,7 @@ class ControllerStream:
         if seam_index is not None:
             trajectory.points[seam_index].accelerations = []
         tolerances = GoalTolerances(config.goal_path_tolerance, max(0.5, 5 * config.dt), tuple(config.absolute_force_torque_threshold))
+        assert self.link.kind is not None  # the link is ready
         return trajectory_goal(self.link.kind, trajectory, tolerances)
 
     def watch(self, now_s: float) -> str | Rollback | None:

@@ -4,6 +4,7 @@ from __future__ import annotations
 from typing import Any, Sequence
 
 import numpy as np
+from numpy.typing import NDArray
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 
@@ -53,7 +54,7 @@ def stale_observation(now_s: float, received_at: Sequence[tuple[str, float | Non
     return None
 
 
-def policy_tail(policy_chunk: np.ndarray | None, offset: int) -> Float64MultiArray:
+def policy_tail(policy_chunk: NDArray[np.float64] | None, offset: int) -> Float64MultiArray:
     """The unexecuted tail of a policy chunk from step ``offset``, step dimension first."""
     msg = Float64MultiArray()
     if policy_chunk is None or offset >= len(policy_chunk):

@@ -13,6 +13,7 @@ from dataclasses import dataclass
 from typing import Any, Sequence
 
 import numpy as np
+from numpy.typing import NDArray
 from moveit_pro_ml_msgs.srv import GetActionChunk
 
 from .config import PolicyRunConfig
@@ -26,7 +27,7 @@ class Carryover:
     """What real-time chunking sends back with the next request: the policy's own chunk of the
     last window sent to the controller, the step its request was for, and the state sent with it."""
 
-    policy_chunk: np.ndarray
+    policy_chunk: NDArray[np.float64] | None
     request_step: int
     anchor: Any
 
@@ -106,7 +107,7 @@ class PolicyLink:
             self.chunk_steps = len(response.chunk.points)
         return Answer(flight, round_trip_s, response)
 
-    def carry_over(self, policy_chunk: np.ndarray, request_step: int, anchor: Any) -> None:
+    def carry_over(self, policy_chunk: NDArray[np.float64] | None, request_step: int, anchor: Any) -> None:
         """Keep the policy chunk of the window just sent, for the next request's real-time chunking."""
         self.carryover = Carryover(policy_chunk, request_step, anchor)
 

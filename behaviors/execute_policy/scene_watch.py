@@ -9,9 +9,14 @@ the state does not tell apart, are checked against the world objects that moved 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from runtime.motion.samples import Samples
+
+if TYPE_CHECKING:
+    from runtime.motion.scene import CollisionResult
+
+    from ..safety import MotionSafety
 
 SCENE_WATCH_PERIOD_S = 0.05  # how often the rest of the sent motion is checked against the live scene
 
@@ -29,7 +34,7 @@ class FreeSamples:
 class SceneWatch:
     """What the sent samples were last checked against, and when the next look is due."""
 
-    def __init__(self, safety: Any, link_padding: float) -> None:
+    def __init__(self, safety: MotionSafety, link_padding: float) -> None:
         self.safety, self.link_padding = safety, link_padding
         self.next_check_s = 0.0
         self.checked_scene: tuple[object, ...] | None = None  # what the sent samples were last checked against
@@ -43,7 +48,7 @@ class SceneWatch:
         """What a collision check of the sent samples depends on, besides the samples."""
         return (self.safety.scene.version, gripper_key(gripper_now))
 
-    def check(self, rules: Any, samples: Samples | None, now_s: float, gripper_now: float | None) -> str | None:
+    def check(self, rules: Any, samples: Samples | None, now_s: float, gripper_now: float | None) -> CollisionResult | None:
         """The first collision in the rest of ``samples`` (from ``now_s``, under the safety
         ``rules``) when the scene changed since they were last checked; None when there is none,
         or nothing to look at yet."""

@@ -18,6 +18,7 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
 
 from ..action_goal import Goal, GoalState
 from .chunk import Chunk
@@ -60,7 +61,7 @@ class HeldChunk:
     flight: InFlight
     index: int
     """The chunk's number in the run, from 1."""
-    policy_chunk: np.ndarray | None = None
+    policy_chunk: NDArray[np.float64] | None = None
     """The policy's own chunk (``policy_action_chunk``), when it was read and sent."""
 
 

@@ -24,6 +24,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import NDArray
 
 MIN_SMOOTHING_STEPS = 5
 """Fewest steps a smoothing spline is fitted to (as scipy's ``make_smoothing_spline``)."""
@@ -42,11 +43,11 @@ class StepSpline:
     polynomial everywhere.
     """
 
-    coefficients: np.ndarray
+    coefficients: NDArray[np.float64]
     last_step: float
     """The last step the data covered (N - 1): the spline is meant for ``[0, last_step]``."""
 
-    def __call__(self, k: float | np.ndarray, nu: int = 0) -> np.ndarray:
+    def __call__(self, k: float | NDArray[np.float64], nu: int = 0) -> NDArray[np.float64]:
         """The ``nu``-th derivative (0 to 3, per step) at step(s) ``k``: (J,) for a scalar
         ``k``, (M, J) for M steps."""
         if nu not in (0, 1, 2, 3):
@@ -65,15 +66,17 @@ class StepSpline:
         u = (steps - piece)[:, None]
         c = self.coefficients.take(piece.astype(np.intp), axis=0)  # (M, 4, J)
         if nu == 0:
-            return c[:, 0] + u * (c[:, 1] + u * (c[:, 2] + u * c[:, 3]))
-        if nu == 1:
-            return c[:, 1] + u * (2.0 * c[:, 2] + u * (3.0 * c[:, 3]))
-        if nu == 2:
-            return 2.0 * c[:, 2] + u * (6.0 * c[:, 3])
-        return 6.0 * c[:, 3]
+            values: NDArray[np.float64] = c[:, 0] + u * (c[:, 1] + u * (c[:, 2] + u * c[:, 3]))
+        elif nu == 1:
+            values = c[:, 1] + u * (2.0 * c[:, 2] + u * (3.0 * c[:, 3]))
+        elif nu == 2:
+            values = 2.0 * c[:, 2] + u * (6.0 * c[:, 3])
+        else:
+            values = 6.0 * c[:, 3]
+        return values
 
 
-def smoothing_spline(positions: np.ndarray, lam: float) -> StepSpline:
+def smoothing_spline(positions: NDArray[np.float64], lam: float) -> StepSpline:
     """Natural cubic smoothing spline through (N, J) ``positions`` at steps 0..N-1 (N >= 5).
 
     Reinsch's form on unit spacing: ``Q`` (N, N-2) takes second differences (each column holds
@@ -96,7 +99,7 @@ weight (``_smoothing_operator``: one small matrix product, at most 2 MB); longer
 solve itself, whose time and memory are linear in the steps."""
 
 
-def _power_form(g: np.ndarray, gamma: np.ndarray) -> np.ndarray:
+def _power_form(g: NDArray[np.float64], gamma: NDArray[np.float64]) -> NDArray[np.float64]:
     """(N-1, 4, ...) power-form coefficients of the pieces of the cubic with knot values ``g`` and
     second derivatives ``gamma`` (N, ...)."""
     g0, g1, s0, s1 = g[:-1], g[1:], gamma[:-1], gamma[1:]
@@ -104,7 +107,7 @@ def _power_form(g: np.ndarray, gamma: np.ndarray) -> np.ndarray:
     return np.stack([g0, g1 - g0 - (2.0 * s0 + s1) / 6.0, 0.5 * s0, (s1 - s0) / 6.0], axis=1)
 
 
-def _reinsch(y: np.ndarray, lam: float) -> tuple[np.ndarray, np.ndarray]:
+def _reinsch(y: NDArray[np.float64], lam: float) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """The knot values ``g`` and second derivatives ``gamma`` (both (N, J)) of the smoothing
     spline of (N, J) ``y``: one banded solve."""
     gamma = np.zeros_like(y)  # row i: the second derivative at step i
@@ -119,7 +122,7 @@ def _reinsch(y: np.ndarray, lam: float) -> tuple[np.ndarray, np.ndarray]:
 
 
 @functools.lru_cache(maxsize=8)
-def _smoothing_operator(n: int, lam: float) -> np.ndarray:
+def _smoothing_operator(n: int, lam: float) -> NDArray[np.float64]:
     """The (4 (N-1), N) linear map from a chunk's values to its smoothing spline's power-form
     coefficients (``_reinsch`` of the identity), read-only: the smoothing is linear in the
     values, and ExecutePolicy fits chunks of one length with one weight run after run."""
@@ -128,7 +131,7 @@ def _smoothing_operator(n: int, lam: float) -> np.ndarray:
     return operator
 
 
-def solve_pentadiagonal(d0: float, d1: float, d2: float, rhs: np.ndarray) -> np.ndarray:
+def solve_pentadiagonal(d0: float, d1: float, d2: float, rhs: NDArray[np.float64]) -> NDArray[np.float64]:
     """``x`` with ``A x = rhs`` for the symmetric positive definite (m, m) matrix ``A`` whose
     diagonal is ``d0`` and whose first and second off-diagonals are ``d1`` and ``d2``.
 
@@ -145,7 +148,7 @@ def solve_pentadiagonal(d0: float, d1: float, d2: float, rhs: np.ndarray) -> np.
     return solveh_banded(bands, rhs, check_finite=False)
 
 
-def interpolating_polynomial(positions: np.ndarray) -> StepSpline:
+def interpolating_polynomial(positions: NDArray[np.float64]) -> StepSpline:
     """The polynomial of degree N-1 through (N, J) ``positions`` at steps 0..N-1, for 1 <= N <= 4
     (what scipy's ``make_interp_spline`` gives for so few points); one step is held constant
     over ``[0, 1]``."""
@@ -158,7 +161,7 @@ def interpolating_polynomial(positions: np.ndarray) -> StepSpline:
     return StepSpline(coefficients, float(max(n - 1, 1)))
 
 
-def _steps_by_joints(positions: np.ndarray) -> np.ndarray:
+def _steps_by_joints(positions: NDArray[np.float64]) -> NDArray[np.float64]:
     positions = np.asarray(positions, dtype=float)
     if positions.ndim != 2:
         raise ValueError(f"a chunk's positions must be (steps, joints), got shape {positions.shape}")
