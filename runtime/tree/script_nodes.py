@@ -12,7 +12,7 @@ from __future__ import annotations
 from typing import Any, ClassVar
 
 from . import script as scripting
-from .behavior import Behavior, Condition, Status
+from .behavior import Behavior, Condition, PortBinding, Status
 from runtime.errors import LoadError, ScriptRunError, SourceLocation
 from .ports import InOutPort, InputPort, PortInfo, PortType
 
@@ -38,21 +38,26 @@ class _CompiledCode:
     """Compiles the literal ``code`` port in ``bind`` so errors surface at load time."""
 
     script: scripting.Script
+    # The node's own (NodeMixin's and py_trees' Behaviour's), which every class that mixes this in is.
+    bindings: dict[str, PortBinding]
+    location: SourceLocation | None
+    xml_id: str
+    name: str
 
     def run_error(self, err: scripting.ScriptError) -> ScriptRunError:
         source = self.script.source
-        label = f"{self.xml_id} '{self.name}'"  # type: ignore[attr-defined]
-        return ScriptRunError(f"script {source!r}: {err}", self.location, label, source)  # type: ignore[attr-defined]
+        label = f"{self.xml_id} '{self.name}'"
+        return ScriptRunError(f"script {source!r}: {err}", self.location, label, source)
 
     def check_literals(self) -> None:
-        binding = self.bindings["code"]  # type: ignore[attr-defined]
+        binding = self.bindings["code"]
         if binding.key is not None:
             raise LoadError(
                 f"port 'code' must be the script itself, not a blackboard reference '{{{binding.key}}}'",
-                self.location,  # type: ignore[attr-defined]
-                self.xml_id,  # type: ignore[attr-defined]
+                self.location,
+                self.xml_id,
             )
-        self.script = compile_at_load(binding.literal, self.location, self.xml_id)  # type: ignore[attr-defined]
+        self.script = compile_at_load(binding.literal, self.location, self.xml_id)
 
 
 _CODE = InputPort("code", PortType.STRING, description="The script: statements separated by ';'")

@@ -9,7 +9,8 @@ from __future__ import annotations
 
 from typing import ClassVar
 
-from .behavior import Behavior, Status
+from .behavior import Behavior, PortBinding, Status
+from .blackboard import Blackboard
 from .controls import SKIPPED, DecoratorNode, TickGenerator
 from .ports import InputPort, PortType
 
@@ -20,14 +21,17 @@ class _WatchesEntry:
     """The entry's key and the write count seen last (0: never written)."""
 
     last_seen: int = 0
+    # The node's own (NodeMixin's), which every class that mixes this in is.
+    bindings: dict[str, PortBinding]
+    blackboard: Blackboard
 
     def entry_key(self) -> str:
-        binding = self.bindings["entry"]  # type: ignore[attr-defined]
+        binding = self.bindings["entry"]
         return binding.key if binding.key is not None else str(binding.literal)
 
     def updated(self) -> bool:
         """True when the entry exists and was written since the last call."""
-        board = self.blackboard  # type: ignore[attr-defined]
+        board = self.blackboard
         key = self.entry_key()
         if not board.has(key):
             return False
