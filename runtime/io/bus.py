@@ -32,7 +32,7 @@ import threading
 import time
 import uuid
 from dataclasses import dataclass
-from typing import Any, Callable, Generic, Protocol, TypeVar, runtime_checkable
+from typing import Any, Callable, Generic, Protocol, TypeVar, cast, runtime_checkable
 
 from .clock import Clock
 from runtime.errors import OptionError
@@ -102,7 +102,7 @@ class Future(Generic[T]):
             raise RuntimeError("future is not done yet")
         if self._exception is not None:
             raise self._exception
-        return self._value  # type: ignore[return-value]
+        return cast(T, self._value)  # set with _has_value (a T, which may be None itself)
 
     def exception(self) -> BaseException | None:
         return self._exception if self.done() else None

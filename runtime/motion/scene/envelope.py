@@ -346,7 +346,7 @@ def _frame_states_per_point(envelope: CartesianEnvelope, robot: RobotModel, full
             rotations[i] = pin.updateFramePlacement(model, data, cone_id).rotation
         if twists is not None:
             twists[i] = pin.getFrameVelocity(model, data, tcp_id, world_aligned).vector
-    axes = None if rotations is None else rotations @ np.asarray(cone.axis)  # type: ignore[union-attr]
+    axes = None if rotations is None or cone is None else rotations @ np.asarray(cone.axis)  # both or neither
     return _FrameStates(positions, axes, twists)
 
 
