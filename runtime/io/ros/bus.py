@@ -108,7 +108,7 @@ def _compatible(publisher_reliable: bool, subscriber_reliable: bool) -> bool:
 # --------------------------------------------------------------------------------------------
 # Futures and the owner-thread queue
 # --------------------------------------------------------------------------------------------
-class RosFuture(Future):
+class RosFuture(Future[Any]):
     """A ``runtime.io.bus.Future`` completed from an executor thread.
 
     ``done()``/``result()`` behave as in ``runtime.io.bus.Future``; ``ready_at`` is the runtime
@@ -138,7 +138,7 @@ class RosFuture(Future):
         for cb in callbacks:
             self._bus._post(cb, self)
 
-    def add_done_callback(self, cb: Callable[[Future], None]) -> None:
+    def add_done_callback(self, cb: Callable[[Future[Any]], None]) -> None:
         with self._lock:
             if not self.done():
                 self._callbacks.append(cb)
@@ -179,7 +179,7 @@ class _OwnerCall:
     """A server callback waiting for ``spin_once()`` to run it on the owner's thread."""
 
     fn: Callable[..., Any]
-    args: tuple
+    args: tuple[Any, ...]
     event: threading.Event = field(default_factory=threading.Event)
     value: Any = None
     error: BaseException | None = None
@@ -564,7 +564,8 @@ class _RosActionClient:
         self._client = _RclpyActionClient(bus.node, action_type, name, callback_group=bus._group)
 
     def server_is_ready(self) -> bool:
-        return self._client.server_is_ready()
+        ready: bool = self._client.server_is_ready()
+        return ready
 
     def send_goal_async(
         self, goal: Any, feedback_callback: Callable[[Any], None] | None = None
@@ -680,7 +681,7 @@ class RosBus:
         self._publishers: dict[str, list[_RosPublisher]] = {}
         self._lazy: dict[str, _LazyPublisher] = {}
         self._subscriptions: list[_RosSubscription] = []
-        self._clients: list[Any] = []
+        self._clients: list[_RosClient] = []
         self._action_servers: dict[str, _RosActionServer] = {}
         self._action_clients: list[_RosActionClient] = []
         self.spin_errors: list[BaseException] = []
