@@ -44,6 +44,7 @@ import shutil
 import subprocess
 import sys
 import sysconfig
+from typing import Any
 import tarfile
 import tempfile
 import time
@@ -324,10 +325,11 @@ def archive(pkg: Package, key: str, prefix: Path, files: list[str]) -> bytes:
     return buffer.getvalue()
 
 
-def read_marker(prefix: Path, name: str) -> dict:
+def read_marker(prefix: Path, name: str) -> dict[str, Any]:
     """The marker of package ``name`` installed in ``prefix``; {} when there is none."""
     try:
-        return json.loads((prefix / "share" / name / MARKER).read_text())
+        marker: dict[str, Any] = json.loads((prefix / "share" / name / MARKER).read_text())
+        return marker
     except (OSError, ValueError):
         return {}
 

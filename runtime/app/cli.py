@@ -477,6 +477,7 @@ def main(argv: Sequence[str] | None = None, registry: Registry | None = None) ->
     try:
         with signals:
             plugin = getattr(args, "plugin_command", None)
+            code: int
             if registry is None and (plugin is None or plugin.needs_registry):
                 registry = _installed_registry()
             if plugin is not None:
@@ -523,7 +524,7 @@ class _StderrHandler(logging.StreamHandler):  # type: ignore[type-arg]
     def format(self, record: logging.LogRecord) -> str:
         return printable(super().format(record))
 
-    @property  # type: ignore[override]
+    @property
     def stream(self) -> Any:
         return sys.stderr
 

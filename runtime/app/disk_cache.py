@@ -52,7 +52,7 @@ def cache_dir() -> Path | None:
     return Path(base) / "objective-runtime"
 
 
-def content_key(*parts: str | bytes | os.PathLike) -> str:
+def content_key(*parts: str | bytes | os.PathLike[str]) -> str:
     """SHA-256 over ``parts``: strings and bytes as given, paths by their file's bytes."""
     digest = hashlib.sha256()
     for part in parts:

@@ -383,7 +383,7 @@ class Groot2Server:
             self._publisher.bind(f"{address}:{options.port + 1}")
             return options.port
         for _ in range(50):  # any free pair: the request port, and the next one free too
-            port = self._server.bind_to_random_port(address, min_port=20000, max_port=60000)
+            port: int = self._server.bind_to_random_port(address, min_port=20000, max_port=60000)
             try:
                 self._publisher.bind(f"{address}:{port + 1}")
                 return port

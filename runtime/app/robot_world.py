@@ -16,7 +16,7 @@ from __future__ import annotations
 
 from importlib.metadata import entry_points
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 import yaml
 
@@ -71,7 +71,8 @@ def _load_mjcf(path: Path, srdf: Path, couplings: Any) -> RobotModel:
     if not found:
         raise OptionError("option 'mjcf' needs an MJCF loader, which comes with the [sim] extra "
                           "(pip install 'objective-runtime[sim]'); or describe the robot with urdf=FILE")
-    return load_entry_point(found[0], "option 'mjcf'")(path, srdf, couplings=couplings)
+    loader: Callable[..., RobotModel] = load_entry_point(found[0], "option 'mjcf'")
+    return loader(path, srdf, couplings=couplings)
 
 
 class RobotDescriptionWorld:

@@ -38,7 +38,7 @@ import py_trees
 
 from runtime.tree.behavior import NodeMixin, RunContext, Status, SummarisesRun
 from runtime.io.bus import InProcessBus, InterruptibleWaits, capability, parse_latency
-from runtime.io.clock import SimClock, WallClock
+from runtime.io.clock import Clock, SimClock, WallClock
 from runtime.tree.controls import SKIPPED, Visit, is_skipped, tick_tree
 from runtime.tree.crash import CRASH_LOG, culprit, describe_crash, write_traceback
 from runtime.errors import ObjectiveError, ObjectiveRuntimeError, OptionError, error_kind
@@ -231,7 +231,7 @@ def make_context(options: RunOptions) -> RunContext:
     return RunContext(clock=clock, bus=bus, events=EventLog(clock), seed=options.seed)
 
 
-def robot_time_offset_s(clock: Any) -> float:
+def robot_time_offset_s(clock: Clock) -> float:
     """What to add to ``clock``'s time for the ROS time of a robot without ``/clock``: the system
     clock, which ROS 2 nodes read when ``use_sim_time`` is off (a controller that reads a goal's
     stamp as an instant, such as joint_trajectory_controller, compares it with that)."""

@@ -34,8 +34,9 @@ from runtime.errors import ObjectiveError
 from runtime.io.interrupt import StopRequest
 from runtime.app.objective_library import PortOverride
 from runtime.app.runner import RunResult
+from runtime.io.ros.bus import spin_on_thread
 
-from .objective_server import ACTION_NAME, CANCEL_SERVICE, LIST_SERVICE, spin_on_thread
+from .objective_server import ACTION_NAME, CANCEL_SERVICE, LIST_SERVICE
 
 CLIENT_NODE_NAME = "objective_client"
 POLL_S = 0.02
