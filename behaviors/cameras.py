@@ -13,7 +13,7 @@ from typing import Any, ClassVar
 from sensor_msgs.msg import CameraInfo, Image
 
 from runtime.tree.behavior import Behavior, Status
-from runtime.tree.ports import InputPort, OutputPort, PortType, Range
+from runtime.tree.ports import InputPort, OutputPort, PortInfo, PortType, Range
 
 from .waiting import Deadline, release_subscription
 
@@ -30,7 +30,7 @@ class _GetMessage(Behavior):
     msg_type: ClassVar[type]
 
     @classmethod
-    def make_ports(cls, port_type: PortType, example: str) -> tuple:
+    def make_ports(cls, port_type: PortType, example: str) -> tuple[PortInfo, ...]:
         return (
             InputPort("topic_name", PortType.STRING, description=f"The topic, e.g. {example}."),
             InputPort("message_timeout_sec", PortType.FLOAT, 5.0, "Seconds to wait for a message once the topic has a publisher.", valid=Range(0, 3600, "s")),

@@ -26,6 +26,7 @@ from dataclasses import dataclass
 from typing import Any, Sequence
 
 import numpy as np
+from numpy.typing import NDArray
 from control_msgs.msg import JointTolerance
 from trajectory_msgs.msg import JointTrajectory
 
@@ -99,7 +100,8 @@ class ControllerLink:
             if kind is None:
                 return False
             self.kind, self.client = kind, self.bus.create_action_client(self.name, kind.action_type)
-        return self.client.server_is_ready()
+        ready: bool = self.client.server_is_ready()
+        return ready
 
 
 def controller_topic(action_name: str, topic: str) -> str:
@@ -108,7 +110,7 @@ def controller_topic(action_name: str, topic: str) -> str:
     return action_name.rstrip("/").rsplit("/", 1)[0] + "/" + topic
 
 
-def reference_position(state: Any, joints: Sequence[str]) -> np.ndarray | None:
+def reference_position(state: Any, joints: Sequence[str]) -> NDArray[np.float64] | None:
     """The reference a ``JointTrajectoryControllerState`` says the controller commands to
     ``joints`` (in that order); None without a state or when it lacks one of them."""
     if state is None or len(state.reference.positions) != len(state.joint_names):
@@ -201,5 +203,5 @@ def jtc_stream_points(previous: Samples | None, new: Samples, lands_s: float) ->
     return JtcStreamGoal(float(points.times[0]), points, seam_index)
 
 
-def _rows(samples: Samples, keep: np.ndarray) -> Samples:
+def _rows(samples: Samples, keep: NDArray[np.bool_]) -> Samples:
     return Samples(samples.times[keep], samples.positions[keep], samples.velocities[keep], samples.accelerations[keep])

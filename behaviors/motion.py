@@ -12,6 +12,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from numpy.typing import NDArray
 from ruckig import InputParameter, Result, Ruckig, Trajectory
 from sensor_msgs.msg import JointState
 
@@ -19,7 +20,7 @@ from runtime.io.bus import Subscription
 from runtime.tree.behavior import Status
 from runtime.tree.ports import InputPort, NameKind, Names, PortType, Range
 
-from runtime.motion.scene import JointLimits
+from runtime.motion.scene import JointLimits, SceneSnapshot
 from runtime.errors import SetupError
 from .action_goal import Goal, GoalState
 from .controller_link import CONTROLLER_ACTION_TYPES, ControllerLink, GoalTolerances, trajectory_goal
@@ -34,8 +35,8 @@ JERK_PER_ACCELERATION = 10.0  # 1/s: max jerk = 10 x max acceleration
 
 
 def plan_point_to_point(
-    start: np.ndarray,
-    goal: np.ndarray,
+    start: NDArray[np.float64],
+    goal: NDArray[np.float64],
     limits: JointLimits,
     velocity_scale: float,
     acceleration_scale: float,
@@ -86,7 +87,7 @@ class _MoveToJoints(SendsTrajectoryGoal):
         InputPort("timeout", PortType.FLOAT, 5.0, "Seconds to wait for the controller and the joint states.", valid=Range(0.0, 3600.0, "s", min_open=True)),
     )
 
-    def target(self, joints: tuple[str, ...]) -> np.ndarray:
+    def target(self, joints: tuple[str, ...]) -> NDArray[np.float64]:
         raise NotImplementedError
 
     def initialise(self) -> None:
@@ -148,7 +149,7 @@ class _MoveToJoints(SendsTrajectoryGoal):
         self.goal = Goal.send(self.controller.client, goal)
         return Status.RUNNING
 
-    def _around(self, start: np.ndarray, goal: np.ndarray, snapshot) -> Samples:
+    def _around(self, start: NDArray[np.float64], goal: NDArray[np.float64], snapshot: SceneSnapshot) -> Samples:
         """The motion planned around what blocks the straight one (``behaviors.planning``)."""
         seed = int(self.get_input("seed")) if any(p.name == "seed" for p in self.ports) else 0
         motion = Motion(self.get_input("link_padding"), self.get_input("velocity_scaling_factor"),
@@ -169,7 +170,7 @@ class MoveToJointState(_MoveToJoints):
     description = "Move a joint group to the given joint positions (within the limits; planned around obstacles that block the straight motion)."
     ports = (InputPort("joint_positions", PortType.FLOAT_LIST, description="Target positions in the group's joint order (rad).", valid=Range(-4 * math.pi, 4 * math.pi, "rad")),) + _MoveToJoints.common_ports
 
-    def target(self, joints: tuple[str, ...]) -> np.ndarray:
+    def target(self, joints: tuple[str, ...]) -> NDArray[np.float64]:
         values = np.asarray(self.get_input("joint_positions"), dtype=float)
         if len(values) != len(joints):
             raise PlanningError(f"joint_positions has {len(values)} values but group '{self.get_input('joint_group_name')}' has {len(joints)} joints ({', '.join(joints)})")
@@ -186,7 +187,7 @@ class MoveToWaypoint(_MoveToJoints):
                   valid=Range(-(2**31), 2**31 - 1)),
     ) + _MoveToJoints.common_ports
 
-    def target(self, joints: tuple[str, ...]) -> np.ndarray:
+    def target(self, joints: tuple[str, ...]) -> NDArray[np.float64]:
         self.get_input("seed")  # read so that a seed that is not an integer fails here, naming the port
         waypoints = self.context.resources.get("waypoints") or {}
         name = self.get_input("waypoint_name")

@@ -11,8 +11,10 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from numpy.typing import NDArray
 
 from runtime.tree.ports import InputPort, NameKind, Names, PortType, Range
+from runtime.motion.scene import PlanningScene
 from runtime.motion.scene.kinematics import solve_ik
 
 from .motion import _MoveToJoints
@@ -31,7 +33,7 @@ class MoveToPose(_MoveToJoints):
         InputPort("orientation_tolerance", PortType.FLOAT, 0.005, "Largest IK orientation error accepted (rad).", valid=Range(0.0, math.pi, "rad", min_open=True)),
     ) + _MoveToJoints.common_ports
 
-    def target(self, joints: tuple[str, ...]) -> np.ndarray:
+    def target(self, joints: tuple[str, ...]) -> NDArray[np.float64]:
         scene = self.context.scene
         tip = self.get_input("tip_frame")
         if not scene.robot.has_frame(tip):
@@ -61,7 +63,7 @@ class MoveToPose(_MoveToJoints):
         return _nearest_turn(result.positions, start, scene, joints)
 
 
-def _nearest_turn(solution: np.ndarray, start: np.ndarray, scene, joints: tuple[str, ...]) -> np.ndarray:
+def _nearest_turn(solution: NDArray[np.float64], start: NDArray[np.float64], scene: PlanningScene, joints: tuple[str, ...]) -> NDArray[np.float64]:
     """Shift each joint by whole turns toward ``start`` when its limits allow (same pose, shorter motion)."""
     lower, upper = scene.robot.position_limits(joints)
     out = solution.copy()

@@ -28,6 +28,7 @@ from dataclasses import dataclass, field, replace
 from typing import Any, ClassVar
 
 import numpy as np
+from numpy.typing import NDArray
 from std_srvs.srv import SetBool
 
 from runtime.tree.behavior import Behavior, Status
@@ -191,7 +192,7 @@ class TaskPlanner:
     def _safety(self, stage: Stage) -> MotionSafety:
         return safety_for(self.scene, stage.params["group"])
 
-    def _row(self, safety: MotionSafety, state: dict[str, float], stage: Stage) -> np.ndarray:
+    def _row(self, safety: MotionSafety, state: dict[str, float], stage: Stage) -> NDArray[np.float64]:
         missing = [j for j in safety.group_joints if j not in state]
         if missing:
             raise SetupError(f"{stage.label}: the state before this stage lacks joints {', '.join(missing)}")
@@ -293,7 +294,7 @@ class TaskPlanner:
         return list(solution.steps)
 
 
-def along_axis(safety: MotionSafety, q: np.ndarray, stage: Stage, snapshot: SceneSnapshot, backward: bool) -> Samples:
+def along_axis(safety: MotionSafety, q: NDArray[np.float64], stage: Stage, snapshot: SceneSnapshot, backward: bool) -> Samples:
     """MoveAlongFrameAxis: ``hand_frame`` along the axis (in ``axis_frame`` at ``q``) for
     ``max_distance`` m, else ``min_distance``; ``backward``: the motion that ends at ``q``."""
     p = stage.params
@@ -328,10 +329,10 @@ def along_axis(safety: MotionSafety, q: np.ndarray, stage: Stage, snapshot: Scen
     raise problem
 
 
-def batch_ik(safety: MotionSafety, stage: Stage, seed_q: np.ndarray, snapshot: SceneSnapshot) -> list[np.ndarray]:
+def batch_ik(safety: MotionSafety, stage: Stage, seed_q: NDArray[np.float64], snapshot: SceneSnapshot) -> list[NDArray[np.float64]]:
     """SetupMTCBatchPoseIK's candidates: up to ``max_ik_solutions`` collision-free solutions
     for each target pose, in the poses' order."""
-    out: list[np.ndarray] = []
+    out: list[NDArray[np.float64]] = []
     problems = []
     for k, target in enumerate(stage.params["targets"]):
         try:
@@ -643,7 +644,7 @@ class ApprovalDesk:
 
 def approval_desk(context: Any, service: str) -> ApprovalDesk:
     """The run's desk serving ``service`` (created and served on first use)."""
-    desks = context.resources.setdefault("mtc_approval_services", {})
+    desks: dict[str, ApprovalDesk] = context.resources.setdefault("mtc_approval_services", {})
     if service not in desks:
         desk = ApprovalDesk()
         context.bus.create_service(service, SetBool, desk.take)

@@ -13,13 +13,14 @@ from dataclasses import dataclass
 from typing import Any, ClassVar
 
 import numpy as np
+from numpy.typing import NDArray
 from sensor_msgs.msg import JointState
 
 from runtime.tree.behavior import Behavior, Status
 from runtime.errors import SetupError
 from runtime.tree.ports import InputPort, NameKind, Names, OutputPort, PortType, Range
 from runtime.motion.scene import CollisionResult, SceneSnapshot
-from runtime.motion.scene.planner import PathPlanningError, PlannerSettings, plan_path, scene_validity, segment_states
+from runtime.motion.scene.planner import PathPlanningError, PlannerSettings, Validity, plan_path, scene_validity, segment_states
 from runtime.motion.scene.kinematics import IkSolver
 from runtime.io.timestamps import time_msg
 
@@ -69,7 +70,7 @@ TIMING_STEP_RAD = 0.01
 a constant rate along each piece: short pieces make the speed profile follow the limits)."""
 
 
-def timed(safety: MotionSafety, waypoints: np.ndarray, motion: Motion) -> Samples:
+def timed(safety: MotionSafety, waypoints: NDArray[np.float64], motion: Motion) -> Samples:
     """A joint polyline timed within the scaled limits, at rest at each corner (so it follows
     the straight segments the planner checked), sampled at ``motion.rate_hz``."""
     rows, stops = [waypoints[0]], set()
@@ -81,19 +82,19 @@ def timed(safety: MotionSafety, waypoints: np.ndarray, motion: Motion) -> Sample
     return resample_within_envelope(timing, path, motion.rate_hz, safety)
 
 
-def state_validity(safety: MotionSafety, padding_m: float, snapshot: SceneSnapshot, gripper_position: float | None):
+def state_validity(safety: MotionSafety, padding_m: float, snapshot: SceneSnapshot, gripper_position: float | None) -> Validity:
     """The planner's state check: collision-free in ``snapshot`` with ``padding_m``, and inside
     the Cartesian envelope's boxes and cone with the planner's margin (``MotionSafety.pose_check``)."""
     collision_free = scene_validity(safety.scene, safety.layout, padding_m, snapshot, gripper_position)
     inside_envelope = safety.pose_check()
 
-    def is_free(q: np.ndarray) -> bool:
+    def is_free(q: NDArray[np.float64]) -> bool:
         return collision_free(q) and inside_envelope(q)
 
     return is_free
 
 
-def plan_free_motion(safety: MotionSafety, start: np.ndarray, goal: np.ndarray, motion: Motion,
+def plan_free_motion(safety: MotionSafety, start: NDArray[np.float64], goal: NDArray[np.float64], motion: Motion,
                      snapshot: SceneSnapshot) -> Samples:
     """A collision-free, timed motion from ``start`` to ``goal`` that passes ExecuteTrajectory's
     checks; PlanningError naming the reason otherwise."""
@@ -116,8 +117,8 @@ def plan_free_motion(safety: MotionSafety, start: np.ndarray, goal: np.ndarray, 
     return samples
 
 
-def collision_free_ik(safety: MotionSafety, target: np.ndarray, tip: str, seed_q: np.ndarray, padding_m: float,
-                      snapshot: SceneSnapshot, count: int = 1, rng_seed: int = 0) -> list[np.ndarray]:
+def collision_free_ik(safety: MotionSafety, target: NDArray[np.float64], tip: str, seed_q: NDArray[np.float64], padding_m: float,
+                      snapshot: SceneSnapshot, count: int = 1, rng_seed: int = 0) -> list[NDArray[np.float64]]:
     """Up to ``count`` distinct collision-free joint solutions putting ``tip`` at ``target``
     (world 4x4): seeded from ``seed_q`` first, then from ``IK_RESTARTS`` random seeds.
     PlanningError when there is none, saying whether no solution reaches the pose or every one
@@ -129,7 +130,7 @@ def collision_free_ik(safety: MotionSafety, target: np.ndarray, tip: str, seed_q
     rng = np.random.default_rng(rng_seed)
     lower, upper = np.maximum(solver.lower, -math.pi), np.minimum(solver.upper, math.pi)
     seeds = [seed_q] + [rng.uniform(lower, upper) for _ in range(IK_RESTARTS)]
-    found: list[np.ndarray] = []
+    found: list[NDArray[np.float64]] = []
     nearest, collision = None, None
     for seed in seeds:
         result = solver.solve(target, seeds=[seed], random_restarts=0)
@@ -157,7 +158,7 @@ def collision_free_ik(safety: MotionSafety, target: np.ndarray, tip: str, seed_q
                         f"({nearest.position_error * 1000:.1f} mm, {nearest.orientation_error:.3f} rad away at best)")
 
 
-def group_goal(joint_state: Any, joints: tuple[str, ...], port: str) -> np.ndarray:
+def group_goal(joint_state: Any, joints: tuple[str, ...], port: str) -> NDArray[np.float64]:
     """The group's joint values from a JointState; PlanningError naming the missing joints."""
     if not isinstance(joint_state, JointState):
         raise PlanningError(f"port '{port}' expects a sensor_msgs/JointState, got {type(joint_state).__name__}")

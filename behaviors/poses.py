@@ -22,6 +22,7 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
 from geometry_msgs.msg import Pose, PoseStamped
 from sensor_msgs.msg import JointState
 from visualization_msgs.msg import MarkerArray
@@ -30,6 +31,7 @@ from runtime.tree.behavior import Behavior, Condition, Status
 from runtime.io.timestamps import time_msg
 from runtime.tree.ports import InputPort, NameKind, Names, OutputPort, PortType, Range
 from runtime.errors import ObjectiveError, SetupError
+from runtime.motion.scene import PlanningScene
 
 from .visualization import axis_markers, text_marker
 
@@ -40,7 +42,7 @@ MARKER_TOPIC = "/visual_markers"
 
 
 # -- pure math -------------------------------------------------------------------------------
-def pose_to_matrix(pose: Pose) -> np.ndarray:
+def pose_to_matrix(pose: Pose) -> NDArray[np.float64]:
     """4x4 homogeneous matrix of a ``geometry_msgs/Pose`` (the quaternion is normalised)."""
     q = pose.orientation
     quat = np.array([q.x, q.y, q.z, q.w], dtype=float)
@@ -57,7 +59,7 @@ def pose_to_matrix(pose: Pose) -> np.ndarray:
     return m
 
 
-def matrix_to_pose(frame_id: str, matrix: np.ndarray, stamp: float = 0.0) -> PoseStamped:
+def matrix_to_pose(frame_id: str, matrix: NDArray[np.float64], stamp: float = 0.0) -> PoseStamped:
     """A ``PoseStamped`` in ``frame_id`` from a 4x4 matrix, stamped ``stamp`` seconds."""
     msg = PoseStamped()
     msg.header.frame_id = frame_id
@@ -74,7 +76,7 @@ def matrix_to_pose(frame_id: str, matrix: np.ndarray, stamp: float = 0.0) -> Pos
     return msg
 
 
-def offset_matrix(translation_xyz: list[float], quaternion_xyzw: list[float]) -> np.ndarray:
+def offset_matrix(translation_xyz: list[float], quaternion_xyzw: list[float]) -> NDArray[np.float64]:
     """The 4x4 offset of TransformPose's ports; raises ValueError naming the bad port."""
     if len(translation_xyz) != 3:
         raise ValueError(f"translation_xyz needs 3 values (x;y;z), got {len(translation_xyz)}")
@@ -92,7 +94,7 @@ def offset_matrix(translation_xyz: list[float], quaternion_xyzw: list[float]) ->
     return m
 
 
-def rotation_angle(matrix: np.ndarray) -> float:
+def rotation_angle(matrix: NDArray[np.float64]) -> float:
     """Angle (rad, in [0, pi]) of the rotation part of a 4x4 (or 3x3) matrix."""
     r = np.asarray(matrix)[:3, :3]
     return float(np.arccos(np.clip((np.trace(r) - 1.0) / 2.0, -1.0, 1.0)))
@@ -111,9 +113,9 @@ class StackCheck:
 
 
 def stack_check(
-    top_center: np.ndarray,
-    bottom_center: np.ndarray,
-    gripper_position: np.ndarray,
+    top_center: NDArray[np.float64],
+    bottom_center: NDArray[np.float64],
+    gripper_position: NDArray[np.float64],
     stack_height: float,
     position_tolerance: float,
     min_clearance: float,
@@ -176,7 +178,7 @@ class RobotState:
     def subscribe(cls, bus: Any, topic: str = JOINT_STATES_TOPIC) -> RobotState:
         return cls(bus.create_subscription(topic, JointState, reliable=True), topic)
 
-    def positions(self, joints: tuple[str, ...] | list[str]) -> np.ndarray:
+    def positions(self, joints: tuple[str, ...] | list[str]) -> NDArray[np.float64]:
         """Current positions of ``joints``; FrameError when no message arrived or one is missing."""
         state = self.subscription.latest
         if state is None:
@@ -187,7 +189,7 @@ class RobotState:
             raise FrameError(f"joint states on '{self.topic}' lack {', '.join(missing)}")
         return np.array([by_name[j] for j in joints], dtype=float)
 
-    def row(self, scene: Any) -> np.ndarray:
+    def row(self, scene: Any) -> NDArray[np.float64]:
         """The scene's default layout row: group joints, plus the gripper when it is published
         under the scene's gripper joint name (otherwise the scene's reference value is used)."""
         layout = scene.layout()
@@ -204,7 +206,7 @@ def known_frames(scene: Any) -> str:
     return f"'{WORLD_FRAME}', robot links ({', '.join(scene.robot.link_names)}) or scene objects ({', '.join(objects) or 'none'})"
 
 
-def frame_in_world(scene: Any, frame: str, state: RobotState | None) -> np.ndarray:
+def frame_in_world(scene: PlanningScene, frame: str, state: RobotState | None) -> NDArray[np.float64]:
     """World pose (4x4) of ``world``, a robot frame or a scene object (attached ones too)."""
     if frame in WORLD_ALIASES:
         return np.eye(4)
@@ -221,7 +223,7 @@ def frame_in_world(scene: Any, frame: str, state: RobotState | None) -> np.ndarr
     raise SetupError(f"unknown frame '{frame}' (known: {known_frames(scene)})")
 
 
-def pose_in_world(scene: Any, pose: PoseStamped, state: RobotState | None) -> np.ndarray:
+def pose_in_world(scene: Any, pose: PoseStamped, state: RobotState | None) -> NDArray[np.float64]:
     return frame_in_world(scene, pose.header.frame_id or WORLD_FRAME, state) @ pose_to_matrix(pose.pose)
 
 
@@ -248,7 +250,8 @@ class ReadsRobotState:
         return self.robot_state
 
     def now(self) -> float:
-        return self.context.clock.now()
+        now: float = self.context.clock.now()
+        return now
 
 
 class SceneBehavior(ReadsRobotState, Behavior):
@@ -436,7 +439,7 @@ class CheckObjectStacked(ReadsRobotState, Condition):
             return Status.SUCCESS
         return self.fail(message)
 
-    def run_summary(self) -> dict:
+    def run_summary(self) -> dict[str, Any]:
         """The last answer, for ``objective run --json`` (under ``stack_check``)."""
         check = getattr(self, "last_check", None)
         return {} if check is None else {"stack_check": check}

@@ -7,6 +7,7 @@ from dataclasses import dataclass, replace
 from typing import Any, Callable
 
 import numpy as np
+from numpy.typing import NDArray
 
 from runtime.errors import ObjectiveError, OptionError
 from runtime.motion.scene import (
@@ -32,7 +33,7 @@ scripted policy's 0.8 computed as 0.8000000000000002): clamped without being cou
 class SettledColumn:
     """A chunk's gripper column after ``MotionSafety.settle_gripper_column``."""
 
-    values: np.ndarray | None
+    values: NDArray[np.float64] | None
     clamped: int
     """How many targets were moved into the range."""
     farthest_rad: float
@@ -79,7 +80,7 @@ class MotionSafety:
         limit = self.chunk_limits[self.gripper_joint]
         return GRIPPER_BAND_FRACTION * (limit.upper - limit.lower)
 
-    def settle_gripper_column(self, gripper: np.ndarray | None) -> SettledColumn:
+    def settle_gripper_column(self, gripper: NDArray[np.float64] | None) -> SettledColumn:
         """The gripper column with targets within ``gripper_band_rad`` outside the gripper
         joint's limits clamped into them; values further out (or NaN) are left as they are, for
         the limit check to reject."""
@@ -94,7 +95,7 @@ class MotionSafety:
         counted = settle & (outside > GRIPPER_ROUNDING_RAD)
         return SettledColumn(settled, int(counted.sum()), float(outside[counted].max()) if counted.any() else 0.0)
 
-    def first_gripper_target_out_of_limits(self, gripper: np.ndarray | None, dt_s: float) -> LimitViolation | None:
+    def first_gripper_target_out_of_limits(self, gripper: NDArray[np.float64] | None, dt_s: float) -> LimitViolation | None:
         """The first step of a column of gripper targets ``dt_s`` apart outside the gripper
         joint's position limits, or asking it for more velocity or acceleration than they allow."""
         if gripper is None or self.gripper_joint is None or len(gripper) == 0:
@@ -113,7 +114,7 @@ class MotionSafety:
                                    samples.positions[:end], samples.velocities[:end], samples.times[:end])
         return joint if cartesian is None else cartesian
 
-    def pose_check(self, margin_m: float = 0.005, margin_deg: float = 1.0) -> Callable[[np.ndarray], bool]:
+    def pose_check(self, margin_m: float = 0.005, margin_deg: float = 1.0) -> Callable[[NDArray[np.float64]], bool]:
         """Whether the group's joint positions put every frame inside the keep-in boxes and the
         tool inside its cone, ``margin_m`` and ``margin_deg`` within them (always True without an
         envelope): a planner's state check, so that the motion timed between two such states
@@ -130,7 +131,7 @@ class MotionSafety:
         return tool_speed_ratio(self.envelope, self.scene.robot, self.scene.layout(self.group, None),
                                 samples.positions, samples.velocities)
 
-    def first_value_out_of_limits(self, arm: np.ndarray, gripper: np.ndarray | None) -> LimitViolation | None:
+    def first_value_out_of_limits(self, arm: NDArray[np.float64], gripper: NDArray[np.float64] | None) -> LimitViolation | None:
         """The first step of a chunk, as the policy sent it, with a value outside its joint's
         position limits: the arm columns against the group's joints, the gripper column
         (when there is one) against the gripper joint's."""

@@ -20,7 +20,7 @@ from __future__ import annotations
 import math
 from typing import Any, Callable
 
-from runtime.tree.behavior import Status
+from runtime.tree.behavior import PortBinding, Status
 from runtime.errors import PortError
 from runtime.tree.ports import InputPort, NameKind, Names, PortType, Range
 from runtime.motion.scene import Box
@@ -54,7 +54,7 @@ class ChecksPorts:
 
     checked: dict[str, Callable[[Any], Any]] = {}
     from_blackboard: tuple[str, ...] = ()
-    bindings: dict
+    bindings: dict[str, PortBinding]
     location: Any
     xml_id: str
 

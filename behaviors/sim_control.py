@@ -66,7 +66,7 @@ def finite_values(count: int, unit: str) -> Any:
 
 
 def unit_quaternion(values: Any) -> list[float]:
-    quat = finite_values(4, "numbers")(values)
+    quat: list[float] = finite_values(4, "numbers")(values)
     if math.sqrt(sum(v * v for v in quat)) < 1e-9:
         raise ValueError(f"{';'.join(f'{v:g}' for v in quat)} is not a rotation (zero length)")
     return quat

@@ -15,6 +15,7 @@ from dataclasses import dataclass
 from typing import Any, ClassVar
 
 import numpy as np
+from numpy.typing import NDArray
 import yaml
 from sensor_msgs.msg import JointState
 from trajectory_msgs.msg import JointTrajectory
@@ -41,7 +42,7 @@ TIMING_MODES = ("time_optimal", "cartesian_trapezoidal")
 
 
 # -- pure planning pieces --------------------------------------------------------------------------
-def interpolate_line(start: np.ndarray, goal: np.ndarray, step_m: float, step_rad: float) -> list[np.ndarray]:
+def interpolate_line(start: NDArray[np.float64], goal: NDArray[np.float64], step_m: float, step_rad: float) -> list[NDArray[np.float64]]:
     """Poses (4x4) from ``start`` (excluded) to ``goal`` (included) along a straight line, with
     the orientation slerped, no two more than ``step_m`` or ``step_rad`` apart."""
     from scipy.spatial.transform import Rotation, Slerp  # scipy.spatial: ~0.3 s, imported on first use
@@ -64,11 +65,11 @@ def interpolate_line(start: np.ndarray, goal: np.ndarray, step_m: float, step_ra
 class PathTiming:
     """When each point of a joint path is reached (s) and the path speed there (joint-space m/s-like units)."""
 
-    times: np.ndarray
-    speeds: np.ndarray
+    times: NDArray[np.float64]
+    speeds: NDArray[np.float64]
 
 
-def time_path(path: np.ndarray, stops: set[int], limits: JointLimits, velocity_scale: float, acceleration_scale: float) -> PathTiming:
+def time_path(path: NDArray[np.float64], stops: set[int], limits: JointLimits, velocity_scale: float, acceleration_scale: float) -> PathTiming:
     """Timing of a joint path (N, J) followed as fast as the scaled velocity and acceleration
     limits allow, at rest at the first, the last and every ``stops`` index.
 
@@ -96,7 +97,7 @@ def time_path(path: np.ndarray, stops: set[int], limits: JointLimits, velocity_s
     return PathTiming(np.concatenate([[0.0], np.cumsum(dt)]), speeds)
 
 
-def _piece_caps(path: np.ndarray, limits: JointLimits, velocity_scale: float, acceleration_scale: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _piece_caps(path: NDArray[np.float64], limits: JointLimits, velocity_scale: float, acceleration_scale: float) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
     """Each piece's length and the largest path speed and acceleration its joint limits allow."""
     deltas = np.diff(path, axis=0)
     lengths = np.linalg.norm(deltas, axis=1)
@@ -109,7 +110,7 @@ def _piece_caps(path: np.ndarray, limits: JointLimits, velocity_scale: float, ac
     return lengths, caps[0], caps[1]
 
 
-def resample(timing: PathTiming, path: np.ndarray, rate_hz: float) -> Samples:
+def resample(timing: PathTiming, path: NDArray[np.float64], rate_hz: float) -> Samples:
     """The timed path at ``rate_hz``: along each piece the speed changes at a constant rate, so
     the position there follows ``s = v0 t + a t^2 / 2``; velocities and accelerations are
     finite differences (zero at both ends). A path of no length is its last point alone."""
@@ -133,7 +134,7 @@ def resample(timing: PathTiming, path: np.ndarray, rate_hz: float) -> Samples:
     return Samples(t, positions, velocities, accelerations)  # type: ignore[arg-type]  # numpy's stub: gradient of float64 is floating[Any]
 
 
-def resample_within(timing: PathTiming, path: np.ndarray, rate_hz: float, limits: JointLimits) -> Samples:
+def resample_within(timing: PathTiming, path: NDArray[np.float64], rate_hz: float, limits: JointLimits) -> Samples:
     """``resample``, slowed down evenly where its velocities or accelerations exceed the joint
     limits: ``time_path`` bounds the speed along each piece, not the turn from one piece to the
     next, which adds a little acceleration where the IK points bend the joint path."""
@@ -151,7 +152,7 @@ def resample_within(timing: PathTiming, path: np.ndarray, rate_hz: float, limits
     return samples
 
 
-def resample_within_envelope(timing: PathTiming, path: np.ndarray, rate_hz: float, safety: MotionSafety) -> Samples:
+def resample_within_envelope(timing: PathTiming, path: NDArray[np.float64], rate_hz: float, safety: MotionSafety) -> Samples:
     """``resample_within``, slowed down evenly further where the tool's linear or angular speed
     exceeds the Cartesian envelope: a path timed by the joint limits alone can move the tool
     faster than the cell allows (a planned detour at full joint speed passes 1 m/s)."""
@@ -192,7 +193,7 @@ def parse_timing(text: str) -> tuple[str, float, float]:
     return mode, scales[0], scales[1]
 
 
-def tip_offset_matrix(values: list[float]) -> np.ndarray:
+def tip_offset_matrix(values: list[float]) -> NDArray[np.float64]:
     """MoveIt Pro's ``tip_offset`` x;y;z;roll;pitch;yaw (m, rad) as a 4x4 in the tip's frame."""
     if len(values) != 6:
         raise PlanningError(f"tip_offset needs 6 values (x;y;z;roll;pitch;yaw), got {len(values)}")
@@ -214,7 +215,7 @@ def from_trajectory_msg(msg: JointTrajectory, joints: tuple[str, ...]) -> Sample
     order = [list(msg.joint_names).index(j) for j in joints]
     n = len(order)
 
-    def column(values: Any) -> np.ndarray:
+    def column(values: Any) -> NDArray[np.float64]:
         values = list(values)
         return np.array([values[i] for i in order]) if len(values) == len(msg.joint_names) else np.zeros(n)
 
@@ -241,12 +242,13 @@ def subdivide(samples: Samples, step_rad: float) -> Samples:
     return Samples(np.array(times), np.array(rows), zeros, zeros)
 
 
-def mean_velocities(samples: Samples) -> np.ndarray:
+def mean_velocities(samples: Samples) -> NDArray[np.float64]:
     """Each joint's mean velocity from every point to the next ((N - 1, J)): whatever the
     controller plays between two points, it moves at least this fast somewhere between them (a
     trajectory of positions alone says nothing more)."""
     steps, dt = np.diff(samples.positions, axis=0), np.diff(samples.times)[:, None]
-    return np.divide(steps, dt, out=np.zeros_like(steps), where=dt > 0)
+    velocities: NDArray[np.float64] = np.divide(steps, dt, out=np.zeros_like(steps), where=dt > 0)
+    return velocities
 
 
 def check_motion(safety: MotionSafety, samples: Samples, padding_m: float, check_step_rad: float,
@@ -272,16 +274,16 @@ def check_motion(safety: MotionSafety, samples: Samples, padding_m: float, check
 @dataclass(frozen=True)
 class CartesianPlan:
     samples: Samples
-    tip_poses: list[np.ndarray]
+    tip_poses: list[NDArray[np.float64]]
     """World poses of the tip at the IK points (for debug_solution and VisualizePath)."""
 
 
 def plan_cartesian(
     safety: MotionSafety,
-    start: np.ndarray,
-    targets: list[np.ndarray],
+    start: NDArray[np.float64],
+    targets: list[NDArray[np.float64]],
     tip: str,
-    offset: np.ndarray,
+    offset: NDArray[np.float64],
     position_only: bool,
     step_m: float,
     max_joint_step_rad: float,

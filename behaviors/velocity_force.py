@@ -14,6 +14,7 @@ import math
 from typing import Any, ClassVar
 
 import numpy as np
+from numpy.typing import NDArray
 from geometry_msgs.msg import WrenchStamped
 from std_msgs.msg import Float64MultiArray
 
@@ -32,7 +33,7 @@ PUBLISHER_WAIT_S = 5.0
 
 
 # -- pure math -------------------------------------------------------------------------------------
-def joint_velocities(jacobian_world: np.ndarray, tip_rotation: np.ndarray, twist_tip: np.ndarray, damping: float = DAMPING) -> np.ndarray:
+def joint_velocities(jacobian_world: NDArray[np.float64], tip_rotation: NDArray[np.float64], twist_tip: NDArray[np.float64], damping: float = DAMPING) -> NDArray[np.float64]:
     """Joint velocities that move the tip with ``twist_tip`` (vx vy vz wx wy wz in the tip's axes):
     ``J^T (J J^T + d I)^-1 [R v; R w]`` with ``J`` in world axes at the tip."""
     twist_world = np.concatenate([tip_rotation @ twist_tip[:3], tip_rotation @ twist_tip[3:]])
@@ -40,10 +41,11 @@ def joint_velocities(jacobian_world: np.ndarray, tip_rotation: np.ndarray, twist
     return j.T @ np.linalg.solve(j @ j.T + damping * np.eye(j.shape[0]), twist_world)
 
 
-def masked_twist(linear: Any, angular: Any, axes: list[int]) -> np.ndarray:
+def masked_twist(linear: Any, angular: Any, axes: list[int]) -> NDArray[np.float64]:
     """The twist's six components with the axes not velocity-controlled set to zero."""
     values = np.array([linear.x, linear.y, linear.z, angular.x, angular.y, angular.z], dtype=float)
-    return values * (np.asarray(axes, dtype=float) != 0)
+    masked: NDArray[np.float64] = values * (np.asarray(axes, dtype=float) != 0)
+    return masked
 
 
 def check_axes(velocity_axes: list[int], force_axes: list[int]) -> str | None:
@@ -111,7 +113,7 @@ class PublishVelocityForceCommand(ReadsRobotState, Behavior):
         self.last_s = now
         return Status.RUNNING
 
-    def _joint_velocities(self) -> np.ndarray:
+    def _joint_velocities(self) -> NDArray[np.float64]:
         scene = self.context.scene
         safety = make_safety(scene, self.get_input("planning_group_name"), None)
         tip = self.get_input("tip_link")

@@ -183,9 +183,11 @@ class SlotPool:
 
     def _deadline(self, slot: Any) -> float:
         if slot.state is SlotState.RUNNING:
-            return slot.since + self.episode_timeout_s
+            running_until: float = slot.since + self.episode_timeout_s
+            return running_until
         if slot.state is SlotState.LOADING:
-            return slot.since + LOAD_TIMEOUT_S
+            loading_until: float = slot.since + LOAD_TIMEOUT_S
+            return loading_until
         return float("inf")
 
     def _replace(self, slot: Any) -> None:

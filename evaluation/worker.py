@@ -82,7 +82,8 @@ class KeptWorld:
         self.world.reset(seed)
 
     def summary(self) -> dict[str, Any]:
-        return self.world.summary()
+        summary: dict[str, Any] = self.world.summary()
+        return summary
 
     def close(self) -> None:
         """Nothing: the world outlives the episode."""
