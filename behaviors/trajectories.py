@@ -131,7 +131,9 @@ def resample(timing: PathTiming, path: NDArray[np.float64], rate_hz: float) -> S
     velocities = np.gradient(positions, t, axis=0) if duration > 0 else np.zeros_like(positions)
     velocities[0] = velocities[-1] = 0.0
     accelerations = np.gradient(velocities, t, axis=0) if duration > 0 else np.zeros_like(positions)
-    return Samples(t, positions, velocities, accelerations)  # type: ignore[arg-type]  # numpy's stub: gradient of float64 is floating[Any]
+    # float64 already (no copy): typed so for numpy 2.2's stubs, where a gradient is floating[Any]
+    return Samples(np.asarray(t, dtype=np.float64), positions, np.asarray(velocities, dtype=np.float64),
+                   np.asarray(accelerations, dtype=np.float64))
 
 
 def resample_within(timing: PathTiming, path: NDArray[np.float64], rate_hz: float, limits: JointLimits) -> Samples:

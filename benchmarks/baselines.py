@@ -73,9 +73,9 @@ class TaskPath:
     duration: float
 
     def at(self, s: np.ndarray | float) -> np.ndarray:
-        s = np.clip(np.atleast_1d(np.asarray(s, dtype=float)), 0.0, self.duration)
+        along = np.clip(np.atleast_1d(np.asarray(s, dtype=float)), 0.0, self.duration)
         m = np.arange(1, len(self.amplitudes) + 1)[None, :]
-        basis = 1.0 - np.cos(m * math.pi * s[:, None] / self.duration)  # (N, harmonics)
+        basis = 1.0 - np.cos(m * math.pi * along[:, None] / self.duration)  # (N, harmonics)
         return self.start[None, :] + basis @ self.amplitudes
 
     @property
@@ -123,7 +123,7 @@ class TaskPolicy:
         """The (chunk_steps, joints) answer to call ``index`` observing ``observed``."""
         self._phase = self.phase_of(observed)
         rng = np.random.default_rng([self.seed, index])
-        joints = self.path.start.shape[0]
+        joints: int = self.path.start.shape[0]
         shift = rng.normal(0.0, self.phase_sd)
         offset = rng.normal(0.0, self.offset_sd, joints)
         jitter = rng.normal(0.0, self.jitter_sd, (self.chunk_steps, joints))

@@ -94,7 +94,7 @@ class MujocoCell:
         self._snapshot_renderer: mujoco.Renderer | None = None  # the camera thread's (sim.camera_thread)
         self._frames: dict[str, tuple[float, np.ndarray]] = {}
         self.external_wrench = np.zeros(6)  # tests push the tool with this (world frame, at the F/T site)
-        self._pushed = False  # whether xfrc_applied holds a push from external_wrench
+        self._pushed: bool | np.bool_ = False  # whether xfrc_applied holds a push from external_wrench
         self._substeps_dt, self._substeps_count = 0.0, 1
         self.t = 0.0
         self.renders = 0

@@ -161,7 +161,7 @@ def make_plan_frames(settings: PlanFrameSettings, task: str, cache: Path, worker
         arrays = {key: np.concatenate([part[key] for part in made]) for key in made[0]}
         cache.mkdir(parents=True, exist_ok=True)
         partial = path.with_suffix(".partial.npz")
-        np.savez(partial, **arrays)
+        np.savez(partial, **arrays)  # type: ignore[arg-type]  # numpy 2.4's stub: **arrays might name allow_pickle
         partial.replace(path)
         LOG.info("played %d layouts into %d frames in %.0f s (%d dropped; %s)", len(settings.seeds), len(arrays["seed"]),
                  time.monotonic() - started, len(arrays["dropped"]), path)
