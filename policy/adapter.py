@@ -27,6 +27,7 @@ import math
 from typing import Any, Sequence
 
 import numpy as np
+from numpy.typing import NDArray
 from moveit_pro_ml_msgs.srv import GetActionChunk
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray, MultiArrayDimension
@@ -59,7 +60,7 @@ class ResponseError(ObjectiveError, ValueError):
 # --------------------------------------------------------------------------------------------
 # Float64MultiArray <-> (steps, dims) arrays, step dimension first, data_offset 0
 # --------------------------------------------------------------------------------------------
-def array_to_multiarray(array: np.ndarray | None) -> Float64MultiArray:
+def array_to_multiarray(array: NDArray[np.float64] | None) -> Float64MultiArray:
     """A (steps, dims) array as ``Float64MultiArray`` with dims ``steps``, ``actions``; None -> empty."""
     msg = Float64MultiArray()
     if array is None:
@@ -77,7 +78,7 @@ def array_to_multiarray(array: np.ndarray | None) -> Float64MultiArray:
     return msg
 
 
-def multiarray_to_array(msg: Float64MultiArray, field: str = "array") -> np.ndarray | None:
+def multiarray_to_array(msg: Float64MultiArray, field: str = "array") -> NDArray[np.float64] | None:
     """A ``Float64MultiArray`` (step dimension first) as (steps, dims), or None when empty.
 
     A non-zero ``data_offset`` reads as empty, as the contract says. Data whose size does not
@@ -139,7 +140,7 @@ def request_from_msg(msg: GetActionChunk.Request) -> PolicyRequest:
     )
 
 
-def _anchor_positions(anchor: JointState, names: Sequence[str]) -> np.ndarray | None:
+def _anchor_positions(anchor: JointState, names: Sequence[str]) -> NDArray[np.float64] | None:
     """The anchor's positions in request order (by name when it names its joints)."""
     positions = np.asarray(anchor.position, dtype=float)
     if positions.size == 0:
@@ -179,7 +180,7 @@ def request_to_msg(request: PolicyRequest, image_encoding: str = "rgb8") -> GetA
 # --------------------------------------------------------------------------------------------
 # Response conversion
 # --------------------------------------------------------------------------------------------
-def not_real_problem(values: np.ndarray, joint_names: Sequence[str]) -> str | None:
+def not_real_problem(values: NDArray[Any], joint_names: Sequence[str]) -> str | None:
     """The first value of a (steps, joints) chunk that is not a real number (a bool, a complex
     number, text, None), named by step and joint; None when all are. Such values are refused,
     never coerced (``True`` is not 1.0 rad, ``'1.5'`` is not 1.5, ``1+2j`` is not 1)."""

@@ -22,6 +22,7 @@ from dataclasses import dataclass, field
 from typing import Protocol, runtime_checkable
 
 import numpy as np
+from numpy.typing import NDArray
 
 
 class PolicyStatus(enum.Enum):
@@ -38,14 +39,14 @@ class PolicyRequest:
 
     prompt: str
     joint_names: list[str]
-    joint_positions: np.ndarray
+    joint_positions: NDArray[np.float64]
     """Shape (len(joint_names),), unnormalized, in ``joint_names`` order."""
-    images: dict[str, np.ndarray] = field(default_factory=dict)
+    images: dict[str, NDArray[np.uint8]] = field(default_factory=dict)
     """Camera name -> H x W x 3 uint8 RGB (mono cameras replicated to three channels)."""
     new_episode: bool = False
-    previous_action_chunk: np.ndarray | None = None
+    previous_action_chunk: NDArray[np.float64] | None = None
     """RTC carryover, shape (steps, action_dims); None when empty / RTC off."""
-    previous_anchor_positions: np.ndarray | None = None
+    previous_anchor_positions: NDArray[np.float64] | None = None
     """Positions of ``previous_anchor_state`` (request joint order); None when not sent."""
     frozen_prefix_steps: int = 0
     guidance_horizon: int = 0
@@ -61,18 +62,18 @@ class PolicyResponse:
 
     status: PolicyStatus
     message: str = ""
-    actions: np.ndarray | None = None
+    actions: NDArray[np.float64] | None = None
     """Shape (T, len(request.joint_names)), absolute joint positions."""
     native_control_period: float = 0.0
-    policy_actions: np.ndarray | None = None
+    policy_actions: NDArray[np.float64] | None = None
     """Shape (T, A) in the policy's action space, for RTC; None when not applicable."""
 
     @classmethod
     def chunk(
         cls,
-        actions: np.ndarray,
+        actions: NDArray[np.float64],
         native_control_period: float,
-        policy_actions: np.ndarray | None = None,
+        policy_actions: NDArray[np.float64] | None = None,
         message: str = "",
     ) -> PolicyResponse:
         values = np.asarray(actions)  # real numbers as floats; anything else kept for the adapter to refuse

@@ -31,6 +31,7 @@ from dataclasses import asdict, dataclass
 from typing import Any, Sequence, cast
 
 import numpy as np
+from numpy.typing import NDArray
 
 from runtime.errors import ObjectiveError
 
@@ -53,12 +54,13 @@ class PinholeCamera:
     """3 x 3: its columns are the camera's x (image right), y (image up) and z (out of the lens, backwards)."""
     fovy_deg: float
 
-    def rays(self, rows: np.ndarray, columns: np.ndarray, height: int, width: int) -> np.ndarray:
+    def rays(self, rows: NDArray[np.intp], columns: NDArray[np.intp], height: int, width: int) -> NDArray[np.float64]:
         """World directions (N, 3) through the centres of pixels (rows, columns) of a height x width frame."""
         focal = (height / 2.0) / math.tan(math.radians(self.fovy_deg) / 2.0)
         local = np.stack([(columns + 0.5 - width / 2.0) / focal, -(rows + 0.5 - height / 2.0) / focal,
                           -np.ones(len(rows))], axis=1)
-        return local @ np.asarray(self.rotation, dtype=float).T
+        result: NDArray[np.float64] = local @ np.asarray(self.rotation, dtype=float).T
+        return result
 
 
 @dataclass(frozen=True)
@@ -128,25 +130,27 @@ class LocatedCube:
     pixels: int
 
 
-def color_mask(rgb: np.ndarray, color: str, dominance: float, min_channel: int) -> np.ndarray:
+def color_mask(rgb: NDArray[np.uint8], color: str, dominance: float, min_channel: int) -> NDArray[np.bool_]:
     """H x W bool: pixels whose ``color`` channel leads the other two by ``dominance`` and is bright enough."""
     channel = COLOR_CHANNEL[color]
     values = rgb.astype(np.int32)
     lead = values[..., channel]
     others = np.max(np.delete(values, channel, axis=-1), axis=-1)
-    return (lead >= min_channel) & (lead * 10 >= np.round(dominance * 10) * others)
+    result: NDArray[np.bool_] = (lead >= min_channel) & (lead * 10 >= np.round(dominance * 10) * others)
+    return result
 
 
-def plane_points(camera: PinholeCamera, rows: np.ndarray, columns: np.ndarray, height: int, width: int,
-                 plane_z_m: float) -> np.ndarray:
+def plane_points(camera: PinholeCamera, rows: NDArray[np.intp], columns: NDArray[np.intp], height: int, width: int,
+                 plane_z_m: float) -> NDArray[np.float64]:
     """(N, 2) x, y where the pixels' rays cross the plane z = ``plane_z_m``."""
     rays = camera.rays(rows.astype(float), columns.astype(float), height, width)
     origin = np.asarray(camera.position_m, dtype=float)
     scale = (plane_z_m - origin[2]) / rays[:, 2]
-    return origin[:2] + rays[:, :2] * scale[:, None]
+    result: NDArray[np.float64] = origin[:2] + rays[:, :2] * scale[:, None]
+    return result
 
 
-def square_yaw(points: np.ndarray) -> float:
+def square_yaw(points: NDArray[np.float64]) -> float:
     """Face heading in [-pi/4, pi/4) of a square filled by ``points`` (N, 2) (module doc, step 3)."""
     offsets = points - points.mean(axis=0)
     radius_sq = np.sum(offsets**2, axis=1)
@@ -155,7 +159,7 @@ def square_yaw(points: np.ndarray) -> float:
     return (yaw + math.pi / 4) % (math.pi / 2) - math.pi / 4
 
 
-def cube_points(rgb: np.ndarray, color: str, view: CameraView, config: CubeLocatorConfig) -> np.ndarray:
+def cube_points(rgb: NDArray[np.uint8], color: str, view: CameraView, config: CubeLocatorConfig) -> NDArray[np.float64]:
     """(N, 2) plane points of the ``color`` pixels of ``rgb`` seen from ``view`` (empty when none)."""
     rows, columns = np.nonzero(color_mask(rgb, color, config.dominance, config.min_channel))
     return plane_points(view.camera, rows, columns, rgb.shape[0], rgb.shape[1], view.plane_z_m)
@@ -167,7 +171,7 @@ def expected_pixels(view: CameraView, height: int, cube_size_m: float) -> float:
     return (cube_size_m / metres_per_pixel) ** 2
 
 
-def locate_cube(images: dict[str, np.ndarray], color: str, config: CubeLocatorConfig) -> LocatedCube:
+def locate_cube(images: dict[str, NDArray[np.uint8]], color: str, config: CubeLocatorConfig) -> LocatedCube:
     """The ``color`` cube from the request ``images`` (name -> H x W x 3 uint8); raises ``CubeNotFound``."""
     points = cube_points(images[config.position.image], color, config.position, config)
     if len(points) < config.min_pixels:
@@ -182,22 +186,22 @@ def locate_cube(images: dict[str, np.ndarray], color: str, config: CubeLocatorCo
     return LocatedCube(float(centre[0]), float(centre[1]), square_yaw(top_points if whole else points), int(len(points)))
 
 
-def cube_features(cubes: Sequence[LocatedCube]) -> np.ndarray:
+def cube_features(cubes: Sequence[LocatedCube]) -> NDArray[np.float64]:
     """The policy's view of the cubes: x, y (m) and face yaw (rad, [-pi/4, pi/4)) per cube."""
     return np.array([v for cube in cubes for v in (cube.x_m, cube.y_m, cube.yaw_rad)], dtype=np.float32)
 
 
-def layout_features(poses: Sequence[tuple[float, float, float]]) -> np.ndarray:
+def layout_features(poses: Sequence[tuple[float, float, float]]) -> NDArray[np.float64]:
     """``cube_features`` of known (x, y, yaw) poses (what training reads from a layout)."""
     return cube_features([LocatedCube(x, y, yaw, 0) for x, y, yaw in poses])
 
 
-def locate_cubes(images: dict[str, np.ndarray], config: CubeLocatorConfig) -> list[LocatedCube]:
+def locate_cubes(images: dict[str, NDArray[np.uint8]], config: CubeLocatorConfig) -> list[LocatedCube]:
     """Every cube of ``config.colors``, in that order."""
     return [locate_cube(images, color, config) for color in config.colors]
 
 
-def painted_frame(colors: Sequence[str], size: int = 224, patch: int = 6) -> np.ndarray:
+def painted_frame(colors: Sequence[str], size: int = 224, patch: int = 6) -> NDArray[np.uint8]:
     """A black ``size`` px frame with a ``patch`` px square of each colour along the middle row (a
     synthetic observation the locator reads, for warm-ups)."""
     frame = np.zeros((size, size, 3), dtype=np.uint8)

@@ -71,7 +71,8 @@ def load_factory(text: str) -> Callable[..., Any]:
                            f"(callables it defines: {', '.join(defined) or 'none'})")
     if not callable(factory):
         raise FactoryError(f"policy factory {text}: '{name}' is a {type(factory).__name__}, not a function")
-    return factory
+    result: Callable[..., Any] = factory
+    return result
 
 
 def build_backend(text: str, options: Any) -> PolicyBackend:
@@ -88,7 +89,8 @@ def build_backend(text: str, options: Any) -> PolicyBackend:
         lacks = ", ".join(f"{m}()" for m in missing) or "a name (str)"
         raise FactoryError(f"policy factory {text} returned {type(backend).__name__}, not a policy backend "
                            f"(it lacks {lacks}; a backend has name, load(), warmup(request) and infer(request))")
-    return backend
+    result: PolicyBackend = backend
+    return result
 
 
 def _import_file(path: Path, text: str) -> Any:

@@ -12,6 +12,7 @@ naming the image, because a wrong camera-to-slot mapping is otherwise invisible.
 from __future__ import annotations
 
 import numpy as np
+from numpy.typing import NDArray
 from sensor_msgs.msg import Image
 
 from runtime.errors import ObjectiveError
@@ -24,7 +25,7 @@ class ImageError(ObjectiveError, ValueError):
     """A frame cannot be read; the message names the image and what is wrong."""
 
 
-def image_to_rgb(msg: Image, name: str = "") -> np.ndarray:
+def image_to_rgb(msg: Image, name: str = "") -> NDArray[np.uint8]:
     """An H x W x 3 uint8 RGB copy of ``msg`` (``name`` is used in error messages)."""
     label = f"image '{name}'" if name else "image"
     encoding = msg.encoding.lower()
@@ -54,7 +55,7 @@ def image_to_rgb(msg: Image, name: str = "") -> np.ndarray:
     return pixels.copy()
 
 
-def rgb_to_image(pixels: np.ndarray, encoding: str = "rgb8", frame_id: str = "") -> Image:
+def rgb_to_image(pixels: NDArray[np.uint8], encoding: str = "rgb8", frame_id: str = "") -> Image:
     """A ``sensor_msgs/Image`` from an H x W x 3 RGB (or H x W mono) uint8 array.
 
     ``encoding`` picks the wire format: ``rgb8`` as is, ``bgr8`` with the channels reversed,

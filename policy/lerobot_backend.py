@@ -57,6 +57,7 @@ from types import SimpleNamespace
 from typing import Any, Mapping, Sequence
 
 import numpy as np
+from numpy.typing import NDArray
 
 from runtime.errors import ObjectiveError, OptionError
 
@@ -236,7 +237,7 @@ def checked_crop(camera: str, box: Sequence[float]) -> CameraCrop:
             f"crop of camera '{camera}' must be [top, left, bottom, right] fractions with 0 <= top < bottom <= 1 "
             f"and 0 <= left < right <= 1, got {list(box)}"
         )
-    return values  # type: ignore[return-value]
+    return values
 
 
 def crop_slices(height: int, width: int, box: CameraCrop) -> tuple[slice, slice]:
@@ -261,7 +262,7 @@ def parse_camera_map(text: str) -> dict[str, str]:
     return mapping
 
 
-def frame_to_rgb(frame: np.ndarray, encoding: str = "rgb8", name: str = "") -> np.ndarray:
+def frame_to_rgb(frame: NDArray[Any], encoding: str = "rgb8", name: str = "") -> NDArray[np.uint8]:
     """An H x W x 3 uint8 RGB view of ``frame`` given as ``rgb8``, ``bgr8`` (H x W x 3) or ``mono8`` (H x W)."""
     label = f"image '{name}'" if name else "image"
     array = np.asarray(frame)
@@ -472,11 +473,11 @@ class LeRobotBackend:
         """A flow-sampled chunk is the mean of this many samples (the metadata's ``chunk_samples``)."""
         self.action_range: tuple[Any, Any] | None = None
         """(low, high) per action column the chunk is clipped into (the metadata's ``action_range``)."""
-        self.located: np.ndarray | None = None
+        self.located: NDArray[np.float64] | None = None
         """The cube features located in the current episode's first request."""
         self.keypoint_config: Any = None
         """``KeypointConfig`` when the metadata names ``stack_keypoints``."""
-        self.keypoints: np.ndarray | None = None
+        self.keypoints: NDArray[np.float64] | None = None
         """(4, arm joints): the current episode's keypoints (``stack_keypoints``)."""
         self._mappings: dict[tuple[str, ...], dict[str, str]] = {}
 
@@ -602,7 +603,7 @@ class LeRobotBackend:
         self._require_loaded()
         names = self.joint_names or [f"joint_{i}" for i in range(self.action_dim)]
         request_name = {target: name for name, target in self.options.camera_map.items()}
-        images = {}
+        images: dict[str, NDArray[np.uint8]] = {}
         for key in self.camera_keys:
             height, width = self.image_sizes[key]
             name = request_name.get(camera_name(key), request_name.get(key, camera_name(key)))
@@ -739,7 +740,7 @@ class LeRobotBackend:
             observation[key] = self._image_tensor(rgb, self.image_sizes[key])
         return observation
 
-    def _locate(self, request: PolicyRequest) -> np.ndarray:
+    def _locate(self, request: PolicyRequest) -> NDArray[np.float64]:
         """The cube features of the request's frames (``cube_locator``); a missing image or cube raises ValueError."""
         from .cube_locator import cube_features, locate_cubes
 
@@ -763,7 +764,7 @@ class LeRobotBackend:
         return self._mappings[cache_key]
 
     @staticmethod
-    def _image_tensor(rgb: np.ndarray, size: tuple[int, int]) -> Any:
+    def _image_tensor(rgb: NDArray[np.uint8], size: tuple[int, int]) -> Any:
         """CHW float32 in [0, 1] at ``size`` (``resize_frames``)."""
         import torch
 
@@ -796,7 +797,7 @@ class LeRobotBackend:
             "execution_horizon": horizon,
         }
 
-    def _reanchored(self, request: PolicyRequest, tail: np.ndarray) -> np.ndarray:
+    def _reanchored(self, request: PolicyRequest, tail: NDArray[np.float64]) -> NDArray[np.float64]:
         """A relative policy's normalized leftover, made relative to this request's joints: it was relative to
         the joints of the request that produced it (``previous_anchor_positions``)."""
         import torch
@@ -812,7 +813,8 @@ class LeRobotBackend:
         absolute = self.postprocessor(torch.from_numpy(tail)[None]).to(torch.float32) + anchor
         normalizer = next(step for step in self.preprocessor.steps if isinstance(step, NormalizerProcessorStep))
         relative = RelativeActionsProcessorStep(enabled=True)
-        return reanchor_relative_rtc_prefix(absolute, current, relative, normalizer, "cpu")[0].numpy()
+        result: NDArray[np.float64] = reanchor_relative_rtc_prefix(absolute, current, relative, normalizer, "cpu")[0].numpy()
+        return result
 
     def _starting_noise(self, samples: int = 1) -> dict[str, Any]:
         """The ``noise`` keyword of ``predict_action_chunk`` (``samples`` draws stacked) at a noise scale

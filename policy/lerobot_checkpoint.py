@@ -8,7 +8,7 @@ from typing import Any
 from .lerobot_backend import METADATA_FILE, VLM_DIRNAME
 
 
-def write_metadata(folder: str | Path, metadata: dict) -> Path:
+def write_metadata(folder: str | Path, metadata: dict[str, Any]) -> Path:
     """Write ``objective_policy.json`` next to a checkpoint: what LeRobot's format does not keep and
     the backend needs (``joint_names``, ``control_period``, ``default_guidance_horizon``, and the
     training ``prompts`` for information)."""
@@ -17,7 +17,7 @@ def write_metadata(folder: str | Path, metadata: dict) -> Path:
     return path
 
 
-def save_checkpoint(folder: str | Path, config: Any, policy: Any, stats: dict, metadata: dict) -> Path:
+def save_checkpoint(folder: str | Path, config: Any, policy: Any, stats: dict[str, Any], metadata: dict[str, Any]) -> Path:
     """Save a policy in LeRobot's format, with its processors, metadata and (a SmolVLA) backbone folder.
 
     ``stats`` are the normalization statistics (``{"observation.state": {"mean", "std", "min",

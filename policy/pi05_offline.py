@@ -20,6 +20,7 @@ from pathlib import Path
 from typing import Any, Iterator
 
 import numpy as np
+from numpy.typing import NDArray
 
 from .lerobot_backend import TOKENIZER_DIRNAME, enable_rtc
 from .lerobot_checkpoint import save_checkpoint
@@ -97,7 +98,7 @@ def build_pi05_checkpoint(folder: str | Path, joint_names: list[str], spec: Pi05
     config = pi05_config(spec)
     policy = PI05Policy(config)
 
-    def unit(width: int) -> dict[str, np.ndarray]:
+    def unit(width: int) -> dict[str, NDArray[np.float64]]:
         return {"mean": np.zeros(width), "std": np.ones(width), "min": -np.ones(width), "max": np.ones(width),
                 "q01": -np.ones(width), "q99": np.ones(width)}
 

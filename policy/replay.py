@@ -31,6 +31,7 @@ from pathlib import Path
 from typing import Iterable, Sequence
 
 import numpy as np
+from numpy.typing import NDArray
 
 from runtime.errors import ObjectiveError
 
@@ -44,9 +45,9 @@ class ReplayFileError(ObjectiveError, ValueError):
 @dataclass
 class RecordedChunk:
     joint_names: list[str]
-    actions: np.ndarray
+    actions: NDArray[np.float64]
     native_control_period: float = 0.0
-    policy_actions: np.ndarray | None = None
+    policy_actions: NDArray[np.float64] | None = None
 
     def to_json(self) -> str:
         return json.dumps(

@@ -40,7 +40,7 @@ def wrap_quarter(angle: float) -> float:
     return (angle + math.pi / 4) % (math.pi / 2) - math.pi / 4
 
 
-def tcp_yaw(pose: np.ndarray) -> float:
+def tcp_yaw(pose: NDArray[np.float64]) -> float:
     """Heading of the TCP's x axis projected on the table."""
     return math.atan2(pose[1, 0], pose[0, 0])
 
@@ -50,7 +50,7 @@ def aligned_yaw(face_yaw: float, reference: float) -> float:
     return reference + wrap_quarter(face_yaw - reference)
 
 
-def top_down_pose(position: Sequence[float] | NDArray[np.float64], yaw: float) -> np.ndarray:
+def top_down_pose(position: Sequence[float] | NDArray[np.float64], yaw: float) -> NDArray[np.float64]:
     """TCP pose at ``position`` pointing straight down, its x axis at heading ``yaw``.
 
     With z = -world z and x = (cos yaw, sin yaw, 0), the fingers (closing along y) close along
@@ -82,10 +82,10 @@ class StackGeometry:
 class StackPoses:
     """The four tool poses of a stack (4x4 each) and the grasp's and the place's yaws (rad)."""
 
-    pre_grasp: np.ndarray
-    grasp: np.ndarray
-    pre_place: np.ndarray
-    place: np.ndarray
+    pre_grasp: NDArray[np.float64]
+    grasp: NDArray[np.float64]
+    pre_place: NDArray[np.float64]
+    place: NDArray[np.float64]
     grasp_yaw_rad: float
     place_yaw_rad: float
 
@@ -108,21 +108,22 @@ def stack_poses(top_position_m: Sequence[float] | NDArray[np.float64], top_face_
 # ---------------------------------------------------------------------------------------------
 # The arm's kinematic chain (numpy)
 # ---------------------------------------------------------------------------------------------
-def _matrix(values: Any, shape: tuple[int, ...], what: str) -> np.ndarray:
+def _matrix(values: Any, shape: tuple[int, ...], what: str) -> NDArray[np.float64]:
     array = np.asarray(values, dtype=float)
     if array.shape != shape or not np.all(np.isfinite(array)):
         raise KeypointError(f"{what} must be {shape} finite numbers, got {values!r}")
     return array
 
 
-def _rotation_about(axis: np.ndarray, angle: float) -> np.ndarray:
+def _rotation_about(axis: NDArray[np.float64], angle: float) -> NDArray[np.float64]:
     """Rodrigues' rotation of ``angle`` about the unit ``axis``."""
     x, y, z = axis
     k = np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
-    return np.eye(3) + math.sin(angle) * k + (1.0 - math.cos(angle)) * (k @ k)
+    result: NDArray[np.float64] = np.eye(3) + math.sin(angle) * k + (1.0 - math.cos(angle)) * (k @ k)
+    return result
 
 
-def _rotation_error(target: np.ndarray, current: np.ndarray) -> np.ndarray:
+def _rotation_error(target: NDArray[np.float64], current: NDArray[np.float64]) -> NDArray[np.float64]:
     """The rotation vector (world axes) that turns ``current`` into ``target``."""
     r = target @ current.T
     angle = math.acos(max(-1.0, min(1.0, (np.trace(r) - 1.0) / 2.0)))
@@ -131,7 +132,8 @@ def _rotation_error(target: np.ndarray, current: np.ndarray) -> np.ndarray:
         return vee / 2.0
     if math.pi - angle < 1e-6:  # half a turn: the axis from the symmetric part
         axis = np.sqrt(np.maximum((np.diag(r) + 1.0) / 2.0, 0.0))
-        return axis * angle
+        result: NDArray[np.float64] = axis * angle
+        return result
     return vee * angle / (2.0 * math.sin(angle))
 
 
@@ -144,13 +146,13 @@ class ArmChain:
     """
 
     joint_names: tuple[str, ...]
-    placements: tuple[np.ndarray, ...]
-    axes: tuple[np.ndarray, ...]
-    tool: np.ndarray
-    lower_rad: np.ndarray
-    upper_rad: np.ndarray
+    placements: tuple[NDArray[np.float64], ...]
+    axes: tuple[NDArray[np.float64], ...]
+    tool: NDArray[np.float64]
+    lower_rad: NDArray[np.float64]
+    upper_rad: NDArray[np.float64]
 
-    def frames(self, q: np.ndarray) -> tuple[list[np.ndarray], np.ndarray]:
+    def frames(self, q: NDArray[np.float64]) -> tuple[list[NDArray[np.float64]], NDArray[np.float64]]:
         """Each joint's world frame (4x4, turned by its angle) and the tool's pose."""
         pose, frames = np.eye(4), []
         for placement, axis, angle in zip(self.placements, self.axes, np.asarray(q, dtype=float)):
@@ -161,11 +163,11 @@ class ArmChain:
             frames.append(pose)
         return frames, pose @ self.tool
 
-    def tool_pose(self, q: np.ndarray) -> np.ndarray:
+    def tool_pose(self, q: NDArray[np.float64]) -> NDArray[np.float64]:
         return self.frames(q)[1]
 
-    def solve_ik(self, target: np.ndarray, seed: np.ndarray, max_iterations: int = 300, tolerance_m: float = 1e-6,
-                 tolerance_rad: float = 1e-5, damping: float = 1e-6) -> np.ndarray:
+    def solve_ik(self, target: NDArray[np.float64], seed: NDArray[np.float64], max_iterations: int = 300, tolerance_m: float = 1e-6,
+                 tolerance_rad: float = 1e-5, damping: float = 1e-6) -> NDArray[np.float64]:
         """Joints that put the tool at ``target`` (4x4), by damped least squares from ``seed`` alone
         (no restarts: the keypoints chain from Home and must stay on its branch)."""
         q = np.asarray(seed, dtype=float).copy()
@@ -220,7 +222,7 @@ class KeypointConfig:
     """What the policy needs to turn located cubes into keypoints (``objective_policy.json``'s ``stack_keypoints``)."""
 
     chain: ArmChain
-    home_rad: np.ndarray
+    home_rad: NDArray[np.float64]
     """The arm at Home, where the keypoints chain from."""
     geometry: StackGeometry
     cube_center_z_m: float
@@ -249,7 +251,7 @@ class KeypointConfig:
         return cls(chain, home, StackGeometry(**numbers), center_z)
 
 
-def stack_keypoints(cubes: np.ndarray, config: KeypointConfig) -> np.ndarray:
+def stack_keypoints(cubes: NDArray[np.float64], config: KeypointConfig) -> NDArray[np.float64]:
     """(4, joints): the arm at ``KEYPOINTS`` for located cubes ``cubes`` (x, y, face yaw of the top cube,
     then of the bottom one: ``cube_locator.cube_features``), each solved from the one the arm comes from
     (the pre-grasp from Home, the pre-place from the pre-grasp, where the lift ends)."""
@@ -276,7 +278,7 @@ def keypoint_feature_count(arm_joints: int) -> int:
     return 2 * len(KEYPOINTS) * arm_joints
 
 
-def keypoint_features(arm_rad: np.ndarray, keypoints: np.ndarray) -> np.ndarray:
+def keypoint_features(arm_rad: NDArray[np.floating[Any]], keypoints: NDArray[np.float64]) -> NDArray[np.float64]:
     """The keypoints' offsets from the observed arm joints, flattened keypoint by keypoint, then their fine
     copy (``FINE_SCALE_RAD``). Batched: ``arm_rad`` (..., J) and ``keypoints`` (..., 4, J) give (..., 8 J)."""
     arm = np.asarray(arm_rad, dtype=float)

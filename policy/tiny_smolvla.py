@@ -21,10 +21,11 @@ Importing this module keeps the hub offline (:mod:`policy.lerobot_offline`).
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any
 from pathlib import Path
 
 from .lerobot_backend import VLM_DIRNAME, enable_rtc
-from .lerobot_checkpoint import save_checkpoint, write_metadata  # noqa: F401  (kept importable from here)
+from .lerobot_checkpoint import save_checkpoint as save_checkpoint, write_metadata as write_metadata  # kept importable from here
 from .lerobot_offline import force_offline
 from .word_tokenizer import word_level_tokenizer
 
@@ -148,7 +149,7 @@ def image_key(camera: str) -> str:
     return f"observation.images.{camera}"
 
 
-def tiny_smolvla_config(vlm_folder: str | Path, spec: TinySmolVLASpec = TinySmolVLASpec(), rtc: bool = True):
+def tiny_smolvla_config(vlm_folder: str | Path, spec: TinySmolVLASpec = TinySmolVLASpec(), rtc: bool = True) -> Any:
     """A ``SmolVLAConfig`` for the tiny backbone in ``vlm_folder``; RTC enabled when ``rtc``.
 
     Everything is trainable (the backbone has random weights, so freezing it would freeze noise),
@@ -193,7 +194,7 @@ def tiny_smolvla_config(vlm_folder: str | Path, spec: TinySmolVLASpec = TinySmol
     return config
 
 
-def build_tiny_smolvla(folder: str | Path, spec: TinySmolVLASpec = TinySmolVLASpec(), rtc: bool = True):
+def build_tiny_smolvla(folder: str | Path, spec: TinySmolVLASpec = TinySmolVLASpec(), rtc: bool = True) -> tuple[Any, Any]:
     """Write the tiny backbone under ``folder/vlm`` and build ``(config, policy)`` with random weights."""
     from lerobot.policies.smolvla.modeling_smolvla import SmolVLAPolicy
 

@@ -45,6 +45,7 @@ import reprlib
 from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
 
 from runtime.errors import ObjectiveError
 
@@ -76,7 +77,7 @@ class WireError(ObjectiveError, ValueError):
 # --------------------------------------------------------------------------------------------
 # Arrays
 # --------------------------------------------------------------------------------------------
-def encode_array(array: np.ndarray) -> dict[str, Any]:
+def encode_array(array: NDArray[Any]) -> dict[str, Any]:
     """``{"dtype", "shape", "data"}`` for a uint8 or float array (other dtypes become float64)."""
     data = np.asarray(array)
     if data.dtype == np.uint8:
@@ -89,7 +90,7 @@ def encode_array(array: np.ndarray) -> dict[str, Any]:
     return {"dtype": name, "shape": list(data.shape), "data": base64.b64encode(data.tobytes()).decode("ascii")}
 
 
-def decode_array(obj: Any, field: str, dtypes: tuple[str, ...] = ("uint8", "float32", "float64")) -> np.ndarray:
+def decode_array(obj: Any, field: str, dtypes: tuple[str, ...] = ("uint8", "float32", "float64")) -> NDArray[Any]:
     """The array ``obj`` encodes; ``WireError`` naming ``field`` when anything does not add up."""
     if not isinstance(obj, dict) or set(obj) != {"dtype", "shape", "data"}:
         raise WireError(f"'{field}' must be an array object with exactly the keys dtype, shape, data")
@@ -260,7 +261,8 @@ def read_error(body: bytes) -> str:
     except (ValueError, UnicodeDecodeError, RecursionError):
         obj = None
     if isinstance(obj, dict) and isinstance(obj.get("error"), str):
-        return obj["error"]
+        result: str = obj["error"]
+        return result
     text = body[:200].decode("utf-8", "replace").strip()
     return text or "no reason given"
 

@@ -299,7 +299,8 @@ def _field_writer(kind: Any) -> FieldWriter | None:
 
 
 def _message_class(kind: Any) -> type:
-    return getattr(importlib.import_module(".".join(kind.namespaces)), kind.name)
+    result: type = getattr(importlib.import_module(".".join(kind.namespaces)), kind.name)
+    return result
 
 
 class MessageEncoder:

@@ -50,7 +50,8 @@ from .files import EVENTS_FILE, MCAP_FILE, REPORT_FILES, open_existing, open_new
 from .handoff import Handoff
 from .mcap_writer import LATCHED_QOS, McapRos2Writer, to_nanoseconds, wall_clock_origin_ns
 from .reserve import append_line, release, reserve, why_not_written
-from .scene_view import ROBOT_MARKERS_TOPIC, SCENE_MARKERS_TOPIC, TF_STATIC_TOPIC, SceneView
+from .scene_view import ROBOT_MARKERS_TOPIC, SCENE_MARKERS_TOPIC, SceneView
+from .tf_model import TF_STATIC_TOPIC
 
 
 

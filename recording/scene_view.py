@@ -23,6 +23,7 @@ from typing import Any, Callable
 
 import coal
 import numpy as np
+from numpy.typing import NDArray
 import pinocchio as pin
 from builtin_interfaces.msg import Time
 from geometry_msgs.msg import Point, Pose
@@ -104,13 +105,13 @@ class JointMap:
     """A joint state's positions (in one order of names) to the robot's full configuration, as
     ``robot.configuration`` computes it, precomputed once per order (it runs at 50 Hz)."""
 
-    neutral: np.ndarray
-    rows: np.ndarray
+    neutral: NDArray[np.float64]
+    rows: NDArray[np.float64]
     """For each configuration entry set: which position sets it..."""
-    q_index: np.ndarray
+    q_index: NDArray[np.intp]
     """...which entry of q it is..."""
-    multiplier: np.ndarray
-    offset: np.ndarray
+    multiplier: NDArray[np.float64]
+    offset: NDArray[np.float64]
     """...and how (a coupled joint follows its driver: multiplier * value + offset)."""
 
     @classmethod
@@ -128,7 +129,7 @@ class JointMap:
         return cls(np.asarray(robot.neutral(), dtype=float), np.array(rows, dtype=int), np.array(list(entries), dtype=int),
                    np.array(multipliers, dtype=float), np.array(offsets, dtype=float))
 
-    def configuration(self, positions: Any) -> np.ndarray:
+    def configuration(self, positions: Any) -> NDArray[np.float64]:
         q = self.neutral.copy()
         q[self.q_index] = self.multiplier * np.asarray(positions, dtype=float)[self.rows] + self.offset
         return q
@@ -148,7 +149,7 @@ class TfEncoder:
         template = TfTemplate([(tree.parents[link], link) for link in links])
         self._buffer, self._stamp_at, self._values_at = template.buffer, template.stamp_at, template.values_at
 
-    def encode(self, q: np.ndarray, stamp: Time) -> SerializedMessage:
+    def encode(self, q: NDArray[np.float64], stamp: Time) -> SerializedMessage:
         data = self.tree.data
         pin.framesForwardKinematics(self.tree.model, data, q)
         poses = data.oMf
@@ -172,7 +173,7 @@ _UNALIGNED = {"JointModelRevoluteUnaligned": "revolute", "JointModelRevoluteUnbo
               "JointModelPrismaticUnaligned": "prismatic"}
 
 
-def _joint_motion(joint: Any) -> tuple[str, np.ndarray] | None:
+def _joint_motion(joint: Any) -> tuple[str, NDArray[np.float64]] | None:
     """(kind, unit axis) of a one-axis joint; None for any other (spherical, free-flyer...)."""
     name = joint.shortname()
     if name in _REVOLUTE:
@@ -231,11 +232,12 @@ def tf_model(robot: Any, tree: LinkTree) -> TfModel | None:
     return TfModel(tuple(moving), tuple(fixed))  # type: ignore[arg-type]
 
 
-def _hull_triangles(hull: Any) -> np.ndarray:
+def _hull_triangles(hull: Any) -> NDArray[np.float64]:
     """(3 * n_triangles, 3) vertices of a coal convex hull, as a triangle list."""
     points = np.asarray(hull.points())
     indices = np.array([[hull.polygons(i)[k] for k in range(3)] for i in range(hull.num_polygons)], dtype=int)
-    return points[indices.reshape(-1)]
+    result: NDArray[np.float64] = points[indices.reshape(-1)]
+    return result
 
 
 def _shape_markers(geometry: Any, pose: pin.SE3) -> list[Marker]:
@@ -439,7 +441,7 @@ class SceneView:
             self._write(TF_STATIC_TOPIC, TfEncoder(tree, tree.fixed).encode(self._configuration(robot, msg), stamp), seconds)
         self._write(ROBOT_MARKERS_TOPIC, robot_markers_cdr(robot, stamp), seconds)
 
-    def _configuration(self, robot: Any, msg: Any) -> np.ndarray:
+    def _configuration(self, robot: Any, msg: Any) -> NDArray[np.float64]:
         names = tuple(msg.name)
         if names not in self._joint_maps:
             self._joint_maps[names] = JointMap.of(robot, names)

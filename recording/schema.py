@@ -42,7 +42,8 @@ def type_name(msg_class: type) -> str:
 
 def _nested_class(t: idl.NamespacedType) -> type:
     module = importlib.import_module(".".join(t.namespaces))
-    return getattr(module, t.name)
+    result: type = getattr(module, t.name)
+    return result
 
 
 def _field_type(t: Any, nested: list[idl.NamespacedType]) -> str:
@@ -62,7 +63,8 @@ def _field_type(t: Any, nested: list[idl.NamespacedType]) -> str:
     if isinstance(t, idl.UnboundedWString):
         return "wstring"
     if isinstance(t, idl.BasicType):
-        return _BASIC.get(t.typename, t.typename)
+        result: str = _BASIC.get(t.typename, t.typename)
+        return result
     if isinstance(t, idl.NamespacedType):
         nested.append(t)
         return f"{t.namespaces[0]}/{t.name}"  # as .msg files spell it; the MSG: line has pkg/msg/Type
@@ -141,4 +143,5 @@ def message_class(name: str) -> type:
         found = getattr(getattr(module, interface, None), member, None)
     if found is None:
         raise ValueError(f"no type '{parts[2]}' in {parts[0]}.{parts[1]}")
-    return found
+    result: type = found
+    return result

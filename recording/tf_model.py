@@ -26,6 +26,7 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
 
 from .cdr import ENCAPSULATION, add_string, align
 
@@ -86,19 +87,19 @@ class TfModel:
 
 
 # -- the coefficients (the run's side) ---------------------------------------------------------
-def _quat_left(q: np.ndarray) -> np.ndarray:
+def _quat_left(q: NDArray[np.float64]) -> NDArray[np.float64]:
     """The 4 x 4 matrix of ``p -> q * p`` (quaternions as x, y, z, w)."""
     x, y, z, w = q
     return np.array([[w, -z, y, x], [z, w, -x, y], [-y, x, w, z], [-x, -y, -z, w]])
 
 
-def _quat_right(q: np.ndarray) -> np.ndarray:
+def _quat_right(q: NDArray[np.float64]) -> NDArray[np.float64]:
     """The 4 x 4 matrix of ``p -> p * q`` (quaternions as x, y, z, w)."""
     x, y, z, w = q
     return np.array([[w, z, -y, x], [-z, w, x, y], [y, -x, w, z], [-x, -y, -z, w]])
 
 
-def _quat_of(rotation: np.ndarray) -> np.ndarray:
+def _quat_of(rotation: NDArray[np.float64]) -> NDArray[np.float64]:
     """A unit quaternion (x, y, z, w) of a rotation matrix."""
     m = rotation
     trace = m[0, 0] + m[1, 1] + m[2, 2]
@@ -112,11 +113,12 @@ def _quat_of(rotation: np.ndarray) -> np.ndarray:
         q = [0.0, 0.0, 0.0, (m[k, j] - m[j, k]) / s]
         q[i], q[j], q[k] = 0.25 * s, (m[j, i] + m[i, j]) / s, (m[k, i] + m[i, k]) / s
     quaternion = np.array(q)
-    return quaternion / np.linalg.norm(quaternion)
+    result: NDArray[np.float64] = quaternion / np.linalg.norm(quaternion)
+    return result
 
 
-def link_coefficients(before: tuple[np.ndarray, np.ndarray], kind: str, axis: np.ndarray | None,
-                      after: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
+def link_coefficients(before: tuple[NDArray[np.float64], NDArray[np.float64]], kind: str, axis: NDArray[np.float64] | None,
+                      after: tuple[NDArray[np.float64], NDArray[np.float64]]) -> NDArray[np.float64]:
     """The 6 x 7 coefficients of ``before * motion(v) * after`` (each a rotation matrix and a
     translation); ``kind``: ``"revolute"``, ``"prismatic"`` or ``"fixed"``; ``axis``: a unit vector."""
     ra, ta = before
@@ -143,21 +145,22 @@ def link_coefficients(before: tuple[np.ndarray, np.ndarray], kind: str, axis: np
 
 
 # -- evaluation (the worker's side) ------------------------------------------------------------
-def link_values(coefficients: np.ndarray, values: np.ndarray) -> np.ndarray:
+def link_values(coefficients: NDArray[np.float64], values: NDArray[np.float64]) -> NDArray[np.float64]:
     """(n_states, n_links, 7) x y z qx qy qz qw of every link, from its coefficients
     (n_links, 6, 7) and its joint's value in each state (n_states, n_links)."""
     half = 0.5 * values
     features = np.stack([np.ones_like(values), np.cos(values), np.sin(values), np.cos(half), np.sin(half), values], axis=-1)
-    return np.einsum("nlf,lfo->nlo", features, coefficients)
+    result: NDArray[np.float64] = np.einsum("nlf,lfo->nlo", features, coefficients)
+    return result
 
 
 @dataclass(frozen=True)
 class _ValueMap:
     """For one list of joint state names: each link's joint value = multiplier * position[row] + offset."""
 
-    rows: np.ndarray
-    multiplier: np.ndarray
-    offset: np.ndarray
+    rows: NDArray[np.float64]
+    multiplier: NDArray[np.float64]
+    offset: NDArray[np.float64]
 
     @classmethod
     def of(cls, links: tuple[LinkTf, ...], names: tuple[str, ...]) -> "_ValueMap":
@@ -175,10 +178,11 @@ class _ValueMap:
                 offset.append(driver.offset)
         return cls(np.array(rows, dtype=int), np.array(multiplier), np.array(offset))
 
-    def values(self, positions: np.ndarray) -> np.ndarray:
+    def values(self, positions: NDArray[np.float64]) -> NDArray[np.float64]:
         """(n_states, n_links) joint values of (n_states, n_names) positions."""
         padded = np.concatenate([positions, np.zeros((len(positions), 1))], axis=1)  # the row no name drives
-        return self.multiplier * padded[:, self.rows] + self.offset
+        result: NDArray[np.float64] = self.multiplier * padded[:, self.rows] + self.offset
+        return result
 
 
 _STAMP_DTYPE = np.dtype([("sec", "<i4"), ("nanosec", "<u4")])
@@ -205,7 +209,7 @@ class TfTemplate:
         self._stamp_index = (np.array(stamps, dtype=int)[:, None] + np.arange(8)).ravel()
         self._values_index = (np.array(values, dtype=int)[:, None] + np.arange(56)).ravel()
 
-    def encode(self, values: np.ndarray, stamps_ns: list[int]) -> list[bytes]:
+    def encode(self, values: NDArray[np.float64], stamps_ns: list[int]) -> list[bytes]:
         """One message per stamp: every entry stamped alike, ``values`` (n_states, n, 7) in order."""
         out = np.tile(np.frombuffer(self.buffer, dtype=np.uint8), (len(stamps_ns), 1))
         stamps = np.array([divmod(ns, 1_000_000_000) for ns in stamps_ns], dtype=_STAMP_DTYPE)

@@ -37,10 +37,10 @@ from .mcap_reader import ReadLimits, messages, records
 class JointSeries:
     """Measured joint states: ``position``/``velocity`` are (samples x joints), NaN where missing."""
 
-    times: np.ndarray
+    times: NDArray[np.float64]
     names: list[str]
-    position: np.ndarray
-    velocity: np.ndarray
+    position: NDArray[np.float64]
+    velocity: NDArray[np.float64]
 
 
 @dataclass
@@ -50,9 +50,9 @@ class CommandedGoal:
     topic: str
     sent_at: float
     names: list[str]
-    times: np.ndarray
-    position: np.ndarray
-    velocity: np.ndarray
+    times: NDArray[np.float64]
+    position: NDArray[np.float64]
+    velocity: NDArray[np.float64]
 
     @property
     def start(self) -> float:
@@ -69,7 +69,7 @@ class CameraFrame:
 
     time: float
     request: int
-    views: list[tuple[str, np.ndarray]]
+    views: list[tuple[str, NDArray[np.uint8]]]
     """(image name, H x W x 3 uint8 RGB) in the request's order."""
 
 
@@ -103,7 +103,7 @@ class Recording:
         return out
 
 
-def image_rgb(msg: Any) -> np.ndarray:
+def image_rgb(msg: Any) -> NDArray[np.uint8]:
     """H x W x 3 uint8 RGB pixels of a sensor_msgs/Image (rgb8, bgr8, rgba8, bgra8, mono8)."""
     channels = {"rgb8": 3, "bgr8": 3, "rgba8": 4, "bgra8": 4, "mono8": 1}
     encoding = msg.encoding.lower()
@@ -120,7 +120,8 @@ def image_rgb(msg: Any) -> np.ndarray:
 
 
 def _seconds(t: Any) -> float:
-    return t.sec + t.nanosec * 1e-9
+    result: float = t.sec + t.nanosec * 1e-9
+    return result
 
 
 def read_events(path: Path, recording: Recording) -> None:
@@ -194,7 +195,7 @@ def _goal(topic: str, sent_at: float, trajectory: TrajectoryArrays) -> Commanded
     times = start + np.array(trajectory.times_s, dtype=float)
     n = len(trajectory.joint_names)
 
-    def column(rows: tuple[tuple[float, ...], ...]) -> np.ndarray:
+    def column(rows: tuple[tuple[float, ...], ...]) -> NDArray[np.float64]:
         return np.array([row or [np.nan] * n for row in rows], dtype=float).reshape(len(rows), n)
 
     return CommandedGoal(topic, sent_at, list(trajectory.joint_names), times, column(trajectory.positions),

@@ -14,6 +14,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
 
 from ..files import write_new
 from .data import CommandedGoal, Recording
@@ -33,9 +34,9 @@ CHAR_WIDTH_EM = 0.6
 
 @dataclass
 class Series:
-    times: np.ndarray
-    position: np.ndarray
-    velocity: np.ndarray
+    times: NDArray[np.float64]
+    position: NDArray[np.float64]
+    velocity: NDArray[np.float64]
 
 
 def commanded_series(goals: list[CommandedGoal], joint: str, end_s: float = np.inf) -> Series | None:
@@ -115,7 +116,7 @@ def committed_windows(recording: Recording) -> list[float | None]:
     return windows
 
 
-def y_range(data: np.ndarray, limits: list[float]) -> tuple[tuple[float, float], list[float], bool]:
+def y_range(data: NDArray[np.float64], limits: list[float]) -> tuple[tuple[float, float], list[float], bool]:
     """The value range to show ``data`` and the ``limits`` near it: (range, limits to draw, whether
     some limit was too far from the data to draw without flattening it)."""
     finite = data[np.isfinite(data)]
@@ -176,7 +177,7 @@ def joints_plot(recording: Recording, path: Path) -> Path:
         rejected = rejected_chunks(recording, name)
         limit = recording.limits.get(name, {})
         for col, quantity in enumerate(("position", "velocity")):
-            series: list[tuple[np.ndarray, np.ndarray, str, str]] = []
+            series: list[tuple[NDArray[np.float64], NDArray[np.float64], str, str]] = []
             steps: tuple[list[float], list[float]] | None = None
             if measured is not None and name in measured.names:
                 series.append((measured.times, getattr(measured, quantity)[:, measured.names.index(name)], MEASURED_COLOR, ""))

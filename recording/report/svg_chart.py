@@ -12,6 +12,7 @@ from dataclasses import dataclass, field
 from xml.sax.saxutils import escape
 
 import numpy as np
+from numpy.typing import NDArray
 
 FONT = "font-family=\"sans-serif\""
 AXIS_COLOR = "#444444"
@@ -45,7 +46,7 @@ def tick_label(value: float, step: float) -> str:
     return f"{value:.{decimals}f}"
 
 
-def decimate(times: np.ndarray, values: np.ndarray, buckets: int) -> tuple[np.ndarray, np.ndarray]:
+def decimate(times: NDArray[np.float64], values: NDArray[np.float64], buckets: int) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """At most ``4 * buckets`` points that draw the same line at ``buckets`` pixels of width: per
     bucket of equal time, the first, lowest, highest and last point, in time order (``times``
     ascending).
@@ -82,18 +83,18 @@ class Panel:
     axes: list[str] = field(default_factory=list)
     """Ticks and labels: drawn outside the clip region."""
 
-    def px(self, t: np.ndarray | float) -> np.ndarray | float:
+    def px(self, t: NDArray[np.float64] | float) -> NDArray[np.float64] | float:
         lo, hi = self.xlim
         return self.x + (np.asarray(t, dtype=float) - lo) / (hi - lo) * self.width
 
-    def py(self, v: np.ndarray | float) -> np.ndarray | float:
+    def py(self, v: NDArray[np.float64] | float) -> NDArray[np.float64] | float:
         lo, hi = self.ylim
         value = np.asarray(v, dtype=float)
         if self.log_y:
             lo, hi, value = math.log10(lo), math.log10(hi), np.log10(np.maximum(value, 1e-300))
         return self.y + self.height - (value - lo) / (hi - lo) * self.height
 
-    def line(self, times: np.ndarray, values: np.ndarray, color: str, dash: str = "", width: float = 1.0) -> None:
+    def line(self, times: NDArray[np.float64], values: NDArray[np.float64], color: str, dash: str = "", width: float = 1.0) -> None:
         """A polyline through the points (NaN ones skipped), decimated to the panel's width."""
         t, v = decimate(np.asarray(times, dtype=float), np.asarray(values, dtype=float), int(self.width))
         if len(t) == 0:

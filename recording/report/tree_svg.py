@@ -70,7 +70,8 @@ def build_boxes(nodes: list[dict[str, Any]], statuses: dict[int, tuple[str, str]
         parent = node["parent"]
         while parent is not None and by_id[parent]["transparent"]:
             parent = by_id[parent]["parent"]
-        return parent
+        result: int | None = parent
+        return result
 
     def status_of(node: dict[str, Any]) -> tuple[str | None, str]:
         own = statuses.get(node["id"])

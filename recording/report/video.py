@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
 
 from .data import CameraFrame
 
@@ -23,16 +24,17 @@ MIN_HEIGHT = 240
 FPS = 4.0
 
 
-def scale_to_height(pixels: np.ndarray, height: int) -> np.ndarray:
+def scale_to_height(pixels: NDArray[np.uint8], height: int) -> NDArray[np.uint8]:
     """Nearest-neighbour resize of an H x W x 3 image to ``height`` rows, keeping its aspect."""
     h, w = pixels.shape[:2]
     width = max(1, round(w * height / h))
     rows = (np.arange(height) * h // height).clip(0, h - 1)
     cols = (np.arange(width) * w // width).clip(0, w - 1)
-    return pixels[rows][:, cols]
+    result: NDArray[np.uint8] = pixels[rows][:, cols]
+    return result
 
 
-def mosaic(frame: CameraFrame, height: int) -> np.ndarray:
+def mosaic(frame: CameraFrame, height: int) -> NDArray[np.uint8]:
     """The frame's views in a row, each ``height`` pixels high, padded to even dimensions."""
     tiles = [scale_to_height(view, height) for _, view in frame.views]
     row = np.concatenate(tiles, axis=1)
@@ -42,7 +44,7 @@ def mosaic(frame: CameraFrame, height: int) -> np.ndarray:
     return row
 
 
-def fit(image: np.ndarray, height: int, width: int) -> np.ndarray:
+def fit(image: NDArray[np.uint8], height: int, width: int) -> NDArray[np.uint8]:
     """``image`` in a ``height`` x ``width`` video frame: scaled down (keeping its aspect) if it is
     wider, padded with black on the right and bottom."""
     if image.shape[1] > width:
