@@ -9,6 +9,7 @@ from __future__ import annotations
 from typing import Any, Sequence
 
 import numpy as np
+from numpy.typing import NDArray
 
 from . import config as cfg
 from .chunk import Chunk, ChunkError, period_problem, read_chunk, read_policy_chunk
@@ -48,7 +49,7 @@ def not_a_chunk(response: Any, chunk_number: int) -> Failure:
 
 
 def read_answer(response: Any, chunk_number: int, config: cfg.PolicyRunConfig, joints: Sequence[str], reads_policy_chunk: bool,
-                warnings: RunWarnings) -> tuple[Chunk, np.ndarray | None] | Failure:
+                warnings: RunWarnings) -> tuple[Chunk, NDArray[np.float64] | None] | Failure:
     """The chunk of a ``CHUNK_PRODUCED`` answer and its policy chunk (None unless
     ``reads_policy_chunk``), or the Failure that rejects it; ``warnings`` hears about the step
     period and about a real-time-chunking run's missing policy chunk."""

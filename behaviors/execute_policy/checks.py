@@ -104,7 +104,7 @@ def densify(motion: ChunkMotion, num_points: int) -> Samples:
         count = int(np.ceil(tail_s / MAX_SAMPLE_SPACING - 1e-9))
         times = np.concatenate([times, motion.end + tail_s * np.arange(1, count + 1) / count])
     p, v, a = motion.evaluate(times)
-    return Samples(times, p, v, a)
+    return Samples(np.asarray(times, dtype=np.float64), p, v, a)  # float64 already: typed so for numpy 2.2's stubs
 
 
 @dataclass(frozen=True)

@@ -7,6 +7,7 @@ from dataclasses import dataclass
 from typing import Any, Mapping
 
 import numpy as np
+from numpy.typing import NDArray
 
 from control_msgs.action import FollowJointTrajectory, GripperCommand
 from moveit_pro_controllers_msgs.action import FollowJointTrajectoryWithAdmittance
@@ -178,4 +179,4 @@ class ShapingConfig:
     committed_action_steps: int
     policy_tracking_weight: float
     num_interpolation_points: int
-    max_acceleration: np.ndarray
+    max_acceleration: NDArray[np.float64]

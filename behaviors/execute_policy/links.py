@@ -12,6 +12,7 @@ from dataclasses import dataclass, field
 from typing import Any, Sequence
 
 import numpy as np
+from numpy.typing import NDArray
 from control_msgs.action import GripperCommand
 from control_msgs.msg import JointTrajectoryControllerState
 from moveit_pro_ml_msgs.srv import GetActionChunk
@@ -53,7 +54,7 @@ class SessionLinks:
             if sub is not None:
                 bus.destroy_subscription(sub)
 
-    def rest_position(self, joints: Sequence[str], joint_states_topic: str) -> np.ndarray:
+    def rest_position(self, joints: Sequence[str], joint_states_topic: str) -> NDArray[np.float64]:
         """Where a motion from rest starts: the reference the controller commands, when it
         publishes its state (``~/controller_state``) for ``joints``, else the measured positions
         of the newest joint state. A JTC that interpolates from its desired state (as a JTC that

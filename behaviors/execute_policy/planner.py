@@ -24,6 +24,7 @@ import enum
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import NDArray
 
 from . import at_rest, checks, seam, tail
 from .at_rest import Arrival
@@ -31,7 +32,8 @@ from .checks import CheckFailure, Checks
 from .chunk import Chunk
 from .config import ShapingConfig
 from .failure import Failure, FailureKind
-from .states import GoalState, SentMotion
+from ..action_goal import GoalState
+from .states import SentMotion
 from .step_spline import fit_chunk
 from .stream import Window, WindowError, drained_seconds
 
@@ -45,7 +47,7 @@ class PlanInput:
     request_step: int
     frozen: int
     earliest_seam_step: int  # the first step a goal sent now reaches the controller before
-    rest_position: np.ndarray | None  # the arm's position now; needed only before the first chunk
+    rest_position: NDArray[np.float64] | None  # the arm's position now; needed only before the first chunk
     config: ShapingConfig
     checks: Checks
     arrival: Arrival | None = None  # when the chunk came; None: it is placed by earliest_seam_step alone

@@ -79,6 +79,7 @@ class RunWarnings:
         ``MotionSafety.settle_gripper_column``'s result)."""
         if settled.clamped and not self.warned_gripper_clamped:
             self.warned_gripper_clamped = True
+            assert safety.gripper_joint is not None  # a clamped column is a gripper's
             limit = safety.chunk_limits[safety.gripper_joint]
             self.say(
                 f"the policy's gripper column leaves the range {limit.lower:.4f}..{limit.upper:.4f} rad by up to "

@@ -19,9 +19,10 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, replace
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+from numpy.typing import NDArray
 
 from ..action_goal import GoalState
 from .step_spline import StepSpline
@@ -32,11 +33,11 @@ if TYPE_CHECKING:
     from .stream import StepGrid, Window
     from .tail import Tail
 
-Basis = tuple[np.ndarray, np.ndarray, np.ndarray]
+Basis = tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]
 """A basis function's value, slope and curvature with respect to ``tau``."""
 
 
-def position_basis(tau: np.ndarray) -> Basis:
+def position_basis(tau: NDArray[np.float64]) -> Basis:
     """``h0``: value 1 at 0; zero slope and curvature at 0; zero value, slope and curvature at 1."""
     t2, t3 = tau * tau, tau * tau * tau
     value = 1 - 10 * t3 + 15 * t3 * tau - 6 * t3 * t2
@@ -45,7 +46,7 @@ def position_basis(tau: np.ndarray) -> Basis:
     return value, slope, curve
 
 
-def velocity_basis(tau: np.ndarray) -> Basis:
+def velocity_basis(tau: NDArray[np.float64]) -> Basis:
     """``h1``: slope 1 at 0; zero value and curvature at 0; zero value, slope and curvature at 1."""
     t2, t3 = tau * tau, tau * tau * tau
     value = tau - 6 * t3 + 8 * t3 * tau - 3 * t3 * t2
@@ -54,7 +55,7 @@ def velocity_basis(tau: np.ndarray) -> Basis:
     return value, slope, curve
 
 
-def acceleration_basis(tau: np.ndarray) -> Basis:
+def acceleration_basis(tau: NDArray[np.float64]) -> Basis:
     """``h2``: curvature 1 at 0; zero value and slope at 0; zero value, slope and curvature at 1."""
     t2, t3 = tau * tau, tau * tau * tau
     value = 0.5 * t2 - 1.5 * t3 + 1.5 * t3 * tau - 0.5 * t3 * t2
@@ -72,9 +73,9 @@ offset ``w`` blended over ``T`` seconds adds at most ``w * VELOCITY_BLEND_PEAK /
 
 
 def blend_duration(
-    offset_position: np.ndarray,
-    offset_velocity: np.ndarray,
-    acceleration_budget: np.ndarray,
+    offset_position: NDArray[np.float64],
+    offset_velocity: NDArray[np.float64],
+    acceleration_budget: NDArray[np.float64] | float,
     nominal_s: float,
 ) -> float:
     """The blend's length: ``nominal_s`` seconds, or longer where blending these offsets that
@@ -90,12 +91,12 @@ def blend_duration(
 
 
 def blend_offset(
-    offset_position: np.ndarray,
-    offset_velocity: np.ndarray,
-    offset_acceleration: np.ndarray,
+    offset_position: NDArray[np.float64],
+    offset_velocity: NDArray[np.float64],
+    offset_acceleration: NDArray[np.float64],
     duration_s: float,
-    since_seam_s: np.ndarray,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    since_seam_s: NDArray[np.float64],
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
     """The blend's position, velocity and acceleration (each (M, J)) at ``since_seam_s`` (M,)
     seconds after the seam: the offsets at 0, zero from ``duration_s`` on."""
     T = duration_s
@@ -122,13 +123,14 @@ BLEND_SHARE = 0.5
 as the runout brakes with half the limit): a long way to join is covered gently."""
 
 
-def chunk_acceleration_peak(spline: StepSpline, dt: float, from_step: float) -> np.ndarray:
+def chunk_acceleration_peak(spline: StepSpline, dt: float, from_step: float) -> NDArray[np.float64]:
     """Per joint, the largest acceleration (rad/s^2) of the smoothed chunk from ``from_step`` to
     its last step. Its second derivative is piecewise linear between the integer steps (the
     knots), so the steps and ``from_step`` are where it peaks."""
     last = spline.last_step
     steps = np.unique(np.concatenate([[min(from_step, last)], np.arange(math.ceil(from_step), math.floor(last) + 1)]))
-    return np.abs(np.atleast_2d(spline(steps, nu=2))).max(axis=0) / (dt * dt)
+    peaks: NDArray[np.float64] = np.abs(np.atleast_2d(spline(steps, nu=2))).max(axis=0) / (dt * dt)
+    return peaks
 
 
 def join_at_seam(
@@ -137,10 +139,10 @@ def join_at_seam(
     chunk_start: float,
     seam: float,
     end: float,
-    sent_position: np.ndarray,
-    sent_velocity: np.ndarray,
+    sent_position: NDArray[np.float64],
+    sent_velocity: NDArray[np.float64],
     nominal_s: float,
-    max_acceleration: np.ndarray | None = None,
+    max_acceleration: NDArray[np.float64] | None = None,
 ) -> ChunkMotion:
     """The chunk's motion from ``seam`` to ``end``, continuous in position and velocity with
     the sent motion's state (``sent_position``, ``sent_velocity``) at the seam.
@@ -177,10 +179,10 @@ class ChunkMotion:
     chunk_start: float
     seam: float
     end: float
-    offset_position: np.ndarray
-    offset_velocity: np.ndarray
+    offset_position: NDArray[np.float64]
+    offset_velocity: NDArray[np.float64]
     blend_duration: float
-    end_velocity: np.ndarray | None = None
+    end_velocity: NDArray[np.float64] | None = None
     """When set (the run's last window), a mirrored blend cancels this velocity at ``end`` so
     the motion comes to rest exactly at the chunk's final position."""
     end_blend_duration: float = 0.0
@@ -204,9 +206,9 @@ class ChunkMotion:
         """When the motion is at rest if no chunk follows: its end, or the end of the runout."""
         return self.end + self.extension + self.runout
 
-    def evaluate(self, times: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Positions, velocities and accelerations (each (M, J)) at clock ``times``."""
-        times = np.atleast_1d(np.asarray(times, dtype=float))
+    def evaluate(self, at: NDArray[np.floating[Any]]) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+        """Positions, velocities and accelerations (each (M, J)) at clock times ``at``."""
+        times = np.atleast_1d(np.asarray(at, dtype=float))
         # The chunk is played at step k(t); inside the window k advances one step per dt.
         k = (times - self.chunk_start) / self.dt
         k_rate = np.full_like(times, 1.0 / self.dt)
@@ -267,7 +269,7 @@ def motion_ends_first(previous: ChunkMotion | None, seam_time_s: float, goal: Go
     return previous is not None and seam_time_s > previous.rest_time + 1e-9 and goal is not GoalState.ENDED
 
 
-def state_at(motion: ChunkMotion | None, t: float, rest_position: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+def state_at(motion: ChunkMotion | None, t: float, rest_position: NDArray[np.float64] | None) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Position and velocity of the sent motion at ``t`` (at rest after it ends; at
     ``rest_position`` before the first chunk)."""
     if motion is None:
@@ -281,7 +283,7 @@ def state_at(motion: ChunkMotion | None, t: float, rest_position: np.ndarray | N
 
 
 def join(previous: ChunkMotion | None, spline: StepSpline, window: Window, grid: StepGrid, takes_over_s: float,
-         rest_position: np.ndarray | None, shaping: ShapingConfig) -> ChunkMotion:
+         rest_position: NDArray[np.float64] | None, shaping: ShapingConfig) -> ChunkMotion:
     """The chunk's motion (its fit ``spline``) over ``window``, taking over from the sent motion
     ``previous`` at ``takes_over_s`` (``at_rest.take_over_time``) where the arm is then."""
     position, velocity = state_at(previous, takes_over_s, rest_position)

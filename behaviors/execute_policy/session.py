@@ -27,6 +27,7 @@ from dataclasses import dataclass
 from typing import Any, Mapping, Protocol
 
 import numpy as np
+from numpy.typing import NDArray
 from moveit_pro_ml_msgs.srv import GetActionChunk
 from sensor_msgs.msg import Image
 
@@ -302,7 +303,7 @@ class PolicySession:
             run.warnings.first_chunk_start(chunk, flight.anchor, self.safety.group_joints)
         return HeldChunk(chunk, flight, index, policy_chunk)
 
-    def _settle_gripper(self, gripper: np.ndarray | None) -> np.ndarray | None:
+    def _settle_gripper(self, gripper: NDArray[np.float64] | None) -> NDArray[np.float64] | None:
         """The gripper column clamped into its range where it is a little outside
         (``safety.GRIPPER_BAND_FRACTION``): counted, and warned about once per run."""
         run, safety = self.run, self.safety
@@ -330,7 +331,7 @@ class PolicySession:
                 return self.fail(Failure(FailureKind.GRIPPER, problem))
         return None
 
-    def rest_position(self) -> np.ndarray:
+    def rest_position(self) -> NDArray[np.float64]:
         """Where a motion from rest starts (``SessionLinks.rest_position``): the reference the
         controller commands, else the measured positions of the newest joint state."""
         links = self.links
@@ -343,6 +344,7 @@ class PolicySession:
         return self.links.gripper_position(joint) if self.links is not None else None
 
     def gripper_max_velocity_rad_s(self) -> float:
+        assert self.safety.gripper_joint is not None  # asked only of a group with a gripper
         return self.safety.chunk_limits[self.safety.gripper_joint].max_velocity
 
     def queue_gripper_window(self, chunk: Chunk, window: Window, grid: StepGrid) -> None:
@@ -350,7 +352,7 @@ class PolicySession:
         if self.gripper is not None:
             self.gripper.queue(chunk, window, grid, self.gripper_max_velocity_rad_s())
 
-    def queue_gripper_at(self, times_s: np.ndarray, targets: np.ndarray | None) -> None:
+    def queue_gripper_at(self, times_s: NDArray[np.floating[Any]], targets: NDArray[np.float64] | None) -> None:
         """Stream the gripper targets ``targets[k]`` due at ``times_s[k]`` (``GripperStream.queue_at``)."""
         if self.gripper is not None and targets is not None:
             self.gripper.queue_at(times_s, targets, self.gripper_max_velocity_rad_s() * self.config.dt)

@@ -168,7 +168,7 @@ def _steps_by_joints(positions: NDArray[np.float64]) -> NDArray[np.float64]:
     return positions
 
 
-def fit_chunk(positions: np.ndarray, tracking_weight: float) -> StepSpline:
+def fit_chunk(positions: NDArray[np.float64], tracking_weight: float) -> StepSpline:
     """Smoothing spline through a (N, J) chunk, parameterised by step index.
 
     The spline minimises ``w * sum((y_k - f(k))^2) + integral(f''(k)^2)`` with

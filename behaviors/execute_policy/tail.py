@@ -16,6 +16,7 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
+from numpy.typing import NDArray
 
 if TYPE_CHECKING:
     from .chunk import Chunk
@@ -58,7 +59,7 @@ class Tail:
 NO_TAIL = Tail(0, 0, 1.0)
 
 
-def runout_warp(s: np.ndarray, runout: float, dt: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def runout_warp(s: NDArray[np.float64], runout: float, dt: float) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
     """Chunk steps advanced since the window's end, their rate and its rate, at runout fraction ``s``.
 
     The playback speed falls from one step per ``dt`` to zero as ``1 - (3 s^2 - 2 s^3)``: no
@@ -77,7 +78,7 @@ def nominal_runout_s(committed_action_steps: int, dt: float) -> float:
     return NOMINAL_RUNOUT_WINDOWS * committed_action_steps * dt
 
 
-def runout_duration(end_velocity: np.ndarray, max_acceleration: np.ndarray, dt: float, nominal: float, spare_steps: int) -> float:
+def runout_duration(end_velocity: NDArray[np.float64], max_acceleration: NDArray[np.float64], dt: float, nominal: float, spare_steps: int) -> float:
     """Length of the runout after a window that ends at ``end_velocity``: ``nominal`` seconds,
     longer if that would brake harder than half of ``max_acceleration`` (the warp peaks at
     1.5 v / runout), in whole pairs of ``dt`` so the runout covers whole chunk steps. Zero when
@@ -102,7 +103,7 @@ def runout_reserve_steps(committed_action_steps: int, dt: float) -> int:
     return runout_chunk_steps(nominal_runout_s(committed_action_steps, dt), dt)
 
 
-def plan_tail(peak_velocity: np.ndarray, max_acceleration: np.ndarray, dt: float, nominal_runout_s: float, spare_steps: int) -> Tail:
+def plan_tail(peak_velocity: NDArray[np.float64], max_acceleration: NDArray[np.float64], dt: float, nominal_runout_s: float, spare_steps: int) -> Tail:
     """The tail over the ``spare_steps`` chunk steps beyond a window, the fastest of which move
     at ``peak_velocity``: the runout (``runout_duration``, braking from that speed) takes the
     last steps, so the motion comes to rest at the chunk's last step, and the steps before it

@@ -68,6 +68,7 @@ def create_world(name: str, options: dict[str, Any]) -> World:
         raise ObjectiveError(f"no world named '{name}' (worlds: {known})")
     create = load_entry_point(available[name], f"world '{name}' cannot start")  # a world of an extra may be missing
     try:
-        return create(options)
+        world: World = create(options)
+        return world
     except ObjectiveError as err:  # a world refuses the user's options with an ObjectiveError (OptionError)
         raise err.within(f"world '{name}'") from None
