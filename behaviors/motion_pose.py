@@ -14,7 +14,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from runtime.tree.ports import InputPort, NameKind, Names, PortType, Range
-from runtime.motion.scene import PlanningScene
+from runtime.tree.world import Scene
 from runtime.motion.scene.kinematics import solve_ik
 
 from .motion import _MoveToJoints
@@ -35,6 +35,7 @@ class MoveToPose(_MoveToJoints):
 
     def target(self, joints: tuple[str, ...]) -> NDArray[np.float64]:
         scene = self.context.scene
+        assert scene is not None  # a node that needs the world runs with its scene
         tip = self.get_input("tip_frame")
         if not scene.robot.has_frame(tip):
             raise PlanningError(f"tip_frame '{tip}' is not a frame of the robot model")
@@ -63,7 +64,7 @@ class MoveToPose(_MoveToJoints):
         return _nearest_turn(result.positions, start, scene, joints)
 
 
-def _nearest_turn(solution: NDArray[np.float64], start: NDArray[np.float64], scene: PlanningScene, joints: tuple[str, ...]) -> NDArray[np.float64]:
+def _nearest_turn(solution: NDArray[np.float64], start: NDArray[np.float64], scene: Scene, joints: tuple[str, ...]) -> NDArray[np.float64]:
     """Shift each joint by whole turns toward ``start`` when its limits allow (same pose, shorter motion)."""
     lower, upper = scene.robot.position_limits(joints)
     out = solution.copy()

@@ -77,7 +77,7 @@ def run_sim_robot(options: SimRobotOptions, stop: StopRequest) -> dict[str, Any]
 
     from runtime.io.ros.run import CLOCK_TOPIC, deliver_pending, make_ros_bus
 
-    world = create_world(options.world, {"seed": options.seed, "realtime": True, "policy": "none", **options.world_options})
+    world: Any = create_world(options.world, {"seed": options.seed, "realtime": True, "policy": "none", **options.world_options})  # a simulated world: World and its cell
     clock = WallClock()
     bus = make_ros_bus(clock, options.node_name)
     period = 1.0 / options.tick_hz

@@ -10,7 +10,7 @@ differ only in the cell behind them: a ``MujocoCell`` or a ``KinematicCell``.
 from __future__ import annotations
 
 import functools
-from typing import Any, Callable, Protocol
+from typing import TYPE_CHECKING, Any, Callable, Protocol, cast
 
 import numpy as np
 from geometry_msgs.msg import TransformStamped
@@ -28,6 +28,9 @@ from .embedded_policy import make_backend, serve_embedded_policy
 from .hardware import Hardware
 from .planning import CubeContact, make_cell_scene, sync_cubes
 from .oracle_remote import CUBE_POSE_TOPIC, cube_pose_msg
+
+if TYPE_CHECKING:
+    from runtime.motion.scene import PlanningScene
 from .robot_model import ARM_JOINTS, GRIPPER_DRIVER_JOINT, load_waypoints
 from .sim_boxes import PlacedBoxes
 
@@ -188,6 +191,10 @@ class CellWorld:
         self.adapter = serve_embedded_policy(bus, self.options.get("policy"), self.cell, self.options.get("policy_latency"), self.seed)
         self._publish()
 
+    @property
+    def _scene(self) -> PlanningScene:
+        return cast("PlanningScene", self.context.scene)  # the cell's own, which start() made
+
     def step_to(self, t: float) -> None:
         times, now = [], self.cell.t
         while now + CONTROL_PERIOD <= t + 1e-9:  # the cell's own clock arithmetic (t += dt per step)
@@ -197,23 +204,23 @@ class CellWorld:
         self._publish()
         if self.camera_thread is not None:
             self.camera_thread.offer(self.cell.t)
-        self.synced_cubes = sync_cubes(self.context.scene, self.cell.cube_poses(), self.synced_cubes)
+        self.synced_cubes = sync_cubes(self._scene, self.cell.cube_poses(), self.synced_cubes)
 
     def reset(self, seed: int) -> None:
         self.seed = seed
         self.cell.reset(seed, self.start_arm)
-        self.boxes.forget(self.context.scene)
+        self.boxes.forget(self._scene)
         self.controllers.reset()
-        self.synced_cubes = sync_cubes(self.context.scene, self.cell.cube_poses())
+        self.synced_cubes = sync_cubes(self._scene, self.cell.cube_poses())
         self._publish()
 
     def place_box(self, name: str, size_m: Any, pose: Any, mirror: bool = True) -> None:
         """Make a fixed box appear in the cell at ``pose`` (4x4, world frame), or move it there,
         mirrored into the planning scene unless ``mirror`` is False. ValueError says why not."""
-        self.boxes.place(self.cell, self.context.scene, name, size_m, pose, mirror)
+        self.boxes.place(self.cell, self._scene, name, size_m, pose, mirror)
 
     def remove_box(self, name: str) -> None:
-        self.boxes.remove(self.cell, self.context.scene, name)
+        self.boxes.remove(self.cell, self._scene, name)
 
     def begin_episode(self, seed: int) -> None:
         """Before ``start`` with a new run's context: the cell as a newly created world with
