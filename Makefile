@@ -128,7 +128,7 @@ lint: setup
 
 # mypy over the first-party tree (pyproject.toml, [tool.mypy]; docs/testing.md): the default level
 # everywhere, --strict's flags on runtime, behaviors, policy, recording and evaluation.
-# 30 s to a minute on 2 cores with an empty cache (build/mypy_cache), 2 s after.
+# 25 s to a minute on 2 cores with an empty cache (build/mypy_cache), about a second after.
 typecheck: setup
 	$(VENV)/bin/mypy
 
