@@ -24,7 +24,7 @@ import signal
 import sys
 from importlib.metadata import PackageNotFoundError, entry_points, version
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any, Sequence, TextIO
 
 # Runs are headless: MuJoCo (the simulated cell's, when it is installed) renders offscreen unless
 # the user chose a GL backend. Its backend is fixed when it is first imported.
@@ -518,7 +518,7 @@ def _error_exit(args: argparse.Namespace, message: str, failure_kind: str) -> in
     return EXIT_BAD_INPUT
 
 
-class _StderrHandler(logging.StreamHandler):  # type: ignore[type-arg]
+class _StderrHandler(logging.StreamHandler[TextIO]):
     """Writes to whatever ``sys.stderr`` is now (tests and wrappers replace it), made printable."""
 
     def format(self, record: logging.LogRecord) -> str:
