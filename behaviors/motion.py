@@ -18,6 +18,7 @@ from sensor_msgs.msg import JointState
 
 from runtime.io.bus import Subscription
 from runtime.tree.behavior import Status
+from runtime.tree.resources import WAYPOINTS
 from runtime.tree.ports import InputPort, NameKind, Names, PortType, Range
 
 from runtime.motion.scene import JointLimits, SceneSnapshot
@@ -189,7 +190,7 @@ class MoveToWaypoint(_MoveToJoints):
 
     def target(self, joints: tuple[str, ...]) -> NDArray[np.float64]:
         self.get_input("seed")  # read so that a seed that is not an integer fails here, naming the port
-        waypoints = self.context.resources.get("waypoints") or {}
+        waypoints = self.context.resources.get(WAYPOINTS) or {}
         name = self.get_input("waypoint_name")
         if name not in waypoints:
             known = ", ".join(sorted(waypoints)) or "none are defined"

@@ -31,7 +31,8 @@ import numpy as np
 from numpy.typing import NDArray
 from std_srvs.srv import SetBool
 
-from runtime.tree.behavior import Behavior, Status
+from runtime.tree.behavior import Behavior, RunContext, Status
+from runtime.tree.resources import Resource
 from runtime.errors import SetupError
 from runtime.tree.ports import InOutPort, InputPort, NameKind, Names, OutputPort, PortType, Range
 from runtime.motion.scene import ANY, SceneSnapshot
@@ -642,9 +643,13 @@ class ApprovalDesk:
         return SetBool.Response(success=True, message="approved" if request.data else "rejected")
 
 
-def approval_desk(context: Any, service: str) -> ApprovalDesk:
+APPROVAL_DESKS: Resource[dict[str, ApprovalDesk]] = Resource("mtc.approval_desks")
+"""The run's approval desks by the service each serves."""
+
+
+def approval_desk(context: RunContext, service: str) -> ApprovalDesk:
     """The run's desk serving ``service`` (created and served on first use)."""
-    desks: dict[str, ApprovalDesk] = context.resources.setdefault("mtc_approval_services", {})
+    desks = context.resources.setdefault(APPROVAL_DESKS, dict)
     if service not in desks:
         desk = ApprovalDesk()
         context.bus.create_service(service, SetBool, desk.take)

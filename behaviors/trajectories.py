@@ -21,6 +21,7 @@ from sensor_msgs.msg import JointState
 from trajectory_msgs.msg import JointTrajectory
 
 from runtime.tree.behavior import Behavior, Status
+from runtime.tree.resources import WAYPOINTS
 from runtime.errors import SetupError
 from runtime.tree.ports import InputPort, NameKind, Names, OutputPort, PortInfo, PortType, Range
 from runtime.motion.scene import JointLimits, SceneSnapshot
@@ -553,7 +554,7 @@ class RetrieveWaypoint(Behavior):
     needs_world = True
 
     def update(self) -> Status:
-        waypoints = self.context.resources.get("waypoints") or {}
+        waypoints = self.context.resources.get(WAYPOINTS) or {}
         name = self.get_input("waypoint_name")
         if name not in waypoints:
             raise SetupError(f"unknown waypoint '{name}' (known: {', '.join(sorted(waypoints)) or 'none are defined'})")

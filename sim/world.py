@@ -18,6 +18,7 @@ from sensor_msgs.msg import Image, JointState
 
 from policy.images import rgb_to_image
 from runtime.tree.behavior import RunContext
+from runtime.tree.resources import WAYPOINTS
 from runtime.motion.joint_states import joint_state
 from runtime.io.timestamps import time_msg
 from runtime.errors import OptionError
@@ -186,7 +187,7 @@ class CellWorld:
             )
         context.scene = make_cell_scene(self.cell.cube_poses(), cube_contact=self.cube_contact)
         self.synced_cubes = sync_cubes(context.scene, self.cell.cube_poses())
-        context.resources["waypoints"] = self.waypoints
+        context.resources.set(WAYPOINTS, self.waypoints)
         context.world = self
         self.adapter = serve_embedded_policy(bus, self.options.get("policy"), self.cell, self.options.get("policy_latency"), self.seed)
         self._publish()

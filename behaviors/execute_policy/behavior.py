@@ -126,7 +126,7 @@ class ExecutePolicy(Behavior):
 
     def run_summary(self) -> dict[str, Any]:
         """Every ExecutePolicy run of the Objective (``POLICY_RUNS``): totals and each run."""
-        return {"execute_policy": summarise_runs(self.context.resources.get(POLICY_RUNS, []))}
+        return {"execute_policy": summarise_runs(self.context.resources.get(POLICY_RUNS) or [])}
 
     # -- the session's player ----------------------------------------------------------------
     def begin_stream(self, now_s: float) -> Status | None:

@@ -7,7 +7,9 @@ from typing import Any
 
 import numpy as np
 
-POLICY_RUNS = "execute_policy.runs"
+from runtime.tree.resources import Resource
+
+POLICY_RUNS: Resource[list[RunMetrics]] = Resource("execute_policy.runs")
 """The ``RunContext.resources`` key of the metrics of every ExecutePolicy run of the Objective:
 each node's, each time a RetryUntilSuccessful or a loop started it again."""
 

@@ -34,6 +34,7 @@ from sensor_msgs.msg import Image
 from runtime.app.terminal import bounded
 from runtime.errors import PortError, SetupError
 from runtime.tree.behavior import Behavior, Status
+from runtime.tree.resources import Resource
 
 from . import answers
 from . import config as cfg
@@ -103,7 +104,7 @@ class PolicySession:
     node has no port for, and ``reads_policy_chunk`` whether answers' ``policy_action_chunk`` is
     read (besides when the run uses real-time chunking)."""
 
-    def __init__(self, node: Behavior, player: Player, runs_key: str, fixed: Mapping[str, Any] | None = None,
+    def __init__(self, node: Behavior, player: Player, runs_key: Resource[list[RunMetrics]], fixed: Mapping[str, Any] | None = None,
                  reads_policy_chunk: bool = False) -> None:
         self.node, self.player, self.runs_key = node, player, runs_key
         self.fixed = dict(fixed or {})
@@ -133,7 +134,7 @@ class PolicySession:
         limits, connect, and reset the links. A config the robot does not fit is a SetupError."""
         context = self.node.context
         metrics = RunMetrics(node=self.node.name)
-        context.resources.setdefault(self.runs_key, []).append(metrics)
+        context.resources.setdefault(self.runs_key, list).append(metrics)
         self.run = SessionRun(metrics, context.clock.now(), RunWarnings(self.warn))
         try:
             config = cfg.read_config(self.node, self.fixed)

@@ -20,11 +20,12 @@ from behaviors.execute_policy.metrics import RunMetrics, summarise_runs
 from behaviors.execute_policy.session import PolicySession
 from behaviors.safety import MotionSafety
 from runtime.tree.behavior import Behavior, Status
+from runtime.tree.resources import Resource
 
 RTC_PORTS = ("policy_uses_real_time_chunking", "guidance_horizon")
 """ExecutePolicy's ports that no benchmark executor has: none of them uses real-time chunking."""
 PORTS = tuple(p for p in cfg.PORTS if p.name not in RTC_PORTS)
-EXECUTOR_RUNS = "bench_executor.runs"
+EXECUTOR_RUNS: Resource[list[RunMetrics]] = Resource("bench_executor.runs")
 """The ``RunContext.resources`` key of every benchmark executor run's ``RunMetrics``."""
 
 
@@ -68,7 +69,7 @@ class ChunkExecutor(Behavior):
             self.session.halt()
 
     def run_summary(self) -> dict[str, Any]:
-        return {"bench_executor": summarise_runs(self.context.resources.get(EXECUTOR_RUNS, []))}
+        return {"bench_executor": summarise_runs(self.context.resources.get(EXECUTOR_RUNS) or [])}
 
     # -- the session's player ----------------------------------------------------------------
     def begin_stream(self, now_s: float) -> Status | None:

@@ -21,6 +21,7 @@ from typing import Any, Callable
 import yaml
 
 from runtime.tree.behavior import RunContext
+from runtime.tree.resources import WAYPOINTS
 from runtime.motion.scene import PlanningScene, RobotModel, load_envelope, load_joint_limits
 from runtime.errors import OptionError
 from runtime.extras import load_entry_point
@@ -108,7 +109,7 @@ class RobotDescriptionWorld:
 
     def start(self, context: RunContext) -> None:
         context.scene = PlanningScene(self.robot, self.group, self.gripper_joint, limits=self.limits, envelope=self.envelope)
-        context.resources["waypoints"] = self.waypoints
+        context.resources.set(WAYPOINTS, self.waypoints)
 
     def step_to(self, t: float) -> None:
         """Nothing to simulate: the real robot moves on its own clock."""

@@ -19,6 +19,7 @@ from typing import Any, Iterable, Iterator
 
 from runtime.io.bus import ServedListing, capability
 from runtime.tree.behavior import RunContext
+from runtime.tree.resources import WAYPOINTS
 from runtime.errors import ObjectiveError, PortError, SetupError
 from runtime.tree.ports import Direction, NameKind, Names, PortType
 
@@ -59,8 +60,9 @@ class WorldFacts:
                 frames=frozenset(n for n in (*robot.link_names, *_model_frames(robot))) | objects | WORLD_FRAMES,
                 listed_frames=(*sorted(objects), "world", *robot.link_names),
             )
-        if "waypoints" in context.resources:
-            facts["waypoints"] = frozenset(context.resources["waypoints"])
+        waypoints = context.resources.get(WAYPOINTS)
+        if waypoints is not None:
+            facts["waypoints"] = frozenset(waypoints)
         listing = capability(context.bus, ServedListing)  # None: the graph serves elsewhere (ROS 2), nothing is checked
         if listing is not None:
             states = _controller_states(listing)

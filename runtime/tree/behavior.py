@@ -17,6 +17,7 @@ import py_trees
 from .blackboard import Blackboard
 from runtime.errors import PortError, SourceLocation, did_you_mean
 from .ports import ConversionError, Direction, PortInfo, convert, parse_reference, range_problem
+from .resources import Resources
 
 if TYPE_CHECKING:
     from runtime.io.bus import Bus
@@ -54,7 +55,7 @@ class RunContext:
     ``world`` is the simulated world when the run hosts one (behaviors must not reach into it: it
     exists for world-level nodes such as ResetSim and for the runner); both are protocols of
     ``runtime.tree.world``. ``resources`` holds per-run objects that plug-ins share, each under a
-    name of its own (the world's ``waypoints``, ``{name: {joint: position}}``; ExecutePolicy's runs). ``tick_period_s`` is the clock
+    typed key of ``runtime.tree.resources`` (the world's ``WAYPOINTS``; ExecutePolicy's runs). ``tick_period_s`` is the clock
     time between two ticks of the tree (the runner's ``1 / tick_hz``). ``stamp_offset_s`` is what
     turns a time on ``clock`` into a stamp the robot's controllers read: 0 when they keep the run's
     time (in process, a hosted cell, a robot on ``/clock`` with ``--use-sim-time``); on a real robot
@@ -69,7 +70,7 @@ class RunContext:
     seed: int = 0
     tick_period_s: float = 0.01
     stamp_offset_s: float = 0.0
-    resources: dict[str, Any] = field(default_factory=dict)
+    resources: Resources = field(default_factory=Resources)
     logger: logging.Logger = field(default_factory=lambda: logging.getLogger("objective"))
 
 

@@ -47,6 +47,17 @@ from runtime.tree.controls import COMPLETED, tick_tree
 from runtime.errors import LoadError
 from runtime.tree.events import EventLog
 from runtime.tree.registry import Registry
+from runtime.tree.resources import Resource
+
+TRACE: Resource[list[tuple[str, str]]] = Resource("conformance.trace")
+"""What the traced nodes did, in order: (label, event)."""
+
+
+def trace_of(context: RunContext) -> list[tuple[str, str]]:
+    trace = context.resources.get(TRACE)
+    assert trace is not None, "the harness sets the trace before the tree loads"
+    return trace
+
 
 CASES_DIR = Path(__file__).parent / "cases"
 LETTERS = {"R": "RUNNING", "S": "SUCCESS", "F": "FAILURE"}
@@ -130,7 +141,7 @@ class Step(Behavior):
         self.fresh = True
 
     def record(self, event: str) -> None:
-        self.context.resources["trace"].append((self.label, event))
+        trace_of(self.context).append((self.label, event))
 
     def tick(self):  # type: ignore[override]
         if self.status in COMPLETED:  # BT.CPP StatefulActionNode: a finished node is not re-run
@@ -165,7 +176,7 @@ class Check(Behavior):
         self.count = 0
 
     def update(self) -> Status:
-        self.context.resources["trace"].append((self.label, "check"))
+        trace_of(self.context).append((self.label, "check"))
         letter = self.letters[self.count % len(self.letters)]
         self.count += 1
         return Status[LETTERS[letter]]
@@ -185,7 +196,7 @@ def run_ours(case: Case) -> Run:
     clock = SimClock()
     context = RunContext(clock=clock, bus=InProcessBus(clock), events=EventLog(clock))
     trace: list[tuple[str, str]] = []
-    context.resources["trace"] = trace
+    context.resources.set(TRACE, trace)
     try:
         tree = load_tree(case.xml, registry, context)
     except LoadError as err:
@@ -295,7 +306,7 @@ def run_in_runner(case: Case) -> tuple[str, int]:
     registry.register_all((Step, Check))
     options = RunOptions(tick_hz=1000.0 / (case.dt_ms or 10), max_seconds=(case.ticks * (case.dt_ms or 10) + 1) / 1000.0)
     context = make_context(options)
-    context.resources["trace"] = []
+    context.resources.set(TRACE, [])
     tree = load_tree(case.xml, registry, context, case.main or None)
     try:
         result = run_tree(tree, context, options)
