@@ -5,7 +5,7 @@ by the step a chunk arrived (``arrives_at_rest``). Such a chunk's window starts 
 at or after its arrival, as both baselines play a chunk into an empty queue (``from_rest_seam``),
 provided its goal takes effect strictly before the earliest seam step begins
 (``window_arrival_step``); otherwise at the step before the earliest seam. Its goal takes over
-within that first step, when it takes effect (``take_over_time``): the arm rests until then, and
+within that first step, when it takes effect (``seam.take_over_time``): the arm rests until then, and
 the blend from rest catches up the fraction of a step. Where that fraction leaves a short window
 too little to pass the checks, the chunk is planned again from the earliest seam (``starts``
 lists both, in the order they are tried). A chunk that finds the arm moving joins at the
@@ -33,7 +33,7 @@ class Arrival:
 class Start:
     """Where a chunk's window may start: ``step`` (``StepGrid.plan_window``'s ``start_step``),
     and the arrival of a chunk that finds the arm at rest (None: the arm moves, or the window
-    starts at the earliest seam), for ``take_over_time``."""
+    starts at the earliest seam), for ``seam.take_over_time``."""
 
     step: int
     from_rest: Arrival | None
@@ -70,21 +70,13 @@ def window_arrival_step(arrival: Arrival | None, grid: StepGrid, earliest_seam_s
     return arrival.step
 
 
-def take_over_time(seam_time_s: float, arrival: Arrival | None) -> float:
-    """When the goal takes over from the motion the controller plays: at the seam, except that
-    the window of a chunk that finds the arm at rest (``arrival`` not None) may start at the
-    step the chunk arrived (``from_rest_seam``) while its goal takes effect later within
-    that step. The arm rests until then, and the blend from rest catches up the fraction of a step."""
-    return seam_time_s if arrival is None else max(seam_time_s, arrival.goal_takes_effect_s)
-
-
 def from_rest_seam(earliest_seam: int, arrival_step: int | None) -> int:
     """The step where a chunk that finds the arm at rest (the first chunk, or one after the
     previous motion ran out) starts its window: the first step at or after the chunk arrived,
     as both baselines play a chunk into an empty queue, unless its goal cannot take effect
     within that step (``earliest_seam`` is later still); then the step before the earliest seam.
     A goal that takes effect within the window's first step (one tick after the arrival, in
-    process) starts the motion from rest there (``take_over_time``). ``arrival_step``
+    process) starts the motion from rest there (``seam.take_over_time``). ``arrival_step``
     None (the arm is moving): the earliest seam."""
     if arrival_step is None:
         return earliest_seam

@@ -7,13 +7,13 @@ not refused:
 
 1. ``stream``: the window on the step grid (``StepGrid.plan_window``);
 2. ``checks``: the values the window is built from, as the policy sent them;
-3. ``at_rest``: when the goal takes over (``take_over_time``);
-4. ``seam``: whether the chunk can still join the motion playing (else it waits), and the
-   chunk's fit (``step_spline.fit_chunk``) joined to it at the seam;
-5. ``tail``: how the window ends: its tail, the tail cut short, or at rest (``tails_to_try``);
-6. ``checks``: every densified point, of the chunk's own motion and of the first ending that
+3. ``seam``: when the goal takes over (``take_over_time``), whether the chunk can still join
+   the motion playing (else it waits), and the chunk's fit (``step_spline.fit_chunk``) joined
+   to it at the seam;
+4. ``tail``: how the window ends: its tail, the tail cut short, or at rest (``tails_to_try``);
+5. ``checks``: every densified point, of the chunk's own motion and of the first ending that
    passes (``first_passing``);
-7. ``stream``: the stall before the seam, and the grid after the commit.
+6. ``stream``: the stall before the seam, and the grid after the commit.
 
 A Planned result carries the grid after the commit; the caller keeps the grid from before it
 for a rollback.
@@ -69,7 +69,7 @@ class Planned:
     seam_time_s: float  # of the window's seam step
     sent: SentMotion  # once sent: the new grid, motion and samples
     stall_s: float  # the arm had left full speed (runout, then rest) this long before the seam
-    takes_over_s: float  # the goal's stamp: the seam, or within its step for a first chunk (at_rest.take_over_time)
+    takes_over_s: float  # the goal's stamp: the seam, or within its step for a first chunk (seam.take_over_time)
 
 
 def plan_chunk(inp: PlanInput) -> Planned | Wait | Failure:
@@ -92,7 +92,7 @@ def plan_chunk(inp: PlanInput) -> Planned | Wait | Failure:
             refusals.append(outside)
             continue
         seam_time = grid.time(window.seam_step)
-        takes_over = at_rest.take_over_time(seam_time, start.from_rest)
+        takes_over = seam.take_over_time(seam_time, start.from_rest)
         if seam.motion_ends_first(previous, seam_time, inp.goal):
             return Wait(WaitReason.MOTION_ENDS_FIRST)
         joined = seam.join(previous, fit_chunk(chunk.arm, config.policy_tracking_weight), window, grid, takes_over,

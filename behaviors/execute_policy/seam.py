@@ -10,7 +10,8 @@ acceleration step there. ``T`` is half the window (``nominal_blend_s``), longer 
 that fast would take more than ``BLEND_SHARE`` of the acceleration the chunk's own motion leaves
 free (``blend_duration``, a closed form of the quintic's peaks; ``join_at_seam``). The joined
 motion is a ``ChunkMotion``. A chunk whose seam comes after the motion still playing has ended
-cannot join it (``motion_ends_first``).
+cannot join it (``motion_ends_first``). The new goal takes over at the seam, or later within the
+seam's step when the chunk found the arm at rest (``take_over_time``).
 
 The simulated trajectory controllers blend a new goal into the one they play with the same
 quintic (``sim/controllers/trajectory.py``).
@@ -29,6 +30,7 @@ from .step_spline import StepSpline
 from .tail import runout_warp
 
 if TYPE_CHECKING:
+    from .at_rest import Arrival
     from .config import ShapingConfig
     from .stream import StepGrid, Window
     from .tail import Tail
@@ -262,6 +264,14 @@ class ChunkMotion:
         return replace(self.bare(), extension=tail.extension_s, runout=tail.runout_s)
 
 
+def take_over_time(seam_time_s: float, arrival: Arrival | None) -> float:
+    """When the goal takes over from the motion the controller plays: at the seam, except that
+    the window of a chunk that finds the arm at rest (``arrival`` not None) may start at the
+    step the chunk arrived (``at_rest.from_rest_seam``) while its goal takes effect later within
+    that step. The arm rests until then, and the blend from rest catches up the fraction of a step."""
+    return seam_time_s if arrival is None else max(seam_time_s, arrival.goal_takes_effect_s)
+
+
 def motion_ends_first(previous: ChunkMotion | None, seam_time_s: float, goal: GoalState) -> bool:
     """Whether the seam comes too late to join the motion the controller still plays (its
     runout included): a seam after its end would be refused. The chunk then waits for it to
@@ -285,7 +295,7 @@ def state_at(motion: ChunkMotion | None, t: float, rest_position: NDArray[np.flo
 def join(previous: ChunkMotion | None, spline: StepSpline, window: Window, grid: StepGrid, takes_over_s: float,
          rest_position: NDArray[np.float64] | None, shaping: ShapingConfig) -> ChunkMotion:
     """The chunk's motion (its fit ``spline``) over ``window``, taking over from the sent motion
-    ``previous`` at ``takes_over_s`` (``at_rest.take_over_time``) where the arm is then."""
+    ``previous`` at ``takes_over_s`` (``take_over_time``) where the arm is then."""
     position, velocity = state_at(previous, takes_over_s, rest_position)
     return join_at_seam(spline, shaping.dt, grid.time(window.request_step), takes_over_s, grid.time(window.end_step),
                         position, velocity, nominal_blend_s(window.steps, shaping.dt),
