@@ -135,10 +135,24 @@ def test_pair_coefficients_ignore_joints_that_move_both_or_neither():
     assert coefficients.tolist() == [[0.0, 0.0, 0.5, 0.3], [0.0, 1.0, 0.5, 0.0]]
 
 
-def test_window_ends_stop_where_a_joint_leaves_its_budget():
+def test_window_ends_stop_where_a_joint_travels_past_its_budget():
     Q = np.array([[0.0, 0.0], [0.004, 0.0], [0.004, -0.009], [0.0, -0.02], [0.0, 0.0]])
-    assert swept.window_ends(Q, 0, np.array([0.005, 0.01, 0.02, 0.04])).tolist() == [2, 3, 5, 5]
-    assert swept.window_ends(Q, 3, np.array([0.005, 0.04])).tolist() == [4, 5]
+    travel = swept.path_travel(Q, np.array([0.005, 0.01, 0.02, 0.04]))
+    assert swept.window_ends(travel, 0).tolist() == [2, 3, 4, 5]  # the second joint travels 0.04 by row 4
+    assert swept.window_ends(travel, 3).tolist() == [4, 4, 5, 5]
+    assert swept.window_ends(swept.path_travel(Q, np.array([0.005, 0.04])), 3).tolist() == [4, 5]
+
+
+@settings(max_examples=200, **common)
+@given(st.integers(2, 40), st.integers(1, 4), st.integers(0, 2**32 - 1), st.data())
+def test_no_joint_leaves_its_budget_inside_a_window(rows, columns, seed, data):
+    Q = np.random.default_rng(seed).normal(0.0, 0.01, (rows, columns)).cumsum(axis=0)
+    levels = np.array([0.005, 0.01, 0.02, 0.04, 0.08, 0.16])
+    start = data.draw(st.integers(0, rows - 1))
+    ends = swept.window_ends(swept.path_travel(Q, levels), start)
+    assert np.all(ends > start) and np.all(ends <= rows) and np.all(np.diff(ends) >= 0)
+    for level, end in zip(levels, ends):
+        assert np.abs(Q[start:end] - Q[start]).max() <= level + 1e-12
 
 
 def test_moved_objects_are_seen_by_the_early_out():

@@ -243,6 +243,15 @@ class _PairSet:
     """Joint motion its margins are inflated for (``swept``); 0: the checker's own margins."""
 
 
+@dataclass(frozen=True)
+class _Sweep:
+    """The early-out of one path: inflated checkers for the joints that move in it, smallest
+    budget first, and how far each of those joints travels along the path (``swept``)."""
+
+    levels: list[_PairSet]
+    travel: swept.PathTravel
+
+
 class CollisionChecker:
     """Robot + attachments + world objects, compiled into one pinocchio geometry model.
 
@@ -373,8 +382,8 @@ class CollisionChecker:
         The answer is the one ``check`` gives for each row. With ``early_out`` (the default),
         runs of rows that a proven bound shows collision-free are settled by one check at
         their first row (``swept``); every other row is checked on its own."""
-        levels = self._levels_for(Q, None) if early_out else []
-        return self._check_many(self._all_pairs, levels, Q, stop_at_first, lambda step: self._last_hit(step, times))
+        sweep = self._sweep_for(Q, None) if early_out else None
+        return self._check_many(self._all_pairs, sweep, Q, stop_at_first, lambda step: self._last_hit(step, times))
 
     def first_hit_of_objects(self, objects: Iterable[str], Q: NDArray[np.float64], times: NDArray[np.float64] | None) -> CollisionResult | None:
         """``check_many(Q, times, stop_at_first=True)`` for a path whose every row was found free
@@ -389,7 +398,7 @@ class CollisionChecker:
         active, pairs = self._object_pairs[names]
         if not active:
             return None
-        hits = self._check_many(pairs, self._levels_for(Q, names), Q, True, lambda step: self._check_row(Q, step, times))
+        hits = self._check_many(pairs, self._sweep_for(Q, names), Q, True, lambda step: self._check_row(Q, step, times))
         return hits[0] if hits else None
 
     def _check_row(self, Q: NDArray[np.float64], step: int, times: NDArray[np.float64] | None) -> CollisionResult | None:
@@ -411,18 +420,16 @@ class CollisionChecker:
         hit = pin.computeCollisions(self.robot.model, self.data, pairs.manager, pairs.callback, q)
         return hit
 
-    def _check_many(self, pairs: _PairSet, levels: list[_PairSet], Q: NDArray[np.float64], stop_at_first: bool,
+    def _check_many(self, pairs: _PairSet, sweep: _Sweep | None, Q: NDArray[np.float64], stop_at_first: bool,
                     hit_at: Callable[[int], CollisionResult | None]) -> list[CollisionResult]:
         """Rows of ``Q`` where a pair of ``pairs`` collides, as ``hit_at(step)`` reports them
-        (called right after that row's check), settling runs of rows at once with ``levels``."""
+        (called right after that row's check), settling runs of rows at once with ``sweep``."""
         out: list[CollisionResult] = []
-        if levels:
-            moving = np.asfortranarray(Q[:, self._moving_columns(Q)])  # window_ends reduces across joints: 2x faster by column
-            budgets = np.array([level.budget_rad for level in levels])
+        levels = [] if sweep is None else sweep.levels
         step, start_level = 0, len(levels)
         while step < Q.shape[0]:
-            if levels:
-                ends = swept.window_ends(moving, step, budgets)
+            if sweep is not None and start_level > 0:  # a window is tried at this row
+                ends = swept.window_ends(sweep.travel, step)
                 level = start_level
                 while level > 0:
                     while level > 1 and ends[level - 2] == ends[level - 1]:
@@ -434,7 +441,9 @@ class CollisionChecker:
                     start_level = min(level + 1, len(levels)) if level == start_level else level
                     step = int(ends[level - 1])
                     continue
-                start_level = 1 if start_level == 0 else 0
+                start_level = 0  # every window missed: the next row is checked on its own too
+            elif sweep is not None:
+                start_level = 1  # and the row after tries the smallest window again
             if self._collides(pairs, Q[step]):
                 hit = hit_at(step)
                 if hit is not None:
@@ -465,13 +474,24 @@ class CollisionChecker:
                 data.activateCollisionPair(k)
         return data
 
-    def _levels_for(self, Q: NDArray[np.float64], objects: frozenset[str] | None) -> list[_PairSet]:
-        """Inflated checkers for the joints that move in ``Q`` (compiled once per set of joints),
-        of every pair or of ``objects``' pairs; none for a single row or an unsupported model."""
-        if self._coefficients is None or Q.shape[0] < 2:
+    def _sweep_for(self, Q: NDArray[np.float64], objects: frozenset[str] | None) -> _Sweep | None:
+        """The early-out of path ``Q`` over every pair or ``objects``' pairs; None for a single
+        row or an unsupported model."""
+        if Q.shape[0] < 2:
+            return None
+        columns = self._moving_columns(Q)
+        levels = self._levels_for(tuple(columns.tolist()), objects)
+        if not levels:
+            return None
+        return _Sweep(levels, swept.path_travel(Q[:, columns], np.array(SWEPT_LEVELS_RAD)))
+
+    def _levels_for(self, columns: tuple[int, ...], objects: frozenset[str] | None) -> list[_PairSet]:
+        """Inflated checkers for the joints of configuration ``columns`` (compiled once per set of
+        joints), of every pair or of ``objects``' pairs, one per ``SWEPT_LEVELS_RAD``; none for
+        an unsupported model."""
+        if self._coefficients is None:
             return []
         model = self.robot.model
-        columns = tuple(self._moving_columns(Q).tolist())
         key = (columns, objects)
         if key not in self._swept_levels:
             joint_of_column = {int(model.idx_qs[j]): j for j in range(1, model.njoints)}
