@@ -336,11 +336,9 @@ class CollisionChecker:
                 add(i, k, _Pair("world", name, owner, True))
 
         self.geometry_model = gm
-        self.geometry_data = pin.GeometryData(gm)
-        for k, pair in enumerate(self._pairs):
-            request = self.geometry_data.collisionRequests[k]
-            request.security_margin = self.padding if pair.padded else 0.0
-            request.enable_contact = False
+        self._margins_m = np.array([self.padding if pair.padded else 0.0 for pair in self._pairs])
+        """Each pair's security margin: the padding for world pairs, 0 for the others."""
+        self.geometry_data = self._pair_data(None)
         self._callback = pin.CollisionCallBackDefault(gm, self.geometry_data, True)
         try:
             manager_class = getattr(pin, f"BroadPhaseManager_{broadphase}")
@@ -462,11 +460,11 @@ class CollisionChecker:
         """Geometry data with this checker's margins, inflated for a joint budget when one is
         given (see ``swept``), and only the ``active`` pairs switched on (None: all)."""
         data = pin.GeometryData(self.geometry_model)
-        for k, request in enumerate(data.collisionRequests):
-            base = self.geometry_data.collisionRequests[k].security_margin
-            if budget_rad is not None and per_rad is not None:
-                base = base + budget_rad * float(per_rad[k]) + SWEPT_SLACK_M
-            request.security_margin = base
+        margins = self._margins_m
+        if budget_rad is not None and per_rad is not None:
+            margins = margins + budget_rad * per_rad + SWEPT_SLACK_M
+        for request, margin in zip(data.collisionRequests, margins.tolist()):
+            request.security_margin = margin
             request.enable_contact = False
         if active is not None:
             data.deactivateAllCollisionPairs()
