@@ -243,6 +243,38 @@ class _PairSet:
     """Joint motion its margins are inflated for (``swept``); 0: the checker's own margins."""
 
 
+def _next_start_level(level: int, start_level: int, levels: int) -> int:
+    """The level the next window starts at: one larger after a window free at the level tried
+    first, the free one after a smaller one; after a row where every window missed, none (that
+    row's next row is checked on its own), and after that the smallest."""
+    if level > 0:
+        return min(level + 1, levels) if level == start_level else level
+    return 0 if start_level > 0 else 1
+
+
+class _NearPairs:
+    """Pairs taken out of a path's windows (``levels``) to be checked on their own (``pair_set``)
+    at every row the windows cover; ``restore`` puts everything back as it was."""
+
+    def __init__(self, data: pin.GeometryData, levels: list[_PairSet]) -> None:
+        self.pair_set = _PairSet(data, None, None)
+        self.levels = levels
+        self.pairs: list[int] = []
+
+    def add(self, pair: int) -> None:
+        self.pairs.append(pair)
+        self.pair_set.geometry_data.activateCollisionPair(pair)
+        for level in self.levels:
+            level.geometry_data.deactivateCollisionPair(pair)
+
+    def restore(self) -> None:
+        for pair in self.pairs:
+            self.pair_set.geometry_data.deactivateCollisionPair(pair)
+            for level in self.levels:
+                level.geometry_data.activateCollisionPair(pair)
+        self.pairs.clear()
+
+
 @dataclass(frozen=True)
 class _Sweep:
     """The early-out of one path: inflated checkers for the joints that move in it, smallest
@@ -354,6 +386,7 @@ class CollisionChecker:
         self._all_pairs = _PairSet(self.geometry_data, self._manager, self._callback)
         self._swept_levels: dict[tuple[tuple[int, ...], frozenset[str] | None], list[_PairSet]] = {}
         self._object_pairs: dict[frozenset[str], tuple[list[int], _PairSet]] = {}
+        self._near_data = self._pair_data([])  # the pairs a path check sets aside (``_NearPairs``), none between checks
 
     def pairs(self) -> list[tuple[str, str, str]]:
         """``(kind, first, second)`` of every checked pair of geometries."""
@@ -421,35 +454,56 @@ class CollisionChecker:
     def _check_many(self, pairs: _PairSet, sweep: _Sweep | None, Q: NDArray[np.float64], stop_at_first: bool,
                     hit_at: Callable[[int], CollisionResult | None]) -> list[CollisionResult]:
         """Rows of ``Q`` where a pair of ``pairs`` collides, as ``hit_at(step)`` reports them
-        (called right after that row's check), settling runs of rows at once with ``sweep``."""
+        (called right after that row's check of ``pairs``), settling runs of rows at once with
+        ``sweep``.
+
+        A pair that keeps even the smallest window from being free at a free row (a finger just
+        above the table) is set aside for the rest of the path: later windows are proven without
+        it, and it is checked on its own at every row they cover."""
         out: list[CollisionResult] = []
         levels = [] if sweep is None else sweep.levels
-        step, start_level = 0, len(levels)
-        while step < Q.shape[0]:
-            if sweep is not None and start_level > 0:  # a window is tried at this row
-                ends = swept.window_ends(sweep.travel, step)
-                level = start_level
-                while level > 0:
-                    while level > 1 and ends[level - 2] == ends[level - 1]:
-                        level -= 1  # a smaller budget covers the same rows: less inflation
-                    if not self._collides(levels[level - 1], Q[step]):
-                        break
-                    level -= 1
-                if level > 0:
-                    start_level = min(level + 1, len(levels)) if level == start_level else level
-                    step = int(ends[level - 1])
+        near = _NearPairs(self._near_data, levels)
+        step, start_level, free_until = 0, len(levels), 0
+        try:
+            while step < Q.shape[0]:
+                missed = False  # every window was tried at this row and none is free
+                if sweep is not None and step >= free_until:
+                    tried = start_level > 0
+                    level, free_until = self._free_window(sweep, step, start_level, Q[step])
+                    start_level = _next_start_level(level, start_level, len(levels))
+                    missed = tried and level == 0
+                if step < free_until and not near.pairs:
+                    step = free_until
                     continue
-                start_level = 0  # every window missed: the next row is checked on its own too
-            elif sweep is not None:
-                start_level = 1  # and the row after tries the smallest window again
-            if self._collides(pairs, Q[step]):
-                hit = hit_at(step)
-                if hit is not None:
-                    out.append(hit)
-                    if stop_at_first:
-                        break
-            step += 1
+                check = near.pair_set if step < free_until else pairs
+                if self._collides(check, Q[step]) and (check is pairs or self._collides(pairs, Q[step])):
+                    hit = hit_at(step)
+                    if hit is not None:
+                        out.append(hit)
+                        if stop_at_first:
+                            break
+                elif missed and levels[0].callback is not None:
+                    near.add(levels[0].callback.collisionPairIndex)  # the pair the smallest window stopped at
+                step += 1
+        finally:
+            near.restore()
         return out
+
+    def _free_window(self, sweep: _Sweep, step: int, start_level: int, q: NDArray[np.float64]) -> tuple[int, int]:
+        """The level (1-based) whose window from row ``step`` one inflated check at ``q`` proves
+        free, trying ``start_level`` first and smaller ones after it, and where that window ends;
+        ``(0, step)`` when none is (or ``start_level`` is 0)."""
+        if start_level == 0:
+            return 0, step
+        ends = swept.window_ends(sweep.travel, step)
+        level = start_level
+        while level > 0:
+            while level > 1 and ends[level - 2] == ends[level - 1]:
+                level -= 1  # a smaller budget covers the same rows: less inflation
+            if not self._collides(sweep.levels[level - 1], q):
+                return level, int(ends[level - 1])
+            level -= 1
+        return 0, step
 
     @staticmethod
     def _moving_columns(Q: NDArray[np.float64]) -> NDArray[np.intp]:
