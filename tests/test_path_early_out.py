@@ -14,7 +14,7 @@ import pytest
 from hypothesis import HealthCheck, event, given, settings
 from hypothesis import strategies as st
 
-from runtime.motion.scene import Box, pose_matrix, swept
+from runtime.motion.scene import Box, collision, pose_matrix, swept
 from sim.layouts import layout
 from sim.planning import CUBE_SIZE, make_cell_scene
 from sim.robot_model import ARM_JOINTS, load_waypoints
@@ -167,3 +167,33 @@ def test_moved_objects_are_seen_by_the_early_out():
         assert step in {h.step for h in plain} and any(h.second == "cube_red" for h in plain)
         scene.move_object("cube_red", pose_matrix([0.0, 0.0, -1.0]))  # away, under the table
         assert step not in {h.step for h in scene.check_path(Q, stop_at_first=False)}
+
+
+@pytest.mark.parametrize("below_hit_rad", [0.01, -0.005])  # hovering 5 mm clear of the padding; inside it
+def test_pairs_set_aside_over_the_table_give_the_per_point_answer_and_are_put_back(monkeypatch, below_hit_rad):
+    """A finger hovering over the table keeps every window from being free: its pairs are set
+    aside for the rest of the path, the answers stay the per-point ones, and afterwards every
+    compiled check has its pairs as before."""
+    scene = make_cell_scene(CUBES)
+    ready = np.array([load_waypoints()["Ready"][j] for j in ARM_JOINTS])
+    lift = np.eye(6)[1]  # turning the shoulder lift forward lowers the fingers
+    lo, hi = 0.0, 1.5
+    while hi - lo > 1e-4:  # the first shoulder angle where a finger reaches the table's padding
+        mid = (lo + hi) / 2
+        lo, hi = (lo, mid) if scene.check_state(np.append(ready + mid * lift, 0.0), 0.01) else (mid, hi)
+    hover = ready + (hi - below_hit_rad) * lift
+    along = hover + np.linspace(0.0, 0.3, 200)[:, None] * np.eye(6)[0]
+    arm = np.vstack([np.linspace(ready, hover, 100), along, np.linspace(along[-1], along[-1] - hi * lift, 100)])
+    Q = np.column_stack([arm, np.zeros(len(arm))])
+    set_aside = []
+    add = collision._NearPairs.add
+    monkeypatch.setattr(collision._NearPairs, "add", lambda near, pair: (set_aside.append(pair), add(near, pair)))
+    fast, plain = scene.check_path(Q, stop_at_first=False), scene.check_path(Q, stop_at_first=False, early_out=False)
+    assert [key(h) for h in fast] == [key(h) for h in plain]
+    assert set_aside and (len(plain) > 100) == (below_hit_rad < 0)
+    checker = scene._checker(0.01, scene.snapshot())
+    for levels in checker._swept_levels.values():
+        for level in levels:
+            assert all(level.geometry_data.activeCollisionPairs)
+            assert level.aside is not None and not any(level.aside.geometry_data.activeCollisionPairs)
+    assert not any(checker._near_data.activeCollisionPairs)
