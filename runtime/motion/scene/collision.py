@@ -241,9 +241,6 @@ class _PairSet:
     callback: pin.CollisionCallBackDefault | None
     budget_rad: float = 0.0
     """Joint motion its margins are inflated for (``swept``); 0: the checker's own margins."""
-    aside: _PairSet | None = None
-    """With a broadphase and a budget: the same margins for the pairs a path check sets aside
-    (``_NearPairs``), checked one by one; none of them between checks."""
 
 
 def _next_start_level(level: int, start_level: int, levels: int) -> int:
@@ -269,16 +266,12 @@ class _NearPairs:
         self.pair_set.geometry_data.activateCollisionPair(pair)
         for level in self.levels:
             level.geometry_data.deactivateCollisionPair(pair)
-            if level.aside is not None:
-                level.aside.geometry_data.activateCollisionPair(pair)
 
     def restore(self) -> None:
         for pair in self.pairs:
             self.pair_set.geometry_data.deactivateCollisionPair(pair)
             for level in self.levels:
                 level.geometry_data.activateCollisionPair(pair)
-                if level.aside is not None:
-                    level.aside.geometry_data.deactivateCollisionPair(pair)
         self.pairs.clear()
 
 
@@ -466,8 +459,7 @@ class CollisionChecker:
 
         A pair that keeps even the smallest window from being free at a free row (a finger just
         above the table) is set aside for the rest of the path: later windows are proven without
-        it, then for it alone with the same budget, and where that fails it is checked on its own
-        at every row they cover."""
+        it, and it is checked on its own at every row they cover."""
         out: list[CollisionResult] = []
         levels = [] if sweep is None else sweep.levels
         near = _NearPairs(self._near_data, levels)
@@ -480,10 +472,6 @@ class CollisionChecker:
                     level, free_until = self._free_window(sweep, step, start_level, Q[step])
                     start_level = _next_start_level(level, start_level, len(levels))
                     missed = tried and level == 0
-                    aside = levels[level - 1].aside if level > 0 and near.pairs else None
-                    if aside is not None and not self._collides(aside, Q[step]):
-                        step = free_until  # the pairs set aside are free in this window too
-                        continue
                 if step < free_until and not near.pairs:
                     step = free_until
                     continue
@@ -566,9 +554,8 @@ class CollisionChecker:
             for budget in SWEPT_LEVELS_RAD:
                 data = self._pair_data(active, budget, per_rad)
                 if objects is None:
-                    aside = _PairSet(self._pair_data([], budget, per_rad), None, None, budget)
                     levels.append(_PairSet(data, self._manager_class(model, self.geometry_model, data),
-                                           pin.CollisionCallBackDefault(self.geometry_model, data, True), budget, aside))
+                                           pin.CollisionCallBackDefault(self.geometry_model, data, True), budget))
                 else:
                     levels.append(_PairSet(data, None, None, budget))
             self._swept_levels[key] = levels
