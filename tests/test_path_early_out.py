@@ -14,7 +14,7 @@ import pytest
 from hypothesis import HealthCheck, event, given, settings
 from hypothesis import strategies as st
 
-from runtime.motion.scene import Box, pose_matrix, swept
+from runtime.motion.scene import Box, collision, pose_matrix, swept
 from sim.layouts import layout
 from sim.planning import CUBE_SIZE, make_cell_scene
 from sim.robot_model import ARM_JOINTS, load_waypoints
@@ -135,10 +135,24 @@ def test_pair_coefficients_ignore_joints_that_move_both_or_neither():
     assert coefficients.tolist() == [[0.0, 0.0, 0.5, 0.3], [0.0, 1.0, 0.5, 0.0]]
 
 
-def test_window_ends_stop_where_a_joint_leaves_its_budget():
+def test_window_ends_stop_where_a_joint_travels_past_its_budget():
     Q = np.array([[0.0, 0.0], [0.004, 0.0], [0.004, -0.009], [0.0, -0.02], [0.0, 0.0]])
-    assert swept.window_ends(Q, 0, np.array([0.005, 0.01, 0.02, 0.04])).tolist() == [2, 3, 5, 5]
-    assert swept.window_ends(Q, 3, np.array([0.005, 0.04])).tolist() == [4, 5]
+    travel = swept.path_travel(Q, np.array([0.005, 0.01, 0.02, 0.04]))
+    assert swept.window_ends(travel, 0).tolist() == [2, 3, 4, 5]  # the second joint travels 0.04 by row 4
+    assert swept.window_ends(travel, 3).tolist() == [4, 4, 5, 5]
+    assert swept.window_ends(swept.path_travel(Q, np.array([0.005, 0.04])), 3).tolist() == [4, 5]
+
+
+@settings(max_examples=200, **common)
+@given(st.integers(2, 40), st.integers(1, 4), st.integers(0, 2**32 - 1), st.data())
+def test_no_joint_leaves_its_budget_inside_a_window(rows, columns, seed, data):
+    Q = np.random.default_rng(seed).normal(0.0, 0.01, (rows, columns)).cumsum(axis=0)
+    levels = np.array([0.005, 0.01, 0.02, 0.04, 0.08, 0.16])
+    start = data.draw(st.integers(0, rows - 1))
+    ends = swept.window_ends(swept.path_travel(Q, levels), start)
+    assert np.all(ends > start) and np.all(ends <= rows) and np.all(np.diff(ends) >= 0)
+    for level, end in zip(levels, ends):
+        assert np.abs(Q[start:end] - Q[start]).max() <= level + 1e-12
 
 
 def test_moved_objects_are_seen_by_the_early_out():
@@ -153,3 +167,32 @@ def test_moved_objects_are_seen_by_the_early_out():
         assert step in {h.step for h in plain} and any(h.second == "cube_red" for h in plain)
         scene.move_object("cube_red", pose_matrix([0.0, 0.0, -1.0]))  # away, under the table
         assert step not in {h.step for h in scene.check_path(Q, stop_at_first=False)}
+
+
+@pytest.mark.parametrize("below_hit_rad", [0.01, -0.005])  # hovering 5 mm clear of the padding; inside it
+def test_pairs_set_aside_over_the_table_give_the_per_point_answer_and_are_put_back(monkeypatch, below_hit_rad):
+    """A finger hovering over the table keeps every window from being free: its pairs are set
+    aside for the rest of the path, the answers stay the per-point ones, and afterwards every
+    compiled check has its pairs as before."""
+    scene = make_cell_scene(CUBES)
+    ready = np.array([load_waypoints()["Ready"][j] for j in ARM_JOINTS])
+    lift = np.eye(6)[1]  # turning the shoulder lift forward lowers the fingers
+    lo, hi = 0.0, 1.5
+    while hi - lo > 1e-4:  # the first shoulder angle where a finger reaches the table's padding
+        mid = (lo + hi) / 2
+        lo, hi = (lo, mid) if scene.check_state(np.append(ready + mid * lift, 0.0), 0.01) else (mid, hi)
+    hover = ready + (hi - below_hit_rad) * lift
+    along = hover + np.linspace(0.0, 0.3, 200)[:, None] * np.eye(6)[0]
+    arm = np.vstack([np.linspace(ready, hover, 100), along, np.linspace(along[-1], along[-1] - hi * lift, 100)])
+    Q = np.column_stack([arm, np.zeros(len(arm))])
+    set_aside = []
+    add = collision._NearPairs.add
+    monkeypatch.setattr(collision._NearPairs, "add", lambda near, pair: (set_aside.append(pair), add(near, pair)))
+    fast, plain = scene.check_path(Q, stop_at_first=False), scene.check_path(Q, stop_at_first=False, early_out=False)
+    assert [key(h) for h in fast] == [key(h) for h in plain]
+    assert set_aside and (len(plain) > 100) == (below_hit_rad < 0)
+    checker = scene._checker(0.01, scene.snapshot())
+    for levels in checker._swept_levels.values():
+        for level in levels:
+            assert all(level.geometry_data.activeCollisionPairs)
+    assert not any(checker._near_data.activeCollisionPairs)

@@ -243,6 +243,47 @@ class _PairSet:
     """Joint motion its margins are inflated for (``swept``); 0: the checker's own margins."""
 
 
+def _next_start_level(level: int, start_level: int, levels: int) -> int:
+    """The level the next window starts at: one larger after a window free at the level tried
+    first, the free one after a smaller one; after a row where every window missed, none (that
+    row's next row is checked on its own), and after that the smallest."""
+    if level > 0:
+        return min(level + 1, levels) if level == start_level else level
+    return 0 if start_level > 0 else 1
+
+
+class _NearPairs:
+    """Pairs taken out of a path's windows (``levels``) to be checked on their own (``pair_set``)
+    at every row the windows cover; ``restore`` puts everything back as it was."""
+
+    def __init__(self, data: pin.GeometryData, levels: list[_PairSet]) -> None:
+        self.pair_set = _PairSet(data, None, None)
+        self.levels = levels
+        self.pairs: list[int] = []
+
+    def add(self, pair: int) -> None:
+        self.pairs.append(pair)
+        self.pair_set.geometry_data.activateCollisionPair(pair)
+        for level in self.levels:
+            level.geometry_data.deactivateCollisionPair(pair)
+
+    def restore(self) -> None:
+        for pair in self.pairs:
+            self.pair_set.geometry_data.deactivateCollisionPair(pair)
+            for level in self.levels:
+                level.geometry_data.activateCollisionPair(pair)
+        self.pairs.clear()
+
+
+@dataclass(frozen=True)
+class _Sweep:
+    """The early-out of one path: inflated checkers for the joints that move in it, smallest
+    budget first, and how far each of those joints travels along the path (``swept``)."""
+
+    levels: list[_PairSet]
+    travel: swept.PathTravel
+
+
 class CollisionChecker:
     """Robot + attachments + world objects, compiled into one pinocchio geometry model.
 
@@ -327,11 +368,9 @@ class CollisionChecker:
                 add(i, k, _Pair("world", name, owner, True))
 
         self.geometry_model = gm
-        self.geometry_data = pin.GeometryData(gm)
-        for k, pair in enumerate(self._pairs):
-            request = self.geometry_data.collisionRequests[k]
-            request.security_margin = self.padding if pair.padded else 0.0
-            request.enable_contact = False
+        self._margins_m = np.array([self.padding if pair.padded else 0.0 for pair in self._pairs])
+        """Each pair's security margin: the padding for world pairs, 0 for the others."""
+        self.geometry_data = self._pair_data(None)
         self._callback = pin.CollisionCallBackDefault(gm, self.geometry_data, True)
         try:
             manager_class = getattr(pin, f"BroadPhaseManager_{broadphase}")
@@ -347,6 +386,7 @@ class CollisionChecker:
         self._all_pairs = _PairSet(self.geometry_data, self._manager, self._callback)
         self._swept_levels: dict[tuple[tuple[int, ...], frozenset[str] | None], list[_PairSet]] = {}
         self._object_pairs: dict[frozenset[str], tuple[list[int], _PairSet]] = {}
+        self._near_data = self._pair_data([])  # the pairs a path check sets aside (``_NearPairs``), none between checks
 
     def pairs(self) -> list[tuple[str, str, str]]:
         """``(kind, first, second)`` of every checked pair of geometries."""
@@ -373,8 +413,8 @@ class CollisionChecker:
         The answer is the one ``check`` gives for each row. With ``early_out`` (the default),
         runs of rows that a proven bound shows collision-free are settled by one check at
         their first row (``swept``); every other row is checked on its own."""
-        levels = self._levels_for(Q, None) if early_out else []
-        return self._check_many(self._all_pairs, levels, Q, stop_at_first, lambda step: self._last_hit(step, times))
+        sweep = self._sweep_for(Q, None) if early_out else None
+        return self._check_many(self._all_pairs, sweep, Q, stop_at_first, lambda step: self._last_hit(step, times))
 
     def first_hit_of_objects(self, objects: Iterable[str], Q: NDArray[np.float64], times: NDArray[np.float64] | None) -> CollisionResult | None:
         """``check_many(Q, times, stop_at_first=True)`` for a path whose every row was found free
@@ -389,7 +429,7 @@ class CollisionChecker:
         active, pairs = self._object_pairs[names]
         if not active:
             return None
-        hits = self._check_many(pairs, self._levels_for(Q, names), Q, True, lambda step: self._check_row(Q, step, times))
+        hits = self._check_many(pairs, self._sweep_for(Q, names), Q, True, lambda step: self._check_row(Q, step, times))
         return hits[0] if hits else None
 
     def _check_row(self, Q: NDArray[np.float64], step: int, times: NDArray[np.float64] | None) -> CollisionResult | None:
@@ -411,38 +451,59 @@ class CollisionChecker:
         hit = pin.computeCollisions(self.robot.model, self.data, pairs.manager, pairs.callback, q)
         return hit
 
-    def _check_many(self, pairs: _PairSet, levels: list[_PairSet], Q: NDArray[np.float64], stop_at_first: bool,
+    def _check_many(self, pairs: _PairSet, sweep: _Sweep | None, Q: NDArray[np.float64], stop_at_first: bool,
                     hit_at: Callable[[int], CollisionResult | None]) -> list[CollisionResult]:
         """Rows of ``Q`` where a pair of ``pairs`` collides, as ``hit_at(step)`` reports them
-        (called right after that row's check), settling runs of rows at once with ``levels``."""
+        (called right after that row's check of ``pairs``), settling runs of rows at once with
+        ``sweep``.
+
+        A pair that keeps even the smallest window from being free at a free row (a finger just
+        above the table) is set aside for the rest of the path: later windows are proven without
+        it, and it is checked on its own at every row they cover."""
         out: list[CollisionResult] = []
-        if levels:
-            moving = np.asfortranarray(Q[:, self._moving_columns(Q)])  # window_ends reduces across joints: 2x faster by column
-            budgets = np.array([level.budget_rad for level in levels])
-        step, start_level = 0, len(levels)
-        while step < Q.shape[0]:
-            if levels:
-                ends = swept.window_ends(moving, step, budgets)
-                level = start_level
-                while level > 0:
-                    while level > 1 and ends[level - 2] == ends[level - 1]:
-                        level -= 1  # a smaller budget covers the same rows: less inflation
-                    if not self._collides(levels[level - 1], Q[step]):
-                        break
-                    level -= 1
-                if level > 0:
-                    start_level = min(level + 1, len(levels)) if level == start_level else level
-                    step = int(ends[level - 1])
+        levels = [] if sweep is None else sweep.levels
+        near = _NearPairs(self._near_data, levels)
+        step, start_level, free_until = 0, len(levels), 0
+        try:
+            while step < Q.shape[0]:
+                missed = False  # every window was tried at this row and none is free
+                if sweep is not None and step >= free_until:
+                    tried = start_level > 0
+                    level, free_until = self._free_window(sweep, step, start_level, Q[step])
+                    start_level = _next_start_level(level, start_level, len(levels))
+                    missed = tried and level == 0
+                if step < free_until and not near.pairs:
+                    step = free_until
                     continue
-                start_level = 1 if start_level == 0 else 0
-            if self._collides(pairs, Q[step]):
-                hit = hit_at(step)
-                if hit is not None:
-                    out.append(hit)
-                    if stop_at_first:
-                        break
-            step += 1
+                check = near.pair_set if step < free_until else pairs
+                if self._collides(check, Q[step]) and (check is pairs or self._collides(pairs, Q[step])):
+                    hit = hit_at(step)
+                    if hit is not None:
+                        out.append(hit)
+                        if stop_at_first:
+                            break
+                elif missed and levels[0].callback is not None:
+                    near.add(levels[0].callback.collisionPairIndex)  # the pair the smallest window stopped at
+                step += 1
+        finally:
+            near.restore()
         return out
+
+    def _free_window(self, sweep: _Sweep, step: int, start_level: int, q: NDArray[np.float64]) -> tuple[int, int]:
+        """The level (1-based) whose window from row ``step`` one inflated check at ``q`` proves
+        free, trying ``start_level`` first and smaller ones after it, and where that window ends;
+        ``(0, step)`` when none is (or ``start_level`` is 0)."""
+        if start_level == 0:
+            return 0, step
+        ends = swept.window_ends(sweep.travel, step)
+        level = start_level
+        while level > 0:
+            while level > 1 and ends[level - 2] == ends[level - 1]:
+                level -= 1  # a smaller budget covers the same rows: less inflation
+            if not self._collides(sweep.levels[level - 1], q):
+                return level, int(ends[level - 1])
+            level -= 1
+        return 0, step
 
     @staticmethod
     def _moving_columns(Q: NDArray[np.float64]) -> NDArray[np.intp]:
@@ -453,11 +514,11 @@ class CollisionChecker:
         """Geometry data with this checker's margins, inflated for a joint budget when one is
         given (see ``swept``), and only the ``active`` pairs switched on (None: all)."""
         data = pin.GeometryData(self.geometry_model)
-        for k, request in enumerate(data.collisionRequests):
-            base = self.geometry_data.collisionRequests[k].security_margin
-            if budget_rad is not None and per_rad is not None:
-                base = base + budget_rad * float(per_rad[k]) + SWEPT_SLACK_M
-            request.security_margin = base
+        margins = self._margins_m
+        if budget_rad is not None and per_rad is not None:
+            margins = margins + budget_rad * per_rad + SWEPT_SLACK_M
+        for request, margin in zip(data.collisionRequests, margins.tolist()):
+            request.security_margin = margin
             request.enable_contact = False
         if active is not None:
             data.deactivateAllCollisionPairs()
@@ -465,13 +526,24 @@ class CollisionChecker:
                 data.activateCollisionPair(k)
         return data
 
-    def _levels_for(self, Q: NDArray[np.float64], objects: frozenset[str] | None) -> list[_PairSet]:
-        """Inflated checkers for the joints that move in ``Q`` (compiled once per set of joints),
-        of every pair or of ``objects``' pairs; none for a single row or an unsupported model."""
-        if self._coefficients is None or Q.shape[0] < 2:
+    def _sweep_for(self, Q: NDArray[np.float64], objects: frozenset[str] | None) -> _Sweep | None:
+        """The early-out of path ``Q`` over every pair or ``objects``' pairs; None for a single
+        row or an unsupported model."""
+        if Q.shape[0] < 2:
+            return None
+        columns = self._moving_columns(Q)
+        levels = self._levels_for(tuple(columns.tolist()), objects)
+        if not levels:
+            return None
+        return _Sweep(levels, swept.path_travel(Q[:, columns], np.array(SWEPT_LEVELS_RAD)))
+
+    def _levels_for(self, columns: tuple[int, ...], objects: frozenset[str] | None) -> list[_PairSet]:
+        """Inflated checkers for the joints of configuration ``columns`` (compiled once per set of
+        joints), of every pair or of ``objects``' pairs, one per ``SWEPT_LEVELS_RAD``; none for
+        an unsupported model."""
+        if self._coefficients is None:
             return []
         model = self.robot.model
-        columns = tuple(self._moving_columns(Q).tolist())
         key = (columns, objects)
         if key not in self._swept_levels:
             joint_of_column = {int(model.idx_qs[j]): j for j in range(1, model.njoints)}

@@ -16,9 +16,12 @@ It may skip the narrowphase at points where a bound *proves* that nothing collid
 If a pair's distance at q is at least ``margin + L * sum_j C[p, j] + slack`` (coal reports "no
 collision" for a security margin inflated by that much), then at every q' with
 ``|q'_j - q_j| <= L`` for all joints the distance is above ``margin``: no collision there.
-``window_ends`` finds, for each L, how far along a path that holds.
+``window_ends`` finds, for each L, how far along a path that holds, from each joint's travel
+along the path (``path_travel``).
 """
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
@@ -71,10 +74,47 @@ def pair_coefficients(radii: NDArray[np.float64], pairs: list[tuple[int, int]]) 
     return out
 
 
-def window_ends(Q_moving: NDArray[np.float64], start: int, levels_rad: NDArray[np.float64]) -> NDArray[np.intp]:
-    """For each level L, the first index after ``start`` where some column of ``Q_moving``
-    has moved more than L from its value at ``start`` (``len(Q_moving)`` if none has)."""
-    deviation = np.abs(Q_moving[start:] - Q_moving[start]).max(axis=1, initial=0.0)
-    np.maximum.accumulate(deviation, out=deviation)
-    ends: NDArray[np.intp] = start + deviation.searchsorted(levels_rad, side="right")
-    return ends
+@dataclass(frozen=True)
+class PathTravel:
+    """How far each moving joint has travelled along a path, summed step by step, ready to find
+    where budgets run out. Joint j's travel from row s to row t bounds its displacement,
+    ``|q_j(t) - q_j(s)| <= T_j(t) - T_j(s)`` (equal while the joint moves one way).
+
+    The columns' travels lie one after the other in one non-decreasing array (column j lifted
+    above the travel plus budget of every column before it), so that one ``searchsorted`` finds
+    where every column leaves every budget."""
+
+    stacked: NDArray[np.float64]
+    """Column j's travel at row i at index ``j * rows + i``, plus column j's lift."""
+    rows: int
+    levels: int
+    column_starts: NDArray[np.intp]
+    """Per (column, level), flattened column-major: the index of the column's row 0 in ``stacked``."""
+    budgets_rad: NDArray[np.float64]
+    """Per (column, level), as ``column_starts``: the level's budget."""
+
+
+def path_travel(Q_moving: NDArray[np.float64], levels_rad: NDArray[np.float64]) -> PathTravel:
+    """The travel of every column of ``Q_moving`` (N, k) from row 0, for the joint budgets
+    ``levels_rad`` (non-negative)."""
+    rows, columns = Q_moving.shape
+    travel = np.zeros((columns, rows))  # a row per column: cumsum runs along contiguous memory
+    np.cumsum(np.abs(np.diff(Q_moving.T, axis=1)), axis=1, out=travel[:, 1:])
+    lift = float(travel[:, -1].max(initial=0.0)) + float(levels_rad.max(initial=0.0)) + 1.0
+    travel += (lift * np.arange(columns))[:, None]
+    stacked = travel.ravel()
+    column_starts = np.repeat(rows * np.arange(columns), len(levels_rad))
+    return PathTravel(stacked, rows, len(levels_rad), column_starts, np.tile(levels_rad, columns))
+
+
+def window_ends(travel: PathTravel, start: int) -> NDArray[np.intp]:
+    """For each level L, the first index after ``start`` where some joint has travelled more
+    than L since ``start`` (``travel.rows`` if none has): up to there, no joint is more than L
+    from its value at ``start``. Rounding in the sums (below 1e-12 rad) is far inside
+    ``SWEPT_SLACK_M``."""
+    limits = travel.stacked[travel.column_starts + start]
+    limits += travel.budgets_rad
+    ends = travel.stacked.searchsorted(limits, side="right")
+    ends -= travel.column_starts  # each column's row index
+    first: NDArray[np.intp] = np.minimum.reduce(ends.reshape(-1, travel.levels), axis=0, initial=travel.rows)
+    return first
