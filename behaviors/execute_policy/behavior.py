@@ -36,7 +36,7 @@ from .checks import PointChecks
 from .chunk import Chunk
 from .controller_stream import ControllerStream
 from .failure import Failure, FailureKind
-from .metrics import POLICY_RUNS, summarise_runs
+from .metrics import POLICY_RUNS, RunMetrics, summarise_runs
 from .at_rest import Arrival
 from .planner import PlanInput, Planned, plan_chunk
 from .scene_watch import SceneWatch
@@ -146,15 +146,15 @@ class ExecutePolicy(Behavior):
     # -- STREAM ------------------------------------------------------------------------------
     def play(self, now: float) -> Status:
         """One STREAM tick: the controller, the robot watch, then what ``StreamState`` says."""
-        session, run = self.session, self._run()
-        status = self._watch_controller(now)  # first: an abort the controller already made is the reason
+        session, run, controller = self.session, self._run(), self._controller()
+        metrics, policy = session.metrics, session.policy
+        status = self._watch_controller(controller, now)  # first: an abort the controller already made is the reason
         if status is not None:
             return status
         status = session.watch_robot(now)
         if status is not None:
             return status
-        self._track_progress(now)
-        policy = session.policy
+        track_progress(metrics, self._sent_motion(), now)
         state = stream_state(run.held, policy.request)
         if state is StreamState.HOLDING:
             held, run.held = run.held, None
@@ -166,27 +166,28 @@ class ExecutePolicy(Behavior):
             status = None
         if status is not None:
             return status
+        sent = self._sent_motion()  # with the chunk sent in this tick, if one was
         if stream_state(run.held, policy.request) is StreamState.SCHEDULING:
-            self._maybe_request(now)  # also in the tick a chunk was sent: its next request may be due already
-        sent = self._sent_motion()
-        collision = run.scene_watch.check(self._rules(), sent.samples, now, session.gripper_position())
+            self._maybe_request(sent.grid, now)  # also in the tick a chunk was sent: its next request may be due already
+        collision = run.scene_watch.check(self._rules(), sent.samples, now, session.gripper_position)
         if collision is not None:
             return session.fail(Failure(FailureKind.SCENE_CHANGED, f"the planning scene changed: {collision} in the remaining path; robot stopped"))
-        if stream_finished(sent, policy.request, self._controller().goal):
+        if stream_finished(sent, policy.request, controller.goal):
             # The controller's success says it played every step sent, whatever this run's clock
             # reads (a robot's clock may run ahead of it).
-            session.metrics.steps_executed = sent.grid.executed_until
+            metrics.steps_executed = sent.grid.executed_until
             return session.stop(Status.SUCCESS, f"executed {sent.grid.total_steps} steps")
         return Status.RUNNING
 
     # -- requests and responses --------------------------------------------------------------
     def _frozen(self) -> int:
-        estimate_s = self.session.metrics.latency_estimate_s = self.session.policy.latency.seconds
+        session = self.session
+        estimate_s = session.metrics.latency_estimate_s = session.policy.latency.seconds
         tick_s = self.context.tick_period_s
-        return frozen_prefix_steps(estimate_s, self.session.config.dt, prefetch_margin(estimate_s, tick_s, self._controller().planned_latency_s))
+        return frozen_prefix_steps(estimate_s, session.config.dt, prefetch_margin(estimate_s, tick_s, self._controller().planned_latency_s))
 
-    def _maybe_request(self, now: float) -> None:
-        grid = self._sent_motion().grid
+    def _maybe_request(self, grid: StepGrid, now: float) -> None:
+        """Send the next request once its step is due on ``grid`` (the sent motion's)."""
         if grid.remaining == 0:
             return
         frozen = self._frozen()
@@ -253,19 +254,18 @@ class ExecutePolicy(Behavior):
         return None
 
     # -- controller --------------------------------------------------------------------------
-    def _watch_controller(self, now: float) -> Status | None:
-        controller = self._controller()
+    def _watch_controller(self, controller: ControllerStream, now: float) -> Status | None:
         try:
             news = controller.watch(now)
         except SetupError as err:  # a goal refused as sent: refused again on a retry
             raise self.session.setup_error(str(err)) from None
         self.session.metrics.goal_latency_max_s = controller.goal_latency_s
+        if news is None:
+            return None
         if isinstance(news, Rollback):
             self._roll_back(news)
             return None
-        if news is not None:
-            return self.session.fail(Failure(FailureKind.CONTROLLER, news))
-        return None
+        return self.session.fail(Failure(FailureKind.CONTROLLER, news))
 
     def _roll_back(self, rollback: Rollback) -> None:
         """A goal refused for reaching the controller after its seam: go back to the motion sent
@@ -284,13 +284,6 @@ class ExecutePolicy(Behavior):
             return
         run.held = rollback.held  # planned again next tick
         self.session.warn(f"{late}; the chunk is planned again from what the arm is doing{margin}")
-
-    def _track_progress(self, now: float) -> None:
-        sent = self._sent_motion()
-        if sent.motion is None:
-            return
-        metrics = self.session.metrics
-        metrics.steps_executed = max(metrics.steps_executed, sent.grid.steps_executed_by(now))
 
     # -- endings -----------------------------------------------------------------------------
     def chunk_plot(self, chunk: Chunk, request_step: int) -> dict[str, Any]:
@@ -321,6 +314,12 @@ class ExecutePolicy(Behavior):
         sent = self._run().sent_motion
         assert sent is not None, "the STREAM phase starts with a sent motion (the arm at rest)"
         return sent
+
+
+def track_progress(metrics: RunMetrics, sent: SentMotion, now: float) -> None:
+    """Count the steps the arm has played by ``now`` (none before the first chunk)."""
+    if sent.motion is not None:
+        metrics.steps_executed = max(metrics.steps_executed, sent.grid.steps_executed_by(now))
 
 
 NODES = (ExecutePolicy,)

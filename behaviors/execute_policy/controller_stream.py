@@ -112,9 +112,10 @@ class ControllerStream:
         or the ``Rollback`` of a goal refused only for arriving after its seam; a ``SetupError``
         when the controller refuses a goal as sent (rejected; or, before any goal of the run
         played, ended with one of ``REFUSED_GOAL_CODES``)."""
-        aborted = self._watch_replaced()
-        if aborted is not None:
-            return aborted
+        if self.replaced.state is not GoalState.NONE:  # a goal was replaced: its abort ends the run too
+            aborted = self._watch_replaced()
+            if aborted is not None:
+                return aborted
         goal, name = self.goal, self.link.name
         if goal.state is GoalState.SENT:
             if not goal.send_future.done():

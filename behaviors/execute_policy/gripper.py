@@ -128,7 +128,7 @@ class GripperStream:
 
     def follow(self) -> str | None:
         """The first problem in the answers that came (``follow_goals``), or None."""
-        return follow_goals(self.goals, self.action_name)
+        return follow_goals(self.goals, self.action_name) if self.goals else None
 
     def cancel(self) -> None:
         """Send nothing more (the goals sent play out)."""

@@ -9,7 +9,7 @@ the state does not tell apart, are checked against the world objects that moved 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Callable
 
 from runtime.motion.samples import Samples
 
@@ -48,13 +48,16 @@ class SceneWatch:
         """What a collision check of the sent samples depends on, besides the samples."""
         return (self.safety.scene.version, gripper_key(gripper_now))
 
-    def check(self, rules: Any, samples: Samples | None, now_s: float, gripper_now: float | None) -> CollisionResult | None:
+    def check(self, rules: Any, samples: Samples | None, now_s: float,
+              gripper_position: Callable[[], float | None]) -> CollisionResult | None:
         """The first collision in the rest of ``samples`` (from ``now_s``, under the safety
         ``rules``) when the scene changed since they were last checked; None when there is none,
-        or nothing to look at yet."""
+        or nothing to look at yet. ``gripper_position`` reads the gripper's position of now
+        (asked only when a look is due)."""
         if samples is None or now_s < self.next_check_s - 1e-9:
             return None
         self.next_check_s = now_s + SCENE_WATCH_PERIOD_S
+        gripper_now = gripper_position()
         scene_state = self.scene_state(gripper_now)
         if scene_state == self.checked_scene:  # the remaining samples were checked against this very scene
             return None

@@ -80,6 +80,11 @@ class ProtectiveStop:
         self._heartbeat_at_s: float | None = None
         self._watched_since_s: float | None = None
 
+    @property
+    def watches_heartbeat(self) -> bool:
+        """Whether ``reason`` asks whether a node that needs a heartbeat runs (a deadman topic is set)."""
+        return bool(self.inputs.deadman_topic)
+
     def listen(self, bus: Any) -> None:
         """Subscribe to the topics and serve the service on ``bus`` (a service only where the bus serves)."""
         from std_msgs.msg import Bool  # the ROS interfaces, only once a run listens (a sourced ROS 2 or the [ros] extra)

@@ -292,7 +292,6 @@ def _failing(root: py_trees.behaviour.Behaviour, visited: list[Visit]) -> tuple[
     return inner, reason(node), getattr(inner, "failure_kind", None)
 
 
-_STATUS_NAMES = {status: status.value for status in Status}  # an enum's .value is a slow property
 _RUNNING = Status.RUNNING.value
 
 
@@ -321,12 +320,14 @@ class StatusEvents:
             self.events.emit("node_status", self.nodes[i].name, node=i, status=status, message=message)
 
     def update(self, visited: list[Visit]) -> None:
-        seen = set()
+        index, last, seen = self.index, self.last, set()
         for node, status, message in visited:
-            i = self.index.get(id(node))
+            i = index.get(id(node))
             if i is not None:
                 seen.add(i)
-                self._emit(i, "SKIPPED" if status is SKIPPED and is_skipped(node) else _STATUS_NAMES[status], message)
+                name = "SKIPPED" if status is SKIPPED and is_skipped(node) else status._value_  # .value is a slow property
+                if last.get(i) != name:
+                    self._emit(i, name, message)
         self.halted(seen)
 
     def halted(self, seen: AbstractSet[int] = frozenset()) -> None:
@@ -458,6 +459,9 @@ class RunLoop:
         self.running: list[py_trees.behaviour.Behaviour] = []
         """The leaves that were RUNNING when the run ended (halted since)."""
         self.policy_running = False
+        """Whether a node that needs a heartbeat was RUNNING after the last tick (kept only while
+        the guard watches a deadman: ``heartbeat_watched``)."""
+        self.heartbeat_watched = False
         self.wall_start = time.monotonic()
         self.ticking = contextlib.ExitStack()
         """What holds while the tree ticks: the paced heap, the real-time priority."""
@@ -549,6 +553,7 @@ class RunLoop:
         if self.guard is None and options.protective_stop is not None:  # listening from the start
             self.guard = ProtectiveStop(options.protective_stop)
             self.guard.listen(self.bus)
+        self.heartbeat_watched = self.guard is not None and self.guard.watches_heartbeat
         if self.world is not None:
             context.world = self.world
             try:
@@ -596,13 +601,15 @@ class RunLoop:
         self.ticks += 1  # counted before it runs: a tick that raised was still ticked
         tick = tick_tree(self.root)
         self.status, visited = tick.status, tick.visited
-        self.policy_running = any(seen is Status.RUNNING and needs_heartbeat(n) for n, seen, _ in visited)
+        if self.heartbeat_watched:
+            self.policy_running = any(seen is Status.RUNNING and needs_heartbeat(n) for n, seen, _ in visited)
         self.statuses.update(visited)
         if self.pacing is not None:
             self.pacing.record(tick_start, time.monotonic())
         for observer in self.observers:
             observer.ticked(clock.now(), visited)
-        self.heap.between_ticks()
+        if self.pacing is not None:  # the heap is managed in a paced run only
+            self.heap.between_ticks()
         if self.status is Status.RUNNING:
             return True
         if self.status is Status.FAILURE:

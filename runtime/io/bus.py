@@ -583,9 +583,13 @@ class _InProcessPublisher:
     def publish(self, msg: Any) -> None:
         if not isinstance(msg, self.msg_type):
             raise TypeError(f"topic '{self.name}' carries {self.msg_type.__name__}, got {type(msg).__name__}")
-        for sub in list(self.bus._subscriptions.get(self.name, [])):
+        subs = self.bus._subscriptions.get(self.name)
+        if not subs:
+            return
+        now_s = self.bus.clock.now()
+        for sub in list(subs):  # a callback may subscribe or unsubscribe
             if _compatible(self.reliable, sub.reliable):
-                sub._deliver(msg)
+                sub._deliver(msg, now_s)
 
 
 class _LazyTopic:
@@ -615,9 +619,9 @@ class _InProcessSubscription:
         self.count = 0
         self.received_at: float | None = None
 
-    def _deliver(self, msg: Any) -> None:
+    def _deliver(self, msg: Any, now_s: float) -> None:
         self._latest = msg
-        self.received_at = self.bus.clock.now()
+        self.received_at = now_s
         self.count += 1
         if self.callback is not None:
             self.callback(msg)
@@ -648,15 +652,13 @@ class _InProcessServerGoal:
         self.status = STATUS_ACCEPTED
         self.result_future: Future[ActionResult] = Future()
         self.feedback_callback: Callable[[Any], None] | None = None
-        self._cancel_requested = False
+        self.is_cancel_requested = False
+        """Whether the client asked to cancel the goal (a plain attribute: the simulated
+        controllers read it at every control step)."""
 
     @property
     def is_active(self) -> bool:
         return self.status in (STATUS_ACCEPTED, STATUS_EXECUTING, STATUS_CANCELING)
-
-    @property
-    def is_cancel_requested(self) -> bool:
-        return self._cancel_requested
 
     def publish_feedback(self, feedback: Any) -> None:
         if self.feedback_callback is not None and self.is_active:
@@ -695,7 +697,7 @@ class _InProcessClientGoal:
         if goal is None or not goal.is_active:
             future.set_result(False)
             return future
-        goal._cancel_requested = True
+        goal.is_cancel_requested = True
         on_cancel = goal.server.on_cancel
         accepted = bool(on_cancel(goal)) if on_cancel is not None else True
         if accepted and goal.is_active and goal.status != STATUS_CANCELING:
@@ -921,6 +923,8 @@ class InProcessBus:
     def spin_once(self) -> None:
         while self._answered:
             self._deliver(self._answered.popleft())
+        if not self._pending:
+            return
         still: list[Future[Any]] = []
         for future in self._pending:
             if future.done():
