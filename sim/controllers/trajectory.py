@@ -371,23 +371,24 @@ def path_violation(
 
     A non-finite error counts as the worst. Plain floats: the controller checks every control step.
     """
-    if tolerance <= 0:
+    actual_values, reference_values = np.asarray(actual, dtype=float).tolist(), np.asarray(reference, dtype=float).tolist()
+    if within_path_tolerance(actual_values, reference_values, tolerance):
         return None
-    errors = [abs(a - r) for a, r in zip(np.asarray(actual, dtype=float).tolist(), np.asarray(reference, dtype=float).tolist())]
-    if _errors_within(errors, tolerance):
-        return None
+    errors = [abs(a - r) for a, r in zip(actual_values, reference_values)]
     j = _worst_index(errors)
     return f"{_joint_label(joint_names, j)}: error {errors[j]:.4f} rad exceeds the path tolerance {tolerance:.4f} rad"
 
 
 def within_path_tolerance(actual: list[float], reference: list[float], tolerance: float) -> bool:
-    """``path_violation(actual, reference, tolerance) is None``, on plain floats (the
-    controller's quick path checks every control step)."""
-    return tolerance <= 0 or _errors_within([abs(a - r) for a, r in zip(actual, reference)], tolerance)
-
-
-def _errors_within(errors: list[float], tolerance: float) -> bool:
-    return max(errors) <= tolerance and math.isfinite(sum(errors))
+    """``path_violation(actual, reference, tolerance) is None``: every |actual - reference|
+    within ``tolerance`` (0 = no check; a NaN is not within), on plain floats (the controller's
+    quick path checks every control step)."""
+    if tolerance <= 0:
+        return True
+    for a, r in zip(actual, reference):
+        if not abs(a - r) <= tolerance:
+            return False
+    return True
 
 
 def _worst_index(values: list[float]) -> int:
