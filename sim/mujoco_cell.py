@@ -34,14 +34,19 @@ GRIPPER_ACTUATOR = "gripper_fingers_actuator"
 GRIPPER_CTRL_PER_RAD = 255.0 / 0.8  # the Menagerie 2F-85 maps ctrl 0..255 onto the driver's 0..0.8 rad
 SETTLE_SECONDS = 0.2  # after a reset: cubes come to rest on the table before time starts
 BOX_OVERLAP_TOLERANCE = 0.001  # metres a placed box may sink into what it touches (resting on the table)
+NO_TARE = (0.0,) * 6  # subtracting 0.0 leaves every float as it is
 
 
-def _as_slice(indices: np.ndarray) -> slice | np.ndarray:
-    """``indices`` as a slice when they are consecutive and increasing, else unchanged."""
+def _block(indices: np.ndarray, what: str) -> slice:
+    """``indices`` (consecutive and increasing) as a slice; ValueError otherwise.
+
+    The cell's model lists the arm's joints and actuators first and in order, so the arm's
+    entries of MjData's buffers are views (a slice of a buffer is a view, and copying a view
+    takes a quarter of the time of indexing with an array)."""
     first = int(indices[0])
-    if indices.tolist() == list(range(first, first + len(indices))):
-        return slice(first, first + len(indices))
-    return indices
+    if indices.tolist() != list(range(first, first + len(indices))):
+        raise ValueError(f"the model's arm {what} are not consecutive: {indices.tolist()}")
+    return slice(first, first + len(indices))
 
 
 def _yaw_quat(yaw: float) -> np.ndarray:
@@ -60,13 +65,13 @@ class MujocoCell:
         self.model = compile_cell(self.options)
         self.data = mujoco.MjData(self.model)
         m = self.model
-        self._arm_qpos = np.array([m.joint(j).qposadr[0] for j in ARM_JOINTS])
-        self._arm_dof = np.array([m.joint(j).dofadr[0] for j in ARM_JOINTS])
-        self._arm_ctrl = np.array([m.actuator(j.replace("_joint", "")).id for j in ARM_JOINTS])
-        self._arm_ctrl_index = _as_slice(self._arm_ctrl)  # the arm's actuators come first: a slice writes faster
+        arm_ctrl = np.array([m.actuator(j.replace("_joint", "")).id for j in ARM_JOINTS])
+        self._arm_qpos = _block(np.array([m.joint(j).qposadr[0] for j in ARM_JOINTS]), "joints' positions")
+        self._arm_dof = _block(np.array([m.joint(j).dofadr[0] for j in ARM_JOINTS]), "joints' velocities")
+        self._arm_ctrl = _block(arm_ctrl, "actuators")
         # The arm servos are PD on position: force = kp (ctrl - q) - kd qdot. At constant speed v
         # they lag by kd v / kp; adding that to the target (velocity feed-forward) removes the lag.
-        self._lead = np.array([-m.actuator_biasprm[a][2] / m.actuator_gainprm[a][0] for a in self._arm_ctrl])
+        self._lead = np.array([-m.actuator_biasprm[a][2] / m.actuator_gainprm[a][0] for a in arm_ctrl])
         self._gripper_qpos = m.joint(GRIPPER_DRIVER_JOINT).qposadr[0]
         self._gripper_dof = m.joint(GRIPPER_DRIVER_JOINT).dofadr[0]
         self._gripper_ctrl = m.actuator(GRIPPER_ACTUATOR).id
@@ -83,6 +88,9 @@ class MujocoCell:
         # array object, which costs more than the arithmetic done with it.
         d = self.data
         self._qpos, self._qvel, self._xfrc_applied, self._ctrl = d.qpos, d.qvel, d.xfrc_applied, d.ctrl
+        self._xpos, self._xquat = d.xpos, d.xquat
+        self._arm_positions, self._arm_velocities = self._qpos[self._arm_qpos], self._qvel[self._arm_dof]
+        self._arm_targets = self._ctrl[self._arm_ctrl]
         self._site_rotation = d.site_xmat[self._ft_site].reshape(3, 3)
         self._site_position = d.site_xpos[self._ft_site]
         self._gripper_com = d.subtree_com[self._ft_body]
@@ -94,33 +102,35 @@ class MujocoCell:
         self._snapshot_renderer: mujoco.Renderer | None = None  # the camera thread's (sim.camera_thread)
         self._frames: dict[str, tuple[float, np.ndarray]] = {}
         self.external_wrench = np.zeros(6)  # tests push the tool with this (world frame, at the F/T site)
-        self._pushed: bool | np.bool_ = False  # whether xfrc_applied holds a push from external_wrench
+        self._pushed = False  # whether xfrc_applied holds a push from external_wrench
         self._substeps_dt, self._substeps_count = 0.0, 1
         self.t = 0.0
         self.renders = 0
-        self.reset(seed, np.asarray(arm if arm is not None else self.data.qpos[self._arm_qpos]))
+        self.reset(seed, np.asarray(arm) if arm is not None else self._arm_positions.copy())
 
     # -- Hardware ---------------------------------------------------------------------------
     def time(self) -> float:
         return self.t
 
     def arm_position(self) -> np.ndarray:
-        return self._qpos[self._arm_qpos]  # indexing with an array copies
+        return self._arm_positions.copy()
 
     def arm_velocity(self) -> np.ndarray:
-        return self._qvel[self._arm_dof]
+        return self._arm_velocities.copy()
 
     def command_arm(self, position: np.ndarray, velocity: np.ndarray | None = None) -> None:
-        target = np.asarray(position, dtype=float)
-        if velocity is not None:
-            target = target + self._lead * np.asarray(velocity, dtype=float)
-        self._ctrl[self._arm_ctrl_index] = target
+        targets = self._arm_targets
+        if velocity is None:
+            targets[:] = position
+        else:  # position + lead * velocity, computed in the actuators' own buffer (a sum commutes exactly)
+            np.multiply(self._lead, velocity, out=targets)
+            targets += position
 
     def gripper_position(self) -> float:
-        return float(self.data.qpos[self._gripper_qpos])
+        return float(self._qpos[self._gripper_qpos])
 
     def gripper_velocity(self) -> float:
-        return float(self.data.qvel[self._gripper_dof])
+        return float(self._qvel[self._gripper_dof])
 
     def command_gripper(self, position: float, max_effort: float) -> None:
         """Position control of the driver. The 2F-85 model's actuator has a fixed force range,
@@ -128,20 +138,20 @@ class MujocoCell:
         self.data.ctrl[self._gripper_ctrl] = float(np.clip(position, 0.0, 0.8)) * GRIPPER_CTRL_PER_RAD
 
     def wrench(self) -> np.ndarray:
-        return np.array([raw - tare for raw, tare in zip(self._raw_wrench(), self._tare)])
+        return np.array(self._wrench_minus(self._tare))
 
     def tare_wrench(self) -> None:
-        self._tare = self._raw_wrench()
+        self._tare = self._wrench_minus()
 
     def wrist_jacobian(self) -> np.ndarray:
         jacobian = self._site_jacobian
         mujoco.mj_jacSite(self.model, self.data, jacobian[:3], jacobian[3:], self._ft_site)
-        return jacobian[:, self._arm_dof]  # a copy: the buffer is overwritten by the next call
+        return jacobian[:, self._arm_dof].copy()  # the buffer is overwritten by the next call
 
     # -- the world's view -------------------------------------------------------------------
     def cube_pose(self, color: str) -> tuple[np.ndarray, np.ndarray]:
         body = self._cube_body[color]
-        return self.data.xpos[body].copy(), self.data.xquat[body].copy()
+        return self._xpos[body].copy(), self._xquat[body].copy()
 
     def cube_poses(self) -> dict[str, tuple[np.ndarray, np.ndarray]]:
         return {c: self.cube_pose(c) for c in CUBE_COLORS}
@@ -238,7 +248,7 @@ class MujocoCell:
         mujoco.mj_forward(self.model, self.data)
         for _ in range(int(SETTLE_SECONDS / self.model.opt.timestep)):
             mujoco.mj_step(self.model, self.data)
-        self._tare = self._raw_wrench()
+        self._tare = self._wrench_minus()
         self._pushed = False  # mj_resetData cleared xfrc_applied
         self._frames.clear()
 
@@ -282,9 +292,9 @@ class MujocoCell:
             self._renderer = None
 
     # -- internals --------------------------------------------------------------------------
-    def _raw_wrench(self) -> tuple[float, ...]:
+    def _wrench_minus(self, tare: tuple[float, ...] = NO_TARE) -> tuple[float, ...]:
         """What the environment applies to the tool, in the world frame, about the sensor
-        (Fx Fy Fz Tx Ty Tz).
+        (Fx Fy Fz Tx Ty Tz), minus ``tare``.
 
         The sensors give what the wrist exerts on the gripper (site frame). At rest that support
         balances the gripper's weight plus the external wrench, so the external part is minus the
@@ -300,17 +310,19 @@ class MujocoCell:
         (cx, cy, cz), (sx, sy, sz) = self._gripper_com.tolist(), self._site_position.tolist()
         lx, ly, lz = cx - sx, cy - sy, cz - sz
         wx, wy, wz = self._gripper_weight
+        t0, t1, t2, t3, t4, t5 = tare
         return (
-            -(r00 * fx + r01 * fy + r02 * fz) - wx,
-            -(r10 * fx + r11 * fy + r12 * fz) - wy,
-            -(r20 * fx + r21 * fy + r22 * fz) - wz,
-            -(r00 * tx + r01 * ty + r02 * tz) - (ly * wz - lz * wy),
-            -(r10 * tx + r11 * ty + r12 * tz) - (lz * wx - lx * wz),
-            -(r20 * tx + r21 * ty + r22 * tz) - (lx * wy - ly * wx),
+            -(r00 * fx + r01 * fy + r02 * fz) - wx - t0,
+            -(r10 * fx + r11 * fy + r12 * fz) - wy - t1,
+            -(r20 * fx + r21 * fy + r22 * fz) - wz - t2,
+            -(r00 * tx + r01 * ty + r02 * tz) - (ly * wz - lz * wy) - t3,
+            -(r10 * tx + r11 * ty + r12 * tz) - (lz * wx - lx * wz) - t4,
+            -(r20 * tx + r21 * ty + r22 * tz) - (lx * wy - ly * wx) - t5,
         )
 
     def _apply_external_wrench(self) -> None:
-        pushing = np.count_nonzero(self.external_wrench) > 0  # 5x cheaper than .any() on six values
+        # On six Python floats (a NaN counts as a push): cheaper than numpy's reductions, every control step.
+        pushing = any(self.external_wrench.tolist())
         if pushing or self._pushed:  # otherwise xfrc_applied is all zeros already
             self._xfrc_applied[:] = 0.0
             if pushing:

@@ -91,9 +91,11 @@ SYNC_TOLERANCE = 1e-6
 left alone, so a scene whose cubes rest keeps its collision placements (and its version)."""
 
 CubePoses = Mapping[str, tuple[np.ndarray, np.ndarray]]
+SyncedCubes = Mapping[str, list[float]]
+"""What ``sync_cubes`` placed in the scene: per cube, its position then its quaternion (7 floats)."""
 
 
-def sync_cubes(scene: PlanningScene, cube_poses: CubePoses, synced: CubePoses | None = None) -> CubePoses:
+def sync_cubes(scene: PlanningScene, cube_poses: CubePoses, synced: SyncedCubes | None = None) -> dict[str, list[float]]:
     """Move the scene's cubes to where the world has them (attached cubes move with the robot).
 
     ``synced`` is what the previous call returned: cubes still within ``SYNC_TOLERANCE`` of it
@@ -106,8 +108,10 @@ def sync_cubes(scene: PlanningScene, cube_poses: CubePoses, synced: CubePoses | 
         if name in carried:
             now.pop(color, None)  # placed afresh once it is released
             continue
+        # Plain floats: comparing them costs less than numpy reductions, per cube per tick.
+        values = pos.tolist() + quat.tolist()
         last = now.get(color)
-        if last is not None and _within(last[0], pos) and _within(last[1], quat):
+        if last is not None and _within(last, values):
             continue
         position, rotation = np.array(pos, dtype=float), quat_to_matrix(quat)
         if not (np.isfinite(position).all() and np.isfinite(rotation).all()):
@@ -115,12 +119,10 @@ def sync_cubes(scene: PlanningScene, cube_poses: CubePoses, synced: CubePoses | 
         # A unit quaternion's matrix is a rotation: handed over as a pin.SE3, the scene takes it as
         # it is (checking a 4x4 matrix for a rotation block costs ~40 us, per cube per tick).
         scene.move_object(name, pin.SE3(rotation, position))
-        now[color] = (position, np.array(quat, dtype=float))
+        now[color] = values
     return now
 
 
-def _within(a: np.ndarray, b: np.ndarray) -> bool:
-    # Plain floats: three numpy reductions per cube per tick cost more than the comparison. A
-    # sleeping cube reports the very same numbers (NaN never equals itself, so it goes on to fail).
-    a_values, b_values = a.tolist(), b.tolist()
-    return a_values == b_values or all(abs(x - y) < SYNC_TOLERANCE for x, y in zip(a_values, b_values))
+def _within(a: list[float], b: list[float]) -> bool:
+    # A sleeping cube reports the very same numbers; NaN never equals itself, so it goes on to fail.
+    return a == b or all(abs(x - y) < SYNC_TOLERANCE for x, y in zip(a, b))

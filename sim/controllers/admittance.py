@@ -406,7 +406,7 @@ class JointTrajectoryAdmittanceController(Controller):
             positions=positions,
             velocities=velocities,
             position_rows=positions.tolist(),
-            deadband=self._params.deadband.tolist(),
+            deadband=self._params.deadband_values,
             thresholds=thresholds.tolist() if thresholds is not None else None,
             path_tolerance=parsed.path_tolerance if parsed is not None else 0.0,
         )
@@ -492,8 +492,11 @@ class JointTrajectoryAdmittanceController(Controller):
         if t - self._last_feedback >= 1.0 / self.config.feedback_rate - TIME_EPS:
             self._publish_feedback(t, goal, command, desired_velocity, actual, wrench)
         fx, fy, fz, tx, ty, tz = wrench
-        self.peak_force_n = max(self.peak_force_n, math.hypot(fx, fy, fz))
-        self.peak_torque_nm = max(self.peak_torque_nm, math.hypot(tx, ty, tz))
+        force_n, torque_nm = math.hypot(fx, fy, fz), math.hypot(tx, ty, tz)
+        if force_n > self.peak_force_n:  # as max(peak, force): a NaN reading leaves the peak
+            self.peak_force_n = force_n
+        if torque_nm > self.peak_torque_nm:
+            self.peak_torque_nm = torque_nm
 
     def _finish(self, t: float, how: str, result) -> None:
         """End the current goal; anything but success also brings the arm smoothly to rest."""

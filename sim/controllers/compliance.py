@@ -70,6 +70,17 @@ class AdmittanceParams:
                 )
         return AdmittanceParams(k, d, self.mass, self.deadband, self.max_offset)
 
+    @functools.cached_property
+    def deadband_values(self) -> list[float]:
+        """``deadband`` as Python floats (the fields are never changed in place)."""
+        return np.asarray(self.deadband, dtype=float).tolist()
+
+    @functools.cached_property
+    def axes(self) -> list[tuple[float, float, float, float, float]]:
+        """Per axis, as Python floats: deadband, mass, stiffness, damping, max_offset."""
+        columns = (self.deadband, self.mass, self.stiffness, self.damping, self.max_offset)
+        return list(zip(*(np.asarray(c, dtype=float).tolist() for c in columns)))
+
 
 def _axis_values(name: str, values: list[float] | np.ndarray) -> np.ndarray:
     array = np.asarray(values, dtype=float).reshape(-1)
@@ -96,9 +107,13 @@ class AdmittanceState:
     rate: np.ndarray = field(default_factory=lambda: np.zeros(6))
     at_rest: bool = field(init=False)
     """Offset and rate all zero: the controller adds nothing to the reference."""
+    _values: tuple[list[float], list[float]] = field(init=False, repr=False, compare=False)
+    """``offset`` and ``rate`` as Python floats, for the next step's arithmetic."""
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "at_rest", not (np.any(self.offset) or np.any(self.rate)))
+        offsets, rates = np.asarray(self.offset, dtype=float).tolist(), np.asarray(self.rate, dtype=float).tolist()
+        object.__setattr__(self, "_values", (offsets, rates))
+        object.__setattr__(self, "at_rest", not (any(offsets) or any(rates)))
 
 
 def admittance_step(state: AdmittanceState, wrench: np.ndarray, params: AdmittanceParams, dt: float) -> AdmittanceState:
@@ -112,20 +127,10 @@ def admittance_step(state: AdmittanceState, wrench: np.ndarray, params: Admittan
     arithmetic, and the controller runs this 500 times a second.
     """
     wrench_values = np.asarray(wrench, dtype=float).tolist()
-    if state.at_rest and inside_deadband(wrench_values, params.deadband.tolist()):
+    if state.at_rest and inside_deadband(wrench_values, params.deadband_values):
         return state
     offsets, rates = [], []
-    axes = zip(
-        wrench_values,
-        state.offset.tolist(),
-        state.rate.tolist(),
-        params.deadband.tolist(),
-        params.mass.tolist(),
-        params.stiffness.tolist(),
-        params.damping.tolist(),
-        params.max_offset.tolist(),
-    )
-    for w, x, v, deadband, mass, stiffness, damping, limit in axes:
+    for w, x, v, (deadband, mass, stiffness, damping, limit) in zip(wrench_values, *state._values, params.axes):
         force = math.copysign(max(abs(w) - deadband, 0.0), w)
         v += (force - damping * v - stiffness * x) / mass * dt
         moved = x + v * dt
