@@ -102,6 +102,9 @@ class BatchKinematics:
         self._frames = [(order.get(int(model.frames[fid].parentJoint), -1), np.array(model.frames[fid].placement.rotation),
                          np.array(model.frames[fid].placement.translation)) for fid in frame_ids]
         self._chains = [[order[j] for j in _ancestors(model, int(model.frames[fid].parentJoint))] for fid in frame_ids]
+        self._q_columns = [joint.q_index for joint in self._joints]
+        self._v_columns = [joint.v_index for joint in self._joints]
+        self._continuous = [k for k, joint in enumerate(self._joints) if joint.continuous]
 
     def states(self, q: NDArray[np.float64], v: NDArray[np.float64] | None = None, twist_frame: int | None = None) -> FrameStates:
         """The frames' world poses at each row of ``q`` (N, nq); with ``v`` (N, nv) and
@@ -129,56 +132,63 @@ class BatchKinematics:
         count = len(q)
         identity = np.broadcast_to(np.eye(3)[:, :, None], (3, 3, count))
         origin = np.zeros((3, count))
+        values = q.T[self._q_columns]  # (J, N): each joint's angle or displacement
+        for k in self._continuous:
+            index = self._joints[k].q_index
+            values[k] = np.arctan2(q[:, index + 1], q[:, index])
+        cosines, sines = np.cos(values), np.sin(values)
         rotations: list[NDArray[np.float64]] = []
         positions: list[NDArray[np.float64]] = []
-        for joint in self._joints:
+        for k, joint in enumerate(self._joints):
             parent_r, parent_p = (identity, origin) if joint.parent < 0 else (rotations[joint.parent], positions[joint.parent])
             r0 = np.matmul(joint.rotation.T, parent_r)  # parent_r @ placement, element by element
             p0 = parent_p + np.matmul(joint.translation, parent_r)
-            if joint.continuous:
-                angle = np.arctan2(q[:, joint.q_index + 1], q[:, joint.q_index])
-            else:
-                angle = q[:, joint.q_index]
             if joint.revolute:
-                rotations.append(_rotated(r0, joint.axis, angle))
+                rotations.append(_rotated(r0, joint.axis, cosines[k], sines[k]))
                 positions.append(p0)
             else:
                 rotations.append(r0)
-                positions.append(p0 + np.matmul(joint.axis, r0) * angle)
+                positions.append(p0 + np.matmul(joint.axis, r0) * values[k])
         return rotations, positions
 
     def _twist(self, rotations: list[NDArray[np.float64]], positions: list[NDArray[np.float64]], origin: NDArray[np.float64], v: NDArray[np.float64],
                frame: int) -> NDArray[np.float64]:
         """(N, 6): linear then angular velocity of frame ``frame`` at ``origin`` (3, N), world
-        axes (pinocchio's LOCAL_WORLD_ALIGNED)."""
-        linear = np.zeros_like(origin)
-        angular = np.zeros_like(origin)
-        for k in self._chains[frame]:
-            joint = self._joints[k]
-            rate = v[:, joint.v_index]
-            axis = np.matmul(joint.axis, rotations[k])
-            if joint.revolute:
-                angular += axis * rate
-                linear += _cross(axis, origin - positions[k]) * rate
-            else:
-                linear += axis * rate
+        axes (pinocchio's LOCAL_WORLD_ALIGNED): the sum over the chain's joints of each joint's
+        world axis times its rate, for the angular part, and for the linear part of
+        ``axis x (origin - joint origin)`` (revolute) or ``axis`` (prismatic) times its rate."""
+        chain = self._chains[frame]
+        if not chain:
+            return np.zeros((origin.shape[1], 6))
+        rates = v.T[[self._v_columns[k] for k in chain]]  # (C, N)
+        axes = np.stack([np.matmul(self._joints[k].axis, rotations[k]) for k in chain]) * rates[:, None, :]  # (C, 3, N)
+        revolute = [i for i, k in enumerate(chain) if self._joints[k].revolute]
+        sliding = [i for i, k in enumerate(chain) if not self._joints[k].revolute]
+        turning = axes[revolute]
+        angular = turning.sum(axis=0)
+        # sum of w_i x (origin - p_i) = (sum of w_i) x origin - sum of w_i x p_i
+        linear = _cross(angular, origin) - _cross(turning, np.stack([positions[chain[i]] for i in revolute])).sum(axis=0)
+        if sliding:
+            linear += axes[sliding].sum(axis=0)
         return np.vstack((linear, angular)).T
 
 
-def _rotated(r0: NDArray[np.float64], axis: NDArray[np.float64], angle: NDArray[np.float64]) -> NDArray[np.float64]:
-    """``r0 @ R(axis, angle)`` for rotations ``r0`` (3, 3, N), a unit ``axis`` and angles (N,).
-    About a coordinate axis only the other two columns turn; about any other axis, Rodrigues'
-    formula ``c r0 + s r0 [axis]x + (1 - c) (r0 axis) axis^T``."""
-    c, s = np.cos(angle), np.sin(angle)
+def _rotated(r0: NDArray[np.float64], axis: NDArray[np.float64], c: NDArray[np.float64], s: NDArray[np.float64]) -> NDArray[np.float64]:
+    """``r0 @ R(axis, angle)`` for rotations ``r0`` (3, 3, N), which it may overwrite, a unit
+    ``axis`` and the angles' cosines ``c`` and sines ``s`` (N,). About a coordinate axis only the
+    other two columns turn; about any other axis, Rodrigues' formula
+    ``c r0 + s r0 [axis]x + (1 - c) (r0 axis) axis^T``."""
     coordinate = np.flatnonzero(axis == 1.0)
     if len(coordinate) == 1:
         i = int(coordinate[0])
         j, k = (i + 1) % 3, (i + 2) % 3
-        rotated = np.empty_like(r0)
-        rotated[:, i] = r0[:, i]
-        rotated[:, j] = c * r0[:, j] + s * r0[:, k]
-        rotated[:, k] = c * r0[:, k] - s * r0[:, j]
-        return rotated
+        column_j, column_k = r0[:, j], r0[:, k]
+        turned_j = c * column_j
+        turned_j += s * column_k
+        column_k *= c
+        column_k -= s * column_j
+        column_j[...] = turned_j
+        return r0
     x, y, z = axis
     cross = np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
     turned: NDArray[np.float64] = c * r0 + s * np.matmul(cross.T, r0) + (1.0 - c) * (np.matmul(axis, r0)[:, None, :] * axis[None, :, None])
@@ -186,5 +196,7 @@ def _rotated(r0: NDArray[np.float64], axis: NDArray[np.float64], angle: NDArray[
 
 
 def _cross(a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.float64]:
-    """Column-wise cross product of two (3, N) arrays."""
-    return np.stack((a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]))
+    """Cross product of vectors laid out along the second-to-last axis: (3, N) or (C, 3, N)."""
+    ax, ay, az = a[..., 0, :], a[..., 1, :], a[..., 2, :]
+    bx, by, bz = b[..., 0, :], b[..., 1, :], b[..., 2, :]
+    return np.stack((ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx), axis=-2)
