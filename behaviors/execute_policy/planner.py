@@ -5,7 +5,8 @@ time to Planned / Wait / Failure (a rejected chunk). Nothing here talks to the b
 lists (a chunk that finds the arm at rest is tried at its arrival step first), until one is
 not refused:
 
-1. ``stream``: the window on the step grid (``StepGrid.plan_window``);
+1. ``stream``: the window on the step grid (``StepGrid.plan_window``) and the grid once it is
+   sent (``StepGrid.with_window``);
 2. ``checks``: the values the window is built from, as the policy sent them;
 3. ``seam``: when the goal takes over (``take_over_time``), whether the chunk can still join
    the motion playing (else it waits), and the chunk's fit (``step_spline.fit_chunk``) joined
@@ -13,15 +14,15 @@ not refused:
 4. ``tail``: how the window ends: its tail, the tail cut short, or at rest (``tails_to_try``);
 5. ``checks``: every densified point, of the chunk's own motion and of the first ending that
    passes (``first_passing``);
-6. ``stream``: the stall before the seam, and the grid after the commit.
+6. ``stream``: the stall before the seam.
 
-A Planned result carries the grid after the commit; the caller keeps the grid from before it
-for a rollback.
+A Planned result carries the grid after the commit, with the tail that passed the checks; the
+caller keeps the grid from before it for a rollback.
 """
 from __future__ import annotations
 
 import enum
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from numpy.typing import NDArray
@@ -87,6 +88,7 @@ def plan_chunk(inp: PlanInput) -> Planned | Wait | Failure:
         except WindowError as err:
             refusals.append(err)
             continue
+        after = grid.with_window(window, chunk_steps=chunk.steps)  # its tail comes with the checks
         outside = inp.checks.values(chunk, window)
         if outside is not None:
             refusals.append(outside)
@@ -103,7 +105,7 @@ def plan_chunk(inp: PlanInput) -> Planned | Wait | Failure:
             refusals.append(passed)
             continue
         stall = drained_seconds(None if previous is None else previous.full_speed_end, seam_time)
-        sent = SentMotion(grid.with_window(window, passed.ending.tail, chunk.steps), passed.ending.motion, passed.samples)
+        sent = SentMotion(replace(after, tail=passed.ending.tail), passed.ending.motion, passed.samples)
         return Planned(window, seam_time, sent, stall, takes_over)
     # Every start refused: the first start's reason is the chunk's.
     why = refusals[0]

@@ -156,6 +156,7 @@ class StepGrid:
         return self.executed_until + tail_progress(now - self.sent_end, self.tail.extension_steps, self.tail.runout_steps)
 
     def with_window(self, window: Window, tail: Tail = NO_TAIL, chunk_steps: int = 0) -> StepGrid:
-        """The grid once ``window`` (of a chunk of ``chunk_steps`` steps) is sent, followed by ``tail``."""
+        """The grid once ``window`` (of a chunk of ``chunk_steps`` steps) is sent, followed by
+        ``tail``. The planner makes it with the window and sets the ``tail`` its checks pass."""
         return replace(self, sent_end=window.end_step, executed_until=self.executed_until + window.tail_played + window.steps,
                        seam_step=window.seam_step, tail=tail, chunk_steps=chunk_steps)
