@@ -354,7 +354,9 @@ class LeRobotOptions:
     torch_threads: int | None = 1
     """CPU threads for torch (None: torch's default). One thread measured fastest on 2 shared cores."""
     seed: int | None = 0
-    """Seeds torch's noise for the flow-matching sampler (None: unseeded)."""
+    """Seeds torch's noise for the flow-matching sampler at load and again at every new episode,
+    so that an episode's chunks do not depend on the episodes the process answered before it
+    (None: unseeded)."""
     noise_scale: float | None = None
     """Scale of the sampler's starting noise: 1 samples a chunk as trained, 0 starts every chunk at the
     noise's mean, which answers the same chunk for the same observation (the flow's central
@@ -653,6 +655,8 @@ class LeRobotBackend:
 
         if request.new_episode:
             self.policy.reset()
+            if self.options.seed is not None:
+                torch.manual_seed(self.options.seed)
         joints = observation[STATE_KEY][: self.action_dim].clone()  # a relative chunk's origin
         started = time.perf_counter()
         # no_grad, not inference_mode: RTC's guidance takes a gradient inside the sampling loop

@@ -185,6 +185,9 @@ def test_the_served_policy_locates_the_cubes_and_answers_a_chunk_that_rtc_guides
                                              previous_action_chunk=leftover, frozen_prefix_steps=3))
     assert unanchored.message == ("this policy's chunks are relative to the observed joints: previous_action_chunk needs "
                                   "previous_anchor_state (the joints of the request that answered it)")
+    # every episode starts the sampler's noise from the checkpoint's seed: its chunks do not depend
+    # on the episodes answered before it
+    assert np.array_equal(backend.infer(request).actions, first.actions)
     backend.action_range = None  # unclipped, the two-step model's chunk leaves the labels' range
     assert np.any(backend.infer(request).actions > np.array(trained_range["max"]) + 1e-3) or \
         np.any(backend.infer(request).actions < np.array(trained_range["min"]) - 1e-3)
