@@ -255,7 +255,7 @@ def json_entries(board_items: Iterable[tuple[str, Any]]) -> dict[str, Any]:
 
 def _unwrap(node: py_trees.behaviour.Behaviour) -> py_trees.behaviour.Behaviour:
     """The node a transparent wrapper (a condition guard) stands for."""
-    while getattr(node, "transparent", False) and len(node.children) == 1:
+    while node_info.is_transparent(node) and len(node.children) == 1:
         node = node.children[0]
     return node
 
@@ -290,7 +290,7 @@ def _failing(root: py_trees.behaviour.Behaviour, visited: list[Visit]) -> tuple[
         return None
     node = blame(root)
     inner = _unwrap(node)
-    return inner, reason(node), getattr(inner, "failure_kind", None)
+    return inner, reason(node), node_info.failure_kind(inner)
 
 
 _RUNNING = Status.RUNNING.value
