@@ -18,6 +18,7 @@ import yaml
 from geometry_msgs.msg import PoseStamped
 from sensor_msgs.msg import JointState
 
+from runtime.tree import node_info
 from runtime.tree.behavior import Behavior, Status
 from runtime.tree.ports import InputPort, OutputPort, PortType
 from runtime.errors import ObjectiveError
@@ -97,7 +98,7 @@ def resolve(node: Behavior, name: str, suffix: str = "") -> Path:
     path = Path(name)
     if suffix and not path.suffix:
         path = path.with_suffix(suffix)
-    location = getattr(node, "location", None)
+    location = node_info.location(node)
     base = Path(location.file).parent if location is not None and location.file and not location.file.startswith("<") else Path.cwd()
     resolved = (base / path).resolve()
     allowed = (base.resolve(), Path.cwd().resolve())

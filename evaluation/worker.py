@@ -21,6 +21,7 @@ from typing import Any
 
 from runtime.io.bus import FixedLatency, SimulatedLatency, capability
 from runtime.errors import INTERNAL, InternalError, ObjectiveError, error_kind
+from runtime.tree import node_info
 from runtime.tree.loader import load_tree
 from runtime.app.protective_stop import ProtectiveStop, SharedStop
 from runtime.tree.registry import Registry
@@ -111,7 +112,7 @@ class EpisodeWorker:
         options = self._options(0)
         loaded = load_tree(self.spec.objective, self.registry, make_context(options), self.spec.tree,
                            self.spec.search_paths, self.spec.objectives_dir)
-        self.needs_world = any(getattr(type(n), "needs_world", False) for n in loaded.root.iterate())
+        self.needs_world = any(node_info.needs_world(type(n)) for n in loaded.root.iterate())
         if self.needs_world:
             world = create_world(self.spec.world or default_world_name(), self._world_options(0, "none"))
             if isinstance(world, KeepsEpisodes):

@@ -39,6 +39,7 @@ import os
 from pathlib import Path
 from typing import IO, Any, Callable, Iterable, Protocol, runtime_checkable
 
+from runtime.tree import node_info
 from runtime.tree.crash import CRASH_LOG
 from runtime.errors import ObjectiveError
 from runtime.tree.events import Event
@@ -73,14 +74,14 @@ def jsonable(value: Any) -> Any:
 def _type_label(node: Any, kind: str) -> str:
     """What the node is: its XML ID, or ``SubTree`` (with the tree's ID when the instance is renamed)."""
     if kind == "SubTree":
-        tree_id = getattr(node, "tree_id", "")
+        tree_id = node_info.tree_id(node)
         return "SubTree" if tree_id in ("", node.name) else f"SubTree {tree_id}"
-    return getattr(node, "xml_id", type(node).__name__)
+    return node_info.xml_id(node)
 
 
 def node_record(index: int, node: Any, ids: dict[int, int], tree: Any) -> dict[str, Any]:
     """One node of the tree as ``events.jsonl`` stores it."""
-    kind = getattr(type(node), "kind", None)
+    kind = node_info.declared_kind(type(node))
     info = tree.info(node) if tree is not None else None
     parent = getattr(node, "parent", None)
     return {
@@ -89,7 +90,7 @@ def node_record(index: int, node: Any, ids: dict[int, int], tree: Any) -> dict[s
         "name": node.name,
         "type": _type_label(node, kind.value if kind is not None else ""),
         "kind": kind.value if kind is not None else type(node).__name__,
-        "transparent": bool(getattr(node, "transparent", False)),
+        "transparent": node_info.is_transparent(node),
         "location": str(info.location) if info is not None else None,
     }
 

@@ -6,6 +6,7 @@ from typing import TextIO
 
 import py_trees
 
+from runtime.tree import node_info
 from runtime.tree.behavior import NodeMixin, SummarisesRun
 from runtime.tree.controls import Visit
 from runtime.tree.loader import CONDITION_ATTRIBUTES, LoadedTree
@@ -30,7 +31,7 @@ def describe_node(node: py_trees.behaviour.Behaviour, tree: LoadedTree) -> str:
         if node.autoremap:
             ports.append("_autoremap=true")
         parts.extend(ports)
-    elif isinstance(node, NodeMixin) and hasattr(node, "bindings"):
+    elif isinstance(node, NodeMixin) and node_info.has_bindings(node):
         parts = [f"{type(node).kind.value} {node.xml_id}"]
         if node.name != node.xml_id:
             parts.append(f'"{node.name}"')
@@ -53,7 +54,7 @@ def tree_text(tree: LoadedTree) -> str:
     lines = [f"BehaviorTree {tree.tree_id}"]
 
     def visit(node: py_trees.behaviour.Behaviour, depth: int) -> None:
-        if getattr(node, "transparent", False) and len(node.children) == 1:
+        if node_info.is_transparent(node) and len(node.children) == 1:
             visit(node.children[0], depth)  # a condition guard: its node's line shows the scripts
             return
         lines.append("  " * depth + describe_node(node, tree))

@@ -60,6 +60,7 @@ from typing import TYPE_CHECKING, Any, Iterable
 
 import py_trees
 
+from runtime.tree import node_info
 from runtime.tree.behavior import NodeKind, Status
 from runtime.tree.controls import Visit
 from runtime.errors import ObjectiveError
@@ -170,7 +171,7 @@ def new_tree_uuid() -> bytes:
 
 def _unwrap(node: py_trees.behaviour.Behaviour) -> py_trees.behaviour.Behaviour:
     """The node a transparent wrapper (a condition guard) stands for."""
-    while getattr(node, "transparent", False):
+    while node_info.is_transparent(node):
         node = node.children[0]
     return node
 
@@ -201,7 +202,7 @@ def monitored_tree(loaded: "LoadedTree") -> MonitoredTree:
         nodes[uid] = node
         uids.append(uid)
         info = loaded.info(node)
-        xml_id = info.xml_id if info is not None else getattr(node, "xml_id", type(node).__name__)
+        xml_id = info.xml_id if info is not None else node_info.xml_id(node)
         written = info.values if info is not None else {}
         if isinstance(node, SubTree):
             named = node.name if node.name != xml_id else f"{xml_id}::{uid}"
@@ -214,7 +215,7 @@ def monitored_tree(loaded: "LoadedTree") -> MonitoredTree:
             return
         element = ET.SubElement(parent, xml_id, name=node.name, _uid=str(uid))
         element.attrib.update(_attributes(written, node))
-        models.setdefault(xml_id, (getattr(node, "kind", NodeKind.ACTION), type(node)))
+        models.setdefault(xml_id, (node_info.kind(node) or NodeKind.ACTION, type(node)))
         for child in _children(node):
             add_node(child, element, uids, path)
 
@@ -230,7 +231,7 @@ def monitored_tree(loaded: "LoadedTree") -> MonitoredTree:
 def _attributes(written: dict[str, str], node: Any) -> dict[str, str]:
     """The ports as written, every unwritten port that has a default, and the condition scripts."""
     attrs = {k: v for k, v in written.items() if k not in ("name", "ID", "_autoremap") and k not in METADATA_ATTRIBUTES}
-    for port in getattr(type(node), "ports", ()):
+    for port in node_info.ports(type(node)):
         if port.name not in attrs and port.has_default and port.direction is not Direction.OUTPUT:
             attrs[port.name] = port.describe_default()
     return attrs
@@ -238,7 +239,7 @@ def _attributes(written: dict[str, str], node: Any) -> dict[str, str]:
 
 def _model(xml_id: str, kind: NodeKind, cls: type) -> ET.Element:
     element = ET.Element(kind.value, ID=xml_id)
-    for port in getattr(cls, "ports", ()):
+    for port in node_info.ports(cls):
         attrs = {"name": port.name, "type": "std::string" if port.type is PortType.STRING else port.type.value}
         if port.has_default:
             attrs["default"] = port.describe_default()
@@ -274,7 +275,7 @@ def reported_statuses(visited: Iterable[Visit]) -> dict[int, Status]:
     reported: dict[int, Status] = {}
     for node, status, _ in visited:
         reported[id(node)] = status
-        if getattr(node, "transparent", False):
+        if node_info.is_transparent(node):
             reported.setdefault(id(_unwrap(node)), status)
     return reported
 

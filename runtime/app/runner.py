@@ -36,10 +36,11 @@ from typing import AbstractSet, Any, Callable, Iterable, Sequence
 
 import py_trees
 
+from runtime.tree import node_info
 from runtime.tree.behavior import NodeMixin, RunContext, Status, SummarisesRun
 from runtime.io.bus import InProcessBus, InterruptibleWaits, capability, parse_latency
 from runtime.io.clock import Clock, SimClock, WallClock
-from runtime.tree.controls import SKIPPED, Visit, is_skipped, tick_tree
+from runtime.tree.controls import SKIPPED, Visit, tick_tree
 from runtime.tree.crash import CRASH_LOG, culprit, describe_crash, write_traceback
 from runtime.errors import ObjectiveError, ObjectiveRuntimeError, OptionError, error_kind
 from runtime.tree.events import EventLog
@@ -254,7 +255,7 @@ def json_entries(board_items: Iterable[tuple[str, Any]]) -> dict[str, Any]:
 
 def _unwrap(node: py_trees.behaviour.Behaviour) -> py_trees.behaviour.Behaviour:
     """The node a transparent wrapper (a condition guard) stands for."""
-    while getattr(node, "transparent", False) and len(node.children) == 1:
+    while node_info.is_transparent(node) and len(node.children) == 1:
         node = node.children[0]
     return node
 
@@ -289,7 +290,7 @@ def _failing(root: py_trees.behaviour.Behaviour, visited: list[Visit]) -> tuple[
         return None
     node = blame(root)
     inner = _unwrap(node)
-    return inner, reason(node), getattr(inner, "failure_kind", None)
+    return inner, reason(node), node_info.failure_kind(inner)
 
 
 _RUNNING = Status.RUNNING.value
@@ -325,7 +326,7 @@ class StatusEvents:
             i = index.get(id(node))
             if i is not None:
                 seen.add(i)
-                name = "SKIPPED" if status is SKIPPED and is_skipped(node) else status._value_  # .value is a slow property
+                name = "SKIPPED" if status is SKIPPED and node_info.is_skipped(node) else status._value_  # .value is a slow property
                 if last.get(i) != name:
                     self._emit(i, name, message)
         self.halted(seen)

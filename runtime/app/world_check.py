@@ -18,6 +18,7 @@ from dataclasses import dataclass, field, replace
 from typing import Any, Iterable, Iterator
 
 from runtime.io.bus import ServedListing, capability
+from runtime.tree import node_info
 from runtime.tree.behavior import RunContext
 from runtime.tree.resources import WAYPOINTS
 from runtime.errors import ObjectiveError, PortError, SetupError
@@ -140,7 +141,7 @@ def _named(nodes: Iterable[Any]) -> Iterator[tuple[Any, str, Names, str]]:
     for record in nodes:
         node = record.node
         lenient = node.lenient_names() if callable(getattr(node, "lenient_names", None)) else ()
-        for port, binding in getattr(node, "bindings", {}).items():
+        for port, binding in node_info.bindings(node).items():
             names = binding.info.names
             if names is None or binding.info.direction is Direction.OUTPUT or port in lenient:
                 continue
@@ -158,7 +159,7 @@ def declared_interfaces(nodes: Iterable[Any]) -> list[type]:
     each once, in the order first declared: what the run may create clients of."""
     seen: dict[type, None] = {}
     for node in nodes:
-        for binding in getattr(node, "bindings", {}).values():
+        for binding in node_info.bindings(node).values():
             names = binding.info.names
             for kind in () if names is None else names.interfaces:
                 seen.setdefault(kind, None)

@@ -30,6 +30,7 @@ from typing import Any, Iterator, cast
 
 import py_trees
 
+from . import node_info
 from .behavior import NodeMixin, Status
 from .controls import COMPLETED, SKIPPED, Behaviour, tick_child
 from runtime.errors import LoadError, ScriptRunError, SourceLocation
@@ -42,7 +43,7 @@ CONDITION_ATTRIBUTES = PRE_CONDITIONS + POST_CONDITIONS
 
 
 def _node_label(node: Behaviour) -> str:
-    return f"{getattr(node, 'xml_id', type(node).__name__)} '{node.name}'"
+    return f"{node_info.xml_id(node)} '{node.name}'"
 
 
 def attach_conditions(node: Behaviour, attrs: dict[str, str], location: SourceLocation | None) -> Behaviour:
@@ -65,7 +66,7 @@ def attach_conditions(node: Behaviour, attrs: dict[str, str], location: SourceLo
             raise LoadError(f"attribute '{name}': {err}", location, label) from None
     if not scripts:
         return node
-    if not hasattr(node, "blackboard"):
+    if node_info.blackboard(node) is None:
         raise LoadError("condition attributes need a node bound to a blackboard", location, label)
     return ConditionGuard(node, scripts, location)
 
@@ -82,8 +83,8 @@ class ConditionGuard(py_trees.composites.Composite):
         self.scripts = dict(scripts)
         self.location = location
         self.skipped = False
-        self.xml_id = getattr(node, "xml_id", type(node).__name__)
-        self.kind = getattr(node, "kind", None)
+        self.xml_id = node_info.xml_id(node)
+        self.kind = node_info.kind(node)
 
     # The guard's status and feedback are the node's own.
     @property

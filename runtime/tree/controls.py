@@ -41,6 +41,7 @@ from typing import Any, ClassVar, Generator, Iterator
 
 import py_trees
 
+from . import node_info
 from .behavior import NodeKind, NodeMixin, Status
 from runtime.errors import ObjectiveError
 from .ports import INT32_MAX, INT32_MIN, InputPort, PortType, Range
@@ -55,11 +56,6 @@ COMPLETED = (Status.SUCCESS, Status.FAILURE)
 
 
 # -- the node protocol shared by controls, decorators and condition guards --------------------
-def is_skipped(node: Behaviour) -> bool:
-    """True when ``node`` was skipped in the tick it just ran."""
-    return bool(getattr(node, "skipped", False))
-
-
 def tick_child(child: Behaviour) -> TickGenerator:
     """Tick ``child`` (yielding what it visits, as py_trees expects) and return its result.
 
@@ -67,13 +63,13 @@ def tick_child(child: Behaviour) -> TickGenerator:
     FAILURE or SKIPPED.
     """
     yield from child.tick()
-    if is_skipped(child):
+    if node_info.is_skipped(child):
         return SKIPPED
     if child.status is Status.INVALID:
         raise ObjectiveError(
             "returned INVALID from a tick: a node must return RUNNING, SUCCESS or FAILURE",
-            getattr(child, "location", None),
-            f"{getattr(child, 'xml_id', type(child).__name__)} '{child.name}'",
+            node_info.location(child),
+            f"{node_info.xml_id(child)} '{child.name}'",
         )
     return child.status
 
@@ -111,7 +107,7 @@ def tick_tree(root: Behaviour) -> Tick:
     fresh run.
     """
     visited = [(node, node.status, node.feedback_message) for node in root.tick()]
-    result = SKIPPED if is_skipped(root) else root.status
+    result = SKIPPED if node_info.is_skipped(root) else root.status
     if result in COMPLETED:
         reset_status(root)
     return Tick(result, visited)
@@ -125,7 +121,7 @@ def tick_root(root: Behaviour) -> Status:
 def _at_tree_root(node: Behaviour) -> bool:
     """True when only transparent wrappers (condition guards) sit above ``node``."""
     parent = node.parent
-    while parent is not None and getattr(parent, "transparent", False):
+    while parent is not None and node_info.is_transparent(parent):
         parent = parent.parent
     return parent is None
 

@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import Any, Iterable
 
 from runtime.errors import InternalError, SourceLocation
+from . import node_info
 
 DEFAULT_LOG_DIR = Path("build") / "logs"
 CRASH_LOG = "error.log"
@@ -80,7 +81,7 @@ def describe_crash(error: BaseException, node: Any | None, log_file: Path | None
            else "the traceback could not be written to a file")
     what = f"{where}: {detail or 'no message'}. {consequence}; {log}"
     if node is not None:
-        xml_id = getattr(node, "xml_id", type(node).__name__)
+        xml_id = node_info.xml_id(node)
         label = xml_id if node.name == xml_id else f"{xml_id} '{node.name}'"
-        location = location or getattr(node, "location", None)
+        location = location or node_info.location(node)
     return InternalError(what, location, label)

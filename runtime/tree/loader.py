@@ -38,6 +38,7 @@ from typing import Any, Callable, Iterable, Sequence
 import py_trees
 from lxml import etree
 
+from . import node_info
 from .behavior import NodeKind, NodeMixin, RunContext
 from .blackboard import Blackboard
 from .crash import LOAD_STOPPED, describe_crash, write_traceback
@@ -566,7 +567,7 @@ class _Builder:
             node = make(name)
             node.bind(self.context, blackboard, values, loc, node_id)
         except ObjectiveError as err:
-            if self.collect and hasattr(node, "bindings"):
+            if self.collect and node_info.has_bindings(node):
                 self.unbuilt.append(LoadedNode(node, node_id, cls.kind, loc, dict(element.attrib), tuple(self.calls)))
             raise self._look_into(element, doc, file, blackboard, stack, err, depth) from None
         except ObjectiveRuntimeError:
@@ -922,10 +923,10 @@ def _written_slots(nodes: Iterable[LoadedNode]) -> set[tuple[int, str]]:
         if isinstance(node, SubTree):
             slots.update((id(node.child_blackboard), port) for port in node.literals)
             continue
-        board = getattr(node, "blackboard", None)
+        board = node_info.blackboard(node)
         if board is None:
             continue
-        for binding in getattr(node, "bindings", {}).values():
+        for binding in node_info.bindings(node).values():
             if binding.key is not None and binding.info.direction is not Direction.INPUT:
                 add(board, binding.key)
         for value in info.values.values():
@@ -945,10 +946,10 @@ def unset_reads(loaded: LoadedTree, root_ports: set[str], top_level: bool) -> li
     errors: list[PortError] = []
     for info in loaded.nodes:
         node = info.node
-        board = getattr(node, "blackboard", None)
+        board = node_info.blackboard(node)
         if board is None or isinstance(node, SubTree):
             continue
-        for port, binding in getattr(node, "bindings", {}).items():
+        for port, binding in node_info.bindings(node).items():
             if binding.key is None or binding.info.direction is not Direction.INPUT:
                 continue
             owner, key = board.owner(binding.key)

@@ -49,6 +49,7 @@ from std_srvs.srv import Trigger
 from objective_server_msgs.action import DoObjective
 from objective_server_msgs.msg import ObjectiveInfo, ObjectivePort
 from objective_server_msgs.srv import ExecuteObjective, ListObjectives
+from runtime.tree import node_info
 from runtime.tree.behavior import SummarisesRun
 from runtime.tree.controls import Visit
 from runtime.tree.crash import describe_crash, write_traceback
@@ -135,7 +136,7 @@ def feedback(root: Any, now_s: float, ticks: int) -> Any:
     """The feedback message for the tree ``root`` now."""
     message = DoObjective.Feedback()
     leaves = running_leaves(root)
-    message.running_nodes = [f"{n.name} ({getattr(n, 'xml_id', type(n).__name__)})" for n in leaves]
+    message.running_nodes = [f"{n.name} ({node_info.xml_id(n)})" for n in leaves]
     message.clock_s = float(now_s)
     message.ticks = ticks
     progress: dict[str, Any] = {}
