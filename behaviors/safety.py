@@ -107,12 +107,17 @@ class MotionSafety:
         acceleration limits or outside the Cartesian envelope (at one sample, a joint limit is
         reported first): the one limit check of every behavior that sends motion."""
         joint = self.limits.check(samples.positions, samples.velocities, samples.accelerations, samples.times)
-        if self.envelope is None or len(samples) == 0:
-            return joint
-        end = len(samples) if joint is None else joint.step
-        cartesian = check_envelope(self.envelope, self.scene.robot, self.scene.layout(self.group, None),
-                                   samples.positions[:end], samples.velocities[:end], samples.times[:end])
+        cartesian = self.first_envelope_violation(samples, len(samples) if joint is None else joint.step)
         return joint if cartesian is None else cartesian
+
+    def first_envelope_violation(self, samples: Samples, end: int | None = None) -> EnvelopeViolation | None:
+        """The earliest of the first ``end`` samples (all: None) of a motion outside the Cartesian
+        envelope; None without an envelope."""
+        if self.envelope is None or len(samples) == 0:
+            return None
+        end = len(samples) if end is None else end
+        return check_envelope(self.envelope, self.scene.robot, self.scene.layout(self.group, None),
+                              samples.positions[:end], samples.velocities[:end], samples.times[:end])
 
     def pose_check(self, margin_m: float = 0.005, margin_deg: float = 1.0) -> Callable[[NDArray[np.float64]], bool]:
         """Whether the group's joint positions put every frame inside the keep-in boxes and the

@@ -3,7 +3,8 @@
 validate (``read_chunk`` of a 50-step GetActionChunk chunk with the gripper column) + smooth
 (``fit_chunk``) + blend (``join_at_seam``, and the window's tail: the chunk's steps beyond the
 window, then a runout) + densify (the tail adds one sample per 10 ms after the window) + limit checks (position, velocity,
-acceleration of every densified point) + self and world collision checks (``make_safety`` over
+acceleration of every densified point) + the Cartesian envelope (keep-in boxes, tool cone and TCP speeds of
+every densified point) + self and world collision checks (``make_safety`` over
 the real cell planning scene, ``sim.planning.make_cell_scene``: UR5e + 2F-85, table, three cubes,
 padding 0.01 m), at ``num_interpolation_points`` 100, 200 and 400, as a fraction of the committed
 window ``committed_action_steps * dt`` = 20 * 0.1 s = 2 s. The chunk is collision-free, so every
@@ -13,7 +14,8 @@ Two rows per point count, alternating repeat by repeat so both see the same mach
 ``early_out`` (what ExecutePolicy runs: ``check_path`` settles proven-free runs of points with one
 check, ``runtime/motion/scene/swept.py``) and ``per_point`` (every point checked on its own, the same
 answers); ``speedup`` is per_point's median over early_out's, for the whole pipeline and for the
-collision stage.
+collision stage. ``p50_without_envelope_ms`` is the median of each repeat's total less its
+envelope stage: the pipeline of a cell without a Cartesian envelope.
 
     .venv/bin/python benchmarks/bench_pipeline.py [--repeats N]
 """
@@ -42,7 +44,7 @@ from sim.robot_model import ARM_JOINTS, GRIPPER_DRIVER_JOINT, load_waypoints
 
 DT, COMMITTED, CHUNK_STEPS, WEIGHT, PADDING = 0.1, 20, 50, 300.0, 0.01
 WINDOW_MS = COMMITTED * DT * 1000.0
-STAGES = ("validate", "smooth", "blend", "densify", "limits", "collision")
+STAGES = ("validate", "smooth", "blend", "densify", "limits", "envelope", "collision")
 
 
 def make_inputs() -> tuple[Any, Any, Any]:
@@ -91,7 +93,9 @@ def pipeline(safety: Any, snapshot: Any, msg: Any, points: int, clock: Callable[
     mark()
     samples = densify(motion, points)
     mark()
-    violation = safety.first_limit_violation(samples)
+    violation = safety.limits.check(samples.positions, samples.velocities, samples.accelerations, samples.times)
+    mark()
+    violation = violation or safety.first_envelope_violation(samples)  # together: safety.first_limit_violation
     mark()
     if early_out:
         collision = safety.first_collision(snapshot, samples, PADDING, 0.0)
@@ -113,6 +117,7 @@ def main() -> None:
     methods = {"early_out": True, "per_point": False}
     for points in (100, 200, 400):
         totals: dict[str, list[float]] = {m: [] for m in methods}
+        without_envelope: dict[str, list[float]] = {m: [] for m in methods}
         stages: dict[str, dict[str, list[float]]] = {m: {s: [] for s in STAGES} for m in methods}
         for method, early_out in methods.items():
             for _ in range(5):
@@ -122,6 +127,7 @@ def main() -> None:
                 start = time.perf_counter()
                 split = pipeline(safety, snapshot, msg, points, time.perf_counter, early_out)
                 totals[method].append((time.perf_counter() - start) * 1000.0)
+                without_envelope[method].append(totals[method][-1] - split["envelope"] * 1000.0)
                 for name, seconds in split.items():
                     stages[method][name].append(seconds * 1000.0)
         for method in methods:
@@ -132,6 +138,7 @@ def main() -> None:
                 "collision_method": method,
                 "p50_ms": rounded(p50, 3),
                 "p95_ms": rounded(percentile(totals[method], 95), 3),
+                "p50_without_envelope_ms": rounded(percentile(without_envelope[method], 50), 3),
                 "window_fraction": rounded(p50 / WINDOW_MS, 5),
                 "repeats": args.repeats,
             }
@@ -141,7 +148,7 @@ def main() -> None:
         for row in (fast, slow):
             row["speedup"] = rounded(slow["p50_ms"] / row["p50_ms"], 2)
             row["collision_speedup"] = rounded(slow["collision_ms"] / row["collision_ms"], 2)
-    columns = ["points", "collision_method", "p50_ms", "p95_ms", "window_fraction", *(f"{s}_ms" for s in STAGES),
+    columns = ["points", "collision_method", "p50_ms", "p95_ms", "p50_without_envelope_ms", "window_fraction", *(f"{s}_ms" for s in STAGES),
                "speedup", "collision_speedup"]
     notes = [
         f"one 50-step chunk (6 arm joints + gripper), committed window {COMMITTED} x {DT} s = {WINDOW_MS:g} ms; "

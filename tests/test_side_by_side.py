@@ -10,7 +10,7 @@ ROOT = Path(__file__).resolve().parents[1]
 FAKE = '''import json, sys
 print("a table a person reads")
 for points in (100, 200):
-    print(json.dumps({{"bench": "fake", "points": points, "method": "m", "p50_ms": {value} * points}}))
+    print(json.dumps({{"bench": "fake", "points": points, "method": "m", "p50_ms": {value} * points, "other_ms": 4 * {value} * points}}))
 '''
 
 
@@ -39,6 +39,20 @@ def test_rows_are_matched_by_their_keys_and_each_field_gets_its_ratio(tmp_path):
     assert len(lines) == 2
     assert "method=m points=100" in lines[0] and "baseline         50  this        100  this/baseline  2.000" in lines[0]
     assert "method=m points=200" in lines[1] and "this/baseline  2.000" in lines[1]
+
+
+def test_a_field_named_differently_in_the_baseline_is_compared_with_this_checkouts(tmp_path):
+    """``--field THIS=BASELINE``: this checkout's ``other_ms`` (400 at 100 points) against the
+    baseline's ``p50_ms`` (50)."""
+    base = checkout(tmp_path, "base", 0.5)
+    this = checkout(tmp_path, "this", 1.0)
+    (this / "benchmarks" / "side_by_side.py").write_text((ROOT / "benchmarks" / "side_by_side.py").read_text())
+    done = subprocess.run([sys.executable, str(this / "benchmarks" / "side_by_side.py"), "--baseline", str(base), "--rounds", "1",
+                           "--key", "points", "--field", "other_ms=p50_ms", "bench_fake.py"], capture_output=True, text=True, check=False)
+    assert done.returncode == 0, done.stderr
+    lines = [line for line in done.stdout.splitlines() if not line.startswith("#")]
+    assert "method=m points=100" in lines[0] and "other_ms / p50_ms" in lines[0]
+    assert "baseline         50  this        400  this/baseline  8.000" in lines[0]
 
 
 def test_a_missing_baseline_script_is_named():
