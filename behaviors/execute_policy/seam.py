@@ -95,19 +95,26 @@ def blend_duration(
 def blend_offset(
     offset_position: NDArray[np.float64],
     offset_velocity: NDArray[np.float64],
-    offset_acceleration: NDArray[np.float64],
+    offset_acceleration: NDArray[np.float64] | None,
     duration_s: float,
     since_seam_s: NDArray[np.float64],
 ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
     """The blend's position, velocity and acceleration (each (M, J)) at ``since_seam_s`` (M,)
-    seconds after the seam: the offsets at 0, zero from ``duration_s`` on."""
+    seconds after the seam: the offsets at 0, zero from ``duration_s`` on. An
+    ``offset_acceleration`` of None is a zero one."""
     T = duration_s
     tau = np.clip(np.asarray(since_seam_s, dtype=float) / T, 0.0, 1.0)[:, None]
-    h0, h1, h2 = position_basis(tau), velocity_basis(tau), acceleration_basis(tau)
-    d, w, c = (np.asarray(x, dtype=float)[None, :] for x in (offset_position, offset_velocity, offset_acceleration))
-    position = d * h0[0] + w * T * h1[0] + c * T * T * h2[0]
-    velocity = d * h0[1] / T + w * h1[1] + c * T * h2[1]
-    acceleration = d * h0[2] / (T * T) + w * h1[2] / T + c * h2[2]
+    h0, h1 = position_basis(tau), velocity_basis(tau)
+    d, w = np.asarray(offset_position, dtype=float)[None, :], np.asarray(offset_velocity, dtype=float)[None, :]
+    position = d * h0[0] + w * T * h1[0]
+    velocity = d * h0[1] / T + w * h1[1]
+    acceleration = d * h0[2] / (T * T) + w * h1[2] / T
+    if offset_acceleration is not None:
+        h2 = acceleration_basis(tau)
+        c = np.asarray(offset_acceleration, dtype=float)[None, :]
+        position += c * T * T * h2[0]
+        velocity += c * T * h2[1]
+        acceleration += c * h2[2]
     return position, velocity, acceleration
 
 
@@ -227,7 +234,7 @@ class ChunkMotion:
         a = self.spline(k, nu=2) * (k_rate * k_rate)[:, None] + slope * k_accel[:, None]
         T = self.blend_duration
         inside = ((times >= self.seam) & (times <= self.seam + T))[:, None]
-        bp, bv, ba = blend_offset(self.offset_position, self.offset_velocity, np.zeros_like(self.offset_position), T, times - self.seam)
+        bp, bv, ba = blend_offset(self.offset_position, self.offset_velocity, None, T, times - self.seam)
         p = p + bp
         v = v + np.where(inside, bv, 0.0)
         a = a + np.where(inside, ba, 0.0)
