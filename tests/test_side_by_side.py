@@ -59,3 +59,22 @@ def test_a_missing_baseline_script_is_named():
     done = run("--baseline", "/nonexistent", "--field", "p50_ms", "bench_pipeline.py")
     assert done.returncode == 1
     assert done.stderr.strip() == "side_by_side: /nonexistent/benchmarks/bench_pipeline.py does not exist"
+
+
+def test_the_pipeline_of_two_checkouts_alternates_in_one_process():
+    """``pipeline_side_by_side.py`` with this checkout as its own baseline: every stage of both,
+    the envelope's, and the total without it."""
+    done = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "pipeline_side_by_side.py"), "--baseline", str(ROOT),
+                           "--points", "100", "--repeats", "2"], capture_output=True, text=True, check=False)
+    assert done.returncode == 0, done.stderr
+    stages = [line.split()[0] for line in done.stdout.splitlines() if not line.startswith("#")]
+    assert stages == ["validate", "smooth", "blend", "densify", "limits", "envelope", "collision", "total",
+                      "total_without_envelope"]
+    assert "this/baseline" in done.stdout.splitlines()[-1]
+
+
+def test_a_missing_baseline_pipeline_is_named():
+    done = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "pipeline_side_by_side.py"), "--baseline", "/nonexistent"],
+                          capture_output=True, text=True, check=False)
+    assert done.returncode == 1
+    assert done.stderr.strip() == "pipeline_side_by_side: /nonexistent/benchmarks/bench_pipeline.py does not exist"
