@@ -262,9 +262,12 @@ def test_metadata_crops_a_camera_before_the_resize_and_drops_only_the_ignored_im
 @needs_lerobot
 def test_noise_scale_zero_answers_one_chunk_per_observation_and_bad_metadata_values_are_named(checkpoint, backend, tmp_path):
     request = PolicyRequest(PROMPT, JOINTS, np.zeros(7), frames(), new_episode=True)
-    sampled = [backend.infer(request).actions for _ in range(2)]
+    later = PolicyRequest(PROMPT, JOINTS, np.zeros(7), frames())  # the same observation, later in the episode
+    sampled = [backend.infer(request).actions, backend.infer(later).actions]
     assert backend.describe()["noise_scale"] == 1.0
     assert np.abs(sampled[0] - sampled[1]).max() > 1e-3  # two samples of the flow differ
+    # a new episode starts the noise from the seed again: its first chunk is the first episode's
+    np.testing.assert_array_equal(backend.infer(request).actions, sampled[0])
 
     from policy.server import BackendOptions, make_backend
 
