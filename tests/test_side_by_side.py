@@ -26,16 +26,21 @@ def run(*args: str) -> subprocess.CompletedProcess[str]:
                           capture_output=True, text=True, check=False)
 
 
-def test_rows_are_matched_by_their_keys_and_each_field_gets_its_ratio(tmp_path):
-    """This checkout has no bench_fake.py, so the 'this' side is pointed at a copy through the
-    script's own path: the baseline's figures are half of this one's."""
+def compare_fakes(tmp_path: Path, *args: str) -> list[str]:
+    """side_by_side's figure lines for bench_fake.py, the baseline's figures half of this one's.
+    This checkout has no bench_fake.py, so the 'this' side is pointed at a copy through the
+    script's own path."""
     base = checkout(tmp_path, "base", 0.5)
     this = checkout(tmp_path, "this", 1.0)
     (this / "benchmarks" / "side_by_side.py").write_text((ROOT / "benchmarks" / "side_by_side.py").read_text())
-    done = subprocess.run([sys.executable, str(this / "benchmarks" / "side_by_side.py"), "--baseline", str(base), "--rounds", "2",
-                           "--key", "points", "--field", "p50_ms", "bench_fake.py"], capture_output=True, text=True, check=False)
+    done = subprocess.run([sys.executable, str(this / "benchmarks" / "side_by_side.py"), "--baseline", str(base), *args,
+                           "bench_fake.py"], capture_output=True, text=True, check=False)
     assert done.returncode == 0, done.stderr
-    lines = [line for line in done.stdout.splitlines() if not line.startswith("#")]
+    return [line for line in done.stdout.splitlines() if not line.startswith("#")]
+
+
+def test_rows_are_matched_by_their_keys_and_each_field_gets_its_ratio(tmp_path):
+    lines = compare_fakes(tmp_path, "--rounds", "2", "--key", "points", "--field", "p50_ms")
     assert len(lines) == 2
     assert "method=m points=100" in lines[0] and "baseline         50  this        100  this/baseline  2.000" in lines[0]
     assert "method=m points=200" in lines[1] and "this/baseline  2.000" in lines[1]
@@ -44,13 +49,7 @@ def test_rows_are_matched_by_their_keys_and_each_field_gets_its_ratio(tmp_path):
 def test_a_field_named_differently_in_the_baseline_is_compared_with_this_checkouts(tmp_path):
     """``--field THIS=BASELINE``: this checkout's ``other_ms`` (400 at 100 points) against the
     baseline's ``p50_ms`` (50)."""
-    base = checkout(tmp_path, "base", 0.5)
-    this = checkout(tmp_path, "this", 1.0)
-    (this / "benchmarks" / "side_by_side.py").write_text((ROOT / "benchmarks" / "side_by_side.py").read_text())
-    done = subprocess.run([sys.executable, str(this / "benchmarks" / "side_by_side.py"), "--baseline", str(base), "--rounds", "1",
-                           "--key", "points", "--field", "other_ms=p50_ms", "bench_fake.py"], capture_output=True, text=True, check=False)
-    assert done.returncode == 0, done.stderr
-    lines = [line for line in done.stdout.splitlines() if not line.startswith("#")]
+    lines = compare_fakes(tmp_path, "--rounds", "1", "--key", "points", "--field", "other_ms=p50_ms")
     assert "method=m points=100" in lines[0] and "other_ms / p50_ms" in lines[0]
     assert "baseline         50  this        400  this/baseline  8.000" in lines[0]
 
